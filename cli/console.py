@@ -1,0 +1,40 @@
+"""What both programs share on the terminal: a progress bar and one-line errors on stderr."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ngsim_graphs.errors import NgsimInputError
+
+stderr = Console(stderr=True)
+
+
+@contextmanager
+def progress_bar(enabled: bool = True) -> Iterator[Callable[[str, int, int], None]]:
+    """A callback (what, done, total) drawn as one bar on stderr; silent when disabled."""
+    if not enabled:
+        yield lambda _what, _done, _total: None
+        return
+    columns = (TextColumn("{task.description:<40}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=stderr, transient=True) as bar:
+        task = bar.add_task("starting", total=None)
+
+        def update(what: str, done: int, total: int) -> None:
+            bar.update(task, description=what, completed=done, total=total)
+
+        yield update
+
+
+@contextmanager
+def exit_on_input_error() -> Iterator[None]:
+    """Turn bad input into one line on stderr and exit status 1."""
+    try:
+        yield
+    except NgsimInputError as err:
+        stderr.print(f"error: {err}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None

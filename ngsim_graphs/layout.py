@@ -1,0 +1,118 @@
+"""The output directory: every path in it, the manifest, and how a build lands atomically.
+
+A build is written into a hidden sibling directory (`.NAME.partial-PID`) and renamed into place
+only when complete, with the manifest written last. A directory without a complete manifest is
+therefore never a finished build, and an interrupted build leaves nothing that looks finished.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+from ngsim_graphs.errors import NgsimInputError
+
+FORMAT_VERSION = 1
+MANIFEST_NAME = "manifest.json"
+TRACKS_DIR = "tracks"
+STAGING_DIR = "_staging"
+PARQUET_COMPRESSION = "zstd"
+
+
+def recording_name(location: str, period: str) -> str:
+    """The file-name stem of one recording: `us-101_0750am-0805am`."""
+    return f"{location}_{period}"
+
+
+def tracks_path(root: Path, location: str, period: str) -> Path:
+    """The tracks table of one recording (one row per track and 0.2 s grid step)."""
+    return root / TRACKS_DIR / f"{recording_name(location, period)}.parquet"
+
+
+def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> Path:
+    """Parsed raw rows of one recording from one input file, kept only while building."""
+    return root / STAGING_DIR / recording_name(location, period) / f"{file_index:04d}.parquet"
+
+
+def manifest_path(root: Path) -> Path:
+    return root / MANIFEST_NAME
+
+
+def config_hash(config: dict[str, Any]) -> str:
+    """sha256 of the config as canonical JSON: two builds with equal hashes were made alike."""
+    text = json.dumps(config, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def write_parquet(frame: pl.DataFrame, path: Path) -> None:
+    """Write a table with the project's fixed options (reproducible bytes for equal frames)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame.write_parquet(path, compression=PARQUET_COMPRESSION, statistics=True)
+
+
+def write_manifest(root: Path, manifest: dict[str, Any]) -> None:
+    """Write the manifest atomically; it is the last file of a build."""
+    target = manifest_path(root)
+    partial = target.with_suffix(".json.partial")
+    partial.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    os.replace(partial, target)
+
+
+def read_manifest(root: Path) -> dict[str, Any]:
+    """The manifest of a finished build; a clear error for anything else."""
+    path = manifest_path(root)
+    if not root.is_dir():
+        raise NgsimInputError(root, "not a directory")
+    if not path.is_file():
+        raise NgsimInputError(root, f"not a finished build: no {MANIFEST_NAME} (interrupted?)")
+    try:
+        manifest = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise NgsimInputError(path, f"unreadable manifest: {err.msg}", line=err.lineno) from None
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise NgsimInputError(
+            path, f"format version {manifest.get('format_version')!r}; expected {FORMAT_VERSION}"
+        )
+    return manifest
+
+
+def _check_target(out: Path, overwrite: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise NgsimInputError(out, "exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise NgsimInputError(out, "directory is not empty; pass --overwrite to replace it")
+
+
+@contextmanager
+def build_directory(out: Path, overwrite: bool) -> Iterator[Path]:
+    """Yield a fresh partial directory; on success it replaces `out`, on failure it is removed.
+
+    The previous content of `out` is removed only after the new build is complete.
+    """
+    _check_target(out, overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for leftover in out.parent.glob(f".{out.name}.partial-*"):
+        shutil.rmtree(leftover, ignore_errors=True)  # from a build that was killed
+    partial = out.parent / f".{out.name}.partial-{os.getpid()}"
+    partial.mkdir()
+    try:
+        yield partial
+        shutil.rmtree(partial / STAGING_DIR, ignore_errors=True)
+        if out.exists():
+            retired = out.parent / f".{out.name}.old-{os.getpid()}"
+            os.replace(out, retired)
+            os.replace(partial, out)
+            shutil.rmtree(retired)
+        else:
+            os.replace(partial, out)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise

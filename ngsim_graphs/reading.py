@@ -1,0 +1,317 @@
+"""Reading raw NGSIM files of all three formats into one parsed raw table per file.
+
+The format is told from the content (the first line), never from the file name. Every value is
+read as text first and parsed here, so that quoted thousands separators (`"1,156"`) parse and a
+malformed number is reported with its file, line and column. Units stay NGSIM's (feet, ms).
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import hashlib
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import polars as pl
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.schema import RawFormat
+
+SNIFF_BYTES = 64 * 1024
+CANDIDATE_SUFFIXES = (".csv", ".txt")
+ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
+_BAD_COLUMN = "__bad_column"
+_LINE = "__line"
+_FIELDS = "__fields"
+_EXTRA = "__extra"
+
+
+@dataclass(frozen=True)
+class RawFile:
+    """A parsed raw file: its rows (RAW_SCHEMA + location, + ROW) and what reading it counted."""
+
+    path: Path
+    raw_format: RawFormat
+    size_bytes: int
+    rows_read: int  # data rows in the file, blank lines excluded
+    rows_other_locations: int  # rows of locations the build did not choose (portal CSV only)
+    locations_found: tuple[str, ...]  # every location the file holds
+    frame: pl.DataFrame
+
+
+def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
+    """Expand files and directories into NGSIM files; returns (files, skipped non-NGSIM files).
+
+    A named file is always taken (reading it reports what is wrong with it). A directory is
+    searched recursively for .csv/.txt files whose first line looks like NGSIM data.
+    """
+    found: list[Path] = []
+    skipped: list[Path] = []
+    for path in paths:
+        if not path.exists():
+            raise NgsimInputError(path, "no such file or directory")
+        if path.is_file():
+            found.append(path)
+            continue
+        candidates = sorted(
+            p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in CANDIDATE_SUFFIXES
+        )
+        inside = []
+        for candidate in candidates:
+            try:
+                sniff_format(candidate)
+                inside.append(candidate)
+            except NgsimInputError:
+                skipped.append(candidate)
+        if not inside:
+            raise NgsimInputError(path, "no NGSIM trajectory files (.csv or .txt) in this directory")
+        found.extend(inside)
+    unique = list(dict.fromkeys(p.resolve() for p in found))
+    return unique, skipped
+
+
+def _first_line(path: Path) -> str:
+    with path.open("rb") as handle:
+        head = handle.read(SNIFF_BYTES)
+    text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
+    lines = [line for line in text.splitlines() if line.strip()]
+    if not lines:
+        raise NgsimInputError(path, "empty file: no header and no data")
+    return lines[0]
+
+
+def _header_names(line: str) -> list[str]:
+    return [name.strip().lower() for name in next(csv.reader([line]))]
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token.replace(",", ""))
+    except ValueError:
+        return False
+    return True
+
+
+def sniff_format(path: Path) -> RawFormat:
+    """Tell the format from the first line: a CSV header with Vehicle_ID, or 18 numbers."""
+    line = _first_line(path)
+    if "," in line:
+        header = _header_names(line)
+        if s.VEHICLE_ID in header or sum(c in header for c in s.TXT_COLUMNS) >= 9:
+            return RawFormat.PORTAL if s.LOCATION in header else RawFormat.CSV
+    tokens = line.split()
+    if len(tokens) == len(s.TXT_COLUMNS) and all(_is_number(t) for t in tokens):
+        return RawFormat.TXT
+    raise NgsimInputError(
+        path,
+        "not an NGSIM trajectory file: the first line is neither a CSV header with Vehicle_ID, "
+        f"Frame_ID, ... nor {len(s.TXT_COLUMNS)} whitespace-separated numbers",
+        line=1,
+    )
+
+
+def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> None:
+    required = s.TXT_COLUMNS + ((s.LOCATION,) if raw_format is RawFormat.PORTAL else ())
+    official = {name.lower(): name for name in s.PORTAL_HEADER}
+    for column in required:
+        if column not in header:
+            close = difflib.get_close_matches(column, header, n=1)
+            hint = f" (found '{close[0]}': misspelled?)" if close else ""
+            raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
+
+
+def _check_last_csv_line(path: Path, n_columns: int) -> None:
+    """A file cut off mid-line has a last line with fewer fields than the header."""
+    size = path.stat().st_size
+    with path.open("rb") as handle:
+        handle.seek(max(0, size - SNIFF_BYTES))
+        tail = handle.read().decode("utf-8", errors="replace")
+    lines = [line for line in tail.splitlines() if line.strip()]
+    if len(lines) < 2 and size <= SNIFF_BYTES:
+        raise NgsimInputError(path, "no data rows after the header")
+    n_fields = len(next(csv.reader(io.StringIO(lines[-1]))))
+    if n_fields < n_columns:
+        n_lines = _count_lines(path)
+        raise NgsimInputError(
+            path,
+            f"truncated last line: {n_fields} of {n_columns} fields (file cut off?)",
+            line=n_lines,
+        )
+
+
+def _count_lines(path: Path) -> int:
+    count = 0
+    last = b"\n"
+    with path.open("rb") as handle:
+        while chunk := handle.read(1 << 24):
+            count += chunk.count(b"\n")
+            last = chunk[-1:]
+    return count + (last != b"\n")
+
+
+def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
+    """CSV as text columns named by the lower-cased header, plus EXTRA for surplus fields.
+
+    Polars silently ignores surplus fields of a row; one spare column catches them, since a row
+    with more fields than the header (an unquoted "1,156", say) would otherwise shift values.
+    """
+    header = _header_names(_first_line(path))
+    frame = pl.scan_csv(
+        path,
+        has_header=False,
+        skip_rows=1,
+        schema={name: pl.String for name in [*header, _EXTRA]},
+        missing_columns="insert",
+        truncate_ragged_lines=True,
+        quote_char='"',
+        encoding="utf8-lossy",
+    )
+    return frame.with_row_index(ROW), header
+
+
+def _scan_txt_text(path: Path) -> pl.LazyFrame:
+    """Whitespace text: each line read whole, then split on runs of whitespace."""
+    lines = pl.scan_csv(
+        path,
+        has_header=False,
+        separator="\x1f",
+        quote_char=None,
+        new_columns=[_LINE],
+        infer_schema=False,
+        encoding="utf8-lossy",
+    ).with_row_index(ROW)
+    fields = lines.with_columns(pl.col(_LINE).str.extract_all(r"\S+").alias(_FIELDS)).filter(
+        pl.col(_FIELDS).list.len() > 0
+    )
+    return fields
+
+
+def _check_txt_field_counts(path: Path, fields: pl.LazyFrame) -> None:
+    expected = len(s.TXT_COLUMNS)
+    wrong = (
+        fields.filter(pl.col(_FIELDS).list.len() != expected)
+        .select(ROW, pl.col(_FIELDS).list.len().alias("n"))
+        .head(1)
+        .collect()
+    )
+    if wrong.height:
+        row, n_fields = wrong.row(0)
+        raise NgsimInputError(
+            path, f"{n_fields} fields where {expected} were expected (truncated line?)", line=row + 1
+        )
+
+
+def _number_exprs(
+    columns: tuple[str, ...], has_extra: bool
+) -> tuple[list[pl.Expr], pl.Expr]:
+    """Parse text columns to RAW_SCHEMA dtypes; also an expression naming the first bad column."""
+    parsed: list[pl.Expr] = []
+    bad = [pl.when(pl.col(_EXTRA).is_not_null()).then(pl.lit(_EXTRA))] if has_extra else []
+    for column in columns:
+        text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
+        number = text.cast(pl.Float64, strict=False)
+        is_bad = (text != "") & (number.is_null() | number.is_infinite() | number.is_nan())
+        parsed.append(number.cast(s.RAW_SCHEMA[column], strict=False).alias(column))
+        bad.append(pl.when(is_bad).then(pl.lit(column)))
+    return parsed, pl.coalesce(bad).alias(_BAD_COLUMN)
+
+
+def _raise_bad_number(path: Path, text: pl.LazyFrame, bad: pl.DataFrame, first_line: int) -> None:
+    row, column = bad.row(0)
+    if column == _EXTRA:
+        raise NgsimInputError(
+            path, "more fields than the header has (an unquoted comma?)", line=row + first_line
+        )
+    value = text.filter(pl.col(ROW) == row).select(column).collect().item()
+    official = {name.lower(): name for name in s.PORTAL_HEADER}[column]
+    raise NgsimInputError(
+        path, f"column {official}: {value!r} is not a number", line=row + first_line
+    )
+
+
+def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
+    """Read one NGSIM file of any format; keep rows of `locations` (portal CSV only).
+
+    Returns a frame with RAW_SCHEMA's columns (NGSIM units), `location` (null where the file does
+    not say) and ROW. Empty fields become null. Raises NgsimInputError for unusable input.
+    """
+    raw_format = sniff_format(path)
+    if raw_format is RawFormat.TXT:
+        text = _scan_txt_text(path)
+        _check_txt_field_counts(path, text)
+        text = text.select(
+            ROW, *(pl.col(_FIELDS).list.get(i).alias(c) for i, c in enumerate(s.TXT_COLUMNS))
+        )
+        first_line = 1
+    else:
+        text, header = _scan_csv_text(path)
+        _check_csv_columns(path, header, raw_format)
+        _check_last_csv_line(path, len(header))
+        first_line = 2
+    return _parse(path, raw_format, text, first_line, locations)
+
+
+def _parse(
+    path: Path,
+    raw_format: RawFormat,
+    text: pl.LazyFrame,
+    first_line: int,
+    locations: tuple[str, ...],
+) -> RawFile:
+    is_portal = raw_format is RawFormat.PORTAL
+    location = (
+        pl.col(s.LOCATION).str.strip_chars().str.to_lowercase()
+        if is_portal
+        else pl.lit(None, dtype=pl.String)
+    ).alias(s.LOCATION)
+    text = text.with_columns(location)
+    if raw_format is not RawFormat.TXT:
+        # Blank lines are all-null rows; they are neither data nor another location.
+        text = text.filter(pl.any_horizontal(pl.col(s.TXT_COLUMNS).is_not_null()))
+    kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
+    parsed, bad_column = _number_exprs(s.TXT_COLUMNS, has_extra=raw_format is not RawFormat.TXT)
+    query = kept.select(ROW, *parsed, s.LOCATION, bad_column)
+    counts = text.group_by(s.LOCATION).agg(pl.len().alias("rows"))
+    try:
+        frame, by_location = pl.collect_all([query, counts], engine="streaming")
+    except pl.exceptions.ComputeError as err:
+        raise _csv_structure_error(path, err) from None
+    bad = frame.filter(pl.col(_BAD_COLUMN).is_not_null()).select(ROW, _BAD_COLUMN).head(1)
+    if bad.height:
+        _raise_bad_number(path, text, bad, first_line)
+    found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls()))
+    rows_read = int(by_location["rows"].sum())
+    if is_portal and frame.height == 0:
+        raise NgsimInputError(
+            path,
+            f"holds none of the chosen locations ({', '.join(locations)}); "
+            f"it holds: {', '.join(found) or 'no rows'}",
+        )
+    if not is_portal and rows_read == 0:
+        raise NgsimInputError(path, "no data rows")
+    return RawFile(
+        path=path,
+        raw_format=raw_format,
+        size_bytes=path.stat().st_size,
+        rows_read=rows_read,
+        rows_other_locations=rows_read - frame.height,
+        locations_found=found,
+        frame=frame.drop(_BAD_COLUMN),
+    )
+
+
+def _csv_structure_error(path: Path, err: Exception) -> NgsimInputError:
+    message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+    return NgsimInputError(path, f"cannot parse as CSV: {message}")
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of a file's bytes, read in 16 MiB chunks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        while chunk := handle.read(1 << 24):
+            digest.update(chunk)
+    return digest.hexdigest()

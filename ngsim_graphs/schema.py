@@ -1,0 +1,138 @@
+"""Column names and dtypes of every table the pipeline reads or writes. No logic lives here.
+
+Raw tables keep NGSIM's own units (feet, feet/s, feet/s^2, milliseconds); the tracks table is in SI
+units (metres, seconds, metres per second, radians).
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from typing import Final
+
+import polars as pl
+
+
+class RawFormat(str, Enum):
+    """The three file formats in which NGSIM trajectories are distributed (SPEC section 1)."""
+
+    PORTAL = "portal"  # combined CSV of all locations, with a Location column
+    CSV = "csv"  # one period, CSV with a header
+    TXT = "txt"  # one period, whitespace-separated, no header
+
+
+# Canonical raw column names: NGSIM's header names in lower case. Readers match headers
+# case-insensitively, so `v_Length` and `v_length` both map to `v_length`.
+VEHICLE_ID: Final = "vehicle_id"
+FRAME_ID: Final = "frame_id"
+TOTAL_FRAMES: Final = "total_frames"
+GLOBAL_TIME: Final = "global_time"
+LOCAL_X: Final = "local_x"
+LOCAL_Y: Final = "local_y"
+GLOBAL_X: Final = "global_x"
+GLOBAL_Y: Final = "global_y"
+V_LENGTH: Final = "v_length"
+V_WIDTH: Final = "v_width"
+V_CLASS: Final = "v_class"
+V_VEL: Final = "v_vel"
+V_ACC: Final = "v_acc"
+LANE_ID: Final = "lane_id"
+PRECEDING: Final = "preceding"
+FOLLOWING: Final = "following"
+SPACE_HEADWAY: Final = "space_headway"
+TIME_HEADWAY: Final = "time_headway"
+LOCATION: Final = "location"
+
+# The 18 columns of the original whitespace text files, in file order. Per-period CSVs and the
+# portal CSV carry them too (plus zone/intersection columns the pipeline does not use).
+TXT_COLUMNS: Final[tuple[str, ...]] = (
+    VEHICLE_ID, FRAME_ID, TOTAL_FRAMES, GLOBAL_TIME, LOCAL_X, LOCAL_Y, GLOBAL_X, GLOBAL_Y,
+    V_LENGTH, V_WIDTH, V_CLASS, V_VEL, V_ACC, LANE_ID, PRECEDING, FOLLOWING,
+    SPACE_HEADWAY, TIME_HEADWAY,
+)  # fmt: skip
+
+# The 25 columns of the combined portal CSV, in file order, with the official header spelling.
+PORTAL_HEADER: Final[tuple[str, ...]] = (
+    "Vehicle_ID", "Frame_ID", "Total_Frames", "Global_Time", "Local_X", "Local_Y", "Global_X",
+    "Global_Y", "v_length", "v_Width", "v_Class", "v_Vel", "v_Acc", "Lane_ID", "O_Zone", "D_Zone",
+    "Int_ID", "Section_ID", "Direction", "Movement", "Preceding", "Following", "Space_Headway",
+    "Time_Headway", "Location",
+)  # fmt: skip
+
+# The header of a per-period CSV: the portal's columns without Location.
+PERIOD_CSV_HEADER: Final[tuple[str, ...]] = PORTAL_HEADER[:-1]
+
+# Dtypes of the parsed raw table (NGSIM units). Columns a reader needs before it can place a row
+# anywhere; a row with one of them empty is dropped and counted.
+RAW_SCHEMA: Final = pl.Schema(
+    {
+        VEHICLE_ID: pl.Int32,
+        FRAME_ID: pl.Int32,
+        TOTAL_FRAMES: pl.Int32,
+        GLOBAL_TIME: pl.Int64,
+        LOCAL_X: pl.Float64,
+        LOCAL_Y: pl.Float64,
+        GLOBAL_X: pl.Float64,
+        GLOBAL_Y: pl.Float64,
+        V_LENGTH: pl.Float64,
+        V_WIDTH: pl.Float64,
+        V_CLASS: pl.Int8,
+        V_VEL: pl.Float64,
+        V_ACC: pl.Float64,
+        LANE_ID: pl.Int16,
+        PRECEDING: pl.Int32,
+        FOLLOWING: pl.Int32,
+        SPACE_HEADWAY: pl.Float64,
+        TIME_HEADWAY: pl.Float64,
+    }
+)
+REQUIRED_VALUE_COLUMNS: Final[tuple[str, ...]] = (
+    VEHICLE_ID, FRAME_ID, GLOBAL_TIME, LOCAL_X, LOCAL_Y, V_VEL,
+)  # fmt: skip
+
+# Recording identity columns, added by the reader to every raw row.
+PERIOD: Final = "period"
+RECORDING_KEY: Final[tuple[str, str]] = (LOCATION, PERIOD)
+
+# NGSIM sentinels.
+NO_LEADER_TIME_HEADWAY_S: Final = 9999.99
+NO_NEIGHBOUR_ID: Final = 0
+
+# The tracks table: one row per track and 0.2 s grid step, SI units.
+TRACK_ID = "track_id"  # dense id over the whole table, in (location, period, vehicle, frame) order
+SEGMENT = "segment"  # 0, 1, ... : pieces of one vehicle's record split at frame gaps
+TIME_S = "time_s"  # frame_id * 0.1 s: seconds since the recording's frame 0
+X_M = "x_m"  # Local_X in metres (lateral)
+Y_M = "y_m"  # Local_Y in metres (longitudinal, direction of travel)
+HEADING_RAD = "heading_rad"  # from +y towards +x
+SPEED_MPS = "speed_mps"
+ACCEL_MPS2 = "accel_mps2"
+LENGTH_M = "length_m"
+WIDTH_M = "width_m"
+SPACE_HEADWAY_M = "space_headway_m"
+TIME_HEADWAY_S = "time_headway_s"
+
+TRACKS_SCHEMA: Final = pl.Schema(
+    {
+        LOCATION: pl.String,
+        PERIOD: pl.String,
+        VEHICLE_ID: pl.Int32,
+        SEGMENT: pl.Int16,
+        TRACK_ID: pl.Int32,
+        FRAME_ID: pl.Int32,
+        TIME_S: pl.Float64,
+        GLOBAL_TIME: pl.Int64,
+        X_M: pl.Float64,
+        Y_M: pl.Float64,
+        HEADING_RAD: pl.Float64,
+        SPEED_MPS: pl.Float64,
+        ACCEL_MPS2: pl.Float64,
+        LANE_ID: pl.Int16,
+        V_CLASS: pl.Int8,
+        LENGTH_M: pl.Float64,
+        WIDTH_M: pl.Float64,
+        PRECEDING: pl.Int32,  # null where NGSIM says 0 (none)
+        FOLLOWING: pl.Int32,  # null where NGSIM says 0 (none)
+        SPACE_HEADWAY_M: pl.Float64,  # null where there is no leader
+        TIME_HEADWAY_S: pl.Float64,  # null where NGSIM says 9999.99 (no leader)
+    }
+)
