@@ -15,7 +15,6 @@ from ngsim_graphs.building import BuildResult, run_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.layout import read_manifest
 from ngsim_graphs.schema import RawFormat
-from ngsim_graphs.synthesis import write_synthetic
 
 app = typer.Typer(
     help="NGSIM US-101 / I-80 trajectories to spatial-temporal graph datasets.",
@@ -46,6 +45,8 @@ def synth(
     ] = False,
 ) -> None:
     """Write synthetic NGSIM-shaped trajectories (simulated traffic, NOT real NGSIM data)."""
+    from ngsim_graphs.synthesis import write_synthetic  # the simulator loads only when used
+
     config = _config_or_exit(
         SynthConfig, raw_format=raw_format, recordings=recordings, minutes=minutes, seed=seed, quirks=quirks
     )

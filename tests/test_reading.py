@@ -1,0 +1,165 @@
+"""Format detection and parsing of each NGSIM format, each quirk, and each kind of bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from conftest import make_row, straight_track, write_period_csv, write_portal, write_txt
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.reading import ROW, find_raw_files, read_raw_file, sniff_format
+from ngsim_graphs.schema import RawFormat
+
+US = ("us-101", "i-80")
+
+
+def values(path: Path) -> list[tuple]:
+    return read_raw_file(path, US).frame.drop(ROW, s.LOCATION).rows()
+
+
+def test_each_format_is_detected_from_content_not_name(tmp_path: Path) -> None:
+    rows = straight_track(1, range(3))
+    # Names that lie about the format: detection must read the first line.
+    portal = write_portal(tmp_path / "a.txt", rows)
+    period = write_period_csv(tmp_path / "b.txt", rows)
+    text = write_txt(tmp_path / "c.csv", rows)
+    assert sniff_format(portal) is RawFormat.PORTAL
+    assert sniff_format(period) is RawFormat.CSV
+    assert sniff_format(text) is RawFormat.TXT
+
+
+def test_three_formats_parse_to_the_same_values(tmp_path: Path) -> None:
+    rows = straight_track(7, range(4), speed_fps=45.5) + [make_row(8, 2, local_y_ft=1156.25)]
+    portal = values(write_portal(tmp_path / "p.csv", rows, quirks=True))
+    period = values(write_period_csv(tmp_path / "c.csv", rows))
+    text = values(write_txt(tmp_path / "t.txt", rows))
+    assert portal == period == text
+    assert text[-1][:2] == (8, 2)
+    assert text[-1][s.TXT_COLUMNS.index(s.LOCAL_Y)] == 1156.25
+
+
+def test_portal_quirks_bom_crlf_and_quoted_thousands(tmp_path: Path) -> None:
+    path = write_portal(tmp_path / "p.csv", [make_row(1, 5, local_y_ft=1156.0, v_vel_fps=9.5)])
+    raw = path.read_bytes()
+    assert raw.startswith(b"\xef\xbb\xbf") and b"\r\n" in raw and b'"1,156"' in raw
+    frame = read_raw_file(path, US).frame
+    assert frame[s.LOCAL_Y].to_list() == [1156.0]
+    assert frame[s.TIME_HEADWAY].to_list() == [9999.99]  # was "9,999.99"
+    assert frame[s.GLOBAL_TIME].dtype == s.RAW_SCHEMA[s.GLOBAL_TIME]
+    assert frame[s.LOCATION].to_list() == ["us-101"]
+
+
+def test_header_spelling_and_case_variants(tmp_path: Path) -> None:
+    header = tuple(
+        {"v_length": "v_Length", "Vehicle_ID": "VEHICLE_ID", "Local_Y": "local_y"}.get(h, h)
+        for h in s.PERIOD_CSV_HEADER
+    )
+    path = write_period_csv(tmp_path / "c.csv", straight_track(3, range(2)), header=header, crlf=True)
+    frame = read_raw_file(path, US).frame
+    assert frame[s.VEHICLE_ID].to_list() == [3, 3]
+    assert frame[s.V_LENGTH].to_list() == [15.0, 15.0]
+
+
+def test_text_with_padding_blank_lines_and_no_final_newline(tmp_path: Path) -> None:
+    path = write_txt(tmp_path / "t.txt", straight_track(2, range(3)), final_newline=False)
+    lines = path.read_text().split("\n")
+    path.write_text("\n".join([lines[0], "", "   ", *lines[1:]]))
+    assert not path.read_bytes().endswith(b"\n")
+    raw = read_raw_file(path, US)
+    assert raw.rows_read == 3
+    assert raw.frame[s.FRAME_ID].to_list() == [0, 1, 2]
+    assert raw.frame[ROW].to_list() == [0, 3, 4]  # line numbers stay true to the file
+
+
+def test_empty_fields_become_null(tmp_path: Path) -> None:
+    rows = [make_row(1, 0), make_row(1, 1, v_acc=None, local_x=None)]
+    frame = read_raw_file(write_portal(tmp_path / "p.csv", rows), US).frame
+    assert frame[s.V_ACC].to_list() == [0.0, None]
+    assert frame[s.LOCAL_X].to_list() == [18.0, None]
+
+
+def test_location_filter_counts_and_keeps_chosen(tmp_path: Path) -> None:
+    rows = [make_row(1, 0), make_row(1, 1), make_row(2, 0)]
+    path = write_portal(tmp_path / "p.csv", rows, locations=["us-101", "lankershim", "i-80"])
+    raw = read_raw_file(path, ("us-101",))
+    assert raw.rows_read == 3 and raw.rows_other_locations == 2
+    assert raw.locations_found == ("i-80", "lankershim", "us-101")
+    assert raw.frame[s.LOCATION].to_list() == ["us-101"]
+
+
+def test_file_without_chosen_locations_names_those_it_holds(tmp_path: Path) -> None:
+    path = write_portal(tmp_path / "p.csv", [make_row(1, 0)], locations="peachtree")
+    with pytest.raises(NgsimInputError, match=r"p\.csv: holds none of the chosen.*it holds: peachtree"):
+        read_raw_file(path, US)
+
+
+def test_malformed_number_names_line_and_column(tmp_path: Path) -> None:
+    rows = straight_track(1, range(4))
+    rows[2][s.V_VEL] = "3O.5"  # letter O for zero
+    for path, line in ((write_portal(tmp_path / "p.csv", rows), 4), (write_txt(tmp_path / "t.txt", rows), 3)):
+        with pytest.raises(NgsimInputError) as err:
+            read_raw_file(path, US)
+        assert str(err.value) == f"{path}, line {line}: column v_Vel: '3O.5' is not a number"
+
+
+@pytest.mark.parametrize("suffix", ["csv", "txt"])
+def test_truncated_last_line(tmp_path: Path, suffix: str) -> None:
+    rows = straight_track(1, range(3))
+    path = tmp_path / f"cut.{suffix}"
+    (write_period_csv if suffix == "csv" else write_txt)(path, rows)
+    data = path.read_bytes().rstrip(b"\r\n")
+    path.write_bytes(data[: len(data) - 40])
+    with pytest.raises(NgsimInputError, match=r"cut\.\w+, line [34]: .*(truncated|fields)"):
+        read_raw_file(path, US)
+
+
+def test_more_fields_than_header_is_an_error(tmp_path: Path) -> None:
+    path = write_period_csv(tmp_path / "c.csv", straight_track(1, range(3)))
+    lines = path.read_text().splitlines()
+    lines[2] += ",7"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(NgsimInputError, match=r"c\.csv, line 3: more fields than the header"):
+        read_raw_file(path, US)
+
+
+def test_missing_and_misspelled_columns(tmp_path: Path) -> None:
+    header = tuple("Lcal_Y" if h == "Local_Y" else h for h in s.PERIOD_CSV_HEADER)
+    path = write_period_csv(tmp_path / "c.csv", [make_row(1, 0)], header=header)
+    with pytest.raises(NgsimInputError, match=r"line 1: missing column Local_Y \(found 'lcal_y'"):
+        read_raw_file(path, US)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "empty file"),
+        (b"\xef\xbb\xbf\r\n  \r\n", "empty file"),
+        (b'{"not": "ngsim"}\n', "not an NGSIM trajectory file"),
+        (b"a,b,c\n1,2,3\n", "not an NGSIM trajectory file"),
+        (b"1 2 3 4\n", "not an NGSIM trajectory file"),
+    ],
+)
+def test_files_that_are_not_ngsim(tmp_path: Path, content: bytes, message: str) -> None:
+    path = tmp_path / "x.csv"
+    path.write_bytes(content)
+    with pytest.raises(NgsimInputError, match=message):
+        read_raw_file(path, US)
+
+
+def test_directory_search_skips_other_files(tmp_path: Path) -> None:
+    good = write_txt(tmp_path / "us-101" / "trajectories-0750am-0805am.txt", [make_row(1, 0)])
+    (tmp_path / "README.txt").write_text("Read me first.\n")
+    (tmp_path / "photo.jpg").write_bytes(b"\xff\xd8")
+    files, skipped = find_raw_files([tmp_path])
+    assert files == [good.resolve()]
+    assert skipped == [tmp_path / "README.txt"]
+
+
+def test_directory_without_ngsim_files(tmp_path: Path) -> None:
+    (tmp_path / "notes.txt").write_text("nothing here\n")
+    with pytest.raises(NgsimInputError, match="no NGSIM trajectory files"):
+        find_raw_files([tmp_path])
+    with pytest.raises(NgsimInputError, match="no such file"):
+        find_raw_files([tmp_path / "missing.csv"])

@@ -1,0 +1,80 @@
+"""Recognising recordings (location, period) from frame 0's epoch time, also inside one file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import polars as pl
+import pytest
+from conftest import I80_FIRST, US101_FIRST, US101_SECOND, make_row
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.recordings import (
+    OFFICIAL_RECORDINGS,
+    find_official_recording,
+    label_recordings,
+    location_from_path,
+    period_label,
+)
+
+
+def frame_of(rows: list[dict], locations: list[str | None]) -> pl.DataFrame:
+    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    return frame.with_columns(pl.Series(s.LOCATION, locations, dtype=pl.String))
+
+
+def test_official_table_times() -> None:
+    # 07:50 PDT on 2005-06-15 is 14:50 UTC.
+    assert OFFICIAL_RECORDINGS[0].start_epoch_ms == 1118847000000
+    assert [r.period for r in OFFICIAL_RECORDINGS if r.location == "i-80"] == [
+        "0400-0415", "0500-0515", "0515-0530",
+    ]  # fmt: skip
+
+
+def test_find_official_recording_within_tolerance() -> None:
+    start = US101_SECOND.start_epoch_ms
+    assert find_official_recording(start - 4 * 60_000) == US101_SECOND
+    assert find_official_recording(I80_FIRST.start_epoch_ms + 30 * 60_000) is None  # 16:30
+    assert find_official_recording(start, "i-80") is None
+
+
+def test_period_label_of_unofficial_time() -> None:
+    # 2005-06-16 08:28:00 PDT = 15:28 UTC; 9000 frames = 15 minutes.
+    assert period_label(1118935680000, 9000) == "0828-0843"
+
+
+def test_combined_file_separates_periods_with_colliding_vehicle_ids() -> None:
+    rows = [
+        make_row(5, 0, start_ms=US101_FIRST.start_epoch_ms),
+        make_row(5, 1, start_ms=US101_FIRST.start_epoch_ms),
+        make_row(5, 0, start_ms=US101_SECOND.start_epoch_ms),
+        make_row(5, 0, start_ms=I80_FIRST.start_epoch_ms),
+    ]
+    labelled = label_recordings(frame_of(rows, ["us-101", "us-101", "us-101", "i-80"]), Path("x"))
+    keys = labelled.select(s.LOCATION, s.PERIOD).rows()
+    assert keys == [
+        ("us-101", "0750am-0805am"),
+        ("us-101", "0750am-0805am"),
+        ("us-101", "0805am-0820am"),
+        ("i-80", "0400-0415"),
+    ]
+
+
+def test_per_period_file_location_from_time_or_folder() -> None:
+    official = frame_of([make_row(1, 0, start_ms=I80_FIRST.start_epoch_ms)], [None])
+    assert label_recordings(official, Path("any.txt"))[s.LOCATION].to_list() == ["i-80"]
+    lankershim_ms = 1118935680000  # not one of the six: location from the folder name
+    # make_row puts frame 0 seven seconds before start_ms
+    other = frame_of([make_row(1, 0, start_ms=lankershim_ms + 7_000)], [None])
+    labelled = label_recordings(other, Path("/data/Lankershim/trajectories.txt"))
+    assert labelled.row(0, named=True)[s.LOCATION] == "lankershim"
+    assert labelled.row(0, named=True)[s.PERIOD] == "0828-0828"
+    with pytest.raises(NgsimInputError, match=r"nowhere\.txt: cannot tell the location"):
+        label_recordings(other, Path("/data/nowhere.txt"))
+
+
+def test_location_from_path_spellings() -> None:
+    assert location_from_path(Path("/d/US-101/vehicle-trajectory-data/x.csv")) == "us-101"
+    assert location_from_path(Path("/d/I80/x.txt")) == "i-80"
+    assert location_from_path(Path("/d/data/x.txt")) is None
