@@ -15,9 +15,9 @@ stderr = Console(stderr=True)
 
 
 @contextmanager
-def progress_bar(enabled: bool = True) -> Iterator[Callable[[str, int, int], None]]:
-    """A callback (what, done, total) drawn as one bar on stderr; silent when disabled."""
-    if not enabled:
+def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
+    """A callback (what, done, total) drawn as one bar on stderr; silent unless it is a terminal."""
+    if not stderr.is_terminal:
         yield lambda _what, _done, _total: None
         return
     columns = (TextColumn("{task.description:<40}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_input_error, progress_bar
+from ngsim_cli.console import exit_on_input_error, progress_bar, stderr
 from ngsim_graphs.building import BuildResult, run_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.layout import read_manifest
@@ -25,10 +25,12 @@ stdout = Console()
 
 
 def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
+    """The config dataclass, or one line on stderr and exit status 2 for an invalid option."""
     try:
         return factory(**kwargs)
     except ValueError as err:
-        raise typer.BadParameter(str(err)) from None
+        stderr.print(f"error: {err}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(2) from None
 
 
 @app.command()
@@ -58,11 +60,14 @@ def synth(
 
 def _summary_table(result: BuildResult) -> Table:
     table = Table(title=f"build {result.out_dir}")
-    for column in ("recording", "rows 10 Hz", "exact dup", "conflict dup", "gaps", "tracks", "rows 0.2 s"):
-        table.add_column(column, justify="left" if column == "recording" else "right")
+    table.add_column("location")
+    table.add_column("period", no_wrap=True)
+    for column in ("rows 10 Hz", "exact dup", "conflict dup", "gaps", "tracks", "rows 0.2 s"):
+        table.add_column(column, justify="right")
     for r in result.recordings:
         table.add_row(
-            f"{r.location} {r.period}",
+            r.location,
+            r.period,
             *(f"{v:,}" for v in (r.rows, r.exact_duplicates, r.conflicting_duplicates, r.gaps, r.tracks, r.grid_rows)),
         )
     return table
@@ -121,3 +126,7 @@ def stats(
 
 def main() -> None:
     app()
+
+
+if __name__ == "__main__":
+    main()

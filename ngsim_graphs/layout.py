@@ -91,16 +91,28 @@ def _check_target(out: Path, overwrite: bool) -> None:
         raise NgsimInputError(out, "directory is not empty; pass --overwrite to replace it")
 
 
+def _recover_interrupted_swap(out: Path) -> None:
+    """A build killed between its two renames left the previous build as `.NAME.old-PID`."""
+    for retired in sorted(out.parent.glob(f".{out.name}.old-*")):
+        if not out.exists():
+            os.replace(retired, out)  # the previous build comes back, as it was
+        else:
+            shutil.rmtree(retired, ignore_errors=True)
+    for leftover in out.parent.glob(f".{out.name}.partial-*"):
+        shutil.rmtree(leftover, ignore_errors=True)  # from a build that was killed
+
+
 @contextmanager
 def build_directory(out: Path, overwrite: bool) -> Iterator[Path]:
     """Yield a fresh partial directory; on success it replaces `out`, on failure it is removed.
 
-    The previous content of `out` is removed only after the new build is complete.
+    The previous content of `out` is removed only after the new build is complete, and folders
+    created for `out` are removed again if the build fails.
     """
-    _check_target(out, overwrite)
+    created = [p for p in (out.parent, *out.parent.parents) if not p.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
-    for leftover in out.parent.glob(f".{out.name}.partial-*"):
-        shutil.rmtree(leftover, ignore_errors=True)  # from a build that was killed
+    _recover_interrupted_swap(out)
+    _check_target(out, overwrite)
     partial = out.parent / f".{out.name}.partial-{os.getpid()}"
     partial.mkdir()
     try:
@@ -115,4 +127,7 @@ def build_directory(out: Path, overwrite: bool) -> Iterator[Path]:
             os.replace(partial, out)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
+        for folder in created:  # innermost first
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
         raise

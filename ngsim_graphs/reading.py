@@ -26,7 +26,6 @@ ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
 _BAD_COLUMN = "__bad_column"
 _LINE = "__line"
 _FIELDS = "__fields"
-_EXTRA = "__extra"
 
 
 @dataclass(frozen=True)
@@ -84,7 +83,8 @@ def _first_line(path: Path) -> str:
 
 
 def _header_names(line: str) -> list[str]:
-    return [name.strip().lower() for name in next(csv.reader([line]))]
+    """Header fields as spelled in the file, stripped."""
+    return [name.strip() for name in next(csv.reader([line]))]
 
 
 def _is_number(token: str) -> bool:
@@ -99,7 +99,7 @@ def sniff_format(path: Path) -> RawFormat:
     """Tell the format from the first line: a CSV header with Vehicle_ID, or 18 numbers."""
     line = _first_line(path)
     if "," in line:
-        header = _header_names(line)
+        header = [name.lower() for name in _header_names(line)]
         if s.VEHICLE_ID in header or sum(c in header for c in s.TXT_COLUMNS) >= 9:
             return RawFormat.PORTAL if s.LOCATION in header else RawFormat.CSV
     tokens = line.split()
@@ -116,60 +116,61 @@ def sniff_format(path: Path) -> RawFormat:
 def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> None:
     required = s.TXT_COLUMNS + ((s.LOCATION,) if raw_format is RawFormat.PORTAL else ())
     official = {name.lower(): name for name in s.PORTAL_HEADER}
+    present = {name.lower() for name in header}
+    # Only a name that matches no known column can be a misspelling of the missing one.
+    unknown = {name.lower(): name for name in header if name.lower() not in official}
     for column in required:
-        if column not in header:
-            close = difflib.get_close_matches(column, header, n=1)
-            hint = f" (found '{close[0]}': misspelled?)" if close else ""
+        if column not in present:
+            close = difflib.get_close_matches(column, list(unknown), n=1, cutoff=0.75)
+            hint = f" (found '{unknown[close[0]]}': misspelled?)" if close else ""
             raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
 
 
-def _check_last_csv_line(path: Path, n_columns: int) -> None:
-    """A file cut off mid-line has a last line with fewer fields than the header."""
-    size = path.stat().st_size
-    with path.open("rb") as handle:
-        handle.seek(max(0, size - SNIFF_BYTES))
-        tail = handle.read().decode("utf-8", errors="replace")
-    lines = [line for line in tail.splitlines() if line.strip()]
-    if len(lines) < 2 and size <= SNIFF_BYTES:
-        raise NgsimInputError(path, "no data rows after the header")
-    n_fields = len(next(csv.reader(io.StringIO(lines[-1]))))
-    if n_fields < n_columns:
-        n_lines = _count_lines(path)
-        raise NgsimInputError(
-            path,
-            f"truncated last line: {n_fields} of {n_columns} fields (file cut off?)",
-            line=n_lines,
-        )
+def _check_csv_field_counts(path: Path, n_columns: int) -> None:
+    """Every non-blank line must have as many fields as the header.
 
-
-def _count_lines(path: Path) -> int:
-    count = 0
-    last = b"\n"
-    with path.open("rb") as handle:
-        while chunk := handle.read(1 << 24):
-            count += chunk.count(b"\n")
-            last = chunk[-1:]
-    return count + (last != b"\n")
-
-
-def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
-    """CSV as text columns named by the lower-cased header, plus EXTRA for surplus fields.
-
-    Polars silently ignores surplus fields of a row; one spare column catches them, since a row
-    with more fields than the header (an unquoted "1,156", say) would otherwise shift values.
+    Polars fills a short row with nulls and drops a long row's surplus silently, so a row cut
+    short or shifted by an unquoted comma (`1,156`) would pass unnoticed: count the commas
+    outside quotes of every line instead, in one streaming pass.
     """
-    header = _header_names(_first_line(path))
-    frame = pl.scan_csv(
+    lines = pl.scan_csv(
         path,
         has_header=False,
         skip_rows=1,
-        schema={name: pl.String for name in [*header, _EXTRA]},
-        missing_columns="insert",
-        truncate_ragged_lines=True,
-        quote_char='"',
+        separator="\x1f",
+        quote_char=None,
+        new_columns=[_LINE],
+        infer_schema=False,
         encoding="utf8-lossy",
     )
-    return frame.with_row_index(ROW), header
+    unquoted = pl.col(_LINE).str.replace_all(r'"[^"]*"', "")
+    n_fields = unquoted.str.count_matches(",", literal=True) + 1
+    try:
+        wrong = (
+            lines.with_row_index(ROW)
+            .filter(pl.col(_LINE).str.strip_chars() != "")
+            .select(ROW, n_fields.alias("n"))
+            .filter(pl.col("n") != n_columns)
+            .head(1)
+            .collect(engine="streaming")
+        )
+    except pl.exceptions.NoDataError:
+        raise NgsimInputError(path, "no data rows") from None
+    if wrong.height:
+        row, n = wrong.row(0)
+        cause = "truncated line?" if n < n_columns else "an unquoted comma?"
+        raise NgsimInputError(
+            path, f"{n} fields where the header has {n_columns} ({cause})", line=row + 2
+        )
+
+
+def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
+    """CSV as text columns named by the lower-cased header; returns (frame, header as spelled)."""
+    header = _header_names(_first_line(path))
+    frame = pl.scan_csv(path, infer_schema=False, quote_char='"', encoding="utf8-lossy")
+    names = frame.collect_schema().names()
+    renamed = frame.rename({old: new.lower() for old, new in zip(names, header, strict=True)})
+    return renamed.with_row_index(ROW), header
 
 
 def _scan_txt_text(path: Path) -> pl.LazyFrame:
@@ -199,17 +200,16 @@ def _check_txt_field_counts(path: Path, fields: pl.LazyFrame) -> None:
     )
     if wrong.height:
         row, n_fields = wrong.row(0)
+        cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
         raise NgsimInputError(
-            path, f"{n_fields} fields where {expected} were expected (truncated line?)", line=row + 1
+            path, f"{n_fields} fields where {expected} were expected ({cause})", line=row + 1
         )
 
 
-def _number_exprs(
-    columns: tuple[str, ...], has_extra: bool
-) -> tuple[list[pl.Expr], pl.Expr]:
+def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
     """Parse text columns to RAW_SCHEMA dtypes; also an expression naming the first bad column."""
     parsed: list[pl.Expr] = []
-    bad = [pl.when(pl.col(_EXTRA).is_not_null()).then(pl.lit(_EXTRA))] if has_extra else []
+    bad: list[pl.Expr] = []
     for column in columns:
         text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
         number = text.cast(pl.Float64, strict=False)
@@ -221,10 +221,6 @@ def _number_exprs(
 
 def _raise_bad_number(path: Path, text: pl.LazyFrame, bad: pl.DataFrame, first_line: int) -> None:
     row, column = bad.row(0)
-    if column == _EXTRA:
-        raise NgsimInputError(
-            path, "more fields than the header has (an unquoted comma?)", line=row + first_line
-        )
     value = text.filter(pl.col(ROW) == row).select(column).collect().item()
     official = {name.lower(): name for name in s.PORTAL_HEADER}[column]
     raise NgsimInputError(
@@ -249,7 +245,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     else:
         text, header = _scan_csv_text(path)
         _check_csv_columns(path, header, raw_format)
-        _check_last_csv_line(path, len(header))
+        _check_csv_field_counts(path, len(header))
         first_line = 2
     return _parse(path, raw_format, text, first_line, locations)
 
@@ -272,7 +268,7 @@ def _parse(
         # Blank lines are all-null rows; they are neither data nor another location.
         text = text.filter(pl.any_horizontal(pl.col(s.TXT_COLUMNS).is_not_null()))
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
-    parsed, bad_column = _number_exprs(s.TXT_COLUMNS, has_extra=raw_format is not RawFormat.TXT)
+    parsed, bad_column = _number_exprs(s.TXT_COLUMNS)
     query = kept.select(ROW, *parsed, s.LOCATION, bad_column)
     counts = text.group_by(s.LOCATION).agg(pl.len().alias("rows"))
     try:
@@ -284,14 +280,14 @@ def _parse(
         _raise_bad_number(path, text, bad, first_line)
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls()))
     rows_read = int(by_location["rows"].sum())
-    if is_portal and frame.height == 0:
+    if rows_read == 0:
+        raise NgsimInputError(path, "no data rows")
+    if frame.height == 0:
         raise NgsimInputError(
             path,
             f"holds none of the chosen locations ({', '.join(locations)}); "
             f"it holds: {', '.join(found) or 'no rows'}",
         )
-    if not is_portal and rows_read == 0:
-        raise NgsimInputError(path, "no data rows")
     return RawFile(
         path=path,
         raw_format=raw_format,

@@ -1,0 +1,65 @@
+"""Benchmark: raw NGSIM-format files to the tracks table, at full NGSIM scale.
+
+Generates (or reuses) the six-recording, 15-minute synthetic input with `ngsim-graphs synth` in
+a child process, then times `run_build` in this process and prints rows, wall seconds, rows per
+second and peak resident memory. The input is synthetic: these are not NGSIM results.
+
+    python bench/bench_ingest.py --format portal --quirks
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ngsim_graphs.building import run_build
+from ngsim_graphs.config import BuildConfig
+
+
+def ensure_input(raw_dir: Path, raw_format: str, recordings: int, minutes: float, quirks: bool) -> float:
+    """Synthesize the input unless it is already there; returns the seconds it took (0 if reused)."""
+    if raw_dir.is_dir() and any(raw_dir.rglob("*.*")):
+        return 0.0
+    command = [
+        sys.executable, "-m", "ngsim_cli.ngsim", "synth", str(raw_dir), "--format", raw_format,
+        "--recordings", str(recordings), "--minutes", str(minutes), "--seed", "0",
+    ] + (["--quirks"] if quirks else [])  # fmt: skip
+    start = time.perf_counter()
+    subprocess.run(command, check=True)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--format", default="portal", choices=["portal", "csv", "txt"])
+    parser.add_argument("--recordings", type=int, default=6)
+    parser.add_argument("--minutes", type=float, default=15.0)
+    parser.add_argument("--quirks", action="store_true")
+    parser.add_argument("--work-dir", type=Path, default=Path("bench/out"))
+    args = parser.parse_args()
+
+    tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
+    raw_dir = args.work_dir / f"raw-{tag}"
+    synth_s = ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
+    input_bytes = sum(p.stat().st_size for p in raw_dir.rglob("*") if p.is_file())
+
+    start = time.perf_counter()
+    result = run_build([raw_dir], args.work_dir / f"build-{tag}", BuildConfig(), overwrite=True)
+    wall_s = time.perf_counter() - start
+    peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2  # ru_maxrss is KiB
+
+    counts = result.manifest["counts"]
+    print(f"input            {tag}: {input_bytes / 1e9:.2f} GB (synth {synth_s:.1f} s, 0 = reused)")
+    print(f"rows read        {counts['rows_read']:,}")
+    print(f"tracks rows      {counts['grid_rows']:,} on the 0.2 s grid, {counts['tracks']:,} tracks")
+    print(f"wall             {wall_s:.1f} s")
+    print(f"rows per second  {counts['rows_read'] / wall_s:,.0f}")
+    print(f"peak memory      {peak_gb:.2f} GB (max RSS of this process)")
+
+
+if __name__ == "__main__":
+    main()

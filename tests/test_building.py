@@ -1,0 +1,268 @@
+"""`run_build` end to end on tiny hand-made inputs: manifest, tracks table, atomic output."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import polars as pl
+import pytest
+from conftest import (
+    US101_FIRST,
+    US101_SECOND,
+    make_row,
+    straight_track,
+    write_period_csv,
+    write_portal,
+    write_txt,
+)
+from polars.testing import assert_frame_equal
+
+from ngsim_graphs import layout
+from ngsim_graphs import schema as s
+from ngsim_graphs.building import run_build
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.errors import NgsimInputError
+
+FT = 0.3048
+FIRST = "0750am-0805am"
+SECOND = "0805am-0820am"
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under `root` (relative path -> bytes)."""
+    files = sorted(p for p in root.rglob("*") if p.is_file())
+    return {str(p.relative_to(root)): p.read_bytes() for p in files}
+
+
+def parquet_bytes(root: Path) -> dict[str, bytes]:
+    return {name: data for name, data in snapshot(root).items() if name.endswith(".parquet")}
+
+
+def hidden_siblings(out: Path) -> list[str]:
+    return sorted(p.name for p in out.parent.glob(f".{out.name}.*"))
+
+
+def tracks(out: Path, period: str = FIRST) -> pl.DataFrame:
+    return pl.read_parquet(layout.tracks_path(out, "us-101", period))
+
+
+@pytest.fixture
+def portal_rows() -> list[dict]:
+    """us-101 0750am in a portal file, counts worked out by hand.
+
+    Vehicle 1: frames 10..39 without 20 and 21 (28 rows, one gap: two tracks, grid frames
+    10..18 and 22..38, 5 + 9 rows). Vehicle 2: frames 10..39 (30 rows, 15 grid rows), plus an exact
+    copy of its frame 15 and a conflicting frame 16 (Local_Y 1000 ft further; the rule keeps the
+    smaller Local_Y, the original). Vehicle 3: one row with an empty Local_Y (dropped). One
+    lankershim row (another location). 62 rows in the file.
+    """
+    v1 = straight_track(1, [f for f in range(10, 40) if f not in (20, 21)], x_ft=6.0, lane_id=1)
+    v2 = straight_track(2, range(10, 40), x_ft=18.0, speed_fps=40.0)
+    exact = dict(v2[5])
+    conflicting = {**v2[6], s.LOCAL_Y: v2[6][s.LOCAL_Y] + 1000.0}
+    empty = make_row(3, 10, **{s.LOCAL_Y: None})  # type: ignore[arg-type]
+    other = make_row(9, 10)
+    rows = v1 + v2 + [exact, conflicting, empty, other]
+    return [*zip(rows, ["us-101"] * (len(rows) - 1) + ["lankershim"], strict=True)]
+
+
+def _write(path: Path, rows_with_locations: list[tuple[dict, str]]) -> Path:
+    rows, names = zip(*rows_with_locations, strict=True)
+    return write_portal(path, list(rows), locations=list(names))
+
+
+def test_manifest(tmp_path: Path, portal_rows: list) -> None:
+    raw = _write(tmp_path / "portal.csv", portal_rows)
+    out = tmp_path / "out"
+    result = run_build([raw], out, BuildConfig())
+
+    on_disk = json.loads((out / "manifest.json").read_text())
+    assert on_disk == json.loads(json.dumps(result.manifest))
+    assert layout.read_manifest(out) == on_disk
+    assert on_disk["format_version"] == layout.FORMAT_VERSION == 1
+    assert on_disk["config"] == {
+        "locations": ["us-101", "i-80"],
+        "time_step_s": 0.2,
+        "heading_smoothing_s": 1.0,
+        "min_heading_speed_mps": 2.0,
+    }
+    canonical = json.dumps(on_disk["config"], sort_keys=True, separators=(",", ":"))
+    assert on_disk["config_hash"] == hashlib.sha256(canonical.encode()).hexdigest()
+
+    [source] = on_disk["inputs"]
+    assert source["path"] == str(raw)
+    assert source["raw_format"] == "portal"
+    assert source["size_bytes"] == raw.stat().st_size == len(raw.read_bytes())
+    assert source["sha256"] == hashlib.sha256(raw.read_bytes()).hexdigest()
+    assert source["recordings"] == [f"us-101/{FIRST}"]
+    assert (source["rows_read"], source["rows_other_locations"], source["rows_missing_values"]) == (
+        62, 1, 1
+    )  # fmt: skip
+
+    assert on_disk["counts"] == {
+        "rows_read": 62,
+        "rows_other_locations": 1,
+        "rows_missing_values": 1,
+        "rows": 60,  # 62 - lankershim - empty Local_Y
+        "exact_duplicates": 1,
+        "conflicting_duplicates": 1,
+        "gaps": 1,
+        "tracks": 3,
+        "grid_rows": 29,  # 5 + 9 + 15
+    }
+    [recording] = on_disk["recordings"]
+    assert recording["location"] == "us-101" and recording["period"] == FIRST
+    assert recording["vehicles"] == 2
+    assert recording["tracks_file"] == f"tracks/us-101_{FIRST}.parquet"
+    assert result.files[0].sha256 == source["sha256"]
+
+
+def test_config_hash_changes_with_config(tmp_path: Path, portal_rows: list) -> None:
+    raw = _write(tmp_path / "portal.csv", portal_rows)
+    a = run_build([raw], tmp_path / "a", BuildConfig()).manifest
+    b = run_build([raw], tmp_path / "b", BuildConfig(min_heading_speed_mps=1.0)).manifest
+    c = run_build([raw], tmp_path / "c", BuildConfig()).manifest
+    assert a["config_hash"] == c["config_hash"] != b["config_hash"]
+
+
+def test_tracks_table(tmp_path: Path, portal_rows: list) -> None:
+    out = tmp_path / "out"
+    run_build([_write(tmp_path / "portal.csv", portal_rows)], out, BuildConfig())
+    table = tracks(out)
+    assert table.schema == s.TRACKS_SCHEMA
+    written = sorted(p.name for p in (out / layout.TRACKS_DIR).iterdir())
+    assert written == [f"us-101_{FIRST}.parquet"]
+
+    v1_frames = [*range(10, 20, 2), *range(22, 40, 2)]
+    assert table[s.VEHICLE_ID].to_list() == [1] * 14 + [2] * 15
+    assert table[s.SEGMENT].to_list() == [0] * 5 + [1] * 9 + [0] * 15
+    assert table[s.TRACK_ID].to_list() == [0] * 5 + [1] * 9 + [2] * 15
+    assert table[s.FRAME_ID].to_list() == v1_frames + list(range(10, 40, 2))
+    assert table[s.TIME_S].to_list() == pytest.approx([0.1 * f for f in table[s.FRAME_ID]])
+
+    first = table.row(0, named=True)  # vehicle 1 at frame 10: y = 30 ft/s * 1 s
+    assert first[s.X_M] == pytest.approx(6 * FT)
+    assert first[s.Y_M] == pytest.approx(30 * FT)
+    assert first[s.SPEED_MPS] == pytest.approx(30 * FT)
+    assert first[s.GLOBAL_TIME] == US101_FIRST.start_epoch_ms - 7_000 + 1_000
+    assert first[s.LENGTH_M] == pytest.approx(15 * FT) and first[s.WIDTH_M] == pytest.approx(6 * FT)
+    # NGSIM's "none" sentinels became null
+    assert first[s.PRECEDING] is None and first[s.TIME_HEADWAY_S] is None
+    assert first[s.SPACE_HEADWAY_M] is None
+
+    # the conflicting duplicate of vehicle 2 at frame 16 lost: y = 40 ft/s * 1.6 s = 64 ft
+    v2_16 = table.filter((pl.col(s.VEHICLE_ID) == 2) & (pl.col(s.FRAME_ID) == 16))
+    assert v2_16[s.Y_M].to_list() == pytest.approx([64 * FT])
+    # straight along +y: heading 0 everywhere
+    assert table[s.HEADING_RAD].abs().max() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_same_build_twice_gives_identical_parquet(tmp_path: Path, portal_rows: list) -> None:
+    raw = _write(tmp_path / "portal.csv", portal_rows)
+    shuffled = _write(tmp_path / "shuffled.csv", portal_rows[::-1])  # NGSIM rows come unsorted
+    run_build([raw], tmp_path / "a", BuildConfig())
+    run_build([raw], tmp_path / "b", BuildConfig())
+    run_build([shuffled], tmp_path / "c", BuildConfig())
+    a = parquet_bytes(tmp_path / "a")
+    assert list(a) == [f"tracks/us-101_{FIRST}.parquet"]
+    assert parquet_bytes(tmp_path / "b") == a
+    assert parquet_bytes(tmp_path / "c") == a
+
+
+def test_failure_mid_build_leaves_previous_build(tmp_path: Path, portal_rows: list) -> None:
+    good = _write(tmp_path / "a_good.csv", portal_rows)
+    out = tmp_path / "out"
+    run_build([good], out, BuildConfig())
+    before = snapshot(out)
+
+    bad = tmp_path / "b_bad.txt"
+    write_txt(bad, straight_track(5, range(10, 20)))
+    bad.write_text(bad.read_text()[:-40])  # the last line cut off
+    seen: list[str] = []
+    with pytest.raises(NgsimInputError, match=r"b_bad\.txt, line 10: "):
+        run_build(
+            [good, bad], out, BuildConfig(), overwrite=True, progress=lambda w, *_: seen.append(w)
+        )
+    assert seen[:2] == ["reading a_good.csv", "reading b_bad.txt"]  # the good file was staged first
+    assert snapshot(out) == before
+    assert hidden_siblings(out) == []
+
+
+def test_failure_mid_build_leaves_no_output(tmp_path: Path, portal_rows: list) -> None:
+    good = _write(tmp_path / "a_good.csv", portal_rows)
+    bad = write_period_csv(tmp_path / "b_bad.csv", [])
+    out = tmp_path / "out"
+    with pytest.raises(NgsimInputError, match="no data rows"):
+        run_build([good, bad], out, BuildConfig())
+    assert not out.exists()
+    assert hidden_siblings(out) == []
+
+
+def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: list) -> None:
+    raw = _write(tmp_path / "portal.csv", portal_rows)
+    out = tmp_path / "out"
+    killed = tmp_path / ".out.partial-123"
+    (killed / layout.TRACKS_DIR).mkdir(parents=True)
+    (killed / layout.TRACKS_DIR / "half.parquet").write_bytes(b"PAR1")
+    result = run_build([raw], out, BuildConfig())
+    assert result.manifest["counts"]["tracks"] == 3
+    assert not killed.exists()
+    assert hidden_siblings(out) == []
+    assert sorted(snapshot(out)) == ["manifest.json", f"tracks/us-101_{FIRST}.parquet"]
+
+
+def test_periods_of_one_portal_file_are_separate_recordings(tmp_path: Path) -> None:
+    """Vehicle 7 in two us-101 periods, frames 10..19 in both: not one vehicle with duplicates."""
+    first = straight_track(7, range(10, 20), x_ft=6.0)
+    second = straight_track(7, range(10, 20), x_ft=30.0, start_ms=US101_SECOND.start_epoch_ms)
+    raw = write_portal(tmp_path / "portal.csv", first + second)
+    out = tmp_path / "out"
+    result = run_build([raw], out, BuildConfig())
+
+    keys = [(r.location, r.period) for r in result.recordings]
+    assert keys == [("us-101", FIRST), ("us-101", SECOND)]
+    for r in result.recordings:
+        assert (r.rows, r.exact_duplicates, r.conflicting_duplicates, r.gaps) == (10, 0, 0, 0)
+        assert (r.vehicles, r.tracks, r.grid_rows) == (1, 1, 5)
+    assert result.files[0].recordings == (f"us-101/{FIRST}", f"us-101/{SECOND}")
+
+    a, b = tracks(out, FIRST), tracks(out, SECOND)
+    assert a[s.TRACK_ID].unique().to_list() == [0] and b[s.TRACK_ID].unique().to_list() == [1]
+    assert a[s.PERIOD].unique().to_list() == [FIRST] and b[s.PERIOD].unique().to_list() == [SECOND]
+    assert a[s.X_M].to_list() == pytest.approx([6 * FT] * 5)
+    assert b[s.X_M].to_list() == pytest.approx([30 * FT] * 5)
+    assert b[s.GLOBAL_TIME][0] - a[s.GLOBAL_TIME][0] == 15 * 60 * 1000
+
+
+def test_csv_and_txt_of_the_same_data_give_identical_tracks(
+    tmp_path: Path, two_vehicle_rows: list[dict]
+) -> None:
+    inputs = {
+        "csv": write_period_csv(tmp_path / "trajectories-0750am-0805am.csv", two_vehicle_rows),
+        "txt": write_txt(tmp_path / "trajectories-0750am-0805am.txt", two_vehicle_rows),
+        "portal": write_portal(tmp_path / "portal.csv", two_vehicle_rows),
+    }
+    results = {name: run_build([p], tmp_path / name, BuildConfig()) for name, p in inputs.items()}
+    reference = tracks(tmp_path / "csv")
+    assert reference.height == 30 and reference[s.TRACK_ID].n_unique() == 2
+    for name, result in results.items():
+        assert result.files[0].raw_format == name
+        assert_frame_equal(tracks(tmp_path / name), reference)
+        assert parquet_bytes(tmp_path / name) == parquet_bytes(tmp_path / "csv")
+        assert result.manifest["counts"] == results["csv"].manifest["counts"]
+
+
+def test_one_recording_from_two_files(tmp_path: Path) -> None:
+    """Per-period files of one recording (here one vehicle each) are staged into one recording."""
+    a = write_txt(tmp_path / "raw" / "a.txt", straight_track(1, range(10, 20)))
+    b = write_period_csv(tmp_path / "raw" / "b.csv", straight_track(2, range(10, 20), x_ft=30.0))
+    out = tmp_path / "out"
+    # the directory and a file inside it: each file is read once
+    result = run_build([tmp_path / "raw", a], out, BuildConfig())
+    assert [f.path for f in result.files] == [str(a.resolve()), str(b.resolve())]
+    [recording] = result.recordings
+    counts = (recording.rows, recording.vehicles, recording.tracks, recording.grid_rows)
+    assert counts == (20, 2, 2, 10)
+    assert tracks(out)[s.VEHICLE_ID].to_list() == [1] * 5 + [2] * 5
