@@ -15,7 +15,15 @@ import polars as pl
 
 from ngsim_graphs import __version__, layout
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.ingestion import FileReport, RecordingKey, RecordingReport, build_tracks, read_file_recordings
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.ingestion import (
+    FileReport,
+    RecordingKey,
+    RecordingReport,
+    build_tracks,
+    read_file_recordings,
+    recording_rows,
+)
 from ngsim_graphs.reading import find_raw_files
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -36,32 +44,40 @@ class BuildResult:
 def _stage_inputs(
     files: list[Path], config: BuildConfig, root: Path, progress: ProgressCallback
 ) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
+    """Read each file and stage its rows per recording, one recording in memory at a time."""
     reports: list[FileReport] = []
     staged: dict[RecordingKey, list[Path]] = {}
-    for index, path in enumerate(files):
-        progress(f"reading {path.name}", index, len(files))
-        by_key, report = read_file_recordings(path, config)
-        for (location, period), frame in by_key.items():
-            target = layout.staged_raw_path(root, location, period, index)
-            layout.write_parquet(frame, target)
-            staged.setdefault((location, period), []).append(target)
+    for file_index, path in enumerate(files):
+        progress(f"reading {path.name}", file_index, len(files))
+        rows, chosen, report = read_file_recordings(path, config)
+        for key, recording_index in sorted(chosen.items()):
+            target = layout.staged_raw_path(root, *key, file_index)
+            layout.write_staged(recording_rows(rows, recording_index), target)
+            staged.setdefault(key, []).append(target)
+        del rows
         reports.append(report)
     progress("reading done", len(files), len(files))
+    if not staged:
+        found = sorted({loc for r in reports for loc in r.locations_found})
+        raise NgsimInputError(
+            None,
+            f"no rows of the chosen locations ({', '.join(config.locations)}) in any input; "
+            f"found: {', '.join(found) or 'none'}",
+        )
     return reports, staged
 
 
 def _build_recordings(
     staged: dict[RecordingKey, list[Path]], config: BuildConfig, root: Path, progress: ProgressCallback
 ) -> list[RecordingReport]:
+    """Clean each recording on its own and write its tracks table."""
     reports: list[RecordingReport] = []
     next_track_id = 0
     keys = sorted(staged)
-    for index, (location, period) in enumerate(keys):
-        progress(f"tracks {layout.recording_name(location, period)}", index, len(keys))
-        raw = pl.read_parquet(staged[(location, period)])
-        tracks, report = build_tracks(raw, config, next_track_id)
-        del raw
-        layout.write_parquet(tracks, layout.tracks_path(root, location, period))
+    for index, key in enumerate(keys):
+        progress(f"tracks {layout.recording_name(*key)}", index, len(keys))
+        tracks, report = build_tracks(pl.read_parquet(staged[key]), key, config, next_track_id)
+        layout.write_parquet(tracks, layout.tracks_path(root, *key))
         next_track_id += report.tracks
         reports.append(report)
     progress("tracks done", len(keys), len(keys))

@@ -16,23 +16,27 @@ FEET_TO_M = 0.3048
 CONFLICT_ORDER: tuple[str, ...] = (s.LOCAL_Y, s.LOCAL_X, s.V_VEL, *s.TXT_COLUMNS)
 
 
-def drop_incomplete_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int]:
-    """Drop rows with an empty required field (vehicle, frame, time, position, speed)."""
-    kept = frame.drop_nulls(subset=list(s.REQUIRED_VALUE_COLUMNS))
-    return kept, frame.height - kept.height
+def is_complete() -> pl.Expr:
+    """Rows with every required field (vehicle, frame, time, position, speed); others are dropped."""
+    return pl.all_horizontal(pl.col(s.REQUIRED_VALUE_COLUMNS).is_not_null())
 
 
 def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     """Drop exact duplicates, then keep one row per (vehicle, frame) by CONFLICT_ORDER.
 
     `frame` holds one recording. Returns (rows sorted by vehicle and frame, exact duplicates
-    dropped, conflicting duplicates dropped).
+    dropped, conflicting duplicates dropped). Only the few rows whose (vehicle, frame) occurs
+    more than once go through the full-row comparison.
     """
+    keys = [s.VEHICLE_ID, s.FRAME_ID]
+    repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
+    multi = frame.filter(repeated)
     values = [c for c in frame.columns if c != "__row"]
-    unique = frame.unique(subset=values, keep="first")
-    ordered = unique.sort([s.VEHICLE_ID, s.FRAME_ID, *CONFLICT_ORDER], nulls_last=True)
-    single = ordered.unique(subset=[s.VEHICLE_ID, s.FRAME_ID], keep="first", maintain_order=True)
-    return single, frame.height - unique.height, unique.height - single.height
+    unique = multi.unique(subset=values, keep="first")
+    ordered = unique.sort([*keys, *CONFLICT_ORDER], nulls_last=True)
+    kept = ordered.unique(subset=keys, keep="first", maintain_order=True)
+    cleaned = pl.concat([frame.filter(~repeated), kept]).sort(keys)
+    return cleaned, multi.height - unique.height, unique.height - kept.height
 
 
 def split_at_gaps(frame: pl.DataFrame) -> tuple[pl.DataFrame, int]:

@@ -13,11 +13,11 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.cleaning import drop_duplicate_rows, drop_incomplete_rows, split_at_gaps, to_si_units
+from ngsim_graphs.cleaning import drop_duplicate_rows, is_complete, split_at_gaps, to_si_units
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.kinematics import add_heading
 from ngsim_graphs.reading import ROW, file_sha256, read_raw_file
-from ngsim_graphs.recordings import label_recordings
+from ngsim_graphs.recordings import RECORDING_INDEX, identify_recordings
 from ngsim_graphs.resampling import downsample_to_grid
 
 RecordingKey = tuple[str, str]  # (location, period)
@@ -34,7 +34,8 @@ class FileReport:
     rows_read: int
     rows_other_locations: int
     rows_missing_values: int
-    recordings: tuple[str, ...]  # "location/period" of each recording the file holds
+    locations_found: tuple[str, ...]  # every location the file holds, chosen or not
+    recordings: tuple[str, ...]  # "location/period" of each chosen recording the file holds
 
 
 @dataclass(frozen=True)
@@ -54,43 +55,61 @@ class RecordingReport:
 
 def read_file_recordings(
     path: Path, config: BuildConfig
-) -> tuple[dict[RecordingKey, pl.DataFrame], FileReport]:
-    """Parse one file and split its usable rows by recording (NGSIM units, + location, period)."""
+) -> tuple[pl.DataFrame, dict[RecordingKey, int], FileReport]:
+    """Parse one file and tell its chosen recordings apart.
+
+    Returns (every parsed row in NGSIM units with a RECORDING_INDEX column, the index of each
+    chosen recording, the file's report). The index is null for incomplete rows, which are
+    dropped. No copy of the rows is made here: the caller takes one recording at a time.
+    """
     raw = read_raw_file(path, config.locations)
-    complete, missing = drop_incomplete_rows(raw.frame.drop(ROW))
-    labelled = label_recordings(complete, path)
-    kept = labelled.filter(pl.col(s.LOCATION).is_in(config.locations))
-    parts = kept.partition_by(s.LOCATION, s.PERIOD, as_dict=True, maintain_order=True)
-    by_key = {(str(k[0]), str(k[1])): frame for k, frame in sorted(parts.items())}
+    complete = raw.frame.select(is_complete()).to_series()
+    index, names = identify_recordings(raw.frame, path)
+    rows = raw.frame.drop(ROW, s.LOCATION).with_columns(
+        pl.when(complete).then(index).alias(RECORDING_INDEX)
+    )
+    chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
+    counts = rows.group_by(RECORDING_INDEX).len()
+    kept = int(counts.filter(pl.col(RECORDING_INDEX).is_in(list(chosen.values())))["len"].sum())
+    missing = int(counts.filter(pl.col(RECORDING_INDEX).is_null())["len"].sum())
     report = FileReport(
         path=str(path),
         raw_format=raw.raw_format.value,
         size_bytes=raw.size_bytes,
         sha256=file_sha256(path),
         rows_read=raw.rows_read,
-        rows_other_locations=raw.rows_other_locations + labelled.height - kept.height,
+        rows_other_locations=raw.rows_read - kept - missing,
         rows_missing_values=missing,
-        recordings=tuple(f"{loc}/{period}" for loc, period in by_key),
+        locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
+        recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
     )
-    return by_key, report
+    return rows, chosen, report
+
+
+def recording_rows(rows: pl.DataFrame, index: int) -> pl.DataFrame:
+    """The rows of one recording out of a file's rows (see read_file_recordings)."""
+    return rows.filter(pl.col(RECORDING_INDEX) == index).drop(RECORDING_INDEX)
 
 
 def build_tracks(
-    raw: pl.DataFrame, config: BuildConfig, first_track_id: int
+    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
 ) -> tuple[pl.DataFrame, RecordingReport]:
-    """The tracks table of one recording from its raw rows (any order, duplicates allowed).
+    """The tracks table of recording `key` from its raw rows (any order, duplicates allowed).
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
     by track and frame, columns as TRACKS_SCHEMA.
     """
     unique, exact, conflicting = drop_duplicate_rows(raw)
     segmented, gaps = split_at_gaps(unique)
-    grid = to_si_units(downsample_to_grid(segmented, config.frames_per_step))
+    location, period = key
+    on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
+        pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD)
+    )
+    grid = to_si_units(on_grid)
     track_index = pl.struct(s.VEHICLE_ID, s.SEGMENT).rle_id().cast(pl.Int32)
     numbered = grid.with_columns((track_index + first_track_id).alias(s.TRACK_ID))
     tracks = add_heading(numbered, config.smoothing_window_steps, config.min_heading_speed_mps)
     tracks = tracks.select(s.TRACKS_SCHEMA.names()).cast(dict(s.TRACKS_SCHEMA))
-    location, period = raw.select(s.LOCATION, s.PERIOD).row(0)
     report = RecordingReport(
         location=location,
         period=period,

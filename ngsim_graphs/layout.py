@@ -58,6 +58,12 @@ def write_parquet(frame: pl.DataFrame, path: Path) -> None:
     frame.write_parquet(path, compression=PARQUET_COMPRESSION, statistics=True)
 
 
+def write_staged(frame: pl.DataFrame, path: Path) -> None:
+    """Write an intermediate table that lives only while building: fast, lightly compressed."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame.write_parquet(path, compression="lz4", statistics=False)
+
+
 def write_manifest(root: Path, manifest: dict[str, Any]) -> None:
     """Write the manifest atomically; it is the last file of a build."""
     target = manifest_path(root)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import difflib
 import hashlib
+import math
 import io
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,8 @@ from ngsim_graphs.schema import RawFormat
 SNIFF_BYTES = 64 * 1024
 CANDIDATE_SUFFIXES = (".csv", ".txt")
 ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
-_BAD_COLUMN = "__bad_column"
+_PRESENT = "__present"  # non-empty fields of a row
+_EXTRA = "__extra"  # the first surplus field of a CSV row
 _LINE = "__line"
 _FIELDS = "__fields"
 
@@ -165,12 +167,24 @@ def _check_csv_field_counts(path: Path, n_columns: int) -> None:
 
 
 def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
-    """CSV as text columns named by the lower-cased header; returns (frame, header as spelled)."""
+    """CSV as text columns named by the lower-cased header, plus EXTRA for surplus fields.
+
+    Returns (frame, header as spelled). Polars drops a row's surplus fields silently; the one
+    spare column keeps the first of them, so that such rows can be found.
+    """
     header = _header_names(_first_line(path))
-    frame = pl.scan_csv(path, infer_schema=False, quote_char='"', encoding="utf8-lossy")
-    names = frame.collect_schema().names()
-    renamed = frame.rename({old: new.lower() for old, new in zip(names, header, strict=True)})
-    return renamed.with_row_index(ROW), header
+    names = [name.lower() for name in header]
+    frame = pl.scan_csv(
+        path,
+        has_header=False,
+        skip_rows=1,
+        schema={name: pl.String for name in [*names, _EXTRA]},
+        missing_columns="insert",
+        truncate_ragged_lines=True,
+        quote_char='"',
+        encoding="utf8-lossy",
+    )
+    return frame.with_row_index(ROW), header
 
 
 def _scan_txt_text(path: Path) -> pl.LazyFrame:
@@ -207,25 +221,43 @@ def _check_txt_field_counts(path: Path, fields: pl.LazyFrame) -> None:
 
 
 def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
-    """Parse text columns to RAW_SCHEMA dtypes; also an expression naming the first bad column."""
+    """Parse text columns to RAW_SCHEMA dtypes; also the count of non-empty fields per row.
+
+    A row whose parsed non-null values are fewer than its non-empty fields holds a malformed
+    number. Comparing two counts costs far less than testing every field for it.
+    """
     parsed: list[pl.Expr] = []
-    bad: list[pl.Expr] = []
+    present: list[pl.Expr] = []
     for column in columns:
         text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
-        number = text.cast(pl.Float64, strict=False)
-        is_bad = (text != "") & (number.is_null() | number.is_infinite() | number.is_nan())
-        parsed.append(number.cast(s.RAW_SCHEMA[column], strict=False).alias(column))
-        bad.append(pl.when(is_bad).then(pl.lit(column)))
-    return parsed, pl.coalesce(bad).alias(_BAD_COLUMN)
+        parsed.append(text.cast(pl.Float64, strict=False).cast(s.RAW_SCHEMA[column], strict=False).alias(column))
+        present.append((text != "").fill_null(False).cast(pl.Int8))
+    return parsed, pl.sum_horizontal(present).cast(pl.Int8).alias(_PRESENT)
 
 
-def _raise_bad_number(path: Path, text: pl.LazyFrame, bad: pl.DataFrame, first_line: int) -> None:
-    row, column = bad.row(0)
-    value = text.filter(pl.col(ROW) == row).select(column).collect().item()
-    official = {name.lower(): name for name in s.PORTAL_HEADER}[column]
-    raise NgsimInputError(
-        path, f"column {official}: {value!r} is not a number", line=row + first_line
-    )
+def _first_bad_number(frame: pl.DataFrame) -> int | None:
+    """Index in `frame` of the first row with a field that did not parse as a finite number."""
+    parsed = pl.sum_horizontal(pl.col(s.TXT_COLUMNS).is_not_null().cast(pl.Int8))
+    floats = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] == pl.Float64]
+    not_finite = pl.any_horizontal(~pl.col(floats).is_finite())
+    bad = frame.select(((parsed != pl.col(_PRESENT)) | not_finite.fill_null(False)).arg_true().first()).item()
+    return None if bad is None else int(bad)
+
+
+def _raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) -> None:
+    """Name the first field of data row `row` that is not a number (re-reading that row only)."""
+    fields = text.filter(pl.col(ROW) == row).select(s.TXT_COLUMNS).collect().row(0, named=True)
+    official = {name.lower(): name for name in s.PORTAL_HEADER}
+    for column, value in fields.items():
+        cleaned = (value or "").strip().replace(",", "")
+        try:
+            ok = cleaned == "" or math.isfinite(float(cleaned))
+        except ValueError:
+            ok = False
+        if not ok:
+            message = f"column {official[column]}: {value!r} is not a number"
+            raise NgsimInputError(path, message, line=row + first_line)
+    raise NgsimInputError(path, "a value is out of range", line=row + first_line)
 
 
 def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
@@ -245,7 +277,6 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     else:
         text, header = _scan_csv_text(path)
         _check_csv_columns(path, header, raw_format)
-        _check_csv_field_counts(path, len(header))
         first_line = 2
     return _parse(path, raw_format, text, first_line, locations)
 
@@ -268,16 +299,21 @@ def _parse(
         # Blank lines are all-null rows; they are neither data nor another location.
         text = text.filter(pl.any_horizontal(pl.col(s.TXT_COLUMNS).is_not_null()))
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
-    parsed, bad_column = _number_exprs(s.TXT_COLUMNS)
-    query = kept.select(ROW, *parsed, s.LOCATION, bad_column)
-    counts = text.group_by(s.LOCATION).agg(pl.len().alias("rows"))
+    parsed, present = _number_exprs(s.TXT_COLUMNS)
+    query = kept.select(ROW, *parsed, s.LOCATION, present)
+    counts = text.group_by(s.LOCATION).agg(pl.len().alias("rows"), _odd_shape(text).sum().alias("odd"))
     try:
-        frame, by_location = pl.collect_all([query, counts], engine="streaming")
+        # Two collects, not collect_all: sharing the scan would hold all of its text in memory.
+        frame = query.collect(engine="streaming")
+        by_location = counts.collect(engine="streaming")
     except pl.exceptions.ComputeError as err:
         raise _csv_structure_error(path, err) from None
-    bad = frame.filter(pl.col(_BAD_COLUMN).is_not_null()).select(ROW, _BAD_COLUMN).head(1)
-    if bad.height:
-        _raise_bad_number(path, text, bad, first_line)
+    if by_location["odd"].sum():
+        header = text.collect_schema().names()
+        _check_csv_field_counts(path, header.index(_EXTRA) - 1)  # the fields between ROW and EXTRA
+    bad = _first_bad_number(frame)
+    if bad is not None:
+        _raise_bad_number(path, text, frame[ROW][bad], first_line)
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls()))
     rows_read = int(by_location["rows"].sum())
     if rows_read == 0:
@@ -295,8 +331,21 @@ def _parse(
         rows_read=rows_read,
         rows_other_locations=rows_read - frame.height,
         locations_found=found,
-        frame=frame.drop(_BAD_COLUMN),
+        frame=frame.drop(_PRESENT),
     )
+
+
+def _odd_shape(text: pl.LazyFrame) -> pl.Expr:
+    """Rows that may have a wrong number of fields: a surplus field, or an empty last field.
+
+    A short row reads as empty trailing fields, indistinguishable here from fields left empty;
+    such rows send the file through the exact, slower field count (_check_csv_field_counts).
+    """
+    columns = text.collect_schema().names()
+    if _EXTRA not in columns:
+        return pl.lit(False)
+    last = columns[columns.index(_EXTRA) - 1]
+    return pl.col(_EXTRA).is_not_null() | pl.col(last).is_null()
 
 
 def _csv_structure_error(path: Path, err: Exception) -> NgsimInputError:

@@ -21,6 +21,7 @@ PACIFIC_DAYLIGHT = timezone(timedelta(hours=-7), "PDT")
 MATCH_TOLERANCE_MS = 10 * 60 * 1000
 KNOWN_LOCATION_NAMES: tuple[str, ...] = ("us-101", "i-80", "lankershim", "peachtree")
 FRAME0_MS = "frame0_epoch_ms"  # Global_Time - 100 * Frame_ID: constant within a recording
+RECORDING_INDEX = "recording_index"
 
 
 @dataclass(frozen=True)
@@ -78,42 +79,42 @@ def location_from_path(path: Path) -> str | None:
     return None
 
 
-def label_recordings(frame: pl.DataFrame, path: Path) -> pl.DataFrame:
-    """Fill `location` and add `period` to raw rows, from frame 0's epoch time of each recording.
+def _name_recording(frame0_ms: int, last_frame: int, location: str | None, path: Path) -> tuple[str, str]:
+    official = find_official_recording(frame0_ms, location)
+    if official is not None:
+        return official.location, official.period
+    named = location or location_from_path(path)
+    if named is None:
+        start = datetime.fromtimestamp(frame0_ms / 1000, PACIFIC_DAYLIGHT)
+        raise NgsimInputError(
+            path,
+            f"cannot tell the location: frame 0 at {start:%Y-%m-%d %H:%M} PDT is none of the "
+            "official NGSIM periods; put the file in a folder named after its location "
+            f"({', '.join(KNOWN_LOCATION_NAMES)})",
+        )
+    return named, period_label(frame0_ms, last_frame)
 
-    `frame` needs global_time, frame_id (non-null) and location (null where the file does not say,
-    as in per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID` belong
-    to different recordings (the combined CSV holds three periods per location).
+
+def identify_recordings(frame: pl.DataFrame, path: Path) -> tuple[pl.Series, list[tuple[str, str]]]:
+    """Which recording each raw row belongs to: (index per row, (location, period) per index).
+
+    `frame` needs global_time, frame_id and location (null where the file does not say, as in
+    per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID` belong to
+    different recordings (the combined CSV holds three periods per location). Rows without a
+    time or frame belong to none: their index is null.
     """
-    frame0 = (pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)).alias(FRAME0_MS)
-    frame = frame.with_columns(frame0)
-    keys = (
-        frame.group_by(s.LOCATION, FRAME0_MS)
+    frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
+    keyed = frame.select(s.LOCATION, frame0.alias(FRAME0_MS), s.FRAME_ID)
+    groups = (
+        keyed.drop_nulls(FRAME0_MS)
+        .group_by(s.LOCATION, FRAME0_MS)
         .agg(pl.col(s.FRAME_ID).max().alias("last_frame"))
         .sort(s.LOCATION, FRAME0_MS, nulls_last=True)
+        .with_row_index(RECORDING_INDEX)
     )
-    labels = []
-    for location, frame0_ms, last_frame in keys.iter_rows():
-        official = find_official_recording(frame0_ms, location)
-        if official is not None:
-            labels.append((location, frame0_ms, official.location, official.period))
-            continue
-        named = location or location_from_path(path)
-        if named is None:
-            start = datetime.fromtimestamp(frame0_ms / 1000, PACIFIC_DAYLIGHT)
-            raise NgsimInputError(
-                path,
-                f"cannot tell the location: frame 0 at {start:%Y-%m-%d %H:%M} PDT is none of the "
-                "official NGSIM periods; put the file in a folder named after its location "
-                f"({', '.join(KNOWN_LOCATION_NAMES)})",
-            )
-        labels.append((location, frame0_ms, named, period_label(frame0_ms, last_frame)))
-    table = pl.DataFrame(
-        labels,
-        schema={"__in": pl.String, FRAME0_MS: pl.Int64, "__out": pl.String, s.PERIOD: pl.String},
-        orient="row",
-    )
-    joined = frame.join(
-        table, left_on=[s.LOCATION, FRAME0_MS], right_on=["__in", FRAME0_MS], nulls_equal=True
-    )
-    return joined.with_columns(pl.col("__out").alias(s.LOCATION)).drop("__out", FRAME0_MS)
+    names = [
+        _name_recording(frame0_ms, last_frame, location, path)
+        for _, location, frame0_ms, last_frame in groups.iter_rows()
+    ]
+    index = keyed.join(groups, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left")
+    return index[RECORDING_INDEX].cast(pl.UInt16), names

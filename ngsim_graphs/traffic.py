@@ -1,14 +1,14 @@
 """A seeded microscopic traffic simulation of one recording, observed the way NGSIM's video was.
 
-Car-following is the Intelligent Driver Model (Treiber, Hennecke, Helbing 2000), lane changes are
-MOBIL (Kesting, Treiber, Helbing 2007) with biases for mandatory moves (merging out of an ending
-lane, reaching the off-ramp). A downstream bottleneck whose speed cap varies in time queues the
-traffic into the view and sends stop-and-go waves upstream. Every step is vectorised over the
-vehicles; the loop runs over time only. Units are NGSIM's: feet, seconds, feet/s, feet/s^2.
+Car-following is the improved Intelligent Driver Model (IIDM, Treiber and Kesting 2013), lane
+changes are MOBIL (Kesting, Treiber, Helbing 2007) with biases for mandatory moves (see
+`roadway.change_bias`). A downstream bottleneck whose speed cap varies in time queues the traffic
+into the view and sends stop-and-go waves upstream. Every step is vectorised over the vehicles; the
+loop runs over time only. Units are NGSIM's: feet, seconds, feet/s, feet/s^2.
 
-The fleet is a numpy structured array, one row per simulated vehicle, rows appended on entry and
-removed on exit. A vehicle changing lanes (`from_lane != lane`) follows leaders in both lanes and
-is a leader in both, until its lateral move ends.
+The fleet is a numpy structured array, one row per simulated vehicle, appended on entry and removed
+on exit. A vehicle changing lanes (`from_lane != lane`) follows leaders in both lanes and is a
+leader in both until its lateral move ends.
 """
 
 from __future__ import annotations
@@ -20,17 +20,20 @@ from typing import NamedTuple
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import schema
 from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, Recording
 from ngsim_graphs.roadway import (
     ROADWAYS,
+    EntryPoints,
     Regime,
     Roadway,
+    Sightings,
     bottleneck_cap_fps,
+    change_bias,
+    entry_points,
     lane_centre_ft,
-    lane_of_ft,
+    lane_open,
+    record_rows,
     regime_for,
-    to_global_ft,
 )
 
 DT_S = 0.1  # one NGSIM frame
@@ -41,9 +44,10 @@ KEY_OFFSET = 1.0e4
 DECISION_EVERY = 10  # steps between two lane-change decisions of one driver (1 s)
 POLITENESS = 0.3  # MOBIL's weight of the new follower's disadvantage
 CHANGE_THRESHOLD_FPS2 = 0.8  # advantage a discretionary lane change must bring
-SAFE_BRAKE_FPS2 = 12.0  # MOBIL safety: the new follower need not brake harder than this
+SAFE_BRAKE_FPS2 = 8.0  # MOBIL safety: the new follower need not brake harder than this
 COOLDOWN_S = 6.0  # after the start of one lane change, before the next decision
 MIN_GAP_FT = 3.0
+YIELD_FT, YIELD_FPS = 80.0, 8.0  # drivers let in a vehicle stuck this close to its lane's end
 ENTRY_GAP_FT, ENTRY_HEADWAY_S = 7.0, 1.2  # room a vehicle needs to enter at speed v
 MAX_PENDING = 20  # vehicles waiting to enter at one entry point
 
@@ -82,21 +86,19 @@ class _LaneIndex(NamedTuple):
     keys: np.ndarray
     vehicle: np.ndarray  # fleet row of each entry
     lane: np.ndarray
+    courtesy: np.ndarray  # bool: the entry of a vehicle waiting to merge, in the lane it waits for
 
 
 @dataclass
 class _Simulation:
-    """Mutable state of one run: the fleet, the entry queues and the log of every vehicle created."""
+    """Mutable state of one run: the fleet, the entry queues, the log of every vehicle created."""
 
     roadway: Roadway
     regime: Regime
     rng: np.random.Generator
-    fleet: np.ndarray
-    entry_lane: np.ndarray  # (P,) entry points: lane, Local_Y, rate (veh/s), off-ramp share
-    entry_y: np.ndarray
-    entry_rate: np.ndarray
-    entry_exit_share: np.ndarray
+    entries: EntryPoints
     pending: np.ndarray  # (P,) vehicles waiting at each entry point
+    fleet: np.ndarray = field(default_factory=lambda: np.zeros(0, FLEET_DTYPE))
     created: list[np.ndarray] = field(default_factory=list)
     next_uid: int = 0
 
@@ -106,40 +108,32 @@ def simulate_recording(recording: Recording, minutes: float, seed: int) -> pl.Da
 
     Frame_ID runs from 0 at 10 Hz for `minutes`; Global_Time = frame0 + 100 * Frame_ID, frame0 being
     the recording's nominal start minus a seeded 0..30 s. Rows are sorted by (vehicle_id, frame_id).
-    Deterministic in (recording, minutes, seed).
+    Deterministic in (recording, minutes, seed). Raises ValueError for a location without a
+    synthetic roadway (see `roadway.ROADWAYS`).
     """
+    if recording.location not in ROADWAYS:
+        raise ValueError(f"no synthetic roadway for location {recording.location!r}")
     roadway = ROADWAYS[recording.location]
     rng = np.random.default_rng([seed, _recording_index(recording)])
     frame0_ms = recording.start_epoch_ms - 100 * int(rng.integers(0, 301))
     n_frames = max(1, round(minutes * 60 / DT_S))
     sim = _start(roadway, regime_for(recording.location, recording.period), rng)
-    observed, frames = _run(sim, n_frames)
-    static = np.concatenate(sim.created)
-    return _observe_rows(observed, frames, static, roadway, frame0_ms, rng)
+    sightings = _run(sim, n_frames)
+    return record_rows(sightings, np.concatenate(sim.created), roadway, frame0_ms, rng)
 
 
 def _recording_index(recording: Recording) -> int:
+    """The recording's place among the official six; a stable number past them for any other."""
     if recording in OFFICIAL_RECORDINGS:
         return OFFICIAL_RECORDINGS.index(recording)
-    return len(OFFICIAL_RECORDINGS) + zlib.crc32(f"{recording.location}/{recording.period}".encode())
+    name = f"{recording.location}/{recording.period}".encode()
+    return len(OFFICIAL_RECORDINGS) + zlib.crc32(name)
 
 
 def _start(roadway: Roadway, regime: Regime, rng: np.random.Generator) -> _Simulation:
-    """A simulation whose road is filled at the regime's initial speed, with its entry points."""
-    lanes = list(range(1, roadway.main_lanes + 1))
-    ys = [-roadway.upstream_ft] * roadway.main_lanes
-    rates = [regime.demand_vph_per_lane / 3600.0] * roadway.main_lanes
-    ramp_share = regime.exit_share if roadway.extra_lane_exits else 0.0
-    shares = [ramp_share if lane >= roadway.main_lanes - 1 else 0.0 for lane in lanes]
-    if roadway.extra_lane_ft is not None:
-        lanes.append(roadway.lanes)
-        ys.append(roadway.extra_lane_ft[0])
-        rates.append(regime.ramp_vph / 3600.0)
-        shares.append(ramp_share)
-    sim = _Simulation(
-        roadway, regime, rng, np.zeros(0, FLEET_DTYPE), np.array(lanes, np.int16),
-        np.array(ys), np.array(rates), np.array(shares), np.zeros(len(lanes), np.int64),
-    )  # fmt: skip
+    """A simulation whose lanes are filled at the regime's initial speed."""
+    entries = entry_points(roadway, regime)
+    sim = _Simulation(roadway, regime, rng, entries, np.zeros(roadway.lanes, np.int64))
     for lane in range(1, roadway.lanes + 1):
         _fill_lane(sim, lane)
     return sim
@@ -160,8 +154,7 @@ def _fill_lane(sim: _Simulation, lane: int) -> None:
     new["y"] = end - np.concatenate([[0.0], np.cumsum(new["length"][:-1] + gaps[1:])])
     new["v"] = np.minimum(speed, new["v0"])
     new["lane"] = new["from_lane"] = lane
-    share = sim.entry_exit_share[min(lane, len(sim.entry_exit_share)) - 1]
-    new["exits"] = sim.rng.random(count) < share
+    new["exits"] = sim.rng.random(count) < sim.entries.exit_share[lane - 1]
     sim.fleet = np.concatenate([sim.fleet, new[new["y"] > start]])
 
 
@@ -185,7 +178,7 @@ def _new_vehicles(sim: _Simulation, n: int) -> np.ndarray:
     new["v_class"] = v_class
     new["v0"] = free * rng.normal(1.0, 0.08, n) * np.where(truck, 0.88, np.where(moto, 1.05, 1.0))
     new["headway_s"] = rng.normal(1.35, 0.25, n).clip(0.9, 2.2) + np.where(truck, 0.4, 0.0)
-    new["a_max"] = np.where(truck, rng.uniform(1.3, 2.3, n), rng.uniform(2.6, 4.4, n))
+    new["a_max"] = np.where(truck, rng.uniform(1.6, 2.6, n), rng.uniform(3.3, 5.0, n))
     new["b_comf"] = rng.uniform(5.0, 7.0, n)
     new["s0"] = rng.uniform(5.5, 9.0, n)
     new["offset_x"] = rng.normal(0.0, 0.6, n).clip(-1.5, 1.5)
@@ -198,44 +191,61 @@ def _new_vehicles(sim: _Simulation, n: int) -> np.ndarray:
     return new
 
 
-def _run(sim: _Simulation, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """Warm up, then run n_frames steps. Returns the observed rows (R, 7) and their frames (R,).
-
-    Columns: uid, Local_Y, Local_X (noise-free, ft), v (ft/s), acc (ft/s^2), noise_x, noise_y (ft).
-    """
+def _run(sim: _Simulation, n_frames: int) -> Sightings:
+    """Warm up, then run n_frames steps, recording the vehicles inside the view at every frame."""
     duration_s = n_frames * DT_S
     phase = float(sim.rng.uniform(0, 2 * np.pi))
     blocks: list[np.ndarray] = []
     counts = np.zeros(n_frames, np.int64)
     for step in range(-round(WARMUP_S / DT_S), n_frames):
         cap = bottleneck_cap_fps(sim.regime, step * DT_S, duration_s, phase)
-        index = _lane_index(sim.fleet)
-        acc = _accelerations(sim.fleet, index, sim.roadway, cap)
+        following, index = _lane_index(sim.fleet, sim.roadway)
+        acc = _accelerations(sim.fleet, following, sim.roadway, cap)
         _change_lanes(sim, index, acc, step)
         _move(sim, acc)
         if step >= 0:
-            rows = _observe(sim.fleet, sim.roadway)
-            blocks.append(rows)
-            counts[step] = len(rows)
+            blocks.append(_in_view(sim.fleet, sim.roadway))
+            counts[step] = len(blocks[-1])
         _enter(sim, index)
         _leave(sim)
+    columns = np.concatenate(blocks).T  # (7, R)
     frames = np.repeat(np.arange(n_frames, dtype=np.int32), counts)
-    return np.concatenate(blocks), frames
+    return Sightings(columns[0].astype(np.int64), frames, *columns[1:])
 
 
-def _lane_index(fleet: np.ndarray) -> _LaneIndex:
+def _lane_index(fleet: np.ndarray, roadway: Roadway) -> tuple[_LaneIndex, _LaneIndex]:
+    """Occupancy for car-following, and the same without courtesy entries for gap searches.
+
+    A vehicle stuck near the end of the extra lane that must leave it also appears in the lane it
+    waits for: the drivers there stop behind it, as real drivers let a waiting car in.
+    """
     changing = np.flatnonzero(fleet["from_lane"] != fleet["lane"])
-    vehicle = np.concatenate([np.arange(len(fleet)), changing])
-    lane = np.concatenate([fleet["lane"], fleet["from_lane"][changing]])
+    waiting = np.zeros(0, np.int64)
+    if roadway.extra_lane_ft is not None:
+        must_leave = ~fleet["exits"] if roadway.extra_lane_exits else True
+        waiting = np.flatnonzero(
+            (fleet["lane"] == roadway.lanes) & (fleet["from_lane"] == roadway.lanes) & must_leave
+            & (fleet["y"] > roadway.extra_lane_ft[1] - YIELD_FT) & (fleet["v"] < YIELD_FPS)
+        )  # fmt: skip
+    vehicle = np.concatenate([np.arange(len(fleet)), changing, waiting])
+    lane = np.concatenate(
+        [fleet["lane"], fleet["from_lane"][changing], np.full(waiting.size, roadway.main_lanes)]
+    )
     keys = lane * KEY_LANE + fleet["y"][vehicle] + KEY_OFFSET
     order = np.argsort(keys, kind="stable")
-    return _LaneIndex(keys[order], vehicle[order], lane[order])
+    courtesy = order >= len(fleet) + changing.size
+    following = _LaneIndex(keys[order], vehicle[order], lane[order], courtesy)
+    if waiting.size == 0:
+        return following, following
+    real = ~courtesy
+    return following, _LaneIndex(keys[order][real], vehicle[order][real], lane[order][real],
+                                 courtesy[real])  # fmt: skip
 
 
 def _neighbours_at(
     index: _LaneIndex, lanes: np.ndarray, ys: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fleet rows of the first vehicle at or ahead of, and the last behind, (lane, y); -1 if none."""
+    """Fleet rows of the first vehicle at or ahead of (lane, y) and the last behind it; -1: none."""
     n = len(index.keys)
     if n == 0:
         none = np.full(len(lanes), -1)
@@ -249,15 +259,23 @@ def _neighbours_at(
 
 def _idm(fleet: np.ndarray, rows: np.ndarray, v0: np.ndarray, gap: np.ndarray,
          v_lead: np.ndarray) -> np.ndarray:  # fmt: skip
-    """IDM acceleration (ft/s^2) of fleet rows behind a leader gap ft away (inf: none) at v_lead.
+    """IIDM acceleration (ft/s^2) of fleet rows behind a leader gap ft away (inf: none) at v_lead.
 
-    The free-road term is floored at -b: a driver entering a slower zone brakes comfortably.
+    The improved IDM (Treiber and Kesting 2013) keeps the IDM's dynamics but not its low free-flow
+    capacity: a driver cruises at v0 until the gap falls to the desired one. Above v0 (entering the
+    bottleneck) it brakes towards v0 at no more than about b.
     """
     v, a, b = fleet["v"][rows], fleet["a_max"][rows], fleet["b_comf"][rows]
-    free = np.maximum(1.0 - (v / v0) ** 4, -b / a)
     dynamic = v * fleet["headway_s"][rows] + v * (v - v_lead) / (2.0 * np.sqrt(a * b))
-    s_star = fleet["s0"][rows] + np.maximum(dynamic, 0.0)
-    return a * (free - (s_star / np.maximum(gap, 0.5)) ** 2)
+    z = (fleet["s0"][rows] + np.maximum(dynamic, 0.0)) / np.maximum(gap, 0.5)
+    below = v <= v0
+    ratio = np.where(below, v / v0, v0 / np.maximum(v, 1e-6))
+    a_free = np.where(below, a * (1.0 - ratio**4), -b * (1.0 - ratio ** (4.0 * a / b)))
+    close = a * (1.0 - z**2)
+    smooth = a_free * (1.0 - np.minimum(z, 1.0) ** (2.0 * a / np.maximum(a_free, 1e-9)))
+    return np.where(
+        below, np.where(z >= 1.0, close, smooth), a_free + np.where(z >= 1.0, close, 0.0)
+    )
 
 
 def _desired_speed(fleet: np.ndarray, roadway: Roadway, cap_fps: float) -> np.ndarray:
@@ -267,8 +285,10 @@ def _desired_speed(fleet: np.ndarray, roadway: Roadway, cap_fps: float) -> np.nd
     return np.where(inside, np.minimum(fleet["v0"], cap_fps), fleet["v0"])
 
 
-def _gap_to(fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray, y: np.ndarray):
-    """Gap (ft, inf without a leader) from positions y to leader rows (-1: none) and their speed."""
+def _gap_to(fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray,
+            y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Gap (ft; inf without a leader) from positions y to leader rows (-1: none), and the leaders'
+    speed (the rows' own where there is none, so that nothing is approached)."""
     has = leader >= 0
     safe = np.where(has, leader, rows)
     gap = np.where(has, fleet["y"][safe] - fleet["length"][safe] - y, np.inf)
@@ -277,20 +297,27 @@ def _gap_to(fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray, y: np.ndarr
 
 def _accelerations(fleet: np.ndarray, index: _LaneIndex, roadway: Roadway,
                    cap_fps: float) -> np.ndarray:  # fmt: skip
-    """IDM acceleration (N,) ft/s^2 of every vehicle: the harder of its lanes' constraints."""
+    """IIDM acceleration (N,) ft/s^2 of every vehicle: the harder of its lanes' constraints."""
     veh = index.vehicle
     leader = np.full(len(veh), -1)
     leader[:-1] = np.where(index.lane[1:] == index.lane[:-1], veh[1:], -1)
     gap, v_lead = _gap_to(fleet, veh, leader, fleet["y"][veh])
+    alongside = np.flatnonzero(index.courtesy[1:] & (gap[:-1] < 0.0))
+    if alongside.size:  # too late to let that one in: follow the vehicle beyond it
+        beyond = np.minimum(alongside + 2, len(veh) - 1)
+        same = (alongside + 2 < len(veh)) & (index.lane[beyond] == index.lane[alongside])
+        leader[alongside] = np.where(same, veh[beyond], -1)
+        gap, v_lead = _gap_to(fleet, veh, leader, fleet["y"][veh])
     if roadway.extra_lane_ft is not None:
         extra, end = roadway.lanes, roadway.extra_lane_ft[1]
         bound = (index.lane == extra) & (fleet["lane"][veh] == extra)
         if roadway.extra_lane_exits:
             bound &= ~fleet["exits"][veh]
-        gap_end = np.where(bound, end - fleet["y"][veh], np.inf)  # the lane's end, a standing obstacle
+        gap_end = np.where(bound, end - fleet["y"][veh], np.inf)  # the lane's end stands still
         closer = gap_end < gap
         gap, v_lead = np.where(closer, gap_end, gap), np.where(closer, 0.0, v_lead)
     acc_entry = _idm(fleet, veh, _desired_speed(fleet, roadway, cap_fps)[veh], gap, v_lead)
+    acc_entry[index.courtesy] = np.inf  # a waiting vehicle creeps on in its own lane
     acc = np.full(len(fleet), np.inf)
     np.minimum.at(acc, veh, acc_entry)
     return acc
@@ -308,16 +335,14 @@ def _change_lanes(sim: _Simulation, index: _LaneIndex, acc: np.ndarray, step: in
     rows = np.flatnonzero(deciding)
     if rows.size == 0:
         return
+    # One direction per round: two drivers never claim one gap from both sides in the same step.
+    direction = -1 if (step // DECISION_EVERY) % 2 == 0 else 1
     lane = fleet["lane"][rows]
-    best_gain, best_lane = np.full(rows.size, CHANGE_THRESHOLD_FPS2), lane.copy()
-    for direction in (-1, 1):
-        target = (lane + direction).astype(np.int16)
-        gain = _change_gain(fleet, index, acc, rows, target, sim.roadway)
-        better = gain > best_gain
-        best_gain, best_lane = np.where(better, gain, best_gain), np.where(better, target, best_lane)
-    moving = rows[best_lane != lane]
+    target = (lane + direction).astype(np.int16)
+    gain = _change_gain(fleet, index, acc, rows, target, sim.roadway)
+    moving = rows[gain > CHANGE_THRESHOLD_FPS2]
     fleet["from_lane"][moving] = fleet["lane"][moving]
-    fleet["lane"][moving] = best_lane[best_lane != lane]
+    fleet["lane"][moving] += direction
     fleet["change_s"][moving] = 0.0
     fleet["change_dur_s"][moving] = sim.rng.uniform(3.0, 5.0, moving.size)
 
@@ -335,45 +360,15 @@ def _change_gain(fleet: np.ndarray, index: _LaneIndex, acc: np.ndarray, rows: np
     gap_behind = np.where(has_f, y - fleet["length"][rows] - fleet["y"][behind], np.inf)
     follower_new = _idm(fleet, behind, v0[behind], gap_behind, fleet["v"][rows])
     follower_loss = np.where(has_f, follower_new - acc[behind], 0.0)
-    bias = _change_bias(fleet, rows, target, roadway)
+    exits = fleet["exits"][rows]
+    bias = change_bias(roadway, fleet["lane"][rows], target, y, exits)
     gain = own_new - acc[rows] + POLITENESS * follower_loss + bias
     safe_brake = SAFE_BRAKE_FPS2 + np.maximum(bias, 0.0)  # mandatory moves accept harder braking
     safe = (
         (gap_ahead > MIN_GAP_FT) & (gap_behind > MIN_GAP_FT)
         & (own_new > -safe_brake) & (np.where(has_f, follower_new, 0.0) > -safe_brake)
     )  # fmt: skip
-    return np.where(safe & _lane_open(fleet, rows, target, roadway), gain, -np.inf)
-
-
-def _lane_open(fleet: np.ndarray, rows: np.ndarray, target: np.ndarray,
-               roadway: Roadway) -> np.ndarray:  # fmt: skip
-    """Whether target lanes exist at the rows' positions and may be entered."""
-    is_open = (target >= 1) & (target <= roadway.main_lanes)
-    if roadway.extra_lane_ft is not None and roadway.extra_lane_exits:
-        start, end = roadway.extra_lane_ft
-        room = np.where(fleet["exits"][rows], 60.0, 500.0)  # through traffic leaves it early
-        y = fleet["y"][rows]
-        is_open |= (target == roadway.lanes) & (y > start + 50.0) & (y < end - room)
-    return is_open
-
-
-def _change_bias(fleet: np.ndarray, rows: np.ndarray, target: np.ndarray,
-                 roadway: Roadway) -> np.ndarray:  # fmt: skip
-    """Extra incentive (ft/s^2) for mandatory moves, growing as the decision point nears."""
-    bias = np.zeros(len(rows))
-    if roadway.extra_lane_ft is None:
-        return bias
-    start, end = roadway.extra_lane_ft
-    y, lane = fleet["y"][rows], fleet["lane"][rows]
-    direction = target - lane
-    exiting = fleet["exits"][rows] & roadway.extra_lane_exits & (y < end)
-    through_in_extra = (lane == roadway.lanes) & ~exiting
-    urgency_end = np.clip((y - start) / (end - start - 100.0), 0.0, 1.0)
-    bias += np.where(through_in_extra & (direction == -1), 1.0 + 8.0 * urgency_end**2, 0.0)
-    bias += np.where((target == roadway.lanes) & ~exiting, -1.5, 0.0)
-    urgency_exit = np.clip((y - (end - 1500.0)) / 1200.0, 0.0, 1.0)
-    bias += np.where(exiting, direction * (0.5 + 6.0 * urgency_exit), 0.0)
-    return bias
+    return np.where(safe & lane_open(roadway, target, y, exits), gain, -np.inf)
 
 
 def _lateral_ft(fleet: np.ndarray) -> np.ndarray:
@@ -401,26 +396,29 @@ def _move(sim: _Simulation, acc: np.ndarray) -> None:
         fleet[name] = NOISE_RHO[k] * fleet[name] + shocks[k]
 
 
-def _observe(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
-    """The rows (K, 7) of the vehicles inside the view, columns as documented in `_run`."""
-    inside = (fleet["y"] >= 0.0) & (fleet["y"] <= roadway.length_ft)
-    visible = fleet[inside]
-    columns = (visible["uid"], visible["y"], _lateral_ft(visible), visible["v"], visible["acc"],
-               visible["noise_x"], visible["noise_y"])  # fmt: skip
+def _in_view(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
+    """(K, 7) uid, y, x, v, acc, noise_x, noise_y of the vehicles in the view (see Sightings)."""
+    # A foot of margin at the edges keeps the jittered Local_Y inside [0, length].
+    inside = (fleet["y"] >= 1.0) & (fleet["y"] <= roadway.length_ft - 1.0)
+    seen = fleet[inside]
+    columns = (seen["uid"], seen["y"], _lateral_ft(seen), seen["v"], seen["acc"], seen["noise_x"],
+               seen["noise_y"])  # fmt: skip
     return np.column_stack(columns).astype(np.float64)
 
 
 def _enter(sim: _Simulation, index: _LaneIndex) -> None:
     """Arrivals join the entry queues; the head of each queue enters when its lane has room."""
-    sim.pending = np.minimum(sim.pending + sim.rng.poisson(sim.entry_rate * DT_S), MAX_PENDING)
+    entries = sim.entries
+    sim.pending = np.minimum(sim.pending + sim.rng.poisson(entries.rate_per_s * DT_S), MAX_PENDING)
     points = np.flatnonzero(sim.pending > 0)
     if points.size == 0:
         return
-    lanes, ys = sim.entry_lane[points], sim.entry_y[points]
+    lanes, ys = entries.lane[points], entries.y_ft[points]
     leader, _ = _neighbours_at(index, lanes, ys)
-    gap, v_lead = _gap_to(sim.fleet, np.zeros_like(leader), leader, ys) if len(sim.fleet) else (
-        np.full(points.size, np.inf), np.zeros(points.size))  # fmt: skip
     free = sim.roadway.free_speed_fps * np.where(lanes > sim.roadway.main_lanes, 0.7, 0.95)
+    gap, v_lead = np.full(points.size, np.inf), free
+    if len(sim.fleet):
+        gap, v_lead = _gap_to(sim.fleet, np.zeros_like(leader), leader, ys)
     v_in = np.where(leader >= 0, np.minimum(v_lead, free), free)
     fits = gap >= ENTRY_GAP_FT + ENTRY_HEADWAY_S * v_in
     if not fits.any():
@@ -430,7 +428,7 @@ def _enter(sim: _Simulation, index: _LaneIndex) -> None:
     new["y"] = ys[fits]
     new["lane"] = new["from_lane"] = lanes[fits]
     new["v"] = np.minimum(v_in[fits], new["v0"])
-    new["exits"] = sim.rng.random(entering.size) < sim.entry_exit_share[entering]
+    new["exits"] = sim.rng.random(entering.size) < entries.exit_share[entering]
     sim.pending[entering] -= 1
     sim.fleet = np.concatenate([sim.fleet, new])
 
@@ -446,72 +444,3 @@ def _leave(sim: _Simulation) -> None:
     if gone.any():
         sim.fleet = fleet[~gone]
 
-
-def _observe_rows(observed: np.ndarray, frames: np.ndarray, static: np.ndarray, roadway: Roadway,
-                  frame0_ms: int, rng: np.random.Generator) -> pl.DataFrame:  # fmt: skip
-    """NGSIM rows from the simulated states: ids, jitter, lanes, neighbours, headways, rounding.
-
-    `observed` (R, 7) and `frames` (R,) come from `_run`; `static` holds every created vehicle's
-    uid, length, width and class, in uid order. Returns `schema.RAW_SCHEMA` rows sorted by
-    (vehicle_id, frame_id).
-    """
-    uid = observed[:, 0].astype(np.int64)
-    vehicle_id = _ids_by_entry(uid, frames, observed[:, 1])
-    order = np.lexsort((frames, vehicle_id))
-    uid, vehicle_id, frames, obs = uid[order], vehicle_id[order], frames[order], observed[order]
-    n = len(uid)
-    white = rng.standard_normal((2, n)) * np.array([[0.1], [0.15]])  # ft, uncorrelated part
-    local_y = np.round(obs[:, 1] + obs[:, 6] + white[1], 3)
-    local_x = np.round(obs[:, 2] + obs[:, 5] + white[0], 3)
-    speed = np.round(np.maximum(obs[:, 3] * (1.0 + 0.01 * rng.standard_normal(n)), 0.0), 2)
-    accel = np.round(obs[:, 4] + 0.15 * rng.standard_normal(n) * (obs[:, 3] > 0), 2)
-    lane = lane_of_ft(local_x, roadway)
-    preceding, following, space = _neighbours_in_view(vehicle_id, frames, lane, local_y)
-    timed = (preceding != 0) & (speed > 0)
-    time_headway = np.where(timed, np.minimum(space / np.where(timed, speed, 1.0), 9999.99), 9999.99)
-    global_x, global_y = to_global_ft(local_x, local_y, roadway)
-    _, first, counts = np.unique(vehicle_id, return_index=True, return_counts=True)
-    columns = {
-        schema.VEHICLE_ID: vehicle_id,
-        schema.FRAME_ID: frames,
-        schema.TOTAL_FRAMES: np.repeat(counts, counts),
-        schema.GLOBAL_TIME: frame0_ms + 100 * frames.astype(np.int64),
-        schema.LOCAL_X: local_x,
-        schema.LOCAL_Y: local_y,
-        schema.GLOBAL_X: np.round(global_x, 3),
-        schema.GLOBAL_Y: np.round(global_y, 3),
-        schema.V_LENGTH: np.round(static["length"][uid], 1),
-        schema.V_WIDTH: np.round(static["width"][uid], 1),
-        schema.V_CLASS: static["v_class"][uid],
-        schema.V_VEL: speed,
-        schema.V_ACC: accel,
-        schema.LANE_ID: lane,
-        schema.PRECEDING: preceding,
-        schema.FOLLOWING: following,
-        schema.SPACE_HEADWAY: np.round(space, 2),
-        schema.TIME_HEADWAY: np.round(time_headway, 2),
-    }
-    return pl.DataFrame(columns).cast(dict(schema.RAW_SCHEMA))
-
-
-def _ids_by_entry(uid: np.ndarray, frames: np.ndarray, local_y: np.ndarray) -> np.ndarray:
-    """Vehicle_ID (R,) from 1 in order of first appearance; at frame 0, downstream vehicles first."""
-    unique, first, inverse = np.unique(uid, return_index=True, return_inverse=True)
-    rank = np.empty(len(unique), np.int64)
-    rank[np.lexsort((-local_y[first], frames[first]))] = np.arange(1, len(unique) + 1)
-    return rank[inverse]
-
-
-def _neighbours_in_view(vehicle_id: np.ndarray, frames: np.ndarray, lane: np.ndarray,
-                        local_y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """Preceding and following Vehicle_ID (0: none) in the same frame and lane, and the front-to-
-    front space headway (ft, 0 without a preceding vehicle), for rows (R,)."""
-    order = np.lexsort((vehicle_id, local_y, lane, frames))
-    same = (frames[order][1:] == frames[order][:-1]) & (lane[order][1:] == lane[order][:-1])
-    ids, ys = vehicle_id[order], local_y[order]
-    preceding, following, space = (np.zeros(len(order), np.int64), np.zeros(len(order), np.int64),
-                                   np.zeros(len(order)))  # fmt: skip
-    preceding[order[:-1]] = np.where(same, ids[1:], 0)
-    following[order[1:]] = np.where(same, ids[:-1], 0)
-    space[order[:-1]] = np.where(same, ys[1:] - ys[:-1], 0.0)
-    return preceding, following, space

@@ -10,7 +10,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.cleaning import (
     FEET_TO_M,
     drop_duplicate_rows,
-    drop_incomplete_rows,
+    is_complete,
     split_at_gaps,
     to_si_units,
 )
@@ -21,10 +21,9 @@ def raw(rows: list[dict]) -> pl.DataFrame:
     return frame.with_columns(pl.lit("us-101").alias(s.LOCATION), pl.lit("p").alias(s.PERIOD))
 
 
-def test_incomplete_rows_are_dropped_and_counted() -> None:
+def test_incomplete_rows_are_those_with_an_empty_required_field() -> None:
     frame = raw([make_row(1, 0), make_row(1, 1, local_x=None), make_row(1, 2, v_acc=None)])
-    kept, dropped = drop_incomplete_rows(frame)
-    assert dropped == 1
+    kept = frame.filter(is_complete())
     assert kept[s.FRAME_ID].to_list() == [0, 2]  # an empty v_Acc is not required
 
 

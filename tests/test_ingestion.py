@@ -11,12 +11,14 @@ from conftest import US101_FIRST, US101_SECOND, make_row, straight_track, write_
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.ingestion import build_tracks, read_file_recordings
+from ngsim_graphs.ingestion import build_tracks, read_file_recordings, recording_rows
+
+
+KEY = ("us-101", "0750am-0805am")
 
 
 def raw(rows: list[dict]) -> pl.DataFrame:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
-    return frame.with_columns(pl.lit("us-101").alias(s.LOCATION), pl.lit("0750am-0805am").alias(s.PERIOD))
+    return pl.DataFrame(rows, schema=s.RAW_SCHEMA)
 
 
 def test_tracks_of_one_recording_by_hand() -> None:
@@ -24,7 +26,7 @@ def test_tracks_of_one_recording_by_hand() -> None:
     # Vehicle 9: frames 0..4, shuffled and with one exact duplicate: track {0, 2, 4}.
     v4 = [make_row(4, f, local_y_ft=10.0 * f) for f in (1, 2, 3, 4, 5, 8, 9)]
     v9 = [make_row(9, f, local_x_ft=12.0, local_y_ft=5.0 * f) for f in (3, 0, 4, 2, 1, 2)]
-    tracks, report = build_tracks(raw(v4 + v9), BuildConfig(), first_track_id=100)
+    tracks, report = build_tracks(raw(v4 + v9), KEY, BuildConfig(), first_track_id=100)
     assert tracks.schema == s.TRACKS_SCHEMA
     assert tracks.select(s.TRACK_ID, s.VEHICLE_ID, s.SEGMENT, s.FRAME_ID).rows() == [
         (100, 4, 0, 2),
@@ -43,7 +45,7 @@ def test_tracks_of_one_recording_by_hand() -> None:
 def test_heading_follows_a_lane_change_on_the_grid() -> None:
     # 1 ft/frame sideways, 3 ft/frame forward: on the 0.2 s grid (2, 6) ft per step.
     rows = [make_row(1, f, local_x_ft=10.0 + f, local_y_ft=3.0 * f) for f in range(0, 21)]
-    tracks, _ = build_tracks(raw(rows), BuildConfig(), first_track_id=0)
+    tracks, _ = build_tracks(raw(rows), KEY, BuildConfig(), first_track_id=0)
     assert tracks.height == 11
     assert tracks[s.HEADING_RAD].to_list() == pytest.approx([math.atan2(1.0, 3.0)] * 11)
 
@@ -52,9 +54,11 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     first = straight_track(3, range(4), start_ms=US101_FIRST.start_epoch_ms)
     second = straight_track(3, range(2), start_ms=US101_SECOND.start_epoch_ms)
     path = write_portal(tmp_path / "p.csv", second + first + [make_row(3, 9, local_x=None)])
-    by_key, report = read_file_recordings(path, BuildConfig())
-    assert sorted(by_key) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
-    assert by_key[("us-101", "0750am-0805am")].height == 4
-    assert by_key[("us-101", "0805am-0820am")].height == 2
+    rows, chosen, report = read_file_recordings(path, BuildConfig())
+    assert sorted(chosen) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
+    first = recording_rows(rows, chosen[("us-101", "0750am-0805am")])
+    assert first.columns == list(s.RAW_SCHEMA.names())
+    assert first.height == 4
+    assert recording_rows(rows, chosen[("us-101", "0805am-0820am")]).height == 2
     assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")
     assert report.recordings == ("us-101/0750am-0805am", "us-101/0805am-0820am")

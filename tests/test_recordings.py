@@ -13,7 +13,7 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.recordings import (
     OFFICIAL_RECORDINGS,
     find_official_recording,
-    label_recordings,
+    identify_recordings,
     location_from_path,
     period_label,
 )
@@ -51,9 +51,8 @@ def test_combined_file_separates_periods_with_colliding_vehicle_ids() -> None:
         make_row(5, 0, start_ms=US101_SECOND.start_epoch_ms),
         make_row(5, 0, start_ms=I80_FIRST.start_epoch_ms),
     ]
-    labelled = label_recordings(frame_of(rows, ["us-101", "us-101", "us-101", "i-80"]), Path("x"))
-    keys = labelled.select(s.LOCATION, s.PERIOD).rows()
-    assert keys == [
+    index, names = identify_recordings(frame_of(rows, ["us-101", "us-101", "us-101", "i-80"]), Path("x"))
+    assert [names[i] for i in index] == [
         ("us-101", "0750am-0805am"),
         ("us-101", "0750am-0805am"),
         ("us-101", "0805am-0820am"),
@@ -63,15 +62,14 @@ def test_combined_file_separates_periods_with_colliding_vehicle_ids() -> None:
 
 def test_per_period_file_location_from_time_or_folder() -> None:
     official = frame_of([make_row(1, 0, start_ms=I80_FIRST.start_epoch_ms)], [None])
-    assert label_recordings(official, Path("any.txt"))[s.LOCATION].to_list() == ["i-80"]
+    assert identify_recordings(official, Path("any.txt"))[1] == [("i-80", "0400-0415")]
     lankershim_ms = 1118935680000  # not one of the six: location from the folder name
     # make_row puts frame 0 seven seconds before start_ms
     other = frame_of([make_row(1, 0, start_ms=lankershim_ms + 7_000)], [None])
-    labelled = label_recordings(other, Path("/data/Lankershim/trajectories.txt"))
-    assert labelled.row(0, named=True)[s.LOCATION] == "lankershim"
-    assert labelled.row(0, named=True)[s.PERIOD] == "0828-0828"
+    index, names = identify_recordings(other, Path("/data/Lankershim/trajectories.txt"))
+    assert index.to_list() == [0] and names == [("lankershim", "0828-0828")]
     with pytest.raises(NgsimInputError, match=r"nowhere\.txt: cannot tell the location"):
-        label_recordings(other, Path("/data/nowhere.txt"))
+        identify_recordings(other, Path("/data/nowhere.txt"))
 
 
 def test_location_from_path_spellings() -> None:

@@ -1,0 +1,233 @@
+"""The synthetic files behind `synth`: formats, quirks, determinism and atomic writes.
+
+Files are parsed here with the csv module and str.split, independently of the project's reader.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+from collections import Counter
+from datetime import datetime
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from ngsim_graphs import schema, synthesis
+from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
+from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.traffic import simulate_recording
+
+MINUTES = 0.3
+QUOTED_THOUSANDS = re.compile(r'^"-?\d{1,3}(,\d{3})+(\.\d+)?"$')
+COMMA_OUTSIDE_QUOTES = re.compile(r',(?=(?:[^"]*"[^"]*")*[^"]*$)')
+_simulated: dict[tuple[str, str, float, int], pl.DataFrame] = {}
+
+
+@pytest.fixture(autouse=True)
+def _simulate_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Simulate each recording once per test session; the simulation has its own tests."""
+
+    def cached(recording, minutes, seed):  # noqa: ANN001, ANN202
+        key = (recording.location, recording.period, minutes, seed)
+        if key not in _simulated:
+            _simulated[key] = simulate_recording(recording, minutes, seed)
+        return _simulated[key]
+
+    monkeypatch.setattr(synthesis, "simulate_recording", cached)
+
+
+def _write(tmp_path: Path, raw_format: RawFormat, quirks: bool, recordings: int = 2,
+           seed: int = 5) -> list[Path]:  # fmt: skip
+    config = SynthConfig(raw_format, recordings, MINUTES, seed, quirks)
+    return synthesis.write_synthetic(tmp_path / f"{raw_format.value}-{quirks}", config)
+
+
+def _csv_rows(path: Path) -> tuple[list[str], list[list[str]]]:
+    text = path.read_bytes().decode("utf-8-sig")
+    rows = list(csv.reader(io.StringIO(text, newline="")))
+    return rows[0], rows[1:]
+
+
+def _number(field: str) -> float:
+    return float(field.strip('"').replace(",", ""))
+
+
+def _txt_keys(path: Path) -> set[tuple[int, int]]:
+    return {(int(line.split()[0]), int(line.split()[1])) for line in path.read_text().splitlines()}
+
+
+def _csv_keys(path: Path) -> set[tuple[int, int]]:
+    return {(int(row[0]), int(row[1])) for row in _csv_rows(path)[1]}
+
+
+def test_txt_plain_round_trips(tmp_path: Path) -> None:
+    paths = _write(tmp_path, RawFormat.TXT, quirks=False)
+    assert [p.relative_to(tmp_path / "txt-False").as_posix() for p in paths] == [
+        "us-101/trajectories-0750am-0805am.txt",
+        "i-80/trajectories-0400-0415.txt",
+    ]
+    text = paths[1].read_text()
+    assert text.endswith("  \n") and "\r" not in text
+    lines = text.splitlines()
+    assert all(line.startswith(" ") and line.endswith(" ") for line in lines)
+    assert all(len(line.split()) == 18 for line in lines)
+    assert "  " in lines[0].strip()  # fields padded with several spaces
+    parsed = pl.DataFrame([line.split() for line in lines], schema=list(schema.TXT_COLUMNS),
+                          orient="row").cast(dict(schema.RAW_SCHEMA))  # fmt: skip
+    expected = simulate_recording(OFFICIAL_RECORDINGS[1], MINUTES, 5)
+    assert parsed.equals(expected.select(schema.TXT_COLUMNS))
+
+
+def test_txt_quirks_gaps_and_no_final_newline(tmp_path: Path) -> None:
+    paths = _write(tmp_path, RawFormat.TXT, quirks=True)
+    data = paths[0].read_bytes()
+    assert not data.endswith(b"\n") and data.endswith(b" ")
+    rows = _txt_keys(paths[0])
+    full = simulate_recording(OFFICIAL_RECORDINGS[0], MINUTES, 5)
+    assert len(rows) < len(full)
+    assert rows < set(zip(full[schema.VEHICLE_ID], full[schema.FRAME_ID], strict=True))
+
+
+def test_csv_plain_header_and_values(tmp_path: Path) -> None:
+    path = _write(tmp_path, RawFormat.CSV, quirks=False)[0]
+    data = path.read_bytes()
+    assert b"\r" not in data and data.endswith(b"\n") and b'"' not in data
+    header, rows = _csv_rows(path)
+    assert tuple(header) == schema.PERIOD_CSV_HEADER
+    assert all(len(row) == 24 for row in rows)
+    assert all(row[14:20] == [""] * 6 for row in rows)  # O_Zone .. Movement empty
+    expected = simulate_recording(OFFICIAL_RECORDINGS[0], MINUTES, 5)
+    assert len(rows) == len(expected)
+    assert [_number(v) for v in rows[10][:14]] == pytest.approx(list(expected.row(10)[:14]))
+
+
+def test_csv_quirks_header_variants_crlf_and_gaps(tmp_path: Path) -> None:
+    path = _write(tmp_path, RawFormat.CSV, quirks=True)[0]
+    data = path.read_bytes()
+    assert data.count(b"\r\n") == data.count(b"\n") > 100
+    header, rows = _csv_rows(path)
+    assert header[0] == "vehicle_id" and header[5] == "LOCAL_Y" and header[8] == "v_Length"
+    assert [name.lower() for name in header] == [n.lower() for n in schema.PERIOD_CSV_HEADER]
+    by_vehicle = Counter(int(row[0]) for row in rows)
+    total = {int(row[0]): int(row[2]) for row in rows}
+    assert any(by_vehicle[v] < total[v] for v in by_vehicle)  # Total_Frames kept across the gap
+
+
+def test_same_gaps_in_every_format(tmp_path: Path) -> None:
+    txt = _txt_keys(_write(tmp_path, RawFormat.TXT, quirks=True)[1])
+    csv_keys = _csv_keys(_write(tmp_path, RawFormat.CSV, quirks=True)[1])
+    portal = _write(tmp_path, RawFormat.PORTAL, quirks=True)[0]
+    _, rows = _csv_rows(portal)
+    portal_keys = {(int(_number(r[0])), int(_number(r[1]))) for r in rows if r[-1] == "i-80"}
+    assert txt == csv_keys == portal_keys
+
+
+def test_portal_plain(tmp_path: Path) -> None:
+    path = _write(tmp_path, RawFormat.PORTAL, quirks=False)[0]
+    assert path.name == synthesis.PORTAL_FILE_NAME
+    data = path.read_bytes()
+    assert data.startswith(b"Vehicle_ID,") and b"\r" not in data and b'"' not in data
+    header, rows = _csv_rows(path)
+    assert tuple(header) == schema.PORTAL_HEADER
+    assert Counter(row[-1] for row in rows).keys() == {"us-101", "i-80"}
+    assert all(len(row) == 25 and row[14:20] == [""] * 6 and row[4] != "" for row in rows)
+    assert len({tuple(row) for row in rows}) == len(rows)
+    keys = [(row[-1], int(row[0]), int(row[1])) for row in rows]
+    assert keys == sorted(keys, key=lambda k: (k[0] != "us-101", k[1], k[2]))
+
+
+@pytest.fixture(scope="module")
+def quirky_portal(tmp_path_factory: pytest.TempPathFactory) -> tuple[bytes, list[list[str]]]:
+    out = tmp_path_factory.mktemp("portal")
+    config = SynthConfig(RawFormat.PORTAL, recordings=3, minutes=MINUTES, seed=5, quirks=True)
+    path = synthesis.write_synthetic(out, config)[0]
+    return path.read_bytes(), _csv_rows(path)[1]
+
+
+def test_portal_quirks_bom_crlf_and_thousands(quirky_portal: tuple[bytes, list]) -> None:
+    data, rows = quirky_portal
+    assert data.startswith(synthesis.BOM + b"Vehicle_ID,Frame_ID,")
+    assert data.count(b"\r\n") == data.count(b"\n")
+    lines = data.decode("utf-8-sig").split("\r\n")[1:5000]
+    fields = [COMMA_OUTSIDE_QUOTES.split(line) for line in lines]
+    assert all(len(row) == 25 for row in fields)
+    assert all(QUOTED_THOUSANDS.match(row[3]) for row in fields)  # "1,118,846,..."
+    assert b',"9,999.99",' in data
+    for row in fields:
+        for field in row[:24]:
+            if field.startswith('"'):
+                assert QUOTED_THOUSANDS.match(field) and _number(field) >= 1000
+            elif field:
+                assert abs(float(field)) < 1000
+    assert len(rows) > len(lines)
+
+
+def test_portal_quirks_order_duplicates_and_empty_fields(quirky_portal: tuple[bytes, list]) -> None:
+    _, rows = quirky_portal
+    global_y = [_number(row[7]) for row in rows]
+    assert global_y == sorted(global_y)
+    # The two us-101 periods interleave: their frame-0 times alternate along the file.
+    frame0 = [_number(r[3]) - 100 * _number(r[1]) for r in rows if r[-1] == "us-101"]
+    assert len(set(frame0)) == 2
+    assert sum(a != b for a, b in zip(frame0, frame0[1:])) > 100
+    counts = Counter(tuple(row) for row in rows)
+    assert sum(n - 1 for n in counts.values()) >= 3  # exact duplicates
+    by_key: dict[tuple, list[list[str]]] = {}
+    for row in rows:
+        by_key.setdefault((row[-1], row[3], row[0], row[1]), []).append(row)
+    variants = [group for group in by_key.values() if len({tuple(r) for r in group}) > 1]
+    larger_y = [g for g in variants if all(r[4] for r in g)]
+    assert len(larger_y) >= 3
+    for group in larger_y:
+        local_y = sorted({_number(r[5]) for r in group})
+        assert 0.5 - 1e-6 <= local_y[-1] - local_y[0] <= 3.0 + 1e-6
+    empty_x = [row for row in rows if row[4] == ""]
+    assert len(empty_x) >= 3
+    assert all(len(by_key[(r[-1], r[3], r[0], r[1])]) >= 2 for r in empty_x)
+
+
+def test_portal_quirks_foreign_location(quirky_portal: tuple[bytes, list]) -> None:
+    _, rows = quirky_portal
+    foreign = [row for row in rows if row[-1] == "lankershim"]
+    assert 1000 <= len(foreign) <= 10_000
+    frame0_ms = _number(foreign[0][3]) - 100 * _number(foreign[0][1])
+    start = datetime.fromtimestamp(frame0_ms / 1000, PACIFIC_DAYLIGHT)
+    assert (start.date().isoformat(), start.hour) == ("2005-06-16", 8)
+    assert 27 <= start.minute <= 28
+
+
+def test_same_config_same_bytes_other_seed_other_bytes(tmp_path: Path) -> None:
+    _simulated.clear()  # end to end, through the simulation
+    config = SynthConfig(RawFormat.PORTAL, recordings=1, minutes=0.1, seed=2, quirks=True)
+    first = synthesis.write_synthetic(tmp_path / "a", config)[0].read_bytes()
+    second = synthesis.write_synthetic(tmp_path / "b", config)[0].read_bytes()
+    other = SynthConfig(RawFormat.PORTAL, recordings=1, minutes=0.1, seed=3, quirks=True)
+    third = synthesis.write_synthetic(tmp_path / "c", other)[0].read_bytes()
+    assert first == second != third
+
+
+def test_progress_per_recording_and_no_partial_files(tmp_path: Path) -> None:
+    messages: list[str] = []
+    config = SynthConfig(RawFormat.CSV, recordings=2, minutes=MINUTES, seed=5)
+    synthesis.write_synthetic(tmp_path, config, messages.append)
+    assert len(messages) == 2 and "us-101" in messages[0] and "i-80" in messages[1]
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [
+        "trajectories-0400-0415.csv",
+        "trajectories-0750am-0805am.csv",
+    ]
+
+
+def test_interrupted_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def fail(handle, rows, quirks):  # noqa: ANN001, ANN202
+        handle.write(b"half a file")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(synthesis, "_write_txt", fail)
+    config = SynthConfig(RawFormat.TXT, recordings=1, minutes=MINUTES, seed=5)
+    with pytest.raises(KeyboardInterrupt):
+        synthesis.write_synthetic(tmp_path, config)
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
