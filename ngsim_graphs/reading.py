@@ -11,7 +11,6 @@ import csv
 import difflib
 import hashlib
 import math
-import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,9 +24,10 @@ SNIFF_BYTES = 64 * 1024
 CANDIDATE_SUFFIXES = (".csv", ".txt")
 ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
 _PRESENT = "__present"  # non-empty fields of a row
+_ODD = "__odd"  # the row may have a wrong number of fields
 _EXTRA = "__extra"  # the first surplus field of a CSV row
+_N_FIELDS = "__n_fields"  # fields of a text line
 _LINE = "__line"
-_FIELDS = "__fields"
 
 
 @dataclass(frozen=True)
@@ -129,11 +129,10 @@ def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> 
 
 
 def _check_csv_field_counts(path: Path, n_columns: int) -> None:
-    """Every non-blank line must have as many fields as the header.
+    """Raise for the first non-blank line whose field count differs from the header's.
 
-    Polars fills a short row with nulls and drops a long row's surplus silently, so a row cut
-    short or shifted by an unquoted comma (`1,156`) would pass unnoticed: count the commas
-    outside quotes of every line instead, in one streaming pass.
+    The exact check behind _odd_csv_shape: counts the commas outside quotes of every line in
+    one streaming pass. It runs only for files where a row looked odd.
     """
     lines = pl.scan_csv(
         path,
@@ -147,17 +146,14 @@ def _check_csv_field_counts(path: Path, n_columns: int) -> None:
     )
     unquoted = pl.col(_LINE).str.replace_all(r'"[^"]*"', "")
     n_fields = unquoted.str.count_matches(",", literal=True) + 1
-    try:
-        wrong = (
-            lines.with_row_index(ROW)
-            .filter(pl.col(_LINE).str.strip_chars() != "")
-            .select(ROW, n_fields.alias("n"))
-            .filter(pl.col("n") != n_columns)
-            .head(1)
-            .collect(engine="streaming")
-        )
-    except pl.exceptions.NoDataError:
-        raise NgsimInputError(path, "no data rows") from None
+    wrong = (
+        lines.with_row_index(ROW)
+        .filter(pl.col(_LINE).str.strip_chars() != "")
+        .select(ROW, n_fields.alias("n"))
+        .filter(pl.col("n") != n_columns)
+        .head(1)
+        .collect(engine="streaming")
+    )
     if wrong.height:
         row, n = wrong.row(0)
         cause = "truncated line?" if n < n_columns else "an unquoted comma?"
@@ -169,8 +165,8 @@ def _check_csv_field_counts(path: Path, n_columns: int) -> None:
 def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
     """CSV as text columns named by the lower-cased header, plus EXTRA for surplus fields.
 
-    Returns (frame, header as spelled). Polars drops a row's surplus fields silently; the one
-    spare column keeps the first of them, so that such rows can be found.
+    Returns (frame with ROW and ODD, header as spelled). Polars drops a row's surplus fields
+    silently; the one spare column keeps the first of them, so that such rows can be found.
     """
     header = _header_names(_first_line(path))
     names = [name.lower() for name in header]
@@ -184,11 +180,20 @@ def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
         quote_char='"',
         encoding="utf8-lossy",
     )
-    return frame.with_row_index(ROW), header
+    # A short row reads as empty trailing fields, which cannot be told apart here from fields
+    # left empty; an empty last field marks the row as odd, and the exact check decides.
+    odd = pl.col(_EXTRA).is_not_null() | pl.col(names[-1]).is_null()
+    # Blank lines read as all-null rows: neither data nor another location.
+    not_blank = pl.any_horizontal(pl.col(names).is_not_null())
+    text = frame.with_row_index(ROW).filter(not_blank).with_columns(odd.alias(_ODD))
+    return text, header
 
 
 def _scan_txt_text(path: Path) -> pl.LazyFrame:
-    """Whitespace text: each line read whole, then split on runs of whitespace."""
+    """Whitespace text: each line read whole and split on runs of whitespace; blank lines skipped.
+
+    Returns ROW, the 18 columns as text (null where a line is short) and N_FIELDS.
+    """
     lines = pl.scan_csv(
         path,
         has_header=False,
@@ -198,26 +203,13 @@ def _scan_txt_text(path: Path) -> pl.LazyFrame:
         infer_schema=False,
         encoding="utf8-lossy",
     ).with_row_index(ROW)
-    fields = lines.with_columns(pl.col(_LINE).str.extract_all(r"\S+").alias(_FIELDS)).filter(
-        pl.col(_FIELDS).list.len() > 0
+    fields = pl.col(_LINE).str.extract_all(r"\S+")
+    split = lines.select(ROW, fields.alias(_LINE)).filter(pl.col(_LINE).list.len() > 0)
+    columns = [pl.col(_LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(s.TXT_COLUMNS)]
+    n_fields = pl.col(_LINE).list.len().alias(_N_FIELDS)
+    return split.select(ROW, *columns, n_fields).with_columns(
+        (pl.col(_N_FIELDS) != len(s.TXT_COLUMNS)).alias(_ODD)
     )
-    return fields
-
-
-def _check_txt_field_counts(path: Path, fields: pl.LazyFrame) -> None:
-    expected = len(s.TXT_COLUMNS)
-    wrong = (
-        fields.filter(pl.col(_FIELDS).list.len() != expected)
-        .select(ROW, pl.col(_FIELDS).list.len().alias("n"))
-        .head(1)
-        .collect()
-    )
-    if wrong.height:
-        row, n_fields = wrong.row(0)
-        cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
-        raise NgsimInputError(
-            path, f"{n_fields} fields where {expected} were expected ({cause})", line=row + 1
-        )
 
 
 def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
@@ -230,7 +222,8 @@ def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
     present: list[pl.Expr] = []
     for column in columns:
         text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
-        parsed.append(text.cast(pl.Float64, strict=False).cast(s.RAW_SCHEMA[column], strict=False).alias(column))
+        number = text.cast(pl.Float64, strict=False).cast(s.RAW_SCHEMA[column], strict=False)
+        parsed.append(number.alias(column))
         present.append((text != "").fill_null(False).cast(pl.Int8))
     return parsed, pl.sum_horizontal(present).cast(pl.Int8).alias(_PRESENT)
 
@@ -239,8 +232,8 @@ def _first_bad_number(frame: pl.DataFrame) -> int | None:
     """Index in `frame` of the first row with a field that did not parse as a finite number."""
     parsed = pl.sum_horizontal(pl.col(s.TXT_COLUMNS).is_not_null().cast(pl.Int8))
     floats = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] == pl.Float64]
-    not_finite = pl.any_horizontal(~pl.col(floats).is_finite())
-    bad = frame.select(((parsed != pl.col(_PRESENT)) | not_finite.fill_null(False)).arg_true().first()).item()
+    not_finite = pl.any_horizontal(~pl.col(floats).is_finite()).fill_null(False)
+    bad = frame.select(((parsed != pl.col(_PRESENT)) | not_finite).arg_true().first()).item()
     return None if bad is None else int(bad)
 
 
@@ -260,6 +253,20 @@ def _raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int)
     raise NgsimInputError(path, "a value is out of range", line=row + first_line)
 
 
+def _raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> None:
+    """Raise for the first row with a wrong number of fields (a CSV may turn out fine)."""
+    if raw_format is RawFormat.TXT:
+        odd = text.filter(pl.col(_ODD)).select(ROW, _N_FIELDS).head(1).collect().row(0)
+        row, n_fields = odd
+        expected = len(s.TXT_COLUMNS)
+        cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
+        raise NgsimInputError(
+            path, f"{n_fields} fields where {expected} were expected ({cause})", line=row + 1
+        )
+    columns = text.collect_schema().names()
+    _check_csv_field_counts(path, columns.index(_EXTRA) - 1)  # the fields between ROW and EXTRA
+
+
 def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     """Read one NGSIM file of any format; keep rows of `locations` (portal CSV only).
 
@@ -268,56 +275,41 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     """
     raw_format = sniff_format(path)
     if raw_format is RawFormat.TXT:
-        text = _scan_txt_text(path)
-        _check_txt_field_counts(path, text)
-        text = text.select(
-            ROW, *(pl.col(_FIELDS).list.get(i).alias(c) for i, c in enumerate(s.TXT_COLUMNS))
-        )
-        first_line = 1
+        text, first_line = _scan_txt_text(path), 1
     else:
         text, header = _scan_csv_text(path)
         _check_csv_columns(path, header, raw_format)
         first_line = 2
-    return _parse(path, raw_format, text, first_line, locations)
-
-
-def _parse(
-    path: Path,
-    raw_format: RawFormat,
-    text: pl.LazyFrame,
-    first_line: int,
-    locations: tuple[str, ...],
-) -> RawFile:
     is_portal = raw_format is RawFormat.PORTAL
     location = (
         pl.col(s.LOCATION).str.strip_chars().str.to_lowercase()
         if is_portal
         else pl.lit(None, dtype=pl.String)
-    ).alias(s.LOCATION)
-    text = text.with_columns(location)
-    if raw_format is not RawFormat.TXT:
-        # Blank lines are all-null rows; they are neither data nor another location.
-        text = text.filter(pl.any_horizontal(pl.col(s.TXT_COLUMNS).is_not_null()))
+    )
+    text = text.with_columns(location.alias(s.LOCATION))
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
     parsed, present = _number_exprs(s.TXT_COLUMNS)
-    query = kept.select(ROW, *parsed, s.LOCATION, present)
-    counts = text.group_by(s.LOCATION).agg(pl.len().alias("rows"), _odd_shape(text).sum().alias("odd"))
     try:
-        # Two collects, not collect_all: sharing the scan would hold all of its text in memory.
-        frame = query.collect(engine="streaming")
-        by_location = counts.collect(engine="streaming")
+        frame = kept.select(ROW, *parsed, s.LOCATION, present, _ODD).collect(engine="streaming")
+        # Rows of other locations are counted on their own; one collect_all sharing the scan
+        # would hold all of its text in memory.
+        by_location = (
+            text.group_by(s.LOCATION).agg(pl.len().alias("rows"), pl.col(_ODD).sum().alias("odd"))
+            if is_portal
+            else pl.LazyFrame({"rows": [frame.height], "odd": [frame[_ODD].sum()]})
+        ).collect(engine="streaming")
     except pl.exceptions.ComputeError as err:
-        raise _csv_structure_error(path, err) from None
-    if by_location["odd"].sum():
-        header = text.collect_schema().names()
-        _check_csv_field_counts(path, header.index(_EXTRA) - 1)  # the fields between ROW and EXTRA
-    bad = _first_bad_number(frame)
-    if bad is not None:
-        _raise_bad_number(path, text, frame[ROW][bad], first_line)
-    found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls()))
+        message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise NgsimInputError(path, f"cannot parse as CSV: {message}") from None
     rows_read = int(by_location["rows"].sum())
     if rows_read == 0:
         raise NgsimInputError(path, "no data rows")
+    if by_location["odd"].sum():
+        _raise_odd_shape(path, raw_format, text)
+    bad = _first_bad_number(frame)
+    if bad is not None:
+        _raise_bad_number(path, text, frame[ROW][bad], first_line)
+    found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
     if frame.height == 0:
         raise NgsimInputError(
             path,
@@ -331,26 +323,8 @@ def _parse(
         rows_read=rows_read,
         rows_other_locations=rows_read - frame.height,
         locations_found=found,
-        frame=frame.drop(_PRESENT),
+        frame=frame.drop(_PRESENT, _ODD),
     )
-
-
-def _odd_shape(text: pl.LazyFrame) -> pl.Expr:
-    """Rows that may have a wrong number of fields: a surplus field, or an empty last field.
-
-    A short row reads as empty trailing fields, indistinguishable here from fields left empty;
-    such rows send the file through the exact, slower field count (_check_csv_field_counts).
-    """
-    columns = text.collect_schema().names()
-    if _EXTRA not in columns:
-        return pl.lit(False)
-    last = columns[columns.index(_EXTRA) - 1]
-    return pl.col(_EXTRA).is_not_null() | pl.col(last).is_null()
-
-
-def _csv_structure_error(path: Path, err: Exception) -> NgsimInputError:
-    message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-    return NgsimInputError(path, f"cannot parse as CSV: {message}")
 
 
 def file_sha256(path: Path) -> str:
