@@ -60,9 +60,9 @@ def synth(
 
 def _summary_table(result: BuildResult) -> Table:
     table = Table(title=f"build {result.out_dir}")
-    table.add_column("location")
+    table.add_column("location", no_wrap=True)
     table.add_column("period", no_wrap=True)
-    for column in ("rows 10 Hz", "exact dup", "conflict dup", "gaps", "tracks", "rows 0.2 s"):
+    for column in ("rows", "dups", "conflicts", "gaps", "tracks", "grid rows"):
         table.add_column(column, justify="right")
     for r in result.recordings:
         table.add_row(

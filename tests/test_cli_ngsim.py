@@ -260,7 +260,7 @@ def test_build_prints_summary_table(tmp_path: Path, rows: list[dict]) -> None:
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
-    # location, period, rows 10 Hz, exact dup, conflict dup, gaps, tracks, rows 0.2 s
+    # location, period, rows (10 Hz), dups (exact), conflicts, gaps, tracks, grid rows (0.2 s)
     assert _table_row(result.stdout, "0750am-0805am") == [
         "us-101", "0750am-0805am", "60", "0", "0", "0", "2", "30"
     ]  # fmt: skip
