@@ -1,7 +1,8 @@
-"""`ngsim-graphs build`: raw NGSIM files to a finished, self-describing output directory.
+"""`ngsim-graphs build`: raw NGSIM files to a finished, self-describing dataset directory.
 
 Memory stays bounded by one input file plus one recording: each file's rows are staged per
-recording as Parquet, then each recording is cleaned and written on its own.
+recording as Parquet, then each recording is cleaned, windowed and written on its own; only the
+small per-sample table of every recording is kept until the end.
 """
 
 from __future__ import annotations
@@ -14,8 +15,10 @@ from typing import Any
 import polars as pl
 
 from ngsim_graphs import __version__, layout
+from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.frames import ARRAY_NAMES
 from ngsim_graphs.ingestion import (
     FileReport,
     RecordingKey,
@@ -25,6 +28,9 @@ from ngsim_graphs.ingestion import (
     recording_rows,
 )
 from ngsim_graphs.reading import find_raw_files
+from ngsim_graphs.sampling import COUNT_COLUMNS, recording_samples
+from ngsim_graphs.scaling import FittedRanges, empty_ranges
+from ngsim_graphs.splits import SPLIT, SPLIT_ORDER
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 ProgressCallback = Callable[[str, int, int], None]
@@ -39,6 +45,18 @@ class BuildResult:
     skipped_files: tuple[str, ...]
     recordings: tuple[RecordingReport, ...]
     manifest: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class RecordingOutput:
+    """What one recording adds to the manifest and to the samples tables."""
+
+    report: RecordingReport
+    index: int
+    first_track_id: int
+    n_steps: int
+    proximity_edges: int
+    windows: pl.DataFrame  # with location, period, SPLIT and counts
 
 
 def _stage_inputs(
@@ -56,7 +74,6 @@ def _stage_inputs(
             staged.setdefault(key, []).append(target)
         del rows
         reports.append(report)
-    progress("reading done", len(files), len(files))
     if not staged:
         found = sorted({loc for r in reports for loc in r.locations_found})
         raise NgsimInputError(
@@ -67,47 +84,97 @@ def _stage_inputs(
     return reports, staged
 
 
-def _build_recordings(
-    staged: dict[RecordingKey, list[Path]], config: BuildConfig, root: Path, progress: ProgressCallback
-) -> list[RecordingReport]:
-    """Clean each recording on its own and write its tracks table."""
-    reports: list[RecordingReport] = []
-    next_track_id = 0
-    keys = sorted(staged)
-    for index, key in enumerate(keys):
-        progress(f"tracks {layout.recording_name(*key)}", index, len(keys))
-        tracks, report = build_tracks(pl.read_parquet(staged[key]), key, config, next_track_id)
-        layout.write_parquet(tracks, layout.tracks_path(root, *key))
-        next_track_id += report.tracks
-        reports.append(report)
-    progress("tracks done", len(keys), len(keys))
-    return reports
+def _build_recording(
+    key: RecordingKey, index: int, staged: list[Path], config: BuildConfig, root: Path,
+    first_track_id: int, ranges: FittedRanges,
+) -> tuple[RecordingOutput, FittedRanges]:  # fmt: skip
+    """Tracks, proximity edges, frame arrays and split windows of one recording, written."""
+    tracks, report = build_tracks(pl.read_parquet(staged), key, config, first_track_id)
+    layout.write_parquet(tracks, layout.tracks_path(root, *key))
+    samples = recording_samples(tracks, index, config, ranges)
+    layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
+    arrays = samples.arrays
+    layout.write_arrays(
+        layout.recording_arrays_dir(root, *key), {name: getattr(arrays, name) for name in ARRAY_NAMES}
+    )
+    windows = samples.windows.with_columns(
+        pl.lit(key[0]).alias(s.LOCATION), pl.lit(key[1]).alias(s.PERIOD), pl.lit(index).alias("recording_index")
+    )
+    output = RecordingOutput(report, index, first_track_id, arrays.n_steps, samples.pairs.height, windows)
+    return output, samples.ranges
+
+
+def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
+    """Samples tables and arrays of each split; returns the sample count per split and recording."""
+    windows = pl.concat([o.windows for o in outputs])
+    counts: dict[str, dict[str, int]] = {}
+    for split in SPLIT_ORDER:
+        part = (
+            windows.filter(pl.col(SPLIT) == split.value)
+            .sort(s.LOCATION, s.PERIOD, s.EGO_TRACK_ID, s.START_STEP)
+            .with_row_index(s.SAMPLE_ID)
+        )
+        table = part.select(*s.SAMPLE_SCHEMA.names(), *COUNT_COLUMNS).cast(dict(s.SAMPLE_SCHEMA))
+        layout.write_parquet(table, layout.samples_path(root, split.value))
+        layout.write_arrays(
+            layout.sample_arrays_dir(root, split.value),
+            {
+                "recording_index": part["recording_index"].cast(pl.Int16).to_numpy(),
+                "ego_track_id": part[s.EGO_TRACK_ID].to_numpy(),
+                "start_step": part[s.START_STEP].to_numpy(),
+            },
+        )
+        by_recording = part.group_by(s.LOCATION, s.PERIOD).len().sort(s.LOCATION, s.PERIOD)
+        counts[split.value] = {
+            layout.recording_name(loc, period): n for loc, period, n in by_recording.iter_rows()
+        }
+    return counts
 
 
 def _manifest(
-    config: BuildConfig, files: list[FileReport], recordings: list[RecordingReport]
+    config: BuildConfig,
+    files: list[FileReport],
+    outputs: list[RecordingOutput],
+    samples: dict[str, dict[str, int]],
+    ranges: FittedRanges,
 ) -> dict[str, Any]:
     config_dict = config.to_dict()
+    reports = [o.report for o in outputs]
     totals = {
-        key: sum(getattr(r, key) for r in recordings)
+        key: sum(getattr(r, key) for r in reports)
         for key in ("rows", "exact_duplicates", "conflicting_duplicates", "gaps", "tracks", "grid_rows")
     }
+    recordings = []
+    for o in outputs:
+        name = layout.recording_name(o.report.location, o.report.period)
+        recordings.append({
+            **asdict(o.report),
+            "index": o.index,
+            "name": name,
+            "first_track_id": o.first_track_id,
+            "n_steps": o.n_steps,
+            "proximity_edges": o.proximity_edges,
+            "samples": {split: samples[split].get(name, 0) for split in samples},
+            "tracks_file": str(layout.tracks_path(Path("."), o.report.location, o.report.period)),
+            "proximity_file": str(layout.proximity_path(Path("."), o.report.location, o.report.period)),
+            "arrays_dir": str(layout.recording_arrays_dir(Path("."), o.report.location, o.report.period)),
+        })  # fmt: skip
     return {
         "format_version": layout.FORMAT_VERSION,
-        "stage": "tracks",
         "software": {"ngsim_graphs": __version__, "polars": pl.__version__},
         "config": config_dict,
         "config_hash": layout.config_hash(config_dict),
         "inputs": [asdict(f) for f in files],
-        "recordings": [
-            {**asdict(r), "tracks_file": str(layout.tracks_path(Path("."), r.location, r.period))}
-            for r in recordings
-        ],
+        "recordings": recordings,
+        "splits": {split: sum(per.values()) for split, per in samples.items()},
+        "scaler": ranges.to_dict(),
         "counts": {
             "rows_read": sum(f.rows_read for f in files),
             "rows_other_locations": sum(f.rows_other_locations for f in files),
             "rows_missing_values": sum(f.rows_missing_values for f in files),
             **totals,
+            "proximity_edges": sum(o.proximity_edges for o in outputs),
+            "samples": sum(sum(per.values()) for per in samples.values()),
         },
     }
 
@@ -127,13 +194,20 @@ def run_build(
     files, skipped = find_raw_files(raw_paths)
     with layout.build_directory(out_dir, overwrite) as root:
         file_reports, staged = _stage_inputs(files, config, root, report_progress)
-        recording_reports = _build_recordings(staged, config, root, report_progress)
-        manifest = _manifest(config, file_reports, recording_reports)
+        outputs, ranges, next_track_id = [], empty_ranges(), 0
+        for index, key in enumerate(sorted(staged)):
+            report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))
+            output, ranges = _build_recording(key, index, staged[key], config, root, next_track_id, ranges)
+            outputs.append(output)
+            next_track_id += output.report.tracks
+        report_progress("writing samples", len(staged), len(staged))
+        samples = _write_samples(root, outputs)
+        manifest = _manifest(config, file_reports, outputs, samples, ranges)
         layout.write_manifest(root, manifest)
     return BuildResult(
         out_dir=out_dir,
         files=tuple(file_reports),
         skipped_files=tuple(str(p) for p in skipped),
-        recordings=tuple(recording_reports),
+        recordings=tuple(o.report for o in outputs),
         manifest=manifest,
     )

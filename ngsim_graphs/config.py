@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from ngsim_graphs.recordings import KNOWN_LOCATION_NAMES
-from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.schema import RawFormat, SplitMode
 
 FRAME_STEP_S = 0.1  # NGSIM's 10 Hz frame period
 
@@ -19,6 +19,15 @@ class BuildConfig:
     time_step_s: float = 0.2  # the resampled grid: frames with frame_id % 2 == 0
     heading_smoothing_s: float = 1.0  # centred moving average of positions before atan2
     min_heading_speed_mps: float = 2.0  # below this the last heading is held
+    history_steps: int = 16  # K_H: 3 s of history including the present
+    future_steps: int = 25  # K_F: 5 s to predict
+    stride_s: float = 8.0  # between window starts of one ego track (8 s: non-overlapping)
+    d_sense_m: float = 50.0  # a vehicle this close to the ego at a history step is a node
+    d_min_m: float = 25.0  # two actor nodes this close share spatial edges
+    split: SplitMode = SplitMode.VEHICLE
+    split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)  # train, validation, test
+    seed: int = 0  # for the random split
+    ego_is_target: bool = False  # whether the ego is predicted too
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.locations) - set(KNOWN_LOCATION_NAMES))
@@ -30,6 +39,26 @@ class BuildConfig:
             raise ValueError(f"time_step_s must be a positive multiple of {FRAME_STEP_S} s")
         if self.heading_smoothing_s < 0 or self.min_heading_speed_mps < 0:
             raise ValueError("heading_smoothing_s and min_heading_speed_mps must be >= 0")
+        stride = self.stride_s / self.time_step_s
+        if stride < 1 - 1e-9 or abs(stride - round(stride)) > 1e-6:
+            raise ValueError(f"stride_s must be a positive multiple of time_step_s ({self.time_step_s} s)")
+        if self.history_steps < 2 or self.future_steps < 1:
+            raise ValueError("history_steps must be >= 2 and future_steps >= 1")
+        if self.d_sense_m <= 0 or self.d_min_m < 0:
+            raise ValueError("d_sense_m must be > 0 and d_min_m >= 0")
+        fractions = self.split_fractions
+        if len(fractions) != 3 or min(fractions) < 0 or abs(sum(fractions) - 1) > 1e-9:
+            raise ValueError("split_fractions must be three non-negative numbers summing to 1")
+
+    @property
+    def stride_steps(self) -> int:
+        """Grid steps between the starts of two windows of one ego track (40 for 8 s)."""
+        return round(self.stride_s / self.time_step_s)
+
+    @property
+    def window_steps(self) -> int:
+        """Grid steps of one window: history (with the present) and future (41)."""
+        return self.history_steps + self.future_steps
 
     @property
     def frames_per_step(self) -> int:

@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import polars as pl
 
 from ngsim_graphs.errors import NgsimInputError
@@ -23,7 +24,11 @@ from ngsim_graphs.errors import NgsimInputError
 FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"
 TRACKS_DIR = "tracks"
+PROXIMITY_DIR = "proximity"
+SAMPLES_DIR = "samples"
+ARRAYS_DIR = "arrays"
 STAGING_DIR = "_staging"
+SAMPLE_ARRAYS = ("recording_index", "ego_track_id", "start_step")
 PARQUET_COMPRESSION = "zstd"
 
 
@@ -35,6 +40,39 @@ def recording_name(location: str, period: str) -> str:
 def tracks_path(root: Path, location: str, period: str) -> Path:
     """The tracks table of one recording (one row per track and 0.2 s grid step)."""
     return root / TRACKS_DIR / f"{recording_name(location, period)}.parquet"
+
+
+def proximity_path(root: Path, location: str, period: str) -> Path:
+    """Proximity edges of one recording: vehicle pairs within d_min, once per grid step."""
+    return root / PROXIMITY_DIR / f"{recording_name(location, period)}.parquet"
+
+
+def samples_path(root: Path, split: str) -> Path:
+    """The samples (ego windows) of one split."""
+    return root / SAMPLES_DIR / f"{split}.parquet"
+
+
+def recording_arrays_dir(root: Path, location: str, period: str) -> Path:
+    return root / ARRAYS_DIR / recording_name(location, period)
+
+
+def sample_arrays_dir(root: Path, split: str) -> Path:
+    return root / ARRAYS_DIR / f"samples-{split}"
+
+
+def write_arrays(folder: Path, arrays: dict[str, np.ndarray]) -> None:
+    """One .npy file per array, to be opened memory-mapped."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, array in arrays.items():
+        np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+
+
+def open_arrays(folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Memory-map the named .npy files of `folder`: nothing is read until it is used."""
+    missing = [n for n in names if not (folder / f"{n}.npy").is_file()]
+    if missing:
+        raise NgsimInputError(folder, f"incomplete build: missing arrays {', '.join(missing)}")
+    return {n: np.load(folder / f"{n}.npy", mmap_mode="r", allow_pickle=False) for n in names}
 
 
 def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> Path:

@@ -20,6 +20,20 @@ class RawFormat(str, Enum):
     TXT = "txt"  # one period, whitespace-separated, no header
 
 
+class SplitMode(str, Enum):
+    """How ego windows are divided into train, validation and test (SPEC section 3)."""
+
+    VEHICLE = "vehicle"  # by Vehicle_ID within each recording (CS-LSTM's convention)
+    TIME = "time"  # contiguous blocks of present time per recording, one window apart
+    RANDOM = "random"  # seeded, by ego track
+
+
+class Split(str, Enum):
+    TRAIN = "train"
+    VAL = "val"
+    TEST = "test"
+
+
 # Canonical raw column names: NGSIM's header names in lower case. Readers match headers
 # case-insensitively, so `v_Length` and `v_length` both map to `v_length`.
 VEHICLE_ID: Final = "vehicle_id"
@@ -134,5 +148,50 @@ TRACKS_SCHEMA: Final = pl.Schema(
         FOLLOWING: pl.Int32,  # null where NGSIM says 0 (none)
         SPACE_HEADWAY_M: pl.Float64,  # null where there is no leader
         TIME_HEADWAY_S: pl.Float64,  # null where NGSIM says 9999.99 (no leader)
+    }
+)
+
+# Grid nodes of a recording: the tracks table reduced to what graphs need, sorted by (step, track).
+STEP = "step"  # grid step index: frame_id // frames_per_step
+GRID_NODE_SCHEMA: Final = pl.Schema(
+    {
+        STEP: pl.Int32,
+        TRACK_ID: pl.Int32,
+        VEHICLE_ID: pl.Int32,
+        X_M: pl.Float64,
+        Y_M: pl.Float64,
+        HEADING_RAD: pl.Float64,
+        SPEED_MPS: pl.Float64,
+    }
+)
+
+# Proximity edges of a recording, stored once per grid step: every pair of vehicles at most
+# d_min apart, lower track id first. A sample's actor-actor edges are the pairs among its nodes.
+TRACK_A = "track_a"
+TRACK_B = "track_b"
+DISTANCE_M = "distance_m"
+PROXIMITY_SCHEMA: Final = pl.Schema(
+    {STEP: pl.Int32, TRACK_A: pl.Int32, TRACK_B: pl.Int32, DISTANCE_M: pl.Float64}
+)
+
+# Samples of one split: one ego window each.
+SAMPLE_ID = "sample_id"  # 0.. within the split, in (location, period, ego track, start) order
+EGO_TRACK_ID = "ego_track_id"
+EGO_VEHICLE_ID = "ego_vehicle_id"
+START_STEP = "start_step"  # the window's first history step
+PRESENT_STEP = "present_step"  # start_step + history_steps - 1
+ORIGIN_X_M = "origin_x_m"  # the ego's position at the present step: (0, 0) of the sample frame
+ORIGIN_Y_M = "origin_y_m"
+SAMPLE_SCHEMA: Final = pl.Schema(
+    {
+        SAMPLE_ID: pl.Int32,
+        LOCATION: pl.String,
+        PERIOD: pl.String,
+        EGO_TRACK_ID: pl.Int32,
+        EGO_VEHICLE_ID: pl.Int32,
+        START_STEP: pl.Int32,
+        PRESENT_STEP: pl.Int32,
+        ORIGIN_X_M: pl.Float64,
+        ORIGIN_Y_M: pl.Float64,
     }
 )

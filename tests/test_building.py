@@ -82,12 +82,11 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     assert on_disk == json.loads(json.dumps(result.manifest))
     assert layout.read_manifest(out) == on_disk
     assert on_disk["format_version"] == layout.FORMAT_VERSION == 1
-    assert on_disk["config"] == {
-        "locations": ["us-101", "i-80"],
-        "time_step_s": 0.2,
-        "heading_smoothing_s": 1.0,
-        "min_heading_speed_mps": 2.0,
-    }
+    assert on_disk["config"] == json.loads(json.dumps(BuildConfig().to_dict()))
+    assert on_disk["config"]["locations"] == ["us-101", "i-80"]
+    assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
+        50.0, 25.0, "vehicle",
+    )  # fmt: skip
     canonical = json.dumps(on_disk["config"], sort_keys=True, separators=(",", ":"))
     assert on_disk["config_hash"] == hashlib.sha256(canonical.encode()).hexdigest()
 
@@ -111,6 +110,8 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
         "gaps": 1,
         "tracks": 3,
         "grid_rows": 29,  # 5 + 9 + 15
+        "proximity_edges": 14,  # vehicle 1's 14 steps, each beside vehicle 2 within 25 m
+        "samples": 0,  # no track spans a 41-step window
     }
     [recording] = on_disk["recordings"]
     assert recording["location"] == "us-101" and recording["period"] == FIRST
@@ -166,7 +167,13 @@ def test_same_build_twice_gives_identical_parquet(tmp_path: Path, portal_rows: l
     run_build([raw], tmp_path / "b", BuildConfig())
     run_build([shuffled], tmp_path / "c", BuildConfig())
     a = parquet_bytes(tmp_path / "a")
-    assert list(a) == [f"tracks/us-101_{FIRST}.parquet"]
+    assert list(a) == [
+        f"proximity/us-101_{FIRST}.parquet",
+        "samples/test.parquet",
+        "samples/train.parquet",
+        "samples/val.parquet",
+        f"tracks/us-101_{FIRST}.parquet",
+    ]
     assert parquet_bytes(tmp_path / "b") == a
     assert parquet_bytes(tmp_path / "c") == a
 
@@ -210,7 +217,14 @@ def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: l
     assert result.manifest["counts"]["tracks"] == 3
     assert not killed.exists()
     assert hidden_siblings(out) == []
-    assert sorted(snapshot(out)) == ["manifest.json", f"tracks/us-101_{FIRST}.parquet"]
+    assert [f for f in sorted(snapshot(out)) if not f.startswith("arrays/")] == [
+        "manifest.json",
+        f"proximity/us-101_{FIRST}.parquet",
+        "samples/test.parquet",
+        "samples/train.parquet",
+        "samples/val.parquet",
+        f"tracks/us-101_{FIRST}.parquet",
+    ]
 
 
 def test_periods_of_one_portal_file_are_separate_recordings(tmp_path: Path) -> None:

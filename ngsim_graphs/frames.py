@@ -1,0 +1,169 @@
+"""Per-recording frame data that every sample's graph is induced from.
+
+Two things per recording, both on the 0.2 s grid:
+- the grid nodes: every track at every step, sorted by (step, track), with an index by step and
+  an index by track (`RecordingArrays`, the memory-mappable form the dataset opens);
+- the proximity edges: every pair of vehicles at most d_min apart, found once per step by a sweep
+  along y, instead of once per sample that sees them.
+
+Distances everywhere are `sqrt(dx * dx + dy * dy)` in float64 over world positions in metres, the
+same formula in the fast path and in the tests' brute-force reference, so that a distance exactly
+at a threshold is decided alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import polars as pl
+
+from ngsim_graphs import schema as s
+
+
+@dataclass(frozen=True)
+class RecordingArrays:
+    """One recording's grid nodes and proximity edges as flat arrays (CSR indexes).
+
+    Rows are grid nodes sorted by (step, track). Steps run 0..S-1 (frame_id // frames per step);
+    tracks run first_track_id..first_track_id+T-1 and are contiguous in steps.
+    """
+
+    step_ptr: np.ndarray  # (S+1,) int64: rows of step s are step_ptr[s]:step_ptr[s+1]
+    node_track: np.ndarray  # (N,) int32 track id of each row
+    node_state: np.ndarray  # (N, 4) float64 [x_m, y_m, heading_rad, speed_mps], world frame
+    track_first_step: np.ndarray  # (T,) int32 first grid step of each track
+    track_ptr: np.ndarray  # (T+1,) int64: rows of track t (in step order) in track_rows[...]
+    track_rows: np.ndarray  # (N,) int32 row indices grouped by track, in step order
+    pair_ptr: np.ndarray  # (S+1,) int64: proximity pairs of step s
+    pair_rows: np.ndarray  # (P, 2) int32 rows of the two vehicles, the one with lower y first
+    pair_dist: np.ndarray  # (P,) float32 distance, metres
+    pair_key: np.ndarray  # (P,) float64 step * PAIR_KEY_STEP + y of the lower vehicle, ascending
+    first_track_id: int
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.step_ptr) - 1
+
+    def track_steps(self, track_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(first step, number of steps) of each given track id."""
+        local = track_ids - self.first_track_id
+        return self.track_first_step[local], np.diff(self.track_ptr)[local]
+
+    def row_at(self, track_ids: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """Row of each (track, step); -1 where the track has no row at that step."""
+        first, count = self.track_steps(track_ids)
+        offset = steps - first
+        inside = (offset >= 0) & (offset < count)
+        local = track_ids - self.first_track_id
+        safe = np.where(inside, self.track_ptr[local] + offset, 0)
+        return np.where(inside, self.track_rows[safe], -1)
+
+
+# Pairs are ordered by (step, y of their lower vehicle) so that the pairs near an ego are one
+# contiguous range; the key folds both into one sortable number (|y| < PAIR_KEY_STEP / 2).
+PAIR_KEY_STEP = 1.0e5
+
+
+def pair_search_key(step: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+    """The sort key of a pair whose lower vehicle is at `y_m`, at grid step `step`."""
+    return step.astype(np.float64) * PAIR_KEY_STEP + y_m
+
+
+ARRAY_NAMES = tuple(f.name for f in fields(RecordingArrays) if f.name != "first_track_id")
+
+
+def grid_nodes(tracks: pl.DataFrame, frames_per_step: int) -> pl.DataFrame:
+    """The tracks table as GRID_NODE_SCHEMA rows, sorted by (step, track)."""
+    step = (pl.col(s.FRAME_ID) // frames_per_step).cast(pl.Int32).alias(s.STEP)
+    columns = [step, *(pl.col(c) for c in s.GRID_NODE_SCHEMA.names() if c != s.STEP)]
+    return tracks.select(columns).cast(dict(s.GRID_NODE_SCHEMA)).sort(s.STEP, s.TRACK_ID)
+
+
+def _pairs_by_sweep(step: np.ndarray, x: np.ndarray, y: np.ndarray, d_max_m: float):
+    """All (i, j, distance) with equal step and distance <= d_max_m; rows sorted by (step, y).
+
+    Row i is compared with row i + k for k = 1, 2, ... until no row has a same-step partner
+    within d_max_m along y at that offset: beyond it, y only grows apart.
+    """
+    first, second, dist = [], [], []
+    offset = 1
+    while offset < len(step):
+        near = (step[offset:] == step[:-offset]) & (y[offset:] - y[:-offset] <= d_max_m)
+        i = np.flatnonzero(near)
+        if len(i) == 0:
+            break
+        dx, dy = x[i + offset] - x[i], y[i + offset] - y[i]
+        d = np.sqrt(dx * dx + dy * dy)
+        keep = d <= d_max_m
+        first.append(i[keep])
+        second.append(i[keep] + offset)
+        dist.append(d[keep])
+        offset += 1
+    if not first:
+        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
+    return np.concatenate(first), np.concatenate(second), np.concatenate(dist)
+
+
+def proximity_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
+    """Every pair of vehicles at one step at most `d_max_m` apart (PROXIMITY_SCHEMA).
+
+    `nodes` are grid nodes (GRID_NODE_SCHEMA). Each pair appears once, lower track id first;
+    rows are sorted by (step, track_a, track_b).
+    """
+    by_y = nodes.select(s.STEP, s.TRACK_ID, s.X_M, s.Y_M).sort(s.STEP, s.Y_M, s.TRACK_ID)
+    step = by_y[s.STEP].to_numpy()
+    track = by_y[s.TRACK_ID].to_numpy()
+    i, j, dist = _pairs_by_sweep(step, by_y[s.X_M].to_numpy(), by_y[s.Y_M].to_numpy(), d_max_m)
+    pairs = pl.DataFrame(
+        {
+            s.STEP: step[i],
+            s.TRACK_A: np.minimum(track[i], track[j]),
+            s.TRACK_B: np.maximum(track[i], track[j]),
+            s.DISTANCE_M: dist,
+        },
+        schema=s.PROXIMITY_SCHEMA,
+    )
+    return pairs.sort(s.STEP, s.TRACK_A, s.TRACK_B)
+
+
+def _csr_ptr(keys: np.ndarray, n_keys: int) -> np.ndarray:
+    """Offsets of each key 0..n_keys-1 in an array sorted by key."""
+    return np.searchsorted(keys, np.arange(n_keys + 1)).astype(np.int64)
+
+
+def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:
+    """Index the grid nodes by step and by track, and the pairs by step, as flat arrays."""
+    step = nodes[s.STEP].to_numpy()
+    track = nodes[s.TRACK_ID].to_numpy()
+    n_steps = int(step.max()) + 1 if len(step) else 0
+    first_track = int(track.min()) if len(track) else 0
+    local_track = track - first_track
+    n_tracks = int(local_track.max()) + 1 if len(track) else 0
+    by_track = np.lexsort((step, local_track)).astype(np.int32)
+    track_ptr = _csr_ptr(local_track[by_track], n_tracks)
+    track_first_step = step[by_track[track_ptr[:-1]]] if n_tracks else np.empty(0, np.int32)
+    # Pair endpoints as rows (through the track index), lower y first, by (step, lower y).
+    rows_of = lambda t, st: by_track[track_ptr[t - first_track] + (st - track_first_step[t - first_track])]  # noqa: E731
+    pair_step = pairs[s.STEP].to_numpy()
+    rows_a = rows_of(pairs[s.TRACK_A].to_numpy(), pair_step)
+    rows_b = rows_of(pairs[s.TRACK_B].to_numpy(), pair_step)
+    y = nodes[s.Y_M].to_numpy()
+    a_lower = y[rows_a] <= y[rows_b]
+    low, high = np.where(a_lower, rows_a, rows_b), np.where(a_lower, rows_b, rows_a)
+    pair_key = pair_search_key(pair_step, y[low])
+    by_key = np.argsort(pair_key, kind="stable")
+    state = nodes.select(s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS).to_numpy().astype(np.float64)
+    return RecordingArrays(
+        step_ptr=_csr_ptr(step, n_steps),
+        node_track=track.astype(np.int32),
+        node_state=np.ascontiguousarray(state),
+        track_first_step=track_first_step.astype(np.int32),
+        track_ptr=track_ptr,
+        track_rows=by_track,
+        pair_ptr=_csr_ptr(pair_step[by_key], n_steps),
+        pair_rows=np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32).reshape(-1, 2),
+        pair_dist=pairs[s.DISTANCE_M].to_numpy()[by_key].astype(np.float32),
+        pair_key=pair_key[by_key],
+        first_track_id=first_track,
+    )

@@ -1,0 +1,184 @@
+"""The graph of a sample (SPEC section 3), induced from its recording's frame arrays.
+
+For history steps k = 0..K_H-1 (k = K_H-1 is the present) of the window of ego track e that
+starts at grid step s0:
+- nodes at k: the ego, then every vehicle at step s0+k whose distance to the ego is <= d_sense,
+  by ascending track id; features [x, y, heading, speed] with the ego's present position at (0, 0);
+- spatial edges at k: ego <-> each actor node, and actor <-> actor where the two are <= d_min
+  apart, both directions; attribute: the distance in metres;
+- temporal edges: a track's node at k -> the same track's node at k+1; attribute: t_s;
+- targets: the actor nodes at the present step (and the ego, if asked), with their positions at
+  the K_F future steps in the sample frame and a mask where the track has no row (it left).
+
+A node is a track: a vehicle whose record was split at a frame gap is two tracks, never joined.
+Everything is computed for a batch of samples at once with flat numpy gathers: no Python loop
+over samples, steps or rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.frames import RecordingArrays, pair_search_key
+
+
+@dataclass(frozen=True)
+class GraphBatch:
+    """The graphs of B samples, concatenated. Node indices are batch-global.
+
+    Nodes of sample b are node_ptr[b]:node_ptr[b+1], ordered by step, then ego first, then by
+    track id; the sample-local index of node n is n - node_ptr[node_sample[n]]. Spatial edges
+    come grouped by kind (ego->actor, actor->ego, actor->actor both ways), each in (sample, step)
+    order; temporal edges by source.
+    """
+
+    node_ptr: np.ndarray  # (B+1,) int64
+    node_sample: np.ndarray  # (N,) int64 sample of each node, 0..B-1
+    node_step: np.ndarray  # (N,) int8 history step k, 0..K_H-1
+    node_track: np.ndarray  # (N,) int32
+    node_is_ego: np.ndarray  # (N,) bool
+    node_features: np.ndarray  # (N, 4) float64 [x_m, y_m, heading_rad, speed_mps], sample frame
+    spatial_edges: np.ndarray  # (2, E_s) int64 [source, destination]
+    spatial_distance: np.ndarray  # (E_s,) float64 metres (actor-actor: as stored, float32 precision)
+    temporal_edges: np.ndarray  # (2, E_t) int64 [node at k, node at k+1]
+    target_node: np.ndarray  # (T,) int64 node of each target (present step), by sample
+    target_xy: np.ndarray  # (T, K_F, 2) float64 future positions, sample frame; 0 where masked
+    target_mask: np.ndarray  # (T, K_F) bool: True where the position is recorded
+    time_step_s: float  # the temporal edges' attribute
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.node_ptr) - 1
+
+
+def concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate the integer ranges [starts[i], ends[i]): returns (owner i, value) per element."""
+    lengths = (ends - starts).astype(np.int64)
+    owner = np.repeat(np.arange(len(starts)), lengths)
+    first = np.cumsum(lengths) - lengths
+    value = np.arange(int(lengths.sum()), dtype=np.int64) - np.repeat(first - starts, lengths)
+    return owner, value
+
+
+def _distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Euclidean distance of (..., 2) positions: sqrt(dx*dx + dy*dy) in float64."""
+    dx, dy = a[..., 0] - b[..., 0], a[..., 1] - b[..., 1]
+    return np.sqrt(dx * dx + dy * dy)
+
+
+def _history_nodes(rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig):
+    """Candidate rows of every (sample, step), which of them are nodes, and the ego rows."""
+    n_samples, k_h = len(ego_track), config.history_steps
+    ss_step = (start_step[:, None] + np.arange(k_h)).reshape(-1)  # sample-step -> grid step
+    ego_rows = rec.row_at(np.repeat(ego_track, k_h), ss_step)  # (B*K_H,)
+    if (ego_rows < 0).any():
+        raise ValueError("an ego track is not present at every history step of its window")
+    cand_ss, cand_row = concat_ranges(rec.step_ptr[ss_step], rec.step_ptr[ss_step + 1])
+    xy = rec.node_state[:, :2]
+    cand_dist = _distance(xy[cand_row], xy[ego_rows[cand_ss]])
+    is_node = cand_dist <= config.d_sense_m
+    return ss_step, ego_rows, cand_ss, cand_row, cand_dist, is_node, n_samples
+
+
+def induce_graphs(
+    rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig
+) -> GraphBatch:
+    """The graphs of samples (ego_track[b], start_step[b]) of one recording."""
+    ss_step, ego_rows, cand_ss, cand_row, cand_dist, is_node, n_samples = _history_nodes(
+        rec, ego_track, start_step, config
+    )
+    k_h = config.history_steps
+    cand_is_ego = cand_row == ego_rows[cand_ss]
+    # Node order: by sample-step, ego first, then rows (rows of a step are by track id).
+    member = np.flatnonzero(is_node)
+    order = member[np.lexsort((cand_row[member], ~cand_is_ego[member], cand_ss[member]))]
+    node_of_cand = np.full(len(cand_row), -1, dtype=np.int64)
+    node_of_cand[order] = np.arange(len(order))
+    node_ss, node_row = cand_ss[order], cand_row[order]
+    node_sample = node_ss // k_h
+    origin = rec.node_state[ego_rows.reshape(n_samples, k_h)[:, -1], :2]  # (B, 2) present ego
+    features = rec.node_state[node_row].copy()
+    features[:, :2] -= origin[node_sample]
+
+    spatial, distance = _spatial_edges(
+        rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, config.d_sense_m
+    )
+    node_track = rec.node_track[node_row]
+    node_step = (node_ss % k_h).astype(np.int8)
+    temporal = _temporal_edges(node_sample, node_track, node_step)
+    target_node, target_xy, target_mask = _targets(
+        rec, node_sample, node_step, node_track, cand_is_ego[order], origin, start_step, config
+    )
+    return GraphBatch(
+        node_ptr=np.searchsorted(node_sample, np.arange(n_samples + 1)).astype(np.int64),
+        node_sample=node_sample,
+        node_step=node_step,
+        node_track=node_track,
+        node_is_ego=cand_is_ego[order],
+        node_features=features,
+        spatial_edges=spatial,
+        spatial_distance=distance,
+        temporal_edges=temporal,
+        target_node=target_node,
+        target_xy=target_xy,
+        target_mask=target_mask,
+        time_step_s=config.time_step_s,
+    )
+
+
+def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, d_sense_m):
+    """Ego <-> actor edges, then actor <-> actor edges among nodes, in both directions.
+
+    Edges come grouped by kind (ego->actor, actor->ego, actor->actor both ways), each group in
+    (sample, step) order: deterministic, without the cost of a full sort.
+    """
+    # Candidates of sample-step ss occupy a contiguous block, in row order from step_ptr[step].
+    block_start = np.searchsorted(cand_ss, np.arange(len(ss_step)))
+    actors = order[~cand_is_ego[order]]
+    ego_node = node_of_cand[block_start + (ego_rows - rec.step_ptr[ss_step])]
+    ego_src = ego_node[cand_ss[actors]]
+    ego_dst = node_of_cand[actors]
+    # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes.
+    ego_y = rec.node_state[ego_rows, 1]
+    lo = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y - d_sense_m), "left")
+    hi = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y + d_sense_m), "right")
+    pair_ss, pair_index = concat_ranges(lo, hi)
+    base = block_start - rec.step_ptr[ss_step]
+    pair_rows = rec.pair_rows[pair_index]
+    node_a = node_of_cand[base[pair_ss] + pair_rows[:, 0]]
+    node_b = node_of_cand[base[pair_ss] + pair_rows[:, 1]]
+    ego_row = ego_rows[pair_ss]
+    keep = (node_a >= 0) & (node_b >= 0) & (pair_rows[:, 0] != ego_row) & (pair_rows[:, 1] != ego_row)
+    node_a, node_b = node_a[keep], node_b[keep]
+    pair_dist = rec.pair_dist[pair_index[keep]].astype(np.float64)
+    src = np.concatenate([ego_src, ego_dst, node_a, node_b])
+    dst = np.concatenate([ego_dst, ego_src, node_b, node_a])
+    dist = np.concatenate([cand_dist[actors], cand_dist[actors], pair_dist, pair_dist])
+    return np.stack([src, dst]), dist
+
+
+def _temporal_edges(node_sample: np.ndarray, node_track: np.ndarray, node_step: np.ndarray) -> np.ndarray:
+    """Node of (sample, track) at step k -> its node at k+1, where both exist."""
+    by = np.lexsort((node_step, node_track, node_sample))
+    same = (node_sample[by][1:] == node_sample[by][:-1]) & (node_track[by][1:] == node_track[by][:-1])
+    follows = same & (node_step[by][1:] == node_step[by][:-1] + 1)
+    src, dst = by[:-1][follows], by[1:][follows]
+    order = np.lexsort((dst, src))
+    return np.stack([src[order], dst[order]]).astype(np.int64)
+
+
+def _targets(rec, node_sample, node_step, node_track, node_is_ego, origin, start_step, config):
+    """Present-step nodes to predict, their future positions in the sample frame, and masks."""
+    present = node_step == config.history_steps - 1
+    chosen = present if config.ego_is_target else present & ~node_is_ego
+    target_node = np.flatnonzero(chosen).astype(np.int64)
+    sample = node_sample[target_node]
+    future = start_step[sample][:, None] + config.history_steps + np.arange(config.future_steps)
+    rows = rec.row_at(np.repeat(node_track[target_node], config.future_steps), future.reshape(-1))
+    rows = rows.reshape(len(target_node), config.future_steps)
+    mask = rows >= 0
+    xy = np.where(mask[..., None], rec.node_state[np.maximum(rows, 0), :2] - origin[sample][:, None], 0.0)
+    return target_node, xy, mask

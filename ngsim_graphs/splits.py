@@ -1,0 +1,81 @@
+"""Dividing ego windows into train, validation and test (SPEC section 3).
+
+Splits are decided per ego window; actor nodes are never filtered by split: an ego's neighbours
+are whoever was there.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.schema import Split, SplitMode
+
+SPLIT = "split"
+SPLIT_ORDER = (Split.TRAIN, Split.VAL, Split.TEST)
+
+
+def _by_thresholds(value: pl.Expr, first: pl.Expr, second: pl.Expr) -> pl.Expr:
+    return (
+        pl.when(value <= first)
+        .then(pl.lit(Split.TRAIN.value))
+        .when(value <= second)
+        .then(pl.lit(Split.VAL.value))
+        .otherwise(pl.lit(Split.TEST.value))
+    )
+
+
+def split_by_vehicle(windows: pl.DataFrame, max_vehicle_id: int, config: BuildConfig) -> pl.Series:
+    """Ego Vehicle_ID <= round(0.7 * max ID) train, <= round(0.8 * max ID) validation, else test.
+
+    `max_vehicle_id` is the largest Vehicle_ID of the recording (CS-LSTM's convention).
+    """
+    train, val, _ = config.split_fractions
+    first, second = round(train * max_vehicle_id), round((train + val) * max_vehicle_id)
+    return windows.select(
+        _by_thresholds(pl.col(s.EGO_VEHICLE_ID), pl.lit(first), pl.lit(second)).alias(SPLIT)
+    ).to_series()
+
+
+def split_by_time(windows: pl.DataFrame, config: BuildConfig) -> pl.Series:
+    """Contiguous blocks of present time: the first 70 % of windows by present step train, the
+    next 10 % validation, the rest test; windows within one window length after a block's end are
+    dropped (null), so that no future of one split lies in the history of another.
+    """
+    train, val, _ = config.split_fractions
+    present = windows[s.PRESENT_STEP].to_numpy()
+    if len(present) == 0:
+        return pl.Series(SPLIT, [], dtype=pl.String)
+    ordered = np.sort(present)
+    cut = lambda fraction: ordered[min(len(ordered) - 1, int(fraction * len(ordered)))]  # noqa: E731
+    first, second = cut(train), cut(train + val)
+    gap = config.window_steps
+    label = np.where(present < first, Split.TRAIN.value, np.where(present < second, Split.VAL.value, Split.TEST.value))
+    in_gap = ((present >= first) & (present < first + gap)) | ((present >= second) & (present < second + gap))
+    return pl.Series(SPLIT, np.where(in_gap, None, label), dtype=pl.String)
+
+
+def split_randomly(windows: pl.DataFrame, recording_index: int, config: BuildConfig) -> pl.Series:
+    """Seeded, by ego track: all windows of one track land in the same split."""
+    tracks = np.unique(windows[s.EGO_TRACK_ID].to_numpy())
+    rng = np.random.default_rng([config.seed, recording_index])
+    draw = rng.random(len(tracks))
+    train, val, _ = config.split_fractions
+    label = np.where(draw < train, Split.TRAIN.value, np.where(draw < train + val, Split.VAL.value, Split.TEST.value))
+    lookup = dict(zip(tracks.tolist(), label.tolist(), strict=True))
+    return windows[s.EGO_TRACK_ID].replace_strict(lookup, return_dtype=pl.String).alias(SPLIT)
+
+
+def assign_splits(
+    windows: pl.DataFrame, max_vehicle_id: int, recording_index: int, config: BuildConfig
+) -> pl.DataFrame:
+    """`windows` with a SPLIT column; windows in a time-split gap are dropped."""
+    if config.split is SplitMode.VEHICLE:
+        labels = split_by_vehicle(windows, max_vehicle_id, config)
+    elif config.split is SplitMode.TIME:
+        labels = split_by_time(windows, config)
+    else:
+        labels = split_randomly(windows, recording_index, config)
+    return windows.with_columns(labels.alias(SPLIT)).drop_nulls(SPLIT)
