@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from ngsim_graphs.recordings import KNOWN_LOCATION_NAMES
@@ -73,6 +73,21 @@ class BuildConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> BuildConfig:
+        """The config of a manifest (JSON lists back to tuples, the split back to its enum)."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown build settings {unknown}: made by a newer ngsim-graphs?")
+        typed = dict(values)
+        for name in ("locations", "split_fractions"):
+            if name in typed:
+                typed[name] = tuple(typed[name])
+        if "split" in typed:
+            typed["split"] = SplitMode(typed["split"])
+        return cls(**typed)
 
 
 @dataclass(frozen=True)

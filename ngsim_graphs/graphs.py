@@ -182,3 +182,27 @@ def _targets(rec, node_sample, node_step, node_track, node_is_ego, origin, start
     mask = rows >= 0
     xy = np.where(mask[..., None], rec.node_state[np.maximum(rows, 0), :2] - origin[sample][:, None], 0.0)
     return target_node, xy, mask
+
+
+def concat_batches(batches: list[GraphBatch]) -> GraphBatch:
+    """One batch of the samples of several, in order, with node indices offset."""
+    if len(batches) == 1:
+        return batches[0]
+    node_offsets = np.cumsum([0] + [len(b.node_track) for b in batches])
+    sample_offsets = np.cumsum([0] + [b.n_samples for b in batches])
+    join = lambda name: np.concatenate([getattr(b, name) for b in batches])  # noqa: E731
+    return GraphBatch(
+        node_ptr=np.concatenate([[0]] + [b.node_ptr[1:] + o for b, o in zip(batches, node_offsets, strict=False)]),
+        node_sample=np.concatenate([b.node_sample + o for b, o in zip(batches, sample_offsets, strict=False)]),
+        node_step=join("node_step"),
+        node_track=join("node_track"),
+        node_is_ego=join("node_is_ego"),
+        node_features=join("node_features"),
+        spatial_edges=np.concatenate([b.spatial_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1),
+        spatial_distance=join("spatial_distance"),
+        temporal_edges=np.concatenate([b.temporal_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1),
+        target_node=np.concatenate([b.target_node + o for b, o in zip(batches, node_offsets, strict=False)]),
+        target_xy=join("target_xy"),
+        target_mask=join("target_mask"),
+        time_step_s=batches[0].time_step_s,
+    )

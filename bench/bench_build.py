@@ -1,0 +1,88 @@
+"""Benchmark: the whole `ngsim-graphs build` at full NGSIM scale, stage by stage.
+
+Generates (or reuses) the synthetic input with `ngsim-graphs synth` in a child process, then runs
+`run_build` here and prints wall seconds per stage, samples and edges per second, the output's
+size on disk and the peak resident memory. Synthetic data: these are not NGSIM results.
+
+    python bench/bench_build.py --format txt            # six recordings of 15 minutes
+    python bench/bench_build.py --format txt --recordings 2   # memory must not grow with this
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import polars as pl
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_ingest import ensure_input  # noqa: E402
+
+from ngsim_graphs import layout  # noqa: E402
+from ngsim_graphs.building import run_build  # noqa: E402
+from ngsim_graphs.config import BuildConfig  # noqa: E402
+
+
+def folder_bytes(folder: Path) -> dict[str, int]:
+    """Bytes on disk per top-level entry of a build."""
+    sizes: dict[str, int] = {}
+    for path in folder.rglob("*"):
+        if path.is_file():
+            top = path.relative_to(folder).parts[0]
+            sizes[top] = sizes.get(top, 0) + path.stat().st_size
+    return sizes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--format", default="txt", choices=["portal", "csv", "txt"])
+    parser.add_argument("--recordings", type=int, default=6)
+    parser.add_argument("--minutes", type=float, default=15.0)
+    parser.add_argument("--quirks", action="store_true")
+    parser.add_argument("--work-dir", type=Path, default=Path("bench/out"))
+    args = parser.parse_args()
+
+    tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
+    raw_dir = args.work_dir / f"raw-{tag}"
+    ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
+
+    marks: list[tuple[str, float]] = []
+    start = time.perf_counter()
+    result = run_build(
+        [raw_dir], args.work_dir / f"graphs-{tag}", BuildConfig(), overwrite=True,
+        progress=lambda what, _done, _total: marks.append((what, time.perf_counter())),
+    )  # fmt: skip
+    end = time.perf_counter()
+    peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+
+    stages: dict[str, float] = {}
+    for (what, at), (_, until) in zip(marks, [*marks[1:], ("end", end)], strict=True):
+        stage = "reading + staging" if what.startswith("reading") else what.split(" ")[0]
+        stages[stage] = stages.get(stage, 0.0) + until - at
+    samples = pl.concat(
+        [pl.read_parquet(layout.samples_path(result.out_dir, split)) for split in ("train", "val", "test")]
+    )
+    wall_s = end - start
+    n_spatial = int(samples["n_spatial_edges"].sum())
+    n_temporal = int(samples["n_temporal_edges"].sum())
+    sizes = folder_bytes(result.out_dir)
+    counts = result.manifest["counts"]
+    print(f"input              {tag}: {counts['rows_read']:,} rows, {len(result.recordings)} recordings")
+    for stage, seconds in stages.items():
+        print(f"  {stage:<17}{seconds:7.1f} s")
+    print(f"wall               {wall_s:.1f} s")
+    print(f"samples            {samples.height:,} ({result.manifest['splits']})")
+    print(f"graph edges        {n_spatial:,} spatial, {n_temporal:,} temporal (induced, not stored per sample)")
+    print(f"samples per second {samples.height / wall_s:,.0f}")
+    print(f"edges per second   {(n_spatial + n_temporal) / wall_s:,.0f}")
+    print(f"proximity edges    {counts['proximity_edges']:,} stored (pairs within d_min, once per step)")
+    print("output on disk     " + ", ".join(f"{k} {v / 1e6:.0f} MB" for k, v in sorted(sizes.items()))
+          + f"; total {sum(sizes.values()) / 1e9:.2f} GB")  # fmt: skip
+    print(f"peak memory        {peak_gb:.2f} GB (max RSS of this process)")
+
+
+if __name__ == "__main__":
+    main()
