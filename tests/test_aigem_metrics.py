@@ -1,0 +1,46 @@
+"""Metric functions against hand-computed cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aigem.metrics import ErrorTotals, region_of, summarize
+
+
+def test_hand_computed_two_actors() -> None:
+    # 10 steps (2 s at 0.2 s). Actor 0 (front, y=20) is off by 3-4-5 at every step;
+    # actor 1 (rear, y=-20) is off by 1 m in x, and its last 5 steps are masked.
+    truth = np.zeros((2, 10, 2))
+    predicted = truth.copy()
+    predicted[0] += [3.0, 4.0]
+    predicted[1, :, 0] += 1.0
+    mask = np.ones((2, 10), bool)
+    mask[1, 5:] = False
+    totals = ErrorTotals(steps=10)
+    totals.add(predicted, truth, mask, present_y_m=np.array([20.0, -20.0]))
+    out = summarize(totals, 0.2)
+    # ADE: (10 * 5 + 5 * 1) / 15; FDE: only actor 0 at step 10.
+    assert out["all"]["ade_m"] == pytest.approx(55 / 15)
+    assert out["all"]["fde_m"] == pytest.approx(5.0)
+    # RMSE at 1 s (step 5): both valid: sqrt((25 + 1) / 2); at 2 s only actor 0.
+    assert out["all"]["rmse_1s_m"] == pytest.approx(math.sqrt(13.0))
+    assert out["all"]["rmse_2s_m"] == pytest.approx(5.0)
+    assert (out["all"]["n_1s"], out["all"]["n_2s"]) == (2, 1)
+    assert out["front"]["ade_m"] == pytest.approx(5.0) and out["rear"]["ade_m"] == pytest.approx(1.0)
+    assert out["mid"]["ade_m"] is None and out["rear"]["fde_m"] is None
+    assert totals.actors == 2
+
+
+def test_pooled_rmse_is_not_the_mean_of_per_batch_rmse() -> None:
+    totals = ErrorTotals(steps=5)
+    for offset in (1.0, 3.0):
+        truth = np.zeros((1, 5, 2))
+        totals.add(truth + [offset, 0.0], truth, np.ones((1, 5), bool), np.array([0.0]))
+    assert summarize(totals, 0.2)["all"]["rmse_1s_m"] == pytest.approx(math.sqrt(5.0))  # not 2
+
+
+def test_regions_by_present_y() -> None:
+    assert region_of(np.array([15.1, 15.0, 0.0, -15.0, -15.1])).tolist() == [0, 1, 1, 1, 2]
