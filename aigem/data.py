@@ -1,0 +1,133 @@
+"""The training dataset over a finished ngsim-graphs build, and its batching.
+
+Opening a split costs the same for a tiny build and for the six-recording one: the manifest is
+read and the arrays are memory-mapped. An item is one sample's graph induced from the mapped
+arrays; `__getitems__` induces a whole batch at once (PyTorch's DataLoader calls it when it
+exists), and the collate function concatenates graphs with vectorised index offsets and applies
+the manifest's scaler. Shapes: N nodes, E edges, A target actors, K future steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.graphs import GraphBatch, concat_batches
+from ngsim_graphs.scaling import FEATURES, scale
+from ngsim_graphs.schema import Split
+
+
+@dataclass(frozen=True)
+class Scaler:
+    """The build's MinMax ranges (fitted on train); physical values in, scaled values out."""
+
+    ranges: dict[str, dict]
+
+    @classmethod
+    def from_manifest(cls, manifest: dict, path: Path) -> Scaler:
+        ranges = manifest.get("scaler", {})
+        needed = (*FEATURES, "distance_m")
+        if any(ranges.get(n, {}).get("min") is None for n in needed):
+            raise NgsimInputError(path, "the build has no fitted scaler (is its train split empty?)")
+        return cls(ranges)
+
+    def _apply(self, name: str, values: np.ndarray) -> np.ndarray:
+        fitted = self.ranges[name]
+        return scale(values, fitted, tuple(fitted["to"]))
+
+    def features(self, physical: np.ndarray) -> np.ndarray:
+        """(N, 4) [x, y, heading, speed] -> scaled float32."""
+        columns = [self._apply(name, physical[:, i]) for i, name in enumerate(FEATURES)]
+        return np.stack(columns, axis=1).astype(np.float32)
+
+    def distance(self, metres: np.ndarray) -> np.ndarray:
+        return self._apply("distance_m", metres).astype(np.float32)
+
+    def xy_to_metres(self, scaled: torch.Tensor) -> torch.Tensor:
+        """(..., 2) scaled positions back to metres (differentiable)."""
+        out = []
+        for i, name in enumerate(FEATURES[:2]):
+            fitted, (low, high) = self.ranges[name], self.ranges[name]["to"]
+            span = (fitted["max"] - fitted["min"]) / (high - low)
+            out.append((scaled[..., i] - low) * span + fitted["min"])
+        return torch.stack(out, dim=-1)
+
+
+class GraphDataset(Dataset):
+    """The samples of one split of a build; item i is sample i's graph (a one-sample GraphBatch)."""
+
+    def __init__(self, build_dir: Path, split: Split | str = Split.TRAIN) -> None:
+        self.build_dir = Path(build_dir)
+        self.split = Split(split)
+        build = open_build(self.build_dir)  # refuses unfinished builds and unknown versions
+        self.config = build.config
+        self.scaler = Scaler.from_manifest(build.manifest, self.build_dir)
+        self.size = int(build.manifest["splits"][self.split.value])
+        self._build: OpenBuild | None = None  # opened lazily in each worker process
+
+    @property
+    def build(self) -> OpenBuild:
+        if self._build is None:
+            self._build = open_build(self.build_dir)
+        return self._build
+
+    def __len__(self) -> int:
+        return self.size
+
+    def __getitem__(self, index: int) -> GraphBatch:
+        return self.build.graphs(self.split, np.array([index]))
+
+    def __getitems__(self, indices: list[int]) -> list[GraphBatch]:
+        """The whole batch's graphs in one vectorised induction."""
+        return [self.build.graphs(self.split, np.asarray(indices))]
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_build": None}  # memory maps are reopened by each worker
+
+
+@dataclass(frozen=True)
+class Collate:
+    """Batches graphs into one dict of tensors (picklable, for DataLoader workers)."""
+
+    scaler: Scaler
+
+    def __call__(self, graphs: list[GraphBatch]) -> dict[str, torch.Tensor]:
+        batch = concat_batches(graphs)
+        targets = batch.target_node
+        present = batch.node_features[targets]
+        return {
+            "x": torch.from_numpy(self.scaler.features(batch.node_features)),  # (N, 4)
+            "spatial_edges": torch.from_numpy(batch.spatial_edges),  # (2, E_s)
+            "spatial_attr": torch.from_numpy(self.scaler.distance(batch.spatial_distance))[:, None],  # (E_s, 1)
+            "temporal_edges": torch.from_numpy(batch.temporal_edges),  # (2, E_t)
+            "temporal_attr": torch.full((batch.temporal_edges.shape[1], 1), batch.time_step_s),  # (E_t, 1)
+            "node_sample": torch.from_numpy(batch.node_sample),  # (N,)
+            "target_node": torch.from_numpy(targets),  # (A,)
+            "target_sample": torch.from_numpy(batch.node_sample[targets]),  # (A,)
+            "target_state": torch.from_numpy(present.astype(np.float32)),  # (A, 4) physical, metres
+            "target_xy": torch.from_numpy(batch.target_xy.astype(np.float32)),  # (A, K, 2) metres
+            "target_mask": torch.from_numpy(batch.target_mask),  # (A, K)
+        }
+
+
+def to_hetero_data(batch: dict[str, torch.Tensor]):  # noqa: ANN201
+    """A collated batch as PyTorch Geometric's HeteroData: one node type, two edge types."""
+    from torch_geometric.data import HeteroData
+
+    data = HeteroData()
+    data["vehicle"].x = batch["x"]
+    data["vehicle"].batch = batch["node_sample"]
+    data["vehicle", "spatial", "vehicle"].edge_index = batch["spatial_edges"]
+    data["vehicle", "spatial", "vehicle"].edge_attr = batch["spatial_attr"]
+    data["vehicle", "temporal", "vehicle"].edge_index = batch["temporal_edges"]
+    data["vehicle", "temporal", "vehicle"].edge_attr = batch["temporal_attr"]
+    data["vehicle"].target_node = batch["target_node"]
+    data["vehicle"].target_xy = batch["target_xy"]
+    data["vehicle"].target_mask = batch["target_mask"]
+    return data
