@@ -1,20 +1,123 @@
-"""`aigem`: train and evaluate the AiGem trajectory predictor on a graph dataset build."""
+"""`aigem`: train and evaluate the AiGem trajectory predictor on an ngsim-graphs build."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+from typing import Annotated
+
 import typer
+from rich.console import Console
+from rich.table import Table
+
+from ngsim_cli.console import exit_on_input_error, stderr
 
 app = typer.Typer(
-    help="AiGem trajectory prediction: `fit` and `evaluate` arrive with the training work.",
+    help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
 )
+stdout = Console()
 
 
-@app.callback(invoke_without_command=True)
-def root() -> None:
-    """AiGem (GAT + linear encoder, GRU decoder, MLP output) on ngsim-graphs builds."""
+def _fail(message: str, code: int = 1) -> typer.Exit:
+    stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
+    return typer.Exit(code)
+
+
+@app.command()
+def fit(
+    data: Annotated[Path, typer.Argument(help="A finished ngsim-graphs build directory.")],
+    out: Annotated[Path, typer.Option("--out", help="Run directory: checkpoints, metrics log, curves.")],
+    horizon_s: Annotated[float, typer.Option(help="Prediction horizon, s (1..5; the paper trains one model per horizon).")] = 5.0,
+    epochs: Annotated[int, typer.Option(help="Epochs over the train split.")] = 100,
+    batch_size: Annotated[int, typer.Option(help="Graphs (samples) per batch.")] = 32,
+    max_minutes: Annotated[float | None, typer.Option(help="Stop training after this many minutes.")] = None,
+    patience: Annotated[int | None, typer.Option(help="Stop after this many epochs without a better validation loss.")] = None,
+    device: Annotated[str, typer.Option(help="auto (CUDA when present), cpu or cuda.")] = "auto",
+    seed: Annotated[int, typer.Option(help="Seed of the initialisation, shuffling and dropout.")] = 0,
+    workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = 0,
+    no_concat: Annotated[bool, typer.Option("--no-concat", help="Ablation: the output MLP does not see the previous position.")] = False,
+    resume: Annotated[bool, typer.Option(help="Continue the run in --out from its last checkpoint.")] = False,
+) -> None:
+    """Train AiGem on DATA's train split; keep the best model by validation loss."""
+    from aigem.config import ModelConfig, TrainConfig
+    from aigem.model import AiGem, count_parameters
+    from aigem.training import NonFiniteLossError, fit as run_fit
+    from ngsim_cli.console import progress_bar
+
+    if device not in ("auto", "cpu", "cuda"):
+        raise _fail(f"--device must be auto, cpu or cuda, not {device!r}", 2)
+    try:
+        train = TrainConfig(
+            horizon_s=horizon_s, epochs=epochs, batch_size=batch_size, max_minutes=max_minutes,
+            patience_epochs=patience, seed=seed, workers=workers,
+        )  # fmt: skip
+    except ValueError as err:
+        raise _fail(str(err), 2) from None
+    model_config = ModelConfig(concat_position=not no_concat)
+    stdout.print(f"AiGem: {count_parameters(AiGem(model_config)):,} parameters (the paper: 74.5 K)")
+    with exit_on_input_error(), progress_bar() as progress:
+        try:
+            result = run_fit(
+                data, out, model_config, train, device, resume,
+                lambda epoch, done, total, loss: progress(f"epoch {epoch} loss {loss:.3f} m²", done, total),
+            )  # fmt: skip
+        except (NonFiniteLossError, ValueError) as err:
+            raise _fail(str(err)) from None
+    stdout.print(
+        f"{result.epochs_done} epochs on {result.device} ({result.stopped_because}); best epoch "
+        f"{result.best_epoch}, validation MSE {result.best_val_loss_m2:.3f} m²; "
+        f"{result.train_graphs_per_s:,.1f} graphs/s in training. Run: {result.run_dir}"
+    )
+
+
+def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
+    table = Table(title=title)
+    for column in ("model", "ADE", "FDE", *(f"RMSE {s} s" for s in range(1, seconds + 1)), "params"):
+        table.add_column(column, justify="left" if column == "model" else "right")
+    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    for name, row in rows.items():
+        rmse = row.get("rmse_m") or [row.get(f"rmse_{s}s_m") for s in range(1, seconds + 1)]
+        table.add_row(name, fmt(row["ade_m"]), fmt(row["fde_m"]), *(fmt(v) for v in rmse[:seconds]),
+                      str(row.get("params_k", "")))  # fmt: skip
+    return table
+
+
+@app.command()
+def evaluate(
+    run: Annotated[Path, typer.Argument(help="A run directory written by `aigem fit`.")],
+    data: Annotated[Path, typer.Option("--data", help="The build to evaluate on.")],
+    split: Annotated[str, typer.Option(help="train, val or test.")] = "test",
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON document, nothing else.")] = False,
+    device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
+) -> None:
+    """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity."""
+    from aigem.evaluation import PAPER_TABLE, as_dict, evaluate as run_evaluate
+
+    if split not in ("train", "val", "test"):
+        raise _fail(f"--split must be train, val or test, not {split!r}", 2)
+    with exit_on_input_error():
+        result = run_evaluate(run, data, split, device)
+    if as_json:
+        typer.echo(json.dumps(as_dict(result), indent=2))
+        return
+    seconds = result.horizon_steps // 5
+    for region in ("all", "front", "mid", "rear"):
+        rows = {"AiGem (this run)": result.model[region], "constant velocity": result.constant_velocity[region]}
+        stdout.print(_metrics_table(f"{split} split, {region} actors (metres)", rows, seconds))
+    counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
+    stdout.print(f"{result.samples:,} samples; evaluated actors per horizon: {counts}")
+    stdout.print(_metrics_table("the paper's table (NGSIM US-101 + I-80)", PAPER_TABLE, 5))
+    stdout.print(
+        f"These numbers come from {result.build_dir}. If it was made by `ngsim-graphs synth`, "
+        "they are synthetic results and not comparable to the paper's NGSIM numbers."
+    )
 
 
 def main() -> None:
     app()
+
+
+if __name__ == "__main__":
+    main()

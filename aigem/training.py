@@ -1,0 +1,190 @@
+"""`aigem fit`: train AiGem on a build's train split, keep the best checkpoint by validation loss.
+
+The loss is the mean squared error in metres^2 over the valid (unmasked) future steps up to the
+horizon: predictions are made in scaled coordinates and mapped back to metres before the loss,
+so x and y weigh alike. Checkpoints are written atomically after every epoch; `resume` restarts
+from the last one. Under `torchrun` (WORLD_SIZE > 1) it trains with DistributedDataParallel.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.utils.data import DataLoader, DistributedSampler
+
+from aigem import runs
+from aigem.config import ModelConfig, TrainConfig
+from aigem.data import Collate, GraphDataset, Scaler
+from aigem.model import AiGem, count_parameters
+from ngsim_graphs.schema import Split
+
+# (epoch, batches done, batches in the epoch, running train loss): the CLI draws a bar from it.
+ProgressCallback = Callable[[int, int, int, float], None]
+
+
+class NonFiniteLossError(RuntimeError):
+    """The loss became NaN or infinite: training stops rather than save a broken model."""
+
+
+@dataclass(frozen=True)
+class FitResult:
+    run_dir: Path
+    parameters: int
+    epochs_done: int
+    best_epoch: int
+    best_val_loss_m2: float
+    stopped_because: str
+    train_graphs_per_s: float
+    device: str
+
+
+def pick_device(choice: str) -> torch.device:
+    """'auto' takes CUDA when present; 'cuda' without a GPU is an error."""
+    if choice == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if choice == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: no CUDA device is available")
+    return torch.device(choice)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def masked_mse_m2(
+    model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: Scaler, steps: int
+) -> torch.Tensor:
+    """Mean squared error in metres^2 over valid steps; (A, steps, 2) scaled predictions."""
+    predicted = scaler.xy_to_metres(model_out)
+    truth = batch["target_xy"][:, :steps]
+    mask = batch["target_mask"][:, :steps].to(predicted.dtype)
+    squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
+    return squared.sum() / mask.sum().clamp(min=1.0)
+
+
+def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+
+
+def _distributed() -> tuple[int, int]:
+    """(rank, world size), starting the process group under torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not torch.distributed.is_initialized():
+        backend = "nccl" if torch.cuda.is_available() else "gloo"
+        torch.distributed.init_process_group(backend)
+    rank = torch.distributed.get_rank() if world > 1 else 0
+    return rank, world
+
+
+def _loaders(build_dir: Path, train: TrainConfig, rank: int, world: int):  # noqa: ANN202
+    train_set, val_set = GraphDataset(build_dir, Split.TRAIN), GraphDataset(build_dir, Split.VAL)
+    collate = Collate(train_set.scaler)
+    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train.seed) if world > 1 else None
+    generator = torch.Generator().manual_seed(train.seed)
+    common = {"batch_size": train.batch_size, "collate_fn": collate, "num_workers": train.workers}
+    train_loader = DataLoader(
+        train_set, shuffle=sampler is None, sampler=sampler, generator=generator, **common
+    )
+    val_loader = DataLoader(val_set, shuffle=False, **common)
+    return train_set, train_loader, val_loader, sampler, generator
+
+
+def evaluate_loss(model: nn.Module, loader: DataLoader, scaler: Scaler, steps: int, device: torch.device) -> float:
+    """Mean validation loss in metres^2, weighted by valid steps."""
+    model.eval()
+    total, count = 0.0, 0.0
+    with torch.no_grad():
+        for batch in loader:
+            batch = _to(batch, device)
+            valid = float(batch["target_mask"][:, :steps].sum())
+            if valid == 0:
+                continue
+            total += float(masked_mse_m2(model(batch, steps), batch, scaler, steps)) * valid
+            count += valid
+    model.train()
+    return total / count if count else float("nan")
+
+
+def fit(
+    build_dir: Path,
+    run_dir: Path,
+    model_config: ModelConfig,
+    train: TrainConfig,
+    device_choice: str = "auto",
+    resume: bool = False,
+    progress: ProgressCallback | None = None,
+) -> FitResult:
+    """Train and write the run directory (see aigem.runs); returns what happened."""
+    rank, world = _distributed()
+    device = pick_device(device_choice)
+    if device.type == "cuda" and world > 1:
+        device = torch.device("cuda", rank % torch.cuda.device_count())
+    seed_everything(train.seed + rank)
+    train_set, train_loader, val_loader, sampler, generator = _loaders(build_dir, train, rank, world)
+    steps = train.horizon_steps(train_set.config.time_step_s)
+    model = AiGem(model_config).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=train.learning_rate)
+    state = runs.start_run(run_dir, build_dir, model_config, train, resume, model, optimizer, is_writer=rank == 0)
+    net = nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    report = progress or (lambda *_: None)
+    started, graphs_seen, train_seconds = time.monotonic(), 0, 0.0
+    stopped = "epochs"
+    epoch = state.next_epoch
+    for epoch in range(state.next_epoch, train.epochs):
+        # The shuffle depends on the epoch alone, so a resumed run sees the batches it would have.
+        generator.manual_seed(train.seed + epoch)
+        torch.manual_seed(train.seed + rank + 1000 * epoch)  # dropout
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        epoch_start, running, batches = time.monotonic(), 0.0, 0
+        for index, batch in enumerate(train_loader):
+            batch = _to(batch, device)
+            loss = masked_mse_m2(net(batch, steps), batch, train_set.scaler, steps)
+            if not torch.isfinite(loss):
+                raise NonFiniteLossError(f"non-finite training loss ({float(loss)}) at epoch {epoch + 1}, batch {index + 1}")
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            running, batches = running + float(loss.detach()), batches + 1
+            graphs_seen += int(batch["node_sample"].max()) + 1 if len(batch["node_sample"]) else 0
+            report(epoch + 1, index + 1, len(train_loader), running / batches)
+            if train.max_minutes is not None and time.monotonic() - started > 60 * train.max_minutes:
+                stopped = "time limit"
+                break
+        train_seconds += time.monotonic() - epoch_start
+        val_loss = evaluate_loss(model, val_loader, train_set.scaler, steps, device)
+        state = runs.end_epoch(run_dir, state, epoch, running / max(batches, 1), val_loss, model, optimizer, rank == 0)
+        if stopped != "epochs":
+            break
+        if train.patience_epochs is not None and epoch - state.best_epoch >= train.patience_epochs:
+            stopped = "early stopping"
+            break
+    if rank == 0:
+        runs.plot_curves(run_dir)
+    return FitResult(
+        run_dir=run_dir,
+        parameters=count_parameters(model),
+        epochs_done=state.next_epoch,
+        best_epoch=state.best_epoch + 1,
+        best_val_loss_m2=state.best_val_loss,
+        stopped_because=stopped,
+        train_graphs_per_s=graphs_seen * world / train_seconds if train_seconds else math.nan,
+        device=str(device),
+    )
+
+
+def describe(result: FitResult) -> dict[str, Any]:
+    return json.loads(json.dumps(result.__dict__, default=str))
