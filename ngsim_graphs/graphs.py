@@ -31,8 +31,9 @@ class GraphBatch:
 
     Nodes of sample b are node_ptr[b]:node_ptr[b+1], ordered by step, then ego first, then by
     track id; the sample-local index of node n is n - node_ptr[node_sample[n]]. Spatial edges
-    come grouped by kind (ego->actor, actor->ego, actor->actor both ways), each in (sample, step)
-    order; temporal edges by source.
+    come by sample, and within a sample grouped by kind (ego->actor, actor->ego, actor->actor
+    both ways), each in step order; temporal edges by source. A batch therefore equals the
+    concatenation of its samples' graphs.
     """
 
     node_ptr: np.ndarray  # (B+1,) int64
@@ -104,7 +105,7 @@ def induce_graphs(
     features[:, :2] -= origin[node_sample]
 
     spatial, distance = _spatial_edges(
-        rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, config.d_sense_m
+        rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, node_sample, config.d_sense_m
     )
     node_track = rec.node_track[node_row]
     node_step = (node_ss % k_h).astype(np.int8)
@@ -129,11 +130,11 @@ def induce_graphs(
     )
 
 
-def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, d_sense_m):
+def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, node_sample, d_sense_m):
     """Ego <-> actor edges, then actor <-> actor edges among nodes, in both directions.
 
-    Edges come grouped by kind (ego->actor, actor->ego, actor->actor both ways), each group in
-    (sample, step) order: deterministic, without the cost of a full sort.
+    Edges come by sample; within a sample grouped by kind (ego->actor, actor->ego,
+    actor->actor both ways), each group in step order: deterministic, without a full sort.
     """
     # Candidates of sample-step ss occupy a contiguous block, in row order from step_ptr[step].
     block_start = np.searchsorted(cand_ss, np.arange(len(ss_step)))
@@ -157,7 +158,9 @@ def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node
     src = np.concatenate([ego_src, ego_dst, node_a, node_b])
     dst = np.concatenate([ego_dst, ego_src, node_b, node_a])
     dist = np.concatenate([cand_dist[actors], cand_dist[actors], pair_dist, pair_dist])
-    return np.stack([src, dst]), dist
+    # Stable by sample (a radix sort on 16-bit keys): a batch equals its samples concatenated.
+    by_sample = np.argsort(node_sample[src].astype(np.uint16), kind="stable")
+    return np.stack([src[by_sample], dst[by_sample]]), dist[by_sample]
 
 
 def _temporal_edges(node_sample: np.ndarray, node_track: np.ndarray, node_step: np.ndarray) -> np.ndarray:

@@ -13,17 +13,21 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+import polars as pl
 import pytest
 from conftest import straight_track, write_period_csv, write_portal, write_txt
 from typer.testing import CliRunner, Result
 
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
+from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.synthesis import write_synthetic
 
 # A wide terminal so that table cells are not cut; errors are checked on a narrow one (they must
 # stay one line however long the path is).
 WIDE = {"COLUMNS": "200"}
 NARROW = {"COLUMNS": "60"}
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def invoke(*args: object, env: dict[str, str] = WIDE) -> Result:
@@ -255,17 +259,25 @@ def _table_row(stdout: str, label: str) -> list[str]:
     return [cell.strip() for cell in line.split("│")[1:-1]]
 
 
+def _table_rows(stdout: str, *first_cells: str) -> list[list[str]]:
+    """The body rows of every table whose first cells are `first_cells`."""
+    rows = [[cell.strip() for cell in line.split("│")[1:-1]] for line in stdout.splitlines()]
+    return [row for row in rows if tuple(row[: len(first_cells)]) == first_cells]
+
+
 def test_build_prints_summary_table(tmp_path: Path, rows: list[dict]) -> None:
     path = write_period_csv(tmp_path / "a.csv", rows)
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
-    # location, period, rows (10 Hz), dups (exact), conflicts, gaps, tracks, grid rows (0.2 s)
+    # location, period, rows (10 Hz), dups (exact), conflicts, gaps, tracks, grid rows (0.2 s),
+    # samples train / val / test (3 s of data: no 8.2 s window)
     assert _table_row(result.stdout, "0750am-0805am") == [
-        "us-101", "0750am-0805am", "60", "0", "0", "0", "2", "30"
+        "us-101", "0750am-0805am", "60", "0", "0", "0", "2", "30", "0", "0", "0"
     ]  # fmt: skip
     summary = "60 rows read, 0 of other locations, 0 with empty required fields dropped."
     assert summary in result.stdout
+    assert "samples: 0 train, 0 val, 0 test (0 in all)." in result.stdout
     assert (out / "manifest.json").is_file()
     assert (out / "tracks" / "us-101_0750am-0805am.parquet").is_file()
     assert leftovers(out) == []
@@ -314,9 +326,12 @@ def finished_build(tmp_path: Path, rows: list[dict]) -> Path:
 def test_stats_table(finished_build: Path) -> None:
     result = invoke("stats", finished_build)
     assert result.exit_code == 0, result.output
-    # recording, vehicles, tracks, rows 0.2 s
+    # recording, vehicles, tracks, rows 0.2 s, samples train / val / test
     row = _table_row(result.stdout, "us-101 0750am-0805am")
-    assert row == ["us-101 0750am-0805am", "2", "2", "30"]
+    assert row == ["us-101 0750am-0805am", "2", "2", "30", "0", "0", "0"]
+    # 30 grid rows: 15 steps of vehicle 1 at 9.144 m/s (30 ft/s) and 15 of vehicle 2 at 40 ft/s
+    assert _table_row(result.stdout, "speed m/s")[:2] == ["speed m/s", f"{(30 + 40) / 2 * 0.3048:.2f}"]
+    assert _table_rows(result.stdout, "train", "0", "-")[0][:5] == ["train", "0", "-", "0", "0 (-)"]
 
 
 def test_stats_json(finished_build: Path) -> None:
@@ -333,10 +348,33 @@ def test_stats_json(finished_build: Path) -> None:
         "gaps": 0,
         "tracks": 2,
         "grid_rows": 30,
+        "proximity_edges": 15,  # the two vehicles are 3.7 to 11.9 m apart at all 15 grid steps
+        "samples": 0,
     }
     [recording] = document["recordings"]
     assert (recording["location"], recording["period"]) == ("us-101", "0750am-0805am")
     assert (recording["vehicles"], recording["tracks"], recording["grid_rows"]) == (2, 2, 30)
+    assert document["samples"] == {"train": 0, "val": 0, "test": 0}
+    assert document["graph_size"]["train"]["n_nodes"] == {
+        "count": 0, "mean": None, "std": None, "min": None, "p5": None, "p50": None, "p95": None, "max": None
+    }  # fmt: skip
+    assert document["targets"]["test"] == {"targets": 0, "full_future": 0, "full_future_share": None}
+    assert document["kinematics"]["speed_mps"]["count"] == 30
+    assert document["plots"] == []
+
+
+def test_stats_plots_of_a_build_without_samples(finished_build: Path, tmp_path: Path) -> None:
+    result = invoke("stats", finished_build, "--json", "--plots", tmp_path / "plots")
+    assert result.exit_code == 0, result.output
+    paths = [Path(p) for p in json.loads(result.stdout)["plots"]]
+    assert len(paths) == 5 and all(p.read_bytes().startswith(PNG_SIGNATURE) for p in paths)
+
+
+def test_stats_plots_into_a_file(finished_build: Path, tmp_path: Path) -> None:
+    target = tmp_path / "taken"
+    target.write_text("mine\n")
+    line = error_line(invoke("stats", finished_build, "--plots", target))
+    assert str(target) in line and "cannot write plots" in line
 
 
 def test_stats_without_manifest(tmp_path: Path) -> None:
@@ -370,8 +408,9 @@ def test_stats_on_bad_manifest(finished_build: Path, text: str, fragment: str) -
     ("args", "expected"),
     [
         ((), ("build", "stats", "synth")),
-        (("build",), ("--out", "--locations", "--overwrite")),
-        (("stats",), ("--json",)),
+        (("build",), ("--out", "--locations", "--overwrite", "--stride-s", "--d-sense-m", "--d-min-m",
+                      "--split", "vehicle|time|random", "--seed", "--ego-target", "--no-ego-target")),
+        (("stats",), ("--json", "--plots")),
         (("synth",), ("--format", "--recordings", "--minutes", "--seed", "--quirks")),
     ],
 )
@@ -381,3 +420,136 @@ def test_help(args: tuple[str, ...], expected: tuple[str, ...]) -> None:
     assert "Usage" in result.stdout
     for word in expected:
         assert word in result.stdout
+
+
+# --- build options and stats on synthetic traffic --------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def synthetic_raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """30 s of one synthetic recording: a few hundred samples, enough windows in every split."""
+    raw = tmp_path_factory.mktemp("synthetic") / "raw"
+    write_synthetic(raw, SynthConfig(recordings=1, minutes=0.5, seed=3))
+    return raw
+
+
+@pytest.fixture(scope="module")
+def synthetic_build(synthetic_raw: Path) -> Path:
+    out = synthetic_raw.parent / "default"
+    result = invoke("build", synthetic_raw, "--out", out)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def _manifest(build: Path) -> dict:
+    return json.loads((build / "manifest.json").read_text())
+
+
+def _samples(build: Path, split: str) -> pl.DataFrame:
+    return pl.read_parquet(build / "samples" / f"{split}.parquet")
+
+
+def test_build_prints_samples_per_split(synthetic_raw: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = invoke("build", synthetic_raw, "--out", out)
+    assert result.exit_code == 0, result.output
+    manifest = _manifest(out)
+    [recording] = manifest["recordings"]
+    per_split = [f"{recording['samples'][split]:,}" for split in ("train", "val", "test")]
+    assert _table_row(result.stdout, recording["period"])[-3:] == per_split
+    totals = manifest["splits"]
+    assert all(n > 0 for n in totals.values())
+    line = f"samples: {totals['train']:,} train, {totals['val']:,} val, {totals['test']:,} test"
+    assert f"{line} ({manifest['counts']['samples']:,} in all)." in result.stdout
+
+
+RANDOM_D_MIN_0 = ("--stride-s", "4", "--d-sense-m", "40", "--d-min-m", "0", "--split", "random", "--seed", "3")
+
+
+def test_build_options_reach_the_config(synthetic_raw: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert invoke("build", synthetic_raw, "--out", out, *RANDOM_D_MIN_0).exit_code == 0
+    config = _manifest(out)["config"]
+    assert (config["stride_s"], config["d_sense_m"], config["d_min_m"]) == (4.0, 40.0, 0.0)
+    assert (config["split"], config["seed"], config["ego_is_target"]) == ("random", 3, False)
+    # d_min = 0: no actor-actor edges, so each of the K_H steps has 2 edges per actor (ego excluded)
+    for split in ("train", "val", "test"):
+        samples = _samples(out, split)
+        assert samples.height > 0
+        assert (samples["n_spatial_edges"] == 2 * (samples["n_nodes"] - config["history_steps"])).all()
+    # the same seed gives the same split, table for table
+    again = tmp_path / "again"
+    assert invoke("build", synthetic_raw, "--out", again, *RANDOM_D_MIN_0).exit_code == 0
+    for split in ("train", "val", "test"):
+        assert _samples(again, split).equals(_samples(out, split))
+
+
+def test_random_split_depends_on_the_seed(synthetic_raw: Path, tmp_path: Path) -> None:
+    first, second = tmp_path / "first", tmp_path / "second"
+    assert invoke("build", synthetic_raw, "--out", first, "--split", "random", "--seed", "3").exit_code == 0
+    assert invoke("build", synthetic_raw, "--out", second, "--split", "random", "--seed", "4").exit_code == 0
+    assert not _samples(first, "train").equals(_samples(second, "train"))
+    assert _manifest(first)["counts"]["samples"] == _manifest(second)["counts"]["samples"]
+
+
+def test_ego_target_adds_one_target_per_sample(synthetic_build: Path, synthetic_raw: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert invoke("build", synthetic_raw, "--out", out, "--ego-target").exit_code == 0
+    assert _manifest(out)["config"]["ego_is_target"] is True
+    for split in ("train", "val", "test"):
+        with_ego, without = _samples(out, split), _samples(synthetic_build, split)
+        assert with_ego["sample_id"].equals(without["sample_id"])
+        assert (with_ego["n_targets"] == without["n_targets"] + 1).all()
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "fragment"),
+    [
+        ("--stride-s", "0.3", "stride_s must be a positive multiple"),
+        ("--stride-s", "0", "stride_s must be a positive multiple"),
+        ("--d-sense-m", "-1", "d_sense_m must be > 0"),
+        ("--d-min-m", "-0.5", "d_min_m >= 0"),
+    ],
+)
+def test_invalid_build_option(tmp_path: Path, rows: list[dict], option: str, value: str, fragment: str) -> None:
+    path = write_txt(tmp_path / "a.txt", rows)
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out, option, value, env=NARROW)
+    line = error_line(result)
+    assert result.exit_code == 2 and fragment in line
+    assert not out.exists() and leftovers(out) == []
+
+
+def test_stats_of_a_synthetic_build(synthetic_build: Path) -> None:
+    result = invoke("stats", synthetic_build)
+    assert result.exit_code == 0, result.output
+    manifest = _manifest(synthetic_build)
+    splits = manifest["splits"]
+    graphs = sum(min(300, n) for n in splits.values())
+    for title in ("Recordings", "Splits", "Graph size (all samples, exact)", "Kinematics", "Scaler",
+                  "Build config", f"Spatial in-degree per node (from {graphs:,} sampled graphs)"):  # fmt: skip
+        assert title in result.stdout
+    assert _table_rows(result.stdout, "train", f"{splits['train']:,}")  # the Splits table
+    nodes = _samples(synthetic_build, "val")["n_nodes"]
+    [row] = _table_rows(result.stdout, "val", "nodes")  # mean, min, p5, p50, p95, max
+    assert row[2:4] == [f"{nodes.mean():.1f}", f"{nodes.min()}"] and row[-1] == f"{nodes.max()}"
+
+
+def test_stats_json_and_plots(synthetic_build: Path, tmp_path: Path) -> None:
+    plots = tmp_path / "plots"
+    result = invoke("stats", synthetic_build, "--json", "--plots", plots, "--degree-graphs", "20")
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)  # the plots' paths are in the document, not printed
+    assert document["samples"] == _manifest(synthetic_build)["splits"]
+    assert {split: d["sampled_graphs"] for split, d in document["node_degree"].items()} == {
+        split: min(20, n) for split, n in document["samples"].items()
+    }
+    names = ["nodes_per_graph", "spatial_edges_per_graph", "node_degree", "speed", "heading"]
+    assert document["plots"] == [str(plots / f"{name}.png") for name in names]
+    for path in document["plots"]:
+        data = Path(path).read_bytes()
+        assert data.startswith(PNG_SIGNATURE) and len(data) > 5_000
+    table = invoke("stats", synthetic_build, "--plots", plots)
+    assert [line for line in table.stdout.splitlines() if line.startswith("wrote ")] == [
+        f"wrote {path}" for path in document["plots"]
+    ]

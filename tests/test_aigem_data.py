@@ -1,0 +1,68 @@
+"""The memory-mapped dataset, the collate function and the HeteroData view."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from aigem_fixtures import tiny_build  # noqa: F401
+from torch.utils.data import DataLoader
+
+from aigem.data import Collate, GraphDataset, to_hetero_data
+from ngsim_graphs.builds import open_build
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.scaling import scale
+
+
+def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:  # noqa: F811
+    dataset = GraphDataset(tiny_build, "train")
+    assert len(dataset) == open_build(tiny_build).manifest["splits"]["train"] > 4
+    ids = [3, 0, 2]
+    batch = Collate(dataset.scaler)(dataset.__getitems__(ids))
+    one_by_one = Collate(dataset.scaler)([dataset[i] for i in ids])
+    for key in batch:
+        assert torch.equal(batch[key], one_by_one[key]), key
+    graphs = open_build(tiny_build).graphs("train", np.array(ids))
+    ranges = json.loads((tiny_build / "manifest.json").read_text())["scaler"]
+    expected_x = scale(graphs.node_features[:, 0], ranges["x_m"], (-1.0, 1.0))
+    assert np.allclose(batch["x"][:, 0].numpy(), expected_x, atol=1e-6)
+    assert batch["x"].dtype == torch.float32 and batch["spatial_attr"].shape == (graphs.spatial_edges.shape[1], 1)
+    assert float(batch["spatial_attr"].min()) >= -1e-6 and float(batch["temporal_attr"].max()) == pytest.approx(0.2)
+    assert torch.equal(batch["target_xy"], torch.from_numpy(graphs.target_xy.astype(np.float32)))
+    metres = dataset.scaler.xy_to_metres(batch["x"][:, :2].double())
+    assert np.allclose(metres.numpy(), graphs.node_features[:, :2], atol=1e-4)
+
+
+def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> None:  # noqa: F811
+    dataset = GraphDataset(tiny_build, "train")
+    plain = list(DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler)))
+    workers = list(DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler), num_workers=2))
+    assert len(plain) == len(workers)
+    for a, b in zip(plain, workers, strict=True):
+        assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_hetero_data_view(tiny_build: Path) -> None:  # noqa: F811
+    dataset = GraphDataset(tiny_build, "val")
+    batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
+    data = to_hetero_data(batch)
+    assert data["vehicle"].x.shape == batch["x"].shape
+    assert torch.equal(data["vehicle", "spatial", "vehicle"].edge_index, batch["spatial_edges"])
+    assert set(data.edge_types) == {("vehicle", "spatial", "vehicle"), ("vehicle", "temporal", "vehicle")}
+
+
+def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+    with pytest.raises(NgsimInputError, match="not a finished build"):
+        GraphDataset(tmp_path, "train")
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    manifest = json.loads((tiny_build / "manifest.json").read_text())
+    (copy / "manifest.json").write_text(json.dumps({**manifest, "format_version": 99}))
+    with pytest.raises(NgsimInputError, match="format version 99"):
+        GraphDataset(copy, "train")
+    (copy / "manifest.json").write_text(json.dumps({**manifest, "config": {**manifest["config"], "new_rule": 1}}))
+    with pytest.raises(NgsimInputError, match="unknown build settings"):
+        GraphDataset(copy, "train")

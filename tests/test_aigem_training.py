@@ -1,0 +1,114 @@
+"""Training: the loss falls, checkpoints resume, errors are clear; the CLI end to end; DDP."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from aigem_fixtures import tiny_build  # noqa: F401
+from torch.utils.data import DataLoader
+from typer.testing import CliRunner
+
+from aigem import runs
+from aigem.config import ModelConfig, TrainConfig
+from aigem.data import Collate, GraphDataset
+from aigem.model import AiGem
+from aigem.training import NonFiniteLossError, fit, masked_mse_m2
+from ngsim_cli.aigem import app
+from ngsim_graphs.errors import NgsimInputError
+
+FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
+
+
+def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:  # noqa: F811
+    torch.manual_seed(0)
+    dataset = GraphDataset(tiny_build, "train")
+    batch = next(iter(DataLoader(dataset, batch_size=8, collate_fn=Collate(dataset.scaler))))
+    model = AiGem(ModelConfig(dropout=0.0))
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    losses = []
+    for _ in range(30):
+        loss = masked_mse_m2(model(batch, 5), batch, dataset.scaler, 5)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(float(loss))
+    assert losses[-1] < 0.5 * losses[0]
+
+
+def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:  # noqa: F811
+    dataset = GraphDataset(tiny_build, "train")
+    batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
+    truth = dataset.scaler.xy_to_metres(torch.zeros(1, 1, 2))  # scaled 0 -> some metres
+    scaled = torch.zeros(len(batch["target_node"]), 3, 2)
+    batch["target_xy"][:, :3] = truth
+    assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
+    batch["target_xy"][:, 0] += 100.0
+    batch["target_mask"][:, 0] = False
+    assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_fit_then_resume_finishes_like_an_uninterrupted_run(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+    config = TrainConfig(epochs=2, batch_size=8, horizon_s=1.0, seed=3)
+    straight = fit(tiny_build, tmp_path / "straight", ModelConfig(), config, "cpu")
+    assert straight.epochs_done == 2 and straight.parameters == 74_242
+    # "Interrupted" after epoch 1: run one epoch, then resume to two.
+    fit(tiny_build, tmp_path / "resumed", ModelConfig(), TrainConfig(**{**config.to_dict(), "epochs": 1}), "cpu")
+    resumed = fit(tiny_build, tmp_path / "resumed", ModelConfig(), config, "cpu", resume=True)
+    assert resumed.epochs_done == 2
+    a, b = runs.read_metrics(tmp_path / "straight"), runs.read_metrics(tmp_path / "resumed")
+    assert [r["epoch"] for r in b] == [1, 2]
+    assert b[1]["val_loss_m2"] == pytest.approx(a[1]["val_loss_m2"], rel=1e-5)
+    for name in (runs.BEST, runs.LAST, runs.METRICS, runs.RUN_INFO, runs.CURVES):
+        assert (tmp_path / "resumed" / name).is_file()
+    assert not list((tmp_path / "resumed").glob("*.partial"))
+
+
+def test_a_second_fit_into_a_run_needs_resume(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+    fit(tiny_build, tmp_path / "run", ModelConfig(), FAST, "cpu")
+    with pytest.raises(NgsimInputError, match="already holds a run"):
+        fit(tiny_build, tmp_path / "run", ModelConfig(), FAST, "cpu")
+    with pytest.raises(NgsimInputError, match="nothing to resume"):
+        fit(tiny_build, tmp_path / "other", ModelConfig(), FAST, "cpu", resume=True)
+
+
+def test_non_finite_loss_stops_with_a_clear_error(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+    with pytest.raises(NonFiniteLossError, match="non-finite training loss"):
+        fit(tiny_build, tmp_path / "run", ModelConfig(), TrainConfig(**{**FAST.to_dict(), "learning_rate": 1e30}), "cpu")
+
+
+def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+    runner = CliRunner()
+    run = tmp_path / "run"
+    result = runner.invoke(app, ["fit", str(tiny_build), "--out", str(run), "--epochs", "1",
+                                 "--batch-size", "8", "--horizon-s", "2", "--device", "cpu"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "74,242 parameters" in result.stdout
+    result = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--json", "--device", "cpu"])
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["horizon_steps"] == 10
+    assert set(document["model"]) == {"all", "front", "mid", "rear"}
+    assert document["model"]["all"]["n_1s"] == document["constant_velocity"]["all"]["n_1s"] > 0
+    assert "rmse_3s_m" not in document["model"]["all"]
+    table = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--device", "cpu"])
+    assert "constant velocity" in table.stdout and "synthetic" in table.stdout
+    bad = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--data", str(tiny_build)])
+    assert bad.exit_code == 1 and "not a finished run" in bad.stderr
+
+
+def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+    run = tmp_path / "ddp"
+    command = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29533",
+               "-m", "ngsim_cli.aigem", "fit", str(tiny_build), "--out", str(run), "--epochs", "1",
+               "--batch-size", "4", "--horizon-s", "1", "--device", "cpu"]  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    assert (run / runs.BEST).is_file()
