@@ -1,0 +1,89 @@
+"""Benchmark: is the data loader ever what limits AiGem's training?
+
+Prints graphs per second of (1) the memory-mapped dataset with its collate (read + collate), with
+0 and 2 worker processes; (2) the natural alternative, a list of PyTorch Geometric HeteroData
+objects batched by PyG's own DataLoader (only the batching is timed: the list is made first);
+(3) AiGem training (forward, backward, Adam step) on the CPU; and the ratios.
+
+    python bench/bench_loader.py bench/out/graphs-txt-r6-m15
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.data import DataLoader
+
+from aigem.config import ModelConfig
+from aigem.data import Collate, GraphDataset, to_hetero_data
+from aigem.model import AiGem
+from aigem.training import masked_mse_m2
+
+
+def graphs_per_second(loader: DataLoader, batches: int, batch_size: int) -> float:
+    iterator = iter(loader)
+    next(iterator)  # workers start, first batch
+    start = time.perf_counter()
+    for _ in range(batches):
+        next(iterator)
+    return batches * batch_size / (time.perf_counter() - start)
+
+
+def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> float:
+    from torch_geometric.loader import DataLoader as PygLoader
+
+    collate = Collate(dataset.scaler)
+    graphs = [to_hetero_data(collate([dataset[i]])) for i in range(n_graphs)]
+    start = time.perf_counter()
+    for _ in PygLoader(graphs, batch_size=batch_size, shuffle=True):
+        pass
+    return n_graphs / (time.perf_counter() - start)
+
+
+def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: int) -> float:
+    torch.manual_seed(0)
+    model = AiGem(ModelConfig())
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=True, collate_fn=Collate(dataset.scaler))
+    data = [b for _, b in zip(range(batches + 1), loader)]  # loading is not timed here
+    steps = model.config.future_steps
+    start = None
+    for index, batch in enumerate(data):
+        if index == 1:
+            start = time.perf_counter()
+        loss = masked_mse_m2(model(batch, steps), batch, dataset.scaler, steps)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    return batches * batch_size / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("build", type=Path)
+    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--batches", type=int, default=40)
+    parser.add_argument("--train-batches", type=int, default=5)
+    args = parser.parse_args()
+
+    start = time.perf_counter()
+    dataset = GraphDataset(args.build, "train")
+    open_ms = 1000 * (time.perf_counter() - start)
+    kw = {"batch_size": args.batch_size, "shuffle": True, "collate_fn": Collate(dataset.scaler)}
+    ours = {w: graphs_per_second(DataLoader(dataset, num_workers=w, **kw), args.batches, args.batch_size) for w in (0, 2)}
+    pyg = pyg_baseline(dataset, args.batches * args.batch_size, args.batch_size)
+    train = training_graphs_per_second(dataset, args.train_batches, args.batch_size)
+    print(f"build              {args.build} ({len(dataset):,} train samples); opened in {open_ms:.0f} ms")
+    print(f"loader, 0 workers  {ours[0]:8,.0f} graphs/s (read + induce + collate)")
+    print(f"loader, 2 workers  {ours[2]:8,.0f} graphs/s")
+    print(f"PyG HeteroData     {pyg:8,.0f} graphs/s (list of HeteroData, PyG DataLoader; batching only)")
+    print(f"training (CPU)     {train:8,.1f} graphs/s (forward + backward + Adam, batch {args.batch_size})")
+    print(f"loader / training  {ours[0] / train:8,.0f}x (0 workers), {ours[2] / train:,.0f}x (2 workers)")
+    print(f"ours / PyG         {ours[0] / pyg:8,.2f}x")
+
+
+if __name__ == "__main__":
+    main()
