@@ -25,6 +25,9 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.frames import RecordingArrays, pair_search_key
 
 
+SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding
+
+
 @dataclass(frozen=True)
 class GraphBatch:
     """The graphs of B samples, concatenated. Node indices are batch-global.
@@ -142,10 +145,13 @@ def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node
     ego_node = node_of_cand[block_start + (ego_rows - rec.step_ptr[ss_step])]
     ego_src = ego_node[cand_ss[actors]]
     ego_dst = node_of_cand[actors]
-    # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes.
+    # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes. The
+    # range is a little wider than d_sense: a distance that rounds to exactly d_sense may lie a
+    # float step beyond it along y; the extra pairs fall out at the node check below.
     ego_y = rec.node_state[ego_rows, 1]
-    lo = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y - d_sense_m), "left")
-    hi = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y + d_sense_m), "right")
+    reach = d_sense_m + SEARCH_MARGIN_M
+    lo = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y - reach), "left")
+    hi = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y + reach), "right")
     pair_ss, pair_index = concat_ranges(lo, hi)
     base = block_start - rec.step_ptr[ss_step]
     pair_rows = rec.pair_rows[pair_index]

@@ -6,6 +6,8 @@ are whoever was there.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import polars as pl
 
@@ -30,10 +32,13 @@ def _by_thresholds(value: pl.Expr, first: pl.Expr, second: pl.Expr) -> pl.Expr:
 def split_by_vehicle(windows: pl.DataFrame, max_vehicle_id: int, config: BuildConfig) -> pl.Series:
     """Ego Vehicle_ID <= round(0.7 * max ID) train, <= round(0.8 * max ID) validation, else test.
 
-    `max_vehicle_id` is the largest Vehicle_ID of the recording (CS-LSTM's convention).
+    `max_vehicle_id` is the largest Vehicle_ID of the recording (CS-LSTM's convention). round()
+    is MATLAB's, as in CS-LSTM's preprocessing: halves go away from zero (10.5 -> 11), not to
+    the even neighbour as Python's round() does.
     """
     train, val, _ = config.split_fractions
-    first, second = round(train * max_vehicle_id), round((train + val) * max_vehicle_id)
+    matlab_round = lambda x: math.floor(x + 0.5)  # noqa: E731  (x >= 0 here)
+    first, second = matlab_round(train * max_vehicle_id), matlab_round((train + val) * max_vehicle_id)
     return windows.select(
         _by_thresholds(pl.col(s.EGO_VEHICLE_ID), pl.lit(first), pl.lit(second)).alias(SPLIT)
     ).to_series()
@@ -49,7 +54,8 @@ def split_by_time(windows: pl.DataFrame, config: BuildConfig) -> pl.Series:
     if len(present) == 0:
         return pl.Series(SPLIT, [], dtype=pl.String)
     ordered = np.sort(present)
-    cut = lambda fraction: ordered[min(len(ordered) - 1, int(fraction * len(ordered)))]  # noqa: E731
+    # floor, with a tolerance: (0.7 + 0.1) * 20 is 15.999999999999998 in floating point.
+    cut = lambda fraction: ordered[min(len(ordered) - 1, math.floor(fraction * len(ordered) + 1e-9))]  # noqa: E731
     first, second = cut(train), cut(train + val)
     gap = config.window_steps
     label = np.where(present < first, Split.TRAIN.value, np.where(present < second, Split.VAL.value, Split.TEST.value))

@@ -1,0 +1,238 @@
+"""A finished build, opened: graphs against the brute force, samples tables, byte-identical
+rebuilds and clear errors for what is not a finished build.
+
+One synthetic input (two recordings of 1.5 minutes, with the quirks of real exports: frame gaps
+make vehicles of two tracks) is built once per session and shared with test_scaling.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
+
+from ngsim_graphs import layout
+from ngsim_graphs import schema as s
+from ngsim_graphs.building import run_build
+from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.synthesis import write_synthetic
+
+SYNTH = SynthConfig(raw_format=RawFormat.CSV, recordings=2, minutes=1.5, seed=7, quirks=True)
+SPLITS = ("train", "val", "test")
+COUNTS = ("n_nodes", "n_spatial_edges", "n_temporal_edges", "n_targets", "n_targets_full_future")
+_BUILT: dict[str, Path] = {}
+_GRAPHS: dict[tuple[Path, str], GraphBatch] = {}
+
+
+def synthetic_build(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(raw folder, build folder) of SYNTH with the default BuildConfig, made once per session."""
+    if not _BUILT:
+        root = tmp_path_factory.mktemp("synthetic")
+        write_synthetic(root / "raw", SYNTH)
+        run_build([root / "raw"], root / "build", BuildConfig())
+        _BUILT.update(raw=root / "raw", build=root / "build")
+    return _BUILT["raw"], _BUILT["build"]
+
+
+def all_graphs(build: OpenBuild, split: str) -> GraphBatch:
+    """The graphs of every sample of a split, in sample order (induced once per session)."""
+    key = (build.root, split)
+    if key not in _GRAPHS:
+        _GRAPHS[key] = build.graphs(split, np.arange(build.samples(split).height))
+    return _GRAPHS[key]
+
+
+def grid_tables(build: OpenBuild) -> dict[tuple[str, str], pl.DataFrame]:
+    """Each recording's tracks Parquet as a grid-node table, keyed by (location, period)."""
+    tables = {}
+    for entry in build.manifest["recordings"]:
+        tracks = pl.read_parquet(build.root / entry["tracks_file"])
+        tables[(entry["location"], entry["period"])] = tracks.select(
+            (pl.col(s.FRAME_ID) // build.config.frames_per_step).alias(s.STEP),
+            s.TRACK_ID, s.VEHICLE_ID, s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS,
+        )  # fmt: skip
+    return tables
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> OpenBuild:
+    return open_build(synthetic_build(tmp_path_factory)[1])
+
+
+@pytest.fixture(scope="module")
+def tables(built: OpenBuild) -> dict[tuple[str, str], pl.DataFrame]:
+    return grid_tables(built)
+
+
+def graph_count_row(graph: SampleGraph) -> tuple[int, ...]:
+    full = sum(all(mask) for _, _, mask, _ in graph.targets)
+    return len(graph.nodes), len(graph.spatial), len(graph.temporal), len(graph.targets), full
+
+
+@pytest.mark.parametrize("split", SPLITS)
+def test_graphs_in_any_order_match_the_brute_force(
+    built: OpenBuild, tables: dict, split: str
+) -> None:
+    samples = built.samples(split)
+    rng = np.random.default_rng(len(split))
+    ids = rng.permutation(samples.height)[:25]
+    recordings = samples[ids]["period"].unique()
+    assert len(recordings) == 2, "the shuffled samples should mix both recordings"
+    fast = fast_graphs(built.graphs(split, ids))
+    assert len(fast) == len(ids)
+    for sample_id, graph in zip(ids.tolist(), fast, strict=True):
+        row = samples.row(sample_id, named=True)
+        table = tables[(row[s.LOCATION], row[s.PERIOD])]
+        brute = brute_force_graph(table, row[s.EGO_TRACK_ID], row[s.START_STEP], built.config)
+        assert_same_graph(graph, brute)
+        assert graph_count_row(brute) == tuple(row[c] for c in COUNTS)
+        assert brute.nodes[-1][0] == built.config.history_steps - 1
+
+
+def test_a_vehicle_with_two_tracks_is_two_nodes(built: OpenBuild, tables: dict) -> None:
+    """The quirky input has frame gaps: some graphs hold two tracks of one vehicle, never joined."""
+    n_samples = min(400, built.samples("train").height)
+    batch = built.graphs("train", np.arange(n_samples))
+    vehicle_of = pl.concat([t.select(s.TRACK_ID, s.VEHICLE_ID).unique() for t in tables.values()])
+    assert vehicle_of[s.TRACK_ID].is_unique().all()  # track ids are unique across recordings
+    nodes = pl.DataFrame({"sample": batch.node_sample, s.TRACK_ID: batch.node_track}).unique()
+    per_sample = (
+        nodes.join(vehicle_of, on=s.TRACK_ID)
+        .group_by("sample")
+        .agg(
+            pl.col(s.TRACK_ID).n_unique().alias("tracks"),
+            pl.col(s.VEHICLE_ID).n_unique().alias("vehicles"),
+        )
+    )
+    assert per_sample.height == n_samples
+    assert per_sample.filter(pl.col("tracks") > pl.col("vehicles")).height > 0
+    src, dst = batch.temporal_edges
+    assert np.array_equal(batch.node_track[src], batch.node_track[dst])
+    assert np.array_equal(batch.node_step[dst], batch.node_step[src] + 1)
+
+
+@pytest.mark.parametrize("split", SPLITS)
+def test_samples_table_ids_order_and_counts(built: OpenBuild, split: str) -> None:
+    samples = built.samples(split)
+    assert samples.height > 0
+    assert samples.columns == [*s.SAMPLE_SCHEMA.names(), *COUNTS]
+    assert dict(samples.select(s.SAMPLE_SCHEMA.names()).schema) == dict(s.SAMPLE_SCHEMA)
+    assert samples[s.SAMPLE_ID].to_list() == list(range(samples.height))
+    order = [s.LOCATION, s.PERIOD, s.EGO_TRACK_ID, s.START_STEP]
+    assert samples.select(order).equals(samples.select(order).sort(order))
+    assert (samples[s.PRESENT_STEP] - samples[s.START_STEP] == built.config.history_steps - 1).all()
+    arrays = built.sample_arrays(split)
+    assert np.array_equal(arrays["ego_track_id"], samples[s.EGO_TRACK_ID].to_numpy())
+    assert np.array_equal(arrays["start_step"], samples[s.START_STEP].to_numpy())
+    names = [
+        (e["location"], e["period"])
+        for e in sorted(built.manifest["recordings"], key=lambda e: e["index"])
+    ]
+    assert [names[i] for i in arrays["recording_index"]] == list(
+        samples.select(s.LOCATION, s.PERIOD).iter_rows()
+    )
+    assert built.manifest["splits"][split] == samples.height
+    # Counts equal those of the induced graphs, sample by sample.
+    batch = all_graphs(built, split)
+    per = lambda nodes: np.bincount(batch.node_sample[nodes], minlength=samples.height)
+    full = batch.target_node[batch.target_mask.all(axis=1)]
+    expected = np.stack(
+        [np.diff(batch.node_ptr), per(batch.spatial_edges[0]), per(batch.temporal_edges[0]),
+         per(batch.target_node), per(full)], axis=1,
+    )  # fmt: skip
+    assert np.array_equal(samples.select(COUNTS).to_numpy(), expected)
+
+
+def test_samples_are_every_window_once_split_by_vehicle(built: OpenBuild, tables: dict) -> None:
+    config = built.config
+    samples = pl.concat(
+        [built.samples(split).with_columns(pl.lit(split).alias("split")) for split in SPLITS]
+    )
+    key = [s.LOCATION, s.PERIOD, s.EGO_TRACK_ID, s.START_STEP]
+    assert samples.select(key).is_duplicated().sum() == 0  # no window in two splits
+    for (location, period), table in tables.items():
+        mine = samples.filter((pl.col(s.LOCATION) == location) & (pl.col(s.PERIOD) == period))
+        # every window of every track: starts first, first + 40, ... while 41 steps fit
+        expected = []
+        per_track = table.group_by(s.TRACK_ID).agg(pl.col(s.STEP).min(), pl.len()).sort(s.TRACK_ID)
+        for track, first, n in per_track.iter_rows():
+            expected += [
+                (track, st)
+                for st in range(first, first + n - config.window_steps + 1, config.stride_steps)
+            ]
+        assert sorted(mine.select(s.EGO_TRACK_ID, s.START_STEP).iter_rows()) == expected
+        # origin: the ego's position at the present step
+        origins = mine.join(
+            table.rename({s.TRACK_ID: s.EGO_TRACK_ID, s.STEP: s.PRESENT_STEP}),
+            on=[s.EGO_TRACK_ID, s.PRESENT_STEP],
+        )
+        assert origins.height == mine.height
+        assert (origins[s.ORIGIN_X_M] == origins[s.X_M]).all() and (
+            origins[s.ORIGIN_Y_M] == origins[s.Y_M]
+        ).all()
+        assert (origins[s.EGO_VEHICLE_ID] == origins[s.VEHICLE_ID]).all()
+        # the vehicle rule with the recording's largest Vehicle_ID
+        max_id = table[s.VEHICLE_ID].max()
+        rule = (
+            pl.when(pl.col(s.EGO_VEHICLE_ID) <= round(0.7 * max_id)).then(pl.lit("train"))
+            .when(pl.col(s.EGO_VEHICLE_ID) <= round(0.8 * max_id)).then(pl.lit("val"))
+            .otherwise(pl.lit("test"))
+        )  # fmt: skip
+        assert mine.select((rule == pl.col("split")).all()).item()
+    assert set(samples["split"]) == set(SPLITS)
+
+
+def build_files(root: Path) -> dict[str, bytes]:
+    files = sorted(p for p in root.rglob("*") if p.suffix in (".parquet", ".npy"))
+    return {str(p.relative_to(root)): p.read_bytes() for p in files}
+
+
+def test_the_same_build_twice_is_byte_identical(
+    tmp_path_factory: pytest.TempPathFactory, tmp_path: Path
+) -> None:
+    raw, first = synthetic_build(tmp_path_factory)
+    run_build([raw], tmp_path / "again", BuildConfig())
+    before, after = build_files(first), build_files(tmp_path / "again")
+    assert sum(name.endswith(".npy") for name in before) == 2 * 10 + 3 * 3
+    assert sum(name.endswith(".parquet") for name in before) == 2 + 2 + 3
+    assert before.keys() == after.keys()
+    assert [name for name in before if before[name] != after[name]] == []
+
+
+def test_open_build_without_manifest(tmp_path: Path) -> None:
+    (tmp_path / "tracks").mkdir()
+    with pytest.raises(NgsimInputError, match="not a finished build: no manifest.json"):
+        open_build(tmp_path)
+    with pytest.raises(NgsimInputError, match="not a directory"):
+        open_build(tmp_path / "missing")
+
+
+def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:
+    manifest = dict(built.manifest, format_version=99)
+    (tmp_path / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
+    with pytest.raises(NgsimInputError, match=r"format version 99; expected 1") as err:
+        open_build(tmp_path)
+    assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
+
+
+def test_open_build_with_missing_arrays(built: OpenBuild, tmp_path: Path) -> None:
+    copy = tmp_path / "copy"
+    shutil.copytree(built.root, copy)
+    entry = built.manifest["recordings"][0]
+    (copy / entry["arrays_dir"] / "pair_key.npy").unlink()
+    with pytest.raises(NgsimInputError, match="incomplete build: missing arrays pair_key"):
+        open_build(copy).graphs("train", np.arange(3))
+
+
+def test_graphs_of_no_samples(built: OpenBuild) -> None:
+    with pytest.raises(ValueError, match="no samples asked for"):
+        built.graphs("val", np.array([], dtype=np.int64))

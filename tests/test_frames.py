@@ -1,0 +1,178 @@
+"""Per-recording frame data: grid nodes, proximity pairs (against an O(n^2) brute force) and the
+flat indexes of RecordingArrays, worked out by hand on a tiny table."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import polars as pl
+import pytest
+from polars.testing import assert_frame_equal
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.frames import (
+    PAIR_KEY_STEP,
+    grid_nodes,
+    proximity_pairs,
+    recording_arrays,
+)
+
+
+def brute_force_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
+    """Every pair of tracks at one step with sqrt(dx*dx + dy*dy) <= d_max_m, by plain loops."""
+    by_step: dict[int, list[tuple[int, float, float]]] = {}
+    for step, track, x, y in nodes.select(s.STEP, s.TRACK_ID, s.X_M, s.Y_M).iter_rows():
+        by_step.setdefault(step, []).append((track, x, y))
+    rows = []
+    for step, points in by_step.items():
+        for i, (ta, xa, ya) in enumerate(points):
+            for tb, xb, yb in points[i + 1 :]:
+                dx, dy = xa - xb, ya - yb
+                d = math.sqrt(dx * dx + dy * dy)
+                if d <= d_max_m:
+                    rows.append((step, min(ta, tb), max(ta, tb), d))
+    return pl.DataFrame(rows, schema=s.PROXIMITY_SCHEMA, orient="row").sort(
+        s.STEP, s.TRACK_A, s.TRACK_B
+    )
+
+
+def grid_table(rows: list[tuple]) -> pl.DataFrame:
+    return pl.DataFrame(rows, schema=s.GRID_NODE_SCHEMA, orient="row").sort(s.STEP, s.TRACK_ID)
+
+
+def random_nodes(rng: np.random.Generator, d_max_m: float) -> pl.DataFrame:
+    """30 steps of 0-40 vehicles on 4 lanes over 300 m, positions multiples of 1/1024 m, with
+    pairs placed exactly d_max_m apart (straight and 3-4-5) and one float64 step beyond, and
+    vehicles side by side at equal y."""
+    rows = []
+    for step in range(30):
+        n = int(rng.integers(0, 41))
+        tracks = rng.choice(200, size=n + 6, replace=False)
+        x = np.round((1.8 + 3.6 * rng.integers(0, 4, n) + rng.normal(0, 0.3, n)) * 1024) / 1024
+        y = np.round(rng.uniform(0, 300, n) * 1024) / 1024
+        y[: n // 4] = y[n // 4 : 2 * (n // 4)]  # side by side: equal y
+        points = list(zip(x.tolist(), y.tolist(), strict=True))
+        bx, by = 5.5, float(np.round(rng.uniform(0, 250) * 1024) / 1024)
+        beyond = float(np.nextafter(by + d_max_m, math.inf))
+        while math.sqrt((beyond - by) ** 2) <= d_max_m:
+            beyond = float(np.nextafter(beyond, math.inf))
+        points += [
+            (bx, by), (bx, by + d_max_m), (bx + d_max_m * 3 / 5, by + d_max_m * 4 / 5),  # exactly d
+            (bx - 3.6, by), (bx - 3.6, beyond), (bx + 9.0, by),  # beyond d; another lane
+        ]  # fmt: skip
+        for track, (px, py) in zip(tracks.tolist(), points, strict=True):
+            rows.append((step, track, track + 1000, px, py, 0.0, 10.0))
+    return grid_table(rows)
+
+
+@pytest.mark.parametrize("d_max_m", [0.0, 12.5, 25.0, 50.0, 400.0])
+def test_proximity_pairs_match_the_brute_force(d_max_m: float) -> None:
+    rng = np.random.default_rng(int(d_max_m * 10) + 1)
+    nodes = random_nodes(rng, d_max_m)
+    expected = brute_force_pairs(nodes, d_max_m)
+    got = proximity_pairs(nodes, d_max_m)
+    assert got.schema == s.PROXIMITY_SCHEMA
+    assert_frame_equal(got, expected)  # same pairs, same float64 distances, same order
+    at_threshold = expected.filter(pl.col(s.DISTANCE_M) == d_max_m).height
+    assert at_threshold >= 30 * 2  # every step has its exact straight and 3-4-5 pairs
+
+
+def test_proximity_pairs_by_hand() -> None:
+    nodes = grid_table([
+        (0, 1, 1, 0.0, 0.0, 0.0, 0.0), (0, 2, 2, 0.0, 25.0, 0.0, 0.0),
+        (0, 3, 3, 15.0, 20.0, 0.0, 0.0),
+        (0, 4, 4, 0.0, float(np.nextafter(50.0, 99.0)), 0.0, 0.0),
+        (1, 1, 1, 0.0, 3.0, 0.0, 0.0), (1, 2, 2, 0.0, 3.0, 0.0, 0.0),
+    ])  # fmt: skip
+    got = proximity_pairs(nodes, 25.0)
+    assert got.rows() == [
+        (0, 1, 2, 25.0),
+        (0, 1, 3, 25.0),
+        (0, 2, 3, math.sqrt(15.0**2 + 5.0**2)),
+        (1, 1, 2, 0.0),
+    ]
+    assert proximity_pairs(nodes, 0.0).rows() == [(1, 1, 2, 0.0)]
+    assert proximity_pairs(nodes.clear(), 25.0).height == 0
+
+
+def test_grid_nodes_steps_columns_and_order() -> None:
+    tracks = pl.DataFrame({
+        s.FRAME_ID: [14, 10, 12, 12], s.TRACK_ID: [3, 3, 3, 2], s.VEHICLE_ID: [7, 7, 7, 5],
+        s.X_M: [1.0, 2.0, 3.0, 4.0], s.Y_M: [5.0, 6.0, 7.0, 8.0],
+        s.HEADING_RAD: [0.1, 0.2, 0.3, 0.4],
+        s.SPEED_MPS: [9.0, 8.0, 7.0, 6.0], s.LANE_ID: [1, 1, 1, 2],
+    })  # fmt: skip
+    nodes = grid_nodes(tracks, 2)
+    assert nodes.schema == s.GRID_NODE_SCHEMA
+    assert nodes.rows() == [
+        (5, 3, 7, 2.0, 6.0, 0.2, 8.0), (6, 2, 5, 4.0, 8.0, 0.4, 6.0), (6, 3, 7, 3.0, 7.0, 0.3, 7.0),
+        (7, 3, 7, 1.0, 5.0, 0.1, 9.0),
+    ]  # fmt: skip
+
+
+def tiny_nodes() -> pl.DataFrame:
+    """Tracks 5, 6, 7 (first id 5) over steps 0..2:
+
+    row  step track  (x, y)
+     0    0    5     (0, 0)
+     1    0    6     (0, 10)
+     2    1    5     (0, 1)
+     3    1    6     (0, 11)
+     4    1    7     (3, 30)   19.24 m from track 6, 29.2 m from track 5
+     5    2    6     (0, 12)
+     6    2    7     (0, 31)   19 m from track 6
+    """
+    return grid_table([
+        (0, 5, 50, 0.0, 0.0, 0.0, 1.0), (0, 6, 60, 0.0, 10.0, 0.0, 2.0),
+        (1, 5, 50, 0.0, 1.0, 0.0, 3.0), (1, 6, 60, 0.0, 11.0, 0.0, 4.0),
+        (1, 7, 70, 3.0, 30.0, 0.0, 5.0),
+        (2, 6, 60, 0.0, 12.0, 0.0, 6.0), (2, 7, 70, 0.0, 31.0, 0.0, 7.0),
+    ])  # fmt: skip
+
+
+def test_recording_arrays_by_hand() -> None:
+    nodes = tiny_nodes()
+    pairs = proximity_pairs(nodes, 20.0)
+    assert pairs.select(s.STEP, s.TRACK_A, s.TRACK_B).rows() == [
+        (0, 5, 6),
+        (1, 5, 6),
+        (1, 6, 7),
+        (2, 6, 7),
+    ]
+    rec = recording_arrays(nodes, pairs)
+    assert rec.first_track_id == 5 and rec.n_steps == 3
+    assert rec.step_ptr.tolist() == [0, 2, 5, 7]
+    assert rec.node_track.tolist() == [5, 6, 5, 6, 7, 6, 7]
+    assert rec.node_state[:, 1].tolist() == [0.0, 10.0, 1.0, 11.0, 30.0, 12.0, 31.0]
+    assert rec.node_state[:, 3].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    assert rec.track_first_step.tolist() == [0, 0, 1]
+    assert rec.track_ptr.tolist() == [0, 2, 5, 7]
+    assert rec.track_rows.tolist() == [0, 2, 1, 3, 5, 4, 6]
+    first, count = rec.track_steps(np.array([7, 5, 6]))
+    assert first.tolist() == [1, 0, 0] and count.tolist() == [2, 2, 3]
+    tracks = np.array([5, 5, 5, 6, 6, 6, 7, 7, 7])
+    steps = np.array([0, 1, 2, 0, 1, 2, 0, 1, 2])
+    assert rec.row_at(tracks, steps).tolist() == [0, 2, -1, 1, 3, 5, -1, 4, 6]
+    assert rec.row_at(np.array([5, 6]), np.array([-1, 3])).tolist() == [-1, -1]
+    # Pairs by step, lower vehicle (smaller y) first, ordered by (step, y of the lower vehicle).
+    assert rec.pair_ptr.tolist() == [0, 1, 3, 4]
+    assert rec.pair_rows.tolist() == [[0, 1], [2, 3], [3, 4], [5, 6]]
+    assert rec.pair_dist.dtype == np.float32
+    assert rec.pair_dist.tolist() == pytest.approx([10.0, 10.0, math.sqrt(9 + 19**2), 19.0])
+    assert rec.pair_key.tolist() == [
+        0.0,
+        PAIR_KEY_STEP + 1.0,
+        PAIR_KEY_STEP + 11.0,
+        2 * PAIR_KEY_STEP + 12.0,
+    ]
+
+
+def test_recording_arrays_pairs_with_the_higher_track_lower_in_y() -> None:
+    """pair_rows puts the vehicle with the smaller y first, whatever the track ids."""
+    nodes = grid_table([(3, 8, 1, 0.0, 40.0, 0.0, 0.0), (3, 9, 2, 0.0, 30.0, 0.0, 0.0)])
+    rec = recording_arrays(nodes, proximity_pairs(nodes, 25.0))
+    assert rec.n_steps == 4 and rec.step_ptr.tolist() == [0, 0, 0, 0, 2]
+    assert rec.pair_rows.tolist() == [[1, 0]]
+    assert rec.pair_key.tolist() == [3 * PAIR_KEY_STEP + 30.0]
+    assert rec.pair_ptr.tolist() == [0, 0, 0, 0, 1]

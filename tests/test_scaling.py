@@ -1,0 +1,154 @@
+"""MinMax scaling: the functions by hand, and the build's fitted ranges against a brute-force
+min/max over every train sample's graph (train only: not the ranges of all splits)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import polars as pl
+import pytest
+from test_builds import all_graphs, grid_tables, synthetic_build
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.scaling import TARGET_RANGES, empty_ranges, scale, update_ranges
+
+NAMES = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")
+SPLITS = ("train", "val", "test")
+
+
+def test_scale_maps_the_fitted_range_onto_the_target() -> None:
+    values = np.array([-10.0, 0.0, 30.0, 50.0])
+    fitted = {"min": -10.0, "max": 30.0}
+    assert scale(values, fitted, (-1.0, 1.0)).tolist() == [-1.0, -0.5, 1.0, 2.0]
+    assert scale(values, fitted, (0.0, 1.0)).tolist() == [0.0, 0.25, 1.0, 1.5]
+    assert scale(values, {"min": 4.0, "max": 4.0}, (-1.0, 1.0)).tolist() == [-1.0] * 4  # constant
+
+
+def test_update_ranges_and_to_dict() -> None:
+    ranges = empty_ranges()
+    assert ranges.to_dict()["x_m"] == {"min": None, "max": None, "to": [-1.0, 1.0]}
+    features = np.array([[1.0, -2.0, 0.1, 5.0], [-3.0, 4.0, -0.2, 0.0]])
+    ranges = update_ranges(ranges, features, np.array([7.5, 2.5]))
+    ranges = update_ranges(ranges, np.array([[0.0, 9.0, 0.0, 1.0]]), np.empty(0))
+    assert ranges.to_dict() == {
+        "x_m": {"min": -3.0, "max": 1.0, "to": [-1.0, 1.0]},
+        "y_m": {"min": -2.0, "max": 9.0, "to": [-1.0, 1.0]},
+        "heading_rad": {"min": -0.2, "max": 0.1, "to": [-1.0, 1.0]},
+        "speed_mps": {"min": 0.0, "max": 5.0, "to": [0.0, 1.0]},
+        "distance_m": {"min": 2.5, "max": 7.5, "to": [0.0, 1.0]},
+    }
+    assert set(TARGET_RANGES) == set(NAMES)
+
+
+def pairs_within(table: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
+    """(step, track_a < track_b, distance) of each pair <= d_max_m: a distance matrix per step."""
+    table = table.sort(s.STEP, s.TRACK_ID)
+    step, track = table[s.STEP].to_numpy(), table[s.TRACK_ID].to_numpy()
+    x, y = table[s.X_M].to_numpy(), table[s.Y_M].to_numpy()
+    bounds = np.flatnonzero(np.diff(step)) + 1
+    parts = []
+    for rows in np.split(np.arange(len(step)), bounds):
+        dx, dy = x[rows][:, None] - x[rows][None, :], y[rows][:, None] - y[rows][None, :]
+        d = np.sqrt(dx * dx + dy * dy)
+        i, j = np.triu_indices(len(rows), k=1)
+        keep = d[i, j] <= d_max_m
+        parts.append(
+            (step[rows[i[keep]]], track[rows[i[keep]]], track[rows[j[keep]]], d[i, j][keep])
+        )
+    columns = [np.concatenate(c) for c in zip(*parts, strict=True)]
+    return pl.DataFrame(dict(zip(["step", "track_a", "track_b", "distance"], columns, strict=True)))
+
+
+def brute_force_ranges(build: OpenBuild, tables: dict) -> dict[str, dict[str, tuple[float, float]]]:
+    """Min and max of node features and spatial-edge distances over every graph of each split,
+    from the rules: every vehicle at every history step of every sample, by joins."""
+    config = build.config
+    history = pl.DataFrame({"k": list(range(config.history_steps))}, schema={"k": pl.Int32})
+    features, distances = [], []
+    samples = pl.concat(
+        [build.samples(split).with_columns(pl.lit(split).alias("split")) for split in SPLITS]
+    )
+    for (location, period), table in tables.items():
+        mine = samples.filter((pl.col(s.LOCATION) == location) & (pl.col(s.PERIOD) == period))
+        steps = (
+            mine.select(
+                "split", s.SAMPLE_ID, s.EGO_TRACK_ID, s.START_STEP, s.ORIGIN_X_M, s.ORIGIN_Y_M
+            )
+            .join(history, how="cross")
+            .with_columns((pl.col(s.START_STEP) + pl.col("k")).alias(s.STEP))
+        )
+        ego = table.select(
+            s.STEP,
+            pl.col(s.TRACK_ID).alias(s.EGO_TRACK_ID),
+            pl.col(s.X_M).alias("ex"),
+            pl.col(s.Y_M).alias("ey"),
+        )
+        candidates = steps.join(ego, on=[s.STEP, s.EGO_TRACK_ID]).join(table, on=s.STEP)
+        dx, dy = pl.col(s.X_M) - pl.col("ex"), pl.col(s.Y_M) - pl.col("ey")
+        nodes = candidates.with_columns((dx * dx + dy * dy).sqrt().alias("d")).filter(
+            pl.col("d") <= config.d_sense_m
+        )
+        features.append(nodes.select(
+            "split", (pl.col(s.X_M) - pl.col(s.ORIGIN_X_M)).alias("x_m"),
+            (pl.col(s.Y_M) - pl.col(s.ORIGIN_Y_M)).alias("y_m"), s.HEADING_RAD, s.SPEED_MPS,
+        ))  # fmt: skip
+        actors = nodes.filter(pl.col(s.TRACK_ID) != pl.col(s.EGO_TRACK_ID))
+        distances.append(actors.select("split", pl.col("d").alias("distance_m")))
+        members = actors.select("split", s.SAMPLE_ID, s.STEP, s.TRACK_ID)
+        pairs = (
+            pairs_within(table, config.d_min_m)
+            .join(members.rename({s.TRACK_ID: "track_a"}), on=[s.STEP, "track_a"])
+            .join(
+                members.rename({s.TRACK_ID: "track_b"}),
+                on=["split", s.SAMPLE_ID, s.STEP, "track_b"],
+            )
+        )
+        distances.append(pairs.select("split", pl.col("distance").alias("distance_m")))
+    ranges: dict[str, dict[str, tuple[float, float]]] = {}
+    values = {"features": pl.concat(features), "distances": pl.concat(distances)}
+    for split in SPLITS:
+        for frame in values.values():
+            part = frame.filter(pl.col("split") == split).drop("split")
+            for name in part.columns:
+                ranges.setdefault(split, {})[name] = (part[name].min(), part[name].max())
+    return ranges
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> OpenBuild:
+    return open_build(synthetic_build(tmp_path_factory)[1])
+
+
+def test_scaler_is_fitted_on_every_train_graph_and_only_those(built: OpenBuild) -> None:
+    per_split = brute_force_ranges(built, grid_tables(built))
+    train = per_split["train"]
+    every = {
+        n: (min(r[n][0] for r in per_split.values()), max(r[n][1] for r in per_split.values()))
+        for n in NAMES
+    }
+    scaler = built.manifest["scaler"]
+    for name in NAMES:
+        assert scaler[name]["to"] == list(TARGET_RANGES[name])
+        fitted = (scaler[name]["min"], scaler[name]["max"])
+        if name == "distance_m":  # actor-actor distances are stored as float32
+            assert fitted == pytest.approx(train[name], abs=1e-5)
+        else:
+            assert fitted == train[name]
+        assert every[name][0] <= train[name][0] and train[name][1] <= every[name][1]
+    differs = [n for n in NAMES if not np.allclose(every[n], train[n], rtol=0, atol=1e-5)]
+    assert differs, "the ranges over all splits should differ from the train ones somewhere"
+    assert 0 < train["distance_m"][0] and train["distance_m"][1] <= built.config.d_sense_m
+    assert train["speed_mps"][0] >= 0 and all(math.isfinite(v) for r in train.values() for v in r)
+
+
+def test_scaler_equals_min_max_of_the_induced_train_graphs(built: OpenBuild) -> None:
+    batch = all_graphs(built, "train")
+    columns = [*batch.node_features.T, batch.spatial_distance]
+    scaler = built.manifest["scaler"]
+    for name, column in zip(NAMES, columns, strict=True):
+        assert (scaler[name]["min"], scaler[name]["max"]) == (
+            float(column.min()),
+            float(column.max()),
+        )

@@ -1,0 +1,159 @@
+"""Train / validation / test splits of ego windows: the vehicle rule by hand, the random split by
+ego track, the time split in contiguous blocks with a gap of one window."""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+import pytest
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.schema import SplitMode
+from ngsim_graphs.splits import (
+    SPLIT,
+    assign_splits,
+    split_by_time,
+    split_by_vehicle,
+    split_randomly,
+)
+
+
+def windows_of(ego_tracks: list[int], vehicles: list[int], presents: list[int]) -> pl.DataFrame:
+    return pl.DataFrame(
+        {
+            s.EGO_TRACK_ID: ego_tracks,
+            s.EGO_VEHICLE_ID: vehicles,
+            s.START_STEP: [p - 15 for p in presents],
+            s.PRESENT_STEP: presents,
+        },
+        schema={
+            s.EGO_TRACK_ID: pl.Int32,
+            s.EGO_VEHICLE_ID: pl.Int32,
+            s.START_STEP: pl.Int32,
+            s.PRESENT_STEP: pl.Int32,
+        },
+    )
+
+
+def test_vehicle_rule_max_id_100() -> None:
+    ids = [1, 69, 70, 71, 75, 80, 81, 99, 100]
+    labels = split_by_vehicle(windows_of(ids, ids, [20] * len(ids)), 100, BuildConfig()).to_list()
+    assert labels == ["train", "train", "train", "val", "val", "val", "test", "test", "test"]
+
+
+@pytest.mark.parametrize(
+    ("max_id", "last_train", "last_val"),
+    [
+        (101, 71, 81),  # 70.7 -> 71, 80.8 -> 81
+        (11, 8, 9),  # 7.7 -> 8, 8.8 -> 9
+        (45, 31, 36),  # 31.49999... -> 31
+        (15, 11, 12),  # 0.7 * 15 = 10.5: MATLAB's round (CS-LSTM) goes away from zero, to 11
+        (25, 18, 20),  # 17.5 -> 18
+        (35, 25, 28),  # 24.5 -> 25 (Python's round would give 24)
+    ],
+)
+def test_vehicle_rule_rounds_like_matlab(max_id: int, last_train: int, last_val: int) -> None:
+    ids = list(range(1, max_id + 1))
+    labels = split_by_vehicle(windows_of(ids, ids, [20] * max_id), max_id, BuildConfig()).to_list()
+    assert labels == ["train"] * last_train + ["val"] * (last_val - last_train) + ["test"] * (
+        max_id - last_val
+    )
+
+
+def test_vehicle_split_keeps_each_window_once_and_each_vehicle_in_one_split() -> None:
+    rng = np.random.default_rng(3)
+    vehicles = rng.integers(1, 300, 2000)
+    tracks = vehicles * 2 + rng.integers(0, 2, 2000)  # two tracks per vehicle
+    presents = rng.integers(15, 4000, 2000)
+    windows = windows_of(tracks.tolist(), vehicles.tolist(), presents.tolist()).unique(
+        [s.EGO_TRACK_ID, s.START_STEP], maintain_order=True
+    )
+    out = assign_splits(windows, 300, 0, BuildConfig(split=SplitMode.VEHICLE))
+    assert out.height == windows.height
+    assert out.select(s.EGO_TRACK_ID, s.START_STEP).is_duplicated().sum() == 0
+    assert out.group_by(s.EGO_VEHICLE_ID).agg(pl.col(SPLIT).n_unique())[SPLIT].max() == 1
+
+
+def many_track_windows(n_tracks: int, rng: np.random.Generator) -> pl.DataFrame:
+    """1-4 windows per track (stride 40)."""
+    per_track = rng.integers(1, 5, n_tracks)
+    tracks = np.repeat(np.arange(n_tracks), per_track)
+    index = np.concatenate([np.arange(n) for n in per_track])
+    presents = rng.integers(15, 3000, n_tracks)[tracks] + 40 * index
+    return windows_of(tracks.tolist(), (tracks + 1).tolist(), presents.tolist())
+
+
+def test_random_split_by_ego_track_seeded() -> None:
+    windows = many_track_windows(6000, np.random.default_rng(11))
+    config = BuildConfig(split=SplitMode.RANDOM, seed=5)
+    labels = split_randomly(windows, 0, config)
+    framed = windows.with_columns(labels)
+    assert framed.group_by(s.EGO_TRACK_ID).agg(pl.col(SPLIT).n_unique())[SPLIT].max() == 1
+    assert labels.equals(split_randomly(windows, 0, config))  # same seed, same result
+    assert not labels.equals(
+        split_randomly(windows, 0, BuildConfig(split=SplitMode.RANDOM, seed=6))
+    )
+    assert not labels.equals(split_randomly(windows, 1, config))  # each recording draws its own
+    per_track = framed.unique(s.EGO_TRACK_ID)[SPLIT].value_counts(normalize=True)
+    share = dict(per_track.iter_rows())
+    assert share["train"] == pytest.approx(0.7, abs=0.02)
+    assert share["val"] == pytest.approx(0.1, abs=0.015)
+    assert share["test"] == pytest.approx(0.2, abs=0.02)
+    # assign_splits keeps every window of a random split, with these labels.
+    out = assign_splits(windows, 6000, 0, config)
+    assert out[SPLIT].equals(labels)
+
+
+def test_time_split_blocks_and_gaps() -> None:
+    config = BuildConfig(split=SplitMode.TIME)
+    k_h, k_f = config.history_steps, config.future_steps
+    windows = many_track_windows(3000, np.random.default_rng(2))
+    out = assign_splits(windows, 3000, 0, config)
+    blocks = {
+        name: out.filter(pl.col(SPLIT) == name)[s.PRESENT_STEP] for name in ("train", "val", "test")
+    }
+    train, val, test = (blocks[n] for n in ("train", "val", "test"))
+    assert min(len(train), len(val), len(test)) > 0
+    # Contiguous blocks of present time, in order, with a gap between them.
+    for early, late in ((train, val), (val, test), (train, test)):
+        # an earlier window's last future step comes before a later one's first history step
+        assert early.max() + k_f < late.min() - k_h + 1
+    # Exactly the windows in the gaps are dropped.
+    presents = np.sort(windows[s.PRESENT_STEP].to_numpy())
+    first, second = presents[int(0.7 * len(presents))], presents[int(0.8 * len(presents))]
+    all_presents = windows[s.PRESENT_STEP]
+    assert train.len() == (all_presents < first).sum()
+    assert val.len() == ((all_presents >= first + 41) & (all_presents < second)).sum()
+    assert test.len() == (all_presents >= second + 41).sum()
+    assert out.height == train.len() + val.len() + test.len() < windows.height
+    assert train.len() / windows.height == pytest.approx(0.7, abs=0.02)
+
+
+def test_time_split_by_hand() -> None:
+    # 100 windows, presents 15, 25, ..., 1005: the 70 % cut is the 71st (present 715), the 80 %
+    # cut the 81st (815). Train: present < 715. Dropped: [715, 756) and [815, 856).
+    presents = list(range(15, 1015, 10))
+    windows = windows_of(list(range(100)), list(range(1, 101)), presents)
+    labels = split_by_time(windows, BuildConfig(split=SplitMode.TIME)).to_list()
+    assert labels == ["train"] * 70 + [None] * 5 + ["val"] * 5 + [None] * 5 + ["test"] * 15
+    assert [p for p, label in zip(presents, labels, strict=True) if label == "val"] == [
+        765,
+        775,
+        785,
+        795,
+        805,
+    ]
+
+
+def test_time_split_80_percent_cut_of_20_windows() -> None:
+    # 20 windows 100 steps apart: train the first 14, validation the next 2, test the last 4;
+    # the first window of each later block is within one window length of its start: dropped.
+    presents = list(range(100, 2100, 100))
+    windows = windows_of(list(range(20)), list(range(1, 21)), presents)
+    labels = split_by_time(windows, BuildConfig(split=SplitMode.TIME)).to_list()
+    assert labels == ["train"] * 14 + [None, "val"] + [None, "test", "test", "test"]
+
+
+def test_time_split_of_no_windows() -> None:
+    assert split_by_time(windows_of([], [], []), BuildConfig(split=SplitMode.TIME)).len() == 0
