@@ -7,11 +7,25 @@ from contextlib import contextmanager
 
 import typer
 from rich.console import Console
+from rich.measure import Measurement
+from rich.table import Table
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ngsim_graphs.errors import NgsimInputError
 
 stderr = Console(stderr=True)
+stdout = Console()
+
+
+def print_table(table: Table) -> None:
+    """A table on stdout; piped or redirected, at its natural width rather than cut to 80 columns."""
+    if stdout.is_terminal:
+        stdout.print(table)
+    else:
+        natural = Measurement.get(stdout, stdout.options.update(width=10_000), table).maximum
+        Console(width=max(stdout.width, natural)).print(table)  # print() cannot widen the console
+
+
 
 
 @contextmanager

@@ -6,18 +6,20 @@ import json
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
+import polars as pl
 import typer
 from rich.console import Console
-from rich.measure import Measurement
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_input_error, progress_bar, stderr
+from ngsim_cli.console import exit_on_input_error, print_table, progress_bar, stderr
+from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
 from ngsim_graphs.building import BuildResult, run_build
 from ngsim_graphs.builds import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.schema import RawFormat, SplitMode
-from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, BuildStatistics, Distribution, build_statistics
+from ngsim_graphs.schema import RawFormat, Split, SplitMode
+from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 
 app = typer.Typer(
     help="NGSIM US-101 / I-80 trajectories to spatial-temporal graph datasets.",
@@ -27,13 +29,10 @@ app = typer.Typer(
 stdout = Console()
 
 
-def _print_table(table: Table) -> None:
-    """A table on stdout; piped or redirected, at its natural width rather than cut to 80 columns."""
-    if stdout.is_terminal:
-        stdout.print(table)
-    else:
-        natural = Measurement.get(stdout, stdout.options.update(width=10_000), table).maximum
-        Console(width=max(stdout.width, natural)).print(table)  # print() cannot widen the console
+def _usage_error(message: str) -> typer.Exit:
+    """One line on stderr; the caller raises the returned exit (status 2: a bad option)."""
+    stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
+    return typer.Exit(2)
 
 
 def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
@@ -41,8 +40,7 @@ def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
     try:
         return factory(**kwargs)
     except ValueError as err:
-        stderr.print(f"error: {err}", markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(2) from None
+        raise _usage_error(str(err)) from None
 
 
 @app.command()
@@ -70,7 +68,6 @@ def synth(
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
 
 
-SPLIT_NAMES = ("train", "val", "test")
 
 
 def _summary_table(result: BuildResult) -> Table:
@@ -143,7 +140,7 @@ def build(
         result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress)
     for skipped in result.skipped_files:
         stdout.print(f"skipped (not NGSIM): {skipped}")
-    _print_table(_summary_table(result))
+    print_table(_summary_table(result))
     counts, splits = result.manifest["counts"], result.manifest["splits"]
     stdout.print(
         f"{counts['rows_read']:,} rows read, {counts['rows_other_locations']:,} of other locations, "
@@ -153,115 +150,6 @@ def build(
         "samples: " + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
         + f" ({counts['samples']:,} in all)."
     )
-
-
-def _number(value: float | None, digits: int = 1) -> str:
-    """`digits` decimals, none from 1,000 on (so that wide counts stay in an 80-column table)."""
-    if value is None:
-        return "-"
-    text = f"{value:,.0f}" if abs(value) >= 1000 else f"{value:,.{digits}f}"
-    return text.removeprefix("-") if text.strip("-0.,") == "" else text  # no "-0.000"
-
-
-def _distribution_cells(d: Distribution, digits: int = 1, counts: bool = False) -> list[str]:
-    """mean, min, p5, p50, p95, max; min and max without decimals for counts."""
-    extreme = 0 if counts else digits
-    return [_number(d.mean, digits), _number(d.min, extreme), *(_number(v, digits) for v in (d.p5, d.p50, d.p95)),
-            _number(d.max, extreme)]  # fmt: skip
-
-
-def _table(title: str, first: list[str], right: list[str]) -> Table:
-    table = Table(title=title, title_justify="left")
-    for column in first:
-        table.add_column(column, no_wrap=True)
-    for column in right:
-        table.add_column(column, justify="right")
-    return table
-
-
-DISTRIBUTION_COLUMNS = ["mean", "min", "p5", "p50", "p95", "max"]
-GRAPH_SIZE_LABELS = {
-    "n_nodes": "nodes", "n_spatial_edges": "spatial edges", "n_temporal_edges": "temporal edges",
-    "n_targets": "targets",
-}  # fmt: skip
-
-
-def _recordings_table(st: BuildStatistics) -> Table:
-    table = _table("Recordings (samples per split)", ["recording"],
-                   ["vehicles", "tracks", "rows 0.2 s", *SPLIT_NAMES])  # fmt: skip
-    for r in st.recordings:
-        table.add_row(
-            f"{r['location']} {r['period']}", f"{r['vehicles']:,}", f"{r['tracks']:,}", f"{r['grid_rows']:,}",
-            *(f"{r['samples'].get(split, 0):,}" for split in SPLIT_NAMES),
-        )  # fmt: skip
-    return table
-
-
-def _share(part: int, whole: int) -> str:
-    return f"{part / whole:.1%}" if whole else "-"
-
-
-def _splits_table(st: BuildStatistics) -> Table:
-    total = sum(st.samples.values())
-    full_future = f"targets with full {st.future_horizon_s:g} s future"
-    table = _table("Splits", ["split"], ["samples", "share", "targets", full_future])
-    for split in SPLIT_NAMES:
-        n, targets = st.samples[split], st.targets[split]
-        table.add_row(
-            split, f"{n:,}", _share(n, total), f"{targets.targets:,}",
-            f"{targets.full_future:,} ({_share(targets.full_future, targets.targets)})",
-        )  # fmt: skip
-    return table
-
-
-def _graph_size_table(st: BuildStatistics) -> Table:
-    table = _table("Graph size (all samples, exact)", ["split", "per graph"], DISTRIBUTION_COLUMNS)
-    for split in SPLIT_NAMES:
-        for column, label in GRAPH_SIZE_LABELS.items():
-            table.add_row(split, label, *_distribution_cells(st.graph_size[split][column], counts=True))
-        table.add_section()
-    return table
-
-
-def _degree_table(st: BuildStatistics) -> Table:
-    n_graphs = sum(d.sampled_graphs for d in st.node_degree.values())
-    table = _table(f"Spatial in-degree per node (from {n_graphs:,} sampled graphs)",
-                   ["split"], ["graphs", "nodes", *DISTRIBUTION_COLUMNS])  # fmt: skip
-    for split in SPLIT_NAMES:
-        graphs, d = st.node_degree[split].sampled_graphs, st.node_degree[split].spatial_in_degree
-        table.add_row(split, f"{graphs:,}", f"{d.count:,}", *_distribution_cells(d, counts=True))
-    return table
-
-
-def _kinematics_table(st: BuildStatistics) -> Table:
-    rows = st.kinematics["speed_mps"].count
-    table = _table(f"Kinematics ({rows:,} tracks rows)", ["quantity"], ["mean", "std", *DISTRIBUTION_COLUMNS[1:]])
-    for name, label, digits in (("speed_mps", "speed m/s", 2), ("heading_rad", "heading rad", 3)):
-        d = st.kinematics[name]
-        mean, *rest = _distribution_cells(d, digits)
-        table.add_row(label, mean, _number(d.std, digits), *rest)
-    return table
-
-
-def _scaler_table(st: BuildStatistics) -> Table:
-    table = _table("Scaler (MinMax, fitted on train)", ["quantity"], ["min", "max", "maps to"])
-    for name, fitted in st.scaler.items():
-        low, high = fitted["to"]
-        table.add_row(name, _number(fitted["min"], 3), _number(fitted["max"], 3), f"({low:g}, {high:g})")
-    return table
-
-
-def _config_table(st: BuildStatistics) -> Table:
-    table = _table(f"Build config (sha256 {st.config_hash[:12]})", ["setting"], ["value"])
-    for name, value in st.config.items():
-        table.add_row(name, ", ".join(map(str, value)) if isinstance(value, list) else str(value))
-    return table
-
-
-STATS_TABLES = (
-    _recordings_table, _splits_table, _graph_size_table, _degree_table, _kinematics_table, _scaler_table,
-    _config_table,
-)  # fmt: skip
 
 
 def _write_plots(values, folder: Path) -> list[Path]:  # type: ignore[no-untyped-def]
@@ -301,9 +189,49 @@ def stats(
         typer.echo(json.dumps(document, indent=2))
         return
     for make_table in STATS_TABLES:
-        _print_table(make_table(statistics))
+        print_table(make_table(statistics))
     for path in written:
         stdout.print(f"wrote {path}")
+
+
+def _sample_ids(text: str, available: int) -> np.ndarray:
+    """'START:END' (END excluded) or '3,7,9' into sample ids, checked against the split's size."""
+    try:
+        if ":" in text:
+            first, _, last = text.partition(":")
+            ids = np.arange(int(first or 0), int(last) if last else available)
+        else:
+            ids = np.array([int(part) for part in text.split(",") if part.strip()])
+    except ValueError:
+        raise _usage_error(f"--samples {text!r}: give START:END or a comma-separated list") from None
+    if len(ids) == 0 or ids.min() < 0 or ids.max() >= available:
+        raise _usage_error(f"--samples {text!r}: the split has samples 0..{available - 1}")
+    return ids
+
+
+@app.command()
+def export(
+    build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")],
+    out: Annotated[Path, typer.Option("--out", help="Folder for the Parquet tables (created).")],
+    split: Annotated[Split, typer.Option(help="Split of the samples.")] = Split.TEST,
+    samples: Annotated[str, typer.Option(help="Sample ids: START:END (END excluded) or 3,7,9.")] = "0:100",
+) -> None:
+    """Write chosen samples' graphs as explicit Parquet tables with sample-local node indices.
+
+    The build stores graphs compactly (grid nodes and proximity pairs once per step); this writes
+    nodes, spatial_edges, temporal_edges, targets and samples tables for the chosen samples.
+    """
+    from ngsim_graphs.exporting import graph_tables
+
+    with exit_on_input_error():
+        opened = open_build(build_dir)
+        ids = _sample_ids(samples, int(opened.manifest["splits"][split.value]))
+        tables = graph_tables(opened.graphs(split.value, ids), ids)
+        tables["samples"] = opened.samples(split.value).filter(pl.col("sample_id").is_in(ids.tolist()))
+    out.mkdir(parents=True, exist_ok=True)
+    for name, table in tables.items():
+        table.write_parquet(out / f"{name}.parquet")
+        stdout.print(f"{out / f'{name}.parquet'}  {table.height:,} rows")
 
 
 def main() -> None:

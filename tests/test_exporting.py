@@ -51,3 +51,20 @@ def test_tables_use_sample_local_indices(build: OpenBuild) -> None:
     assert (spatial["source"] != spatial["destination"]).all()
     unrecorded = tables["targets"].filter(~pl.col("recorded"))
     assert unrecorded["x_m"].null_count() == unrecorded.height
+
+
+def test_cli_export_writes_the_tables(build: OpenBuild, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from ngsim_cli.ngsim import app
+
+    runner = CliRunner()
+    result = runner.invoke(app, ["export", str(build.root), "--out", str(tmp_path / "t"), "--split", "val", "--samples", "1,3"])
+    assert result.exit_code == 0, result.output
+    samples = pl.read_parquet(tmp_path / "t" / "samples.parquet")
+    assert samples["sample_id"].to_list() == [1, 3]
+    nodes = pl.read_parquet(tmp_path / "t" / "nodes.parquet")
+    assert nodes.height == samples["n_nodes"].sum()
+    bad = runner.invoke(app, ["export", str(build.root), "--out", str(tmp_path / "u"), "--samples", "5:2"])
+    assert bad.exit_code == 2 and bad.stderr.count("\n") == 1 and "--samples" in bad.stderr
+    assert not (tmp_path / "u").exists()
