@@ -10,7 +10,6 @@ size on disk and the peak resident memory. Synthetic data: these are not NGSIM r
 
 from __future__ import annotations
 
-import argparse
 import resource
 import sys
 import time
@@ -19,7 +18,7 @@ from pathlib import Path
 import polars as pl
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_ingest import ensure_input  # noqa: E402
+from bench_ingest import ensure_input, parse_input_args  # noqa: E402
 
 from ngsim_graphs import layout  # noqa: E402
 from ngsim_graphs.building import run_build  # noqa: E402
@@ -37,16 +36,7 @@ def folder_bytes(folder: Path) -> dict[str, int]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--format", default="txt", choices=["portal", "csv", "txt"])
-    parser.add_argument("--recordings", type=int, default=6)
-    parser.add_argument("--minutes", type=float, default=15.0)
-    parser.add_argument("--quirks", action="store_true")
-    parser.add_argument("--work-dir", type=Path, default=Path("bench/out"))
-    args = parser.parse_args()
-
-    tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
-    raw_dir = args.work_dir / f"raw-{tag}"
+    args, tag, raw_dir = parse_input_args(__doc__, "txt")
     ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
 
     marks: list[tuple[str, float]] = []

@@ -33,17 +33,21 @@ def ensure_input(raw_dir: Path, raw_format: str, recordings: int, minutes: float
     return time.perf_counter() - start
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--format", default="portal", choices=["portal", "csv", "txt"])
+def parse_input_args(description: str, default_format: str) -> tuple[argparse.Namespace, str, Path]:
+    """The options that choose the synthetic input; returns (args, tag, raw folder)."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--format", default=default_format, choices=["portal", "csv", "txt"])
     parser.add_argument("--recordings", type=int, default=6)
     parser.add_argument("--minutes", type=float, default=15.0)
     parser.add_argument("--quirks", action="store_true")
     parser.add_argument("--work-dir", type=Path, default=Path("bench/out"))
     args = parser.parse_args()
-
     tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
-    raw_dir = args.work_dir / f"raw-{tag}"
+    return args, tag, args.work_dir / f"raw-{tag}"
+
+
+def main() -> None:
+    args, tag, raw_dir = parse_input_args(__doc__, "portal")
     synth_s = ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
     input_bytes = sum(p.stat().st_size for p in raw_dir.rglob("*") if p.is_file())
 
