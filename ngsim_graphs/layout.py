@@ -113,6 +113,8 @@ def write_manifest(root: Path, manifest: dict[str, Any]) -> None:
 def read_manifest(root: Path) -> dict[str, Any]:
     """The manifest of a finished build; a clear error for anything else."""
     path = manifest_path(root)
+    if not root.exists():
+        raise NgsimInputError(root, "no such build directory")
     if not root.is_dir():
         raise NgsimInputError(root, "not a directory")
     if not path.is_file():

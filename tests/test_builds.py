@@ -212,8 +212,11 @@ def test_open_build_without_manifest(tmp_path: Path) -> None:
     (tmp_path / "tracks").mkdir()
     with pytest.raises(NgsimInputError, match="not a finished build: no manifest.json"):
         open_build(tmp_path)
-    with pytest.raises(NgsimInputError, match="not a directory"):
+    with pytest.raises(NgsimInputError, match="no such build directory"):
         open_build(tmp_path / "missing")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(NgsimInputError, match="not a directory"):
+        open_build(tmp_path / "file")
 
 
 def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:

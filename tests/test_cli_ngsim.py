@@ -387,7 +387,7 @@ def test_stats_without_manifest(tmp_path: Path) -> None:
 
 def test_stats_on_missing_directory(tmp_path: Path) -> None:
     line = error_line(invoke("stats", tmp_path / "nowhere"))
-    assert str(tmp_path / "nowhere") in line and "not a directory" in line
+    assert str(tmp_path / "nowhere") in line and "no such build directory" in line
 
 
 @pytest.mark.parametrize(
