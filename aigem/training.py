@@ -8,7 +8,6 @@ from the last one. Under `torchrun` (WORLD_SIZE > 1) it trains with DistributedD
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import random
@@ -16,7 +15,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -185,6 +183,3 @@ def fit(
         device=str(device),
     )
 
-
-def describe(result: FitResult) -> dict[str, Any]:
-    return json.loads(json.dumps(result.__dict__, default=str))

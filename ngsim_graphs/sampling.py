@@ -67,8 +67,11 @@ def recording_samples(
     arrays = recording_arrays(nodes, pairs)
     max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
     windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
-    counts = []
-    for batch, is_train in zip(iter_graphs(arrays, windows, config), _train_flags(windows), strict=True):
+    train_flags = (windows[SPLIT] == Split.TRAIN.value).to_numpy()
+    counts, first = [], 0
+    for batch in iter_graphs(arrays, windows, config):
+        is_train = train_flags[first : first + batch.n_samples]
+        first += batch.n_samples
         counts.append(graph_counts(batch))
         if is_train.any():
             node_train = is_train[batch.node_sample]
@@ -80,8 +83,3 @@ def recording_samples(
     )
     return RecordingSamples(pairs=pairs, arrays=arrays, windows=windows, ranges=ranges)
 
-
-def _train_flags(windows: pl.DataFrame) -> Iterator[np.ndarray]:
-    is_train = (windows[SPLIT] == Split.TRAIN.value).to_numpy()
-    for first in range(0, len(is_train), INDUCE_BATCH):
-        yield is_train[first : first + INDUCE_BATCH]
