@@ -19,6 +19,12 @@ class ModelConfig:
     concat_position: bool = True  # the output MLP sees the previous position (ablation: False)
     future_steps: int = 25  # K_F predicted steps (5 s at 0.2 s)
 
+    @property
+    def history_steps_read(self) -> int:
+        """History steps that reach the present-step embeddings: temporal edges join consecutive
+        steps, so L layers read the present and the L steps before it."""
+        return self.layers + 1
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 

@@ -60,13 +60,26 @@ class Scaler:
 
 
 class GraphDataset(Dataset):
-    """The samples of one split of a build; item i is sample i's graph (a one-sample GraphBatch)."""
+    """The samples of one split of a build; item i is sample i's graph (a one-sample GraphBatch).
 
-    def __init__(self, build_dir: Path, split: Split | str = Split.TRAIN) -> None:
+    `history_steps`: keep only the last that many history steps of each graph (None, or K_H or
+    more: all K_H).
+    A model that reads no further back gets the same result from the smaller graphs, and the
+    loader does a fraction of the work: AiGem with L layers reads L + 1 steps
+    (`ModelConfig.history_steps_read`).
+    """
+
+    def __init__(
+        self, build_dir: Path, split: Split | str = Split.TRAIN, history_steps: int | None = None
+    ) -> None:
         self.build_dir = Path(build_dir)
         self.split = Split(split)
         build = open_build(self.build_dir)  # refuses unfinished builds and unknown versions
         self.config = build.config
+        if history_steps is not None and history_steps < 1:
+            raise ValueError(f"history_steps must be at least 1, got {history_steps}")
+        keep = self.config.history_steps if history_steps is None else history_steps
+        self.first_step = max(0, self.config.history_steps - keep)
         self.scaler = Scaler.from_manifest(build.manifest, self.build_dir)
         self.size = int(build.manifest["splits"][self.split.value])
         self._build: OpenBuild | None = None  # opened lazily in each worker process
@@ -81,11 +94,16 @@ class GraphDataset(Dataset):
         return self.size
 
     def __getitem__(self, index: int) -> GraphBatch:
-        return self.build.graphs(self.split, np.array([index]))
+        return self.build.graphs(self.split, np.array([index]), self.first_step)
 
     def __getitems__(self, indices: list[int]) -> list[GraphBatch]:
-        """The whole batch's graphs in one vectorised induction."""
-        return [self.build.graphs(self.split, np.asarray(indices))]
+        """The whole batch's graphs, induced once per recording: grouped by recording, and in
+        the given order within a recording (the order of a batch's graphs changes no loss or
+        metric)."""
+        ids = np.asarray(indices, dtype=np.int64)
+        recording = self.build.sample_arrays(self.split)["recording_index"][ids]
+        ids = ids[np.argsort(recording, kind="stable")]
+        return [self.build.graphs(self.split, ids, self.first_step)]
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_build": None}  # memory maps are reopened by each worker

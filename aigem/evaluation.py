@@ -56,7 +56,7 @@ def evaluate(
     """Score the run's best model and the constant-velocity baseline on `split` of `build_dir`."""
     device = pick_device(device_choice)
     model, info = load_model(run_dir, device)
-    dataset = GraphDataset(build_dir, split)
+    dataset = GraphDataset(build_dir, split, history_steps=model.config.history_steps_read)
     steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=Collate(dataset.scaler))
     ours, baseline = ErrorTotals(steps), ErrorTotals(steps)

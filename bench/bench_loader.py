@@ -1,9 +1,11 @@
 """Benchmark: is the data loader ever what limits AiGem's training?
 
-Prints graphs per second of (1) the memory-mapped dataset with its collate (read + collate), with
-0 and 2 worker processes; (2) the natural alternative, a list of PyTorch Geometric HeteroData
-objects batched by PyG's own DataLoader (only the batching is timed: the list is made first);
-(3) AiGem training (forward, backward, Adam step) on the CPU; and the ratios.
+Prints graphs per second of (1) the memory-mapped dataset with its collate (read + induce +
+collate), with 0 and 2 worker processes, for whole graphs (all K_H history steps) and for the
+graphs as `aigem fit` loads them (the L + 1 steps the model reads; the model's output is the
+same); (2) the natural alternative, a list of PyTorch Geometric HeteroData objects batched by
+PyG's own DataLoader (only the batching is timed: the list is made first); (3) AiGem training
+(forward, backward, Adam step) on the CPU; and the ratios.
 
     python bench/bench_loader.py bench/out/graphs-txt-r6-m15
 """
@@ -70,19 +72,27 @@ def main() -> None:
     args = parser.parse_args()
 
     start = time.perf_counter()
-    dataset = GraphDataset(args.build, "train")
+    whole = GraphDataset(args.build, "train")
     open_ms = 1000 * (time.perf_counter() - start)
-    kw = {"batch_size": args.batch_size, "shuffle": True, "collate_fn": Collate(dataset.scaler)}
-    ours = {w: graphs_per_second(DataLoader(dataset, num_workers=w, **kw), args.batches, args.batch_size) for w in (0, 2)}
-    pyg = pyg_baseline(dataset, args.batches * args.batch_size, args.batch_size)
-    train = training_graphs_per_second(dataset, args.train_batches, args.batch_size)
-    print(f"build              {args.build} ({len(dataset):,} train samples); opened in {open_ms:.0f} ms")
-    print(f"loader, 0 workers  {ours[0]:8,.0f} graphs/s (read + induce + collate)")
-    print(f"loader, 2 workers  {ours[2]:8,.0f} graphs/s")
-    print(f"PyG HeteroData     {pyg:8,.0f} graphs/s (list of HeteroData, PyG DataLoader; batching only)")
-    print(f"training (CPU)     {train:8,.1f} graphs/s (forward + backward + Adam, batch {args.batch_size})")
-    print(f"loader / training  {ours[0] / train:8,.0f}x (0 workers), {ours[2] / train:,.0f}x (2 workers)")
-    print(f"ours / PyG         {ours[0] / pyg:8,.2f}x")
+    read = ModelConfig().history_steps_read
+    as_fit = GraphDataset(args.build, "train", history_steps=read)
+    kw = {"batch_size": args.batch_size, "shuffle": True, "collate_fn": Collate(whole.scaler)}
+    rates = {
+        (name, w): graphs_per_second(DataLoader(data, num_workers=w, **kw), args.batches, args.batch_size)
+        for name, data in (("whole", whole), ("fit", as_fit))
+        for w in (0, 2)
+    }
+    pyg = pyg_baseline(whole, args.batches * args.batch_size, args.batch_size)
+    train = training_graphs_per_second(as_fit, args.train_batches, args.batch_size)
+    k_h = whole.config.history_steps
+    print(f"build                    {args.build} ({len(whole):,} train samples); opened in {open_ms:.0f} ms")
+    for name, label in (("whole", f"whole graphs ({k_h} steps)"), ("fit", f"as aigem fit ({read} steps)")):
+        for w in (0, 2):
+            print(f"loader, {label}, {w} workers {rates[name, w]:8,.0f} graphs/s (read + induce + collate)")
+    print(f"PyG HeteroData (whole)   {pyg:8,.0f} graphs/s (list of HeteroData, PyG DataLoader; batching only)")
+    print(f"training (CPU)           {train:8,.1f} graphs/s (forward + backward + Adam, batch {args.batch_size})")
+    print(f"loader / training        {rates['fit', 0] / train:8,.1f}x (0 workers), {rates['fit', 2] / train:,.1f}x (2 workers)")
+    print(f"ours / PyG, whole graphs {rates['whole', 0] / pyg:8,.2f}x (0 workers)")
 
 
 if __name__ == "__main__":

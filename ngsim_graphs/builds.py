@@ -43,12 +43,23 @@ class OpenBuild:
         """The samples table of a split (SAMPLE_SCHEMA and graph counts)."""
         return pl.read_parquet(layout.samples_path(self.root, Split(split).value))
 
+    @cached_property
+    def _sample_arrays(self) -> dict[Split, dict[str, np.ndarray]]:
+        return {}  # filled by sample_arrays, one split at a time
+
     def sample_arrays(self, split: Split | str) -> dict[str, np.ndarray]:
         """recording_index, ego_track_id and start_step of every sample of a split (memory-mapped)."""
-        return layout.open_arrays(layout.sample_arrays_dir(self.root, Split(split).value), layout.SAMPLE_ARRAYS)
+        split = Split(split)
+        if split not in self._sample_arrays:
+            folder = layout.sample_arrays_dir(self.root, split.value)
+            self._sample_arrays[split] = layout.open_arrays(folder, layout.SAMPLE_ARRAYS)
+        return self._sample_arrays[split]
 
-    def graphs(self, split: Split | str, sample_ids: np.ndarray) -> GraphBatch:
-        """The graphs of the given samples of a split, in the given order."""
+    def graphs(self, split: Split | str, sample_ids: np.ndarray, first_step: int = 0) -> GraphBatch:
+        """The graphs of the given samples of a split, in the given order.
+
+        `first_step`: keep history steps first_step..K_H-1 only (see `induce_graphs`).
+        """
         arrays = self.sample_arrays(split)
         ids = np.asarray(sample_ids, dtype=np.int64)
         recording = np.asarray(arrays["recording_index"][ids])
@@ -60,6 +71,7 @@ class OpenBuild:
                 np.asarray(arrays["ego_track_id"][ids[part]]),
                 np.asarray(arrays["start_step"][ids[part]]),
                 self.config,
+                first_step,
             )
             for part in np.split(np.arange(len(ids)), runs)
             if len(part)

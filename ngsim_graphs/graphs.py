@@ -73,11 +73,14 @@ def _distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(dx * dx + dy * dy)
 
 
-def _history_nodes(rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig):
-    """Candidate rows of every (sample, step), which of them are nodes, and the ego rows."""
-    n_samples, k_h = len(ego_track), config.history_steps
-    ss_step = (start_step[:, None] + np.arange(k_h)).reshape(-1)  # sample-step -> grid step
-    ego_rows = rec.row_at(np.repeat(ego_track, k_h), ss_step)  # (B*K_H,)
+def _history_nodes(
+    rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig, first_step: int
+):
+    """Candidate rows of every (sample, kept step), which of them are nodes, and the ego rows."""
+    n_samples, n_kept = len(ego_track), config.history_steps - first_step
+    kept = np.arange(first_step, config.history_steps)
+    ss_step = (start_step[:, None] + kept).reshape(-1)  # sample-step -> grid step
+    ego_rows = rec.row_at(np.repeat(ego_track, n_kept), ss_step)  # (B*n_kept,)
     if (ego_rows < 0).any():
         raise ValueError("an ego track is not present at every history step of its window")
     cand_ss, cand_row = concat_ranges(rec.step_ptr[ss_step], rec.step_ptr[ss_step + 1])
@@ -88,13 +91,24 @@ def _history_nodes(rec: RecordingArrays, ego_track: np.ndarray, start_step: np.n
 
 
 def induce_graphs(
-    rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig
+    rec: RecordingArrays,
+    ego_track: np.ndarray,
+    start_step: np.ndarray,
+    config: BuildConfig,
+    first_step: int = 0,
 ) -> GraphBatch:
-    """The graphs of samples (ego_track[b], start_step[b]) of one recording."""
+    """The graphs of samples (ego_track[b], start_step[b]) of one recording.
+
+    `first_step` > 0 keeps only history steps first_step..K_H-1: the same nodes, edges and targets
+    at those steps as the whole graph has, for a model that reads no further back (AiGem with L
+    layers reads the last L + 1 steps only). Node steps stay numbered 0..K_H-1.
+    """
+    if not 0 <= first_step < config.history_steps:
+        raise ValueError(f"first_step must be in 0..{config.history_steps - 1}, got {first_step}")
     ss_step, ego_rows, cand_ss, cand_row, cand_dist, is_node, n_samples = _history_nodes(
-        rec, ego_track, start_step, config
+        rec, ego_track, start_step, config, first_step
     )
-    k_h = config.history_steps
+    n_kept = config.history_steps - first_step  # kept steps per sample
     cand_is_ego = cand_row == ego_rows[cand_ss]
     # Node order: by sample-step, ego first, then rows (rows of a step are by track id).
     member = np.flatnonzero(is_node)
@@ -102,8 +116,8 @@ def induce_graphs(
     node_of_cand = np.full(len(cand_row), -1, dtype=np.int64)
     node_of_cand[order] = np.arange(len(order))
     node_ss, node_row = cand_ss[order], cand_row[order]
-    node_sample = node_ss // k_h
-    origin = rec.node_state[ego_rows.reshape(n_samples, k_h)[:, -1], :2]  # (B, 2) present ego
+    node_sample = node_ss // n_kept
+    origin = rec.node_state[ego_rows.reshape(n_samples, n_kept)[:, -1], :2]  # (B, 2) present ego
     features = rec.node_state[node_row].copy()
     features[:, :2] -= origin[node_sample]
 
@@ -111,7 +125,7 @@ def induce_graphs(
         rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, node_sample, config.d_sense_m
     )
     node_track = rec.node_track[node_row]
-    node_step = (node_ss % k_h).astype(np.int8)
+    node_step = (first_step + node_ss % n_kept).astype(np.int8)
     temporal = _temporal_edges(node_sample, node_track, node_step)
     target_node, target_xy, target_mask = _targets(
         rec, node_sample, node_step, node_track, cand_is_ego[order], origin, start_step, config

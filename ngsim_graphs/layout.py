@@ -68,11 +68,15 @@ def write_arrays(folder: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def open_arrays(folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Memory-map the named .npy files of `folder`: nothing is read until it is used."""
+    """Memory-map the named .npy files of `folder`: nothing is read until it is used.
+
+    The maps are returned as plain ndarray views: indexing an `np.memmap` object costs
+    microseconds of Python per call, which the loader's many small gathers would pay.
+    """
     missing = [n for n in names if not (folder / f"{n}.npy").is_file()]
     if missing:
         raise NgsimInputError(folder, f"incomplete build: missing arrays {', '.join(missing)}")
-    return {n: np.load(folder / f"{n}.npy", mmap_mode="r", allow_pickle=False) for n in names}
+    return {n: np.asarray(np.load(folder / f"{n}.npy", mmap_mode="r", allow_pickle=False)) for n in names}
 
 
 def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> Path:

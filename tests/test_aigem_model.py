@@ -88,3 +88,24 @@ def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(tiny_build) -> None:  #
     for a, b in zip(fast_grads, slow_grads, strict=True):
         if a is not None and b is not None:
             assert torch.allclose(a, b, atol=1e-4, rtol=1e-3)
+
+
+def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build) -> None:  # noqa: ANN001, F811
+    from aigem.data import Collate, GraphDataset
+
+    config = ModelConfig(layers=3)
+    assert config.history_steps_read == 4
+    whole = GraphDataset(tiny_build, "train")
+    cut = GraphDataset(tiny_build, "train", history_steps=config.history_steps_read)
+    ids = list(range(min(8, len(whole))))
+    whole_batch = Collate(whole.scaler)(whole.__getitems__(ids))
+    cut_batch = Collate(cut.scaler)(cut.__getitems__(ids))
+    assert cut_batch["x"].shape[0] < whole_batch["x"].shape[0] / 2
+    torch.manual_seed(3)
+    model = AiGem(config).eval()
+    with torch.no_grad():
+        assert torch.equal(model(cut_batch), model(whole_batch))
+    # one step fewer and the output changes: the model does read the earliest kept step
+    short = GraphDataset(tiny_build, "train", history_steps=config.history_steps_read - 1)
+    with torch.no_grad():
+        assert not torch.allclose(model(Collate(short.scaler)(short.__getitems__(ids))), model(whole_batch))

@@ -175,7 +175,11 @@ def grid_table(rows: list[tuple]) -> pl.DataFrame:
 
 
 def fast_path(
-    table: pl.DataFrame, egos: list[int], starts: list[int], config: BuildConfig
+    table: pl.DataFrame,
+    egos: list[int],
+    starts: list[int],
+    config: BuildConfig,
+    first_step: int = 0,
 ) -> GraphBatch:
     """grid_nodes -> proximity_pairs -> recording_arrays -> induce_graphs, from a tracks-like table.
 
@@ -192,7 +196,19 @@ def fast_path(
     nodes = grid_nodes(tracks, config.frames_per_step)
     rec = recording_arrays(nodes, proximity_pairs(nodes, config.d_min_m))
     return induce_graphs(
-        rec, np.array(egos, dtype=np.int32), np.array(starts, dtype=np.int64), config
+        rec, np.array(egos, dtype=np.int32), np.array(starts, dtype=np.int64), config, first_step
+    )
+
+
+def restrict_steps(graph: SampleGraph, first_step: int) -> SampleGraph:
+    """The graph without its nodes before history step `first_step` (and their edges)."""
+    kept = [n for n, node in enumerate(graph.nodes) if node[0] >= first_step]
+    new = {old: i for i, old in enumerate(kept)}
+    return SampleGraph(
+        nodes=[graph.nodes[n] for n in kept],
+        spatial=[(new[a], new[b], d) for a, b, d in graph.spatial if a in new and b in new],
+        temporal=[(new[a], new[b]) for a, b in graph.temporal if a in new and b in new],
+        targets=[(new[n], track, mask, xy) for n, track, mask, xy in graph.targets],
     )
 
 
@@ -482,6 +498,26 @@ def test_random_scenes_match_the_brute_force() -> None:
     assert (
         exact_sense > 50 and exact_min > 50 and masked > 50 and twins_seen > 10 and reentries > 20
     )
+
+
+def test_graphs_cut_to_the_last_steps_are_the_whole_graphs_restricted() -> None:
+    rng = np.random.default_rng(31)
+    checked = 0
+    for scene in range(6):
+        config = SCENE_CONFIGS[scene % len(SCENE_CONFIGS)]
+        table = random_scene(rng, config)
+        egos, starts = all_windows(table, config)
+        egos, starts = egos[:MAX_WINDOWS], starts[:MAX_WINDOWS]
+        whole = fast_graphs(fast_path(table, egos, starts, config))
+        for first_step in (1, config.history_steps - 5, config.history_steps - 1):
+            cut = fast_graphs(fast_path(table, egos, starts, config, first_step))
+            for c, w in zip(cut, whole, strict=True):
+                assert c == restrict_steps(w, first_step)
+                assert min(node[0] for node in c.nodes) == first_step
+                checked += 1
+    assert checked > 100
+    with pytest.raises(ValueError, match="first_step"):
+        fast_path(table, egos, starts, config, config.history_steps)
 
 
 def test_random_scene_thresholds_are_exact() -> None:
