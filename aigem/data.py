@@ -63,10 +63,12 @@ class GraphDataset(Dataset):
     """The samples of one split of a build; item i is sample i's graph (a one-sample GraphBatch).
 
     `history_steps`: keep only the last that many history steps of each graph (None, or K_H or
-    more: all K_H).
-    A model that reads no further back gets the same result from the smaller graphs, and the
-    loader does a fraction of the work: AiGem with L layers reads L + 1 steps
+    more: all K_H). A model that reads no further back predicts the same from the smaller graphs,
+    and the loader does a fraction of the work: AiGem with L layers reads L + 1 steps
     (`ModelConfig.history_steps_read`).
+
+    A batch (`__getitems__`, which PyTorch's DataLoader calls) holds its graphs grouped by
+    recording, not in the order of the indices asked for.
     """
 
     def __init__(
@@ -97,9 +99,10 @@ class GraphDataset(Dataset):
         return self.build.graphs(self.split, np.array([index]), self.first_step)
 
     def __getitems__(self, indices: list[int]) -> list[GraphBatch]:
-        """The whole batch's graphs, induced once per recording: grouped by recording, and in
-        the given order within a recording (the order of a batch's graphs changes no loss or
-        metric)."""
+        """The whole batch's graphs, induced once per recording: grouped by recording (in
+        recording order), and in the given order within a recording. Losses and metrics are sums
+        over a batch's targets, so the order changes them by float rounding only; in training it
+        decides which dropout mask a target gets."""
         ids = np.asarray(indices, dtype=np.int64)
         recording = self.build.sample_arrays(self.split)["recording_index"][ids]
         ids = ids[np.argsort(recording, kind="stable")]

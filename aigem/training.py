@@ -87,7 +87,9 @@ def _distributed() -> tuple[int, int]:
     return rank, world
 
 
-def _loaders(build_dir: Path, model: ModelConfig, train: TrainConfig, rank: int, world: int):  # noqa: ANN202
+def _loaders(  # noqa: ANN202
+    build_dir: Path, model: ModelConfig, train: TrainConfig, rank: int, world: int
+):
     # Graphs cut to the steps the model reads: the same loss, a fraction of the loading work.
     train_set, val_set = (
         GraphDataset(build_dir, split, history_steps=model.history_steps_read)

@@ -48,7 +48,8 @@ class OpenBuild:
         return {}  # filled by sample_arrays, one split at a time
 
     def sample_arrays(self, split: Split | str) -> dict[str, np.ndarray]:
-        """recording_index, ego_track_id and start_step of every sample of a split (memory-mapped)."""
+        """recording_index, ego_track_id and start_step of every sample of a split (memory-mapped,
+        read-only; opened once per split and shared between callers)."""
         split = Split(split)
         if split not in self._sample_arrays:
             folder = layout.sample_arrays_dir(self.root, split.value)

@@ -74,9 +74,18 @@ def _distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _history_nodes(
-    rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig, first_step: int
-):
-    """Candidate rows of every (sample, kept step), which of them are nodes, and the ego rows."""
+    rec: RecordingArrays,
+    ego_track: np.ndarray,
+    start_step: np.ndarray,
+    config: BuildConfig,
+    first_step: int,
+) -> tuple[np.ndarray, ...]:
+    """Candidate rows of every (sample, kept step) "ss", which of them are nodes, and the egos.
+
+    Returns ss_step (B*n_kept,) grid step of each ss; ego_rows (B*n_kept,) the ego's row at it;
+    cand_ss, cand_row, cand_dist (C,) the ss, row and distance to the ego (metres) of every row
+    at the ss's step; is_node (C,) bool; and B.
+    """
     n_samples, n_kept = len(ego_track), config.history_steps - first_step
     kept = np.arange(first_step, config.history_steps)
     ss_step = (start_step[:, None] + kept).reshape(-1)  # sample-step -> grid step
@@ -184,7 +193,11 @@ def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node
 
 
 def _temporal_edges(node_sample: np.ndarray, node_track: np.ndarray, node_step: np.ndarray) -> np.ndarray:
-    """Node of (sample, track) at step k -> its node at k+1, where both exist."""
+    """Node of (sample, track) at step k -> its node at k+1, where both exist.
+
+    Only consecutive steps are joined (and spatial edges stay within a step): that is why a model
+    of L layers reads the last L + 1 steps alone (`ModelConfig.history_steps_read`), which the
+    dataset relies on to cut graphs. Joining further steps would need that changed too."""
     by = np.lexsort((node_step, node_track, node_sample))
     same = (node_sample[by][1:] == node_sample[by][:-1]) & (node_track[by][1:] == node_track[by][:-1])
     follows = same & (node_step[by][1:] == node_step[by][:-1] + 1)

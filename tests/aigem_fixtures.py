@@ -18,3 +18,11 @@ def tiny_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     config = BuildConfig(d_sense_m=12.0, d_min_m=6.0)
     run_build([root / "raw"], root / "build", config)
     return root / "build"
+
+
+@pytest.fixture(scope="session")
+def two_recording_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("aigem2")
+    write_synthetic(root / "raw", SynthConfig(recordings=2, minutes=0.3, seed=12))
+    run_build([root / "raw"], root / "build", BuildConfig(d_sense_m=12.0, d_min_m=6.0))
+    return root / "build"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from aigem_fixtures import tiny_build  # noqa: F401
+from aigem_fixtures import tiny_build, two_recording_build  # noqa: F401
 from torch.utils.data import DataLoader
 
 from aigem.data import Collate, GraphDataset, to_hetero_data
@@ -34,6 +34,19 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:  # n
     assert torch.equal(batch["target_xy"], torch.from_numpy(graphs.target_xy.astype(np.float32)))
     metres = dataset.scaler.xy_to_metres(batch["x"][:, :2].double())
     assert np.allclose(metres.numpy(), graphs.node_features[:, :2], atol=1e-4)
+
+
+def test_a_batch_is_induced_once_per_recording_grouped_by_recording(two_recording_build: Path) -> None:  # noqa: F811
+    dataset = GraphDataset(two_recording_build, "train")
+    recording = open_build(two_recording_build).sample_arrays("train")["recording_index"]
+    first, second = np.flatnonzero(recording == 0), np.flatnonzero(recording == 1)
+    assert len(first) >= 2 and len(second) >= 2
+    ids = [int(second[1]), int(first[1]), int(second[0]), int(first[0])]
+    expected_order = [int(first[1]), int(first[0]), int(second[1]), int(second[0])]
+    batch = Collate(dataset.scaler)(dataset.__getitems__(ids))
+    one_by_one = Collate(dataset.scaler)([dataset[i] for i in expected_order])
+    for key in batch:
+        assert torch.equal(batch[key], one_by_one[key]), key
 
 
 def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> None:  # noqa: F811

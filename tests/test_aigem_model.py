@@ -90,22 +90,34 @@ def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(tiny_build) -> None:  #
             assert torch.allclose(a, b, atol=1e-4, rtol=1e-3)
 
 
+
 def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build) -> None:  # noqa: ANN001, F811
+    """Same predictions and same gradients, in training mode (dropout) too, for several L."""
     from aigem.data import Collate, GraphDataset
 
-    config = ModelConfig(layers=3)
-    assert config.history_steps_read == 4
     whole = GraphDataset(tiny_build, "train")
-    cut = GraphDataset(tiny_build, "train", history_steps=config.history_steps_read)
     ids = list(range(min(8, len(whole))))
     whole_batch = Collate(whole.scaler)(whole.__getitems__(ids))
-    cut_batch = Collate(cut.scaler)(cut.__getitems__(ids))
-    assert cut_batch["x"].shape[0] < whole_batch["x"].shape[0] / 2
-    torch.manual_seed(3)
-    model = AiGem(config).eval()
-    with torch.no_grad():
-        assert torch.equal(model(cut_batch), model(whole_batch))
-    # one step fewer and the output changes: the model does read the earliest kept step
-    short = GraphDataset(tiny_build, "train", history_steps=config.history_steps_read - 1)
-    with torch.no_grad():
-        assert not torch.allclose(model(Collate(short.scaler)(short.__getitems__(ids))), model(whole_batch))
+    for layers in (1, 2, 4):
+        config = ModelConfig(layers=layers)
+        assert config.history_steps_read == layers + 1
+        cut = GraphDataset(tiny_build, "train", history_steps=config.history_steps_read)
+        cut_batch = Collate(cut.scaler)(cut.__getitems__(ids))
+        assert cut_batch["x"].shape[0] < whole_batch["x"].shape[0] / 2
+        torch.manual_seed(3)
+        model = AiGem(config)  # training mode: dropout on
+        outputs, grads = [], []
+        for batch in (whole_batch, cut_batch):
+            torch.manual_seed(4)
+            out = model(batch)
+            outputs.append(out)
+            grads.append(torch.autograd.grad(out.square().sum(), list(model.parameters()), allow_unused=True))
+        assert torch.equal(outputs[0], outputs[1])
+        for a, b in zip(*grads, strict=True):
+            assert (a is None and b is None) or torch.equal(a, b)
+        # one step fewer and the output changes: the model does read the earliest kept step
+        short = GraphDataset(tiny_build, "train", history_steps=layers)
+        model.eval()
+        with torch.no_grad():
+            short_out = model(Collate(short.scaler)(short.__getitems__(ids)))
+            assert not torch.allclose(short_out, model(whole_batch))
