@@ -75,8 +75,10 @@ def start_run(
 def end_epoch(
     run_dir: Path, state: RunState, epoch: int, train_loss: float, val_loss: float,
     model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
+    timing: dict[str, float] | None = None,
 ) -> RunState:  # fmt: skip
-    """Log the epoch, keep the best model, and checkpoint; returns the new state."""
+    """Log the epoch (with `timing`, e.g. seconds and graphs/s), keep the best model, and
+    checkpoint; returns the new state."""
     better = math.isfinite(val_loss) and val_loss < state.best_val_loss
     new = RunState(
         next_epoch=epoch + 1,
@@ -88,7 +90,10 @@ def end_epoch(
     info = json.loads((run_dir / RUN_INFO).read_text())
     if better:
         _save_atomic({"info": info, "model": model.state_dict(), "epoch": epoch}, run_dir / BEST)
-    row = {"epoch": epoch + 1, "train_loss_m2": train_loss, "val_loss_m2": val_loss, "best_epoch": new.best_epoch + 1}
+    row = {
+        "epoch": epoch + 1, "train_loss_m2": train_loss, "val_loss_m2": val_loss,
+        "best_epoch": new.best_epoch + 1, **(timing or {}),
+    }  # fmt: skip
     with (run_dir / METRICS).open("a") as log:
         log.write(json.dumps(row) + "\n")
     checkpoint = {"info": info, "model": model.state_dict(), "optimizer": optimizer.state_dict(), "state": asdict(new)}

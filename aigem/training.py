@@ -29,6 +29,8 @@ from ngsim_graphs.schema import Split
 
 # (epoch, batches done, batches in the epoch, running train loss): the CLI draws a bar from it.
 ProgressCallback = Callable[[int, int, int, float], None]
+# The row of metrics.jsonl written at the end of each epoch: the CLI prints it.
+EpochCallback = Callable[[dict[str, float]], None]
 
 
 class NonFiniteLossError(RuntimeError):
@@ -130,6 +132,7 @@ def fit(
     device_choice: str = "auto",
     resume: bool = False,
     progress: ProgressCallback | None = None,
+    on_epoch: EpochCallback | None = None,
 ) -> FitResult:
     """Train and write the run directory (see aigem.runs); returns what happened."""
     rank, world = _distributed()
@@ -153,7 +156,7 @@ def fit(
         torch.manual_seed(train.seed + rank + 1000 * epoch)  # dropout
         if sampler is not None:
             sampler.set_epoch(epoch)
-        epoch_start, running, batches = time.monotonic(), 0.0, 0
+        epoch_start, running, batches, epoch_graphs = time.monotonic(), 0.0, 0, 0
         for index, batch in enumerate(train_loader):
             batch = _to(batch, device)
             loss = masked_mse_m2(net(batch, steps), batch, train_set.scaler, steps)
@@ -163,14 +166,24 @@ def fit(
             loss.backward()
             optimizer.step()
             running, batches = running + float(loss.detach()), batches + 1
-            graphs_seen += int(batch["node_sample"].max()) + 1 if len(batch["node_sample"]) else 0
+            epoch_graphs += int(batch["node_sample"].max()) + 1 if len(batch["node_sample"]) else 0
             report(epoch + 1, index + 1, len(train_loader), running / batches)
             if train.max_minutes is not None and time.monotonic() - started > 60 * train.max_minutes:
                 stopped = "time limit"
                 break
-        train_seconds += time.monotonic() - epoch_start
+        epoch_seconds = time.monotonic() - epoch_start
+        train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
         val_loss = evaluate_loss(model, val_loader, train_set.scaler, steps, device)
-        state = runs.end_epoch(run_dir, state, epoch, running / max(batches, 1), val_loss, model, optimizer, rank == 0)
+        timing = {
+            "train_seconds": round(epoch_seconds, 1),
+            "train_graphs_per_s": round(epoch_graphs * world / epoch_seconds, 1),
+            "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
+        }
+        state = runs.end_epoch(
+            run_dir, state, epoch, running / max(batches, 1), val_loss, model, optimizer, rank == 0, timing
+        )
+        if on_epoch is not None and rank == 0:
+            on_epoch(runs.read_metrics(run_dir)[-1])
         if stopped != "epochs":
             break
         if train.patience_epochs is not None and epoch - state.best_epoch >= train.patience_epochs:

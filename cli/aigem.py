@@ -62,6 +62,7 @@ def fit(
             result = run_fit(
                 data, out, model_config, train, device, resume,
                 lambda epoch, done, total, loss: progress(f"epoch {epoch} loss {loss:.3f} m²", done, total),
+                _print_epoch,
             )  # fmt: skip
         except (NonFiniteLossError, ValueError) as err:
             raise _fail(str(err)) from None
@@ -70,6 +71,17 @@ def fit(
         f"{result.best_epoch}, validation MSE {result.best_val_loss_m2:.3f} m²; "
         f"{result.train_graphs_per_s:,.1f} graphs/s in training. Run: {result.run_dir}"
     )
+
+
+def _print_epoch(row: dict[str, float]) -> None:
+    """One line per epoch on stderr, so that a log of a long run shows its course."""
+    best = " (best)" if row["best_epoch"] == row["epoch"] else ""
+    stderr.print(
+        f"epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
+        f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
+        f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation",
+        markup=False, highlight=False,
+    )  # fmt: skip
 
 
 def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:

@@ -89,6 +89,9 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:  # noqa
                                  "--batch-size", "8", "--horizon-s", "2", "--device", "cpu"])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "74,242 parameters" in result.stdout
+    row = runs.read_metrics(run)[0]
+    assert row["train_seconds"] > 0 and row["train_graphs_per_s"] > 0 and row["val_seconds"] >= 0
+    assert f"epoch 1: train MSE {row['train_loss_m2']:.3f} m², validation MSE {row['val_loss_m2']:.3f} m² (best)" in result.stderr
     result = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--json", "--device", "cpu"])
     assert result.exit_code == 0, result.output
     document = json.loads(result.stdout)
