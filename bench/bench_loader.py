@@ -34,15 +34,17 @@ def graphs_per_second(loader: DataLoader, batches: int, batch_size: int) -> floa
     return batches * batch_size / (time.perf_counter() - start)
 
 
-def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> float:
+def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> tuple[float, float]:
+    """(graphs/s of PyG's DataLoader over a prepared list of HeteroData, bytes per graph held)."""
     from torch_geometric.loader import DataLoader as PygLoader
 
     collate = Collate(dataset.scaler)
     graphs = [to_hetero_data(collate([dataset[i]])) for i in range(n_graphs)]
+    held = sum(v.nbytes for g in graphs for store in g.stores for v in store.values() if torch.is_tensor(v))
     start = time.perf_counter()
     for _ in PygLoader(graphs, batch_size=batch_size, shuffle=True):
         pass
-    return n_graphs / (time.perf_counter() - start)
+    return n_graphs / (time.perf_counter() - start), held / n_graphs
 
 
 def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: int) -> float:
@@ -82,18 +84,23 @@ def main() -> None:
         for name, data in (("whole", whole), ("fit", as_fit))
         for w in (0, 2)
     }
-    pyg = pyg_baseline(whole, args.batches * args.batch_size, args.batch_size)
+    pyg, pyg_bytes = pyg_baseline(whole, args.batches * args.batch_size, args.batch_size)
     train = training_graphs_per_second(as_fit, args.train_batches, args.batch_size)
-    k_h = whole.config.history_steps
-    print(f"build                    {args.build} ({len(whole):,} train samples); opened in {open_ms:.0f} ms")
-    for name, label in (("whole", f"whole graphs ({k_h} steps)"), ("fit", f"as aigem fit ({read} steps)")):
+    k_h, size = whole.config.history_steps, args.batch_size
+    print(f"build {args.build}: {len(whole):,} train samples, opened in {open_ms:.0f} ms")
+    for name, label in (("whole", f"whole graphs, {k_h} steps"), ("fit", f"as aigem fit, {read} steps")):
         for w in (0, 2):
-            print(f"loader, {label}, {w} workers {rates[name, w]:8,.0f} graphs/s (read + induce + collate)")
-    print(f"PyG HeteroData (whole)   {pyg:8,.0f} graphs/s (list of HeteroData, PyG DataLoader; batching only)")
-    print(f"training (CPU)           {train:8,.1f} graphs/s (forward + backward + Adam, batch {args.batch_size})")
-    print(f"loader / training        {rates['fit', 0] / train:8,.1f}x (0 workers), {rates['fit', 2] / train:,.1f}x (2 workers)")
-    print(f"ours / PyG, whole graphs {rates['whole', 0] / pyg:8,.2f}x (0 workers)")
+            _row(f"loader, {label}, {w} workers", rates[name, w], "graphs/s (read + induce + collate)")
+    _row("PyG list of HeteroData, whole", pyg, "graphs/s (PyG DataLoader; batching only)")
+    _row("  that list holds", pyg_bytes / 1e3, f"kB a graph: {pyg_bytes * len(whole) / 1e9:,.1f} GB for train")
+    _row("training (CPU)", train, f"graphs/s (forward + backward + Adam, batch {size})")
+    _row("loader / training, 0 workers", rates["fit", 0] / train, "x")
+    _row("loader / training, 2 workers", rates["fit", 2] / train, "x")
+    _row("ours / PyG, whole, 0 workers", rates["whole", 0] / pyg, "x")
 
+
+def _row(label: str, value: float, unit: str) -> None:
+    print(f"{label:<40} {value:10,.1f} {unit}")
 
 if __name__ == "__main__":
     main()
