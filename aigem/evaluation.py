@@ -16,6 +16,7 @@ from torch.utils.data import DataLoader
 
 from aigem.data import Collate, GraphDataset
 from aigem.metrics import ErrorTotals, summarize
+from aigem.model import count_parameters
 from aigem.runs import load_model
 from aigem.training import pick_device
 from ngsim_graphs.schema import Split
@@ -33,6 +34,7 @@ class Evaluation:
     split: str
     horizon_steps: int
     samples: int
+    parameters: int  # of the model
     model: dict[str, dict[str, float | None]]
     constant_velocity: dict[str, dict[str, float | None]]
     build_dir: str
@@ -74,6 +76,7 @@ def evaluate(
         split=Split(split).value,
         horizon_steps=steps,
         samples=len(dataset),
+        parameters=count_parameters(model),
         model=summarize(ours, dataset.config.time_step_s),
         constant_velocity=summarize(baseline, dataset.config.time_step_s),
         build_dir=str(build_dir),

@@ -96,11 +96,11 @@ def main() -> None:
     _row("training (CPU)", train, f"graphs/s (forward + backward + Adam, batch {size})")
     _row("loader / training, 0 workers", rates["fit", 0] / train, "x")
     _row("loader / training, 2 workers", rates["fit", 2] / train, "x")
-    _row("ours / PyG, whole, 0 workers", rates["whole", 0] / pyg, "x")
+    _row("ours / PyG, whole, 0 workers", rates["whole", 0] / pyg, "x", digits=2)
 
 
-def _row(label: str, value: float, unit: str) -> None:
-    print(f"{label:<40} {value:10,.1f} {unit}")
+def _row(label: str, value: float, unit: str, digits: int = 1) -> None:
+    print(f"{label:<40} {value:10,.{digits}f} {unit}")
 
 if __name__ == "__main__":
     main()

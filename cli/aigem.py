@@ -7,17 +7,15 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_input_error, stderr
+from ngsim_cli.console import exit_on_input_error, print_table, stderr, stdout
 
 app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
 )
-stdout = Console()
 
 
 def _fail(message: str, code: int = 1) -> typer.Exit:
@@ -116,11 +114,12 @@ def evaluate(
         return
     seconds = result.horizon_steps // 5
     for region in ("all", "front", "mid", "rear"):
-        rows = {"AiGem (this run)": result.model[region], "constant velocity": result.constant_velocity[region]}
-        stdout.print(_metrics_table(f"{split} split, {region} actors (metres)", rows, seconds))
+        ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
+        rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
+        print_table(_metrics_table(f"{split} split, {region} actors (metres)", rows, seconds))
     counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
     stdout.print(f"{result.samples:,} samples; evaluated actors per horizon: {counts}")
-    stdout.print(_metrics_table("the paper's table (NGSIM US-101 + I-80)", PAPER_TABLE, 5))
+    print_table(_metrics_table("the paper's table (NGSIM US-101 + I-80)", PAPER_TABLE, 5))
     stdout.print(
         f"These numbers come from {result.build_dir}. If it was made by `ngsim-graphs synth`, "
         "they are synthetic results and not comparable to the paper's NGSIM numbers."

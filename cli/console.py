@@ -26,8 +26,6 @@ def print_table(table: Table) -> None:
         Console(width=max(stdout.width, natural)).print(table)  # print() cannot widen the console
 
 
-
-
 @contextmanager
 def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
     """A callback (what, done, total) drawn as one bar on stderr; silent unless it is a terminal."""

@@ -95,12 +95,13 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:  # noqa
     result = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--json", "--device", "cpu"])
     assert result.exit_code == 0, result.output
     document = json.loads(result.stdout)
-    assert document["horizon_steps"] == 10
+    assert document["horizon_steps"] == 10 and document["parameters"] == 74_242
     assert set(document["model"]) == {"all", "front", "mid", "rear"}
     assert document["model"]["all"]["n_1s"] == document["constant_velocity"]["all"]["n_1s"] > 0
     assert "rmse_3s_m" not in document["model"]["all"]
     table = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--device", "cpu"])
     assert "constant velocity" in table.stdout and "synthetic" in table.stdout
+    assert "│   74.2 │" in table.stdout  # the params column of this run's row
     bad = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--data", str(tiny_build)])
     assert bad.exit_code == 1 and "not a finished run" in bad.stderr
 
