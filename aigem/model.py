@@ -170,8 +170,13 @@ def _aggregate(values, x, crow, col, dst) -> torch.Tensor:  # noqa: ANN001
     """
     if x.device.type == "cpu":
         return _AttentionSpMM.apply(values, x, crow, col)
+    return _gather_scatter(values, x, crow.numel() - 1, col, dst)
+
+
+def _gather_scatter(values, x, n_dst: int, col, dst) -> torch.Tensor:  # noqa: ANN001
+    """`_aggregate` as PyG computes it: (E, C) messages values[e] * x[col[e]], summed at dst[e]."""
     messages = values.unsqueeze(-1) * x.index_select(0, col)  # (E, C)
-    return x.new_zeros(crow.numel() - 1, x.shape[1]).index_add_(0, dst, messages)
+    return x.new_zeros(n_dst, x.shape[1]).index_add_(0, dst, messages)
 
 
 def _segment_softmax(scores: torch.Tensor, dst: torch.Tensor, n_dst: int) -> torch.Tensor:
