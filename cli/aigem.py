@@ -78,7 +78,7 @@ def _print_epoch(row: dict[str, float]) -> None:
         f"epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
         f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
         f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation",
-        markup=False, highlight=False,
+        markup=False, highlight=False, soft_wrap=True,
     )  # fmt: skip
 
 
