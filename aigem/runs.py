@@ -76,29 +76,29 @@ def end_epoch(
     run_dir: Path, state: RunState, epoch: int, train_loss: float, val_loss: float,
     model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
     timing: dict[str, float] | None = None,
-) -> RunState:  # fmt: skip
+) -> tuple[RunState, dict[str, float]]:  # fmt: skip
     """Log the epoch (with `timing`, e.g. seconds and graphs/s), keep the best model, and
-    checkpoint; returns the new state."""
+    checkpoint; returns the new state and the metrics row."""
     better = math.isfinite(val_loss) and val_loss < state.best_val_loss
     new = RunState(
         next_epoch=epoch + 1,
         best_epoch=epoch if better else state.best_epoch,
         best_val_loss=val_loss if better else state.best_val_loss,
     )
-    if not is_writer:
-        return new
-    info = json.loads((run_dir / RUN_INFO).read_text())
-    if better:
-        _save_atomic({"info": info, "model": model.state_dict(), "epoch": epoch}, run_dir / BEST)
     row = {
         "epoch": epoch + 1, "train_loss_m2": train_loss, "val_loss_m2": val_loss,
         "best_epoch": new.best_epoch + 1, **(timing or {}),
     }  # fmt: skip
+    if not is_writer:
+        return new, row
+    info = json.loads((run_dir / RUN_INFO).read_text())
+    if better:
+        _save_atomic({"info": info, "model": model.state_dict(), "epoch": epoch}, run_dir / BEST)
     with (run_dir / METRICS).open("a") as log:
         log.write(json.dumps(row) + "\n")
     checkpoint = {"info": info, "model": model.state_dict(), "optimizer": optimizer.state_dict(), "state": asdict(new)}
     _save_atomic(checkpoint, run_dir / LAST)
-    return new
+    return new, row
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, float]]:

@@ -179,11 +179,11 @@ def fit(
             "train_graphs_per_s": round(epoch_graphs * world / epoch_seconds, 1),
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
         }
-        state = runs.end_epoch(
+        state, row = runs.end_epoch(
             run_dir, state, epoch, running / max(batches, 1), val_loss, model, optimizer, rank == 0, timing
         )
         if on_epoch is not None and rank == 0:
-            on_epoch(runs.read_metrics(run_dir)[-1])
+            on_epoch(row)
         if stopped != "epochs":
             break
         if train.patience_epochs is not None and epoch - state.best_epoch >= train.patience_epochs:

@@ -76,8 +76,10 @@ def open_arrays(folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     missing = [n for n in names if not (folder / f"{n}.npy").is_file()]
     if missing:
         raise NgsimInputError(folder, f"incomplete build: missing arrays {', '.join(missing)}")
-    load = lambda name: np.load(folder / f"{name}.npy", mmap_mode="r", allow_pickle=False)  # noqa: E731
-    return {name: np.asarray(load(name)) for name in names}
+    return {
+        name: np.asarray(np.load(folder / f"{name}.npy", mmap_mode="r", allow_pickle=False))
+        for name in names
+    }
 
 
 def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> Path:

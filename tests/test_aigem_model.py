@@ -89,8 +89,6 @@ def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(tiny_build) -> None:  #
         if a is not None and b is not None:
             assert torch.allclose(a, b, atol=1e-4, rtol=1e-3)
 
-
-
 def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build) -> None:  # noqa: ANN001, F811
     """Same predictions and same gradients, in training mode (dropout) too, for several L."""
     from aigem.data import Collate, GraphDataset
