@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_input_error, print_table, stderr, stdout
+from ngsim_cli.console import exit_on_error, print_table, stderr, stdout
 
 app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
@@ -55,7 +55,7 @@ def fit(
         raise _fail(str(err), 2) from None
     model_config = ModelConfig(concat_position=not no_concat)
     stdout.print(f"AiGem: {count_parameters(AiGem(model_config)):,} parameters (the paper: 74.5 K)")
-    with exit_on_input_error(), progress_bar() as progress:
+    with exit_on_error(), progress_bar() as progress:
         try:
             result = run_fit(
                 data, out, model_config, train, device, resume,
@@ -107,7 +107,7 @@ def evaluate(
 
     if split not in ("train", "val", "test"):
         raise _fail(f"--split must be train, val or test, not {split!r}", 2)
-    with exit_on_input_error():
+    with exit_on_error():
         result = run_evaluate(run, data, split, device)
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))

@@ -11,7 +11,7 @@ from rich.measure import Measurement
 from rich.table import Table
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.errors import NgsimError
 
 stderr = Console(stderr=True)
 stdout = Console()
@@ -42,11 +42,21 @@ def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
         yield update
 
 
+def print_error(message: str) -> None:
+    """One line `error: ...` on stderr, never wrapped or marked up."""
+    stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
+
+
 @contextmanager
-def exit_on_input_error() -> Iterator[None]:
-    """Turn bad input into one line on stderr and exit status 1."""
+def exit_on_error() -> Iterator[None]:
+    """Turn the project's errors, and any OS error (a full disk, a permission), into one line on
+    stderr naming the file, and exit status 1."""
     try:
         yield
-    except NgsimInputError as err:
-        stderr.print(f"error: {err}", markup=False, highlight=False, soft_wrap=True)
+    except NgsimError as err:
+        print_error(str(err))
+        raise typer.Exit(1) from None
+    except OSError as err:
+        where = f"{err.filename}: " if err.filename else ""
+        print_error(f"{where}{err.strerror or err}")
         raise typer.Exit(1) from None

@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_input_error, print_table, progress_bar, stderr
+from ngsim_cli.console import exit_on_error, print_table, progress_bar, stderr
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
 from ngsim_graphs.building import BuildResult, run_build
 from ngsim_graphs.builds import open_build
@@ -136,7 +136,7 @@ def build(
         min_heading_speed_mps=min_heading_speed_mps,
         heading_smoothing_s=heading_smoothing_s,
     )
-    with exit_on_input_error(), progress_bar() as progress:
+    with exit_on_error(), progress_bar() as progress:
         result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress)
     for skipped in result.skipped_files:
         stdout.print(f"skipped (not NGSIM): {skipped}")
@@ -177,7 +177,7 @@ def stats(
     seed: Annotated[int, typer.Option(help="Seed of the random choice of those graphs.")] = 0,
 ) -> None:
     """Check a build before training: samples, graph sizes, degrees, kinematics, scaler, config."""
-    with exit_on_input_error():
+    with exit_on_error():
         opened = open_build(build_dir)
         try:
             statistics, values = build_statistics(opened, degree_graphs, seed)
@@ -223,7 +223,7 @@ def export(
     """
     from ngsim_graphs.exporting import graph_tables
 
-    with exit_on_input_error():
+    with exit_on_error():
         opened = open_build(build_dir)
         ids = _sample_ids(samples, int(opened.manifest["splits"][split.value]))
         tables = graph_tables(opened.graphs(split.value, ids), ids)
