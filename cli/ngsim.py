@@ -18,7 +18,8 @@ from ngsim_graphs.building import BuildResult, run_build
 from ngsim_graphs.builds import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.schema import RawFormat, Split, SplitMode
+from ngsim_graphs.plausibility import DESCRIPTIONS
+from ngsim_graphs.schema import DropReason, RawFormat, Split, SplitMode
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 
 app = typer.Typer(
@@ -45,7 +46,13 @@ def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
 
 @app.command()
 def synth(
-    out_dir: Annotated[Path, typer.Argument(help="Folder to write the files into.")],
+    out_dir: Annotated[
+        Path,
+        typer.Argument(
+            help="Folder to write the files into: new, empty, or one synth wrote before (it "
+            "carries SYNTHETIC.md); synth never replaces files it did not write."
+        ),
+    ],
     raw_format: Annotated[
         RawFormat, typer.Option("--format", help="portal: one combined CSV; csv/txt: one file per period.")
     ] = RawFormat.TXT,
@@ -62,7 +69,7 @@ def synth(
     config = _config_or_exit(
         SynthConfig, raw_format=raw_format, recordings=recordings, minutes=minutes, seed=seed, quirks=quirks
     )
-    with progress_bar() as progress:
+    with exit_on_error(), progress_bar() as progress:
         paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
@@ -86,6 +93,23 @@ def _summary_table(result: BuildResult) -> Table:
             *(f"{per_split.get(split, 0):,}" for split in SPLIT_NAMES),
         )
     return table
+
+
+def _dropped_lines(result: BuildResult) -> list[str]:
+    """One line per reason rows were dropped for, with the first place it happened."""
+    lines = []
+    for reason, n in result.manifest["counts"]["rows_dropped"].items():
+        if not n:
+            continue
+        if reason == DropReason.POSITION_OUTLIER.value:
+            first = min(r["first_outlier"]["file"] + f", line {r['first_outlier']['line']}"
+                        for r in result.manifest["recordings"] if r["first_outlier"])  # fmt: skip
+        else:
+            first = next(f"{f.path}, line {f.first_dropped_line[reason]}"
+                         for f in result.files if reason in f.first_dropped_line)  # fmt: skip
+        noun = "row" if n == 1 else "rows"
+        lines.append(f"dropped {n:,} {noun}: {DESCRIPTIONS[DropReason(reason)]} (first: {first}).")
+    return lines
 
 
 @app.command()
@@ -115,15 +139,27 @@ def build(
     ego_target: Annotated[
         bool, typer.Option(help="Also predict the ego (by default only the actors at the present step).")
     ] = False,
-    overwrite: Annotated[bool, typer.Option(help="Replace a non-empty output directory.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace an existing build in --out (never a folder that is not a build).")
+    ] = False,
     min_heading_speed_mps: Annotated[
         float, typer.Option(help="Below this speed the last heading is held, m/s.")
     ] = 2.0,
     heading_smoothing_s: Annotated[
         float, typer.Option(help="Centred moving average of positions before the heading, s.")
     ] = 1.0,
+    strict: Annotated[
+        bool,
+        typer.Option(help="Fail on the first implausible or stray row instead of dropping and counting it."),
+    ] = False,
 ) -> None:
-    """Read raw NGSIM files (any of the three formats) and write the graph dataset."""
+    """Read raw NGSIM files (any of the three formats) and write the graph dataset.
+
+    Rows beyond the physical limits (speed, acceleration, position, frame range, a jump between
+    frames) or whose Global_Time disagrees with their recording are dropped one by one, counted
+    per reason and reported; more than 1 % of a file's rows is an error (so is any, with
+    --strict). A build that ends with no samples is an error that says why.
+    """
     config = _config_or_exit(
         BuildConfig,
         locations=tuple(name.strip().lower() for name in locations.split(",") if name.strip()),
@@ -137,7 +173,7 @@ def build(
         heading_smoothing_s=heading_smoothing_s,
     )
     with exit_on_error(), progress_bar() as progress:
-        result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress)
+        result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress, strict=strict)
     for skipped in result.skipped_files:
         stdout.print(f"skipped (not NGSIM): {skipped}")
     print_table(_summary_table(result))
@@ -146,6 +182,10 @@ def build(
         f"{counts['rows_read']:,} rows read, {counts['rows_other_locations']:,} of other locations, "
         f"{counts['rows_missing_values']:,} with empty required fields dropped."
     )
+    for line in _dropped_lines(result):
+        stdout.print(line, markup=False, highlight=False, soft_wrap=True)
+    for warning in result.warnings:
+        stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
     stdout.print(
         "samples: " + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
         + f" ({counts['samples']:,} in all)."
@@ -212,26 +252,33 @@ def _sample_ids(text: str, available: int) -> np.ndarray:
 @app.command()
 def export(
     build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")],
-    out: Annotated[Path, typer.Option("--out", help="Folder for the Parquet tables (created).")],
+    out: Annotated[
+        Path, typer.Option("--out", help="Folder for the Parquet tables: new or empty (created).")
+    ],
     split: Annotated[Split, typer.Option(help="Split of the samples.")] = Split.TEST,
     samples: Annotated[str, typer.Option(help="Sample ids: START:END (END excluded) or 3,7,9.")] = "0:100",
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace an earlier export (a folder holding only its tables).")
+    ] = False,
 ) -> None:
     """Write chosen samples' graphs as explicit Parquet tables with sample-local node indices.
 
     The build stores graphs compactly (grid nodes and proximity pairs once per step); this writes
     nodes, spatial_edges, temporal_edges, targets and samples tables for the chosen samples.
+    --out must be new or empty, or (with --overwrite) hold only the tables of an earlier export;
+    a folder holding anything else is refused. The tables land together when all are written.
     """
-    from ngsim_graphs.exporting import graph_tables
+    from ngsim_graphs.exporting import check_export_target, graph_tables, write_tables
 
     with exit_on_error():
+        check_export_target(out, overwrite)  # before the work, not only after it
         opened = open_build(build_dir)
         ids = _sample_ids(samples, int(opened.manifest["splits"][split.value]))
         tables = graph_tables(opened.graphs(split.value, ids), ids)
         tables["samples"] = opened.samples(split.value).filter(pl.col("sample_id").is_in(ids.tolist()))
-    out.mkdir(parents=True, exist_ok=True)
-    for name, table in tables.items():
-        table.write_parquet(out / f"{name}.parquet")
-        stdout.print(f"{out / f'{name}.parquet'}  {table.height:,} rows")
+        paths = write_tables(tables, out, overwrite)
+    for path, table in zip(paths, tables.values(), strict=True):
+        stdout.print(f"{path}  {table.height:,} rows")
 
 
 def main() -> None:

@@ -108,7 +108,10 @@ def _scaler_table(st: BuildStatistics) -> Table:
 
 def _config_table(st: BuildStatistics) -> Table:
     table = _table(f"Build config (sha256 {st.config_hash[:12]})", ["setting"], ["value"])
-    for name, value in st.config.items():
+    flat = {}
+    for name, value in st.config.items():  # nested settings (the physical limits) one per row
+        flat.update({f"{name}.{k}": v for k, v in value.items()} if isinstance(value, dict) else {name: value})
+    for name, value in flat.items():
         table.add_row(name, ", ".join(map(str, value)) if isinstance(value, list) else str(value))
     return table
 

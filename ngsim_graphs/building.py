@@ -7,14 +7,16 @@ small per-sample table of every recording is kept until the end.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import polars as pl
 
-from ngsim_graphs import __version__, layout
+from ngsim_graphs import __version__, landing, layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
@@ -27,10 +29,12 @@ from ngsim_graphs.ingestion import (
     read_file_recordings,
     recording_rows,
 )
+from ngsim_graphs.plausibility import check_dropped, check_speed_column
 from ngsim_graphs.reading import find_raw_files
 from ngsim_graphs.sampling import COUNT_COLUMNS, recording_samples
 from ngsim_graphs.scaling import FittedRanges, empty_ranges
-from ngsim_graphs.splits import SPLIT, SPLIT_ORDER
+from ngsim_graphs.schema import DropReason
+from ngsim_graphs.splits import SPLIT, SPLIT_ORDER, split_warnings
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 ProgressCallback = Callable[[str, int, int], None]
@@ -45,6 +49,7 @@ class BuildResult:
     skipped_files: tuple[str, ...]
     recordings: tuple[RecordingReport, ...]
     manifest: dict[str, Any]
+    warnings: tuple[str, ...] = ()  # also in the manifest: splits that are empty or tiny
 
 
 @dataclass(frozen=True)
@@ -55,19 +60,25 @@ class RecordingOutput:
     index: int
     first_track_id: int
     n_steps: int
+    longest_track_steps: int
+    top_vehicle_ids: tuple[int, int]  # the largest and second largest Vehicle_ID
     proximity_edges: int
     windows: pl.DataFrame  # with location, period, SPLIT and counts
 
 
 def _stage_inputs(
-    files: list[Path], config: BuildConfig, root: Path, progress: ProgressCallback
+    files: list[Path], config: BuildConfig, root: Path, progress: ProgressCallback, strict: bool
 ) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
     """Read each file and stage its rows per recording, one recording in memory at a time."""
     reports: list[FileReport] = []
     staged: dict[RecordingKey, list[Path]] = {}
     for file_index, path in enumerate(files):
         progress(f"reading {path.name}", file_index, len(files))
-        rows, chosen, report = read_file_recordings(path, config)
+        rows, chosen, report = read_file_recordings(path, config, file_index)
+        check_dropped(
+            report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked,
+            config.limits, strict,
+        )  # fmt: skip
         for key, recording_index in sorted(chosen.items()):
             target = layout.staged_raw_path(root, *key, file_index)
             layout.write_staged(recording_rows(rows, recording_index), target)
@@ -84,12 +95,31 @@ def _stage_inputs(
     return reports, staged
 
 
+def _check_recording(report: RecordingReport, files: list[FileReport], config: BuildConfig, strict: bool) -> None:
+    """The speed column must be a speed; position outliers follow the rule of every dropped row
+    (see plausibility)."""
+    name = f"{report.location}/{report.period}"
+    sources = ", ".join(f.path for f in files if name in f.recordings)
+    check_speed_column(
+        sources, report.speed_mismatch_mps, report.shown_speed_mps, report.speed_rows_compared, config.limits
+    )
+    if report.first_outlier is None:
+        return
+    file_index, line = report.first_outlier
+    reason = DropReason.POSITION_OUTLIER.value
+    check_dropped(
+        files[file_index].path, {reason: report.position_outliers}, {reason: line}, report.rows,
+        config.limits, strict,
+    )  # fmt: skip
+
+
 def _build_recording(
     key: RecordingKey, index: int, staged: list[Path], config: BuildConfig, root: Path,
-    first_track_id: int, ranges: FittedRanges,
+    first_track_id: int, ranges: FittedRanges, files: list[FileReport], strict: bool,
 ) -> tuple[RecordingOutput, FittedRanges]:  # fmt: skip
     """Tracks, proximity edges, frame arrays and split windows of one recording, written."""
     tracks, report = build_tracks(pl.read_parquet(staged), key, config, first_track_id)
+    _check_recording(report, files, config, strict)
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
     samples = recording_samples(tracks, index, config, ranges)
     layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
@@ -100,7 +130,11 @@ def _build_recording(
     windows = samples.windows.with_columns(
         pl.lit(key[0]).alias(s.LOCATION), pl.lit(key[1]).alias(s.PERIOD), pl.lit(index).alias("recording_index")
     )
-    output = RecordingOutput(report, index, first_track_id, arrays.n_steps, samples.pairs.height, windows)
+    ids = tracks[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
+    longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
+    output = RecordingOutput(
+        report, index, first_track_id, arrays.n_steps, longest, (ids[0], ids[1]), samples.pairs.height, windows
+    )
     return output, samples.ranges
 
 
@@ -131,24 +165,60 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
     return counts
 
 
+def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
+    """Why the chosen recordings gave no sample at all, as a user can act on it."""
+    rows = sum(o.report.rows for o in outputs)
+    if sum(o.report.grid_rows for o in outputs) == 0:
+        return (
+            f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
+            f"the frames whose Frame_ID is a multiple of {config.frames_per_step} (are they all odd?)"
+        )
+    longest = max(o.longest_track_steps for o in outputs)
+    if longest < config.window_steps:
+        return (
+            f"no track spans a whole window of {config.window_steps} grid steps "
+            f"({config.window_steps * config.time_step_s:g} s of history and future); the longest "
+            f"has {longest} steps"
+        )
+    return f"every window falls in a gap between the blocks of the {config.split.value} split"
+
+
+def _check_some_samples(outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]) -> None:
+    if sum(o.windows.height for o in outputs) == 0:
+        more = f" (and {len(raw_paths) - 1} more)" if len(raw_paths) > 1 else ""
+        raise NgsimInputError(f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}")
+
+
+def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
+    windows = pl.concat([o.windows for o in outputs])
+    top = {f"{o.report.location}/{o.report.period}": o.top_vehicle_ids for o in outputs}
+    return split_warnings(windows, top, config)
+
+
 def _manifest(
     config: BuildConfig,
     files: list[FileReport],
     outputs: list[RecordingOutput],
     samples: dict[str, dict[str, int]],
     ranges: FittedRanges,
+    warnings: list[str],
 ) -> dict[str, Any]:
     config_dict = config.to_dict()
     reports = [o.report for o in outputs]
     totals = {
         key: sum(getattr(r, key) for r in reports)
-        for key in ("rows", "exact_duplicates", "conflicting_duplicates", "gaps", "tracks", "grid_rows")
+        for key in ("rows", "exact_duplicates", "conflicting_duplicates", "position_jumps", "gaps", "tracks", "grid_rows")
     }
+    dropped = {reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files) for reason in DropReason}
+    dropped[DropReason.POSITION_OUTLIER.value] = sum(r.position_outliers for r in reports)
     recordings = []
     for o in outputs:
         name = layout.recording_name(o.report.location, o.report.period)
+        first = o.report.first_outlier
+        fields = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in asdict(o.report).items()}
         recordings.append({
-            **asdict(o.report),
+            **fields,
+            "first_outlier": None if first is None else {"file": files[first[0]].path, "line": first[1]},
             "index": o.index,
             "name": name,
             "first_track_id": o.first_track_id,
@@ -168,10 +238,12 @@ def _manifest(
         "recordings": recordings,
         "splits": {split: sum(per.values()) for split, per in samples.items()},
         "scaler": ranges.to_dict(),
+        "warnings": warnings,
         "counts": {
             "rows_read": sum(f.rows_read for f in files),
             "rows_other_locations": sum(f.rows_other_locations for f in files),
             "rows_missing_values": sum(f.rows_missing_values for f in files),
+            "rows_dropped": dropped,
             **totals,
             "proximity_edges": sum(o.proximity_edges for o in outputs),
             "samples": sum(sum(per.values()) for per in samples.values()),
@@ -185,24 +257,32 @@ def run_build(
     config: BuildConfig,
     overwrite: bool = False,
     progress: ProgressCallback | None = None,
+    strict: bool = False,
 ) -> BuildResult:
     """Read every NGSIM file under `raw_paths` and write the finished build into `out_dir`.
 
-    Raises NgsimInputError for unusable input; `out_dir` is then left as it was.
+    Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
+    not be written (an input, another program's folder, another build's) or cannot be (a full
+    disk); `out_dir` is then left as it was.
     """
+    landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
     report_progress = progress or (lambda _what, _done, _total: None)
     files, skipped = find_raw_files(raw_paths)
-    with layout.build_directory(out_dir, overwrite) as root:
-        file_reports, staged = _stage_inputs(files, config, root, report_progress)
+    with landing.build_directory(out_dir, overwrite) as root:
+        file_reports, staged = _stage_inputs(files, config, root, report_progress, strict)
         outputs, ranges, next_track_id = [], empty_ranges(), 0
         for index, key in enumerate(sorted(staged)):
             report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))
-            output, ranges = _build_recording(key, index, staged[key], config, root, next_track_id, ranges)
+            output, ranges = _build_recording(
+                key, index, staged[key], config, root, next_track_id, ranges, file_reports, strict
+            )
             outputs.append(output)
             next_track_id += output.report.tracks
+        _check_some_samples(outputs, config, raw_paths)
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)
-        manifest = _manifest(config, file_reports, outputs, samples, ranges)
+        warnings = _warnings(outputs, config)
+        manifest = _manifest(config, file_reports, outputs, samples, ranges, warnings)
         layout.write_manifest(root, manifest)
     return BuildResult(
         out_dir=out_dir,
@@ -210,4 +290,5 @@ def run_build(
         skipped_files=tuple(str(p) for p in skipped),
         recordings=tuple(o.report for o in outputs),
         manifest=manifest,
+        warnings=tuple(warnings),
     )

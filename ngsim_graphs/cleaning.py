@@ -10,6 +10,7 @@ import polars as pl
 from ngsim_graphs import schema as s
 
 FEET_TO_M = 0.3048
+_BREAK = "__break"
 
 # Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
 # by these columns: a rule that depends on the values only, never on the order of the file.
@@ -31,7 +32,7 @@ def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     keys = [s.VEHICLE_ID, s.FRAME_ID]
     repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
     multi = frame.filter(repeated)
-    values = [c for c in frame.columns if c != "__row"]
+    values = [c for c in frame.columns if c not in s.PROVENANCE_SCHEMA]
     unique = multi.unique(subset=values, keep="first")
     ordered = unique.sort([*keys, *CONFLICT_ORDER], nulls_last=True)
     kept = ordered.unique(subset=keys, keep="first", maintain_order=True)
@@ -39,17 +40,22 @@ def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     return cleaned, multi.height - unique.height, unique.height - kept.height
 
 
-def split_at_gaps(frame: pl.DataFrame) -> tuple[pl.DataFrame, int]:
-    """Number each vehicle's runs of consecutive frames: SEGMENT 0, 1, ... at every frame gap.
+def split_at_gaps(frame: pl.DataFrame, breaks: pl.Series | None = None) -> tuple[pl.DataFrame, int]:
+    """Number each vehicle's runs of consecutive frames: SEGMENT 0, 1, ... at every frame gap,
+    and before every row where `breaks` (bool, one per row) is True (a position jump).
 
-    `frame` must be sorted by vehicle and frame. Returns (frame with SEGMENT, gaps found).
+    `frame` must be sorted by vehicle and frame. Returns (frame with SEGMENT, frame gaps found).
     """
     step = pl.col(s.FRAME_ID).diff().over(s.VEHICLE_ID)
-    starts_segment = step.fill_null(1) != 1
-    segmented = frame.with_columns(
-        starts_segment.cast(pl.Int16).cum_sum().over(s.VEHICLE_ID).alias(s.SEGMENT)
+    gap = step.fill_null(1) != 1
+    flagged = frame.with_columns(
+        pl.Series(_BREAK, breaks) if breaks is not None else pl.lit(False).alias(_BREAK)
     )
-    gaps = int(frame.select(starts_segment.sum()).item())
+    starts_segment = gap | (pl.col(_BREAK) & step.is_not_null())
+    segmented = flagged.with_columns(
+        starts_segment.cast(pl.Int16).cum_sum().over(s.VEHICLE_ID).alias(s.SEGMENT)
+    ).drop(_BREAK)
+    gaps = int(frame.select(gap.sum()).item())
     return segmented, gaps
 
 

@@ -12,6 +12,37 @@ FRAME_STEP_S = 0.1  # NGSIM's 10 Hz frame period
 
 
 @dataclass(frozen=True)
+class PhysicalLimits:
+    """What a raw row may hold; rows beyond a limit are dropped and counted per reason (SPEC 1).
+
+    Generous for highway traffic: real NGSIM rows stay far inside them (v_Acc within 3.4 m/s²,
+    speeds under 40 m/s, study areas under 1 km long), so a row beyond one is a damaged value, a
+    swapped column or another unit, never a driver.
+    """
+
+    max_speed_mps: float = 70.0  # 252 km/h; below 0 is beyond it too
+    max_abs_accel_mps2: float = 15.0  # 1.5 g
+    max_abs_position_m: float = 5_000.0  # |Local_X| and |Local_Y|
+    max_jump_m: float = 10.0  # between two consecutive 0.1 s frames of a vehicle: 100 m/s
+    max_frame_id: int = 72_000  # two hours at 10 Hz; the first frame is 0
+    # v_Vel must agree with the motion the positions show over 1 s: the median difference may be
+    # at most this plus this share of the median speed, or the speed column is not a speed in
+    # feet per second (swapped with v_Acc, another unit).
+    max_speed_mismatch_mps: float = 1.0
+    max_speed_mismatch_share: float = 0.25
+    # A file (or recording) with a larger share of stray or implausible rows is not used at all:
+    # so many bad rows say the file is damaged or its columns are not what they claim to be.
+    max_dropped_share: float = 0.01
+
+    def __post_init__(self) -> None:
+        positive = (self.max_speed_mps, self.max_abs_accel_mps2, self.max_abs_position_m, self.max_jump_m)
+        if min(positive) <= 0 or self.max_frame_id < 1:
+            raise ValueError("physical limits must be positive")
+        if not 0 <= self.max_dropped_share <= 1:
+            raise ValueError("max_dropped_share must be in [0, 1]")
+
+
+@dataclass(frozen=True)
 class BuildConfig:
     """Everything that shapes a build's output. The CLI builds it; the library only reads it."""
 
@@ -28,6 +59,7 @@ class BuildConfig:
     split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)  # train, validation, test
     seed: int = 0  # for the random split
     ego_is_target: bool = False  # whether the ego is predicted too
+    limits: PhysicalLimits = PhysicalLimits()
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.locations) - set(KNOWN_LOCATION_NAMES))
@@ -87,6 +119,8 @@ class BuildConfig:
                 typed[name] = tuple(typed[name])
         if "split" in typed:
             typed["split"] = SplitMode(typed["split"])
+        if "limits" in typed:
+            typed["limits"] = PhysicalLimits(**typed["limits"])
         return cls(**typed)
 
 

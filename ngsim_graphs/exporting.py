@@ -2,21 +2,28 @@
 
 The build stores graphs compactly (grid nodes and proximity pairs, once per step); these tables
 are the per-sample form of SPEC section 4, for any subset a researcher wants to look at or feed
-to another tool.
+to another tool. They are written as a whole into a hidden folder beside the target and renamed
+into place when complete; a target that holds anything but export tables is never replaced.
 """
 
 from __future__ import annotations
 
+from functools import partial
+from pathlib import Path
+
 import numpy as np
 import polars as pl
 
+from ngsim_graphs import landing, layout
 from ngsim_graphs import schema as s
+from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import GraphBatch
 
 NODE = "node"  # sample-local node index
 SOURCE, DESTINATION = "source", "destination"  # sample-local node indices
 FUTURE_STEP = "future_step"  # 0..K_F-1: 0.2 s .. 5 s after the present
 RECORDED = "recorded"
+EXPORT_TABLES = ("nodes", "spatial_edges", "temporal_edges", "targets", "samples")
 
 
 def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.DataFrame]:
@@ -57,3 +64,37 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
             pl.when(pl.col(RECORDED)).then(pl.col(s.Y_M)).alias(s.Y_M),
         ).sort(s.SAMPLE_ID, NODE, FUTURE_STEP),
     }
+
+
+def check_export_target(out: Path, overwrite: bool) -> None:
+    """Refuse a target folder that must not be replaced: a file, a folder holding anything but
+    export tables, or (without `overwrite`) an earlier export. A new or empty folder is taken."""
+    if out.exists() and not out.is_dir():
+        raise NgsimOutputError(out, "exists and is not a directory")
+    entries = sorted(out.iterdir()) if out.is_dir() else []
+    ours = {f"{name}.parquet" for name in EXPORT_TABLES}
+    foreign = [p.name for p in entries if p.name not in ours or not p.is_file() or p.is_symlink()]
+    if foreign:
+        raise NgsimOutputError(
+            out,
+            f"folder is not empty: it holds {landing.some_names(foreign)}, which export did not "
+            "write; choose a new or empty folder",
+        )
+    if entries and not overwrite:
+        raise NgsimOutputError(out, "holds an export already; pass --overwrite to replace it")
+
+
+def write_tables(tables: dict[str, pl.DataFrame], out: Path, overwrite: bool) -> list[Path]:
+    """Write `tables` as `out/<name>.parquet`, replacing `out` as a whole once all are written.
+
+    Raises NgsimOutputError where `out` must not be replaced (see `check_export_target`) or a
+    table cannot be written (a full disk); `out` is then left as it was.
+    """
+    unknown = sorted(set(tables) - set(EXPORT_TABLES))
+    if unknown:
+        raise ValueError(f"not export tables: {', '.join(unknown)}")
+    check = partial(check_export_target, overwrite=overwrite)
+    with landing.output_directory(out, check) as folder:
+        for name, table in tables.items():
+            layout.write_parquet(table, folder / f"{name}.parquet")
+    return [out / f"{name}.parquet" for name in tables]

@@ -1,12 +1,15 @@
 """Raw files to the tracks table: one recording at a time, each stage a pure function.
 
-Per input file: parse, drop incomplete rows, label recordings, and stage each recording's rows
-(a recording may come from several files). Per recording: drop duplicates, split at frame gaps,
-downsample to the grid, convert to SI, number the tracks and derive the heading.
+Per input file: parse, drop incomplete and implausible rows, label recordings (dropping stray
+rows whose Global_Time disagrees with their recording), and stage each recording's rows (a
+recording may come from several files). Per recording: drop duplicates and position outliers,
+split at frame gaps and position jumps, downsample to the grid, convert to SI, number the tracks
+and derive the heading. Every dropped row is counted per reason, with the first line it was on.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,24 +19,33 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.cleaning import drop_duplicate_rows, is_complete, split_at_gaps, to_si_units
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.kinematics import add_heading
+from ngsim_graphs.plausibility import position_checks, row_drop_reason, speed_mismatch_mps
 from ngsim_graphs.reading import ROW, file_sha256, read_raw_file
 from ngsim_graphs.recordings import RECORDING_INDEX, identify_recordings
 from ngsim_graphs.resampling import downsample_to_grid
+from ngsim_graphs.schema import DropReason
 
 RecordingKey = tuple[str, str]  # (location, period)
 
 
 @dataclass(frozen=True)
 class FileReport:
-    """What reading one input file found."""
+    """What reading one input file found, and which of its rows were dropped before cleaning.
+
+    rows_read = rows_other_locations + rows_missing_values + sum(rows_dropped) + the rows it
+    gave its chosen recordings (RecordingReport.rows).
+    """
 
     path: str
     raw_format: str
     size_bytes: int
     sha256: str
     rows_read: int
-    rows_other_locations: int
-    rows_missing_values: int
+    rows_other_locations: int  # of locations (or recordings) the build did not choose
+    rows_missing_values: int  # an empty required field
+    rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
+    first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
+    rows_checked: int  # rows of the chosen locations with every required field
     locations_found: tuple[str, ...]  # every location the file holds, chosen or not
     recordings: tuple[str, ...]  # "location/period" of each chosen recording the file holds
 
@@ -44,42 +56,74 @@ class RecordingReport:
 
     location: str
     period: str
-    rows: int  # 10 Hz rows of the recording after the location filter and incomplete rows
+    rows: int  # 10 Hz rows of the recording that passed the row checks (duplicates included)
     exact_duplicates: int
     conflicting_duplicates: int
+    position_outliers: int  # rows dropped: farther than the jump limit from both neighbours
+    position_jumps: int  # other moves beyond the jump limit, each of which split a track
     gaps: int  # frame gaps, each of which split a vehicle's record into two tracks
     vehicles: int
     tracks: int
     grid_rows: int  # rows of the tracks table (0.2 s grid)
+    # v_Vel against the motion the positions show (plausibility.speed_mismatch_mps)
+    speed_mismatch_mps: float = math.nan  # median |v_Vel - shown speed|
+    shown_speed_mps: float = math.nan  # median shown speed
+    speed_rows_compared: int = 0
+    first_outlier: tuple[int, int] | None = None  # (input file index, line) of the first outlier
+
+
+FILE_REASONS: tuple[DropReason, ...] = tuple(r for r in DropReason if r is not DropReason.POSITION_OUTLIER)
 
 
 def read_file_recordings(
-    path: Path, config: BuildConfig
+    path: Path, config: BuildConfig, file_index: int = 0
 ) -> tuple[pl.DataFrame, dict[RecordingKey, int], FileReport]:
-    """Parse one file and tell its chosen recordings apart.
+    """Parse one file, drop what no recording can use, and tell its chosen recordings apart.
 
-    Returns (every parsed row in NGSIM units with a RECORDING_INDEX column, the index of each
-    chosen recording, the file's report). The index is null for incomplete rows, which are
+    Returns (every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
+    columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, the
+    file's report). The index is null for incomplete, implausible and stray rows, which are
     dropped. No copy of the rows is made here: the caller takes one recording at a time.
     """
     raw = read_raw_file(path, config.locations)
     complete = raw.frame.select(is_complete()).to_series()
-    index, names = identify_recordings(raw.frame, path)
-    rows = raw.frame.drop(ROW, s.LOCATION).with_columns(
-        pl.when(complete).then(index).alias(RECORDING_INDEX)
+    reason = raw.frame.select(pl.when(complete).then(row_drop_reason(config.limits))).to_series()
+    usable = complete & reason.is_null()
+    timed = raw.frame.select(
+        s.LOCATION, s.FRAME_ID, pl.when(usable).then(pl.col(s.GLOBAL_TIME)).alias(s.GLOBAL_TIME)
     )
+    index, names = identify_recordings(timed, path)
+    reason = pl.select(
+        pl.when(usable & index.is_null()).then(pl.lit(DropReason.GLOBAL_TIME.value)).otherwise(reason)
+    ).to_series()
+    line = (pl.col(ROW) + raw.first_line).alias(s.SOURCE_LINE)
+    rows = raw.frame.select(
+        *s.RAW_SCHEMA.names(),
+        pl.when(usable).then(index).alias(RECORDING_INDEX),
+        pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
+        line,
+    )
+    dropped = (
+        pl.DataFrame({"reason": reason, s.SOURCE_LINE: rows[s.SOURCE_LINE]})
+        .drop_nulls("reason")
+        .group_by("reason")
+        .agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+    )
+    counts = {r: n for r, n, _ in dropped.iter_rows()}
     chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
-    counts = rows.group_by(RECORDING_INDEX).len()
-    kept = int(counts.filter(pl.col(RECORDING_INDEX).is_in(list(chosen.values())))["len"].sum())
-    missing = int(counts.filter(pl.col(RECORDING_INDEX).is_null())["len"].sum())
+    kept = int(rows[RECORDING_INDEX].is_in(list(chosen.values())).sum())
+    missing = int((~complete).sum())
     report = FileReport(
         path=str(path),
         raw_format=raw.raw_format.value,
         size_bytes=raw.size_bytes,
         sha256=file_sha256(path),
         rows_read=raw.rows_read,
-        rows_other_locations=raw.rows_read - kept - missing,
+        rows_other_locations=raw.rows_read - kept - missing - sum(counts.values()),
         rows_missing_values=missing,
+        rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
+        first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
+        rows_checked=raw.frame.height - missing,
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
     )
@@ -91,6 +135,14 @@ def recording_rows(rows: pl.DataFrame, index: int) -> pl.DataFrame:
     return rows.filter(pl.col(RECORDING_INDEX) == index).drop(RECORDING_INDEX)
 
 
+def _first_source(rows: pl.DataFrame) -> tuple[int, int] | None:
+    """(file index, line) of the first of `rows`, if they carry their provenance."""
+    if rows.height == 0 or s.SOURCE_FILE not in rows.columns:
+        return None
+    first = rows.select(s.SOURCE_FILE, s.SOURCE_LINE).sort(s.SOURCE_FILE, s.SOURCE_LINE).row(0)
+    return int(first[0]), int(first[1])
+
+
 def build_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
 ) -> tuple[pl.DataFrame, RecordingReport]:
@@ -100,7 +152,11 @@ def build_tracks(
     by track and frame, columns as TRACKS_SCHEMA.
     """
     unique, exact, conflicting = drop_duplicate_rows(raw)
-    segmented, gaps = split_at_gaps(unique)
+    outlier = position_checks(unique, config.limits)["outlier"]
+    cleaned = unique.filter(~outlier)
+    jumps = position_checks(cleaned, config.limits)["jump"]
+    mismatch, shown, compared = speed_mismatch_mps(cleaned)
+    segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
     on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
         pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD)
@@ -116,9 +172,15 @@ def build_tracks(
         rows=raw.height,
         exact_duplicates=exact,
         conflicting_duplicates=conflicting,
+        position_outliers=int(outlier.sum()),
+        position_jumps=int(jumps.sum()),
         gaps=gaps,
         vehicles=unique[s.VEHICLE_ID].n_unique(),
         tracks=tracks[s.TRACK_ID].n_unique(),
         grid_rows=tracks.height,
+        speed_mismatch_mps=mismatch,
+        shown_speed_mps=shown,
+        speed_rows_compared=compared,
+        first_outlier=_first_source(unique.filter(outlier)),
     )
     return tracks, report

@@ -1,8 +1,9 @@
-"""The output directory: every path in it, the manifest, and how a build lands atomically.
+"""The output directory: every path in it and the manifest (written last, read with checks).
 
 A build is written into a hidden sibling directory (`.NAME.partial-PID`) and renamed into place
 only when complete, with the manifest written last. A directory without a complete manifest is
 therefore never a finished build, and an interrupted build leaves nothing that looks finished.
+How the directory lands (lock, checks, the swap) is `landing`'s.
 """
 
 from __future__ import annotations
@@ -10,9 +11,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -135,52 +133,3 @@ def read_manifest(root: Path) -> dict[str, Any]:
             path, f"format version {manifest.get('format_version')!r}; expected {FORMAT_VERSION}"
         )
     return manifest
-
-
-def _check_target(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise NgsimInputError(out, "exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise NgsimInputError(out, "directory is not empty; pass --overwrite to replace it")
-
-
-def _recover_interrupted_swap(out: Path) -> None:
-    """A build killed between its two renames left the previous build as `.NAME.old-PID`."""
-    for retired in sorted(out.parent.glob(f".{out.name}.old-*")):
-        if not out.exists():
-            os.replace(retired, out)  # the previous build comes back, as it was
-        else:
-            shutil.rmtree(retired, ignore_errors=True)
-    for leftover in out.parent.glob(f".{out.name}.partial-*"):
-        shutil.rmtree(leftover, ignore_errors=True)  # from a build that was killed
-
-
-@contextmanager
-def build_directory(out: Path, overwrite: bool) -> Iterator[Path]:
-    """Yield a fresh partial directory; on success it replaces `out`, on failure it is removed.
-
-    The previous content of `out` is removed only after the new build is complete, and folders
-    created for `out` are removed again if the build fails.
-    """
-    created = [p for p in (out.parent, *out.parent.parents) if not p.exists()]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    _recover_interrupted_swap(out)
-    _check_target(out, overwrite)
-    partial = out.parent / f".{out.name}.partial-{os.getpid()}"
-    partial.mkdir()
-    try:
-        yield partial
-        shutil.rmtree(partial / STAGING_DIR, ignore_errors=True)
-        if out.exists():
-            retired = out.parent / f".{out.name}.old-{os.getpid()}"
-            os.replace(out, retired)
-            os.replace(partial, out)
-            shutil.rmtree(retired)
-        else:
-            os.replace(partial, out)
-    except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
-        for folder in created:  # innermost first
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise

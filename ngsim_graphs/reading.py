@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema as s
@@ -30,6 +31,10 @@ _N_FIELDS = "__n_fields"  # fields of a text line
 _LINE = "__line"
 
 
+class NotNgsimFileError(NgsimInputError):
+    """The file is empty or of another kind: a folder search skips it, a named file fails."""
+
+
 @dataclass(frozen=True)
 class RawFile:
     """A parsed raw file: its rows (RAW_SCHEMA + location, + ROW) and what reading it counted."""
@@ -38,6 +43,7 @@ class RawFile:
     raw_format: RawFormat
     size_bytes: int
     rows_read: int  # data rows in the file, blank lines excluded
+    first_line: int  # the line number of data row 0: ROW + first_line is a row's line
     rows_other_locations: int  # rows of locations the build did not choose (portal CSV only)
     locations_found: tuple[str, ...]  # every location the file holds
     frame: pl.DataFrame
@@ -65,7 +71,7 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
             try:
                 sniff_format(candidate)
                 inside.append(candidate)
-            except NgsimInputError:
+            except NotNgsimFileError:
                 skipped.append(candidate)
         if not inside:
             raise NgsimInputError(path, "no NGSIM trajectory files (.csv or .txt) in this directory")
@@ -80,8 +86,14 @@ def _first_line(path: Path) -> str:
     text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
     lines = [line for line in text.splitlines() if line.strip()]
     if not lines:
-        raise NgsimInputError(path, "empty file: no header and no data")
+        raise NotNgsimFileError(path, "empty file: no header and no data")
     return lines[0]
+
+
+def _has_cr_only_line_ends(path: Path) -> bool:
+    with path.open("rb") as handle:
+        head = handle.read(SNIFF_BYTES)
+    return b"\r" in head.rstrip(b"\r") and b"\n" not in head
 
 
 def _header_names(line: str) -> list[str]:
@@ -99,6 +111,16 @@ def _is_number(token: str) -> bool:
 
 def sniff_format(path: Path) -> RawFormat:
     """Tell the format from the first line: a CSV header with Vehicle_ID, or 18 numbers."""
+    raw_format = _format_of_first_line(path)
+    if _has_cr_only_line_ends(path):
+        # Polars splits lines at LF only: the whole file would read as one line.
+        raise NgsimInputError(
+            path, "lines end in CR alone (classic Mac OS); convert them to LF or CRLF", line=1
+        )
+    return raw_format
+
+
+def _format_of_first_line(path: Path) -> RawFormat:
     line = _first_line(path)
     if "," in line:
         header = [name.lower() for name in _header_names(line)]
@@ -107,7 +129,7 @@ def sniff_format(path: Path) -> RawFormat:
     tokens = line.split()
     if len(tokens) == len(s.TXT_COLUMNS) and all(_is_number(t) for t in tokens):
         return RawFormat.TXT
-    raise NgsimInputError(
+    raise NotNgsimFileError(
         path,
         "not an NGSIM trajectory file: the first line is neither a CSV header with Vehicle_ID, "
         f"Frame_ID, ... nor {len(s.TXT_COLUMNS)} whitespace-separated numbers",
@@ -128,13 +150,9 @@ def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> 
             raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
 
 
-def _check_csv_field_counts(path: Path, n_columns: int) -> None:
-    """Raise for the first non-blank line whose field count differs from the header's.
-
-    The exact check behind _odd_csv_shape: counts the commas outside quotes of every line in
-    one streaming pass. It runs only for files where a row looked odd.
-    """
-    lines = pl.scan_csv(
+def _scan_lines(path: Path) -> pl.LazyFrame:
+    """Every line after the header as one text column, quotes untouched."""
+    return pl.scan_csv(
         path,
         has_header=False,
         skip_rows=1,
@@ -144,6 +162,31 @@ def _check_csv_field_counts(path: Path, n_columns: int) -> None:
         infer_schema=False,
         encoding="utf8-lossy",
     )
+
+
+def _raise_unbalanced_quote(path: Path) -> None:
+    """Raise for the first line with an odd number of double quotes (a truncated quoted field).
+
+    NGSIM fields never hold a line break, so a quote left open on one line is an error there,
+    not a field that goes on: the CSV parser would read on into the next lines.
+    """
+    odd = pl.col(_LINE).str.count_matches('"', literal=True) % 2 == 1
+    found = (
+        _scan_lines(path).with_row_index(ROW).filter(odd).select(ROW).head(1).collect(engine="streaming")
+    )
+    if found.height:
+        raise NgsimInputError(
+            path, "a quoted field is not closed (truncated line?)", line=int(found.item()) + 2
+        )
+
+
+def _check_csv_field_counts(path: Path, n_columns: int) -> None:
+    """Raise for the first non-blank line whose field count differs from the header's.
+
+    The exact check behind _odd_csv_shape: counts the commas outside quotes of every line in
+    one streaming pass. It runs only for files where a row looked odd.
+    """
+    lines = _scan_lines(path)
     unquoted = pl.col(_LINE).str.replace_all(r'"[^"]*"', "")
     n_fields = unquoted.str.count_matches(",", literal=True) + 1
     wrong = (
@@ -216,13 +259,17 @@ def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
     """Parse text columns to RAW_SCHEMA dtypes; also the count of non-empty fields per row.
 
     A row whose parsed non-null values are fewer than its non-empty fields holds a malformed
-    number. Comparing two counts costs far less than testing every field for it.
+    number. Comparing two counts costs far less than testing every field for it. An integer
+    column's value must be whole and in range (`10.5` as a Frame_ID would otherwise truncate).
     """
     parsed: list[pl.Expr] = []
     present: list[pl.Expr] = []
     for column in columns:
         text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
-        number = text.cast(pl.Float64, strict=False).cast(s.RAW_SCHEMA[column], strict=False)
+        real = text.cast(pl.Float64, strict=False)
+        dtype = s.RAW_SCHEMA[column]
+        whole = real if dtype == pl.Float64 else pl.when(real == real.floor()).then(real)
+        number = whole.cast(dtype, strict=False)
         parsed.append(number.alias(column))
         present.append((text != "").fill_null(False).cast(pl.Int8))
     return parsed, pl.sum_horizontal(present).cast(pl.Int8).alias(_PRESENT)
@@ -242,15 +289,30 @@ def _raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int)
     fields = text.filter(pl.col(ROW) == row).select(s.TXT_COLUMNS).collect().row(0, named=True)
     official = {name.lower(): name for name in s.PORTAL_HEADER}
     for column, value in fields.items():
-        cleaned = (value or "").strip().replace(",", "")
-        try:
-            ok = cleaned == "" or math.isfinite(float(cleaned))
-        except ValueError:
-            ok = False
-        if not ok:
-            message = f"column {official[column]}: {value!r} is not a number"
+        problem = _number_problem((value or "").strip().replace(",", ""), s.RAW_SCHEMA[column])
+        if problem:
+            message = f"column {official[column]}: {value!r} {problem}"
             raise NgsimInputError(path, message, line=row + first_line)
     raise NgsimInputError(path, "a value is out of range", line=row + first_line)
+
+
+def _number_problem(text: str, dtype: pl.DataType) -> str | None:
+    """What is wrong with one field's text as a value of `dtype`; None when it is fine or empty."""
+    if text == "":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        return "is not a number"
+    if not math.isfinite(value):
+        return "is not a finite number"
+    if dtype != pl.Float64:
+        if value != math.floor(value):
+            return "is not a whole number"
+        info = np.iinfo(str(dtype).lower())  # polars Int32 -> "int32"
+        if not info.min <= value <= info.max:
+            return f"is out of range ({info.min:,} to {info.max:,})"
+    return None
 
 
 def _raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> None:
@@ -299,6 +361,8 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
             else pl.LazyFrame({"rows": [frame.height], "odd": [frame[_ODD].sum()]})
         ).collect(engine="streaming")
     except pl.exceptions.ComputeError as err:
+        if raw_format is not RawFormat.TXT:
+            _raise_unbalanced_quote(path)
         message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise NgsimInputError(path, f"cannot parse as CSV: {message}") from None
     rows_read = int(by_location["rows"].sum())
@@ -321,6 +385,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         raw_format=raw_format,
         size_bytes=path.stat().st_size,
         rows_read=rows_read,
+        first_line=first_line,
         rows_other_locations=rows_read - frame.height,
         locations_found=found,
         frame=frame.drop(_PRESENT, _ODD),

@@ -21,6 +21,10 @@ PACIFIC_DAYLIGHT = timezone(timedelta(hours=-7), "PDT")
 MATCH_TOLERANCE_MS = 10 * 60 * 1000
 KNOWN_LOCATION_NAMES: tuple[str, ...] = ("us-101", "i-80", "lankershim", "peachtree")
 FRAME0_MS = "frame0_epoch_ms"  # Global_Time - 100 * Frame_ID: constant within a recording
+# A frame-0 time shared by fewer rows than this share of the largest group of its location is
+# not a recording but stray rows (a damaged Global_Time); so is one near a larger group's.
+STRAY_GROUP_SHARE = 0.01
+MAX_RECORDINGS_PER_FILE = 100
 RECORDING_INDEX = "recording_index"
 
 
@@ -95,26 +99,57 @@ def _name_recording(frame0_ms: int, last_frame: int, location: str | None, path:
     return named, period_label(frame0_ms, last_frame)
 
 
+def _frame0_groups(frame: pl.DataFrame) -> pl.DataFrame:
+    """(location, frame-0 time) groups of rows with their row count and last frame, the largest
+    of each location first, and whether each is too small to be a recording of its own."""
+    frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
+    groups = (
+        frame.select(s.LOCATION, frame0.alias(FRAME0_MS), s.FRAME_ID)
+        .drop_nulls(FRAME0_MS)
+        .group_by(s.LOCATION, FRAME0_MS)
+        .agg(pl.len().alias("rows"), pl.col(s.FRAME_ID).max().alias("last_frame"))
+        .sort(s.LOCATION, "rows", FRAME0_MS, descending=[False, True, False], nulls_last=True)
+    )
+    small = pl.col("rows") < STRAY_GROUP_SHARE * pl.col("rows").max().over(s.LOCATION)
+    return groups.with_columns(small.alias("small"))
+
+
 def identify_recordings(frame: pl.DataFrame, path: Path) -> tuple[pl.Series, list[tuple[str, str]]]:
     """Which recording each raw row belongs to: (index per row, (location, period) per index).
 
     `frame` needs global_time, frame_id and location (null where the file does not say, as in
     per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID` belong to
-    different recordings (the combined CSV holds three periods per location). Rows without a
-    time or frame belong to none: their index is null.
+    different recordings (the combined CSV holds three periods per location), unless they are
+    strays: rows whose frame-0 time is shared by few rows (under STRAY_GROUP_SHARE of the
+    location's largest group), lies within MATCH_TOLERANCE_MS of a larger group's, or names the
+    same recording as a larger group. A stray row's index is null, as is that of a row without
+    a time or frame; the caller counts and drops them. Recordings are indexed in (location,
+    frame-0 time) order.
     """
+    accepted: list[tuple[str | None, int, int]] = []  # location, frame-0 time, group position
+    keys: list[tuple[str, str]] = []
+    groups = _frame0_groups(frame)
+    for position, (location, frame0_ms, _rows, last_frame, small) in enumerate(groups.iter_rows()):
+        near = any(loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted)
+        if small or near:
+            continue
+        key = _name_recording(frame0_ms, last_frame, location, path)
+        if key in keys:
+            continue
+        if len(keys) == MAX_RECORDINGS_PER_FILE:
+            raise NgsimInputError(
+                path,
+                f"more than {MAX_RECORDINGS_PER_FILE} recordings (distinct values of Global_Time - "
+                "100 * Frame_ID): is the Global_Time or Frame_ID column damaged?",
+            )
+        accepted.append((location, frame0_ms, position))
+        keys.append(key)
+    order = sorted(range(len(keys)), key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]))
+    index_of_group = {accepted[i][2]: new for new, i in enumerate(order)}
+    lookup = groups.with_columns(
+        pl.Series(RECORDING_INDEX, [index_of_group.get(i) for i in range(groups.height)], dtype=pl.UInt16)
+    ).select(s.LOCATION, FRAME0_MS, RECORDING_INDEX)
     frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
-    keyed = frame.select(s.LOCATION, frame0.alias(FRAME0_MS), s.FRAME_ID)
-    groups = (
-        keyed.drop_nulls(FRAME0_MS)
-        .group_by(s.LOCATION, FRAME0_MS)
-        .agg(pl.col(s.FRAME_ID).max().alias("last_frame"))
-        .sort(s.LOCATION, FRAME0_MS, nulls_last=True)
-        .with_row_index(RECORDING_INDEX)
-    )
-    names = [
-        _name_recording(frame0_ms, last_frame, location, path)
-        for _, location, frame0_ms, last_frame in groups.iter_rows()
-    ]
-    index = keyed.join(groups, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left")
-    return index[RECORDING_INDEX].cast(pl.UInt16), names
+    keyed = frame.select(s.LOCATION, frame0.alias(FRAME0_MS))
+    index = keyed.join(lookup, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left")
+    return index[RECORDING_INDEX], [keys[i] for i in order]

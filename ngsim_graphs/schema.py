@@ -28,6 +28,22 @@ class SplitMode(str, Enum):
     RANDOM = "random"  # seeded, by ego track
 
 
+class DropReason(str, Enum):
+    """Why a raw row was dropped one by one (SPEC section 1); counted per reason in the manifest.
+
+    Rows with an empty required field are counted apart (`rows_missing_values`): empty fields
+    are a known quirk of real exports, these are not.
+    """
+
+    FRAME_ID = "frame_id_out_of_range"  # Frame_ID below 0 or above the limit
+    VEHICLE_ID = "vehicle_id_out_of_range"  # Vehicle_ID below 1 (0 means "none" in NGSIM)
+    POSITION = "position_out_of_range"  # |Local_X| or |Local_Y| beyond the limit
+    SPEED = "speed_out_of_range"  # v_Vel below 0 or above the limit
+    ACCELERATION = "acceleration_out_of_range"  # |v_Acc| above the limit
+    GLOBAL_TIME = "global_time_off_recording"  # Global_Time - 100 * Frame_ID not its recording's
+    POSITION_OUTLIER = "position_outlier"  # farther than the jump limit from both its neighbours
+
+
 class Split(str, Enum):
     TRAIN = "train"
     VAL = "val"
@@ -102,6 +118,11 @@ RAW_SCHEMA: Final = pl.Schema(
 REQUIRED_VALUE_COLUMNS: Final[tuple[str, ...]] = (
     VEHICLE_ID, FRAME_ID, GLOBAL_TIME, LOCAL_X, LOCAL_Y, V_VEL,
 )  # fmt: skip
+
+# Where a raw row came from, carried until cleaning so that drops can name the file and line.
+SOURCE_FILE: Final = "__source_file"  # index of the input file in the build's list of inputs
+SOURCE_LINE: Final = "__source_line"  # 1-based line number in that file
+PROVENANCE_SCHEMA: Final = pl.Schema({SOURCE_FILE: pl.UInt16, SOURCE_LINE: pl.Int64})
 
 # Recording identity columns, added by the reader to every raw row.
 PERIOD: Final = "period"

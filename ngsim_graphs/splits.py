@@ -36,9 +36,7 @@ def split_by_vehicle(windows: pl.DataFrame, max_vehicle_id: int, config: BuildCo
     is MATLAB's, as in CS-LSTM's preprocessing: halves go away from zero (10.5 -> 11), not to
     the even neighbour as Python's round() does.
     """
-    train, val, _ = config.split_fractions
-    matlab_round = lambda x: math.floor(x + 0.5)  # noqa: E731  (x >= 0 here)
-    first, second = matlab_round(train * max_vehicle_id), matlab_round((train + val) * max_vehicle_id)
+    first, second = _vehicle_cuts(max_vehicle_id, config)
     return windows.select(
         _by_thresholds(pl.col(s.EGO_VEHICLE_ID), pl.lit(first), pl.lit(second)).alias(SPLIT)
     ).to_series()
@@ -85,3 +83,68 @@ def assign_splits(
     else:
         labels = split_randomly(windows, recording_index, config)
     return windows.with_columns(labels.alias(SPLIT)).drop_nulls(SPLIT)
+
+
+MIN_SPLIT_SHARE = 0.02  # a split with a smaller share of the samples is worth a warning
+
+
+def _vehicle_cuts(max_vehicle_id: int, config: BuildConfig) -> tuple[int, int]:
+    train, val, _ = config.split_fractions
+    return _matlab_round(train * max_vehicle_id), _matlab_round((train + val) * max_vehicle_id)
+
+
+def _matlab_round(x: float) -> int:
+    """MATLAB's round() for x >= 0: halves go away from zero (10.5 -> 11)."""
+    return math.floor(x + 0.5)
+
+
+def _why_vehicle_split_is_small(
+    windows: pl.DataFrame, split: Split, top_vehicle_ids: dict[str, tuple[int, int]], config: BuildConfig
+) -> str:
+    """The rule, and the recordings that give `split` (almost) nothing, with their cuts."""
+    per_recording = (
+        windows.group_by(s.LOCATION, s.PERIOD)
+        .agg(pl.len().alias("all"), (pl.col(SPLIT) == split.value).sum().alias("split"))
+        .sort(s.LOCATION, s.PERIOD)
+    )
+    reasons = []
+    for location, period, n_all, n_split in per_recording.iter_rows():
+        if n_split >= MIN_SPLIT_SHARE * n_all:
+            continue
+        name = f"{location}/{period}"
+        largest, second = top_vehicle_ids[name]
+        first_cut, second_cut = _vehicle_cuts(largest, config)
+        outlier = f", far above the next largest ({second:,})" if largest > 1.5 * second else ""
+        reasons.append(
+            f"{name} gives it {n_split:,} of {n_all:,}: its largest Vehicle_ID is {largest:,}{outlier}, "
+            f"so the cuts lie at {first_cut:,} and {second_cut:,}"
+        )
+    rule = (
+        "the vehicle split (CS-LSTM's rule) trains egos with Vehicle_ID <= round(0.7 * the "
+        "recording's largest ID) and validates those <= round(0.8 * it)"
+    )
+    return f": {rule}; " + "; ".join(reasons[:3]) if reasons else f": {rule}"
+
+
+def split_warnings(
+    windows: pl.DataFrame, top_vehicle_ids: dict[str, tuple[int, int]], config: BuildConfig
+) -> list[str]:
+    """One line for each split that is empty or holds under MIN_SPLIT_SHARE of the samples, with
+    the likely reason. `windows`: every sample, with location, period and SPLIT;
+    `top_vehicle_ids`: the largest and second largest Vehicle_ID of each recording, by
+    "location/period"."""
+    total = windows.height
+    warnings = []
+    for split in SPLIT_ORDER:
+        n = int((windows[SPLIT] == split.value).sum()) if total else 0
+        if total == 0 or n >= MIN_SPLIT_SHARE * total:
+            continue
+        what = "is empty" if n == 0 else f"holds {n:,} of {total:,} samples ({n / total:.1%})"
+        if config.split_fractions[SPLIT_ORDER.index(split)] == 0:
+            why = ": its fraction is 0"
+        elif config.split is SplitMode.VEHICLE:
+            why = _why_vehicle_split_is_small(windows, split, top_vehicle_ids, config)
+        else:
+            why = f": {total:,} samples are too few for a {config.split.value} split"
+        warnings.append(f"the {split.value} split {what}{why}")
+    return warnings

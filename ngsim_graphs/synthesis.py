@@ -3,13 +3,16 @@ three raw formats (SPEC section 1), optionally with the quirks of real exports.
 
 Every file is written under a hidden temporary name in its folder and renamed into place when
 complete, so an interrupted run never leaves a complete-looking file. The same config always gives
-byte-identical files.
+byte-identical files. A folder synth fills carries `SYNTHETIC.md`, which says the data are
+simulated and lists synth's files: synth replaces files only in a new or empty folder or in one of
+its own, and only those it listed.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 from typing import BinaryIO
@@ -19,6 +22,8 @@ import polars as pl
 
 from ngsim_graphs import schema
 from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.landing import some_names
 from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
 from ngsim_graphs.traffic import simulate_recording
 
@@ -31,6 +36,8 @@ FOREIGN_RECORDING = Recording(
     int(datetime(2005, 6, 16, 8, 28, tzinfo=PACIFIC_DAYLIGHT).timestamp() * 1000),
 )
 FOREIGN_MINUTES = 0.25  # a few thousand rows
+# Written first into every folder synth fills: says the data are synthetic, lists synth's files.
+MARKER_NAME = "SYNTHETIC.md"
 
 GAP_VEHICLE_SHARE = 0.01  # vehicles whose record loses a run of frames
 GAP_FRAMES = (3, 20)  # length of the lost run, inclusive
@@ -52,25 +59,147 @@ def write_synthetic(
     """Simulate the first `config.recordings` official recordings and write them under out_dir.
 
     PORTAL: one combined CSV; CSV and TXT: `<location>/trajectories-<period>.<ext>` per recording.
-    Calls `on_progress` with a one-line message after each recording. Returns the files written.
+    `out_dir` must be new, empty, or synth's own (it carries MARKER_NAME, which lists the files
+    synth wrote there): files synth did not write are never replaced, and files of an earlier
+    run that this run does not write are removed, so that the folder holds one run's data. On
+    failure this run's files are removed again. Calls `on_progress` with a one-line message after
+    each recording. Returns the files written.
     """
     report = on_progress or (lambda message: None)
+    paths = synthetic_paths(out_dir, config)
+    marker = out_dir / MARKER_NAME
+    earlier = claim_folder(out_dir, paths)
+    created = [p for p in (out_dir, *out_dir.parents) if not p.exists()]
+    had_marker = marker.is_file()
+    written: list[Path] = []
+    try:
+        for name in sorted(earlier - {_relative(path, out_dir) for path in paths}):
+            _remove_file(out_dir, name)  # listed in the marker: synth's own
+        _write_marker(marker, config, paths, complete=False)
+        _write_files(paths, config, report, written)
+        _write_marker(marker, config, paths, complete=True)
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        if not had_marker:  # the folder was new or empty: leave it so
+            marker.unlink(missing_ok=True)
+            _remove_empty_folders(out_dir, created)
+        raise
+    return paths
+
+
+def synthetic_paths(out_dir: Path, config: SynthConfig) -> list[Path]:
+    """The files that `write_synthetic` writes for `config`, in order."""
+    if config.raw_format is schema.RawFormat.PORTAL:
+        return [out_dir / PORTAL_FILE_NAME]
+    return [
+        out_dir / recording.location / f"trajectories-{recording.period}.{config.raw_format.value}"
+        for recording in OFFICIAL_RECORDINGS[: config.recordings]
+    ]
+
+
+def claim_folder(out_dir: Path, paths: list[Path]) -> set[str]:
+    """Refuse a folder whose files synth may not replace; returns the files it wrote there before.
+
+    A new or empty folder is taken; so is one with synth's marker, as long as none of `paths`
+    is a file the marker does not list (someone else's, real data perhaps).
+    """
+    if out_dir.exists() and not out_dir.is_dir():
+        raise NgsimOutputError(out_dir, "exists and is not a directory")
+    marker = out_dir / MARKER_NAME
+    if marker.is_file():
+        listed = _listed_files(marker.read_text(errors="replace"))
+        foreign = [p for p in paths if p.exists() and _relative(p, out_dir) not in listed]
+        if foreign:
+            raise NgsimOutputError(
+                foreign[0], f"not written by synth (not listed in {marker}); move it away first"
+            )
+        return listed
+    if out_dir.is_dir() and (entries := sorted(p.name for p in out_dir.iterdir())):
+        raise NgsimOutputError(
+            out_dir,
+            f"folder is not empty and not synth's (no {MARKER_NAME}): it holds "
+            f"{some_names(entries)}; "
+            "synth writes only into a new or empty folder or one it wrote before",
+        )
+    return set()
+
+
+def _relative(path: Path, out_dir: Path) -> str:
+    return path.relative_to(out_dir).as_posix()
+
+
+def _marker_text(config: SynthConfig, names: list[str], complete: bool) -> str:
+    """What the marker tells a person, and the list of files that makes them synth's."""
+    status = "complete" if complete else "INCOMPLETE (being written, or the run failed)"
+    quirks = "on" if config.quirks else "off"
+    return (
+        "# Synthetic data: NOT real NGSIM trajectories\n\n"
+        "The files listed below were written by `ngsim-graphs synth`: simulated traffic in the\n"
+        "formats of the NGSIM US-101 / I-80 files, not measurements. `ngsim-graphs synth` replaces\n"
+        "files in this folder only while this file is here, and only the files it lists.\n\n"
+        f"Status: {status}.\n"
+        f"Settings: format {config.raw_format.value}, {config.recordings} recordings of "
+        f"{config.minutes:g} minutes, seed {config.seed}, quirks {quirks}.\n\n"
+        "Files:\n\n" + "".join(f"- {name}\n" for name in names)
+    )
+
+
+def _write_marker(marker: Path, config: SynthConfig, paths: list[Path], complete: bool) -> None:
+    names = [_relative(path, marker.parent) for path in paths]
+    with _atomic_file(marker) as handle:
+        handle.write(_marker_text(config, names, complete).encode())
+
+
+def _listed_files(text: str) -> set[str]:
+    """The files a marker lists (its lines `- NAME`) that synth can write: a list edited to name
+    anything else makes nothing else synth's."""
+    everything = SynthConfig(recordings=len(OFFICIAL_RECORDINGS))
+    possible = {
+        _relative(path, Path("."))
+        for raw_format in schema.RawFormat
+        for path in synthetic_paths(Path("."), replace(everything, raw_format=raw_format))
+    }
+    return {line[2:].strip() for line in text.splitlines() if line.startswith("- ")} & possible
+
+
+def _remove_file(out_dir: Path, name: str) -> None:
+    """Remove a file of an earlier run, and its location folder if that is left empty."""
+    path = out_dir / name
+    path.unlink(missing_ok=True)
+    if path.parent != out_dir and path.parent.is_dir() and not any(path.parent.iterdir()):
+        path.parent.rmdir()
+
+
+def _write_files(
+    paths: list[Path], config: SynthConfig, report: Callable[[str], None], written: list[Path]
+) -> None:
+    """Write the files of `synthetic_paths`, appending each to `written` once it is complete."""
     recordings = OFFICIAL_RECORDINGS[: config.recordings]
     if config.raw_format is schema.RawFormat.PORTAL:
-        return [_write_portal(out_dir / PORTAL_FILE_NAME, recordings, config, report)]
-    paths = []
-    for index, recording in enumerate(recordings):
+        written.append(_write_portal(paths[0], recordings, config, report))
+        return
+    for index, (recording, path) in enumerate(zip(recordings, paths, strict=True)):
         rows = recording_rows(recording, index, config)
-        suffix = config.raw_format.value
-        path = out_dir / recording.location / f"trajectories-{recording.period}.{suffix}"
         with _atomic_file(path) as handle:
             if config.raw_format is schema.RawFormat.CSV:
                 _write_period_csv(handle, rows, config.quirks)
             else:
                 _write_txt(handle, rows, config.quirks)
-        paths.append(path)
+        written.append(path)
         report(f"{recording.location} {recording.period}: {len(rows):,} rows -> {path}")
-    return paths
+
+
+def _remove_empty_folders(out_dir: Path, created: list[Path]) -> None:
+    """After a failure in a folder that was new or empty: its empty sub-folders, and the
+    folders created for it (innermost first)."""
+    if out_dir.is_dir():
+        for folder in sorted(out_dir.iterdir(), reverse=True):
+            if folder.is_dir() and not folder.is_symlink() and not any(folder.iterdir()):
+                folder.rmdir()
+    for folder in created:
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
 
 
 def recording_rows(recording: Recording, index: int, config: SynthConfig) -> pl.DataFrame:
@@ -119,6 +248,8 @@ def _atomic_file(path: Path) -> Iterator[BinaryIO]:
         with open(partial, "wb") as handle:
             yield handle
         partial.replace(path)
+    except OSError as err:  # a full disk: name the file, not its hidden temporary name
+        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
     finally:
         partial.unlink(missing_ok=True)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import polars as pl
@@ -26,6 +27,9 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 
 FT = 0.3048
+# Windows of 3 grid steps (2 of history, 1 of future): the tiny inputs here give samples, and a
+# build without samples is an error.
+SHORT = BuildConfig(history_steps=2, future_steps=1)
 FIRST = "0750am-0805am"
 SECOND = "0805am-0820am"
 
@@ -76,13 +80,13 @@ def _write(path: Path, rows_with_locations: list[tuple[dict, str]]) -> Path:
 def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     raw = _write(tmp_path / "portal.csv", portal_rows)
     out = tmp_path / "out"
-    result = run_build([raw], out, BuildConfig())
+    result = run_build([raw], out, SHORT)
 
     on_disk = json.loads((out / "manifest.json").read_text())
     assert on_disk == json.loads(json.dumps(result.manifest))
     assert layout.read_manifest(out) == on_disk
     assert on_disk["format_version"] == layout.FORMAT_VERSION == 1
-    assert on_disk["config"] == json.loads(json.dumps(BuildConfig().to_dict()))
+    assert on_disk["config"] == json.loads(json.dumps(SHORT.to_dict()))
     assert on_disk["config"]["locations"] == ["us-101", "i-80"]
     assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
         50.0, 25.0, "vehicle",
@@ -104,15 +108,20 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
         "rows_read": 62,
         "rows_other_locations": 1,
         "rows_missing_values": 1,
+        "rows_dropped": {reason.value: 0 for reason in s.DropReason},
         "rows": 60,  # 62 - lankershim - empty Local_Y
         "exact_duplicates": 1,
         "conflicting_duplicates": 1,
+        "position_jumps": 0,
         "gaps": 1,
         "tracks": 3,
         "grid_rows": 29,  # 5 + 9 + 15
         "proximity_edges": 14,  # vehicle 1's 14 steps, each beside vehicle 2 within 25 m
-        "samples": 0,  # no track spans a 41-step window
+        "samples": 3,  # one 3-step window per track (stride 8 s)
     }
+    # Vehicle split: largest Vehicle_ID 2, cuts at round(1.4) = 1 and round(1.6) = 2.
+    assert on_disk["splits"] == {"train": 2, "val": 1, "test": 0}
+    assert len(on_disk["warnings"]) == 1 and on_disk["warnings"][0].startswith("the test split is empty")
     [recording] = on_disk["recordings"]
     assert recording["location"] == "us-101" and recording["period"] == FIRST
     assert recording["vehicles"] == 2
@@ -122,15 +131,15 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
 
 def test_config_hash_changes_with_config(tmp_path: Path, portal_rows: list) -> None:
     raw = _write(tmp_path / "portal.csv", portal_rows)
-    a = run_build([raw], tmp_path / "a", BuildConfig()).manifest
-    b = run_build([raw], tmp_path / "b", BuildConfig(min_heading_speed_mps=1.0)).manifest
-    c = run_build([raw], tmp_path / "c", BuildConfig()).manifest
+    a = run_build([raw], tmp_path / "a", SHORT).manifest
+    b = run_build([raw], tmp_path / "b", replace(SHORT, min_heading_speed_mps=1.0)).manifest
+    c = run_build([raw], tmp_path / "c", SHORT).manifest
     assert a["config_hash"] == c["config_hash"] != b["config_hash"]
 
 
 def test_tracks_table(tmp_path: Path, portal_rows: list) -> None:
     out = tmp_path / "out"
-    run_build([_write(tmp_path / "portal.csv", portal_rows)], out, BuildConfig())
+    run_build([_write(tmp_path / "portal.csv", portal_rows)], out, SHORT)
     table = tracks(out)
     assert table.schema == s.TRACKS_SCHEMA
     written = sorted(p.name for p in (out / layout.TRACKS_DIR).iterdir())
@@ -163,9 +172,9 @@ def test_tracks_table(tmp_path: Path, portal_rows: list) -> None:
 def test_same_build_twice_gives_identical_parquet(tmp_path: Path, portal_rows: list) -> None:
     raw = _write(tmp_path / "portal.csv", portal_rows)
     shuffled = _write(tmp_path / "shuffled.csv", portal_rows[::-1])  # NGSIM rows come unsorted
-    run_build([raw], tmp_path / "a", BuildConfig())
-    run_build([raw], tmp_path / "b", BuildConfig())
-    run_build([shuffled], tmp_path / "c", BuildConfig())
+    run_build([raw], tmp_path / "a", SHORT)
+    run_build([raw], tmp_path / "b", SHORT)
+    run_build([shuffled], tmp_path / "c", SHORT)
     a = parquet_bytes(tmp_path / "a")
     assert list(a) == [
         f"proximity/us-101_{FIRST}.parquet",
@@ -181,7 +190,7 @@ def test_same_build_twice_gives_identical_parquet(tmp_path: Path, portal_rows: l
 def test_failure_mid_build_leaves_previous_build(tmp_path: Path, portal_rows: list) -> None:
     good = _write(tmp_path / "a_good.csv", portal_rows)
     out = tmp_path / "out"
-    run_build([good], out, BuildConfig())
+    run_build([good], out, SHORT)
     before = snapshot(out)
 
     bad = tmp_path / "b_bad.txt"
@@ -190,7 +199,7 @@ def test_failure_mid_build_leaves_previous_build(tmp_path: Path, portal_rows: li
     seen: list[str] = []
     with pytest.raises(NgsimInputError, match=r"b_bad\.txt, line 10: "):
         run_build(
-            [good, bad], out, BuildConfig(), overwrite=True, progress=lambda w, *_: seen.append(w)
+            [good, bad], out, SHORT, overwrite=True, progress=lambda w, *_: seen.append(w)
         )
     assert seen[:2] == ["reading a_good.csv", "reading b_bad.txt"]  # the good file was staged first
     assert snapshot(out) == before
@@ -202,7 +211,7 @@ def test_failure_mid_build_leaves_no_output(tmp_path: Path, portal_rows: list) -
     bad = write_period_csv(tmp_path / "b_bad.csv", [])
     out = tmp_path / "out"
     with pytest.raises(NgsimInputError, match="no data rows"):
-        run_build([good, bad], out, BuildConfig())
+        run_build([good, bad], out, SHORT)
     assert not out.exists()
     assert hidden_siblings(out) == []
 
@@ -213,7 +222,7 @@ def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: l
     killed = tmp_path / ".out.partial-123"
     (killed / layout.TRACKS_DIR).mkdir(parents=True)
     (killed / layout.TRACKS_DIR / "half.parquet").write_bytes(b"PAR1")
-    result = run_build([raw], out, BuildConfig())
+    result = run_build([raw], out, SHORT)
     assert result.manifest["counts"]["tracks"] == 3
     assert not killed.exists()
     assert hidden_siblings(out) == []
@@ -233,7 +242,7 @@ def test_periods_of_one_portal_file_are_separate_recordings(tmp_path: Path) -> N
     second = straight_track(7, range(10, 20), x_ft=30.0, start_ms=US101_SECOND.start_epoch_ms)
     raw = write_portal(tmp_path / "portal.csv", first + second)
     out = tmp_path / "out"
-    result = run_build([raw], out, BuildConfig())
+    result = run_build([raw], out, SHORT)
 
     keys = [(r.location, r.period) for r in result.recordings]
     assert keys == [("us-101", FIRST), ("us-101", SECOND)]
@@ -258,7 +267,7 @@ def test_csv_and_txt_of_the_same_data_give_identical_tracks(
         "txt": write_txt(tmp_path / "trajectories-0750am-0805am.txt", two_vehicle_rows),
         "portal": write_portal(tmp_path / "portal.csv", two_vehicle_rows),
     }
-    results = {name: run_build([p], tmp_path / name, BuildConfig()) for name, p in inputs.items()}
+    results = {name: run_build([p], tmp_path / name, SHORT) for name, p in inputs.items()}
     reference = tracks(tmp_path / "csv")
     assert reference.height == 30 and reference[s.TRACK_ID].n_unique() == 2
     for name, result in results.items():
@@ -274,7 +283,7 @@ def test_one_recording_from_two_files(tmp_path: Path) -> None:
     b = write_period_csv(tmp_path / "raw" / "b.csv", straight_track(2, range(10, 20), x_ft=30.0))
     out = tmp_path / "out"
     # the directory and a file inside it: each file is read once
-    result = run_build([tmp_path / "raw", a], out, BuildConfig())
+    result = run_build([tmp_path / "raw", a], out, SHORT)
     assert [f.path for f in result.files] == [str(a.resolve()), str(b.resolve())]
     [recording] = result.recordings
     counts = (recording.rows, recording.vehicles, recording.tracks, recording.grid_rows)

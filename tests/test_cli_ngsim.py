@@ -73,6 +73,15 @@ def assert_failed_cleanly(
 
 
 @pytest.fixture
+def long_rows() -> list[dict]:
+    """Two vehicles of us-101 0750am, frames 10..91: 164 rows, 2 tracks of 41 grid steps each,
+    so one 8.2 s window (sample) each; by the vehicle split vehicle 1 trains, vehicle 2 validates."""
+    return straight_track(1, range(10, 92), x_ft=6.0, lane_id=1) + straight_track(
+        2, range(10, 92), x_ft=18.0, speed_fps=40.0
+    )
+
+
+@pytest.fixture
 def rows() -> list[dict]:
     """Two vehicles of us-101 0750am, frames 10..39: 60 rows, 2 tracks, 30 grid rows (0.2 s)."""
     return straight_track(1, range(10, 40), x_ft=6.0, lane_id=1) + straight_track(
@@ -240,15 +249,15 @@ def test_row_with_fewer_fields_than_header_mid_file(tmp_path: Path, rows: list[d
     assert_failed_cleanly(result, out, {}, path, "line 6:", "8 fields where the header has 24")
 
 
-def test_bad_second_input_leaves_previous_build(tmp_path: Path, rows: list[dict]) -> None:
-    good = write_txt(tmp_path / "good.txt", rows)
+def test_bad_second_input_leaves_previous_build(tmp_path: Path, long_rows: list[dict]) -> None:
+    good = write_txt(tmp_path / "good.txt", long_rows)
     out = tmp_path / "out"
     assert invoke("build", good, "--out", out).exit_code == 0
     before = snapshot(out)
     bad = tmp_path / "bad.txt"
     bad.write_text(good.read_text()[:-30])
     result = invoke("build", good, bad, "--out", out, "--overwrite")
-    assert_failed_cleanly(result, out, before, bad, "line 60:")
+    assert_failed_cleanly(result, out, before, bad, "line 164:")
 
 
 # --- successful builds -----------------------------------------------------------------------
@@ -265,35 +274,37 @@ def _table_rows(stdout: str, *first_cells: str) -> list[list[str]]:
     return [row for row in rows if tuple(row[: len(first_cells)]) == first_cells]
 
 
-def test_build_prints_summary_table(tmp_path: Path, rows: list[dict]) -> None:
-    path = write_period_csv(tmp_path / "a.csv", rows)
+def test_build_prints_summary_table(tmp_path: Path, long_rows: list[dict]) -> None:
+    path = write_period_csv(tmp_path / "a.csv", long_rows)
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
     # location, period, rows (10 Hz), dups (exact), conflicts, gaps, tracks, grid rows (0.2 s),
-    # samples train / val / test (3 s of data: no 8.2 s window)
+    # samples train / val / test (one 8.2 s window per vehicle)
     assert _table_row(result.stdout, "0750am-0805am") == [
-        "us-101", "0750am-0805am", "60", "0", "0", "0", "2", "30", "0", "0", "0"
+        "us-101", "0750am-0805am", "164", "0", "0", "0", "2", "82", "1", "1", "0"
     ]  # fmt: skip
-    summary = "60 rows read, 0 of other locations, 0 with empty required fields dropped."
+    summary = "164 rows read, 0 of other locations, 0 with empty required fields dropped."
     assert summary in result.stdout
-    assert "samples: 0 train, 0 val, 0 test (0 in all)." in result.stdout
+    assert "samples: 1 train, 1 val, 0 test (2 in all)." in result.stdout
+    # Largest Vehicle_ID 2: cuts at round(1.4) = 1 and round(1.6) = 2, nothing left for test.
+    assert "warning: the test split is empty: the vehicle split" in result.stderr
     assert (out / "manifest.json").is_file()
     assert (out / "tracks" / "us-101_0750am-0805am.parquet").is_file()
     assert leftovers(out) == []
 
 
-def test_build_reports_skipped_files_of_a_directory(tmp_path: Path, rows: list[dict]) -> None:
+def test_build_reports_skipped_files_of_a_directory(tmp_path: Path, long_rows: list[dict]) -> None:
     raw = tmp_path / "raw"
-    write_txt(raw / "trajectories-0750am-0805am.txt", rows)
+    write_txt(raw / "trajectories-0750am-0805am.txt", long_rows)
     (raw / "README.txt").write_text("Not data.\n")
     result = invoke("build", raw, "--out", tmp_path / "out")
     assert result.exit_code == 0, result.output
     assert f"skipped (not NGSIM): {(raw / 'README.txt').resolve()}" in result.stdout
 
 
-def test_build_into_non_empty_directory_needs_overwrite(tmp_path: Path, rows: list[dict]) -> None:
-    path = write_period_csv(tmp_path / "a.csv", rows)
+def test_build_into_non_empty_directory_needs_overwrite(tmp_path: Path, long_rows: list[dict]) -> None:
+    path = write_period_csv(tmp_path / "a.csv", long_rows)
     out = tmp_path / "out"
     out.mkdir()
     (out / "notes.txt").write_text("mine\n")
@@ -302,12 +313,18 @@ def test_build_into_non_empty_directory_needs_overwrite(tmp_path: Path, rows: li
     before = snapshot(out)
 
     result = invoke("build", path, "--out", out)
-    assert_failed_cleanly(result, out, before, out, "not empty", "--overwrite")
-
+    assert_failed_cleanly(result, out, before, out, "not empty")
+    # Not a build: --overwrite does not make it ours to delete.
     result = invoke("build", path, "--out", out, "--overwrite")
-    assert result.exit_code == 0, result.output
-    assert "manifest.json" in snapshot(out)
-    assert "notes.txt" not in snapshot(out) and "sub/x.bin" not in snapshot(out)
+    assert_failed_cleanly(result, out, before, out, "notes.txt", "not a build")
+
+    (out / "notes.txt").unlink()
+    (out / "sub" / "x.bin").unlink()
+    (out / "sub").rmdir()
+    assert invoke("build", path, "--out", out).exit_code == 0  # an empty directory is fine
+    result = invoke("build", path, "--out", out)
+    assert_failed_cleanly(result, out, snapshot(out), out, "--overwrite")
+    assert invoke("build", path, "--out", out, "--overwrite").exit_code == 0  # a build is ours
     assert "tracks/us-101_0750am-0805am.parquet" in snapshot(out)
     assert leftovers(out) == []
 
@@ -316,9 +333,9 @@ def test_build_into_non_empty_directory_needs_overwrite(tmp_path: Path, rows: li
 
 
 @pytest.fixture
-def finished_build(tmp_path: Path, rows: list[dict]) -> Path:
+def finished_build(tmp_path: Path, long_rows: list[dict]) -> Path:
     out = tmp_path / "out"
-    result = invoke("build", write_txt(tmp_path / "a.txt", rows), "--out", out)
+    result = invoke("build", write_txt(tmp_path / "a.txt", long_rows), "--out", out)
     assert result.exit_code == 0, result.output
     return out
 
@@ -328,10 +345,16 @@ def test_stats_table(finished_build: Path) -> None:
     assert result.exit_code == 0, result.output
     # recording, vehicles, tracks, rows 0.2 s, samples train / val / test
     row = _table_row(result.stdout, "us-101 0750am-0805am")
-    assert row == ["us-101 0750am-0805am", "2", "2", "30", "0", "0", "0"]
-    # 30 grid rows: 15 steps of vehicle 1 at 9.144 m/s (30 ft/s) and 15 of vehicle 2 at 40 ft/s
+    assert row == ["us-101 0750am-0805am", "2", "2", "82", "1", "1", "0"]
+    # 82 grid rows: 41 steps of vehicle 1 at 9.144 m/s (30 ft/s) and 41 of vehicle 2 at 40 ft/s
     assert _table_row(result.stdout, "speed m/s")[:2] == ["speed m/s", f"{(30 + 40) / 2 * 0.3048:.2f}"]
-    assert _table_rows(result.stdout, "train", "0", "-")[0][:5] == ["train", "0", "-", "0", "0 (-)"]
+    # one sample per vehicle; the other vehicle is its one target, recorded for the whole future
+    assert _table_rows(result.stdout, "train", "1")[0] == ["train", "1", "50.0%", "1", "1 (100.0%)"]
+    assert _table_rows(result.stdout, "test", "0")[0][:5] == ["test", "0", "0.0%", "0", "0 (-)"]
+    # 16 steps, both vehicles at each: 32 nodes, 32 ego<->actor edges, 2 x 15 temporal edges
+    assert _table_rows(result.stdout, "train", "nodes")[0][2:] == ["32.0", "32", "32.0", "32.0", "32.0", "32"]
+    assert _table_rows(result.stdout, "train", "temporal edges")[0][2] == "30.0"
+    assert _table_row(result.stdout, "limits.max_speed_mps") == ["limits.max_speed_mps", "70.0"]
 
 
 def test_stats_json(finished_build: Path) -> None:
@@ -339,31 +362,36 @@ def test_stats_json(finished_build: Path) -> None:
     assert result.exit_code == 0, result.output
     document = json.loads(result.stdout)  # stdout holds one JSON document and nothing else
     assert document["counts"] == {
-        "rows_read": 60,
+        "rows_read": 164,
         "rows_other_locations": 0,
         "rows_missing_values": 0,
-        "rows": 60,
+        "rows_dropped": {reason.value: 0 for reason in s.DropReason},
+        "rows": 164,
         "exact_duplicates": 0,
         "conflicting_duplicates": 0,
+        "position_jumps": 0,
         "gaps": 0,
         "tracks": 2,
-        "grid_rows": 30,
-        "proximity_edges": 15,  # the two vehicles are 3.7 to 11.9 m apart at all 15 grid steps
-        "samples": 0,
+        "grid_rows": 82,
+        # 12 ft apart sideways and f ft along y at frame f: within 25 m up to frame 81, so at the
+        # 36 grid frames 10, 12, ..., 80
+        "proximity_edges": 36,
+        "samples": 2,
     }
     [recording] = document["recordings"]
     assert (recording["location"], recording["period"]) == ("us-101", "0750am-0805am")
-    assert (recording["vehicles"], recording["tracks"], recording["grid_rows"]) == (2, 2, 30)
-    assert document["samples"] == {"train": 0, "val": 0, "test": 0}
-    assert document["graph_size"]["train"]["n_nodes"] == {
+    assert (recording["vehicles"], recording["tracks"], recording["grid_rows"]) == (2, 2, 82)
+    assert document["samples"] == {"train": 1, "val": 1, "test": 0}
+    assert document["graph_size"]["test"]["n_nodes"] == {
         "count": 0, "mean": None, "std": None, "min": None, "p5": None, "p50": None, "p95": None, "max": None
     }  # fmt: skip
     assert document["targets"]["test"] == {"targets": 0, "full_future": 0, "full_future_share": None}
-    assert document["kinematics"]["speed_mps"]["count"] == 30
+    assert document["targets"]["train"] == {"targets": 1, "full_future": 1, "full_future_share": 1.0}
+    assert document["kinematics"]["speed_mps"]["count"] == 82
     assert document["plots"] == []
 
 
-def test_stats_plots_of_a_build_without_samples(finished_build: Path, tmp_path: Path) -> None:
+def test_stats_plots_of_a_build_with_an_empty_split(finished_build: Path, tmp_path: Path) -> None:
     result = invoke("stats", finished_build, "--json", "--plots", tmp_path / "plots")
     assert result.exit_code == 0, result.output
     paths = [Path(p) for p in json.loads(result.stdout)["plots"]]

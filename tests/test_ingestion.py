@@ -57,7 +57,7 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     rows, chosen, report = read_file_recordings(path, BuildConfig())
     assert sorted(chosen) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
     first = recording_rows(rows, chosen[("us-101", "0750am-0805am")])
-    assert first.columns == list(s.RAW_SCHEMA.names())
+    assert first.columns == [*s.RAW_SCHEMA.names(), *s.PROVENANCE_SCHEMA.names()]
     assert first.height == 4
     assert recording_rows(rows, chosen[("us-101", "0805am-0820am")]).height == 2
     assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")

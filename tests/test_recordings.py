@@ -51,7 +51,9 @@ def test_combined_file_separates_periods_with_colliding_vehicle_ids() -> None:
         make_row(5, 0, start_ms=US101_SECOND.start_epoch_ms),
         make_row(5, 0, start_ms=I80_FIRST.start_epoch_ms),
     ]
-    index, names = identify_recordings(frame_of(rows, ["us-101", "us-101", "us-101", "i-80"]), Path("x"))
+    index, names = identify_recordings(
+        frame_of(rows, ["us-101", "us-101", "us-101", "i-80"]), Path("x")
+    )
     assert [names[i] for i in index] == [
         ("us-101", "0750am-0805am"),
         ("us-101", "0750am-0805am"),
@@ -76,3 +78,55 @@ def test_location_from_path_spellings() -> None:
     assert location_from_path(Path("/d/US-101/vehicle-trajectory-data/x.csv")) == "us-101"
     assert location_from_path(Path("/d/I80/x.txt")) == "i-80"
     assert location_from_path(Path("/d/data/x.txt")) is None
+
+
+def test_a_row_with_a_stray_global_time_is_dropped_not_its_recording() -> None:
+    # 200 rows of us-101 0750am; row 50's Global_Time is 100 ms late: its frame-0 time differs,
+    # names the same official period, and holds 1 row: a stray, not a second recording.
+    rows = [make_row(1 + f // 100, f % 100) for f in range(200)]
+    rows[50] = {**rows[50], s.GLOBAL_TIME: rows[50][s.GLOBAL_TIME] + 100}
+    index, names = identify_recordings(frame_of(rows, [None] * 200), Path("t.txt"))
+    assert names == [("us-101", "0750am-0805am")]
+    assert index.to_list() == [None if i == 50 else 0 for i in range(200)]
+
+
+def test_stray_times_far_off_need_no_location() -> None:
+    # A Global_Time of 0 in a per-period file names no period and no folder tells the location:
+    # as a stray it is dropped, where it would otherwise fail the whole file.
+    rows = [make_row(1, f) for f in range(200)] + [make_row(2, 3, global_time=0)]
+    index, names = identify_recordings(frame_of(rows, [None] * 201), Path("/data/nowhere.txt"))
+    assert names == [("us-101", "0750am-0805am")] and index.null_count() == 1
+
+
+def test_two_large_groups_of_one_period_keep_the_larger() -> None:
+    # 60 rows at one frame-0 time, 40 rows 2 s later: both name us-101 0750am. The larger is the
+    # recording; the 40 are strays (which the build then refuses as more than a small share).
+    rows = [make_row(1, f) for f in range(60)] + [
+        make_row(2, f, start_ms=US101_FIRST.start_epoch_ms + 2_000) for f in range(40)
+    ]
+    index, names = identify_recordings(frame_of(rows, [None] * 100), Path("t.txt"))
+    assert names == [("us-101", "0750am-0805am")]
+    assert index.to_list() == [0] * 60 + [None] * 40
+
+
+def test_recordings_are_indexed_by_location_and_time_whatever_their_size() -> None:
+    rows = (
+        [make_row(1, f, start_ms=US101_SECOND.start_epoch_ms) for f in range(30)]
+        + [make_row(1, f, start_ms=US101_FIRST.start_epoch_ms) for f in range(10)]
+        + [make_row(1, f, start_ms=I80_FIRST.start_epoch_ms) for f in range(20)]
+    )
+    locations = ["us-101"] * 40 + ["i-80"] * 20
+    index, names = identify_recordings(frame_of(rows, locations), Path("p.csv"))
+    assert names == [
+        ("i-80", "0400-0415"),
+        ("us-101", "0750am-0805am"),
+        ("us-101", "0805am-0820am"),
+    ]
+    assert index.to_list() == [2] * 30 + [1] * 10 + [0] * 20
+
+
+def test_a_damaged_time_column_is_not_a_thousand_recordings() -> None:
+    # Frame-0 times 11 minutes apart: neither near each other nor one of the official periods.
+    rows = [make_row(1, f, global_time=1_000_000_000_000 + 660_000 * f) for f in range(150)]
+    with pytest.raises(NgsimInputError, match=r"p\.csv: more than 100 recordings .*Global_Time"):
+        identify_recordings(frame_of(rows, ["us-101"] * 150), Path("p.csv"))

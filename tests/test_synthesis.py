@@ -216,6 +216,7 @@ def test_progress_per_recording_and_no_partial_files(tmp_path: Path) -> None:
     synthesis.write_synthetic(tmp_path, config, messages.append)
     assert len(messages) == 2 and "us-101" in messages[0] and "i-80" in messages[1]
     assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [
+        "SYNTHETIC.md",
         "trajectories-0400-0415.csv",
         "trajectories-0750am-0805am.csv",
     ]

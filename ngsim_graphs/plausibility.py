@@ -1,0 +1,179 @@
+"""Physical plausibility of raw rows: which are impossible, and why (SPEC section 1).
+
+Real exports hold stray rows: a damaged number, a swapped column, a vehicle that jumps a
+kilometre in a frame. Each such row is dropped on its own and counted per reason; it never costs
+its recording. The limits live in `config.PhysicalLimits`; rows are in NGSIM's units (feet) here,
+so the limits are converted once.
+"""
+
+from __future__ import annotations
+
+import math
+
+import polars as pl
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.cleaning import FEET_TO_M
+from ngsim_graphs.config import FRAME_STEP_S, PhysicalLimits
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.schema import DropReason
+
+# The row checks in the order they are tried: a row is counted under the first that fails.
+ROW_CHECKS: tuple[DropReason, ...] = (
+    DropReason.FRAME_ID,
+    DropReason.VEHICLE_ID,
+    DropReason.POSITION,
+    DropReason.SPEED,
+    DropReason.ACCELERATION,
+)
+
+DESCRIPTIONS: dict[DropReason, str] = {
+    DropReason.FRAME_ID: "Frame_ID out of range",
+    DropReason.VEHICLE_ID: "Vehicle_ID below 1",
+    DropReason.POSITION: "Local_X or Local_Y out of range",
+    DropReason.SPEED: "v_Vel negative or above the speed limit",
+    DropReason.ACCELERATION: "v_Acc above the acceleration limit",
+    DropReason.GLOBAL_TIME: "Global_Time off its recording (Global_Time - 100 * Frame_ID differs)",
+    DropReason.POSITION_OUTLIER: "position jumps away from both neighbouring frames",
+}
+
+
+def feet(metres: float) -> float:
+    """A limit in metres in NGSIM's feet."""
+    return metres / FEET_TO_M
+
+
+def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
+    """True where a row breaks the limit behind `reason` (null values break nothing)."""
+    if reason is DropReason.FRAME_ID:
+        return (pl.col(s.FRAME_ID) < 0) | (pl.col(s.FRAME_ID) > limits.max_frame_id)
+    if reason is DropReason.VEHICLE_ID:
+        return pl.col(s.VEHICLE_ID) < 1
+    if reason is DropReason.POSITION:
+        far = feet(limits.max_abs_position_m)
+        return (pl.col(s.LOCAL_X).abs() > far) | (pl.col(s.LOCAL_Y).abs() > far)
+    if reason is DropReason.SPEED:
+        return (pl.col(s.V_VEL) < 0) | (pl.col(s.V_VEL) > feet(limits.max_speed_mps))
+    if reason is DropReason.ACCELERATION:
+        return pl.col(s.V_ACC).abs() > feet(limits.max_abs_accel_mps2)
+    raise ValueError(f"{reason} is not a row check")
+
+
+def row_drop_reason(limits: PhysicalLimits) -> pl.Expr:
+    """The first of ROW_CHECKS a raw row fails, as its DropReason value; null for a good row."""
+    chain = pl.when(_failed(ROW_CHECKS[0], limits).fill_null(False)).then(
+        pl.lit(ROW_CHECKS[0].value)
+    )
+    for reason in ROW_CHECKS[1:]:
+        chain = chain.when(_failed(reason, limits).fill_null(False)).then(pl.lit(reason.value))
+    return chain.otherwise(pl.lit(None, dtype=pl.String))
+
+
+def _distance_ft(shift: int) -> pl.Expr:
+    """Distance to the row `shift` rows away within the vehicle (null at the ends)."""
+    dx = pl.col(s.LOCAL_X) - pl.col(s.LOCAL_X).shift(shift).over(s.VEHICLE_ID)
+    dy = pl.col(s.LOCAL_Y) - pl.col(s.LOCAL_Y).shift(shift).over(s.VEHICLE_ID)
+    return (dx * dx + dy * dy).sqrt()
+
+
+def _consecutive(shift: int) -> pl.Expr:
+    """Whether the row `shift` rows away within the vehicle is the adjacent frame."""
+    frames = (pl.col(s.FRAME_ID) - pl.col(s.FRAME_ID).shift(shift).over(s.VEHICLE_ID)).abs()
+    return (frames == 1).fill_null(False)
+
+
+def position_checks(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.DataFrame:
+    """Per row: `outlier` and `jump` flags (bool), for `frame` sorted by vehicle and frame.
+
+    A jump is a move of more than `max_jump_m` from the previous frame of the same vehicle. A
+    row that jumps away from every adjacent frame it has is an outlier (one damaged position):
+    it is dropped. Any other jump (the whole rest of a record displaced, as when an id is
+    reused) splits the track there, as a frame gap does.
+    """
+    far = feet(limits.max_jump_m)
+    jump_before = _consecutive(1) & (_distance_ft(1) > far).fill_null(False)
+    jump_after = _consecutive(-1) & (_distance_ft(-1) > far).fill_null(False)
+    near_before = _consecutive(1) & ~jump_before
+    near_after = _consecutive(-1) & ~jump_after
+    outlier = (jump_before | jump_after) & ~near_before & ~near_after
+    return frame.select(outlier.alias("outlier"), jump_before.alias("jump"))
+
+
+SPEED_WINDOW_FRAMES = 5  # each side: the motion a speed is compared with spans 1 s
+MIN_SPEED_ROWS = 100  # fewer rows with a whole window say too little to judge the column
+
+
+def speed_mismatch_mps(frame: pl.DataFrame) -> tuple[float, float, int]:
+    """How well v_Vel agrees with the motion the positions show; `frame` sorted by vehicle, frame.
+
+    For every row with the same vehicle recorded SPEED_WINDOW_FRAMES frames before and after
+    it, the shown speed is the distance between those two positions over their time apart (a
+    centred difference: position jitter averages out, steady acceleration does not bias it).
+    Returns (median |v_Vel - shown speed|, median shown speed, rows compared), in m/s; NaN
+    medians when no row has a whole window.
+    """
+    h = SPEED_WINDOW_FRAMES
+    whole = (pl.col(s.FRAME_ID).shift(-h) - pl.col(s.FRAME_ID).shift(h)).over(s.VEHICLE_ID) == 2 * h
+    dx = (pl.col(s.LOCAL_X).shift(-h) - pl.col(s.LOCAL_X).shift(h)).over(s.VEHICLE_ID)
+    dy = (pl.col(s.LOCAL_Y).shift(-h) - pl.col(s.LOCAL_Y).shift(h)).over(s.VEHICLE_ID)
+    shown = (dx * dx + dy * dy).sqrt() / (2 * h * FRAME_STEP_S)
+    compared = frame.select(
+        shown.alias("shown"), pl.col(s.V_VEL).alias("vel"), whole.alias("whole")
+    )
+    compared = compared.filter(pl.col("whole").fill_null(False))
+    if compared.height == 0:
+        return math.nan, math.nan, 0
+    medians = compared.select(
+        (pl.col("vel") - pl.col("shown")).abs().median(), pl.col("shown").median()
+    )
+    mismatch, speed = medians.row(0)
+    return mismatch * FEET_TO_M, speed * FEET_TO_M, compared.height
+
+
+def check_speed_column(
+    path: str, mismatch_mps: float, speed_mps: float, rows: int, limits: PhysicalLimits
+) -> None:
+    """Raise when v_Vel is not the speed the positions show (see speed_mismatch_mps)."""
+    allowed = limits.max_speed_mismatch_mps + limits.max_speed_mismatch_share * speed_mps
+    if rows >= MIN_SPEED_ROWS and mismatch_mps > allowed:
+        raise NgsimInputError(
+            path,
+            f"v_Vel disagrees with the vehicles' motion: the median difference from the speed "
+            f"their positions show is {mismatch_mps:.1f} m/s over {rows:,} rows (median speed "
+            f"{speed_mps:.1f} m/s, {allowed:.1f} allowed); is v_Vel swapped with another column, "
+            "or in other units than feet per second?",
+        )
+
+
+def check_dropped(
+    path: str,
+    dropped: dict[str, int],
+    first_line: dict[str, int],
+    rows: int,
+    limits: PhysicalLimits,
+    strict: bool,
+) -> None:
+    """Raise when the rows dropped from `path` (per DropReason value) may not be dropped quietly.
+
+    With `strict` any dropped row is an error; otherwise more than `max_dropped_share` of the
+    `rows` checked is, because so many say the file is damaged or its columns are not what its
+    header claims. `first_line`: the first line of each reason with rows.
+    """
+    bad = {DropReason(reason): n for reason, n in dropped.items() if n}
+    if not bad:
+        return
+    first = min(bad, key=lambda reason: first_line[reason.value])
+    line = first_line[first.value]
+    if strict:
+        raise NgsimInputError(
+            path, f"{DESCRIPTIONS[first]} (--strict: no row may be dropped)", line=line
+        )
+    total = sum(bad.values())
+    if total > limits.max_dropped_share * rows:
+        detail = ", ".join(f"{n:,} {DESCRIPTIONS[reason]}" for reason, n in bad.items())
+        raise NgsimInputError(
+            path,
+            f"{total:,} of {rows:,} rows ({total / rows:.1%}) are implausible, more than the "
+            f"{limits.max_dropped_share:.0%} a build drops: {detail}; the first at line {line} "
+            "(columns swapped, other units, a damaged file?)",
+        )

@@ -1,0 +1,219 @@
+"""`ngsim-graphs build` on inputs with stray and implausible rows: counted, reported, dropped one
+by one, or a one-line error (too many of them, --strict, swapped columns, no samples at all)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from conftest import make_row, write_period_csv, write_portal, write_txt
+from test_cli_ngsim import assert_failed_cleanly, invoke, snapshot
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.schema import DropReason
+
+N_VEHICLES, N_FRAMES = 10, 100
+
+
+@pytest.fixture
+def rows() -> list[dict]:
+    """Vehicles 1..10 of us-101 0750am, frames 0..99 each (1,000 rows; row i is vehicle
+    i // 100 + 1 at frame i % 100). Each spans 50 grid steps, one 8.2 s window: 10 samples,
+    by the vehicle split 7 train, 1 val, 2 test. Lanes 12 ft apart, 40 ft between rows of five."""
+    return [
+        make_row(
+            v,
+            f,
+            local_x_ft=6.0 + 12.0 * (v % 5),
+            local_y_ft=40.0 * (v // 5) + 3.5 * f,
+            v_vel_fps=35.0,
+        )
+        for v in range(1, N_VEHICLES + 1)
+        for f in range(N_FRAMES)
+    ]
+
+
+def manifest(out: Path) -> dict:
+    return json.loads((out / "manifest.json").read_text())
+
+
+def test_one_stray_global_time_costs_one_row_not_the_recording(
+    tmp_path: Path, rows: list[dict]
+) -> None:
+    # Row 150 (vehicle 2, frame 50) 100 ms late: today's main lost the whole recording to it.
+    rows[150] = {**rows[150], s.GLOBAL_TIME: rows[150][s.GLOBAL_TIME] + 100}
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    reason = DropReason.GLOBAL_TIME.value
+    assert "dropped 1 row: Global_Time off its recording" in result.stdout
+    assert f"(first: {path}, line 151)." in result.stdout
+    counts = manifest(out)["counts"]
+    assert counts["rows_dropped"][reason] == 1 and counts["rows"] == 999
+    assert manifest(out)["inputs"][0]["first_dropped_line"] == {reason: 151}
+    # The dropped row splits vehicle 2's record at a frame gap (frames 0..49 and 51..99, 25 grid
+    # steps each, too short for a window): 9 of the 10 samples remain.
+    assert (counts["gaps"], counts["tracks"], counts["samples"]) == (1, 11, 9)
+
+
+def test_stray_rows_beyond_the_share_fail_the_build(tmp_path: Path, rows: list[dict]) -> None:
+    for i in range(5, 1000, 50):  # 20 rows, 2 %
+        rows[i] = {**rows[i], s.GLOBAL_TIME: rows[i][s.GLOBAL_TIME] + 100}
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        "20 of 1,000 rows (2.0%) are implausible", "20 Global_Time off its recording", "line 6",
+    )  # fmt: skip
+
+
+def test_implausible_rows_are_counted_per_reason(tmp_path: Path, rows: list[dict]) -> None:
+    rows[120] = {**rows[120], s.V_VEL: 1e308}
+    rows[230] = {**rows[230], s.V_VEL: -3.0}
+    rows[340] = {**rows[340], s.V_ACC: 400.0}
+    rows[450] = {**rows[450], s.LOCAL_Y: rows[450][s.LOCAL_Y] + 3_280.0}  # a kilometre away
+    rows[560] = make_row(6, -2, local_x_ft=18.0)  # a negative Frame_ID (an IndexError on main)
+    rows[670] = {**rows[670], s.LOCAL_X: 1e7}
+    path, out = (
+        write_period_csv(tmp_path / "trajectories-0750am-0805am.csv", rows),
+        tmp_path / "out",
+    )
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    dropped = manifest(out)["counts"]["rows_dropped"]
+    assert dropped == {
+        DropReason.FRAME_ID.value: 1,
+        DropReason.VEHICLE_ID.value: 0,
+        DropReason.POSITION.value: 1,
+        DropReason.SPEED.value: 2,
+        DropReason.ACCELERATION.value: 1,
+        DropReason.GLOBAL_TIME.value: 0,
+        DropReason.POSITION_OUTLIER.value: 1,
+    }
+    # Lines: the header is line 1, so row i is on line i + 2.
+    assert manifest(out)["inputs"][0]["first_dropped_line"] == {
+        DropReason.FRAME_ID.value: 562,
+        DropReason.POSITION.value: 672,
+        DropReason.SPEED.value: 122,
+        DropReason.ACCELERATION.value: 342,
+    }
+    [recording] = manifest(out)["recordings"]
+    assert recording["first_outlier"] == {"file": str(path), "line": 452}
+    assert (
+        f"dropped 2 rows: v_Vel negative or above the speed limit (first: {path}, line 122)."
+        in result.stdout
+    )
+    assert (
+        f"dropped 1 row: position jumps away from both neighbouring frames (first: {path}, line 452)."
+        in result.stdout
+    )
+    assert manifest(out)["counts"]["rows"] == 995  # 1,000 - 5 dropped before cleaning
+
+
+def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:
+    rows[340] = {**rows[340], s.V_ACC: 400.0}
+    rows[450] = {**rows[450], s.LOCAL_Y: rows[450][s.LOCAL_Y] + 3_280.0}
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
+    assert invoke("build", path, "--out", out).exit_code == 0  # without --strict: dropped
+    before = snapshot(out)
+    result = invoke("build", path, "--out", out, "--overwrite", "--strict")
+    assert_failed_cleanly(
+        result, out, before, path, "line 341: v_Acc above the acceleration limit (--strict"
+    )
+    rows[340] = {**rows[340], s.V_ACC: 0.0}  # only the position outlier is left
+    write_txt(path, rows)
+    result = invoke("build", path, "--out", out, "--overwrite", "--strict")
+    assert_failed_cleanly(result, out, before, path, "line 451: position jumps away")
+
+
+def test_swapped_speed_and_acceleration_headers(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_period_csv(tmp_path / "trajectories-0750am-0805am.csv", rows)
+    header, body = path.read_text().split("\n", 1)
+    swapped = header.replace("v_Vel", "SPEED").replace("v_Acc", "v_Vel").replace("SPEED", "v_Acc")
+    path.write_text(f"{swapped}\n{body}")
+    out = tmp_path / "out"
+    # Every value is inside the row limits (an acceleration of 35 ft/s^2 is 10.7 m/s^2, a speed
+    # of 0): only the speed the positions show (10.7 m/s) gives the swap away.
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "v_Vel disagrees with the vehicles' motion",
+        "10.7 m/s",
+    )  # fmt: skip
+
+
+def test_all_odd_frame_ids_are_an_error_that_says_why(tmp_path: Path, rows: list[dict]) -> None:
+    odd = [
+        {
+            **r,
+            s.FRAME_ID: 2 * r[s.FRAME_ID] + 1,
+            s.GLOBAL_TIME: r[s.GLOBAL_TIME] + 100 * (r[s.FRAME_ID] + 1),
+        }
+        for r in rows
+    ]
+    odd = [{**r, s.LOCAL_Y: r[s.LOCAL_Y] + 3.5 * (r[s.FRAME_ID] // 2 + 1)} for r in odd]
+    path, out = write_txt(tmp_path / "a.txt", odd), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "no samples", "none of the 1,000 rows kept",
+        "Frame_ID is a multiple of 2",
+    )  # fmt: skip
+
+
+def test_short_tracks_are_an_error_that_says_why(tmp_path: Path, rows: list[dict]) -> None:
+    short = [r for r in rows if r[s.FRAME_ID] < 60]  # 30 grid steps per vehicle
+    path, out = write_portal(tmp_path / "p.csv", short), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "no samples: no track spans a whole window of 41",
+        "the longest has 30 steps",
+    )  # fmt: skip
+
+
+def test_an_outlying_vehicle_id_is_warned_about(tmp_path: Path, rows: list[dict]) -> None:
+    extra = [
+        make_row(99_999, f, local_x_ft=66.0, local_y_ft=3.5 * f, v_vel_fps=35.0)
+        for f in range(N_FRAMES)
+    ]
+    path, out = write_txt(tmp_path / "a.txt", rows + extra), tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    # Cuts at round(0.7 * 99,999) = 69,999 and 79,999: vehicles 1..10 train, 99,999 test.
+    assert manifest(out)["splits"] == {"train": 10, "val": 0, "test": 1}
+    warning = next(
+        line for line in result.stderr.splitlines() if line.startswith("warning: the val split")
+    )
+    assert "is empty" in warning
+    assert "its largest Vehicle_ID is 99,999, far above the next largest (10)" in warning
+    assert "cuts lie at 69,999 and 79,999" in warning
+    assert manifest(out)["warnings"] == [line.removeprefix("warning: ") for line in result.stderr.splitlines()
+                                         if line.startswith("warning: ")]  # fmt: skip
+
+
+def test_a_whole_number_column_with_a_fraction(tmp_path: Path, rows: list[dict]) -> None:
+    rows[7] = {**rows[7], s.FRAME_ID: "7.5"}
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out),
+        out,
+        {},
+        path,
+        "line 8: column Frame_ID: '7.5' is not a whole number",
+    )
+
+
+def test_cr_only_line_ends(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_period_csv(tmp_path / "raw" / "a.csv", rows)
+    path.write_bytes(path.read_bytes().replace(b"\n", b"\r"))
+    out = tmp_path / "out"
+    for given in (path, path.parent):  # named, or found in a folder: not skipped as "not NGSIM"
+        assert_failed_cleanly(
+            invoke("build", given, "--out", out), out, {}, path, "line 1:", "CR alone"
+        )
+
+
+def test_truncated_quoted_field_names_its_line(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_portal(tmp_path / "p.csv", rows)  # quoted thousands: "1,118,846,993,000"
+    lines = path.read_bytes().split(b"\r\n")
+    cut = lines[40][: lines[40].index(b'"') + 3]  # ...,"1,1
+    path.write_bytes(b"\r\n".join([*lines[:40], cut, *lines[41:]]))
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "line 41:", "quoted field is not closed"
+    )

@@ -1,0 +1,130 @@
+"""Physical plausibility of raw rows: each limit, the order of reasons, position outliers and jumps."""
+
+from __future__ import annotations
+
+import polars as pl
+import pytest
+from conftest import make_row, straight_track
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig, PhysicalLimits
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.ingestion import build_tracks
+from ngsim_graphs.plausibility import check_dropped, position_checks, row_drop_reason
+from ngsim_graphs.schema import DropReason
+
+FT = 0.3048
+LIMITS = PhysicalLimits()
+
+
+def reasons(rows: list[dict]) -> list[str | None]:
+    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    return frame.select(row_drop_reason(LIMITS)).to_series().to_list()
+
+
+def test_each_limit_by_hand() -> None:
+    limit_fps = 70.0 / FT  # 229.66 ft/s
+    rows = [
+        make_row(1, 5),  # fine
+        make_row(1, -1),
+        make_row(1, 72_001),
+        make_row(1, 72_000),  # the last frame allowed
+        make_row(0, 5),
+        make_row(1, 5, local_y_ft=5_000.0 / FT + 1.0),
+        make_row(1, 5, local_x_ft=-(5_000.0 / FT + 1.0)),
+        make_row(1, 5, v_vel_fps=-0.01),
+        make_row(1, 5, v_vel_fps=1e308),
+        make_row(1, 5, v_vel_fps=limit_fps - 0.01),  # just inside
+        make_row(1, 5, v_acc=-(15.0 / FT + 0.01)),
+        make_row(1, 5, v_acc=None),  # v_Acc is not required: empty is no reason
+    ]
+    assert reasons(rows) == [
+        None,
+        DropReason.FRAME_ID.value,
+        DropReason.FRAME_ID.value,
+        None,
+        DropReason.VEHICLE_ID.value,
+        DropReason.POSITION.value,
+        DropReason.POSITION.value,
+        DropReason.SPEED.value,
+        DropReason.SPEED.value,
+        None,
+        DropReason.ACCELERATION.value,
+        None,
+    ]
+
+
+def test_a_row_counts_under_its_first_failed_check() -> None:
+    # Negative frame, zero vehicle, huge speed: the frame check comes first.
+    assert reasons([make_row(0, -3, v_vel_fps=1e9)]) == [DropReason.FRAME_ID.value]
+    assert reasons([make_row(0, 3, v_vel_fps=1e9)]) == [DropReason.VEHICLE_ID.value]
+
+
+def _flags(rows: list[dict]) -> tuple[list[bool], list[bool]]:
+    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA).sort(s.VEHICLE_ID, s.FRAME_ID)
+    flags = position_checks(frame, LIMITS)
+    return flags["outlier"].to_list(), flags["jump"].to_list()
+
+
+def test_one_displaced_row_is_an_outlier_wherever_it_is() -> None:
+    for bad in (0, 4, 9):  # first, middle, last frame
+        rows = straight_track(1, range(10))
+        rows[bad] = {**rows[bad], s.LOCAL_Y: rows[bad][s.LOCAL_Y] + 3_280.0}  # 1 km away
+        outlier, _ = _flags(rows)
+        assert outlier == [i == bad for i in range(10)], bad
+
+
+def test_a_displaced_rest_of_record_is_a_jump_not_an_outlier() -> None:
+    # Frames 0..4 at y = 3 f ft, frames 5..9 one kilometre further: one jump, at frame 5.
+    rows = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if f >= 5 else 0.0)) for f in range(10)]
+    outlier, jump = _flags(rows)
+    assert outlier == [False] * 10
+    assert jump == [f == 5 for f in range(10)]
+
+
+def test_jumps_are_checked_within_a_vehicle_and_across_consecutive_frames_only() -> None:
+    # Two vehicles 1 km apart; vehicle 2 has a frame gap over which it moved 1 km (no jump: a gap).
+    v1 = straight_track(1, range(5))
+    v2 = [make_row(2, f, local_y_ft=3_300.0 + (3_280.0 if f > 2 else 0.0)) for f in (0, 1, 2, 6, 7)]
+    outlier, jump = _flags(v1 + v2)
+    assert outlier == [False] * 10 and jump == [False] * 10
+
+
+def test_a_threshold_move_is_not_a_jump() -> None:
+    step_ft = 10.0 / FT  # exactly the limit
+    rows = [make_row(1, f, local_y_ft=step_ft * f) for f in range(4)]
+    assert _flags(rows) == ([False] * 4, [False] * 4)
+
+
+def test_tracks_drop_outliers_and_split_at_jumps() -> None:
+    # Vehicle 1, frames 0..19 at 3 ft per frame; frame 8 displaced 1 km (an outlier); from frame
+    # 14 on the whole record is 1 km further (a jump): tracks [0..7], [9..13], [14..19].
+    rows = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if f >= 14 else 0.0)) for f in range(20)]
+    rows[8] = {**rows[8], s.LOCAL_Y: 9_999.0}
+    key = ("us-101", "0750am-0805am")
+    tracks, report = build_tracks(pl.DataFrame(rows, schema=s.RAW_SCHEMA), key, BuildConfig(), 0)
+    assert (report.rows, report.position_outliers, report.position_jumps, report.gaps) == (
+        20,
+        1,
+        1,
+        1,
+    )
+    assert (report.tracks, report.grid_rows) == (3, 9)  # even frames: 0..6, 10, 12, 14..18
+    assert tracks.group_by(s.TRACK_ID, maintain_order=True).agg(pl.col(s.FRAME_ID)).rows() == [
+        (0, [0, 2, 4, 6]),
+        (1, [10, 12]),
+        (2, [14, 16, 18]),
+    ]
+    assert report.first_outlier is None  # rows without provenance columns
+
+
+def test_check_dropped_share_and_strict() -> None:
+    reason = DropReason.SPEED.value
+    check_dropped("f.txt", {reason: 1}, {reason: 7}, 100, LIMITS, strict=False)  # 1 %: allowed
+    check_dropped("f.txt", {reason: 0}, {}, 100, LIMITS, strict=True)  # nothing dropped
+    with pytest.raises(
+        NgsimInputError, match=r"^f\.txt: 2 of 100 rows \(2\.0%\) are implausible.*line 7"
+    ):
+        check_dropped("f.txt", {reason: 2}, {reason: 7}, 100, LIMITS, strict=False)
+    with pytest.raises(NgsimInputError, match=r"^f\.txt, line 7: v_Vel negative .*--strict"):
+        check_dropped("f.txt", {reason: 1}, {reason: 7}, 100, LIMITS, strict=True)
