@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_error, print_table, progress_bar, stderr
+from ngsim_cli.console import exit_on_error, print_error, print_table, progress_bar, stderr
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
 from ngsim_graphs.building import BuildResult, run_build
 from ngsim_graphs.builds import open_build
@@ -232,6 +232,24 @@ def stats(
         print_table(make_table(statistics))
     for path in written:
         stdout.print(f"wrote {path}")
+
+
+@app.command()
+def verify(build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")]) -> None:
+    """Read every file of a build and compare it with the checksums in its manifest.
+
+    Opening a build (stats, export, aigem) checks the manifest's own checksum, every file's size
+    and every array's shape; verify also reads every byte. One line per damaged file, exit 1.
+    """
+    from ngsim_graphs.builds import verify_build
+
+    with exit_on_error(), progress_bar() as progress:
+        result = verify_build(build_dir, progress)
+    for problem in result.problems:
+        print_error(problem)
+    if result.problems:
+        raise typer.Exit(1)
+    stdout.print(f"{build_dir}: all {result.files:,} files match the manifest ({result.bytes / 1e6:,.1f} MB read).")
 
 
 def _sample_ids(text: str, available: int) -> np.ndarray:

@@ -225,9 +225,6 @@ def _manifest(
             "n_steps": o.n_steps,
             "proximity_edges": o.proximity_edges,
             "samples": {split: samples[split].get(name, 0) for split in samples},
-            "tracks_file": str(layout.tracks_path(Path("."), o.report.location, o.report.period)),
-            "proximity_file": str(layout.proximity_path(Path("."), o.report.location, o.report.period)),
-            "arrays_dir": str(layout.recording_arrays_dir(Path("."), o.report.location, o.report.period)),
         })  # fmt: skip
     return {
         "format_version": layout.FORMAT_VERSION,
@@ -283,7 +280,7 @@ def run_build(
         samples = _write_samples(root, outputs)
         warnings = _warnings(outputs, config)
         manifest = _manifest(config, file_reports, outputs, samples, ranges, warnings)
-        layout.write_manifest(root, manifest)
+        manifest = layout.write_manifest(root, manifest)
     return BuildResult(
         out_dir=out_dir,
         files=tuple(file_reports),

@@ -1,11 +1,14 @@
 """A finished build, opened: its manifest, config, memory-mapped arrays and samples.
 
-Opening costs the same for a tiny build and for the six-recording one: the manifest is read,
-the arrays are memory-mapped, nothing else is loaded until used.
+Opening costs the same for a tiny build and for the six-recording one: the manifest is read and
+checked (its checksum, its config hash, every file's size), the arrays are memory-mapped and
+checked against their recorded dtype and shape, nothing else is loaded until used. Every path
+comes from `layout`, never from the manifest. See `integrity`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -14,11 +17,11 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import layout
+from ngsim_graphs import integrity, layout
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.frames import ARRAY_NAMES, RecordingArrays
-from ngsim_graphs.graphs import GraphBatch, concat_batches, induce_graphs
+from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, concat_batches, induce_graphs
 from ngsim_graphs.schema import Split
 
 
@@ -30,18 +33,34 @@ class OpenBuild:
     manifest: dict[str, Any]
     config: BuildConfig
 
+    def _open_arrays(self, folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Memory-mapped arrays of `folder`, each checked against its record in the manifest."""
+        arrays = layout.open_arrays(folder, names)
+        records = self.manifest[integrity.FILES_KEY]
+        for name, array in arrays.items():
+            path = folder / f"{name}.npy"
+            integrity.check_array(path, array, records.get(path.relative_to(self.root).as_posix()))
+        return arrays
+
     @cached_property
     def recordings(self) -> tuple[RecordingArrays, ...]:
         """Frame arrays of each recording, by recording index (memory-mapped)."""
         opened = []
         for entry in sorted(self.manifest["recordings"], key=lambda r: r["index"]):
-            arrays = layout.open_arrays(self.root / entry["arrays_dir"], ARRAY_NAMES)
+            folder = layout.recording_arrays_dir(self.root, entry["location"], entry["period"])
+            arrays = self._open_arrays(folder, ARRAY_NAMES)
             opened.append(RecordingArrays(**arrays, first_track_id=entry["first_track_id"]))
         return tuple(opened)
 
     def samples(self, split: Split | str) -> pl.DataFrame:
         """The samples table of a split (SAMPLE_SCHEMA and graph counts)."""
-        return pl.read_parquet(layout.samples_path(self.root, Split(split).value))
+        return read_table(layout.samples_path(self.root, Split(split).value))
+
+    def tracks(self) -> pl.LazyFrame:
+        """The tracks tables of every recording, scanned lazily (TRACKS_SCHEMA)."""
+        entries = sorted(self.manifest["recordings"], key=lambda r: r["index"])
+        paths = [layout.tracks_path(self.root, r["location"], r["period"]) for r in entries]
+        return pl.scan_parquet(paths)
 
     @cached_property
     def _sample_arrays(self) -> dict[Split, dict[str, np.ndarray]]:
@@ -53,7 +72,14 @@ class OpenBuild:
         split = Split(split)
         if split not in self._sample_arrays:
             folder = layout.sample_arrays_dir(self.root, split.value)
-            self._sample_arrays[split] = layout.open_arrays(folder, layout.SAMPLE_ARRAYS)
+            arrays = self._open_arrays(folder, layout.SAMPLE_ARRAYS)
+            size = self.manifest["splits"][split.value]
+            if any(len(a) != size for a in arrays.values()):
+                raise NgsimInputError(
+                    folder,
+                    f"the arrays do not hold the {size:,} samples of the manifest's {split.value} split",
+                )
+            self._sample_arrays[split] = arrays
         return self._sample_arrays[split]
 
     def graphs(self, split: Split | str, sample_ids: np.ndarray, first_step: int = 0) -> GraphBatch:
@@ -67,13 +93,7 @@ class OpenBuild:
         # Induce per run of equal recordings, so that any order of samples is kept.
         runs = np.flatnonzero(np.diff(recording)) + 1
         batches = [
-            induce_graphs(
-                self.recordings[int(recording[part[0]])],
-                np.asarray(arrays["ego_track_id"][ids[part]]),
-                np.asarray(arrays["start_step"][ids[part]]),
-                self.config,
-                first_step,
-            )
+            self._induce(int(recording[part[0]]), arrays, ids[part], first_step)
             for part in np.split(np.arange(len(ids)), runs)
             if len(part)
         ]
@@ -81,12 +101,87 @@ class OpenBuild:
             raise ValueError("no samples asked for")
         return concat_batches(batches)
 
+    def _induce(
+        self, recording: int, arrays: dict[str, np.ndarray], ids: np.ndarray, first_step: int
+    ) -> GraphBatch:
+        """The graphs of samples `ids` of one recording; an error naming the file for a sample
+        that does not fit its recording or for values that are not finite (a damaged build)."""
+        if not 0 <= recording < len(self.recordings):
+            raise NgsimInputError(
+                self.root, f"a sample names recording {recording}, which the build does not have"
+            )
+        entry = sorted(self.manifest["recordings"], key=lambda r: r["index"])[recording]
+        folder = layout.recording_arrays_dir(self.root, entry["location"], entry["period"])
+        try:
+            batch = induce_graphs(
+                self.recordings[recording],
+                np.asarray(arrays["ego_track_id"][ids]),
+                np.asarray(arrays["start_step"][ids]),
+                self.config,
+                first_step,
+            )
+        except NonFiniteStateError:
+            batch = None
+        except (IndexError, ValueError) as err:
+            raise NgsimInputError(
+                folder, f"the samples do not fit this recording's arrays (damaged?): {err}"
+            ) from None
+        if batch is None or not (
+            np.isfinite(batch.node_features).all() and np.isfinite(batch.target_xy).all()
+        ):
+            raise NgsimInputError(
+                folder / "node_state.npy", "holds values that are not finite (damaged?)"
+            )
+        return batch
+
+
+def read_table(path: Path) -> pl.DataFrame:
+    """A Parquet table of a build; one line naming the file if it cannot be read."""
+    try:
+        return pl.read_parquet(path)
+    except (pl.exceptions.PolarsError, OSError) as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise NgsimInputError(path, f"unreadable table (damaged?): {first}") from None
+
 
 def open_build(root: Path) -> OpenBuild:
-    """Open a finished build; a clear error for anything else (unfinished, other version)."""
+    """Open a finished build; a clear error for anything else (unfinished, other version, edited,
+    damaged: see `integrity`)."""
     manifest = layout.read_manifest(root)
+    path = layout.manifest_path(root)
     try:
         config = BuildConfig.from_dict(manifest["config"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise NgsimInputError(layout.manifest_path(root), f"unreadable build config: {err}") from None
+        for entry in manifest["recordings"]:
+            for name in (entry["location"], entry["period"]):
+                integrity.inside(root, name, path)  # a name of the build, never a path
+        integrity.check_sizes(root, manifest[integrity.FILES_KEY], path)
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        if isinstance(err, NgsimInputError):
+            raise
+        raise NgsimInputError(path, f"unreadable build manifest: {err!r}") from None
     return OpenBuild(root=root, manifest=manifest, config=config)
+
+
+@dataclass(frozen=True)
+class Verification:
+    """What `verify_build` read and found."""
+
+    files: int
+    bytes: int
+    problems: tuple[str, ...]  # one line per damaged, missing or edited file
+
+
+def verify_build(
+    root: Path, progress: Callable[[str, int, int], None] | None = None
+) -> Verification:
+    """Read every file of a build and compare it with the manifest's checksums (and the manifest
+    with its own). Unlike `open_build`, which checks sizes and shapes only, this reads it all."""
+    manifest = layout.read_manifest(root)
+    records = manifest.get(integrity.FILES_KEY)
+    if not isinstance(records, dict):
+        raise NgsimInputError(
+            layout.manifest_path(root), "unreadable build manifest: no file records"
+        )
+    problems = integrity.verify_files(root, records, layout.manifest_path(root), progress)
+    size = sum(record["bytes"] for record in records.values())
+    return Verification(files=len(records), bytes=size, problems=tuple(problems))

@@ -28,6 +28,10 @@ from ngsim_graphs.frames import RecordingArrays, pair_search_key
 SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding
 
 
+class NonFiniteStateError(ValueError):
+    """A recording's arrays hold a position that is not finite: a damaged build."""
+
+
 @dataclass(frozen=True)
 class GraphBatch:
     """The graphs of B samples, concatenated. Node indices are batch-global.
@@ -95,6 +99,8 @@ def _history_nodes(
     cand_ss, cand_row = concat_ranges(rec.step_ptr[ss_step], rec.step_ptr[ss_step + 1])
     xy = rec.node_state[:, :2]
     cand_dist = _distance(xy[cand_row], xy[ego_rows[cand_ss]])
+    if not np.isfinite(cand_dist).all():  # NaN compares False: the vehicle would vanish silently
+        raise NonFiniteStateError("positions that are not finite")
     is_node = cand_dist <= config.d_sense_m
     return ss_step, ego_rows, cand_ss, cand_row, cand_dist, is_node, n_samples
 

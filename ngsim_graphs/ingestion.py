@@ -20,7 +20,8 @@ from ngsim_graphs.cleaning import drop_duplicate_rows, is_complete, split_at_gap
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.kinematics import add_heading
 from ngsim_graphs.plausibility import position_checks, row_drop_reason, speed_mismatch_mps
-from ngsim_graphs.reading import ROW, file_sha256, read_raw_file
+from ngsim_graphs.integrity import file_sha256
+from ngsim_graphs.reading import ROW, read_raw_file
 from ngsim_graphs.recordings import RECORDING_INDEX, identify_recordings
 from ngsim_graphs.resampling import downsample_to_grid
 from ngsim_graphs.schema import DropReason

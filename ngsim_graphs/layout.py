@@ -8,7 +8,6 @@ How the directory lands (lock, checks, the swap) is `landing`'s.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -17,9 +16,10 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from ngsim_graphs import integrity
 from ngsim_graphs.errors import NgsimInputError
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the manifest lists every file with its checksum, and its own checksum
 MANIFEST_NAME = "manifest.json"
 TRACKS_DIR = "tracks"
 PROXIMITY_DIR = "proximity"
@@ -74,10 +74,14 @@ def open_arrays(folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     missing = [n for n in names if not (folder / f"{n}.npy").is_file()]
     if missing:
         raise NgsimInputError(folder, f"incomplete build: missing arrays {', '.join(missing)}")
-    return {
-        name: np.asarray(np.load(folder / f"{name}.npy", mmap_mode="r", allow_pickle=False))
-        for name in names
-    }
+    return {name: _map_array(folder / f"{name}.npy") for name in names}
+
+
+def _map_array(path: Path) -> np.ndarray:
+    try:
+        return np.asarray(np.load(path, mmap_mode="r", allow_pickle=False))
+    except (ValueError, OSError, EOFError) as err:  # a bad header, or a file shorter than it says
+        raise NgsimInputError(path, f"unreadable array: {err}") from None
 
 
 def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> Path:
@@ -91,8 +95,7 @@ def manifest_path(root: Path) -> Path:
 
 def config_hash(config: dict[str, Any]) -> str:
     """sha256 of the config as canonical JSON: two builds with equal hashes were made alike."""
-    text = json.dumps(config, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()
+    return integrity.canonical_sha256(config)
 
 
 def write_parquet(frame: pl.DataFrame, path: Path) -> None:
@@ -107,12 +110,16 @@ def write_staged(frame: pl.DataFrame, path: Path) -> None:
     frame.write_parquet(path, compression="lz4", statistics=False)
 
 
-def write_manifest(root: Path, manifest: dict[str, Any]) -> None:
-    """Write the manifest atomically; it is the last file of a build."""
+def write_manifest(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
+    """Write the manifest atomically, the last file of a build: with the records (size, sha256,
+    array dtype and shape) of every other file of the build and its own checksum. Returns it."""
     target = manifest_path(root)
     partial = target.with_suffix(".json.partial")
-    partial.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    records = integrity.file_records(root, skip=(STAGING_DIR, MANIFEST_NAME, partial.name))
+    written = integrity.with_checksum({**manifest, integrity.FILES_KEY: records})
+    partial.write_text(json.dumps(written, indent=2, sort_keys=True) + "\n")
     os.replace(partial, target)
+    return written
 
 
 def read_manifest(root: Path) -> dict[str, Any]:
@@ -128,8 +135,17 @@ def read_manifest(root: Path) -> dict[str, Any]:
         manifest = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise NgsimInputError(path, f"unreadable manifest: {err.msg}", line=err.lineno) from None
-    if manifest.get("format_version") != FORMAT_VERSION:
-        raise NgsimInputError(
-            path, f"format version {manifest.get('format_version')!r}; expected {FORMAT_VERSION}"
+    except UnicodeDecodeError:
+        raise NgsimInputError(path, "unreadable manifest: not UTF-8 text") from None
+    if not isinstance(manifest, dict):
+        raise NgsimInputError(path, "unreadable manifest: not a JSON object")
+    version = manifest.get("format_version")
+    if version != FORMAT_VERSION:
+        older = (
+            " (made by an older ngsim-graphs: build it again)"
+            if isinstance(version, int) and version < FORMAT_VERSION
+            else ""
         )
+        raise NgsimInputError(path, f"format version {version!r}; expected {FORMAT_VERSION}{older}")
+    integrity.check_manifest(manifest, path)
     return manifest

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import difflib
-import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -390,12 +389,3 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         locations_found=found,
         frame=frame.drop(_PRESENT, _ODD),
     )
-
-
-def file_sha256(path: Path) -> str:
-    """sha256 of a file's bytes, read in 16 MiB chunks."""
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        while chunk := handle.read(1 << 24):
-            digest.update(chunk)
-    return digest.hexdigest()

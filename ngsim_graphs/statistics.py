@@ -19,6 +19,7 @@ import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.builds import OpenBuild
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sampling import N_FULL_TARGETS, N_NODES, N_SPATIAL, N_TARGETS, N_TEMPORAL
 from ngsim_graphs.splits import SPLIT_ORDER
 
@@ -132,10 +133,12 @@ def spatial_in_degree(build: OpenBuild, split: str, sample_ids: np.ndarray) -> n
 
 def read_kinematics(build: OpenBuild) -> dict[str, np.ndarray]:
     """Speed and heading of every tracks row, reading only those columns of the tracks files."""
-    paths = [build.root / r["tracks_file"] for r in build.manifest["recordings"]]
-    if not paths:
+    if not build.manifest["recordings"]:
         return {name: np.zeros(0) for name in KINEMATIC_COLUMNS}
-    frame = pl.scan_parquet(paths).select(KINEMATIC_COLUMNS).collect()
+    try:
+        frame = build.tracks().select(KINEMATIC_COLUMNS).collect()
+    except pl.exceptions.PolarsError as err:
+        raise NgsimInputError(build.root / "tracks", f"unreadable tracks table (damaged?): {err}") from None
     return {name: frame[name].drop_nulls().to_numpy().astype(np.float64) for name in KINEMATIC_COLUMNS}
 
 

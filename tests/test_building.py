@@ -85,7 +85,7 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     on_disk = json.loads((out / "manifest.json").read_text())
     assert on_disk == json.loads(json.dumps(result.manifest))
     assert layout.read_manifest(out) == on_disk
-    assert on_disk["format_version"] == layout.FORMAT_VERSION == 1
+    assert on_disk["format_version"] == layout.FORMAT_VERSION == 2
     assert on_disk["config"] == json.loads(json.dumps(SHORT.to_dict()))
     assert on_disk["config"]["locations"] == ["us-101", "i-80"]
     assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
@@ -125,7 +125,9 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     [recording] = on_disk["recordings"]
     assert recording["location"] == "us-101" and recording["period"] == FIRST
     assert recording["vehicles"] == 2
-    assert recording["tracks_file"] == f"tracks/us-101_{FIRST}.parquet"
+    assert on_disk["files"][f"tracks/us-101_{FIRST}.parquet"]["sha256"] == hashlib.sha256(
+        layout.tracks_path(out, "us-101", FIRST).read_bytes()
+    ).hexdigest()
     assert result.files[0].sha256 == source["sha256"]
 
 

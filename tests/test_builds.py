@@ -55,7 +55,7 @@ def grid_tables(build: OpenBuild) -> dict[tuple[str, str], pl.DataFrame]:
     """Each recording's tracks Parquet as a grid-node table, keyed by (location, period)."""
     tables = {}
     for entry in build.manifest["recordings"]:
-        tracks = pl.read_parquet(build.root / entry["tracks_file"])
+        tracks = pl.read_parquet(layout.tracks_path(build.root, entry["location"], entry["period"]))
         tables[(entry["location"], entry["period"])] = tracks.select(
             (pl.col(s.FRAME_ID) // build.config.frames_per_step).alias(s.STEP),
             s.TRACK_ID, s.VEHICLE_ID, s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS,
@@ -222,7 +222,7 @@ def test_open_build_without_manifest(tmp_path: Path) -> None:
 def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:
     manifest = dict(built.manifest, format_version=99)
     (tmp_path / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
-    with pytest.raises(NgsimInputError, match=r"format version 99; expected 1") as err:
+    with pytest.raises(NgsimInputError, match=r"format version 99; expected 2") as err:
         open_build(tmp_path)
     assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
 
@@ -231,8 +231,8 @@ def test_open_build_with_missing_arrays(built: OpenBuild, tmp_path: Path) -> Non
     copy = tmp_path / "copy"
     shutil.copytree(built.root, copy)
     entry = built.manifest["recordings"][0]
-    (copy / entry["arrays_dir"] / "pair_key.npy").unlink()
-    with pytest.raises(NgsimInputError, match="incomplete build: missing arrays pair_key"):
+    (layout.recording_arrays_dir(copy, entry["location"], entry["period"]) / "pair_key.npy").unlink()
+    with pytest.raises(NgsimInputError, match="pair_key.npy: missing: the build is incomplete"):
         open_build(copy).graphs("train", np.arange(3))
 
 

@@ -11,6 +11,7 @@ import polars as pl
 import pytest
 
 from ngsim_graphs.building import run_build
+from ngsim_graphs import layout
 from ngsim_graphs.builds import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.plotting import PLOT_NAMES, write_histograms
@@ -130,7 +131,8 @@ def test_full_future_share_equals_the_target_masks(build: OpenBuild, computed) -
 
 def test_kinematics_over_every_tracks_row(build: OpenBuild, computed) -> None:
     statistics, values = computed
-    tracks = pl.read_parquet(build.root / build.manifest["recordings"][0]["tracks_file"])
+    entry = build.manifest["recordings"][0]
+    tracks = pl.read_parquet(layout.tracks_path(build.root, entry["location"], entry["period"]))
     speed, heading = statistics.kinematics["speed_mps"], statistics.kinematics["heading_rad"]
     assert speed.count == heading.count == tracks.height == build.manifest["counts"]["grid_rows"]
     assert speed.mean == pytest.approx(tracks["speed_mps"].mean())

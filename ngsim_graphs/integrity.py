@@ -1,0 +1,150 @@
+"""What a build's manifest records of itself and of its files, and the checks against it.
+
+The manifest lists every file of the build with its size and sha256, and every array's dtype and
+shape; it carries the sha256 of its own content, and the sha256 of its config. Opening a build
+checks, cheaply, every time: the manifest's own checksum and config hash, that every file is there
+with its recorded size, and that every array opened has its recorded dtype and shape. `verify`
+also reads every byte and compares the checksums. A damaged or edited build then fails with one
+line naming the file, instead of giving wrong numbers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from collections.abc import Callable
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import numpy as np
+
+from ngsim_graphs.errors import NgsimInputError
+
+CHECKSUM_KEY = "manifest_sha256"  # sha256 of the manifest's canonical JSON without this key
+FILES_KEY = "files"  # relative path -> {"bytes", "sha256"[, "dtype", "shape"]}
+SAFE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]*$")  # a file or folder name of a build
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of a file's bytes, read in 16 MiB chunks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        while chunk := handle.read(1 << 24):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def canonical_sha256(value: Any) -> str:
+    """sha256 of a JSON value written canonically (sorted keys, no spaces)."""
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def npy_header(path: Path) -> tuple[str, tuple[int, ...]]:
+    """(dtype as numpy spells it, shape) from a .npy file's header, without reading its data."""
+    with path.open("rb") as handle:
+        version = np.lib.format.read_magic(handle)
+        if version == (1, 0):
+            shape, _fortran, dtype = np.lib.format.read_array_header_1_0(handle)
+        elif version == (2, 0):
+            shape, _fortran, dtype = np.lib.format.read_array_header_2_0(handle)
+        else:
+            raise ValueError(f"unknown .npy format version {version}")
+    return dtype.str, tuple(int(n) for n in shape)
+
+
+def file_records(root: Path, skip: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    """Every file under `root` but those under the top-level names in `skip`: its path relative
+    to `root` (POSIX), size, sha256, and for a .npy array its dtype and shape."""
+    records: dict[str, dict[str, Any]] = {}
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        relative = path.relative_to(root)
+        if relative.parts[0] in skip:
+            continue
+        record: dict[str, Any] = {"bytes": path.stat().st_size, "sha256": file_sha256(path)}
+        if path.suffix == ".npy":
+            dtype, shape = npy_header(path)
+            record |= {"dtype": dtype, "shape": list(shape)}
+        records[relative.as_posix()] = record
+    return records
+
+
+def with_checksum(manifest: dict[str, Any]) -> dict[str, Any]:
+    """The manifest with CHECKSUM_KEY set to the checksum of the rest of it."""
+    body = {k: v for k, v in manifest.items() if k != CHECKSUM_KEY}
+    return {**body, CHECKSUM_KEY: canonical_sha256(body)}
+
+
+def check_manifest(manifest: dict[str, Any], path: Path) -> None:
+    """Raise unless the manifest matches its own checksum and its config its config hash."""
+    body = {k: v for k, v in manifest.items() if k != CHECKSUM_KEY}
+    if manifest.get(CHECKSUM_KEY) != canonical_sha256(body):
+        raise NgsimInputError(
+            path,
+            "its content does not match its checksum: edited or damaged (a build is never edited "
+            "by hand; build it again)",
+        )
+    if manifest.get("config_hash") != canonical_sha256(manifest.get("config")):
+        raise NgsimInputError(path, "its config does not match its config_hash: edited or damaged")
+
+
+def inside(root: Path, relative: str, path: Path) -> Path:
+    """`root / relative` for a relative POSIX path of safe names; any other path (absolute, with
+    `..`, odd names) is refused, so that a manifest never leads reads outside its build."""
+    parts = PurePosixPath(relative).parts
+    if not parts or not all(SAFE_NAME.match(part) for part in parts):
+        raise NgsimInputError(
+            path, f"names a file outside the build or of an odd name: {relative!r}"
+        )
+    return root.joinpath(*parts)
+
+
+def check_sizes(root: Path, records: dict[str, dict[str, Any]], manifest: Path) -> None:
+    """Raise for the first recorded file that is missing or not of its recorded size."""
+    for relative, record in records.items():
+        path = inside(root, relative, manifest)
+        if not path.is_file():
+            raise NgsimInputError(path, "missing: the build is incomplete (deleted or moved?)")
+        size = path.stat().st_size
+        if size != record["bytes"]:
+            raise NgsimInputError(
+                path,
+                f"{size:,} bytes where the manifest records {record['bytes']:,} (truncated or replaced?)",
+            )
+
+
+def check_array(path: Path, array: np.ndarray, record: dict[str, Any] | None) -> None:
+    """Raise unless an opened array has the dtype and shape its record gives."""
+    if record is None:
+        raise NgsimInputError(path, "not listed in the manifest: not part of this build")
+    if array.dtype.str != record["dtype"] or list(array.shape) != record["shape"]:
+        raise NgsimInputError(
+            path,
+            f"{array.dtype.str} {tuple(array.shape)} where the manifest records {record['dtype']} "
+            f"{tuple(record['shape'])} (replaced or damaged?)",
+        )
+
+
+def verify_files(
+    root: Path,
+    records: dict[str, dict[str, Any]],
+    manifest: Path,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> list[str]:
+    """Read every recorded file and compare its checksum; returns one line per damaged file."""
+    problems = []
+    for done, (relative, record) in enumerate(records.items()):
+        if progress:
+            progress(f"checking {relative}", done, len(records))
+        path = inside(root, relative, manifest)
+        try:
+            check_sizes(root, {relative: record}, manifest)
+        except NgsimInputError as err:
+            problems.append(str(err))
+            continue
+        if file_sha256(path) != record["sha256"]:
+            problems.append(
+                f"{path}: its bytes do not match the manifest's sha256 (damaged or edited)"
+            )
+    return problems

@@ -1,0 +1,196 @@
+"""Edited and damaged builds: one line naming the file, never silently wrong numbers.
+
+Each case copies a finished build, damages one thing and runs what a user would run (`stats`,
+`export`, `verify`, the dataset); the manifest records every file's size, checksum and array
+shape, and its own checksum.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from aigem_fixtures import tiny_build  # noqa: F401
+from test_cli_ngsim import error_line, invoke
+
+from ngsim_graphs import integrity, layout
+from ngsim_graphs.builds import open_build, verify_build
+from ngsim_graphs.errors import NgsimInputError
+
+
+@pytest.fixture
+def copy(tiny_build: Path, tmp_path: Path) -> Path:  # noqa: F811
+    target = tmp_path / "build"
+    shutil.copytree(tiny_build, target)
+    return target
+
+
+def manifest_of(build: Path) -> dict:
+    return json.loads((build / layout.MANIFEST_NAME).read_text())
+
+
+def rewrite(build: Path, manifest: dict, checksum: bool = False) -> None:
+    """Write an edited manifest; with `checksum`, as a careful forger would (checksum redone)."""
+    if checksum:
+        manifest = integrity.with_checksum(manifest)
+    (build / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
+
+
+def first_arrays(build: Path) -> Path:
+    entry = manifest_of(build)["recordings"][0]
+    return layout.recording_arrays_dir(build, entry["location"], entry["period"])
+
+
+def test_the_manifest_records_every_file(tiny_build: Path) -> None:  # noqa: F811
+    manifest = manifest_of(tiny_build)
+    files = sorted(str(p.relative_to(tiny_build)) for p in tiny_build.rglob("*") if p.is_file())
+    assert sorted(manifest["files"]) == [f for f in files if f != layout.MANIFEST_NAME]
+    for relative, record in manifest["files"].items():
+        data = (tiny_build / relative).read_bytes()
+        assert record["bytes"] == len(data) and record["sha256"] == hashlib.sha256(data).hexdigest()
+    node_state = manifest["files"][
+        str((first_arrays(tiny_build) / "node_state.npy").relative_to(tiny_build))
+    ]
+    assert node_state["dtype"] == "<f8" and node_state["shape"][1] == 4
+    body = {k: v for k, v in manifest.items() if k != "manifest_sha256"}
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"))
+    assert manifest["manifest_sha256"] == hashlib.sha256(canonical.encode()).hexdigest()
+    result = invoke("verify", tiny_build)
+    assert result.exit_code == 0 and f"all {len(manifest['files'])} files match" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda m: m["scaler"]["x_m"].update(max=m["scaler"]["x_m"]["max"] * 7),  # ADE 24 -> 175 m
+        lambda m: m["splits"].update(train=10),  # fit would train on 10 graphs
+        lambda m: m["config"].update(d_sense_m=1.0),  # evaluate would score 0 actors
+    ],
+    ids=["scaler", "split sizes", "config"],
+)
+def test_an_edited_manifest_is_refused(copy: Path, edit: Callable[[dict], None]) -> None:
+    manifest = manifest_of(copy)
+    edit(manifest)
+    rewrite(copy, manifest)
+    for command in (
+        ("stats", copy),
+        ("verify", copy),
+        ("export", copy, "--out", copy.parent / "t"),
+    ):
+        line = error_line(invoke(*command))
+        assert f"{copy / layout.MANIFEST_NAME}: its content does not match its checksum" in line
+
+
+def test_an_edited_config_with_a_forged_checksum_still_fails_its_hash(copy: Path) -> None:
+    manifest = manifest_of(copy)
+    manifest["config"]["d_sense_m"] = 1.0
+    rewrite(copy, manifest, checksum=True)
+    line = error_line(invoke("stats", copy))
+    assert "its config does not match its config_hash" in line
+
+
+def test_forged_split_sizes_disagree_with_the_sample_arrays(copy: Path) -> None:
+    manifest = manifest_of(copy)
+    manifest["splits"]["train"] = 10
+    rewrite(copy, manifest, checksum=True)
+    with pytest.raises(
+        NgsimInputError, match="samples-train: the arrays do not hold the 10 samples"
+    ):
+        open_build(copy).graphs("train", np.arange(3))
+
+
+def test_a_truncated_array_names_its_file(copy: Path) -> None:
+    path = first_arrays(copy) / "node_state.npy"
+    path.write_bytes(path.read_bytes()[:-100])
+    line = error_line(invoke("stats", copy))
+    assert (
+        f"{path}: " in line and "bytes where the manifest records" in line and "truncated" in line
+    )
+
+
+def test_a_reshaped_array_of_the_same_size_names_its_file(copy: Path) -> None:
+    path = first_arrays(copy) / "node_state.npy"
+    array = np.load(path)
+    np.save(path, array.reshape(-1, 2))  # the header grows by no byte: same size, other shape
+    assert path.stat().st_size == manifest_of(copy)["files"][str(path.relative_to(copy))]["bytes"]
+    line = error_line(invoke("stats", copy))
+    assert (
+        f"{path}: <f8 ({array.shape[0] * 2}, 2) where the manifest records <f8 ({array.shape[0]}, 4)"
+        in line
+    )
+
+
+def test_nan_in_the_node_array(copy: Path) -> None:
+    path = first_arrays(copy) / "node_state.npy"
+    array = np.load(path, mmap_mode="r+")
+    array[:, 0] = np.nan  # the same size and shape: only the checksum or the values tell
+    array.flush()
+    del array
+    with pytest.raises(NgsimInputError, match="node_state.npy: holds values that are not finite"):
+        open_build(copy).graphs("train", np.arange(4))
+    line = error_line(invoke("stats", copy))
+    assert f"{path}: holds values that are not finite" in line
+    result = invoke("verify", copy)
+    assert result.exit_code == 1
+    assert (
+        result.stderr.strip()
+        == f"error: {path}: its bytes do not match the manifest's sha256 (damaged or edited)"
+    )
+
+
+def test_verify_names_every_damaged_file(copy: Path) -> None:
+    records = manifest_of(copy)["files"]
+    damaged = sorted(records)[:2]
+    for relative in damaged:
+        data = bytearray((copy / relative).read_bytes())
+        data[-1] ^= 0xFF
+        (copy / relative).write_bytes(bytes(data))
+    problems = verify_build(copy).problems
+    assert problems == tuple(
+        f"{copy / r}: its bytes do not match the manifest's sha256 (damaged or edited)"
+        for r in damaged
+    )
+
+
+def test_a_missing_file(copy: Path) -> None:
+    (copy / "samples" / "val.parquet").unlink()
+    line = error_line(invoke("stats", copy))
+    assert f"{copy / 'samples' / 'val.parquet'}: missing: the build is incomplete" in line
+
+
+@pytest.mark.parametrize("where", ["/etc/passwd", "../outside.npy", "arrays/../../outside.npy"])
+def test_a_manifest_never_leads_reads_outside_its_build(copy: Path, where: str) -> None:
+    (copy.parent / "outside.npy").write_bytes(b"")
+    manifest = manifest_of(copy)
+    manifest["files"][where] = {"bytes": 0, "sha256": hashlib.sha256(b"").hexdigest()}
+    rewrite(copy, manifest, checksum=True)
+    line = error_line(invoke("stats", copy))
+    assert "names a file outside the build or of an odd name" in line and repr(where) in line
+
+
+def test_a_recording_name_is_never_a_path(copy: Path) -> None:
+    manifest = manifest_of(copy)
+    manifest["recordings"][0]["location"] = "/tmp"  # arrays_dir is no longer read at all
+    rewrite(copy, manifest, checksum=True)
+    line = error_line(invoke("stats", copy))
+    assert "names a file outside the build or of an odd name: '/tmp'" in line
+
+
+@pytest.mark.parametrize("content", [b"[1, 2]", b"\xff\xfe{", b'{"format_version": 1}'])
+def test_a_manifest_that_is_not_one(copy: Path, content: bytes) -> None:
+    (copy / layout.MANIFEST_NAME).write_bytes(content)
+    line = error_line(invoke("stats", copy))
+    assert str(copy / layout.MANIFEST_NAME) in line
+    assert any(
+        f in line
+        for f in (
+            "not a JSON object",
+            "not UTF-8",
+            "format version 1; expected 2 (made by an older",
+        )
+    )
