@@ -28,6 +28,7 @@ from ngsim_graphs.layout import (
     STAGING_DIR,
     TRACKS_DIR,
     manifest_path,
+    os_errno,
 )
 
 # Where each folder of the build layout keeps its files: levels of sub-folders, file suffix.
@@ -40,7 +41,6 @@ BUILD_FOLDERS = {
 }
 # Errors only a write can cause: reported as a failed write of the output, even unnamed.
 WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
-_RUST_OS_ERROR = re.compile(r"os error (\d+)")  # how polars reports an OS error it met
 _SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")  # how numpy reports a short write
 _NAMES_SHOWN = 3
 
@@ -231,14 +231,6 @@ def _swap_into_place(partial: Path, out: Path) -> None:
     shutil.rmtree(retired)
 
 
-def _os_errno(err: BaseException) -> int | None:
-    """The OS error number of `err`, also where polars only names it in its message."""
-    if isinstance(err, OSError) and err.errno is not None:
-        return err.errno
-    found = _RUST_OS_ERROR.search(str(err))
-    return int(found.group(1)) if found else None
-
-
 def _write_failure(err: BaseException, partial: Path, out: Path) -> NgsimOutputError | None:
     """The one-line error of a failed write into `partial`, naming the file as it would be in
     `out`; None for an error that is not such a write (it then goes on as it came)."""
@@ -247,7 +239,7 @@ def _write_failure(err: BaseException, partial: Path, out: Path) -> NgsimOutputE
         target = out / Path(filename).relative_to(partial)
         target = target.with_name(target.name.removesuffix(".partial"))  # the file it was to be
         return NgsimOutputError(target, f"cannot write: {err.strerror or err}")
-    code = _os_errno(err)
+    code = os_errno(err)
     if code in WRITE_ERRNOS:  # polars and numpy do not say which file
         return NgsimOutputError(out, f"cannot write: {os.strerror(code)}")
     if isinstance(err, OSError) and _SHORT_WRITE.search(str(err)):

@@ -8,8 +8,12 @@ How the directory lands (lock, checks, the swap) is `landing`'s.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -58,11 +62,40 @@ def sample_arrays_dir(root: Path, split: str) -> Path:
     return root / ARRAYS_DIR / f"samples-{split}"
 
 
+_RUST_OS_ERROR = re.compile(r"os error (\d+)")  # how polars reports an OS error it met
+
+
+def os_errno(err: BaseException) -> int | None:
+    """The OS error number of `err`, also where polars only names it in its message."""
+    if isinstance(err, OSError) and err.errno is not None:
+        return err.errno
+    found = _RUST_OS_ERROR.search(str(err))
+    return int(found.group(1)) if found else None
+
+
+@contextmanager
+def writing(path: Path) -> Iterator[None]:
+    """Name `path` in the OSError of a failed write (a full disk): polars and numpy do not."""
+    try:
+        yield
+    except (OSError, pl.exceptions.PolarsError) as err:
+        if isinstance(err, OSError) and err.filename:
+            raise
+        code = os_errno(err)
+        if code is None and not isinstance(err, OSError):
+            raise  # not an OS error: a bug, not a disk
+        # numpy's short write ("N requested and M written") carries no number: a full disk
+        code = code or errno.ENOSPC
+        raise OSError(code, os.strerror(code), str(path)) from err
+
+
 def write_arrays(folder: Path, arrays: dict[str, np.ndarray]) -> None:
     """One .npy file per array, to be opened memory-mapped."""
     folder.mkdir(parents=True, exist_ok=True)
     for name, array in arrays.items():
-        np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+        path = folder / f"{name}.npy"
+        with writing(path):
+            np.save(path, np.ascontiguousarray(array), allow_pickle=False)
 
 
 def open_arrays(folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -101,13 +134,15 @@ def config_hash(config: dict[str, Any]) -> str:
 def write_parquet(frame: pl.DataFrame, path: Path) -> None:
     """Write a table with the project's fixed options (reproducible bytes for equal frames)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    frame.write_parquet(path, compression=PARQUET_COMPRESSION, statistics=True)
+    with writing(path):
+        frame.write_parquet(path, compression=PARQUET_COMPRESSION, statistics=True)
 
 
 def write_staged(frame: pl.DataFrame, path: Path) -> None:
     """Write an intermediate table that lives only while building: fast, lightly compressed."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    frame.write_parquet(path, compression="lz4", statistics=False)
+    with writing(path):
+        frame.write_parquet(path, compression="lz4", statistics=False)
 
 
 def write_manifest(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
@@ -117,7 +152,8 @@ def write_manifest(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
     partial = target.with_suffix(".json.partial")
     records = integrity.file_records(root, skip=(STAGING_DIR, MANIFEST_NAME, partial.name))
     written = integrity.with_checksum({**manifest, integrity.FILES_KEY: records})
-    partial.write_text(json.dumps(written, indent=2, sort_keys=True) + "\n")
+    with writing(partial):
+        partial.write_text(json.dumps(written, indent=2, sort_keys=True) + "\n")
     os.replace(partial, target)
     return written
 
