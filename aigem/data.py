@@ -4,11 +4,13 @@ Opening a split costs the same for a tiny build and for the six-recording one: t
 read and the arrays are memory-mapped. An item is one sample's graph induced from the mapped
 arrays; `__getitems__` induces a whole batch at once (PyTorch's DataLoader calls it when it
 exists), and the collate function concatenates graphs with vectorised index offsets and applies
-the manifest's scaler. Shapes: N nodes, E edges, A target actors, K future steps.
+the scaler (the build's own, or a run's). Shapes: N nodes, E edges, A target actors, K future
+steps. PyTorch Geometric's view of the same samples is in aigem.pyg.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,26 @@ from ngsim_graphs.graphs import GraphBatch, concat_batches
 from ngsim_graphs.scaling import FEATURES, scale
 from ngsim_graphs.schema import Split
 
+SCALED = (*FEATURES, "distance_m")  # the quantities a scaler maps
+
+
+def scaler_is_complete(ranges: object) -> bool:
+    """Whether `ranges` holds numeric min, max and a two-number target range for every scaled
+    quantity (a build with an empty train split records nulls)."""
+    if not isinstance(ranges, dict):
+        return False
+    number = lambda v: isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+    for name in SCALED:
+        entry = ranges.get(name)
+        if not isinstance(entry, dict) or not (
+            number(entry.get("min")) and number(entry.get("max"))
+        ):
+            return False
+        target = entry.get("to")
+        if not isinstance(target, list | tuple) or len(target) != 2 or not all(map(number, target)):
+            return False
+    return True
+
 
 @dataclass(frozen=True)
 class Scaler:
@@ -31,11 +53,20 @@ class Scaler:
 
     @classmethod
     def from_manifest(cls, manifest: dict, path: Path) -> Scaler:
-        ranges = manifest.get("scaler", {})
-        needed = (*FEATURES, "distance_m")
-        if any(ranges.get(n, {}).get("min") is None for n in needed):
-            raise NgsimInputError(path, "the build has no fitted scaler (is its train split empty?)")
-        return cls(ranges)
+        """The scaler a build fitted on its train split; `path` names the build in errors."""
+        if not scaler_is_complete(manifest.get("scaler")):
+            raise NgsimInputError(
+                path, "the build has no fitted scaler (is its train split empty?)"
+            )
+        return cls(manifest["scaler"])
+
+    @classmethod
+    def from_ranges(cls, ranges: object, path: Path) -> Scaler:
+        """A scaler recorded elsewhere (a run's, for another build); `path` names its file."""
+        if not scaler_is_complete(ranges):
+            raise NgsimInputError(path, "records no complete scaler (min, max and target range of "
+                                  f"{', '.join(SCALED)})")  # fmt: skip
+        return cls(ranges)  # type: ignore[arg-type]
 
     def _apply(self, name: str, values: np.ndarray) -> np.ndarray:
         fitted = self.ranges[name]
@@ -67,12 +98,20 @@ class GraphDataset(Dataset):
     and the loader does a fraction of the work: AiGem with L layers reads L + 1 steps
     (`ModelConfig.history_steps_read`).
 
+    `scaler`: the scaler that `Collate` should apply (None: the build's own). A model trained on
+    one build and evaluated on another must see its inputs scaled as in training, so evaluation
+    passes the run's scaler; the build then needs no fitted scaler of its own.
+
     A batch (`__getitems__`, which PyTorch's DataLoader calls) holds its graphs grouped by
     recording, not in the order of the indices asked for.
     """
 
     def __init__(
-        self, build_dir: Path, split: Split | str = Split.TRAIN, history_steps: int | None = None
+        self,
+        build_dir: Path,
+        split: Split | str = Split.TRAIN,
+        history_steps: int | None = None,
+        scaler: Scaler | None = None,
     ) -> None:
         self.build_dir = Path(build_dir)
         self.split = Split(split)
@@ -82,7 +121,9 @@ class GraphDataset(Dataset):
             raise ValueError(f"history_steps must be at least 1, got {history_steps}")
         keep = self.config.history_steps if history_steps is None else history_steps
         self.first_step = max(0, self.config.history_steps - keep)
-        self.scaler = Scaler.from_manifest(build.manifest, self.build_dir)
+        self.scaler = (
+            scaler if scaler is not None else Scaler.from_manifest(build.manifest, self.build_dir)
+        )
         self.size = int(build.manifest["splits"][self.split.value])
         self._build: OpenBuild | None = None  # opened lazily in each worker process
 
@@ -125,9 +166,13 @@ class Collate:
         return {
             "x": torch.from_numpy(self.scaler.features(batch.node_features)),  # (N, 4)
             "spatial_edges": torch.from_numpy(batch.spatial_edges),  # (2, E_s)
-            "spatial_attr": torch.from_numpy(self.scaler.distance(batch.spatial_distance))[:, None],  # (E_s, 1)
+            "spatial_attr": torch.from_numpy(self.scaler.distance(batch.spatial_distance))[
+                :, None
+            ],  # (E_s, 1)
             "temporal_edges": torch.from_numpy(batch.temporal_edges),  # (2, E_t)
-            "temporal_attr": torch.full((batch.temporal_edges.shape[1], 1), batch.time_step_s),  # (E_t, 1)
+            "temporal_attr": torch.full(
+                (batch.temporal_edges.shape[1], 1), batch.time_step_s
+            ),  # (E_t, 1)
             "node_sample": torch.from_numpy(batch.node_sample),  # (N,)
             "target_node": torch.from_numpy(targets),  # (A,)
             "target_sample": torch.from_numpy(batch.node_sample[targets]),  # (A,)
@@ -135,20 +180,3 @@ class Collate:
             "target_xy": torch.from_numpy(batch.target_xy.astype(np.float32)),  # (A, K, 2) metres
             "target_mask": torch.from_numpy(batch.target_mask),  # (A, K)
         }
-
-
-def to_hetero_data(batch: dict[str, torch.Tensor]):  # noqa: ANN201
-    """A collated batch as PyTorch Geometric's HeteroData: one node type, two edge types."""
-    from torch_geometric.data import HeteroData
-
-    data = HeteroData()
-    data["vehicle"].x = batch["x"]
-    data["vehicle"].batch = batch["node_sample"]
-    data["vehicle", "spatial", "vehicle"].edge_index = batch["spatial_edges"]
-    data["vehicle", "spatial", "vehicle"].edge_attr = batch["spatial_attr"]
-    data["vehicle", "temporal", "vehicle"].edge_index = batch["temporal_edges"]
-    data["vehicle", "temporal", "vehicle"].edge_attr = batch["temporal_attr"]
-    data["vehicle"].target_node = batch["target_node"]
-    data["vehicle"].target_xy = batch["target_xy"]
-    data["vehicle"].target_mask = batch["target_mask"]
-    return data

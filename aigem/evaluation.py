@@ -1,10 +1,13 @@
 """`aigem evaluate`: the best model of a run and the constant-velocity baseline on one split.
 
-Both are scored on the same samples and targets, with the metrics of aigem.metrics (metres).
+Both are scored on the same samples and targets, with the metrics of aigem.metrics (metres). By
+default on the run's own build; another build (say, trained on US-101, tested on I-80) only when
+asked, and then with the run's scaler: the model only knows its inputs as scaled in training.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,18 +17,38 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from aigem.data import Collate, GraphDataset
+from aigem.checkpoints import build_identity, identity_difference
+from aigem.config import ModelConfig
+from aigem.data import Collate, GraphDataset, Scaler
 from aigem.metrics import ErrorTotals, summarize
-from aigem.model import count_parameters
-from aigem.runs import load_model
+from aigem.model import AiGem, count_parameters
+from aigem.runs import BEST, load_model
 from aigem.training import pick_device
+from ngsim_graphs.builds import open_build
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import Split
 
 # The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
 PAPER_TABLE = {
-    "AiGem (paper)": {"ade_m": 1.42, "fde_m": 2.57, "rmse_m": (0.61, 1.02, 1.27, 1.84, 1.95), "params_k": 74.5},
-    "CS-LSTM (paper)": {"ade_m": 2.29, "fde_m": 3.34, "rmse_m": (0.61, 1.27, 2.09, 3.10, 4.37), "params_k": 192},
-    "GSTCN (paper)": {"ade_m": 1.52, "fde_m": None, "rmse_m": (0.44, 0.83, 1.33, 2.01, 2.98), "params_k": 49.8},
+    "AiGem (paper)": {
+        "ade_m": 1.42,
+        "fde_m": 2.57,
+        "rmse_m": (0.61, 1.02, 1.27, 1.84, 1.95),
+        "params_k": 74.5,
+    },
+    "CS-LSTM (paper)": {
+        "ade_m": 2.29,
+        "fde_m": 3.34,
+        "rmse_m": (0.61, 1.27, 2.09, 3.10, 4.37),
+        "params_k": 192,
+    },
+    "GSTCN (paper)": {
+        "ade_m": 1.52,
+        "fde_m": None,
+        "rmse_m": (0.44, 0.83, 1.33, 2.01, 2.98),
+        "params_k": 49.8,
+    },
 }
 
 
@@ -38,40 +61,118 @@ class Evaluation:
     model: dict[str, dict[str, float | None]]
     constant_velocity: dict[str, dict[str, float | None]]
     build_dir: str
+    same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
+
+
+class NonFinitePredictionError(ValueError):
+    """The model predicted NaN or infinite positions: no metric of them would mean anything."""
 
 
 def constant_velocity(state: np.ndarray, steps: int, time_step_s: float) -> np.ndarray:
     """(A, 4) present [x, y, heading, speed] -> (A, steps, 2) positions at constant velocity."""
     k = np.arange(1, steps + 1)[None, :, None] * time_step_s
-    velocity = state[:, 3:4] * np.stack([np.sin(state[:, 2]), np.cos(state[:, 2])], axis=1)  # (A, 2)
+    velocity = state[:, 3:4] * np.stack(
+        [np.sin(state[:, 2]), np.cos(state[:, 2])], axis=1
+    )  # (A, 2)
     return state[:, None, :2] + k * velocity[:, None, :]
 
 
-def evaluate(
-    run_dir: Path,
-    build_dir: Path,
-    split: Split | str = Split.TEST,
-    device_choice: str = "auto",
-    batch_size: int = 64,
+def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
+    """The build to evaluate on: `data`, else the run's own (the absolute path recorded by fit)."""
+    if data is not None:
+        return data
+    recorded = Path(info["build_dir"])
+    if not (recorded / MANIFEST_NAME).is_file():
+        raise NgsimInputError(
+            recorded, "the run's build is gone (or unfinished); pass --data to name it"
+        )
+    return recorded
+
+
+def check_build(
+    info: dict[str, Any], build_dir: Path, run_dir: Path, model: ModelConfig, other_build: bool
+) -> bool:
+    """Whether `build_dir` is the run's own build. Refuses another build unless `other_build`,
+    and, even then, one whose time step or history and future lengths do not fit the run's model
+    and horizon."""
+    _, identity = build_identity(build_dir)
+    why = identity_difference(info, identity)
+    if why and not other_build:
+        raise NgsimInputError(build_dir, f"not the build that run {run_dir} was trained on ({why}); "
+                              "pass --other-build to evaluate on another build")  # fmt: skip
+    config = open_build(build_dir).config
+    time_step_s = float(info["build_config"].get("time_step_s", math.nan))
+    if not math.isclose(config.time_step_s, time_step_s):
+        raise NgsimInputError(build_dir, f"its time step is {config.time_step_s} s; the run was "
+                              f"trained on {time_step_s} s steps")  # fmt: skip
+    steps = round(info["train"]["horizon_s"] / time_step_s)
+    if config.history_steps < model.history_steps_read or config.future_steps < steps:
+        raise NgsimInputError(build_dir, f"its graphs have {config.history_steps} history and "
+                              f"{config.future_steps} future steps; the run's model reads "
+                              f"{model.history_steps_read} and predicts {steps}")  # fmt: skip
+    return why is None
+
+
+def score(
+    model: AiGem, dataset: GraphDataset, steps: int, device: torch.device, batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
-) -> Evaluation:
-    """Score the run's best model and the constant-velocity baseline on `split` of `build_dir`."""
-    device = pick_device(device_choice)
-    model, info = load_model(run_dir, device)
-    dataset = GraphDataset(build_dir, split, history_steps=model.config.history_steps_read)
-    steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=Collate(dataset.scaler))
+) -> tuple[ErrorTotals, ErrorTotals]:  # fmt: skip
+    """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
+    `steps` future steps; inputs scaled with `dataset.scaler`."""
+    loader = DataLoader(
+        dataset, batch_size=batch_size, shuffle=False, collate_fn=Collate(dataset.scaler)
+    )
     ours, baseline = ErrorTotals(steps), ErrorTotals(steps)
     with torch.no_grad():
         for index, batch in enumerate(loader):
-            predicted = dataset.scaler.xy_to_metres(model({k: v.to(device) for k, v in batch.items()}, steps))
+            predicted = dataset.scaler.xy_to_metres(
+                model({k: v.to(device) for k, v in batch.items()}, steps)
+            )
+            if not bool(torch.isfinite(predicted).all()):
+                raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}")
             truth = batch["target_xy"][:, :steps].numpy()
             mask = batch["target_mask"][:, :steps].numpy()
             state = batch["target_state"].numpy().astype(np.float64)
             ours.add(predicted.cpu().numpy(), truth, mask, state[:, 1])
-            baseline.add(constant_velocity(state, steps, dataset.config.time_step_s), truth, mask, state[:, 1])
+            baseline.add(
+                constant_velocity(state, steps, dataset.config.time_step_s),
+                truth,
+                mask,
+                state[:, 1],
+            )
             if progress:
                 progress(index + 1, len(loader))
+    return ours, baseline
+
+
+def evaluate(
+    run_dir: Path,
+    build_dir: Path | None = None,
+    split: Split | str = Split.TEST,
+    device_choice: str = "auto",
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+    other_build: bool = False,
+) -> Evaluation:
+    """Score the run's best model and the constant-velocity baseline on `split` of `build_dir`
+    (None: the run's own build). Another build than the run's is refused unless `other_build`;
+    inputs are always scaled with the run's scaler, the one the model was trained with."""
+    device = pick_device(device_choice)
+    model, info = load_model(run_dir, device)
+    build_dir = resolve_build(info, build_dir)
+    same_build = check_build(info, build_dir, run_dir, model.config, other_build)
+    scaler = Scaler.from_ranges(info["scaler"], run_dir / BEST)
+    dataset = GraphDataset(build_dir, split, model.config.history_steps_read, scaler)
+    if len(dataset) == 0:
+        raise NgsimInputError(
+            build_dir, f"its {dataset.split.value} split is empty: nothing to evaluate"
+        )
+    steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
+    try:
+        ours, baseline = score(model, dataset, steps, device, batch_size, progress)
+    except NonFinitePredictionError as err:
+        raise NgsimInputError(run_dir / BEST, f"the model's predictions on {build_dir} ({Split(split).value} "
+                              f"split, {err}) are not finite (NaN or infinite); no metrics") from None  # fmt: skip
     return Evaluation(
         split=Split(split).value,
         horizon_steps=steps,
@@ -80,6 +181,7 @@ def evaluate(
         model=summarize(ours, dataset.config.time_step_s),
         constant_velocity=summarize(baseline, dataset.config.time_step_s),
         build_dir=str(build_dir),
+        same_build=same_build,
     )
 
 

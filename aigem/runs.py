@@ -1,32 +1,52 @@
 """The run directory of `aigem fit`: every path in it, checkpoints, the log and the curves.
 
-    RUN/run.json        what was trained on what: build, its config hash, model and train configs
+    RUN/run.json        what was trained on what: the build (absolute path, config hash, sha256
+                        of its manifest.json, config, fitted scaler), the model and train configs
     RUN/metrics.jsonl   one line per epoch: train and validation loss (metres^2), best so far
     RUN/last.pt         model, optimizer and progress after the last finished epoch (resume)
     RUN/best.pt         the model of the epoch with the lowest validation loss
     RUN/curves.png      training and validation loss per epoch
 
-Checkpoints are written to a temporary name and renamed, so a kill never leaves a torn file.
+Every checkpoint carries run.json's content as its `info`, so a checkpoint alone says which build
+it belongs to and how its inputs are scaled (aigem.checkpoints reads and checks them).
+
+Files are written to `NAME.partial` and renamed, so a kill never leaves a torn file, and a failed
+write (a full disk) removes its partial file and is one error naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import nn
 
+from aigem.checkpoints import (
+    BEST_KEYS,
+    IDENTITY,
+    LAST_KEYS,
+    check_info,
+    check_weights,
+    fitted_model,
+    identity_difference,
+    load_checkpoint,
+    run_info,
+)
 from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
-from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.layout import read_manifest
+from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
-RUN_INFO, METRICS, LAST, BEST, CURVES = "run.json", "metrics.jsonl", "last.pt", "best.pt", "curves.png"
+RUN_INFO, METRICS, LAST, BEST, CURVES = "run.json", "metrics.jsonl", "last.pt", "best.pt", "curves.png"  # fmt: skip
+# Train settings that a resumed run must keep: they change what it learns. Epochs, time limit,
+# patience and workers may change.
+RESUME_FIXED = ("horizon_s", "batch_size", "learning_rate", "seed")
 
 
 @dataclass(frozen=True)
@@ -36,49 +56,240 @@ class RunState:
     best_val_loss: float = math.inf
 
 
-def _save_atomic(payload: dict[str, Any], path: Path) -> None:
-    partial = path.with_suffix(path.suffix + ".partial")
-    torch.save(payload, partial)
-    os.replace(partial, path)
+# ------------------------------------------------------------------------------------------------
+# Reading: a run directory, its run.json and its best model.
+
+
+def read_run_info(run_dir: Path) -> dict[str, Any]:
+    """run.json of a run directory; one clear error for a directory that is not a run."""
+    if not run_dir.exists():
+        raise NgsimInputError(run_dir, "no such run directory")
+    path = run_dir / RUN_INFO
+    if not run_dir.is_dir() or not path.is_file():
+        raise NgsimInputError(
+            run_dir, f"not a run directory: no {RUN_INFO} (written by `aigem fit`)"
+        )
+    try:
+        info = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise NgsimInputError(path, f"unreadable run description: {err}") from None
+    check_info(info, path)
+    return info
+
+
+def _check_same_run(checkpoint_info: dict[str, Any], run: dict[str, Any], path: Path) -> None:
+    """A checkpoint from another run (another build, model or horizon) is not this run's."""
+    for key in (*IDENTITY, "model"):
+        if checkpoint_info[key] != run[key]:
+            raise NgsimInputError(
+                path, f"belongs to another run: its {key} differs from {RUN_INFO}'s"
+            )
+    if checkpoint_info["train"].get("horizon_s") != run["train"].get("horizon_s"):
+        raise NgsimInputError(
+            path, f"belongs to another run: its horizon differs from {RUN_INFO}'s"
+        )
+
+
+def load_model(run_dir: Path, device: torch.device | str = "cpu") -> tuple[AiGem, dict[str, Any]]:
+    """The best model of a run and its run info (the checkpoint's)."""
+    run = read_run_info(run_dir)
+    path = run_dir / BEST
+    if not path.is_file():
+        raise NgsimInputError(run_dir, f"not a finished run: no {BEST} (no epoch has finished yet)")
+    checkpoint = load_checkpoint(path, BEST_KEYS)
+    _check_same_run(checkpoint["info"], run, path)
+    model = fitted_model(checkpoint["info"], checkpoint["model"], path)
+    return model.to(device).eval(), checkpoint["info"]
+
+
+# ------------------------------------------------------------------------------------------------
+# Writing: atomically, and never a torn file.
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write `data` to `path` through `path.partial` and a rename; a failure removes the partial."""
+    partial = path.with_name(path.name + ".partial")
+    try:
+        with open(partial, "wb") as file:
+            file.write(data)
+            file.flush()
+            os.fsync(file.fileno())  # the bytes are on disk before the name points at them
+        os.replace(partial, path)
+    except OSError as err:
+        partial.unlink(missing_ok=True)
+        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+
+
+def _save_checkpoint(payload: dict[str, Any], path: Path) -> None:
+    buffer = io.BytesIO()  # serialised in memory, so that every disk error is Python's OSError
+    torch.save(payload, buffer)
+    _write_atomic(path, buffer.getvalue())
+
+
+def _append_line(path: Path, text: str) -> None:
+    """Append one line to a log; a failed write leaves the log as it was (no torn line)."""
+    size = path.stat().st_size if path.exists() else 0
+    try:
+        with path.open("a") as log:
+            log.write(text + "\n")
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            os.truncate(path, size)
+        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
+
+
+def _write_info(run_dir: Path, info: dict[str, Any]) -> None:
+    _write_atomic(run_dir / RUN_INFO, (json.dumps(info, indent=2) + "\n").encode())
+
+
+# ------------------------------------------------------------------------------------------------
+# A run's course: start (or resume), one checkpoint per epoch.
 
 
 def start_run(
     run_dir: Path, build_dir: Path, model_config: ModelConfig, train: TrainConfig, resume: bool,
     model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
-) -> RunState:  # fmt: skip
-    """Start a fresh run, or load the last checkpoint into `model` and `optimizer` to resume."""
-    manifest = read_manifest(build_dir)
-    info = {
-        "build_dir": str(Path(build_dir).resolve()),
-        "build_config_hash": manifest["config_hash"],
-        "model": model_config.to_dict(),
-        "train": train.to_dict(),
-    }
-    last = run_dir / LAST
+) -> tuple[RunState, dict[str, Any]]:  # fmt: skip
+    """Start a fresh run, or load the last checkpoint into `model` and `optimizer` to resume;
+    returns the state and the run info that every checkpoint of this run carries. A directory
+    with last.pt needs `resume`; one without it has nothing to resume and starts over."""
+    info = run_info(build_dir, model_config, train)
     if resume:
-        if not last.is_file():
-            raise NgsimInputError(run_dir, f"nothing to resume: no {LAST}")
-        checkpoint = torch.load(last, map_location="cpu", weights_only=False)
-        if checkpoint["info"]["model"] != info["model"] or checkpoint["info"]["build_config_hash"] != info["build_config_hash"]:
-            raise NgsimInputError(run_dir, "cannot resume: the model config or the build differs from the run's")
-        model.load_state_dict(checkpoint["model"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        return RunState(**checkpoint["state"])
-    if last.exists() or (run_dir / METRICS).exists():
-        raise NgsimInputError(run_dir, "already holds a run; pass --resume to continue it, or choose another --out")
+        state = _resume(run_dir, build_dir, info, model, optimizer)
+        if is_writer:
+            _write_info(run_dir, info)  # the latest limits (epochs, time, patience)
+            _drop_metrics_after(run_dir, state.next_epoch)
+        return state, info
+    if (run_dir / LAST).exists():
+        raise NgsimInputError(
+            run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
+        )
+    _check_fresh_out(run_dir)
     if is_writer:
+        created = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / RUN_INFO).write_text(json.dumps(info, indent=2) + "\n")
-    return RunState()
+        try:
+            _write_info(run_dir, info)
+        except NgsimOutputError:
+            if created:
+                run_dir.rmdir()
+            raise
+        # Without last.pt no epoch of an earlier start got its checkpoint (killed, or a full
+        # disk): nothing to resume, so its log rows and best.pt go, and the run starts over.
+        _drop_metrics_after(run_dir, 0)
+        (run_dir / BEST).unlink(missing_ok=True)
+    return RunState(), info
+
+
+def _check_fresh_out(run_dir: Path) -> None:
+    """A fresh run goes into a new or empty directory, or one of an aigem run that never finished
+    an epoch (its run.json is ours): never into another program's folder, whose files it would
+    overwrite."""
+    if not run_dir.exists():
+        return
+    if not run_dir.is_dir():
+        raise NgsimOutputError(run_dir, "exists and is not a directory")
+    entries = sorted(p.name for p in run_dir.iterdir())
+    if not entries:
+        return
+    if (run_dir / RUN_INFO).is_file():
+        read_run_info(run_dir)  # an error unless it is an aigem run's
+        return
+    shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
+    raise NgsimOutputError(
+        run_dir,
+        f"directory is not empty and is not an aigem run: it holds {shown}; choose a new or empty --out",
+    )
+
+
+def _resume(
+    run_dir: Path,
+    build_dir: Path,
+    info: dict[str, Any],
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+) -> RunState:
+    last = run_dir / LAST
+    if not last.is_file():
+        raise NgsimInputError(run_dir, f"nothing to resume: no {LAST}")
+    checkpoint = load_checkpoint(last, LAST_KEYS)
+    saved = checkpoint["info"]
+    _check_same_run(saved, read_run_info(run_dir), last)
+    why = identity_difference(saved, info)
+    if why:
+        raise NgsimInputError(
+            build_dir,
+            f"not the build that run {run_dir} was trained on ({why}); a run resumes on its own build only",
+        )
+    if saved["model"] != info["model"]:
+        changed = sorted(k for k in info["model"] if saved["model"][k] != info["model"][k])
+        raise NgsimInputError(
+            run_dir,
+            f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
+        )
+    changed = [
+        f"{k} {saved['train'].get(k)} -> {info['train'][k]}"
+        for k in RESUME_FIXED
+        if saved["train"].get(k) != info["train"][k]
+    ]
+    if changed:
+        raise NgsimInputError(
+            run_dir,
+            f"cannot resume with another {', '.join(changed)}: it changes what the run learns",
+        )
+    check_weights(model.state_dict(), checkpoint["model"], last)
+    model.load_state_dict(checkpoint["model"])
+    _load_optimizer(optimizer, checkpoint["optimizer"], last)
+    return _run_state(checkpoint["state"], last)
+
+
+def _load_optimizer(optimizer: torch.optim.Optimizer, saved: object, path: Path) -> None:
+    """Load an optimizer state of the same kind (Adam's hyper-parameters, one group per group)."""
+    expected = optimizer.state_dict()["param_groups"]
+    groups = saved.get("param_groups") if isinstance(saved, dict) else None
+    if (
+        not isinstance(groups, list)
+        or len(groups) != len(expected)
+        or any(
+            not isinstance(g, dict) or set(g) != set(e)
+            for g, e in zip(groups, expected, strict=True)
+        )
+    ):
+        raise NgsimInputError(path, "its optimizer state is not this run's optimizer's (Adam)")
+    try:
+        optimizer.load_state_dict(saved)  # type: ignore[arg-type]
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise NgsimInputError(
+            path, f"its optimizer state does not fit the model: {reason}"
+        ) from None
+
+
+def _run_state(saved: object, path: Path) -> RunState:
+    names = [f.name for f in fields(RunState)]
+    number = lambda v: isinstance(v, int | float) and not isinstance(v, bool)
+    if (
+        not isinstance(saved, dict)
+        or sorted(saved) != sorted(names)
+        or not all(map(number, saved.values()))
+    ):
+        raise NgsimInputError(
+            path, f"its progress record is not aigem's (expected {', '.join(names)})"
+        )
+    return RunState(next_epoch=int(saved["next_epoch"]), best_epoch=int(saved["best_epoch"]),
+                    best_val_loss=float(saved["best_val_loss"]))  # fmt: skip
 
 
 def end_epoch(
-    run_dir: Path, state: RunState, epoch: int, train_loss: float, val_loss: float,
-    model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
+    run_dir: Path, state: RunState, info: dict[str, Any], epoch: int, train_loss: float,
+    val_loss: float, model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
     timing: dict[str, float] | None = None,
 ) -> tuple[RunState, dict[str, float]]:  # fmt: skip
     """Log the epoch (with `timing`, e.g. seconds and graphs/s), keep the best model, and
-    checkpoint; returns the new state and the metrics row."""
+    checkpoint with the run's `info`; returns the new state and the metrics row."""
     better = math.isfinite(val_loss) and val_loss < state.best_val_loss
     new = RunState(
         next_epoch=epoch + 1,
@@ -91,30 +302,47 @@ def end_epoch(
     }  # fmt: skip
     if not is_writer:
         return new, row
-    info = json.loads((run_dir / RUN_INFO).read_text())
     if better:
-        _save_atomic({"info": info, "model": model.state_dict(), "epoch": epoch}, run_dir / BEST)
-    with (run_dir / METRICS).open("a") as log:
-        log.write(json.dumps(row) + "\n")
-    checkpoint = {"info": info, "model": model.state_dict(), "optimizer": optimizer.state_dict(), "state": asdict(new)}
-    _save_atomic(checkpoint, run_dir / LAST)
+        _save_checkpoint(
+            {"info": info, "model": model.state_dict(), "epoch": epoch}, run_dir / BEST
+        )
+    _append_line(run_dir / METRICS, json.dumps(row))
+    checkpoint = {
+        "info": info,
+        "model": model.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "state": asdict(new),
+    }
+    _save_checkpoint(checkpoint, run_dir / LAST)
     return new, row
 
 
+def _drop_metrics_after(run_dir: Path, epochs_done: int) -> None:
+    """Forget logged epochs after the last checkpoint's: a run stopped between writing an epoch's
+    row and its last.pt redoes that epoch, which must not be logged twice."""
+    rows = read_metrics(run_dir)
+    kept = [row for row in rows if row["epoch"] <= epochs_done]
+    if len(kept) < len(rows):
+        _write_atomic(run_dir / METRICS, "".join(json.dumps(row) + "\n" for row in kept).encode())
+
+
 def read_metrics(run_dir: Path) -> list[dict[str, float]]:
+    """The rows of metrics.jsonl; one line naming the file and line where it is damaged."""
     path = run_dir / METRICS
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
-
-
-def load_model(run_dir: Path, device: torch.device | str = "cpu") -> tuple[AiGem, dict[str, Any]]:
-    """The best model of a run and its run info."""
-    path = run_dir / BEST
-    if not path.is_file():
-        raise NgsimInputError(run_dir, f"not a finished run: no {BEST}")
-    checkpoint = torch.load(path, map_location=device, weights_only=False)
-    model = AiGem(ModelConfig(**checkpoint["info"]["model"]))
-    model.load_state_dict(checkpoint["model"])
-    return model.to(device).eval(), checkpoint["info"]
+    if not path.exists():
+        return []
+    rows = []
+    for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        try:
+            row = json.loads(line) if line.strip() else None
+        except json.JSONDecodeError:
+            row = "damaged"
+        if row is None:
+            continue
+        if not isinstance(row, dict) or not isinstance(row.get("epoch"), int):
+            raise NgsimInputError(path, "not a row of aigem's metrics log (damaged?)", line=number)
+        rows.append(row)
+    return rows
 
 
 def plot_curves(run_dir: Path) -> Path | None:
@@ -134,6 +362,8 @@ def plot_curves(run_dir: Path) -> Path | None:
     axes.set(xlabel="epoch", ylabel="MSE (m²)", title="AiGem training", yscale="log")
     axes.legend()
     figure.tight_layout()
-    figure.savefig(run_dir / CURVES, dpi=120)
+    image = io.BytesIO()
+    figure.savefig(image, format="png", dpi=120)
     plt.close(figure)
+    _write_atomic(run_dir / CURVES, image.getvalue())
     return run_dir / CURVES

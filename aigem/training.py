@@ -25,6 +25,9 @@ from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset, Scaler
 from aigem.model import AiGem, count_parameters
+from ngsim_graphs.builds import open_build
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.sampling import N_TARGETS
 from ngsim_graphs.schema import Split
 
 # (epoch, batches done, batches in the epoch, running train loss): the CLI draws a bar from it.
@@ -75,6 +78,25 @@ def masked_mse_m2(
     return squared.sum() / mask.sum().clamp(min=1.0)
 
 
+def check_splits(build_dir: Path) -> None:
+    """Refuse a build whose train or validation split has no samples, or no target actors: one
+    gives nothing to train on (nor a scaler), the other no validation loss, which picks the best
+    checkpoint and stops early; training on would only log a validation MSE of NaN."""
+    build = open_build(build_dir)
+    why = {
+        Split.TRAIN: ("train", "there is nothing to train on (and the scaler is fitted on it)"),
+        Split.VAL: ("validation", "`aigem fit` keeps the best checkpoint and stops early by validation loss"),
+    }  # fmt: skip
+    for split, (name, reason) in why.items():
+        samples = int(build.manifest.get("splits", {}).get(split.value, 0))
+        if samples == 0:
+            raise NgsimInputError(build_dir, f"the {name} split ({split.value}) is empty: {reason}; "
+                                  "rebuild with other split fractions or more data")  # fmt: skip
+        if int(build.samples(split)[N_TARGETS].sum()) == 0:
+            raise NgsimInputError(build_dir, f"the {name} split ({split.value}) has {samples} samples "
+                                  f"but no target actors: {reason}")  # fmt: skip
+
+
 def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
     return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
 
@@ -89,16 +111,18 @@ def _distributed() -> tuple[int, int]:
     return rank, world
 
 
-def _loaders(  # noqa: ANN202
-    build_dir: Path, model: ModelConfig, train: TrainConfig, rank: int, world: int
-):
+def _loaders(build_dir: Path, model: ModelConfig, train: TrainConfig, rank: int, world: int):
     # Graphs cut to the steps the model reads: the same loss, a fraction of the loading work.
     train_set, val_set = (
         GraphDataset(build_dir, split, history_steps=model.history_steps_read)
         for split in (Split.TRAIN, Split.VAL)
     )
     collate = Collate(train_set.scaler)
-    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train.seed) if world > 1 else None
+    sampler = (
+        DistributedSampler(train_set, world, rank, shuffle=True, seed=train.seed)
+        if world > 1
+        else None
+    )
     generator = torch.Generator().manual_seed(train.seed)
     common = {"batch_size": train.batch_size, "collate_fn": collate, "num_workers": train.workers}
     train_loader = DataLoader(
@@ -108,7 +132,9 @@ def _loaders(  # noqa: ANN202
     return train_set, train_loader, val_loader, sampler, generator
 
 
-def evaluate_loss(model: nn.Module, loader: DataLoader, scaler: Scaler, steps: int, device: torch.device) -> float:
+def evaluate_loss(
+    model: nn.Module, loader: DataLoader, scaler: Scaler, steps: int, device: torch.device
+) -> float:
     """Mean validation loss in metres^2, weighted by valid steps."""
     model.eval()
     total, count = 0.0, 0.0
@@ -140,11 +166,16 @@ def fit(
     if device.type == "cuda" and world > 1:
         device = torch.device("cuda", rank % torch.cuda.device_count())
     seed_everything(train.seed + rank)
-    train_set, train_loader, val_loader, sampler, generator = _loaders(build_dir, model_config, train, rank, world)
+    check_splits(build_dir)
+    train_set, train_loader, val_loader, sampler, generator = _loaders(
+        build_dir, model_config, train, rank, world
+    )
     steps = train.horizon_steps(train_set.config.time_step_s)
     model = AiGem(model_config).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=train.learning_rate)
-    state = runs.start_run(run_dir, build_dir, model_config, train, resume, model, optimizer, is_writer=rank == 0)
+    state, info = runs.start_run(
+        run_dir, build_dir, model_config, train, resume, model, optimizer, rank == 0
+    )
     net = nn.parallel.DistributedDataParallel(model) if world > 1 else model
     report = progress or (lambda *_: None)
     started, graphs_seen, train_seconds = time.monotonic(), 0, 0.0
@@ -161,26 +192,45 @@ def fit(
             batch = _to(batch, device)
             loss = masked_mse_m2(net(batch, steps), batch, train_set.scaler, steps)
             if not torch.isfinite(loss):
-                raise NonFiniteLossError(f"non-finite training loss ({float(loss)}) at epoch {epoch + 1}, batch {index + 1}")
+                raise NonFiniteLossError(
+                    f"non-finite training loss ({float(loss)}) at epoch {epoch + 1}, batch {index + 1}"
+                )
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
             running, batches = running + float(loss.detach()), batches + 1
             epoch_graphs += int(batch["node_sample"].max()) + 1 if len(batch["node_sample"]) else 0
             report(epoch + 1, index + 1, len(train_loader), running / batches)
-            if train.max_minutes is not None and time.monotonic() - started > 60 * train.max_minutes:
+            if (
+                train.max_minutes is not None
+                and time.monotonic() - started > 60 * train.max_minutes
+            ):
                 stopped = "time limit"
                 break
         epoch_seconds = time.monotonic() - epoch_start
         train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
         val_loss = evaluate_loss(model, val_loader, train_set.scaler, steps, device)
+        if not math.isfinite(val_loss):
+            raise NonFiniteLossError(
+                f"non-finite validation loss ({val_loss}) at epoch {epoch + 1}: the model diverged, "
+                f"or no validation target has a recorded step within {train.horizon_s} s"
+            )
         timing = {
             "train_seconds": round(epoch_seconds, 1),
             "train_graphs_per_s": round(epoch_graphs * world / epoch_seconds, 1),
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
         }
         state, row = runs.end_epoch(
-            run_dir, state, epoch, running / max(batches, 1), val_loss, model, optimizer, rank == 0, timing
+            run_dir,
+            state,
+            info,
+            epoch,
+            running / max(batches, 1),
+            val_loss,
+            model,
+            optimizer,
+            rank == 0,
+            timing,
         )
         if on_epoch is not None and rank == 0:
             on_epoch(row)
@@ -201,4 +251,3 @@ def fit(
         train_graphs_per_s=graphs_seen * world / train_seconds if train_seconds else math.nan,
         device=str(device),
     )
-

@@ -20,7 +20,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from aigem.config import ModelConfig
-from aigem.data import Collate, GraphDataset, to_hetero_data
+from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
 from aigem.training import masked_mse_m2
 
@@ -38,9 +38,12 @@ def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> tuple
     """(graphs/s of PyG's DataLoader over a prepared list of HeteroData, bytes per graph held)."""
     from torch_geometric.loader import DataLoader as PygLoader
 
-    collate = Collate(dataset.scaler)
-    graphs = [to_hetero_data(collate([dataset[i]])) for i in range(n_graphs)]
-    held = sum(v.nbytes for g in graphs for store in g.stores for v in store.values() if torch.is_tensor(v))
+    from aigem.pyg import to_hetero_data
+
+    graphs = [to_hetero_data(dataset[i], dataset.scaler, sample_id=i) for i in range(n_graphs)]
+    held = sum(
+        v.nbytes for g in graphs for store in g.stores for v in store.values() if torch.is_tensor(v)
+    )
     start = time.perf_counter()
     for _ in PygLoader(graphs, batch_size=batch_size, shuffle=True):
         pass
@@ -51,7 +54,9 @@ def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: 
     torch.manual_seed(0)
     model = AiGem(ModelConfig())
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=True, collate_fn=Collate(dataset.scaler))
+    loader = DataLoader(
+        dataset, batch_size=batch_size, shuffle=True, collate_fn=Collate(dataset.scaler)
+    )
     data = [b for _, b in zip(range(batches + 1), loader)]  # loading is not timed here
     steps = model.config.future_steps
     start = None
@@ -66,7 +71,9 @@ def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: 
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("build", type=Path)
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--batches", type=int, default=40)
@@ -80,7 +87,9 @@ def main() -> None:
     as_fit = GraphDataset(args.build, "train", history_steps=read)
     kw = {"batch_size": args.batch_size, "shuffle": True, "collate_fn": Collate(whole.scaler)}
     rates = {
-        (name, w): graphs_per_second(DataLoader(data, num_workers=w, **kw), args.batches, args.batch_size)
+        (name, w): graphs_per_second(
+            DataLoader(data, num_workers=w, **kw), args.batches, args.batch_size
+        )
         for name, data in (("whole", whole), ("fit", as_fit))
         for w in (0, 2)
     }
@@ -88,11 +97,22 @@ def main() -> None:
     train = training_graphs_per_second(as_fit, args.train_batches, args.batch_size)
     k_h, size = whole.config.history_steps, args.batch_size
     print(f"build {args.build}: {len(whole):,} train samples, opened in {open_ms:.0f} ms")
-    for name, label in (("whole", f"whole graphs, {k_h} steps"), ("fit", f"as aigem fit, {read} steps")):
+    for name, label in (
+        ("whole", f"whole graphs, {k_h} steps"),
+        ("fit", f"as aigem fit, {read} steps"),
+    ):
         for w in (0, 2):
-            _row(f"loader, {label}, {w} workers", rates[name, w], "graphs/s (read + induce + collate)")
+            _row(
+                f"loader, {label}, {w} workers",
+                rates[name, w],
+                "graphs/s (read + induce + collate)",
+            )
     _row("PyG list of HeteroData, whole", pyg, "graphs/s (PyG DataLoader; batching only)")
-    _row("  that list holds", pyg_bytes / 1e3, f"kB a graph: {pyg_bytes * len(whole) / 1e9:,.1f} GB for train")
+    _row(
+        "  that list holds",
+        pyg_bytes / 1e3,
+        f"kB a graph: {pyg_bytes * len(whole) / 1e9:,.1f} GB for train",
+    )
     _row("training (CPU)", train, f"graphs/s (forward + backward + Adam, batch {size})")
     _row("loader / training, 0 workers", rates["fit", 0] / train, "x")
     _row("loader / training, 2 workers", rates["fit", 2] / train, "x")
@@ -101,6 +121,7 @@ def main() -> None:
 
 def _row(label: str, value: float, unit: str, digits: int = 1) -> None:
     print(f"{label:<40} {value:10,.{digits}f} {unit}")
+
 
 if __name__ == "__main__":
     main()

@@ -7,9 +7,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
-
 from ngsim_cli.console import exit_on_error, print_table, stderr, stdout
+from rich.table import Table
 
 app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
@@ -26,23 +25,44 @@ def _fail(message: str, code: int = 1) -> typer.Exit:
 @app.command()
 def fit(
     data: Annotated[Path, typer.Argument(help="A finished ngsim-graphs build directory.")],
-    out: Annotated[Path, typer.Option("--out", help="Run directory: checkpoints, metrics log, curves.")],
-    horizon_s: Annotated[float, typer.Option(help="Prediction horizon, s (1..5; the paper trains one model per horizon).")] = 5.0,
+    out: Annotated[
+        Path, typer.Option("--out", help="Run directory: checkpoints, metrics log, curves.")
+    ],
+    horizon_s: Annotated[
+        float,
+        typer.Option(help="Prediction horizon, s (1..5; the paper trains one model per horizon)."),
+    ] = 5.0,
     epochs: Annotated[int, typer.Option(help="Epochs over the train split.")] = 100,
     batch_size: Annotated[int, typer.Option(help="Graphs (samples) per batch.")] = 32,
-    max_minutes: Annotated[float | None, typer.Option(help="Stop training after this many minutes.")] = None,
-    patience: Annotated[int | None, typer.Option(help="Stop after this many epochs without a better validation loss.")] = None,
+    max_minutes: Annotated[
+        float | None, typer.Option(help="Stop training after this many minutes.")
+    ] = None,
+    patience: Annotated[
+        int | None,
+        typer.Option(help="Stop after this many epochs without a better validation loss."),
+    ] = None,
     device: Annotated[str, typer.Option(help="auto (CUDA when present), cpu or cuda.")] = "auto",
-    seed: Annotated[int, typer.Option(help="Seed of the initialisation, shuffling and dropout.")] = 0,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the initialisation, shuffling and dropout.")
+    ] = 0,
     workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = 0,
-    no_concat: Annotated[bool, typer.Option("--no-concat", help="Ablation: the output MLP does not see the previous position.")] = False,
-    resume: Annotated[bool, typer.Option(help="Continue the run in --out from its last checkpoint.")] = False,
+    no_concat: Annotated[
+        bool,
+        typer.Option(
+            "--no-concat", help="Ablation: the output MLP does not see the previous position."
+        ),
+    ] = False,
+    resume: Annotated[
+        bool, typer.Option(help="Continue the run in --out from its last checkpoint.")
+    ] = False,
 ) -> None:
     """Train AiGem on DATA's train split; keep the best model by validation loss."""
+    from ngsim_cli.console import progress_bar
+
     from aigem.config import ModelConfig, TrainConfig
     from aigem.model import AiGem, count_parameters
-    from aigem.training import NonFiniteLossError, fit as run_fit
-    from ngsim_cli.console import progress_bar
+    from aigem.training import NonFiniteLossError
+    from aigem.training import fit as run_fit
 
     if device not in ("auto", "cpu", "cuda"):
         raise _fail(f"--device must be auto, cpu or cuda, not {device!r}", 2)
@@ -84,9 +104,15 @@ def _print_epoch(row: dict[str, float]) -> None:
 
 def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
     table = Table(title=title)
-    for column in ("model", "ADE", "FDE", *(f"RMSE {s} s" for s in range(1, seconds + 1)), "params"):
+    for column in (
+        "model",
+        "ADE",
+        "FDE",
+        *(f"RMSE {s} s" for s in range(1, seconds + 1)),
+        "params",
+    ):
         table.add_column(column, justify="left" if column == "model" else "right")
-    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    fmt = lambda v: "-" if v is None else f"{v:.2f}"
     for name, row in rows.items():
         rmse = row.get("rmse_m") or [row.get(f"rmse_{s}s_m") for s in range(1, seconds + 1)]
         table.add_row(name, fmt(row["ade_m"]), fmt(row["fde_m"]), *(fmt(v) for v in rmse[:seconds]),
@@ -97,18 +123,38 @@ def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
 @app.command()
 def evaluate(
     run: Annotated[Path, typer.Argument(help="A run directory written by `aigem fit`.")],
-    data: Annotated[Path, typer.Option("--data", help="The build to evaluate on.")],
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            "--data", help="The build to evaluate on (default: the run's own, as recorded by fit)."
+        ),
+    ] = None,
     split: Annotated[str, typer.Option(help="train, val or test.")] = "test",
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON document, nothing else.")] = False,
+    other_build: Annotated[
+        bool,
+        typer.Option(
+            "--other-build",
+            help="Allow a build other than the run's (e.g. train on US-101, test on I-80); inputs are scaled with the run's scaler.",
+        ),
+    ] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON document, nothing else.")
+    ] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
 ) -> None:
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity."""
-    from aigem.evaluation import PAPER_TABLE, as_dict, evaluate as run_evaluate
+    from aigem.evaluation import PAPER_TABLE, as_dict
+    from aigem.evaluation import evaluate as run_evaluate
 
     if split not in ("train", "val", "test"):
         raise _fail(f"--split must be train, val or test, not {split!r}", 2)
+    if device not in ("auto", "cpu", "cuda"):
+        raise _fail(f"--device must be auto, cpu or cuda, not {device!r}", 2)
     with exit_on_error():
-        result = run_evaluate(run, data, split, device)
+        try:
+            result = run_evaluate(run, data, split, device, other_build=other_build)
+        except ValueError as err:  # the project's errors are ValueErrors too: one line either way
+            raise _fail(str(err)) from None
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))
         return
@@ -120,9 +166,12 @@ def evaluate(
     counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
     stdout.print(f"{result.samples:,} samples; evaluated actors per horizon: {counts}")
     print_table(_metrics_table("the paper's table (NGSIM US-101 + I-80)", PAPER_TABLE, 5))
+    other = (
+        "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"
+    )
     stdout.print(
-        f"These numbers come from {result.build_dir}. If it was made by `ngsim-graphs synth`, "
-        "they are synthetic results and not comparable to the paper's NGSIM numbers."
+        f"These numbers come from {result.build_dir}{other}. If it was made by `ngsim-graphs "
+        "synth`, they are synthetic results and not comparable to the paper's NGSIM numbers."
     )
 
 

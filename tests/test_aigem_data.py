@@ -8,16 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from aigem_fixtures import tiny_build, two_recording_build  # noqa: F401
 from torch.utils.data import DataLoader
 
-from aigem.data import Collate, GraphDataset, to_hetero_data
+from aigem.data import Collate, GraphDataset, Scaler
 from ngsim_graphs.builds import open_build
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.layout import config_hash, write_manifest
 from ngsim_graphs.scaling import scale
 
 
-def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:  # noqa: F811
+def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
     assert len(dataset) == open_build(tiny_build).manifest["splits"]["train"] > 4
     ids = [3, 0, 2]
@@ -29,14 +29,21 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:  # n
     ranges = json.loads((tiny_build / "manifest.json").read_text())["scaler"]
     expected_x = scale(graphs.node_features[:, 0], ranges["x_m"], (-1.0, 1.0))
     assert np.allclose(batch["x"][:, 0].numpy(), expected_x, atol=1e-6)
-    assert batch["x"].dtype == torch.float32 and batch["spatial_attr"].shape == (graphs.spatial_edges.shape[1], 1)
-    assert float(batch["spatial_attr"].min()) >= -1e-6 and float(batch["temporal_attr"].max()) == pytest.approx(0.2)
+    assert batch["x"].dtype == torch.float32 and batch["spatial_attr"].shape == (
+        graphs.spatial_edges.shape[1],
+        1,
+    )
+    assert float(batch["spatial_attr"].min()) >= -1e-6 and float(
+        batch["temporal_attr"].max()
+    ) == pytest.approx(0.2)
     assert torch.equal(batch["target_xy"], torch.from_numpy(graphs.target_xy.astype(np.float32)))
     metres = dataset.scaler.xy_to_metres(batch["x"][:, :2].double())
     assert np.allclose(metres.numpy(), graphs.node_features[:, :2], atol=1e-4)
 
 
-def test_a_batch_is_induced_once_per_recording_grouped_by_recording(two_recording_build: Path) -> None:  # noqa: F811
+def test_a_batch_is_induced_once_per_recording_grouped_by_recording(
+    two_recording_build: Path,
+) -> None:
     dataset = GraphDataset(two_recording_build, "train")
     recording = open_build(two_recording_build).sample_arrays("train")["recording_index"]
     first, second = np.flatnonzero(recording == 0), np.flatnonzero(recording == 1)
@@ -49,25 +56,32 @@ def test_a_batch_is_induced_once_per_recording_grouped_by_recording(two_recordin
         assert torch.equal(batch[key], one_by_one[key]), key
 
 
-def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> None:  # noqa: F811
+def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
     plain = list(DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler)))
-    workers = list(DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler), num_workers=2))
+    workers = list(
+        DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler), num_workers=2)
+    )
     assert len(plain) == len(workers)
     for a, b in zip(plain, workers, strict=True):
         assert all(torch.equal(a[k], b[k]) for k in a)
 
 
-def test_hetero_data_view(tiny_build: Path) -> None:  # noqa: F811
-    dataset = GraphDataset(tiny_build, "val")
-    batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
-    data = to_hetero_data(batch)
-    assert data["vehicle"].x.shape == batch["x"].shape
-    assert torch.equal(data["vehicle", "spatial", "vehicle"].edge_index, batch["spatial_edges"])
-    assert set(data.edge_types) == {("vehicle", "spatial", "vehicle"), ("vehicle", "temporal", "vehicle")}
+def test_a_given_scaler_replaces_the_builds(tiny_build: Path) -> None:
+    """Evaluation on another build scales inputs as in training: with the run's scaler."""
+    own = GraphDataset(tiny_build, "val")
+    ranges = json.loads(json.dumps(own.scaler.ranges))
+    ranges["x_m"]["max"] = ranges["x_m"]["max"] + 10.0  # a wider x range: smaller scaled x
+    other = GraphDataset(tiny_build, "val", scaler=Scaler(ranges))
+    assert other.scaler.ranges["x_m"]["max"] == own.scaler.ranges["x_m"]["max"] + 10.0
+    a, b = (Collate(d.scaler)(d.__getitems__([0, 1])) for d in (own, other))
+    expected = scale(own.__getitems__([0, 1])[0].node_features[:, 0], ranges["x_m"], (-1.0, 1.0))
+    assert np.allclose(b["x"][:, 0].numpy(), expected, atol=1e-6)
+    assert not torch.allclose(a["x"][:, 0], b["x"][:, 0])
+    assert torch.equal(a["x"][:, 1:], b["x"][:, 1:])  # y, heading, speed as before
 
 
-def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_path: Path) -> None:
     with pytest.raises(NgsimInputError, match="not a finished build"):
         GraphDataset(tmp_path, "train")
     copy = tmp_path / "copy"
@@ -76,6 +90,8 @@ def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_pa
     (copy / "manifest.json").write_text(json.dumps({**manifest, "format_version": 99}))
     with pytest.raises(NgsimInputError, match="format version 99"):
         GraphDataset(copy, "train")
-    (copy / "manifest.json").write_text(json.dumps({**manifest, "config": {**manifest["config"], "new_rule": 1}}))
+    # A newer ngsim-graphs' setting, in a manifest sealed as that version would seal it.
+    config = {**manifest["config"], "new_rule": 1}
+    write_manifest(copy, {**manifest, "config": config, "config_hash": config_hash(config)})
     with pytest.raises(NgsimInputError, match="unknown build settings"):
         GraphDataset(copy, "train")

@@ -6,7 +6,6 @@ import torch
 
 from aigem.config import ModelConfig
 from aigem.model import AiGem, count_parameters
-from aigem_fixtures import tiny_build  # noqa: F401
 
 
 def tiny_batch() -> dict[str, torch.Tensor]:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from aigem_fixtures import tiny_build  # noqa: F401
+from ngsim_cli.aigem import app
 from torch.utils.data import DataLoader
 from typer.testing import CliRunner
 
@@ -19,13 +19,14 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
 from aigem.training import NonFiniteLossError, fit, masked_mse_m2
-from ngsim_cli.aigem import app
+from ngsim_graphs.building import run_build
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 
 FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
 
 
-def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:  # noqa: F811
+def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:
     torch.manual_seed(0)
     dataset = GraphDataset(tiny_build, "train")
     batch = next(iter(DataLoader(dataset, batch_size=8, collate_fn=Collate(dataset.scaler))))
@@ -41,7 +42,7 @@ def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:  # noqa: F811
     assert losses[-1] < 0.5 * losses[0]
 
 
-def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:  # noqa: F811
+def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
     batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
     truth = dataset.scaler.xy_to_metres(torch.zeros(1, 1, 2))  # scaled 0 -> some metres
@@ -53,12 +54,21 @@ def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:  # noqa: F811
     assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
 
 
-def test_fit_then_resume_finishes_like_an_uninterrupted_run(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_fit_then_resume_finishes_like_an_uninterrupted_run(
+    tiny_build: Path,
+    tmp_path: Path,
+) -> None:
     config = TrainConfig(epochs=2, batch_size=8, horizon_s=1.0, seed=3)
     straight = fit(tiny_build, tmp_path / "straight", ModelConfig(), config, "cpu")
     assert straight.epochs_done == 2 and straight.parameters == 74_242
     # "Interrupted" after epoch 1: run one epoch, then resume to two.
-    fit(tiny_build, tmp_path / "resumed", ModelConfig(), TrainConfig(**{**config.to_dict(), "epochs": 1}), "cpu")
+    fit(
+        tiny_build,
+        tmp_path / "resumed",
+        ModelConfig(),
+        TrainConfig(**{**config.to_dict(), "epochs": 1}),
+        "cpu",
+    )
     resumed = fit(tiny_build, tmp_path / "resumed", ModelConfig(), config, "cpu", resume=True)
     assert resumed.epochs_done == 2
     a, b = runs.read_metrics(tmp_path / "straight"), runs.read_metrics(tmp_path / "resumed")
@@ -69,7 +79,7 @@ def test_fit_then_resume_finishes_like_an_uninterrupted_run(tiny_build: Path, tm
     assert not list((tmp_path / "resumed").glob("*.partial"))
 
 
-def test_a_second_fit_into_a_run_needs_resume(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_a_second_fit_into_a_run_needs_resume(tiny_build: Path, tmp_path: Path) -> None:
     fit(tiny_build, tmp_path / "run", ModelConfig(), FAST, "cpu")
     with pytest.raises(NgsimInputError, match="already holds a run"):
         fit(tiny_build, tmp_path / "run", ModelConfig(), FAST, "cpu")
@@ -77,12 +87,18 @@ def test_a_second_fit_into_a_run_needs_resume(tiny_build: Path, tmp_path: Path) 
         fit(tiny_build, tmp_path / "other", ModelConfig(), FAST, "cpu", resume=True)
 
 
-def test_non_finite_loss_stops_with_a_clear_error(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_non_finite_loss_stops_with_a_clear_error(tiny_build: Path, tmp_path: Path) -> None:
     with pytest.raises(NonFiniteLossError, match="non-finite training loss"):
-        fit(tiny_build, tmp_path / "run", ModelConfig(), TrainConfig(**{**FAST.to_dict(), "learning_rate": 1e30}), "cpu")
+        fit(
+            tiny_build,
+            tmp_path / "run",
+            ModelConfig(),
+            TrainConfig(**{**FAST.to_dict(), "learning_rate": 1e30}),
+            "cpu",
+        )
 
 
-def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:
     runner = CliRunner()
     run = tmp_path / "run"
     result = runner.invoke(app, ["fit", str(tiny_build), "--out", str(run), "--epochs", "1",
@@ -91,8 +107,13 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:  # noqa
     assert "74,242 parameters" in result.stdout
     row = runs.read_metrics(run)[0]
     assert row["train_seconds"] > 0 and row["train_graphs_per_s"] > 0 and row["val_seconds"] >= 0
-    assert f"epoch 1: train MSE {row['train_loss_m2']:.3f} m², validation MSE {row['val_loss_m2']:.3f} m² (best)" in result.stderr
-    result = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--json", "--device", "cpu"])
+    assert (
+        f"epoch 1: train MSE {row['train_loss_m2']:.3f} m², validation MSE {row['val_loss_m2']:.3f} m² (best)"
+        in result.stderr
+    )
+    result = runner.invoke(
+        app, ["evaluate", str(run), "--data", str(tiny_build), "--json", "--device", "cpu"]
+    )
     assert result.exit_code == 0, result.output
     document = json.loads(result.stdout)
     assert document["horizon_steps"] == 10 and document["parameters"] == 74_242
@@ -103,16 +124,50 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:  # noqa
     assert "constant velocity" in table.stdout and "synthetic" in table.stdout
     assert "│   74.2 │" in table.stdout  # the params column of this run's row
     bad = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--data", str(tiny_build)])
-    assert bad.exit_code == 1 and "not a finished run" in bad.stderr
+    assert (
+        bad.exit_code == 1 and bad.stderr == f"error: {tmp_path / 'nope'}: no such run directory\n"
+    )
 
 
-def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path: Path) -> None:
     run = tmp_path / "ddp"
     command = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29533",
                "-m", "ngsim_cli.aigem", "fit", str(tiny_build), "--out", str(run), "--epochs", "1",
                "--batch-size", "4", "--horizon-s", "1", "--device", "cpu"]  # fmt: skip
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
+    done = subprocess.run(
+        command, capture_output=True, text=True, timeout=300, env=env, check=False
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
     assert (run / runs.BEST).is_file()
+
+
+EMPTY_VAL = "the validation split (val) is empty: `aigem fit` keeps the best checkpoint and stops early by validation loss"  # fmt: skip
+EMPTY_TRAIN = "the train split (train) is empty: there is nothing to train on (and the scaler is fitted on it)"  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("fractions", "split", "message"),
+    [((0.9, 0.0, 0.1), "val", EMPTY_VAL), ((0.0, 0.5, 0.5), "train", EMPTY_TRAIN)],
+)
+def test_fit_refuses_an_empty_train_or_validation_split(
+    tiny_build: Path,
+    tmp_path: Path,
+    fractions: tuple[float, float, float],
+    split: str,
+    message: str,
+) -> None:
+    build, run = tmp_path / "build", tmp_path / "run"
+    config = BuildConfig(d_sense_m=12.0, d_min_m=6.0, split_fractions=fractions)
+    run_build([tiny_build.parent / "raw"], build, config)
+    assert json.loads((build / "manifest.json").read_text())["splits"][split] == 0
+    result = CliRunner().invoke(
+        app, ["fit", str(build), "--out", str(run), "--epochs", "1", "--device", "cpu"]
+    )
+    assert result.exit_code == 1
+    assert (
+        result.stderr
+        == f"error: {build}: {message}; rebuild with other split fractions or more data\n"
+    )
+    assert not run.exists()  # stopped before training: no run directory

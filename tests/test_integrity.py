@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from aigem_fixtures import tiny_build  # noqa: F401
 from test_cli_ngsim import error_line, invoke
 
 from ngsim_graphs import integrity, layout
@@ -24,7 +23,7 @@ from ngsim_graphs.errors import NgsimInputError
 
 
 @pytest.fixture
-def copy(tiny_build: Path, tmp_path: Path) -> Path:  # noqa: F811
+def copy(tiny_build: Path, tmp_path: Path) -> Path:
     target = tmp_path / "build"
     shutil.copytree(tiny_build, target)
     return target
@@ -46,7 +45,7 @@ def first_arrays(build: Path) -> Path:
     return layout.recording_arrays_dir(build, entry["location"], entry["period"])
 
 
-def test_the_manifest_records_every_file(tiny_build: Path) -> None:  # noqa: F811
+def test_the_manifest_records_every_file(tiny_build: Path) -> None:
     manifest = manifest_of(tiny_build)
     files = sorted(str(p.relative_to(tiny_build)) for p in tiny_build.rglob("*") if p.is_file())
     assert sorted(manifest["files"]) == [f for f in files if f != layout.MANIFEST_NAME]

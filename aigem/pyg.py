@@ -1,0 +1,118 @@
+"""PyTorch Geometric's view of a build: one `HeteroData` per sample, batched by PyG's own loader.
+
+PyG batches `HeteroData` by concatenating every attribute and offsetting only edge indices (and
+attributes named `*batch*`). Targets kept as a list of node indices would then point at the wrong
+nodes of every graph but the first, so here a target is a node-level mask (`is_target`) with
+node-level ground truth (`y`, `y_mask`), which concatenation keeps right. Per sample, with N
+nodes, E_s spatial and E_t temporal edges, K = K_F future steps:
+
+    data["vehicle"].x          (N, 4) float32 [x, y, heading, speed], scaled as `Collate` does
+    data["vehicle"].step       (N,) int64 history step k, 0..K_H-1 (K_H-1 is the present)
+    data["vehicle"].is_ego     (N,) bool
+    data["vehicle"].track_id   (N,) int64 the build's track id (a node is a track at a step)
+    data["vehicle"].is_target  (N,) bool: the targets (actor nodes at the present step)
+    data["vehicle"].y          (N, K, 2) float32 future positions, metres, in the sample's frame;
+                               0 for non-targets and at masked steps
+    data["vehicle"].y_mask     (N, K) bool: True where y is recorded (all False for non-targets)
+    data["vehicle", "spatial", "vehicle"]   edge_index (2, E_s), edge_attr (E_s, 1) scaled distance
+    data["vehicle", "temporal", "vehicle"]  edge_index (2, E_t), edge_attr (E_t, 1) t_s in seconds
+    data.sample_id             (1,) int64 the sample's index in its split
+
+The targets come in node order, which is the order of `Collate`'s `target_node`;
+`to_model_batch` turns a (batched) `HeteroData` into AiGem's input dict.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch_geometric.data import Dataset as PygDataset
+from torch_geometric.data import HeteroData
+
+from aigem.data import GraphDataset, Scaler
+from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.schema import Split
+
+NODE = "vehicle"
+SPATIAL = (NODE, "spatial", NODE)
+TEMPORAL = (NODE, "temporal", NODE)
+
+
+def to_hetero_data(graph: GraphBatch, scaler: Scaler, sample_id: int | None = None) -> HeteroData:
+    """One sample's graph (a one-sample GraphBatch) as a HeteroData that PyG batches correctly."""
+    if graph.n_samples != 1:
+        raise ValueError(f"one sample's graph expected, got {graph.n_samples}: PyG batches them")
+    n_nodes, future_steps = len(graph.node_sample), graph.target_xy.shape[1]
+    y = np.zeros((n_nodes, future_steps, 2), dtype=np.float32)
+    y_mask = np.zeros((n_nodes, future_steps), dtype=bool)
+    is_target = np.zeros(n_nodes, dtype=bool)
+    y[graph.target_node], y_mask[graph.target_node] = graph.target_xy, graph.target_mask
+    is_target[graph.target_node] = True
+    data = HeteroData()
+    node = data[NODE]
+    node.x = torch.from_numpy(scaler.features(graph.node_features))
+    node.step = torch.from_numpy(graph.node_step.astype(np.int64))
+    node.is_ego = torch.from_numpy(graph.node_is_ego)
+    node.track_id = torch.from_numpy(graph.node_track.astype(np.int64))
+    node.is_target = torch.from_numpy(is_target)
+    node.y, node.y_mask = torch.from_numpy(y), torch.from_numpy(y_mask)
+    data[SPATIAL].edge_index = torch.from_numpy(graph.spatial_edges)
+    data[SPATIAL].edge_attr = torch.from_numpy(scaler.distance(graph.spatial_distance))[:, None]
+    data[TEMPORAL].edge_index = torch.from_numpy(graph.temporal_edges)
+    data[TEMPORAL].edge_attr = torch.full((graph.temporal_edges.shape[1], 1), graph.time_step_s)
+    if sample_id is not None:
+        data.sample_id = torch.tensor([sample_id])
+    return data
+
+
+def to_model_batch(data: HeteroData) -> dict[str, torch.Tensor]:
+    """AiGem's input dict (the keys of `Collate`'s batch but `target_state`) from one HeteroData
+    of `to_hetero_data` or a PyG batch of them; A targets in node order."""
+    node = data[NODE]
+    target = torch.nonzero(node.is_target).squeeze(1)  # (A,)
+    node_sample = node.batch if "batch" in node else torch.zeros(node.num_nodes, dtype=torch.long)
+    return {
+        "x": node.x,  # (N, 4) scaled
+        "spatial_edges": data[SPATIAL].edge_index,  # (2, E_s)
+        "spatial_attr": data[SPATIAL].edge_attr,  # (E_s, 1)
+        "temporal_edges": data[TEMPORAL].edge_index,  # (2, E_t)
+        "temporal_attr": data[TEMPORAL].edge_attr,  # (E_t, 1)
+        "node_sample": node_sample,  # (N,)
+        "target_node": target,  # (A,)
+        "target_sample": node_sample[target],  # (A,)
+        "target_xy": node.y[target],  # (A, K, 2) metres
+        "target_mask": node.y_mask[target],  # (A, K)
+    }
+
+
+class GraphPygDataset(PygDataset):
+    """The samples of one split of a build as a PyG dataset: `get(i)` is sample i's HeteroData.
+
+    Graphs are induced on demand from the memory-mapped build (nothing is processed or stored);
+    `history_steps` and `scaler` mean what they mean for `aigem.data.GraphDataset`. Batch with
+    `torch_geometric.loader.DataLoader`.
+    """
+
+    def __init__(
+        self,
+        build_dir: Path,
+        split: Split | str = Split.TRAIN,
+        history_steps: int | None = None,
+        scaler: Scaler | None = None,
+        transform: Callable[[HeteroData], HeteroData] | None = None,
+    ) -> None:
+        self.samples = GraphDataset(build_dir, split, history_steps, scaler)
+        super().__init__(root=None, transform=transform)  # no raw or processed files
+
+    @property
+    def scaler(self) -> Scaler:
+        return self.samples.scaler
+
+    def len(self) -> int:
+        return len(self.samples)
+
+    def get(self, idx: int) -> HeteroData:
+        return to_hetero_data(self.samples[idx], self.samples.scaler, sample_id=idx)

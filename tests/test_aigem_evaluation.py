@@ -1,0 +1,158 @@
+"""`aigem evaluate`: on the run's own build by default; another build only when asked, and then
+scaled with the run's scaler; incompatible builds and non-finite predictions are one error line."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from ngsim_cli.aigem import app
+from typer.testing import CliRunner
+
+from aigem import runs
+from aigem.config import ModelConfig, TrainConfig
+from aigem.data import GraphDataset
+from aigem.evaluation import evaluate, score
+from aigem.training import fit
+from ngsim_graphs.building import run_build
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.layout import write_manifest
+
+TINY = {"d_sense_m": 12.0, "d_min_m": 6.0}  # the settings of aigem_fixtures' tiny build
+
+
+@pytest.fixture(scope="module")
+def trained_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = tmp_path_factory.mktemp("evaluation") / "run"
+    fit(
+        tiny_build,
+        run,
+        ModelConfig(),
+        TrainConfig(epochs=1, batch_size=8, horizon_s=2.0, seed=3),
+        "cpu",
+    )
+    return run
+
+
+def _build(tiny_build: Path, out: Path, **settings: object) -> Path:
+    """Another build of the tiny build's raw input."""
+    run_build([tiny_build.parent / "raw"], out, BuildConfig(**{**TINY, **settings}))
+    return out
+
+
+def _evaluate(*args: str) -> tuple[int, str, str]:
+    result = CliRunner().invoke(app, ["evaluate", *args, "--json", "--device", "cpu"])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_data_defaults_to_the_runs_own_build(trained_run: Path, tiny_build: Path) -> None:
+    code, out, err = _evaluate(str(trained_run))
+    assert code == 0, err
+    document = json.loads(out)
+    assert document["build_dir"] == str(tiny_build.resolve()) and document["same_build"] is True
+    code, named, _ = _evaluate(str(trained_run), "--data", str(tiny_build))
+    assert code == 0 and json.loads(named)["model"] == document["model"]
+
+
+def test_another_build_needs_the_flag(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
+    other = _build(tiny_build, tmp_path / "dmin3", d_min_m=3.0)
+    code, _, err = _evaluate(str(trained_run), "--data", str(other))
+    theirs = json.loads((other / "manifest.json").read_text())["config_hash"][:12]
+    ours = json.loads((tiny_build / "manifest.json").read_text())["config_hash"][:12]
+    assert code == 1 and err == (
+        f"error: {other}: not the build that run {trained_run} was trained on (its config hash "
+        f"{theirs} is not the run's {ours}); pass --other-build to evaluate on another build\n"
+    )
+    code, out, err = _evaluate(str(trained_run), "--data", str(other), "--other-build")
+    assert code == 0, err
+    document = json.loads(out)
+    assert document["same_build"] is False and document["build_dir"] == str(other)
+    _, own, _ = _evaluate(str(trained_run))
+    assert (
+        document["model"]["all"]["ade_m"] != json.loads(own)["model"]["all"]["ade_m"]
+    )  # other edges
+
+
+def test_another_build_is_scaled_with_the_runs_scaler(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+) -> None:
+    """The same graphs under a manifest with another scaler: with --other-build the numbers are
+    the run's own (the run's scaler is used); with the edited build's scaler they would differ."""
+    edited = Path(shutil.copytree(tiny_build, tmp_path / "edited"))
+    manifest = json.loads((edited / "manifest.json").read_text())
+    manifest["scaler"]["x_m"]["max"] += 5.0
+    manifest["scaler"]["speed_mps"]["max"] *= 2.0
+    write_manifest(edited, manifest)  # sealed anew, as a build of other train data would be
+    code, _, err = _evaluate(str(trained_run), "--data", str(edited))
+    assert code == 1 and "(same config, but its manifest.json differs from the run's build" in err
+    own = evaluate(trained_run, None, "test", "cpu")
+    other = evaluate(trained_run, edited, "test", "cpu", other_build=True)
+    assert other.model == own.model and other.constant_velocity == own.constant_velocity
+    assert not other.same_build and own.same_build
+    # The override matters: the edited build's own scaler gives other predictions.
+    model, _ = runs.load_model(trained_run)
+    dataset = GraphDataset(edited, "test", model.config.history_steps_read)
+    assert dataset.scaler.ranges == manifest["scaler"]
+    totals, _ = score(model, dataset, own.horizon_steps, torch.device("cpu"))
+    edited_ade = totals.error_m[0].sum() / totals.count[0].sum()
+    assert totals.count[0, 4] == own.model["all"]["n_1s"]  # the same targets
+    assert abs(edited_ade - own.model["all"]["ade_m"]) > 0.01
+
+
+def test_an_incompatible_build_is_refused_even_with_the_flag(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+) -> None:
+    short = _build(tiny_build, tmp_path / "short", history_steps=4, future_steps=8)
+    code, _, err = _evaluate(str(trained_run), "--data", str(short), "--other-build")
+    assert code == 1 and err == (
+        f"error: {short}: its graphs have 4 history and 8 future steps; the run's model reads 5 and "
+        "predicts 10\n"
+    )
+
+
+def test_the_runs_build_gone_is_one_error_line(trained_run: Path, tmp_path: Path) -> None:
+    run = Path(shutil.copytree(trained_run, tmp_path / "run"))
+    gone = tmp_path / "gone"
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    checkpoint["info"]["build_dir"] = str(gone)
+    torch.save(checkpoint, run / runs.BEST)
+    code, _, err = _evaluate(str(run))
+    assert (
+        code == 1
+        and err
+        == f"error: {gone}: the run's build is gone (or unfinished); pass --data to name it\n"
+    )
+
+
+def test_non_finite_predictions_stop_with_one_line(trained_run: Path, tmp_path: Path) -> None:
+    run = Path(shutil.copytree(trained_run, tmp_path / "run"))
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    checkpoint["model"]["output.2.bias"][0] = float("nan")
+    torch.save(checkpoint, run / runs.BEST)
+    code, out, err = _evaluate(str(run))
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert err.startswith(f"error: {run / runs.BEST}: the model's predictions on ")
+    assert "are not finite (NaN or infinite); no metrics" in err
+
+
+def test_an_empty_split_is_one_error_line_not_empty_metrics(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+) -> None:
+    no_val = _build(tiny_build, tmp_path / "no-val", split_fractions=(0.9, 0.0, 0.1))
+    code, out, err = _evaluate(
+        str(trained_run), "--data", str(no_val), "--other-build", "--split", "val"
+    )
+    assert (
+        code == 1
+        and out == ""
+        and err == f"error: {no_val}: its val split is empty: nothing to evaluate\n"
+    )

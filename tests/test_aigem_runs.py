@@ -1,0 +1,321 @@
+"""Run directories: what a run records of its build, checkpoints loaded safely and checked, one
+clear error line for anything that is not our run, and no torn file when a write fails."""
+
+from __future__ import annotations
+
+import builtins
+import errno
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Self
+
+import pytest
+import torch
+from ngsim_cli.aigem import app
+from typer.testing import CliRunner
+
+from aigem import runs
+from aigem.config import ModelConfig, TrainConfig
+from aigem.model import AiGem
+from aigem.training import fit
+from ngsim_graphs.layout import write_manifest
+
+FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
+FIT = ["--epochs", "1", "--batch-size", "8", "--horizon-s", "1.0", "--seed", "3", "--device", "cpu"]
+
+
+def _fit_args(epochs: int = 1, horizon_s: float = 1.0) -> list[str]:
+    return ["--epochs", str(epochs), "--batch-size", "8", "--horizon-s", str(horizon_s), "--seed",
+            "3", "--device", "cpu"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def trained_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = tmp_path_factory.mktemp("runs") / "run"
+    fit(tiny_build, run, ModelConfig(), FAST, "cpu")
+    return run
+
+
+def _copy(run: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(run, tmp_path / "run"))
+
+
+def _one_error_line(result, path: Path) -> str:
+    """The single stderr line of a failed command, which names `path`."""
+    assert result.exit_code == 1, result.output
+    assert result.stderr.startswith(f"error: {path}: "), result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.output, result.stderr
+    return result.stderr
+
+
+def test_a_run_records_its_builds_identity_and_scaler(trained_run: Path, tiny_build: Path) -> None:
+    manifest_bytes = (tiny_build / "manifest.json").read_bytes()
+    manifest = json.loads(manifest_bytes)
+    info = json.loads((trained_run / runs.RUN_INFO).read_text())
+    assert info["build_dir"] == str(tiny_build.resolve())
+    assert info["build_config_hash"] == manifest["config_hash"]
+    assert info["build_manifest_sha256"] == hashlib.sha256(manifest_bytes).hexdigest()
+    assert info["scaler"] == manifest["scaler"] and info["build_config"] == manifest["config"]
+    for name in (runs.BEST, runs.LAST):  # loadable without running code, with the same info
+        checkpoint = torch.load(trained_run / name, map_location="cpu", weights_only=True)
+        assert checkpoint["info"] == info
+    last = torch.load(trained_run / runs.LAST, map_location="cpu", weights_only=True)
+    assert last["state"]["next_epoch"] == 1 and last["optimizer"]["param_groups"][0]["lr"] == 1e-3
+
+
+class _Payload:
+    """Unpickling this creates `marker`: what a malicious checkpoint would do, harmlessly."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (builtins.open, (self.marker, "w"))
+
+
+@pytest.mark.parametrize("name", [runs.BEST, runs.LAST])
+def test_a_malicious_checkpoint_runs_nothing(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+    name: str,
+) -> None:
+    run, marker = _copy(trained_run, tmp_path), tmp_path / "pwned"
+    good = torch.load(run / name, map_location="cpu", weights_only=True)
+    torch.save({**good, "info": _Payload(marker)}, run / name)
+    if name == runs.BEST:
+        result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    else:
+        result = CliRunner().invoke(
+            app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT]
+        )
+    line = _one_error_line(result, run / name)
+    assert "refused: loading it would call io.open" in line
+    assert not marker.exists()
+
+
+def _foreign(kind: str, good: dict) -> object:
+    """A checkpoint that is not ours, or not whole, as the object (or bytes) to write."""
+    if kind == "bare state dict":
+        return good["model"]
+    if kind == "missing keys":
+        return {"model": good["model"]}
+    if kind == "unknown model config":
+        return {**good, "info": {**good["info"], "model": {**good["info"]["model"], "new_knob": 1}}}
+    if kind == "other shapes":
+        return {**good, "model": AiGem(ModelConfig(hidden=32)).state_dict()}
+    raise ValueError(kind)
+
+
+DAMAGE = ["empty", "truncated", "random bytes", "bare state dict", "missing keys",
+          "unknown model config", "other shapes"]  # fmt: skip
+
+
+@pytest.mark.parametrize("name", [runs.BEST, runs.LAST])
+@pytest.mark.parametrize("kind", DAMAGE)
+def test_a_damaged_or_foreign_checkpoint_is_one_error_line(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+    name: str,
+    kind: str,
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    path = run / name
+    data = path.read_bytes()
+    if kind in ("empty", "truncated", "random bytes"):
+        damaged = {
+            "empty": b"",
+            "truncated": data[: len(data) // 2],
+            "random bytes": os.urandom(4096),
+        }
+        path.write_bytes(damaged[kind])
+    else:
+        torch.save(_foreign(kind, torch.load(path, map_location="cpu", weights_only=True)), path)
+    if name == runs.BEST:
+        result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    else:
+        result = CliRunner().invoke(
+            app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT]
+        )
+    line = _one_error_line(result, path)
+    expected = {
+        "empty": "empty checkpoint (0 bytes)",
+        "truncated": "unreadable checkpoint: truncated, damaged or not a torch file",
+        "random bytes": "unreadable checkpoint: truncated, damaged or not a torch file",
+        "bare state dict": "not an aigem checkpoint: expected info, model",
+        "missing keys": "not an aigem checkpoint: expected info, model",
+        "unknown model config": "a model config this aigem does not know (unknown ['new_knob'], missing [])",
+        "other shapes": "its weights do not fit its model config: other shape ['encoder.0.spatial.att_src'",
+    }
+    assert expected[kind] in line
+
+
+def test_a_directory_that_is_not_a_run(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
+    runner = CliRunner()
+    missing = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--device", "cpu"])
+    assert "no such run directory" in _one_error_line(missing, tmp_path / "nope")
+    for folder in (tmp_path, tiny_build):  # an empty folder; a build
+        result = runner.invoke(app, ["evaluate", str(folder), "--device", "cpu"])
+        assert "not a run directory: no run.json" in _one_error_line(result, folder)
+    run = _copy(trained_run, tmp_path)
+    (run / runs.BEST).unlink()
+    unfinished = runner.invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    assert "not a finished run: no best.pt" in _one_error_line(unfinished, run)
+    (run / runs.RUN_INFO).write_text("[1, 2]")
+    foreign = runner.invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    assert "not an aigem run description" in _one_error_line(foreign, run / runs.RUN_INFO)
+    (run / runs.RUN_INFO).unlink()
+    resume = runner.invoke(app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT])
+    assert "not a run directory: no run.json" in _one_error_line(resume, run)
+
+
+def test_a_checkpoint_of_another_run_is_refused(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    other = tmp_path / "other"
+    fit(tiny_build, other, ModelConfig(concat_position=False), FAST, "cpu")
+    shutil.copy(other / runs.BEST, run / runs.BEST)
+    result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    assert "belongs to another run: its model differs from run.json's" in _one_error_line(
+        result, run / runs.BEST
+    )
+
+
+class _FullDisk:
+    """An open file on a disk that fills up after `room` bytes."""
+
+    def __init__(self, file, room: int) -> None:
+        self.file, self.room = file, room
+
+    def write(self, data: bytes) -> int:
+        self.file.write(data[: self.room])
+        self.file.flush()
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name: str):
+        return getattr(self.file, name)
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.file.close()
+
+
+@pytest.mark.parametrize("name", [runs.RUN_INFO, runs.BEST, runs.LAST])
+def test_a_full_disk_is_one_error_line_and_leaves_no_torn_file(
+    tiny_build: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    name: str,
+) -> None:
+    def full_disk_open(path, mode="r", *args, **kwargs):
+        file = builtins.open(path, mode, *args, **kwargs)  # noqa: SIM115 - returned open, the caller closes it
+        return _FullDisk(file, 100) if Path(path).name == f"{name}.partial" else file
+
+    monkeypatch.setattr(runs, "open", full_disk_open, raising=False)
+    run = tmp_path / "run"
+    result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+    line = _one_error_line(result, run / name)
+    assert line == f"error: {run / name}: cannot write: No space left on device\n"
+    assert not list(tmp_path.rglob("*.partial"))
+    assert not (run / name).exists() and not (run / runs.LAST).exists()
+    if name == runs.RUN_INFO:
+        assert not run.exists()  # the run folder it had just made is gone again
+    monkeypatch.undo()  # space again: no epoch got its checkpoint, so the run starts over
+    again = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+    assert again.exit_code == 0, again.output
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+
+
+def test_resume_refuses_another_build_and_accepts_an_identical_rebuild(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    copy = Path(shutil.copytree(tiny_build, tmp_path / "copy"))  # byte-identical: the same build
+    edited = Path(shutil.copytree(tiny_build, tmp_path / "edited"))
+    manifest = json.loads((edited / "manifest.json").read_text())
+    manifest["scaler"]["x_m"]["max"] += 1.0  # same config hash, another manifest
+    write_manifest(edited, manifest)  # sealed anew, as a build of other train data would be
+    runner = CliRunner()
+    refused = runner.invoke(app, ["fit", str(edited), "--out", str(run), "--resume", *_fit_args(2)])
+    assert _one_error_line(refused, edited) == (
+        f"error: {edited}: not the build that run {run} was trained on (same config, but its "
+        "manifest.json differs from the run's build (other inputs, or edited)); a run resumes on "
+        "its own build only\n"
+    )
+    horizon = runner.invoke(
+        app, ["fit", str(copy), "--out", str(run), "--resume", *_fit_args(2, 2.0)]
+    )
+    assert "cannot resume with another horizon_s 1.0 -> 2.0" in _one_error_line(horizon, run)
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    resumed = runner.invoke(app, ["fit", str(copy), "--out", str(run), "--resume", *_fit_args(2)])
+    assert resumed.exit_code == 0, resumed.output
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1, 2]
+    assert json.loads((run / runs.RUN_INFO).read_text())["train"]["epochs"] == 2
+
+
+@pytest.mark.parametrize(
+    ("kind", "message"),
+    [
+        ("optimizer", "its optimizer state is not this run's optimizer's (Adam)"),
+        (
+            "state",
+            "its progress record is not aigem's (expected next_epoch, best_epoch, best_val_loss)",
+        ),
+    ],
+)
+def test_resume_refuses_a_foreign_optimizer_or_progress(
+    trained_run: Path,
+    tiny_build: Path,
+    tmp_path: Path,
+    kind: str,
+    message: str,
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    checkpoint = torch.load(run / runs.LAST, map_location="cpu", weights_only=True)
+    model = AiGem(ModelConfig())
+    foreign = {
+        "optimizer": torch.optim.SGD(model.parameters(), lr=0.1).state_dict(),
+        "state": {"next_epoch": "1", "best_epoch": 0, "best_val_loss": 1.0},
+    }
+    torch.save({**checkpoint, kind: foreign[kind]}, run / runs.LAST)
+    result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT])
+    assert _one_error_line(result, run / runs.LAST) == f"error: {run / runs.LAST}: {message}\n"
+
+
+def test_fit_never_writes_into_another_programs_folder(tiny_build: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "models"
+    folder.mkdir()
+    (folder / "best.pt").write_bytes(b"someone else's model")
+    (folder / "notes.txt").write_text("mine\n")
+    result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(folder), *FIT])
+    line = _one_error_line(result, folder)
+    assert "not empty and is not an aigem run: it holds best.pt, notes.txt" in line
+    assert sorted(p.name for p in folder.iterdir()) == ["best.pt", "notes.txt"]
+    assert (folder / "best.pt").read_bytes() == b"someone else's model"
+
+
+def test_a_damaged_metrics_log_is_one_line(
+    trained_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    with (run / runs.METRICS).open("a") as log:
+        log.write('{"epoch": 1, "train_lo\n')  # a torn line
+    result = CliRunner().invoke(
+        app, ["fit", str(tiny_build), "--out", str(run), "--resume", *_fit_args(2)]
+    )
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert (
+        result.stderr
+        == f"error: {run / runs.METRICS}, line 2: not a row of aigem's metrics log (damaged?)\n"
+    )
