@@ -193,3 +193,23 @@ def test_a_manifest_that_is_not_one(copy: Path, content: bytes) -> None:
             "format version 1; expected 2 (made by an older",
         )
     )
+
+
+def test_an_array_header_claiming_more_than_the_file_holds(copy: Path) -> None:
+    # The header edited in place (same size, so the size check passes): (N, 4) -> (10 N + 9, 4).
+    path = first_arrays(copy) / "node_state.npy"
+    data = path.read_bytes()
+    rows = np.load(path, mmap_mode="r").shape[0]
+    old, new = f"({rows}, 4)".encode(), f"({rows * 10 + 9}, 4)".encode()
+    assert data.count(old) == 1
+    header_end = data.index(b"\n") + 1
+    # The header dict is padded with spaces up to its newline: take the growth from the padding.
+    longer = data[:header_end].replace(old + b", }", new + b", }", 1)
+    header = longer.replace(b" " * (len(new) - len(old)) + b"\n", b"\n")
+    assert len(header) == header_end
+    path.write_bytes(header + data[header_end:])
+    assert path.stat().st_size == len(data)
+    line = error_line(invoke("stats", copy))
+    assert str(path) in line and (
+        "unreadable array" in line or "where the manifest records" in line
+    )
