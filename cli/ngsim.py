@@ -232,6 +232,8 @@ def stats(
         print_table(make_table(statistics))
     for path in written:
         stdout.print(f"wrote {path}")
+    for warning in statistics.warnings:
+        stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
 
 
 @app.command()

@@ -52,6 +52,19 @@ def _recordings_table(st: BuildStatistics) -> Table:
     return table
 
 
+def _rows_table(st: BuildStatistics) -> Table:
+    """Where the rows read went: each reason a row was dropped for, and what reached the tracks."""
+    c = st.counts
+    table = _table("Rows read (10 Hz) and where they went", ["rows"], ["count", "share"])
+    lines = [("read", c["rows_read"]), ("of other locations", c["rows_other_locations"]),
+             ("an empty required field", c["rows_missing_values"])]  # fmt: skip
+    lines += [(reason.replace("_", " "), n) for reason, n in c["rows_dropped"].items() if n]
+    lines += [("exact duplicates", c["exact_duplicates"]), ("conflicting duplicates", c["conflicting_duplicates"])]
+    for label, n in lines:
+        table.add_row(label, f"{n:,}", _share(n, c["rows_read"]))
+    return table
+
+
 def _share(part: int, whole: int) -> str:
     return f"{part / whole:.1%}" if whole else "-"
 
@@ -117,7 +130,7 @@ def _config_table(st: BuildStatistics) -> Table:
 
 
 STATS_TABLES = (
-    _recordings_table, _splits_table, _graph_size_table, _degree_table, _kinematics_table, _scaler_table,
+    _recordings_table, _rows_table, _splits_table, _graph_size_table, _degree_table, _kinematics_table, _scaler_table,
     _config_table,
 )  # fmt: skip
 

@@ -99,6 +99,7 @@ class BuildStatistics:
     future_horizon_s: float  # what a "full future" covers (5 s by default)
     kinematics: dict[str, Distribution]  # speed_mps, heading_rad over all tracks rows
     scaler: dict[str, Any]  # the manifest's fitted ranges
+    warnings: list[str]  # the build's warnings (splits that are empty or tiny)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values (None where a split is empty)."""
@@ -183,6 +184,7 @@ def summarize(build: OpenBuild, values: BuildValues) -> BuildStatistics:
             s.HEADING_RAD: describe(values.heading_rad),
         },
         scaler=manifest["scaler"],
+        warnings=list(manifest.get("warnings", [])),
     )
 
 

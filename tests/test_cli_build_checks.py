@@ -108,6 +108,10 @@ def test_implausible_rows_are_counted_per_reason(tmp_path: Path, rows: list[dict
         in result.stdout
     )
     assert manifest(out)["counts"]["rows"] == 995  # 1,000 - 5 dropped before cleaning
+    stats = invoke("stats", out)
+    cells = [[c.strip() for c in line.split("│")[1:-1]] for line in stats.stdout.splitlines()]
+    assert ["speed out of range", "2", "0.2%"] in cells
+    assert ["position outlier", "1", "0.1%"] in cells
 
 
 def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:

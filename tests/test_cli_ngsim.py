@@ -355,6 +355,10 @@ def test_stats_table(finished_build: Path) -> None:
     assert _table_rows(result.stdout, "train", "nodes")[0][2:] == ["32.0", "32", "32.0", "32.0", "32.0", "32"]
     assert _table_rows(result.stdout, "train", "temporal edges")[0][2] == "30.0"
     assert _table_row(result.stdout, "limits.max_speed_mps") == ["limits.max_speed_mps", "70.0"]
+    assert _table_rows(result.stdout, "read") == [["read", "164", "100.0%"]]
+    assert _table_rows(result.stdout, "exact duplicates") == [["exact duplicates", "0", "0.0%"]]
+    # the build's warning is said again, on stderr
+    assert result.stderr.startswith("warning: the test split is empty: the vehicle split")
 
 
 def test_stats_json(finished_build: Path) -> None:
