@@ -44,6 +44,7 @@ class FileReport:
     rows_read: int
     rows_other_locations: int  # of locations (or recordings) the build did not choose
     rows_missing_values: int  # an empty required field
+    first_missing_line: int | None  # the first line with an empty required field
     rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
     first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
     rows_checked: int  # rows of the chosen locations with every required field
@@ -122,6 +123,7 @@ def read_file_recordings(
         rows_read=raw.rows_read,
         rows_other_locations=raw.rows_read - kept - missing - sum(counts.values()),
         rows_missing_values=missing,
+        first_missing_line=None if missing == 0 else int(rows.filter(~complete)[s.SOURCE_LINE].min()),
         rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
         first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
         rows_checked=raw.frame.height - missing,

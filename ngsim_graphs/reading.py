@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import difflib
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,8 @@ _ODD = "__odd"  # the row may have a wrong number of fields
 _EXTRA = "__extra"  # the first surplus field of a CSV row
 _N_FIELDS = "__n_fields"  # fields of a text line
 _LINE = "__line"
+_CONTROL = "__control"  # what follows a 0x1F byte in a line (see _scan_lines)
+_CUT = "\x1f"
 
 
 class NotNgsimFileError(NgsimInputError):
@@ -137,6 +140,10 @@ def _format_of_first_line(path: Path) -> RawFormat:
 
 
 def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> None:
+    lowered = [name.lower() for name in header]
+    twice = next((name for i, name in enumerate(header) if lowered[i] in lowered[:i]), None)
+    if twice is not None:
+        raise NgsimInputError(path, f"column {twice} appears twice in the header", line=1)
     required = s.TXT_COLUMNS + ((s.LOCATION,) if raw_format is RawFormat.PORTAL else ())
     official = {name.lower(): name for name in s.PORTAL_HEADER}
     present = {name.lower() for name in header}
@@ -149,33 +156,56 @@ def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> 
             raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
 
 
-def _scan_lines(path: Path) -> pl.LazyFrame:
-    """Every line after the header as one text column, quotes untouched."""
+def _scan_lines(path: Path, skip_rows: int = 1) -> pl.LazyFrame:
+    """Every line after the first `skip_rows` as one text column (LINE), quotes untouched.
+
+    Lines are cut at a byte no NGSIM file holds (0x1F, the unit separator); a line that holds it
+    anyway has the rest in CONTROL, so that it is reported rather than read as more columns.
+    """
     return pl.scan_csv(
         path,
         has_header=False,
-        skip_rows=1,
-        separator="\x1f",
+        skip_rows=skip_rows,
+        separator=_CUT,
         quote_char=None,
-        new_columns=[_LINE],
-        infer_schema=False,
+        schema={_LINE: pl.String, _CONTROL: pl.String},
+        missing_columns="insert",
+        truncate_ragged_lines=True,
         encoding="utf8-lossy",
     )
 
 
+def _raise_control_character(path: Path, row: int, first_line: int) -> None:
+    raise NgsimInputError(path, "holds a control character (0x1F): not NGSIM text", line=row + first_line)
+
+
+# A CSV line whose quoting is well formed: fields unquoted (no quote in them) or quoted whole.
+_FIELD = r'(?:[^",]*|"(?:[^"]|"")*")'
+_QUOTED_CSV_LINE = rf"^{_FIELD}(?:,{_FIELD})*\r?$"
+
+
 def _raise_unbalanced_quote(path: Path) -> None:
-    """Raise for the first line with an odd number of double quotes (a truncated quoted field).
+    """Raise for the first line with an odd number of double quotes (a truncated quoted field),
+    or a control character, or quoting that is not well formed (the CSV parser's own error
+    names no line).
 
     NGSIM fields never hold a line break, so a quote left open on one line is an error there,
     not a field that goes on: the CSV parser would read on into the next lines.
     """
     odd = pl.col(_LINE).str.count_matches('"', literal=True) % 2 == 1
-    found = (
-        _scan_lines(path).with_row_index(ROW).filter(odd).select(ROW).head(1).collect(engine="streaming")
-    )
+    scan = _scan_lines(path).with_row_index(ROW).filter(odd | pl.col(_CONTROL).is_not_null())
+    found = scan.select(ROW, _CONTROL).head(1).collect(engine="streaming")
+    if found.height:
+        row, control = found.row(0)
+        if control is not None:
+            _raise_control_character(path, row, 2)
+        raise NgsimInputError(path, "a quoted field is not closed (truncated line?)", line=row + 2)
+    well_formed = pl.col(_LINE).str.contains(_QUOTED_CSV_LINE)
+    bad = _scan_lines(path).with_row_index(ROW).filter(~well_formed).select(ROW).head(1)
+    found = bad.collect(engine="streaming")
     if found.height:
         raise NgsimInputError(
-            path, "a quoted field is not closed (truncated line?)", line=int(found.item()) + 2
+            path, 'malformed quoting: a quote inside a field, or text after a closing "', line=int(found.item()) + 2
         )
 
 
@@ -191,13 +221,15 @@ def _check_csv_field_counts(path: Path, n_columns: int) -> None:
     wrong = (
         lines.with_row_index(ROW)
         .filter(pl.col(_LINE).str.strip_chars() != "")
-        .select(ROW, n_fields.alias("n"))
-        .filter(pl.col("n") != n_columns)
+        .select(ROW, n_fields.alias("n"), _CONTROL)
+        .filter((pl.col("n") != n_columns) | pl.col(_CONTROL).is_not_null())
         .head(1)
         .collect(engine="streaming")
     )
     if wrong.height:
-        row, n = wrong.row(0)
+        row, n, control = wrong.row(0)
+        if control is not None:
+            _raise_control_character(path, row, 2)
         cause = "truncated line?" if n < n_columns else "an unquoted comma?"
         raise NgsimInputError(
             path, f"{n} fields where the header has {n_columns} ({cause})", line=row + 2
@@ -236,22 +268,15 @@ def _scan_txt_text(path: Path) -> pl.LazyFrame:
 
     Returns ROW, the 18 columns as text (null where a line is short) and N_FIELDS.
     """
-    lines = pl.scan_csv(
-        path,
-        has_header=False,
-        separator="\x1f",
-        quote_char=None,
-        new_columns=[_LINE],
-        infer_schema=False,
-        encoding="utf8-lossy",
-    ).with_row_index(ROW)
+    lines = _scan_lines(path, skip_rows=0).with_row_index(ROW)
     fields = pl.col(_LINE).str.extract_all(r"\S+")
-    split = lines.select(ROW, fields.alias(_LINE)).filter(pl.col(_LINE).list.len() > 0)
+    split = lines.select(ROW, fields.alias(_LINE), _CONTROL).filter(
+        (pl.col(_LINE).list.len() > 0) | pl.col(_CONTROL).is_not_null()
+    )
     columns = [pl.col(_LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(s.TXT_COLUMNS)]
     n_fields = pl.col(_LINE).list.len().alias(_N_FIELDS)
-    return split.select(ROW, *columns, n_fields).with_columns(
-        (pl.col(_N_FIELDS) != len(s.TXT_COLUMNS)).alias(_ODD)
-    )
+    odd = (pl.col(_N_FIELDS) != len(s.TXT_COLUMNS)) | pl.col(_CONTROL).is_not_null()
+    return split.select(ROW, *columns, n_fields, _CONTROL).with_columns(odd.alias(_ODD))
 
 
 def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
@@ -288,21 +313,31 @@ def _raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int)
     fields = text.filter(pl.col(ROW) == row).select(s.TXT_COLUMNS).collect().row(0, named=True)
     official = {name.lower(): name for name in s.PORTAL_HEADER}
     for column, value in fields.items():
-        problem = _number_problem((value or "").strip().replace(",", ""), s.RAW_SCHEMA[column])
+        problem = _number_problem((value or "").replace(",", ""), s.RAW_SCHEMA[column])
         if problem:
             message = f"column {official[column]}: {value!r} {problem}"
             raise NgsimInputError(path, message, line=row + first_line)
     raise NgsimInputError(path, "a value is out of range", line=row + first_line)
 
 
+# A decimal number as the reader parses it. Python's float() accepts more ("1_000", "\x1f1"),
+# so it is not the judge of what the reader could not parse.
+_DECIMAL = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_NOT_FINITE = ("inf", "infinity", "nan")
+_RUST_WHITESPACE = " \t\n\v\f\r\x85\xa0\u1680\u2000\u2001\u2002\u2003\u2004\u2005\u2006\u2007\u2008\u2009\u200a\u2028\u2029\u202f\u205f\u3000"
+
+
 def _number_problem(text: str, dtype: pl.DataType) -> str | None:
-    """What is wrong with one field's text as a value of `dtype`; None when it is fine or empty."""
+    """What is wrong with one field's text as a value of `dtype`; None when it is fine or empty.
+
+    `text` is stripped as polars' `strip_chars()` strips (Unicode white space, no control codes).
+    """
+    text = text.strip(_RUST_WHITESPACE)
     if text == "":
         return None
-    try:
-        value = float(text)
-    except ValueError:
-        return "is not a number"
+    if not _DECIMAL.fullmatch(text):
+        return "is not a finite number" if text.lower().lstrip("+-") in _NOT_FINITE else "is not a number"
+    value = float(text)
     if not math.isfinite(value):
         return "is not a finite number"
     if dtype != pl.Float64:
@@ -317,8 +352,10 @@ def _number_problem(text: str, dtype: pl.DataType) -> str | None:
 def _raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> None:
     """Raise for the first row with a wrong number of fields (a CSV may turn out fine)."""
     if raw_format is RawFormat.TXT:
-        odd = text.filter(pl.col(_ODD)).select(ROW, _N_FIELDS).head(1).collect().row(0)
-        row, n_fields = odd
+        odd = text.filter(pl.col(_ODD)).select(ROW, _N_FIELDS, _CONTROL).head(1).collect().row(0)
+        row, n_fields, control = odd
+        if control is not None:
+            _raise_control_character(path, row, 1)
         expected = len(s.TXT_COLUMNS)
         cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
         raise NgsimInputError(
@@ -374,10 +411,12 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         _raise_bad_number(path, text, frame[ROW][bad], first_line)
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
     if frame.height == 0:
+        unnamed = int(by_location.filter(pl.col(s.LOCATION).is_null())["rows"].sum()) if is_portal else 0
+        held = [*found, *([f"{unnamed:,} rows with an empty Location"] if unnamed else [])]
         raise NgsimInputError(
             path,
             f"holds none of the chosen locations ({', '.join(locations)}); "
-            f"it holds: {', '.join(found) or 'no rows'}",
+            f"it holds: {', '.join(held) or 'no rows'}",
         )
     return RawFile(
         path=path,
