@@ -221,3 +221,72 @@ def test_truncated_quoted_field_names_its_line(tmp_path: Path, rows: list[dict])
     assert_failed_cleanly(
         invoke("build", path, "--out", out), out, {}, path, "line 41:", "quoted field is not closed"
     )
+
+
+# --- defects found by bench/fuzz_inputs.py ----------------------------------------------------
+
+
+def test_a_unit_separator_byte_is_named_with_its_line(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_period_csv(tmp_path / "a.csv", rows)
+    lines = path.read_bytes().split(b"\n")
+    with_separator = lines[4].replace(b",15,", b",1\x1f5,", 1)  # line 5: 0x1F inside v_Length
+    # With a short line 2 too, the reader counts fields line by line (where 0x1F cut lines).
+    short = lines[1].rsplit(b",", 1)[0]
+    path.write_bytes(b"\n".join([lines[0], short, *lines[2:4], with_separator, *lines[5:]]))
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "line 2:", "23 fields"
+    )
+    path.write_bytes(b"\n".join([*lines[:4], with_separator, *lines[5:]]))
+    line = assert_failed_cleanly(invoke("build", path, "--out", out), out, {}, path, "line 5:")
+    assert "column v_length:" in line and "is not a number" in line
+    txt = write_txt(tmp_path / "b.txt", rows[:50] + [{**rows[50], s.LANE_ID: "2\x1f"}] + rows[51:])
+    assert_failed_cleanly(
+        invoke("build", txt, "--out", out), out, {}, txt, "line 51:", "control character (0x1F)"
+    )
+
+
+def test_every_row_without_a_required_value_names_the_file(
+    tmp_path: Path, rows: list[dict]
+) -> None:
+    path = write_period_csv(
+        tmp_path / "trajectories-0750am-0805am.csv", [{**r, s.GLOBAL_TIME: None} for r in rows]
+    )
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        "every one of its 1,000 rows has an empty required field", "Global_Time", "line 2",
+    )  # fmt: skip
+
+
+def test_a_column_twice_in_the_header(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_period_csv(tmp_path / "a.csv", rows)
+    header, body = path.read_text().split("\n", 1)
+    path.write_text(header.replace("O_Zone", "Lane_ID", 1) + "\n" + body)
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "line 1: column Lane_ID appears twice"
+    )
+
+
+def test_text_after_a_closing_quote_names_its_line(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_portal(tmp_path / "p.csv", rows)
+    lines = path.read_bytes().split(b"\r\n")
+    lines[9] = lines[9].replace(b'",', b'"C6,', 1)  # line 10: "1,118,846,994,100"C6
+    path.write_bytes(b"\r\n".join(lines))
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "line 10: malformed quoting"
+    )
+
+
+def test_an_empty_location_column_is_said(tmp_path: Path, rows: list[dict]) -> None:
+    path = write_portal(tmp_path / "p.csv", rows, locations="")
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out),
+        out,
+        {},
+        path,
+        "it holds: 1,000 rows with an empty Location",
+    )
