@@ -9,28 +9,30 @@ from __future__ import annotations
 
 import csv
 import difflib
-import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.faults import (
+    CONTROL,
+    EXTRA,
+    LINE,
+    N_FIELDS,
+    ODD,
+    PRESENT,
+    ROW,
+    raise_bad_number,
+    raise_bad_quoting,
+    raise_odd_shape,
+    scan_lines,
+)
 from ngsim_graphs.schema import RawFormat
 
 SNIFF_BYTES = 64 * 1024
 CANDIDATE_SUFFIXES = (".csv", ".txt")
-ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
-_PRESENT = "__present"  # non-empty fields of a row
-_ODD = "__odd"  # the row may have a wrong number of fields
-_EXTRA = "__extra"  # the first surplus field of a CSV row
-_N_FIELDS = "__n_fields"  # fields of a text line
-_LINE = "__line"
-_CONTROL = "__control"  # what follows a 0x1F byte in a line (see _scan_lines)
-_CUT = "\x1f"
 
 
 class NotNgsimFileError(NgsimInputError):
@@ -76,7 +78,9 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
             except NotNgsimFileError:
                 skipped.append(candidate)
         if not inside:
-            raise NgsimInputError(path, "no NGSIM trajectory files (.csv or .txt) in this directory")
+            raise NgsimInputError(
+                path, "no NGSIM trajectory files (.csv or .txt) in this directory"
+            )
         found.extend(inside)
     unique = list(dict.fromkeys(p.resolve() for p in found))
     return unique, skipped
@@ -156,86 +160,6 @@ def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> 
             raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
 
 
-def _scan_lines(path: Path, skip_rows: int = 1) -> pl.LazyFrame:
-    """Every line after the first `skip_rows` as one text column (LINE), quotes untouched.
-
-    Lines are cut at a byte no NGSIM file holds (0x1F, the unit separator); a line that holds it
-    anyway has the rest in CONTROL, so that it is reported rather than read as more columns.
-    """
-    return pl.scan_csv(
-        path,
-        has_header=False,
-        skip_rows=skip_rows,
-        separator=_CUT,
-        quote_char=None,
-        schema={_LINE: pl.String, _CONTROL: pl.String},
-        missing_columns="insert",
-        truncate_ragged_lines=True,
-        encoding="utf8-lossy",
-    )
-
-
-def _raise_control_character(path: Path, row: int, first_line: int) -> None:
-    raise NgsimInputError(path, "holds a control character (0x1F): not NGSIM text", line=row + first_line)
-
-
-# A CSV line whose quoting is well formed: fields unquoted (no quote in them) or quoted whole.
-_FIELD = r'(?:[^",]*|"(?:[^"]|"")*")'
-_QUOTED_CSV_LINE = rf"^{_FIELD}(?:,{_FIELD})*\r?$"
-
-
-def _raise_unbalanced_quote(path: Path) -> None:
-    """Raise for the first line with an odd number of double quotes (a truncated quoted field),
-    or a control character, or quoting that is not well formed (the CSV parser's own error
-    names no line).
-
-    NGSIM fields never hold a line break, so a quote left open on one line is an error there,
-    not a field that goes on: the CSV parser would read on into the next lines.
-    """
-    odd = pl.col(_LINE).str.count_matches('"', literal=True) % 2 == 1
-    scan = _scan_lines(path).with_row_index(ROW).filter(odd | pl.col(_CONTROL).is_not_null())
-    found = scan.select(ROW, _CONTROL).head(1).collect(engine="streaming")
-    if found.height:
-        row, control = found.row(0)
-        if control is not None:
-            _raise_control_character(path, row, 2)
-        raise NgsimInputError(path, "a quoted field is not closed (truncated line?)", line=row + 2)
-    well_formed = pl.col(_LINE).str.contains(_QUOTED_CSV_LINE)
-    bad = _scan_lines(path).with_row_index(ROW).filter(~well_formed).select(ROW).head(1)
-    found = bad.collect(engine="streaming")
-    if found.height:
-        raise NgsimInputError(
-            path, 'malformed quoting: a quote inside a field, or text after a closing "', line=int(found.item()) + 2
-        )
-
-
-def _check_csv_field_counts(path: Path, n_columns: int) -> None:
-    """Raise for the first non-blank line whose field count differs from the header's.
-
-    The exact check behind _odd_csv_shape: counts the commas outside quotes of every line in
-    one streaming pass. It runs only for files where a row looked odd.
-    """
-    lines = _scan_lines(path)
-    unquoted = pl.col(_LINE).str.replace_all(r'"[^"]*"', "")
-    n_fields = unquoted.str.count_matches(",", literal=True) + 1
-    wrong = (
-        lines.with_row_index(ROW)
-        .filter(pl.col(_LINE).str.strip_chars() != "")
-        .select(ROW, n_fields.alias("n"), _CONTROL)
-        .filter((pl.col("n") != n_columns) | pl.col(_CONTROL).is_not_null())
-        .head(1)
-        .collect(engine="streaming")
-    )
-    if wrong.height:
-        row, n, control = wrong.row(0)
-        if control is not None:
-            _raise_control_character(path, row, 2)
-        cause = "truncated line?" if n < n_columns else "an unquoted comma?"
-        raise NgsimInputError(
-            path, f"{n} fields where the header has {n_columns} ({cause})", line=row + 2
-        )
-
-
 def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
     """CSV as text columns named by the lower-cased header, plus EXTRA for surplus fields.
 
@@ -248,7 +172,7 @@ def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
         path,
         has_header=False,
         skip_rows=1,
-        schema={name: pl.String for name in [*names, _EXTRA]},
+        schema={name: pl.String for name in [*names, EXTRA]},
         missing_columns="insert",
         truncate_ragged_lines=True,
         quote_char='"',
@@ -256,10 +180,10 @@ def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
     )
     # A short row reads as empty trailing fields, which cannot be told apart here from fields
     # left empty; an empty last field marks the row as odd, and the exact check decides.
-    odd = pl.col(_EXTRA).is_not_null() | pl.col(names[-1]).is_null()
+    odd = pl.col(EXTRA).is_not_null() | pl.col(names[-1]).is_null()
     # Blank lines read as all-null rows: neither data nor another location.
     not_blank = pl.any_horizontal(pl.col(names).is_not_null())
-    text = frame.with_row_index(ROW).filter(not_blank).with_columns(odd.alias(_ODD))
+    text = frame.with_row_index(ROW).filter(not_blank).with_columns(odd.alias(ODD))
     return text, header
 
 
@@ -268,15 +192,17 @@ def _scan_txt_text(path: Path) -> pl.LazyFrame:
 
     Returns ROW, the 18 columns as text (null where a line is short) and N_FIELDS.
     """
-    lines = _scan_lines(path, skip_rows=0).with_row_index(ROW)
-    fields = pl.col(_LINE).str.extract_all(r"\S+")
-    split = lines.select(ROW, fields.alias(_LINE), _CONTROL).filter(
-        (pl.col(_LINE).list.len() > 0) | pl.col(_CONTROL).is_not_null()
+    lines = scan_lines(path, skip_rows=0).with_row_index(ROW)
+    fields = pl.col(LINE).str.extract_all(r"\S+")
+    split = lines.select(ROW, fields.alias(LINE), CONTROL).filter(
+        (pl.col(LINE).list.len() > 0) | pl.col(CONTROL).is_not_null()
     )
-    columns = [pl.col(_LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(s.TXT_COLUMNS)]
-    n_fields = pl.col(_LINE).list.len().alias(_N_FIELDS)
-    odd = (pl.col(_N_FIELDS) != len(s.TXT_COLUMNS)) | pl.col(_CONTROL).is_not_null()
-    return split.select(ROW, *columns, n_fields, _CONTROL).with_columns(odd.alias(_ODD))
+    columns = [
+        pl.col(LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(s.TXT_COLUMNS)
+    ]
+    n_fields = pl.col(LINE).list.len().alias(N_FIELDS)
+    odd = (pl.col(N_FIELDS) != len(s.TXT_COLUMNS)) | pl.col(CONTROL).is_not_null()
+    return split.select(ROW, *columns, n_fields, CONTROL).with_columns(odd.alias(ODD))
 
 
 def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
@@ -296,7 +222,7 @@ def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
         number = whole.cast(dtype, strict=False)
         parsed.append(number.alias(column))
         present.append((text != "").fill_null(False).cast(pl.Int8))
-    return parsed, pl.sum_horizontal(present).cast(pl.Int8).alias(_PRESENT)
+    return parsed, pl.sum_horizontal(present).cast(pl.Int8).alias(PRESENT)
 
 
 def _first_bad_number(frame: pl.DataFrame) -> int | None:
@@ -304,65 +230,8 @@ def _first_bad_number(frame: pl.DataFrame) -> int | None:
     parsed = pl.sum_horizontal(pl.col(s.TXT_COLUMNS).is_not_null().cast(pl.Int8))
     floats = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] == pl.Float64]
     not_finite = pl.any_horizontal(~pl.col(floats).is_finite()).fill_null(False)
-    bad = frame.select(((parsed != pl.col(_PRESENT)) | not_finite).arg_true().first()).item()
+    bad = frame.select(((parsed != pl.col(PRESENT)) | not_finite).arg_true().first()).item()
     return None if bad is None else int(bad)
-
-
-def _raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) -> None:
-    """Name the first field of data row `row` that is not a number (re-reading that row only)."""
-    fields = text.filter(pl.col(ROW) == row).select(s.TXT_COLUMNS).collect().row(0, named=True)
-    official = {name.lower(): name for name in s.PORTAL_HEADER}
-    for column, value in fields.items():
-        problem = _number_problem((value or "").replace(",", ""), s.RAW_SCHEMA[column])
-        if problem:
-            message = f"column {official[column]}: {value!r} {problem}"
-            raise NgsimInputError(path, message, line=row + first_line)
-    raise NgsimInputError(path, "a value is out of range", line=row + first_line)
-
-
-# A decimal number as the reader parses it. Python's float() accepts more ("1_000", "\x1f1"),
-# so it is not the judge of what the reader could not parse.
-_DECIMAL = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-_NOT_FINITE = ("inf", "infinity", "nan")
-_RUST_WHITESPACE = " \t\n\v\f\r\x85\xa0\u1680\u2000\u2001\u2002\u2003\u2004\u2005\u2006\u2007\u2008\u2009\u200a\u2028\u2029\u202f\u205f\u3000"
-
-
-def _number_problem(text: str, dtype: pl.DataType) -> str | None:
-    """What is wrong with one field's text as a value of `dtype`; None when it is fine or empty.
-
-    `text` is stripped as polars' `strip_chars()` strips (Unicode white space, no control codes).
-    """
-    text = text.strip(_RUST_WHITESPACE)
-    if text == "":
-        return None
-    if not _DECIMAL.fullmatch(text):
-        return "is not a finite number" if text.lower().lstrip("+-") in _NOT_FINITE else "is not a number"
-    value = float(text)
-    if not math.isfinite(value):
-        return "is not a finite number"
-    if dtype != pl.Float64:
-        if value != math.floor(value):
-            return "is not a whole number"
-        info = np.iinfo(str(dtype).lower())  # polars Int32 -> "int32"
-        if not info.min <= value <= info.max:
-            return f"is out of range ({info.min:,} to {info.max:,})"
-    return None
-
-
-def _raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> None:
-    """Raise for the first row with a wrong number of fields (a CSV may turn out fine)."""
-    if raw_format is RawFormat.TXT:
-        odd = text.filter(pl.col(_ODD)).select(ROW, _N_FIELDS, _CONTROL).head(1).collect().row(0)
-        row, n_fields, control = odd
-        if control is not None:
-            _raise_control_character(path, row, 1)
-        expected = len(s.TXT_COLUMNS)
-        cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
-        raise NgsimInputError(
-            path, f"{n_fields} fields where {expected} were expected ({cause})", line=row + 1
-        )
-    columns = text.collect_schema().names()
-    _check_csv_field_counts(path, columns.index(_EXTRA) - 1)  # the fields between ROW and EXTRA
 
 
 def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
@@ -388,30 +257,32 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
     parsed, present = _number_exprs(s.TXT_COLUMNS)
     try:
-        frame = kept.select(ROW, *parsed, s.LOCATION, present, _ODD).collect(engine="streaming")
+        frame = kept.select(ROW, *parsed, s.LOCATION, present, ODD).collect(engine="streaming")
         # Rows of other locations are counted on their own; one collect_all sharing the scan
         # would hold all of its text in memory.
         by_location = (
-            text.group_by(s.LOCATION).agg(pl.len().alias("rows"), pl.col(_ODD).sum().alias("odd"))
+            text.group_by(s.LOCATION).agg(pl.len().alias("rows"), pl.col(ODD).sum().alias("odd"))
             if is_portal
-            else pl.LazyFrame({"rows": [frame.height], "odd": [frame[_ODD].sum()]})
+            else pl.LazyFrame({"rows": [frame.height], "odd": [frame[ODD].sum()]})
         ).collect(engine="streaming")
     except pl.exceptions.ComputeError as err:
         if raw_format is not RawFormat.TXT:
-            _raise_unbalanced_quote(path)
+            raise_bad_quoting(path)
         message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise NgsimInputError(path, f"cannot parse as CSV: {message}") from None
     rows_read = int(by_location["rows"].sum())
     if rows_read == 0:
         raise NgsimInputError(path, "no data rows")
     if by_location["odd"].sum():
-        _raise_odd_shape(path, raw_format, text)
+        raise_odd_shape(path, raw_format, text)
     bad = _first_bad_number(frame)
     if bad is not None:
-        _raise_bad_number(path, text, frame[ROW][bad], first_line)
+        raise_bad_number(path, text, frame[ROW][bad], first_line)
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
     if frame.height == 0:
-        unnamed = int(by_location.filter(pl.col(s.LOCATION).is_null())["rows"].sum()) if is_portal else 0
+        unnamed = (
+            int(by_location.filter(pl.col(s.LOCATION).is_null())["rows"].sum()) if is_portal else 0
+        )
         held = [*found, *([f"{unnamed:,} rows with an empty Location"] if unnamed else [])]
         raise NgsimInputError(
             path,
@@ -426,5 +297,5 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         first_line=first_line,
         rows_other_locations=rows_read - frame.height,
         locations_found=found,
-        frame=frame.drop(_PRESENT, _ODD),
+        frame=frame.drop(PRESENT, ODD),
     )
