@@ -69,17 +69,20 @@ def row_drop_reason(limits: PhysicalLimits) -> pl.Expr:
     return chain.otherwise(pl.lit(None, dtype=pl.String))
 
 
-def _distance_ft(shift: int) -> pl.Expr:
-    """Distance to the row `shift` rows away within the vehicle (null at the ends)."""
-    dx = pl.col(s.LOCAL_X) - pl.col(s.LOCAL_X).shift(shift).over(s.VEHICLE_ID)
-    dy = pl.col(s.LOCAL_Y) - pl.col(s.LOCAL_Y).shift(shift).over(s.VEHICLE_ID)
+def _same_vehicle(shift: int, frames: int) -> pl.Expr:
+    """Whether the row `shift` rows away (in a frame sorted by vehicle and frame) is the same
+    vehicle exactly `frames` frames away. Plain shifts: far cheaper than window expressions."""
+    return (
+        (pl.col(s.VEHICLE_ID).shift(shift) == pl.col(s.VEHICLE_ID))
+        & ((pl.col(s.FRAME_ID).shift(shift) - pl.col(s.FRAME_ID)).abs() == frames)
+    ).fill_null(False)
+
+
+def _distance_ft(first: int, second: int = 0) -> pl.Expr:
+    """Distance between the rows `first` and `second` rows away (null at the frame's ends)."""
+    dx = pl.col(s.LOCAL_X).shift(first) - pl.col(s.LOCAL_X).shift(second)
+    dy = pl.col(s.LOCAL_Y).shift(first) - pl.col(s.LOCAL_Y).shift(second)
     return (dx * dx + dy * dy).sqrt()
-
-
-def _consecutive(shift: int) -> pl.Expr:
-    """Whether the row `shift` rows away within the vehicle is the adjacent frame."""
-    frames = (pl.col(s.FRAME_ID) - pl.col(s.FRAME_ID).shift(shift).over(s.VEHICLE_ID)).abs()
-    return (frames == 1).fill_null(False)
 
 
 def position_checks(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.DataFrame:
@@ -91,10 +94,11 @@ def position_checks(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.DataFrame
     reused) splits the track there, as a frame gap does.
     """
     far = feet(limits.max_jump_m)
-    jump_before = _consecutive(1) & (_distance_ft(1) > far).fill_null(False)
-    jump_after = _consecutive(-1) & (_distance_ft(-1) > far).fill_null(False)
-    near_before = _consecutive(1) & ~jump_before
-    near_after = _consecutive(-1) & ~jump_after
+    before, after = _same_vehicle(1, 1), _same_vehicle(-1, 1)
+    jump_before = before & (_distance_ft(1) > far).fill_null(False)
+    jump_after = after & (_distance_ft(-1) > far).fill_null(False)
+    near_before = before & ~jump_before
+    near_after = after & ~jump_after
     outlier = (jump_before | jump_after) & ~near_before & ~near_after
     return frame.select(outlier.alias("outlier"), jump_before.alias("jump"))
 
@@ -113,10 +117,8 @@ def speed_mismatch_mps(frame: pl.DataFrame) -> tuple[float, float, int]:
     medians when no row has a whole window.
     """
     h = SPEED_WINDOW_FRAMES
-    whole = (pl.col(s.FRAME_ID).shift(-h) - pl.col(s.FRAME_ID).shift(h)).over(s.VEHICLE_ID) == 2 * h
-    dx = (pl.col(s.LOCAL_X).shift(-h) - pl.col(s.LOCAL_X).shift(h)).over(s.VEHICLE_ID)
-    dy = (pl.col(s.LOCAL_Y).shift(-h) - pl.col(s.LOCAL_Y).shift(h)).over(s.VEHICLE_ID)
-    shown = (dx * dx + dy * dy).sqrt() / (2 * h * FRAME_STEP_S)
+    whole = _same_vehicle(-h, h) & _same_vehicle(h, h)
+    shown = _distance_ft(-h, h) / (2 * h * FRAME_STEP_S)
     compared = frame.select(
         shown.alias("shown"), pl.col(s.V_VEL).alias("vel"), whole.alias("whole")
     )

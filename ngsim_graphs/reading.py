@@ -35,6 +35,9 @@ SNIFF_BYTES = 64 * 1024
 CANDIDATE_SUFFIXES = (".csv", ".txt")
 
 
+_POINTED = "__pointed"  # an integer field of the row has a point or an exponent
+
+
 class NotNgsimFileError(NgsimInputError):
     """The file is empty or of another kind: a folder search skips it, a named file fails."""
 
@@ -205,24 +208,44 @@ def _scan_txt_text(path: Path) -> pl.LazyFrame:
     return split.select(ROW, *columns, n_fields, CONTROL).with_columns(odd.alias(ODD))
 
 
-def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr]:
-    """Parse text columns to RAW_SCHEMA dtypes; also the count of non-empty fields per row.
+def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr, pl.Expr]:
+    """Parse text columns to RAW_SCHEMA dtypes; also the count of non-empty fields per row, and
+    whether an integer field of the row is written with a point or an exponent.
 
     A row whose parsed non-null values are fewer than its non-empty fields holds a malformed
     number. Comparing two counts costs far less than testing every field for it. An integer
-    column's value must be whole and in range (`10.5` as a Frame_ID would otherwise truncate).
+    column's value must be whole (`10.5` as a Frame_ID truncates to 10 when cast): the few rows
+    written with a point ("2.0" is fine) are checked one by one afterwards (_first_fraction).
     """
     parsed: list[pl.Expr] = []
     present: list[pl.Expr] = []
+    pointed: list[pl.Expr] = []
     for column in columns:
         text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
-        real = text.cast(pl.Float64, strict=False)
         dtype = s.RAW_SCHEMA[column]
-        whole = real if dtype == pl.Float64 else pl.when(real == real.floor()).then(real)
-        number = whole.cast(dtype, strict=False)
-        parsed.append(number.alias(column))
+        parsed.append(text.cast(pl.Float64, strict=False).cast(dtype, strict=False).alias(column))
         present.append((text != "").fill_null(False).cast(pl.Int8))
-    return parsed, pl.sum_horizontal(present).cast(pl.Int8).alias(PRESENT)
+        if dtype != pl.Float64:
+            pointed.append(pl.col(column).str.contains(r"[.eE]").fill_null(False))
+    counts = pl.sum_horizontal(present).cast(pl.Int8).alias(PRESENT)
+    return parsed, counts, pl.any_horizontal(pointed).alias(_POINTED)
+
+
+def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
+    """The first of `rows` (ROW numbers, rows with a pointed integer field) whose integer field
+    is not whole; re-reads those rows only."""
+    integers = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] != pl.Float64]
+    fields = text.filter(pl.col(ROW).is_in(rows.implode())).select(ROW, *integers)
+    real = [
+        pl.col(c)
+        .str.strip_chars()
+        .str.replace_all(",", "", literal=True)
+        .cast(pl.Float64, strict=False)
+        for c in integers
+    ]
+    fraction = pl.any_horizontal([(r != r.floor()).fill_null(False) for r in real])
+    found = fields.filter(fraction).select(pl.col(ROW).min()).collect().item()
+    return None if found is None else int(found)
 
 
 def _first_bad_number(frame: pl.DataFrame) -> int | None:
@@ -255,9 +278,11 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     )
     text = text.with_columns(location.alias(s.LOCATION))
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
-    parsed, present = _number_exprs(s.TXT_COLUMNS)
+    parsed, present, pointed = _number_exprs(s.TXT_COLUMNS)
     try:
-        frame = kept.select(ROW, *parsed, s.LOCATION, present, ODD).collect(engine="streaming")
+        frame = kept.select(ROW, *parsed, s.LOCATION, present, pointed, ODD).collect(
+            engine="streaming"
+        )
         # Rows of other locations are counted on their own; one collect_all sharing the scan
         # would hold all of its text in memory.
         by_location = (
@@ -278,6 +303,10 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     bad = _first_bad_number(frame)
     if bad is not None:
         raise_bad_number(path, text, frame[ROW][bad], first_line)
+    if frame[_POINTED].any():
+        fraction = _first_fraction(text, frame.filter(_POINTED)[ROW])
+        if fraction is not None:
+            raise_bad_number(path, text, fraction, first_line)
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
     if frame.height == 0:
         unnamed = (
@@ -297,5 +326,5 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         first_line=first_line,
         rows_other_locations=rows_read - frame.height,
         locations_found=found,
-        frame=frame.drop(PRESENT, ODD),
+        frame=frame.drop(PRESENT, ODD, _POINTED),
     )

@@ -163,3 +163,13 @@ def test_directory_without_ngsim_files(tmp_path: Path) -> None:
         find_raw_files([tmp_path])
     with pytest.raises(NgsimInputError, match="no such file"):
         find_raw_files([tmp_path / "missing.csv"])
+
+
+def test_whole_numbers_written_with_a_point_are_integers(tmp_path: Path) -> None:
+    # Some exports write integer columns as floats ("2.0"); only a fraction is wrong.
+    pointed = [{**make_row(1, f, lane_id="2.0"), s.FRAME_ID: f"{f}.0"} for f in range(3)]
+    plain = [make_row(1, f) for f in range(3)]
+    assert values(write_txt(tmp_path / "t.txt", pointed)) == values(write_txt(tmp_path / "u.txt", plain))
+    pointed[2] = {**pointed[2], s.LANE_ID: "2.5"}
+    with pytest.raises(NgsimInputError, match=r"t\.txt, line 3: column Lane_ID: '2\.5' is not a whole"):
+        read_raw_file(write_txt(tmp_path / "t.txt", pointed), US)
