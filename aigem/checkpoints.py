@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import io
 import re
+import warnings
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -115,7 +116,9 @@ def load_checkpoint(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
     if not data:  # any error is the content's
         raise NgsimInputError(path, "empty checkpoint (0 bytes): the run is damaged")
     try:
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about what it then refuses: one line only
+            warnings.simplefilter("ignore")
+            checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - damaged bytes raise RuntimeError, OSError, EOFError,
         # UnpicklingError, UnicodeDecodeError, KeyError, ValueError, ... (found by fuzzing)
         blocked = re.search(r"GLOBAL (\S+)", str(err))

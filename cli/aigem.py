@@ -61,7 +61,7 @@ def fit(
 
     from aigem.config import ModelConfig, TrainConfig
     from aigem.model import AiGem, count_parameters
-    from aigem.training import NonFiniteLossError
+    from aigem.training import DeviceUnavailableError, NonFiniteLossError
     from aigem.training import fit as run_fit
 
     if device not in ("auto", "cpu", "cuda"):
@@ -82,7 +82,7 @@ def fit(
                 lambda epoch, done, total, loss: progress(f"epoch {epoch} loss {loss:.3f} m²", done, total),
                 _print_epoch,
             )  # fmt: skip
-        except (NonFiniteLossError, ValueError) as err:
+        except (NonFiniteLossError, DeviceUnavailableError) as err:  # the project's: exit_on_error
             raise _fail(str(err)) from None
     stdout.print(
         f"{result.epochs_done} epochs on {result.device} ({result.stopped_because}); best epoch "
@@ -145,6 +145,7 @@ def evaluate(
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity."""
     from aigem.evaluation import PAPER_TABLE, as_dict
     from aigem.evaluation import evaluate as run_evaluate
+    from aigem.training import DeviceUnavailableError
 
     if split not in ("train", "val", "test"):
         raise _fail(f"--split must be train, val or test, not {split!r}", 2)
@@ -153,7 +154,7 @@ def evaluate(
     with exit_on_error():
         try:
             result = run_evaluate(run, data, split, device, other_build=other_build)
-        except ValueError as err:  # the project's errors are ValueErrors too: one line either way
+        except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
             raise _fail(str(err)) from None
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))

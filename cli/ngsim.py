@@ -109,6 +109,11 @@ def _dropped_lines(result: BuildResult) -> list[str]:
                          for f in result.files if reason in f.first_dropped_line)  # fmt: skip
         noun = "row" if n == 1 else "rows"
         lines.append(f"dropped {n:,} {noun}: {DESCRIPTIONS[DropReason(reason)]} (first: {first}).")
+    jumps = result.manifest["counts"]["position_jumps"]
+    if jumps:
+        limit = result.manifest["config"]["limits"]["max_jump_m"]
+        noun = "jump" if jumps == 1 else "jumps"
+        lines.append(f"split tracks at {jumps:,} position {noun} of more than {limit:g} m between frames.")
     return lines
 
 

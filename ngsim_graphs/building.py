@@ -34,11 +34,6 @@ from ngsim_graphs.reading import find_raw_files
 from ngsim_graphs.sampling import COUNT_COLUMNS, recording_samples
 from ngsim_graphs.scaling import FittedRanges, empty_ranges
 from ngsim_graphs.schema import DropReason
-
-# The required columns as NGSIM's header spells them, for messages.
-REQUIRED_NAMES = tuple(
-    next(h for h in s.PORTAL_HEADER if h.lower() == column) for column in s.REQUIRED_VALUE_COLUMNS
-)
 from ngsim_graphs.splits import SPLIT, SPLIT_ORDER, split_warnings
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -84,7 +79,6 @@ def _stage_inputs(
             report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked,
             config.limits, strict,
         )  # fmt: skip
-        _check_some_usable(report)
         for key, recording_index in sorted(chosen.items()):
             target = layout.staged_raw_path(root, *key, file_index)
             layout.write_staged(recording_rows(rows, recording_index), target)
@@ -118,17 +112,6 @@ def _check_recording(report: RecordingReport, files: list[FileReport], config: B
         files[file_index].path, {reason: report.position_outliers}, {reason: line}, report.rows,
         config.limits, strict,
     )  # fmt: skip
-
-
-def _check_some_usable(report: FileReport) -> None:
-    """A file of the chosen locations whose every row lacks a required value is an error: its
-    rows would all be dropped, and the build would blame the locations."""
-    if report.rows_checked == 0 and report.rows_missing_values > 0:
-        raise NgsimInputError(
-            report.path,
-            f"every one of its {report.rows_missing_values:,} rows has an empty required field "
-            f"({', '.join(REQUIRED_NAMES)}); the first at line {report.first_missing_line}",
-        )
 
 
 def _build_recording(

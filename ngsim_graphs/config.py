@@ -24,6 +24,7 @@ class PhysicalLimits:
     max_abs_accel_mps2: float = 15.0  # 1.5 g
     max_abs_position_m: float = 5_000.0  # |Local_X| and |Local_Y|
     max_jump_m: float = 10.0  # between two consecutive 0.1 s frames of a vehicle: 100 m/s
+    max_outlier_frames: int = 10  # a displaced burst this long or shorter is dropped (1 s)
     max_frame_id: int = 72_000  # two hours at 10 Hz; the first frame is 0
     # v_Vel must agree with the motion the positions show over 1 s: the median difference may be
     # at most this plus this share of the median speed, or the speed column is not a speed in
@@ -36,7 +37,7 @@ class PhysicalLimits:
 
     def __post_init__(self) -> None:
         positive = (self.max_speed_mps, self.max_abs_accel_mps2, self.max_abs_position_m, self.max_jump_m)
-        if min(positive) <= 0 or self.max_frame_id < 1:
+        if min(positive) <= 0 or self.max_frame_id < 1 or self.max_outlier_frames < 1:
             raise ValueError("physical limits must be positive")
         if not 0 <= self.max_dropped_share <= 1:
             raise ValueError("max_dropped_share must be in [0, 1]")

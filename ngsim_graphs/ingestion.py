@@ -18,9 +18,10 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.cleaning import drop_duplicate_rows, is_complete, split_at_gaps, to_si_units
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.kinematics import add_heading
-from ngsim_graphs.plausibility import position_checks, row_drop_reason, speed_mismatch_mps
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
+from ngsim_graphs.kinematics import add_heading
+from ngsim_graphs.plausibility import jump_rows, outlier_rows, row_drop_reason, speed_mismatch_mps
 from ngsim_graphs.reading import ROW, read_raw_file
 from ngsim_graphs.recordings import RECORDING_INDEX, identify_recordings
 from ngsim_graphs.resampling import downsample_to_grid
@@ -47,7 +48,7 @@ class FileReport:
     first_missing_line: int | None  # the first line with an empty required field
     rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
     first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
-    rows_checked: int  # rows of the chosen locations with every required field
+    rows_checked: int  # rows of the chosen recordings with every required field, kept or dropped
     locations_found: tuple[str, ...]  # every location the file holds, chosen or not
     recordings: tuple[str, ...]  # "location/period" of each chosen recording the file holds
 
@@ -61,7 +62,7 @@ class RecordingReport:
     rows: int  # 10 Hz rows of the recording that passed the row checks (duplicates included)
     exact_duplicates: int
     conflicting_duplicates: int
-    position_outliers: int  # rows dropped: farther than the jump limit from both neighbours
+    position_outliers: int  # rows dropped: displaced from the neighbouring frames (outlier_rows)
     position_jumps: int  # other moves beyond the jump limit, each of which split a track
     gaps: int  # frame gaps, each of which split a vehicle's record into two tracks
     vehicles: int
@@ -74,6 +75,10 @@ class RecordingReport:
     first_outlier: tuple[int, int] | None = None  # (input file index, line) of the first outlier
 
 
+# The required columns as NGSIM's header spells them, for messages.
+REQUIRED_NAMES = tuple(
+    next(h for h in s.PORTAL_HEADER if h.lower() == column) for column in s.REQUIRED_VALUE_COLUMNS
+)
 FILE_REASONS: tuple[DropReason, ...] = tuple(r for r in DropReason if r is not DropReason.POSITION_OUTLIER)
 
 
@@ -91,17 +96,24 @@ def read_file_recordings(
     complete = raw.frame.select(is_complete()).to_series()
     reason = raw.frame.select(pl.when(complete).then(row_drop_reason(config.limits))).to_series()
     usable = complete & reason.is_null()
-    timed = raw.frame.select(
-        s.LOCATION, s.FRAME_ID, pl.when(usable).then(pl.col(s.GLOBAL_TIME)).alias(s.GLOBAL_TIME)
-    )
-    index, names = identify_recordings(timed, path)
+    timed = raw.frame.select(s.LOCATION, s.FRAME_ID, s.GLOBAL_TIME)
+    index, names = identify_recordings(timed, path, usable)
+    chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
+    in_chosen = index.is_in(list(chosen.values())).fill_null(False)
+    # Rows of recordings the build did not choose are other locations' rows, whatever they
+    # hold: nothing of them is checked. Strays belong to no recording: to none chosen when the
+    # file holds none (a per-period file of another location).
+    other = (index.is_not_null() & ~in_chosen) | (pl.lit(not chosen) & index.is_null())
+    stray = usable & index.is_null()
     reason = pl.select(
-        pl.when(usable & index.is_null()).then(pl.lit(DropReason.GLOBAL_TIME.value)).otherwise(reason)
-    ).to_series()
+        pl.when(~complete | other).then(None)
+        .when(stray).then(pl.lit(DropReason.GLOBAL_TIME.value))
+        .otherwise(reason)
+    ).to_series()  # fmt: skip
     line = (pl.col(ROW) + raw.first_line).alias(s.SOURCE_LINE)
     rows = raw.frame.select(
         *s.RAW_SCHEMA.names(),
-        pl.when(usable).then(index).alias(RECORDING_INDEX),
+        pl.when(usable & in_chosen).then(index).alias(RECORDING_INDEX),
         pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
         line,
     )
@@ -112,9 +124,14 @@ def read_file_recordings(
         .agg(pl.len(), pl.col(s.SOURCE_LINE).min())
     )
     counts = {r: n for r, n, _ in dropped.iter_rows()}
-    chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
-    kept = int(rows[RECORDING_INDEX].is_in(list(chosen.values())).sum())
+    kept = int(rows[RECORDING_INDEX].is_not_null().sum())
     missing = int((~complete).sum())
+    if missing == raw.frame.height:  # nothing to place in a recording: say why, naming the file
+        raise NgsimInputError(
+            path,
+            f"every one of its {missing:,} rows has an empty required field "
+            f"({', '.join(REQUIRED_NAMES)}); the first at line {raw.first_line + int(raw.frame[ROW][0])}",
+        )
     report = FileReport(
         path=str(path),
         raw_format=raw.raw_format.value,
@@ -126,7 +143,7 @@ def read_file_recordings(
         first_missing_line=None if missing == 0 else int(rows.filter(~complete)[s.SOURCE_LINE].min()),
         rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
         first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
-        rows_checked=raw.frame.height - missing,
+        rows_checked=kept + sum(counts.values()),
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
     )
@@ -155,9 +172,9 @@ def build_tracks(
     by track and frame, columns as TRACKS_SCHEMA.
     """
     unique, exact, conflicting = drop_duplicate_rows(raw)
-    outlier = position_checks(unique, config.limits)["outlier"]
+    outlier = outlier_rows(unique, config.limits)
     cleaned = unique.filter(~outlier)
-    jumps = position_checks(cleaned, config.limits)["jump"]
+    jumps = jump_rows(cleaned, config.limits)
     mismatch, shown, compared = speed_mismatch_mps(cleaned)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key

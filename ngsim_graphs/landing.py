@@ -122,9 +122,10 @@ def _check_target(out: Path, overwrite: bool) -> None:
     """Refuse an `out` that must not be replaced: a file, another program's directory, or a
     build when `overwrite` is off. An empty directory is always taken.
 
-    A directory is a build of this project when its manifest is ours, or when everything in it
-    is a name of the build layout (an unfinished build); nothing else is deleted, even with
-    --overwrite.
+    A directory is a build of this project when everything in it is a name of the build layout,
+    and its manifest, if it has one, is ours (without one: an unfinished build). Nothing else is
+    deleted, even with --overwrite: not a folder of another program, and not a file someone put
+    into a build (a run trained on it, plots), which replacing the build would delete too.
     """
     if out.exists() and not out.is_dir():
         raise NgsimOutputError(out, "exists and is not a directory")
@@ -137,7 +138,14 @@ def _check_target(out: Path, overwrite: bool) -> None:
             f"directory is not empty and is not a build: its {MANIFEST_NAME} is not one of "
             "ngsim-graphs; --overwrite replaces only a build",
         )
-    if not manifest.is_file() and (foreign := _foreign_entries(out)):
+    foreign = _foreign_entries(out)
+    if foreign and manifest.is_file():
+        raise NgsimOutputError(
+            out,
+            f"holds a build and also {some_names(foreign)}, which are not the build's and "
+            "--overwrite would delete with it; move them away first",
+        )
+    if foreign:
         raise NgsimOutputError(
             out,
             f"directory is not empty and is not a build: it holds {some_names(foreign)}; "
@@ -263,6 +271,8 @@ def output_directory(out: Path, check: Callable[[Path], None]) -> Iterator[Path]
     the folders created for `out` are removed, `out` is left as it was, and a failed write
     (a full disk) becomes an NgsimOutputError naming the file.
     """
+    if out.name in ("", ".."):  # "." or "..": the lock and partial names need a real name
+        out = Path(os.path.abspath(out))
     if out.is_symlink():
         out = out.resolve()  # replace the directory it names, not the link
     created = [p for p in (out.parent, *out.parent.parents) if not p.exists()]

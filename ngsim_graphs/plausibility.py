@@ -34,7 +34,7 @@ DESCRIPTIONS: dict[DropReason, str] = {
     DropReason.SPEED: "v_Vel negative or above the speed limit",
     DropReason.ACCELERATION: "v_Acc above the acceleration limit",
     DropReason.GLOBAL_TIME: "Global_Time off its recording (Global_Time - 100 * Frame_ID differs)",
-    DropReason.POSITION_OUTLIER: "position jumps away from both neighbouring frames",
+    DropReason.POSITION_OUTLIER: "position jumps away from the neighbouring frames",
 }
 
 
@@ -85,24 +85,52 @@ def _distance_ft(first: int, second: int = 0) -> pl.Expr:
     return (dx * dx + dy * dy).sqrt()
 
 
-def position_checks(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.DataFrame:
-    """Per row: `outlier` and `jump` flags (bool), for `frame` sorted by vehicle and frame.
+def _jumps(far_ft: float) -> tuple[pl.Expr, pl.Expr, pl.Expr, pl.Expr]:
+    """(adjacent frame before, adjacent frame after, jump from the one before, jump to the one
+    after) per row of a frame sorted by vehicle and frame; a jump is a move of more than
+    `far_ft` between adjacent frames of one vehicle."""
+    before, after = _same_vehicle(1, 1), _same_vehicle(-1, 1)
+    jump_in = before & (_distance_ft(1) > far_ft).fill_null(False)
+    jump_out = after & (_distance_ft(-1) > far_ft).fill_null(False)
+    return before, after, jump_in, jump_out
 
-    A jump is a move of more than `max_jump_m` from the previous frame of the same vehicle. A
-    row that jumps away from every adjacent frame it has is an outlier (one damaged position):
-    it is dropped. Any other jump (the whole rest of a record displaced, as when an id is
-    reused) splits the track there, as a frame gap does.
+
+def outlier_rows(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.Series:
+    """Which rows of `frame` (sorted by vehicle and frame) are position outliers (bool).
+
+    First, single rows that jump away from every adjacent frame they have (one damaged
+    position, also at a record's first or last frame). Then, among the others, short bursts:
+    runs of at most `max_outlier_frames` rows that jump away from the rows before and after
+    them (a few damaged positions in a row). Any other jump (a long stretch of a record
+    displaced, as when an id is reused) is left to split the track (`jump_rows`).
     """
     far = feet(limits.max_jump_m)
-    before, after = _same_vehicle(1, 1), _same_vehicle(-1, 1)
-    jump_before = before & (_distance_ft(1) > far).fill_null(False)
-    jump_after = after & (_distance_ft(-1) > far).fill_null(False)
-    near_before = before & ~jump_before
-    near_after = after & ~jump_after
-    outlier = (jump_before | jump_after) & ~near_before & ~near_after
-    return frame.select(outlier.alias("outlier"), jump_before.alias("jump"))
+    before, after, jump_in, jump_out = _jumps(far)
+    isolated = (jump_in | jump_out) & ~(before & ~jump_in) & ~(after & ~jump_out)
+    indexed = frame.select(s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y).with_row_index(_ROW)
+    single = indexed.select(isolated).to_series()
+    rest = indexed.filter(~single)
+    before, _, jump_in, jump_out = _jumps(far)
+    runs = rest.with_columns(
+        (~before | jump_in).cum_sum().alias(_RUN), jump_in.alias("in"), jump_out.alias("out")
+    )
+    burst = (
+        (pl.len().over(_RUN) <= limits.max_outlier_frames)
+        & pl.col("in").first().over(_RUN)
+        & pl.col("out").last().over(_RUN)
+    )
+    burst_rows = runs.filter(burst)[_ROW]
+    return single | indexed[_ROW].is_in(burst_rows.implode())
 
 
+def jump_rows(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.Series:
+    """Rows (bool) that moved more than `max_jump_m` from the adjacent frame before them: where
+    a track is split, as at a frame gap. `frame` sorted by vehicle and frame."""
+    _, _, jump_in, _ = _jumps(feet(limits.max_jump_m))
+    return frame.select(jump_in).to_series()
+
+
+_ROW, _RUN = "__row", "__run"
 SPEED_WINDOW_FRAMES = 5  # each side: the motion a speed is compared with spans 1 s
 MIN_SPEED_ROWS = 100  # fewer rows with a whole window say too little to judge the column
 

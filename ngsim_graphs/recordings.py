@@ -99,6 +99,13 @@ def _name_recording(frame0_ms: int, last_frame: int, location: str | None, path:
     return named, period_label(frame0_ms, last_frame)
 
 
+def _names_an_unclaimed_period(frame0_ms: int, location: str | None, keys: list[tuple[str, str]]) -> bool:
+    """Whether a frame-0 time names an official period (of `location`, if known) not yet taken:
+    a small recording of its own rather than stray rows (random times seldom land there)."""
+    official = find_official_recording(frame0_ms, location)
+    return official is not None and (official.location, official.period) not in keys
+
+
 def _frame0_groups(frame: pl.DataFrame) -> pl.DataFrame:
     """(location, frame-0 time) groups of rows with their row count and last frame, the largest
     of each location first, and whether each is too small to be a recording of its own."""
@@ -114,24 +121,28 @@ def _frame0_groups(frame: pl.DataFrame) -> pl.DataFrame:
     return groups.with_columns(small.alias("small"))
 
 
-def identify_recordings(frame: pl.DataFrame, path: Path) -> tuple[pl.Series, list[tuple[str, str]]]:
+def identify_recordings(
+    frame: pl.DataFrame, path: Path, usable: pl.Series | None = None
+) -> tuple[pl.Series, list[tuple[str, str]]]:
     """Which recording each raw row belongs to: (index per row, (location, period) per index).
 
     `frame` needs global_time, frame_id and location (null where the file does not say, as in
     per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID` belong to
     different recordings (the combined CSV holds three periods per location), unless they are
-    strays: rows whose frame-0 time is shared by few rows (under STRAY_GROUP_SHARE of the
-    location's largest group), lies within MATCH_TOLERANCE_MS of a larger group's, or names the
-    same recording as a larger group. A stray row's index is null, as is that of a row without
-    a time or frame; the caller counts and drops them. Recordings are indexed in (location,
-    frame-0 time) order.
+    strays: rows whose frame-0 time lies within MATCH_TOLERANCE_MS of a larger group's, names the
+    same recording as a larger group, or is shared by few rows (under STRAY_GROUP_SHARE of the
+    location's largest group) and names no official period that a larger group has not named.
+    A stray row's index is null, as is that of a row without a time or frame; the caller counts
+    and drops them. Only the `usable` rows (bool; all by default) form recordings; the others
+    get the index of the recording whose frame-0 time they share, if any. Recordings are
+    indexed in (location, frame-0 time) order.
     """
     accepted: list[tuple[str | None, int, int]] = []  # location, frame-0 time, group position
     keys: list[tuple[str, str]] = []
-    groups = _frame0_groups(frame)
+    groups = _frame0_groups(frame if usable is None else frame.filter(usable))
     for position, (location, frame0_ms, _rows, last_frame, small) in enumerate(groups.iter_rows()):
         near = any(loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted)
-        if small or near:
+        if near or (small and not _names_an_unclaimed_period(frame0_ms, location, keys)):
             continue
         key = _name_recording(frame0_ms, last_frame, location, path)
         if key in keys:

@@ -119,9 +119,10 @@ def _why_vehicle_split_is_small(
             f"{name} gives it {n_split:,} of {n_all:,}: its largest Vehicle_ID is {largest:,}{outlier}, "
             f"so the cuts lie at {first_cut:,} and {second_cut:,}"
         )
+    train, val, _ = config.split_fractions
     rule = (
-        "the vehicle split (CS-LSTM's rule) trains egos with Vehicle_ID <= round(0.7 * the "
-        "recording's largest ID) and validates those <= round(0.8 * it)"
+        f"the vehicle split (CS-LSTM's rule) trains egos with Vehicle_ID <= round({train:g} * the "
+        f"recording's largest ID) and validates those <= round({train + val:g} * it)"
     )
     return f": {rule}; " + "; ".join(reasons[:3]) if reasons else f": {rule}"
 

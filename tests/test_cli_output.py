@@ -350,3 +350,14 @@ def test_failed_export_leaves_no_tables(
     line = error_line(_export(build, out))
     assert line == f"error: {out / 'targets.parquet'}: cannot write: No space left on device"
     assert not out.exists() and siblings(out) == []
+
+
+def test_out_given_as_dot(tmp_path: Path, raw: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    result = invoke("build", raw, "--out", ".")
+    assert result.exit_code == 0, result.output
+    assert (here / "manifest.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no lock left
+

@@ -93,13 +93,25 @@ def test_empty_or_missing_target_needs_no_overwrite(tmp_path: Path) -> None:
 
 def test_our_build_is_replaced_only_with_overwrite(tmp_path: Path) -> None:
     out = _finished(tmp_path / "out", {"format_version": 0, "config_hash": "ab", "x": 1})
-    (out / "notes.txt").write_text("a build's manifest makes the whole directory ours\n")
     with pytest.raises(NgsimOutputError) as caught:
         landing._check_target(out, overwrite=False)
     assert str(caught.value) == (
         f"{out}: directory is not empty: it holds a build; pass --overwrite to replace it"
     )
     landing._check_target(out, overwrite=True)
+
+
+def test_files_put_into_a_build_keep_it_from_being_replaced(tmp_path: Path) -> None:
+    out = _finished(tmp_path / "out", {"format_version": 2, "config_hash": "ab"})
+    (out / "notes.txt").write_text("mine\n")
+    (out / "run1").mkdir()
+    (out / "run1" / "best.pt").write_bytes(b"a model trained on this build")
+    with pytest.raises(NgsimOutputError) as caught:
+        landing._check_target(out, overwrite=True)
+    assert str(caught.value) == (
+        f"{out}: holds a build and also notes.txt, run1/, which are not the build's and "
+        "--overwrite would delete with it; move them away first"
+    )
 
 
 def test_unfinished_build_of_layout_names_is_ours(tmp_path: Path) -> None:

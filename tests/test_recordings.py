@@ -130,3 +130,20 @@ def test_a_damaged_time_column_is_not_a_thousand_recordings() -> None:
     rows = [make_row(1, f, global_time=1_000_000_000_000 + 660_000 * f) for f in range(150)]
     with pytest.raises(NgsimInputError, match=r"p\.csv: more than 100 recordings .*Global_Time"):
         identify_recordings(frame_of(rows, ["us-101"] * 150), Path("p.csv"))
+
+
+def test_a_small_group_naming_an_official_period_of_its_own_is_a_recording() -> None:
+    # 1,000 rows of us-101 0750am and 5 of 0805am: under 1 % of the largest, but 0805am is an
+    # official period no larger group names, which random stray times seldom hit.
+    rows = [make_row(1 + f // 100, f % 100) for f in range(1000)]
+    rows += [make_row(3, f, start_ms=US101_SECOND.start_epoch_ms) for f in range(5)]
+    index, names = identify_recordings(frame_of(rows, ["us-101"] * 1005), Path("p.csv"))
+    assert names == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
+    assert index.to_list() == [0] * 1000 + [1] * 5
+
+
+def test_only_usable_rows_form_recordings_but_all_are_placed() -> None:
+    rows = [make_row(1, f) for f in range(200)] + [make_row(2, f, start_ms=I80_FIRST.start_epoch_ms) for f in range(3)]
+    usable = pl.Series([True] * 200 + [False] * 3)  # the i-80 rows failed a check: no recording of their own
+    index, names = identify_recordings(frame_of(rows, [None] * 203), Path("t.txt"), usable)
+    assert names == [("us-101", "0750am-0805am")] and index.to_list() == [0] * 200 + [None] * 3

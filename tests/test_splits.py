@@ -16,6 +16,7 @@ from ngsim_graphs.splits import (
     split_by_time,
     split_by_vehicle,
     split_randomly,
+    split_warnings,
 )
 
 
@@ -157,3 +158,20 @@ def test_time_split_80_percent_cut_of_20_windows() -> None:
 
 def test_time_split_of_no_windows() -> None:
     assert split_by_time(windows_of([], [], []), BuildConfig(split=SplitMode.TIME)).len() == 0
+
+
+def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
+    # Recording r: egos 1..10 (one window each) and an outlying largest Vehicle_ID 1,000.
+    windows = pl.DataFrame({
+        s.LOCATION: ["us-101"] * 10, s.PERIOD: ["r"] * 10, s.EGO_VEHICLE_ID: list(range(1, 11)),
+    })  # fmt: skip
+    config = BuildConfig(split_fractions=(0.5, 0.25, 0.25))
+    windows = windows.with_columns(split_by_vehicle(windows, 1_000, config).alias(SPLIT))
+    assert windows[SPLIT].to_list() == ["train"] * 10  # cuts at 500 and 750
+    warnings = split_warnings(windows, {"us-101/r": (1_000, 10)}, config)
+    assert [w.split(":")[0] for w in warnings] == ["the val split is empty", "the test split is empty"]
+    assert "<= round(0.5 * the recording's largest ID) and validates those <= round(0.75 * it)" in warnings[0]
+    assert "us-101/r gives it 0 of 10: its largest Vehicle_ID is 1,000, far above the next largest (10), so the cuts lie at 500 and 750" in warnings[0]
+    assert split_warnings(windows.with_columns(pl.lit("val").alias(SPLIT)), {}, BuildConfig(split_fractions=(0.0, 1.0, 0.0))) == [
+        "the train split is empty: its fraction is 0", "the test split is empty: its fraction is 0",
+    ]  # fmt: skip
