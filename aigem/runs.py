@@ -167,8 +167,8 @@ def start_run(
         raise NgsimInputError(
             run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
         )
-    _check_fresh_out(run_dir)
-    if is_writer:
+    if is_writer:  # the other ranks of a distributed run would see rank 0 writing run.json
+        _check_fresh_out(run_dir)
         created = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
         try:
