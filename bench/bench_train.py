@@ -1,0 +1,315 @@
+"""Benchmark: AiGem training speed per batch size and device, with the operator calls and host
+synchronisations of a step.
+
+    OMP_NUM_THREADS=2 python bench/bench_train.py bench/out/graphs-txt-r6-m15
+    python bench/bench_train.py BUILD --batch-sizes 32,256,1024 --device auto --workers 0 --steps 10
+
+Devices: the CPU, then CUDA when torch.cuda.is_available() (`--device auto`; `cpu` or `cuda` for
+one). Graphs are cut to the history steps the model reads (`ModelConfig().history_steps_read`), as
+`aigem fit` loads them. For each batch size, graphs/s and ms a batch of:
+
+- loader: DataLoader(GraphDataset, Collate, shuffled, --workers processes) alone, on the host,
+  after its first batch (worker start-up excluded); at least --steps batches and 8,192 graphs
+  (or an epoch, if less).
+- model step: forward, `masked_mse_m2`, zero_grad, backward and Adam's step on batches loaded
+  beforehand and already on the device (no loading, no host-to-device copy): --warmup steps, then
+  --steps timed (CUDA synchronised at both ends).
+- fit loop: `aigem.training.fit` itself (1 epoch at this batch size, --workers, a temporary run
+  directory) watched through its `progress` callback: the clock starts at the report of batch
+  --warmup and stops at the first report --steps batches later; the profiler then watches
+  --profile-steps batches, and the callback raises to end fit. So it is fit's own loop in steady
+  state (loading, host-to-device copy, step, its loss checks and read-outs, bookkeeping) without
+  start-up or validation, which a full epoch of 89,000 graphs would take minutes to reach. The
+  windows count the batches that fit reports done, so they hold if fit reports less often.
+
+Per step, over --profile-steps untimed steps after the timed ones (torch.profiler with
+ProfilerActivity.CPU, plus CUDA on a GPU, and a TorchFunctionMode), divided by the steps:
+
+- ops/step: aten operators dispatched: CPU events named `aten::*` with no `aten::*` ancestor, i.e.
+  the calls made by Python code, by autograd nodes and by the optimizer; an operator's own
+  sub-operators are not counted again. The fit loop adds its own (copies to the device, loss
+  checks, and the collate's with 0 workers or the rebuilding of the workers' tensors).
+- syncs/step: operations that make the host wait for a GPU (on the CPU: that would on a GPU):
+  profiler events `aten::_local_scalar_dense` (under .item(), int(), float(), bool() of a tensor,
+  `if torch.isfinite(loss)`, repeat_interleave without output_size), `aten::nonzero` (boolean
+  indexing too), `aten::bincount`, `aten::_unique`, `aten::_unique2`, `aten::unique_dim`,
+  `aten::unique_consecutive`, `aten::masked_select`, `aten::equal`, each counted once (not again
+  inside another), none inside Adam's step (its .item() reads its step counter, a CPU tensor);
+  and, from the TorchFunctionMode, `Tensor.tolist()` (which the profiler does not show on the CPU)
+  and `.cpu()` / `.to()` of a device tensor to the CPU. The last column names them. On the CPU the
+  CPU code path is counted: the model's CSR aggregation, used on the CPU only, adds its own.
+- kernels/step (CUDA only): CUDA kernel events (memcpy and memset excluded).
+- cuda syncs/step (CUDA only): cudaStreamSynchronize, cudaEventSynchronize and cudaMemcpy runtime
+  calls (not cudaDeviceSynchronize, which the profiler calls when it stops).
+
+`threads` is torch's intra-op thread count after the measurement (fit may set it). Kineto writes
+`profiler_start` / `profiler_stop` lines to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+
+import torch
+from torch.overrides import TorchFunctionMode
+from torch.profiler import ProfilerActivity
+from torch.utils.data import DataLoader
+
+from aigem.config import ModelConfig, TrainConfig
+from aigem.data import Collate, GraphDataset
+from aigem.model import AiGem
+from aigem.training import fit, masked_mse_m2
+
+LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
+SYNC_OPS = {"aten::_local_scalar_dense", "aten::nonzero", "aten::bincount", "aten::_unique",
+            "aten::_unique2", "aten::unique_dim", "aten::unique_consecutive",
+            "aten::masked_select", "aten::equal"}  # fmt: skip
+CUDA_SYNCS = {"cudaStreamSynchronize", "cudaEventSynchronize", "cudaMemcpy"}
+COLUMNS = {"graphs/s": 9, "ms/batch": 8, "ops/step": 8, "syncs/step": 10, "kernels/step": 12,
+           "cuda syncs/step": 15, "threads": 7, "syncs by op (per step)": 0}  # fmt: skip
+Batch = dict[str, torch.Tensor]
+
+
+class _Conversions(TorchFunctionMode):
+    """Counts the copies to host memory that the profiler does not show as such."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.names: Counter[str] = Counter()
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        out = func(*args, **(kwargs or {}))
+        name = getattr(func, "__name__", "")
+        if name == "tolist":
+            self.names["tolist"] += 1
+        elif (
+            name in ("cpu", "to")
+            and isinstance(out, torch.Tensor) and out.device.type == "cpu"
+            and isinstance(args[0], torch.Tensor) and args[0].device.type != "cpu"
+        ):  # fmt: skip
+            self.names[f"{name} (to host)"] += 1
+        return out
+
+
+class _Counts:
+    """The profiler and the conversion counter over a window of steps (see the docstring)."""
+
+    def __init__(self, device: torch.device) -> None:
+        self.cuda = device.type == "cuda"
+        activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if self.cuda else [])
+        self.profiler = torch.profiler.profile(activities=activities)
+        self.conversions = _Conversions()
+
+    def start(self) -> None:
+        self.profiler.start()
+        self.conversions.__enter__()
+
+    def stop(self) -> None:
+        self.conversions.__exit__(None, None, None)
+        self.profiler.stop()
+
+    def per_step(self, steps: int) -> dict[str, object]:
+        ops, kernels, cuda_syncs, syncs = 0, 0, 0, Counter(self.conversions.names)
+        for event in self.profiler.events():
+            name, ancestors, parent = event.name, [], event.cpu_parent
+            while parent is not None:
+                ancestors.append(parent.name)
+                parent = parent.cpu_parent
+            if event.device_type == torch.autograd.DeviceType.CUDA:
+                kernels += not name.startswith(("Memcpy", "Memset"))
+            elif name in CUDA_SYNCS:
+                cuda_syncs += 1
+            elif name.startswith("aten::") and not any(a.startswith("aten::") for a in ancestors):
+                ops += 1
+            if name in SYNC_OPS and not any(
+                a in SYNC_OPS or a.startswith("Optimizer.step#") for a in ancestors
+            ):
+                syncs[name.removeprefix("aten::")] += 1
+        by_op = ", ".join(f"{name} {count / steps:g}" for name, count in syncs.most_common())
+        row = {"ops/step": ops / steps, "syncs/step": sum(syncs.values()) / steps,
+               "syncs by op (per step)": by_op or "none"}  # fmt: skip
+        if self.cuda:
+            row |= {"kernels/step": kernels / steps, "cuda syncs/step": cuda_syncs / steps}
+        return row
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _endless(loader: DataLoader) -> Iterator[Batch]:
+    while True:
+        yield from loader
+
+
+def measure_loader(
+    dataset: GraphDataset, batch_size: int, workers: int, timed: int, keep: int
+) -> tuple[float, list[Batch]]:
+    """(graphs/s over `timed` batches after the first, `keep` batches for the model step)."""
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=True, num_workers=workers,
+                        collate_fn=Collate(dataset.scaler))  # fmt: skip
+    batches = _endless(loader)
+    next(batches)  # workers start, first batch
+    kept: list[Batch] = []
+    start = time.perf_counter()
+    for _ in range(timed):
+        batch = next(batches)
+        if len(kept) < keep:
+            kept.append(batch)
+    rate = timed * batch_size / (time.perf_counter() - start)
+    return rate, kept + [next(batches) for _ in range(keep - len(kept))]
+
+
+def measure_step(
+    batches: list[Batch], dataset: GraphDataset, device: torch.device, args: argparse.Namespace
+) -> dict[str, object]:
+    """The model step alone on prepared batches: --warmup, --steps timed, --profile-steps counted."""
+    torch.manual_seed(0)
+    model = AiGem(ModelConfig()).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    steps = TrainConfig().horizon_steps(dataset.config.time_step_s)  # fit's default horizon
+    on_device = [{k: v.to(device) for k, v in batch.items()} for batch in batches]
+
+    def step(batch: Batch) -> None:
+        loss = masked_mse_m2(model(batch, steps), batch, dataset.scaler, steps)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+
+    timed = on_device[args.warmup : args.warmup + args.steps]
+    for batch in on_device[: args.warmup]:
+        step(batch)
+    _sync(device)
+    start = time.perf_counter()
+    for batch in timed:
+        step(batch)
+    _sync(device)
+    seconds = time.perf_counter() - start
+    counts = _Counts(device)
+    counts.start()
+    for batch in on_device[args.warmup + args.steps :]:
+        step(batch)
+    counts.stop()
+    graphs = sum(int(batch["node_sample"].max()) + 1 for batch in timed)  # a short batch: fewer
+    return {"graphs/s": graphs / seconds, "ms/batch": 1000 * seconds / len(timed),
+            **counts.per_step(args.profile_steps)}  # fmt: skip
+
+
+class _Enough(Exception):
+    """Raised from fit's progress callback once the probe has what it needs."""
+
+
+class _FitProbe:
+    """fit's progress callback: times --steps batches after --warmup, then counts the next ones."""
+
+    def __init__(self, device: torch.device, args: argparse.Namespace) -> None:
+        self.device, self.args, self.counts = device, args, _Counts(device)
+        self.clock: tuple[int, float] | None = None  # (batches done, time) when timing began
+        self.timed: tuple[int, float] | None = None  # (batches, seconds)
+        self.profiled_from: int | None = None  # batches done when profiling began
+        self.profiled = 0  # batches profiled, once done
+
+    def __call__(self, epoch: int, done: int, total: int, loss: float) -> None:
+        if self.clock is None and done >= self.args.warmup:
+            _sync(self.device)
+            self.clock = (done, time.perf_counter())
+        elif self.timed is None and self.clock and done >= self.clock[0] + self.args.steps:
+            _sync(self.device)
+            self.timed = (done - self.clock[0], time.perf_counter() - self.clock[1])
+            self.profiled_from = done
+            self.counts.start()
+        elif self.profiled_from is not None and done >= self.profiled_from + self.args.profile_steps:  # fmt: skip
+            self.counts.stop()
+            self.profiled = done - self.profiled_from
+            raise _Enough
+
+
+def measure_fit(
+    build: Path, batch_size: int, device: torch.device, args: argparse.Namespace
+) -> dict[str, object]:
+    """The whole fit loop at this batch size (see the docstring); empty where the epoch ran out."""
+    probe = _FitProbe(device, args)
+    train = TrainConfig(epochs=1, batch_size=batch_size, workers=args.workers, seed=0)
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            fit(build, Path(tmp) / "run", ModelConfig(), train, device.type, progress=probe)
+        except _Enough:
+            pass
+        finally:
+            if probe.profiled_from is not None and not probe.profiled:
+                probe.counts.stop()  # the epoch ended inside the profiled window
+    row: dict[str, object] = {}
+    if probe.timed is not None:
+        batches, seconds = probe.timed
+        row |= {"graphs/s": batches * batch_size / seconds, "ms/batch": 1000 * seconds / batches}
+    return row | (probe.counts.per_step(probe.profiled) if probe.profiled else {})
+
+
+def describe_machine(devices: list[torch.device]) -> str:
+    cpuinfo = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    names = [line.split(":", 1)[1].strip() for line in cpuinfo.splitlines() if line.startswith("model name")]  # fmt: skip
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cuda = [torch.cuda.get_device_name(device) for device in devices if device.type == "cuda"]
+    return (f"machine: {names[0] if names else platform.machine()}, {os.cpu_count()} CPUs "
+            f"({usable} usable), torch {torch.__version__}, {torch.get_num_threads()} intra-op "
+            f"threads (OMP_NUM_THREADS {os.environ.get('OMP_NUM_THREADS', 'unset')})"
+            + (f"; cuda: {cuda[0]}" if cuda else ""))  # fmt: skip
+
+
+def _row(device: str, size: object, what: str, row: dict[str, object]) -> None:
+    """One line of the table; `row` maps COLUMNS to values (absent: "-")."""
+    cells = [f"{device:<6}", f"{size!s:<5}", f"{what:<10}"]
+    for column, width in COLUMNS.items():
+        value = row.get(column, "-")
+        cells.append((f"{value:,.1f}" if isinstance(value, float) else str(value)).rjust(width))
+    print("  ".join(cells).rstrip())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("build", type=Path)
+    parser.add_argument("--batch-sizes", default="32,256,1024")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                        help="auto: the CPU, then CUDA when present")  # fmt: skip
+    parser.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    parser.add_argument("--steps", type=int, default=10, help="timed batches per measurement")
+    parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
+    parser.add_argument("--profile-steps", type=int, default=2, help="steps the profiler counts")
+    args = parser.parse_args()
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: no CUDA device is available")
+    auto = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    devices = [torch.device(name) for name in (auto if args.device == "auto" else [args.device])]
+    read = ModelConfig().history_steps_read
+    dataset = GraphDataset(args.build, "train", history_steps=read)
+    print(describe_machine(devices))
+    print(f"build {args.build}: {len(dataset):,} train samples, graphs cut to {read} history "
+          f"steps; {args.workers} loader workers; {args.warmup} warm-up, {args.steps} timed, "
+          f"{args.profile_steps} profiled steps\n")  # fmt: skip
+    _row("device", "batch", "measured", {column: column for column in COLUMNS})
+    for size in (int(size) for size in args.batch_sizes.split(",")):
+        timed = max(args.steps, math.ceil(min(LOADER_GRAPHS, len(dataset)) / size))
+        keep = args.warmup + args.steps + args.profile_steps
+        rate, batches = measure_loader(dataset, size, args.workers, timed, keep)
+        threads = {"threads": torch.get_num_threads()}
+        _row("host", size, "loader", {"graphs/s": rate, "ms/batch": 1000 * size / rate, **threads})
+        for device in devices:
+            row = measure_step(batches, dataset, device, args)
+            _row(device.type, size, "model step", row | {"threads": torch.get_num_threads()})
+            row = measure_fit(args.build, size, device, args)
+            _row(device.type, size, "fit loop", row | {"threads": torch.get_num_threads()})
+
+
+if __name__ == "__main__":
+    main()

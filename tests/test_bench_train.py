@@ -1,0 +1,32 @@
+"""bench/bench_train.py runs end to end on the tiny build and prints its table."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "bench_train.py"
+
+
+def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
+    command = [sys.executable, str(SCRIPT), str(tiny_build), "--batch-sizes", "2,4",
+               "--device", "cpu", "--steps", "2", "--warmup", "1", "--profile-steps", "1"]  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}  # quick on a busy machine too
+    result = subprocess.run(
+        command, capture_output=True, text=True, timeout=300, check=True, env=env
+    )
+    rows = [re.split(r"\s{2,}", line) for line in result.stdout.splitlines()]
+    rows = [row for row in rows if row[0] in ("host", "cpu")]
+    assert [row[:3] for row in rows] == [
+        [device, size, what]
+        for size in ("2", "4")
+        for device, what in (("host", "loader"), ("cpu", "model step"), ("cpu", "fit loop"))
+    ]
+    for row in rows:  # graphs/s and ms/batch measured; ops and syncs counted for the steps
+        assert float(row[3].replace(",", "")) > 0 and float(row[4].replace(",", "")) > 0
+        if row[0] == "cpu":
+            assert float(row[5].replace(",", "")) > 0 and float(row[6].replace(",", "")) >= 0
+            assert row[7:9] == ["-", "-"]  # the CUDA columns
