@@ -40,13 +40,18 @@ class TrainConfig:
     max_minutes: float | None = None  # stop after this much training time
     patience_epochs: int | None = None  # early stop without a better validation loss
     seed: int = 0
-    workers: int = 0  # DataLoader worker processes
+    workers: int | None = None  # DataLoader worker processes (None: aigem.cores.default_workers)
+    threads: int | None = None  # intra-op CPU threads (None: the idle usable cores, aigem.cores)
 
     def __post_init__(self) -> None:
         if not 0 < self.horizon_s <= 5.0:
             raise ValueError("horizon_s must be in (0, 5]")
         if self.epochs < 1 or self.batch_size < 1:
             raise ValueError("epochs and batch_size must be >= 1")
+        if self.workers is not None and self.workers < 0:
+            raise ValueError("workers must be >= 0")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError("threads must be >= 1")
 
     def horizon_steps(self, time_step_s: float) -> int:
         """Future steps predicted and scored: 5 per second at 0.2 s."""

@@ -13,10 +13,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
+
+from aigem.model import make_plan
 
 from ngsim_graphs.builds import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError
@@ -155,15 +158,22 @@ class GraphDataset(Dataset):
 
 @dataclass(frozen=True)
 class Collate:
-    """Batches graphs into one dict of tensors (picklable, for DataLoader workers)."""
+    """Batches graphs into one dict of tensors (picklable, for DataLoader workers).
+
+    `layers`: also plan the encoder of a model with that many layers for the batch's targets
+    (`batch["plan"]`, an `aigem.model.Plan`), so that the model step, on any device, neither
+    plans nor waits for the device to read the plan's sizes. `batch["graphs"]` is the number of
+    graphs (a Python int).
+    """
 
     scaler: Scaler
+    layers: int | None = None
 
-    def __call__(self, graphs: list[GraphBatch]) -> dict[str, torch.Tensor]:
+    def __call__(self, graphs: list[GraphBatch]) -> dict[str, Any]:
         batch = concat_batches(graphs)
         targets = batch.target_node
         present = batch.node_features[targets]
-        return {
+        out = {
             "x": torch.from_numpy(self.scaler.features(batch.node_features)),  # (N, 4)
             "spatial_edges": torch.from_numpy(batch.spatial_edges),  # (2, E_s)
             "spatial_attr": torch.from_numpy(self.scaler.distance(batch.spatial_distance))[
@@ -179,4 +189,11 @@ class Collate:
             "target_state": torch.from_numpy(present.astype(np.float32)),  # (A, 4) physical, metres
             "target_xy": torch.from_numpy(batch.target_xy.astype(np.float32)),  # (A, K, 2) metres
             "target_mask": torch.from_numpy(batch.target_mask),  # (A, K)
+            "graphs": batch.n_samples,
         }
+        if self.layers is not None:
+            edges = [
+                (out[f"{kind}_edges"], out[f"{kind}_attr"]) for kind in ("spatial", "temporal")
+            ]
+            out["plan"] = make_plan(len(batch.node_sample), out["target_node"], edges, self.layers)
+        return out

@@ -23,7 +23,7 @@ from aigem.data import Collate, GraphDataset, Scaler
 from aigem.metrics import ErrorTotals, summarize
 from aigem.model import AiGem, count_parameters
 from aigem.runs import BEST, load_model
-from aigem.training import pick_device
+from aigem.training import pick_device, to_device
 from ngsim_graphs.builds import open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import MANIFEST_NAME
@@ -119,15 +119,12 @@ def score(
 ) -> tuple[ErrorTotals, ErrorTotals]:  # fmt: skip
     """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
     `steps` future steps; inputs scaled with `dataset.scaler`."""
-    loader = DataLoader(
-        dataset, batch_size=batch_size, shuffle=False, collate_fn=Collate(dataset.scaler)
-    )
+    collate = Collate(dataset.scaler, layers=model.config.layers)
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
     ours, baseline = ErrorTotals(steps), ErrorTotals(steps)
     with torch.no_grad():
         for index, batch in enumerate(loader):
-            predicted = dataset.scaler.xy_to_metres(
-                model({k: v.to(device) for k, v in batch.items()}, steps)
-            )
+            predicted = dataset.scaler.xy_to_metres(model(to_device(batch, device), steps))
             if not bool(torch.isfinite(predicted).all()):
                 raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}")
             truth = batch["target_xy"][:, :steps].numpy()

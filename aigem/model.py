@@ -49,33 +49,67 @@ class _Adjacency:
 
     crow: torch.Tensor  # (n_1 + 1,) row pointers over the destinations any layer computes
     col: torch.Tensor  # (E,) source of each edge, edges sorted by (destination, source)
+    row: torch.Tensor  # (E,) destination of each edge (crow expanded)
     attr: torch.Tensor  # (E, D) edge features in the same order
+    ends: dict[int, int]  # n_dst -> crow[n_dst] for every layer's n_dst, known on the host
 
-    def prefix(self, n_dst: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The adjacency of the first n_dst destinations: (crow, col, attr)."""
-        end = int(self.crow[n_dst])
-        return self.crow[: n_dst + 1], self.col[:end], self.attr[:end]
+    def prefix(self, n_dst: int) -> tuple[torch.Tensor, ...]:
+        """The adjacency of the first n_dst destinations: (crow, col, attr, row)."""
+        end = self.ends[n_dst]
+        return self.crow[: n_dst + 1], self.col[:end], self.attr[:end], self.row[:end]
+
+    def to(self, device: torch.device, non_blocking: bool = False) -> _Adjacency:
+        move = lambda t: t.to(device, non_blocking=non_blocking)  # noqa: E731
+        return _Adjacency(
+            move(self.crow), move(self.col), move(self.row), move(self.attr), self.ends
+        )
+
+    def pin_memory(self) -> _Adjacency:
+        pin = lambda t: t.pin_memory()  # noqa: E731
+        return _Adjacency(pin(self.crow), pin(self.col), pin(self.row), pin(self.attr), self.ends)
 
 
 @dataclass(frozen=True)
-class _Plan:
+class Plan:
     """Which nodes each layer computes: layer l (1..L) reads nodes [0, sizes[l-1]) and writes
-    nodes [0, sizes[l]); node i of the plan is node order[i] of the batch."""
+    nodes [0, sizes[l]); node i of the plan is node order[i] of the batch.
+
+    Its sizes and edge counts are host integers, so a model step that is given a plan made
+    beforehand (by `aigem.data.Collate`, in the DataLoader's workers) never waits for the device.
+    """
 
     order: torch.Tensor  # (sizes[0],) batch node ids in plan order
     sizes: list[int]  # L + 1 prefix lengths, non-increasing
     adjacency: list[_Adjacency]  # one per edge type
+    outputs: torch.Tensor | None  # (A,) plan positions of the outputs asked for (None: all)
+
+    @property
+    def layers(self) -> int:
+        return len(self.sizes) - 1
+
+    def to(self, device: torch.device, non_blocking: bool = False) -> Plan:
+        move = lambda t: None if t is None else t.to(device, non_blocking=non_blocking)  # noqa: E731
+        adjacency = [a.to(device, non_blocking) for a in self.adjacency]
+        return Plan(move(self.order), self.sizes, adjacency, move(self.outputs))
+
+    def pin_memory(self) -> Plan:
+        """For the DataLoader's pin_memory (then copies to a GPU need not wait)."""
+        pin = lambda t: None if t is None else t.pin_memory()  # noqa: E731
+        adjacency = [a.pin_memory() for a in self.adjacency]
+        return Plan(pin(self.order), self.sizes, adjacency, pin(self.outputs))
 
 
-def _plan(
+def make_plan(
     num_nodes: int,
     outputs: torch.Tensor | None,
     edges: list[tuple[torch.Tensor, torch.Tensor]],
     layers: int,
-) -> _Plan:
+) -> Plan:
     """Plan the layers for `outputs` (batch node ids whose final embedding is needed; None: all).
 
-    `edges`: (edge_index (2, E), edge_attr (E, D) or (E,)) per edge type.
+    `edges`: (edge_index (2, E), edge_attr (E, D) or (E,)) per edge type. Made on the device of
+    the edges; on a GPU it reads a few numbers back (the sizes), so there it is best made on the
+    host beforehand.
     """
     device = edges[0][0].device
     with torch.no_grad():
@@ -94,7 +128,7 @@ def _plan(
         # A stable sort by descending level makes each layer's node set a prefix.
         order = torch.argsort(-level, stable=True)
         thresholds = torch.arange(layers + 1, device=device)[:, None]
-        sizes = [int(count) for count in (level[None, :] >= thresholds).sum(1)]
+        sizes = (level[None, :] >= thresholds).sum(1).tolist()
         order = order[: sizes[0]]
         new_id = torch.full((num_nodes,), -1, dtype=torch.long, device=device)
         new_id[order] = torch.arange(sizes[0], device=device)
@@ -109,8 +143,12 @@ def _plan(
             crow[1:] = torch.cumsum(torch.bincount(dst, minlength=sizes[1]), 0)
             attr = attr.view(-1, 1) if attr.dim() == 1 else attr
             attr = attr.index_select(0, keep.index_select(0, sort))
-            adjacency.append(_Adjacency(crow, src.index_select(0, sort), attr))
-    return _Plan(order, sizes, adjacency)
+            ends = dict(zip(sizes[1:], crow[sizes[1:]].tolist()))
+            adjacency.append(
+                _Adjacency(crow, src.index_select(0, sort), dst.index_select(0, sort), attr, ends)
+            )
+        targets = None if outputs is None else new_id.index_select(0, outputs)
+    return Plan(order, sizes, adjacency, targets)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -190,9 +228,10 @@ def _segment_softmax(scores: torch.Tensor, dst: torch.Tensor, n_dst: int) -> tor
     return out / total.index_select(0, dst)
 
 
-def _gat(conv: GATConv, h: torch.Tensor, crow, col, attr) -> torch.Tensor:  # noqa: ANN001
+def _gat(conv: GATConv, h: torch.Tensor, crow, col, attr, dst) -> torch.Tensor:  # noqa: ANN001
     """`conv(z, edges, attr)` without its bias at the first n_dst nodes, given h = conv.lin(z)
-    (n_src, heads * C) and the edges as CSR rows (destinations) over the n_src sources."""
+    (n_src, heads * C) and the edges as CSR rows (destinations) over the n_src sources; dst[e] is
+    edge e's row."""
     heads, channels = conv.heads, conv.out_channels
     n_dst = crow.numel() - 1
     hv = h.view(-1, heads, channels)
@@ -202,8 +241,6 @@ def _gat(conv: GATConv, h: torch.Tensor, crow, col, attr) -> torch.Tensor:  # no
     else:
         score_src = (hv * conv.att_src).sum(-1)  # (n_src, heads)
         score_dst = (hv[:n_dst] * conv.att_dst).sum(-1)  # (n_dst, heads)
-    arange = torch.arange(n_dst, device=col.device)
-    dst = torch.repeat_interleave(arange, crow.diff(), output_size=col.numel())
     scores = score_src.index_select(0, col) + score_dst.index_select(0, dst)  # (E, heads)
     if conv.lin_edge is not None:
         # att_edge . lin_edge(e) per head = e @ (lin_edge.weight^T att_edge): a (D, heads) matrix
@@ -236,7 +273,7 @@ class EncoderLayer(nn.Module):
         self.linear = nn.Linear(in_features, config.hidden)
 
     def forward(self, z, n_dst: int, spatial: _Adjacency, temporal: _Adjacency) -> torch.Tensor:  # noqa: ANN001
-        """(n_src, F) inputs -> (n_dst, H) outputs at the first n_dst nodes (see `_Plan`)."""
+        """(n_src, F) inputs -> (n_dst, H) outputs at the first n_dst nodes (see `Plan`)."""
         gats = []
         for conv, adjacency in ((self.spatial, spatial), (self.temporal, temporal)):
             gat = _gat(conv, conv.lin(z), *adjacency.prefix(n_dst))
@@ -267,20 +304,22 @@ class AiGem(nn.Module):
             nn.Linear(mlp_in, config.mlp_hidden), nn.ReLU(), nn.Linear(config.mlp_hidden, 2)
         )
 
-    def _encode(self, x, spatial_edges, spatial_attr, temporal_edges, temporal_attr, outputs):  # noqa: ANN001, ANN202
-        """(len(outputs), H) embeddings of the batch nodes `outputs` (None: all, in batch order)."""
-        edges = [(spatial_edges, spatial_attr), (temporal_edges, temporal_attr)]
-        plan = _plan(x.shape[0], outputs, edges, len(self.encoder))
+    def _encode(
+        self, x, spatial_edges, spatial_attr, temporal_edges, temporal_attr, outputs, plan=None
+    ):  # noqa: ANN001, ANN202
+        """(len(outputs), H) embeddings of the batch nodes `outputs` (None: all, in batch order).
+        `plan`: the plan of these edges and outputs for this many layers, made beforehand."""
+        if plan is None:
+            edges = [(spatial_edges, spatial_attr), (temporal_edges, temporal_attr)]
+            plan = make_plan(x.shape[0], outputs, edges, len(self.encoder))
         z = x.index_select(0, plan.order)
         for index, layer in enumerate(self.encoder):
             z = layer(z, plan.sizes[index + 1], *plan.adjacency)
             if index < len(self.encoder) - 1:
                 z = self.dropout(torch.relu(z))
-        if outputs is None:  # every node: back to batch order
+        if plan.outputs is None:  # every node: back to batch order
             return z.new_empty(z.shape).index_copy_(0, plan.order, z)
-        new_id = torch.full((x.shape[0],), -1, dtype=torch.long, device=x.device)
-        new_id[plan.order] = torch.arange(plan.order.numel(), device=x.device)
-        return z.index_select(0, new_id[outputs])
+        return z.index_select(0, plan.outputs)
 
     def encode(self, x, spatial_edges, spatial_attr, temporal_edges, temporal_attr):  # noqa: ANN001, ANN201
         """(N, F) scaled node features -> (N, H) embeddings after L layers."""
@@ -293,13 +332,18 @@ class AiGem(nn.Module):
         Y_k = Y_{k-1} + MLP([g_k, Y_{k-1}]), Y_0 the present position.
         """
         hidden = torch.zeros_like(z_target)
-        previous_g, before_g = z_target, torch.zeros_like(z_target)  # so that step 1 sees z, step 2 z + g_1
+        previous_g, before_g = (
+            z_target,
+            torch.zeros_like(z_target),
+        )  # so that step 1 sees z, step 2 z + g_1
         position, outputs = start_xy, []
         for step in range(steps):
             gru_in = z_target if step == 0 else previous_g + before_g
             hidden = self.decoder(gru_in, hidden)  # g_k, (A, H)
             before_g, previous_g = previous_g, hidden
-            mlp_in = torch.cat([hidden, position], dim=-1) if self.config.concat_position else hidden
+            mlp_in = (
+                torch.cat([hidden, position], dim=-1) if self.config.concat_position else hidden
+            )
             position = position + self.output(mlp_in)  # (A, 2)
             outputs.append(position)
         return torch.stack(outputs, dim=1)  # (A, steps, 2)
@@ -307,9 +351,12 @@ class AiGem(nn.Module):
     def forward(self, batch: dict[str, torch.Tensor], steps: int | None = None) -> torch.Tensor:
         """Scaled predicted positions (A, steps, 2) of the batch's targets."""
         target = batch["target_node"]
+        plan = batch.get("plan")
+        if plan is not None and plan.layers != len(self.encoder):
+            plan = None  # made for another model
         z_target = self._encode(
             batch["x"], batch["spatial_edges"], batch["spatial_attr"],
-            batch["temporal_edges"], batch["temporal_attr"], target,
+            batch["temporal_edges"], batch["temporal_attr"], target, plan,
         )  # fmt: skip
         return self.decode(z_target, batch["x"][target, :2], steps or self.config.future_steps)
 

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -23,6 +24,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
+from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset, Scaler
 from aigem.model import AiGem, count_parameters
 from ngsim_graphs.builds import open_build
@@ -30,7 +32,9 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sampling import N_TARGETS
 from ngsim_graphs.schema import Split
 
-# (epoch, batches done, batches in the epoch, running train loss): the CLI draws a bar from it.
+READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
+# (epoch, batches done, batches in the epoch, running train loss as last read): the CLI draws a
+# bar from it.
 ProgressCallback = Callable[[int, int, int, float], None]
 # The row of metrics.jsonl written at the end of each epoch: the CLI prints it.
 EpochCallback = Callable[[dict[str, float]], None]
@@ -101,8 +105,9 @@ def check_splits(build_dir: Path) -> None:
                                   f"but no target actors: {reason}")  # fmt: skip
 
 
-def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
-    return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
+    """The batch's tensors and plan on `device` (copies from pinned memory do not wait)."""
+    return {k: v.to(device, non_blocking=True) if hasattr(v, "to") else v for k, v in batch.items()}
 
 
 def _distributed() -> tuple[int, int]:
@@ -115,20 +120,36 @@ def _distributed() -> tuple[int, int]:
     return rank, world
 
 
-def _loaders(build_dir: Path, model: ModelConfig, train: TrainConfig, rank: int, world: int):
-    # Graphs cut to the steps the model reads: the same loss, a fraction of the loading work.
+def _loaders(
+    build_dir: Path,
+    model: ModelConfig,
+    train: TrainConfig,
+    rank: int,
+    world: int,
+    device: torch.device,
+    workers: int,
+):
+    # Graphs cut to the steps the model reads: the same loss, a fraction of the loading work;
+    # the encoder's plan is made with each batch, in the workers.
     train_set, val_set = (
         GraphDataset(build_dir, split, history_steps=model.history_steps_read)
         for split in (Split.TRAIN, Split.VAL)
     )
-    collate = Collate(train_set.scaler)
+    collate = Collate(train_set.scaler, layers=model.layers)
     sampler = (
         DistributedSampler(train_set, world, rank, shuffle=True, seed=train.seed)
         if world > 1
         else None
     )
     generator = torch.Generator().manual_seed(train.seed)
-    common = {"batch_size": train.batch_size, "collate_fn": collate, "num_workers": train.workers}
+    common = {
+        "batch_size": train.batch_size,
+        "collate_fn": collate,
+        "num_workers": workers,
+        "pin_memory": device.type == "cuda",
+        "persistent_workers": workers > 0,
+        "prefetch_factor": 4 if workers > 0 else None,
+    }
     train_loader = DataLoader(
         train_set, shuffle=sampler is None, sampler=sampler, generator=generator, **common
     )
@@ -141,17 +162,27 @@ def evaluate_loss(
 ) -> float:
     """Mean validation loss in metres^2, weighted by valid steps."""
     model.eval()
-    total, count = 0.0, 0.0
+    total = torch.zeros((), dtype=torch.float64, device=device)  # summed on the device, read once
+    count = torch.zeros((), dtype=torch.float64, device=device)
     with torch.no_grad():
         for batch in loader:
-            batch = _to(batch, device)
-            valid = float(batch["target_mask"][:, :steps].sum())
-            if valid == 0:
-                continue
-            total += float(masked_mse_m2(model(batch, steps), batch, scaler, steps)) * valid
+            batch = to_device(batch, device)
+            valid = batch["target_mask"][:, :steps].sum()
+            total += masked_mse_m2(model(batch, steps), batch, scaler, steps).double() * valid
             count += valid
     model.train()
-    return total / count if count else float("nan")
+    count_value = float(count)
+    return float(total) / count_value if count_value else float("nan")
+
+
+def _read_loss(running: torch.Tensor, batches: int, epoch: int, first: int, last: int) -> float:
+    """The mean training loss so far (one read from the device); refuses a non-finite one, which
+    appeared in batches first + 1..last of the epoch."""
+    mean = float(running) / batches
+    if not math.isfinite(mean):
+        where = f"batch {last}" if last == first + 1 else f"batches {first + 1}-{last}"
+        raise NonFiniteLossError(f"non-finite training loss ({mean}) at epoch {epoch + 1}, {where}")
+    return mean
 
 
 def fit(
@@ -169,10 +200,14 @@ def fit(
     device = pick_device(device_choice)
     if device.type == "cuda" and world > 1:
         device = torch.device("cuda", rank % torch.cuda.device_count())
+    threads = ThreadChooser(train.threads)
+    workers = (
+        train.workers if train.workers is not None else default_workers(device.type, threads.cores)
+    )
     seed_everything(train.seed + rank)
     check_splits(build_dir)
     train_set, train_loader, val_loader, sampler, generator = _loaders(
-        build_dir, model_config, train, rank, world
+        build_dir, model_config, train, rank, world, device, workers
     )
     steps = train.horizon_steps(train_set.config.time_step_s)
     model = AiGem(model_config).to(device)
@@ -191,26 +226,32 @@ def fit(
         torch.manual_seed(train.seed + rank + 1000 * epoch)  # dropout
         if sampler is not None:
             sampler.set_epoch(epoch)
-        epoch_start, running, batches, epoch_graphs = time.monotonic(), 0.0, 0, 0
+        epoch_start, batches, epoch_graphs = time.monotonic(), 0, 0
+        # The losses are summed on the device and read every READ_LOSS_EVERY_S (and at the end
+        # of the epoch): a step never waits for the device.
+        running = torch.zeros((), dtype=torch.float64, device=device)
+        shown, read_at, read_batches = math.nan, time.monotonic(), 0
         for index, batch in enumerate(train_loader):
-            batch = _to(batch, device)
+            batch = to_device(batch, device)
             loss = masked_mse_m2(net(batch, steps), batch, train_set.scaler, steps)
-            if not torch.isfinite(loss):
-                raise NonFiniteLossError(
-                    f"non-finite training loss ({float(loss)}) at epoch {epoch + 1}, batch {index + 1}"
-                )
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            running, batches = running + float(loss.detach()), batches + 1
-            epoch_graphs += int(batch["node_sample"].max()) + 1 if len(batch["node_sample"]) else 0
-            report(epoch + 1, index + 1, len(train_loader), running / batches)
+            running += loss.detach()
+            batches, epoch_graphs = batches + 1, epoch_graphs + batch["graphs"]
+            last = index + 1 == len(train_loader)
+            if last or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
+                shown = _read_loss(running, batches, epoch, read_batches, batches)
+                read_at, read_batches = time.monotonic(), batches
+                threads.look()
+            report(epoch + 1, index + 1, len(train_loader), shown)
             if (
                 train.max_minutes is not None
                 and time.monotonic() - started > 60 * train.max_minutes
             ):
                 stopped = "time limit"
                 break
+        mean_loss = _read_loss(running, max(batches, 1), epoch, read_batches, batches)
         epoch_seconds = time.monotonic() - epoch_start
         train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
         val_loss = evaluate_loss(model, val_loader, train_set.scaler, steps, device)
@@ -229,7 +270,7 @@ def fit(
             state,
             info,
             epoch,
-            running / max(batches, 1),
+            mean_loss,
             val_loss,
             model,
             optimizer,

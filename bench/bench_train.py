@@ -66,7 +66,7 @@ from torch.utils.data import DataLoader
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
-from aigem.training import fit, masked_mse_m2
+from aigem.training import fit, masked_mse_m2, to_device
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
 SYNC_OPS = {"aten::_local_scalar_dense", "aten::nonzero", "aten::bincount", "aten::_unique",
@@ -155,8 +155,9 @@ def measure_loader(
     dataset: GraphDataset, batch_size: int, workers: int, timed: int, keep: int
 ) -> tuple[float, list[Batch]]:
     """(graphs/s over `timed` batches after the first, `keep` batches for the model step)."""
+    collate = Collate(dataset.scaler, layers=ModelConfig().layers)  # as fit: with the plan
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=True, num_workers=workers,
-                        collate_fn=Collate(dataset.scaler))  # fmt: skip
+                        collate_fn=collate)  # fmt: skip
     batches = _endless(loader)
     next(batches)  # workers start, first batch
     kept: list[Batch] = []
@@ -177,7 +178,7 @@ def measure_step(
     model = AiGem(ModelConfig()).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     steps = TrainConfig().horizon_steps(dataset.config.time_step_s)  # fit's default horizon
-    on_device = [{k: v.to(device) for k, v in batch.items()} for batch in batches]
+    on_device = [to_device(batch, device) for batch in batches]
 
     def step(batch: Batch) -> None:
         loss = masked_mse_m2(model(batch, steps), batch, dataset.scaler, steps)
@@ -199,7 +200,7 @@ def measure_step(
     for batch in on_device[args.warmup + args.steps :]:
         step(batch)
     counts.stop()
-    graphs = sum(int(batch["node_sample"].max()) + 1 for batch in timed)  # a short batch: fewer
+    graphs = sum(batch["graphs"] for batch in timed)  # a short batch: fewer
     return {"graphs/s": graphs / seconds, "ms/batch": 1000 * seconds / len(timed),
             **counts.per_step(args.profile_steps)}  # fmt: skip
 
@@ -238,7 +239,8 @@ def measure_fit(
 ) -> dict[str, object]:
     """The whole fit loop at this batch size (see the docstring); empty where the epoch ran out."""
     probe = _FitProbe(device, args)
-    train = TrainConfig(epochs=1, batch_size=batch_size, workers=args.workers, seed=0)
+    train = TrainConfig(epochs=1, batch_size=batch_size, workers=args.workers, seed=0,
+                        threads=torch.get_num_threads())  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         try:
             fit(build, Path(tmp) / "run", ModelConfig(), train, device.type, progress=probe)

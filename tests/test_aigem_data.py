@@ -17,6 +17,11 @@ from ngsim_graphs.layout import config_hash, write_manifest
 from ngsim_graphs.scaling import scale
 
 
+def same(a: object, b: object) -> bool:
+    """Equal batch values: tensors element for element, anything else by ==."""
+    return torch.equal(a, b) if isinstance(a, torch.Tensor) else a == b
+
+
 def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
     assert len(dataset) == open_build(tiny_build).manifest["splits"]["train"] > 4
@@ -24,7 +29,8 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     batch = Collate(dataset.scaler)(dataset.__getitems__(ids))
     one_by_one = Collate(dataset.scaler)([dataset[i] for i in ids])
     for key in batch:
-        assert torch.equal(batch[key], one_by_one[key]), key
+        assert same(batch[key], one_by_one[key]), key
+    assert batch["graphs"] == 3 and "plan" not in batch
     graphs = open_build(tiny_build).graphs("train", np.array(ids))
     ranges = json.loads((tiny_build / "manifest.json").read_text())["scaler"]
     expected_x = scale(graphs.node_features[:, 0], ranges["x_m"], (-1.0, 1.0))
@@ -53,18 +59,19 @@ def test_a_batch_is_induced_once_per_recording_grouped_by_recording(
     batch = Collate(dataset.scaler)(dataset.__getitems__(ids))
     one_by_one = Collate(dataset.scaler)([dataset[i] for i in expected_order])
     for key in batch:
-        assert torch.equal(batch[key], one_by_one[key]), key
+        assert same(batch[key], one_by_one[key]), key
 
 
 def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
-    plain = list(DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler)))
-    workers = list(
-        DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler), num_workers=2)
-    )
+    collate = Collate(dataset.scaler, layers=2)
+    plain = list(DataLoader(dataset, batch_size=4, collate_fn=collate))
+    workers = list(DataLoader(dataset, batch_size=4, collate_fn=collate, num_workers=2))
     assert len(plain) == len(workers)
     for a, b in zip(plain, workers, strict=True):
-        assert all(torch.equal(a[k], b[k]) for k in a)
+        assert all(same(a[k], b[k]) for k in a if k != "plan")
+        plans = a["plan"], b["plan"]
+        assert plans[0].sizes == plans[1].sizes and torch.equal(plans[0].order, plans[1].order)
 
 
 def test_a_given_scaler_replaces_the_builds(tiny_build: Path) -> None:

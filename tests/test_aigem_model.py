@@ -144,3 +144,36 @@ def test_cpu_sparse_aggregation_equals_the_accelerator_gather_scatter() -> None:
         assert torch.allclose(a, b, atol=1e-12)
     assert results[0][0][2].abs().sum() == 0 and results[0][2][5].abs().sum() == 0  # no edges there
     assert torch.allclose(results[0][0][1], 0.3 * x.detach()[0])  # one edge 0 -> 1, weight 0.3
+
+
+def test_a_plan_made_with_the_batch_gives_the_same_output_and_gradients(tiny_build) -> None:  # noqa: ANN001, F811
+    """Collate(layers=L) plans in the loader; the step then uses that plan, bit for bit the one
+    the model would have made; a plan made for another L is not used."""
+    from aigem.data import Collate, GraphDataset
+    from aigem.model import make_plan
+
+    dataset = GraphDataset(tiny_build, "train", history_steps=5)
+    ids = list(range(min(8, len(dataset))))
+    for layers in (2, 4):
+        planned = Collate(dataset.scaler, layers=layers)(dataset.__getitems__(ids))
+        plain = {k: v for k, v in planned.items() if k != "plan"}
+        plan = planned["plan"]
+        edges = [(plain["spatial_edges"], plain["spatial_attr"]), (plain["temporal_edges"], plain["temporal_attr"])]
+        again = make_plan(len(plain["x"]), plain["target_node"], edges, layers)
+        assert plan.sizes == again.sizes and plan.layers == layers and plan.sizes[0] > plan.sizes[-1]
+        assert torch.equal(plan.order, again.order) and torch.equal(plan.outputs, again.outputs)
+        for a, b in zip(plan.adjacency, again.adjacency, strict=True):
+            assert a.ends == b.ends and all(torch.equal(x, y) for x, y in zip(a.prefix(plan.sizes[1]), b.prefix(plan.sizes[1])))
+            # ends[n] counts the edges into the first n destinations; row expands crow
+            assert a.ends[plan.sizes[-1]] == int(a.crow[plan.sizes[-1]])
+            assert torch.equal(a.row, torch.repeat_interleave(torch.arange(plan.sizes[1]), a.crow.diff()))
+        model = AiGem(ModelConfig(layers=4))
+        results = []
+        for batch in (planned, plain):
+            torch.manual_seed(4)  # the same dropout masks
+            out = model(batch)
+            grads = torch.autograd.grad(out.square().sum(), list(model.parameters()), allow_unused=True)
+            results.append((out, grads))
+        assert torch.equal(results[0][0], results[1][0])
+        for a, b in zip(results[0][1], results[1][1], strict=True):
+            assert (a is None and b is None) or torch.equal(a, b)
