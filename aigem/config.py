@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
+
+MAX_HORIZON_S = 5.0  # the builds' 25 future steps at 0.2 s
 
 
 @dataclass(frozen=True)
@@ -42,9 +46,10 @@ class TrainConfig:
     seed: int = 0
     workers: int | None = None  # DataLoader worker processes (None: aigem.cores.default_workers)
     threads: int | None = None  # intra-op CPU threads (None: the idle usable cores, aigem.cores)
+    compile: bool | None = None  # the decoder through torch.compile (None: on CUDA only)
 
     def __post_init__(self) -> None:
-        if not 0 < self.horizon_s <= 5.0:
+        if not 0 < self.horizon_s <= MAX_HORIZON_S:
             raise ValueError("horizon_s must be in (0, 5]")
         if self.epochs < 1 or self.batch_size < 1:
             raise ValueError("epochs and batch_size must be >= 1")
@@ -53,9 +58,40 @@ class TrainConfig:
         if self.threads is not None and self.threads < 1:
             raise ValueError("threads must be >= 1")
 
+    def compiles_on(self, device_type: str) -> bool:
+        """Whether the decoder is compiled on this device: `compile`, else on CUDA only (there it
+        saves ~2,000 kernel launches a step; on the CPU compiling costs a minute and the step is
+        no faster)."""
+        return self.compile if self.compile is not None else device_type == "cuda"
+
     def horizon_steps(self, time_step_s: float) -> int:
         """Future steps predicted and scored: 5 per second at 0.2 s."""
         return round(self.horizon_s / time_step_s)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def check_horizons_s(horizons_s: Sequence[float]) -> tuple[float, ...]:
+    """Horizons of a multi-horizon fit, ascending: at least one, each in (0, 5] s, none twice."""
+    if not horizons_s:
+        raise ValueError("no horizon given")
+    for horizon_s in horizons_s:
+        if not (math.isfinite(horizon_s) and 0 < horizon_s <= MAX_HORIZON_S):
+            raise ValueError(f"{horizon_s:g} s is not a horizon in (0, {MAX_HORIZON_S:g}] s")
+    names = [f"{h:g}" for h in horizons_s]  # as a run names its members (aigem.runs.member_dir)
+    twice = sorted({name for name in names if names.count(name) > 1}, key=float)
+    if twice:
+        raise ValueError(f"{', '.join(twice)} s given more than once")
+    return tuple(sorted(float(h) for h in horizons_s))
+
+
+def parse_horizons_s(text: str) -> tuple[float, ...]:
+    """'1,2,3,4,5' -> (1.0, 2.0, 3.0, 4.0, 5.0); '5' -> (5.0,). ValueError in one line."""
+    values = []
+    for part in text.split(","):
+        try:
+            values.append(float(part))
+        except ValueError:
+            raise ValueError(f"{part.strip()!r} is not a number of seconds") from None
+    return check_horizons_s(values)

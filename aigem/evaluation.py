@@ -3,6 +3,11 @@
 Both are scored on the same samples and targets, with the metrics of aigem.metrics (metres). By
 default on the run's own build; another build (say, trained on US-101, tested on I-80) only when
 asked, and then with the run's scaler: the model only knows its inputs as scaled in training.
+
+A multi-horizon run (one model per horizon, the paper's protocol) is scored as the paper reports:
+RMSE at h s from the model trained for h s (in general: from the shortest-horizon model that
+predicts that far), ADE and FDE from the longest-horizon model; constant velocity likewise, so
+that each number of the baseline is on the same targets as the model's beside it.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset, Scaler
 from aigem.metrics import ErrorTotals, summarize
 from aigem.model import AiGem, count_parameters
-from aigem.runs import BEST, load_model
+from aigem.runs import BEST, load_model, member_dir, read_horizons
 from aigem.training import pick_device, to_device
 from ngsim_graphs.builds import open_build
 from ngsim_graphs.errors import NgsimInputError
@@ -62,6 +67,26 @@ class Evaluation:
     constant_velocity: dict[str, dict[str, float | None]]
     build_dir: str
     same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
+
+
+Rows = dict[str, dict[str, float | None]]  # region -> metric -> metres (or a count)
+
+
+@dataclass(frozen=True)
+class HorizonsEvaluation:
+    """A multi-horizon run on one split, as the paper reports it; `sources` names the member each
+    metric comes from, `members` holds each member's own evaluation."""
+
+    split: str
+    horizons_s: tuple[float, ...]
+    samples: int
+    parameters: int  # of each model
+    model: Rows
+    constant_velocity: Rows
+    sources: dict[str, str]  # metric -> member (its run directory's name)
+    members: dict[str, Evaluation]
+    build_dir: str
+    same_build: bool
 
 
 class NonFinitePredictionError(ValueError):
@@ -182,5 +207,54 @@ def evaluate(
     )
 
 
-def as_dict(result: Evaluation) -> dict[str, Any]:
-    return {**result.__dict__, "paper": PAPER_TABLE}
+def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str, str]]:
+    """(model rows, constant-velocity rows, sources) of one model per horizon, given ascending by
+    horizon: RMSE at s seconds (and its count) from the first model that reaches s, ADE and FDE
+    from the last."""
+    longest = list(members)[-1]
+    first = lambda key: next(name for name, result in members.items() if key in result.model["all"])
+    sources = {key: longest if key in ("ade_m", "fde_m") else first(key)
+               for key in members[longest].model["all"]}  # fmt: skip
+
+    def rows(kind: str) -> Rows:  # kind: "model" or "constant_velocity"
+        return {region: {key: getattr(members[source], kind)[region][key] for key, source in sources.items()}
+                for region in members[longest].model}  # fmt: skip
+
+    return rows("model"), rows("constant_velocity"), sources
+
+
+def evaluate_horizons(
+    run_dir: Path,
+    build_dir: Path | None = None,
+    split: Split | str = Split.TEST,
+    device_choice: str = "auto",
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+    other_build: bool = False,
+) -> HorizonsEvaluation:
+    """Score every member of a multi-horizon run as `evaluate` does, and combine them as the paper
+    reports (protocol_rows)."""
+    horizons_s = read_horizons(run_dir)
+    if horizons_s is None:
+        raise NgsimInputError(run_dir, "not a multi-horizon run: no horizons.json")
+    members = {
+        member_dir(run_dir, h).name: evaluate(
+            member_dir(run_dir, h), build_dir, split, device_choice, batch_size, progress, other_build
+        )
+        for h in horizons_s
+    }  # fmt: skip
+    model, baseline, sources = protocol_rows(members)
+    longest = members[sources["ade_m"]]
+    return HorizonsEvaluation(
+        split=longest.split, horizons_s=horizons_s, samples=longest.samples,
+        parameters=longest.parameters, model=model, constant_velocity=baseline, sources=sources,
+        members=members, build_dir=longest.build_dir, same_build=longest.same_build,
+    )  # fmt: skip
+
+
+def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
+    """One JSON-ready document; a multi-horizon run's holds each member's evaluation too."""
+    document = dict(result.__dict__)
+    if isinstance(result, HorizonsEvaluation):
+        document["members"] = {name: m.__dict__ for name, m in result.members.items()}
+    return {**document, "paper": PAPER_TABLE}

@@ -24,7 +24,14 @@ rounding), arranged for speed on the CPU:
   is computed as e @ (lin_edge.weight^T att_edge): one number per edge and head instead of an
   (E, H) projection.
 
-The decoder is PyTorch's GRUCell and the MLP, step by step, exactly as specified.
+- The plan of a batch (node order, layer sizes, CSR rows and per-layer edge counts) can be made
+  beforehand, on the host: `aigem.data.Collate(layers=L)` makes it in the DataLoader's workers,
+  and a step given it reads no number back from the device (`make_plan` made in the step must read
+  the sizes, which on a GPU waits for the device).
+
+The decoder is PyTorch's GRUCell and the MLP, step by step, exactly as specified;
+`compile_decoder` runs it through `torch.compile` (for GPUs, where its ~2,000 operators a step
+are as many kernel launches).
 """
 
 from __future__ import annotations
@@ -191,7 +198,8 @@ class _AttentionSpMM(torch.autograd.Function):
             grad_values = torch.sparse.sampled_addmm(pattern, grad, x.detach().t(), beta=0.0)
             grad_values = grad_values.values()
         if ctx.needs_input_grad[1]:  # A^T @ grad, with A^T as CSR: the edges sorted by source
-            row = torch.repeat_interleave(torch.arange(n_dst, device=col.device), crow.diff())
+            arange = torch.arange(n_dst, device=col.device)
+            row = torch.repeat_interleave(arange, crow.diff(), output_size=col.numel())
             by_source = torch.argsort(col, stable=True)
             crow_t = torch.zeros(n_src + 1, dtype=crow.dtype, device=crow.device)
             crow_t[1:] = torch.cumsum(torch.bincount(col, minlength=n_src), 0)
@@ -200,13 +208,16 @@ class _AttentionSpMM(torch.autograd.Function):
         return grad_values, grad_x, None, None
 
 
+CPU_SPARSE = True  # False: the accelerators' path on the CPU too (bench/bench_train.py counts it)
+
+
 def _aggregate(values, x, crow, col, dst) -> torch.Tensor:  # noqa: ANN001
     """(n_dst, C): out[i] = sum over the edges e = (j -> i) of values[e] * x[j].
 
     On the CPU a CSR product; elsewhere PyG's own gather -> multiply -> scatter, which
     accelerators run well.
     """
-    if x.device.type == "cpu":
+    if x.device.type == "cpu" and CPU_SPARSE:
         return _AttentionSpMM.apply(values, x, crow, col)
     return _gather_scatter(values, x, crow.numel() - 1, col, dst)
 
@@ -325,12 +336,24 @@ class AiGem(nn.Module):
         """(N, F) scaled node features -> (N, H) embeddings after L layers."""
         return self._encode(x, spatial_edges, spatial_attr, temporal_edges, temporal_attr, None)
 
+    def compile_decoder(self) -> None:
+        """Run the decoder through `torch.compile` (shapes dynamic in A; one compilation per
+        horizon, for training and for evaluation). Its 25 steps are some 2,000 operators in
+        eager mode, forward and backward; compiled, a few dozen fused kernels and the matrix
+        products. It pays on a GPU, where each operator is a kernel launch; on the CPU compiling
+        takes about a minute and the step is no faster (bench/bench_train.py)."""
+        self._compiled_decode = torch.compile(self._decode, dynamic=True)
+
     def decode(self, z_target: torch.Tensor, start_xy: torch.Tensor, steps: int) -> torch.Tensor:
         """(A, H) present embeddings, (A, 2) present positions -> (A, steps, 2) positions.
 
         GRU inputs: z at step 1, z + g_1 at step 2, g_{k-1} + g_{k-2} after; h_0 = 0.
         Y_k = Y_{k-1} + MLP([g_k, Y_{k-1}]), Y_0 the present position.
         """
+        compiled = self.__dict__.get("_compiled_decode")
+        return (compiled or self._decode)(z_target, start_xy, steps)
+
+    def _decode(self, z_target: torch.Tensor, start_xy: torch.Tensor, steps: int) -> torch.Tensor:
         hidden = torch.zeros_like(z_target)
         previous_g, before_g = (
             z_target,

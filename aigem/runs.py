@@ -10,6 +10,12 @@
 Every checkpoint carries run.json's content as its `info`, so a checkpoint alone says which build
 it belongs to and how its inputs are scaled (aigem.checkpoints reads and checks them).
 
+A multi-horizon run (`aigem fit --horizon-s 1,2,3,4,5`, the paper's protocol) holds one such run
+directory per horizon and a file naming them:
+
+    RUN/horizons.json   {"horizons_s": [1.0, 2.0, ...], "members": ["h1s", "h2s", ...]}
+    RUN/h1s/, RUN/h2s/  each what a single-horizon fit of that horizon writes
+
 Files are written to `NAME.partial` and renamed, so a kill never leaves a torn file, and a failed
 write (a full disk) removes its partial file and is one error naming the file.
 """
@@ -39,11 +45,12 @@ from aigem.checkpoints import (
     load_checkpoint,
     run_info,
 )
-from aigem.config import ModelConfig, TrainConfig
+from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.model import AiGem
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 RUN_INFO, METRICS, LAST, BEST, CURVES = "run.json", "metrics.jsonl", "last.pt", "best.pt", "curves.png"  # fmt: skip
+HORIZONS = "horizons.json"  # a multi-horizon run's members
 # Train settings that a resumed run must keep: they change what it learns. Epochs, time limit,
 # patience and workers may change.
 RESUME_FIXED = ("horizon_s", "batch_size", "learning_rate", "seed")
@@ -75,6 +82,26 @@ def read_run_info(run_dir: Path) -> dict[str, Any]:
         raise NgsimInputError(path, f"unreadable run description: {err}") from None
     check_info(info, path)
     return info
+
+
+def member_dir(run_dir: Path, horizon_s: float) -> Path:
+    """The run directory of a multi-horizon run's model for `horizon_s`: RUN/h2s, RUN/h2.5s."""
+    return run_dir / f"h{horizon_s:g}s"
+
+
+def _seconds(horizons_s: tuple[float, ...]) -> str:
+    return ",".join(f"{h:g}" for h in horizons_s)
+
+
+def read_horizons(run_dir: Path) -> tuple[float, ...] | None:
+    """The horizons of a multi-horizon run, from its horizons.json; None without that file."""
+    path = run_dir / HORIZONS
+    if not path.is_file():
+        return None
+    try:  # a JSONDecodeError is a ValueError; a list of other things, a TypeError
+        return check_horizons_s(json.loads(path.read_text())["horizons_s"])
+    except (ValueError, TypeError, KeyError, UnicodeDecodeError):
+        raise NgsimInputError(path, "not aigem's list of horizons (damaged?)") from None
 
 
 def _check_same_run(checkpoint_info: dict[str, Any], run: dict[str, Any], path: Path) -> None:
@@ -156,6 +183,9 @@ def start_run(
     """Start a fresh run, or load the last checkpoint into `model` and `optimizer` to resume;
     returns the state and the run info that every checkpoint of this run carries. A directory
     with last.pt needs `resume`; one without it has nothing to resume and starts over."""
+    if (horizons_s := read_horizons(run_dir)) is not None:
+        raise NgsimInputError(run_dir, f"holds a multi-horizon run ({_seconds(horizons_s)} s): give "
+                              f"--horizon-s {_seconds(horizons_s)} to resume it, or choose another --out")  # fmt: skip
     info = run_info(build_dir, model_config, train)
     if resume:
         state = _resume(run_dir, build_dir, info, model, optimizer)
@@ -184,6 +214,52 @@ def start_run(
     return RunState(), info
 
 
+def start_group(
+    run_dir: Path, horizons_s: tuple[float, ...], resume: bool, is_writer: bool
+) -> tuple[Path, ...]:
+    """Check a multi-horizon run directory for a fresh start (and write its horizons.json) or a
+    resume; returns the members' run directories, which `start_run` then starts one by one. A
+    resume needs the same horizons and a last.pt in at least one member (a member without one,
+    killed before its first checkpoint, starts over)."""
+    members = tuple(member_dir(run_dir, h) for h in horizons_s)
+    recorded = read_horizons(run_dir)
+    if resume:
+        if recorded is None:
+            raise NgsimInputError(run_dir, f"nothing to resume: no {HORIZONS} (not a multi-horizon run)")  # fmt: skip
+        if recorded != horizons_s:
+            raise NgsimInputError(run_dir, f"cannot resume with other horizons ({_seconds(recorded)} -> "
+                                  f"{_seconds(horizons_s)} s): it changes what the run learns")  # fmt: skip
+        if not any((member / LAST).is_file() for member in members):
+            raise NgsimInputError(run_dir, f"nothing to resume: no member has a {LAST}")
+        return members
+    if recorded is not None and any((member_dir(run_dir, h) / LAST).exists() for h in recorded):
+        raise NgsimInputError(
+            run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
+        )
+    if is_writer:
+        _check_fresh_group(run_dir, horizons_s, recorded)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        names = [member.name for member in members]
+        text = json.dumps({"horizons_s": list(horizons_s), "members": names}, indent=2) + "\n"
+        _write_atomic(run_dir / HORIZONS, text.encode())
+    return members
+
+
+def _check_fresh_group(
+    run_dir: Path, horizons_s: tuple[float, ...], recorded: tuple[float, ...] | None
+) -> None:
+    """A fresh multi-horizon run goes into a new or empty directory, or one of a multi-horizon run
+    of the same horizons that never finished an epoch (each member is checked by start_run)."""
+    if not run_dir.exists() or recorded == horizons_s:
+        return
+    if not run_dir.is_dir():
+        raise NgsimOutputError(run_dir, "exists and is not a directory")
+    if recorded is not None:
+        raise NgsimOutputError(run_dir, f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
+                               "that never finished an epoch; choose another --out, or delete it")  # fmt: skip
+    _refuse_other_contents(run_dir, "a multi-horizon aigem run")
+
+
 def _check_fresh_out(run_dir: Path) -> None:
     """A fresh run goes into a new or empty directory, or one of an aigem run that never finished
     an epoch (its run.json is ours): never into another program's folder, whose files it would
@@ -192,17 +268,21 @@ def _check_fresh_out(run_dir: Path) -> None:
         return
     if not run_dir.is_dir():
         raise NgsimOutputError(run_dir, "exists and is not a directory")
-    entries = sorted(p.name for p in run_dir.iterdir())
-    if not entries:
-        return
     if (run_dir / RUN_INFO).is_file():
         read_run_info(run_dir)  # an error unless it is an aigem run's
         return
-    shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
-    raise NgsimOutputError(
-        run_dir,
-        f"directory is not empty and is not an aigem run: it holds {shown}; choose a new or empty --out",
-    )
+    _refuse_other_contents(run_dir, "an aigem run")
+
+
+def _refuse_other_contents(run_dir: Path, what: str) -> None:
+    """Refuse a directory that is not empty (it is not `what`)."""
+    entries = sorted(p.name for p in run_dir.iterdir())
+    if entries:
+        shown = ", ".join(entries[:3]) + (
+            f" and {len(entries) - 3} more" if len(entries) > 3 else ""
+        )
+        raise NgsimOutputError(run_dir, f"directory is not empty and is not {what}: it holds {shown}; "
+                               "choose a new or empty --out")  # fmt: skip
 
 
 def _resume(

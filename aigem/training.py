@@ -4,6 +4,11 @@ The loss is the mean squared error in metres^2 over the valid (unmasked) future 
 horizon: predictions are made in scaled coordinates and mapped back to metres before the loss,
 so x and y weigh alike. Checkpoints are written atomically after every epoch; `resume` restarts
 from the last one. Under `torchrun` (WORLD_SIZE > 1) it trains with DistributedDataParallel.
+
+`fit_horizons` trains one model per horizon, as the paper does, in one loop over one loader: each
+batch, moved to the device once, trains every model. Each model is the one `fit` would train for
+its horizon with the same seed and settings (the same initialisation, batches and dropout stream),
+with its own optimizer, checkpoints, log and early stopping.
 """
 
 from __future__ import annotations
@@ -12,8 +17,8 @@ import math
 import os
 import random
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,11 +38,13 @@ from ngsim_graphs.sampling import N_TARGETS
 from ngsim_graphs.schema import Split
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
-# (epoch, batches done, batches in the epoch, running train loss as last read): the CLI draws a
-# bar from it.
-ProgressCallback = Callable[[int, int, int, float], None]
-# The row of metrics.jsonl written at the end of each epoch: the CLI prints it.
-EpochCallback = Callable[[dict[str, float]], None]
+# (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
+# for a model not training in this epoch): the CLI draws a bar from it.
+ProgressCallback = Callable[[int, int, int, tuple[float, ...]], None]
+# (the model's horizon in s, the row of its metrics.jsonl written at the end of an epoch): the CLI
+# prints it.
+EpochCallback = Callable[[float, dict[str, float]], None]
+RngState = tuple[torch.Tensor, torch.Tensor | None]  # the CPU generator's state, and CUDA's
 
 
 class NonFiniteLossError(RuntimeError):
@@ -47,6 +54,7 @@ class NonFiniteLossError(RuntimeError):
 @dataclass(frozen=True)
 class FitResult:
     run_dir: Path
+    horizon_s: float
     parameters: int
     epochs_done: int
     best_epoch: int
@@ -67,6 +75,13 @@ def pick_device(choice: str) -> torch.device:
     if choice == "cuda" and not torch.cuda.is_available():
         raise DeviceUnavailableError("--device cuda: no CUDA device is available")
     return torch.device(choice)
+
+
+def make_optimizer(model: nn.Module, train: TrainConfig, device: torch.device) -> torch.optim.Adam:
+    """The paper's Adam; fused (one operator for all parameters instead of ~9 per parameter
+    tensor, 576 for AiGem) where PyTorch has the fused kernel: the CPU and CUDA."""
+    fused = device.type in ("cpu", "cuda")
+    return torch.optim.Adam(model.parameters(), lr=train.learning_rate, fused=fused or None)
 
 
 def seed_everything(seed: int) -> None:
@@ -157,45 +172,249 @@ def _loaders(
     return train_set, train_loader, val_loader, sampler, generator
 
 
-def evaluate_loss(
-    model: nn.Module, loader: DataLoader, scaler: Scaler, steps: int, device: torch.device
-) -> float:
-    """Mean validation loss in metres^2, weighted by valid steps."""
-    model.eval()
-    total = torch.zeros((), dtype=torch.float64, device=device)  # summed on the device, read once
-    count = torch.zeros((), dtype=torch.float64, device=device)
+def evaluate_losses(
+    models: Sequence[tuple[nn.Module, int]], loader: DataLoader, scaler: Scaler, device: torch.device
+) -> list[float]:  # fmt: skip
+    """Mean validation loss in metres^2 of each (model, steps), weighted by valid steps; one pass
+    over `loader` for all of them."""
+    totals = torch.zeros(len(models), dtype=torch.float64, device=device)  # read once, at the end
+    counts = torch.zeros(len(models), dtype=torch.float64, device=device)
+    for model, _ in models:
+        model.eval()
     with torch.no_grad():
         for batch in loader:
             batch = to_device(batch, device)
-            valid = batch["target_mask"][:, :steps].sum()
-            total += masked_mse_m2(model(batch, steps), batch, scaler, steps).double() * valid
-            count += valid
-    model.train()
-    count_value = float(count)
-    return float(total) / count_value if count_value else float("nan")
+            for index, (model, steps) in enumerate(models):
+                valid = batch["target_mask"][:, :steps].sum()
+                loss = masked_mse_m2(model(batch, steps), batch, scaler, steps)
+                totals[index] += loss.double() * valid
+                counts[index] += valid
+    for model, _ in models:
+        model.train()
+    return [t / c if c else math.nan for t, c in zip(totals.tolist(), counts.tolist(), strict=True)]
 
 
-def _read_loss(running: torch.Tensor, batches: int, epoch: int, first: int, last: int) -> float:
+def _read_loss(
+    running: torch.Tensor, batches: int, epoch: int, first: int, last: int, who: str = ""
+) -> float:
     """The mean training loss so far (one read from the device); refuses a non-finite one, which
-    appeared in batches first + 1..last of the epoch."""
+    appeared in batches first + 1..last of the epoch. `who` names the model in the message."""
     mean = float(running) / batches
     if not math.isfinite(mean):
         where = f"batch {last}" if last == first + 1 else f"batches {first + 1}-{last}"
-        raise NonFiniteLossError(f"non-finite training loss ({mean}) at epoch {epoch + 1}, {where}")
+        raise NonFiniteLossError(f"{who}non-finite training loss ({mean}) at epoch {epoch + 1}, {where}")  # fmt: skip
     return mean
 
 
+def _rng_state(device: torch.device) -> RngState:
+    cuda = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
+    return torch.get_rng_state(), cuda
+
+
+def _set_rng_state(state: RngState, device: torch.device) -> None:
+    torch.set_rng_state(state[0])
+    if state[1] is not None:
+        torch.cuda.set_rng_state(state[1], device)
+
+
+@dataclass(frozen=True)
+class _Loop:
+    """What the models of a fit share: the device, this process's rank, the data."""
+
+    device: torch.device
+    rank: int
+    world: int
+    scaler: Scaler
+    train_loader: DataLoader
+    val_loader: DataLoader
+    sampler: DistributedSampler | None
+    generator: torch.Generator  # the shuffle's
+    threads: ThreadChooser
+
+
+@dataclass(eq=False)
+class _Member:
+    """One model of a fit and how far it has come: the training loop's state, hence mutable."""
+
+    run_dir: Path
+    train: TrainConfig  # its horizon_s is this model's
+    steps: int  # future steps predicted and scored
+    model: AiGem
+    net: nn.Module  # the model, or DistributedDataParallel around it
+    optimizer: torch.optim.Optimizer
+    info: dict[str, Any]  # what its checkpoints carry
+    state: runs.RunState
+    who: str  # how errors name it: "" when it trains alone
+    stopped: str | None  # why it trains no more: epochs, early stopping, time limit
+    rng: RngState | None = None  # its dropout stream, between its steps
+    running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
+    shown: float = math.nan  # its mean training loss of the epoch, as last read
+
+
+def _start_members(
+    build_dir: Path, run_dir: Path, horizons_s: tuple[float, ...] | None, model_config: ModelConfig,
+    train: TrainConfig, resume: bool, time_step_s: float, loop: _Loop,
+) -> list[_Member]:  # fmt: skip
+    """The models of a fit, new or resumed: one in `run_dir` (horizons_s None), or one per horizon
+    in its member directory, where a resume starts over a member that has no checkpoint yet."""
+    if horizons_s is None:
+        plans = [(run_dir, train, resume, "")]
+    else:
+        dirs = runs.start_group(run_dir, horizons_s, resume, loop.rank == 0)
+        plans = [(d, replace(train, horizon_s=h), resume and (d / runs.LAST).is_file(), f"the {h:g} s model: ")
+                 for d, h in zip(dirs, horizons_s, strict=True)]  # fmt: skip
+    members = []
+    for member_dir, member_train, member_resume, who in plans:
+        seed_everything(train.seed + loop.rank)  # initialised as a fit of this model alone would
+        model = AiGem(model_config).to(loop.device)
+        if train.compiles_on(loop.device.type):
+            model.compile_decoder()
+        optimizer = make_optimizer(model, member_train, loop.device)
+        state, info = runs.start_run(member_dir, build_dir, model_config, member_train,
+                                     member_resume, model, optimizer, loop.rank == 0)  # fmt: skip
+        net = nn.parallel.DistributedDataParallel(model) if loop.world > 1 else model
+        steps = member_train.horizon_steps(time_step_s)
+        members.append(_Member(member_dir, member_train, steps, model, net, optimizer, info, state,
+                               who, _done_before(state, member_train)))  # fmt: skip
+    return members
+
+
+def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
+    """Why a resumed model has nothing left to train (None: it trains on)."""
+    if state.next_epoch >= train.epochs:
+        return "epochs"
+    patience = train.patience_epochs
+    if state.next_epoch > 0 and patience is not None and state.next_epoch - 1 - state.best_epoch >= patience:  # fmt: skip
+        return "early stopping"
+    return None
+
+
+def _step(member: _Member, batch: dict[str, Any], scaler: Scaler, device: torch.device) -> None:
+    """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
+    _set_rng_state(member.rng, device)
+    loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
+    member.optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    member.optimizer.step()
+    member.running += loss.detach()
+    member.rng = _rng_state(device)
+
+
+def _train_epoch(
+    loop: _Loop, members: list[_Member], active: list[_Member], epoch: int,
+    report: ProgressCallback, deadline: float,
+) -> tuple[int, bool]:  # fmt: skip
+    """One pass over the train loader, each batch (moved to the device once) training every model
+    of `active`; returns the graphs seen and whether the time limit cut the epoch short. The
+    losses are summed on the device and read every READ_LOSS_EVERY_S (and at the end of the
+    epoch): a step never waits for the device."""
+    batches, graphs, read_batches, read_at, cut = 0, 0, 0, time.monotonic(), False
+    total = len(loop.train_loader)
+    for index, batch in enumerate(loop.train_loader):
+        batch = to_device(batch, loop.device)
+        for member in active:
+            _step(member, batch, loop.scaler, loop.device)
+        batches, graphs = batches + 1, graphs + batch["graphs"]
+        if index + 1 == total or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
+            for member in active:
+                member.shown = _read_loss(member.running, batches, epoch, read_batches, batches, member.who)  # fmt: skip
+            read_at, read_batches = time.monotonic(), batches
+            loop.threads.look()
+        report(epoch + 1, batches, total, tuple(m.shown if m in active else math.nan for m in members))  # fmt: skip
+        cut = time.monotonic() > deadline
+        if cut:
+            break
+    for member in active:  # the mean of the epoch (a time limit may have cut it)
+        member.shown = _read_loss(member.running, max(batches, 1), epoch, read_batches, batches, member.who)  # fmt: skip
+    return graphs, cut
+
+
+def _end_epoch(
+    member: _Member, epoch: int, val_loss: float, timing: dict[str, float], rank: int
+) -> dict[str, float]:
+    """Check the validation loss, log and checkpoint the epoch, stop early when the patience is
+    out; returns the metrics row."""
+    if not math.isfinite(val_loss):
+        raise NonFiniteLossError(
+            f"{member.who}non-finite validation loss ({val_loss}) at epoch {epoch + 1}: the model "
+            f"diverged, or no validation target has a recorded step within {member.train.horizon_s} s"
+        )
+    member.state, row = runs.end_epoch(
+        member.run_dir, member.state, member.info, epoch, member.shown, val_loss, member.model,
+        member.optimizer, rank == 0, timing,
+    )  # fmt: skip
+    patience = member.train.patience_epochs
+    if patience is not None and epoch - member.state.best_epoch >= patience:
+        member.stopped = "early stopping"
+    return row
+
+
+def _train(
+    loop: _Loop, members: list[_Member], train: TrainConfig, report: ProgressCallback,
+    on_epoch: EpochCallback | None,
+) -> tuple[float, bool]:  # fmt: skip
+    """The epochs, each training the models due for it (a resumed model may be ahead of the
+    others); returns the graphs/s in training and whether the time limit ended it."""
+    graphs_seen, train_seconds, timed_out = 0, 0.0, False
+    deadline = time.monotonic() + 60 * (train.max_minutes if train.max_minutes is not None else math.inf)  # fmt: skip
+    first = min((m.state.next_epoch for m in members if m.stopped is None), default=train.epochs)
+    for epoch in range(first, train.epochs):
+        if all(m.stopped for m in members):
+            break
+        active = [m for m in members if m.stopped is None and m.state.next_epoch == epoch]
+        if not active:
+            continue
+        # The shuffle depends on the epoch alone, so a resumed run sees the batches it would have;
+        # every model's dropout stream starts from the same seed, as when it trains alone.
+        loop.generator.manual_seed(train.seed + epoch)
+        torch.manual_seed(train.seed + loop.rank + 1000 * epoch)
+        for member in active:
+            member.rng = _rng_state(loop.device)
+            member.running = torch.zeros((), dtype=torch.float64, device=loop.device)
+        if loop.sampler is not None:
+            loop.sampler.set_epoch(epoch)
+        epoch_start = time.monotonic()
+        epoch_graphs, timed_out = _train_epoch(loop, members, active, epoch, report, deadline)
+        epoch_seconds = time.monotonic() - epoch_start
+        train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
+        models = [(m.model, m.steps) for m in active]
+        val_losses = evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
+        timing = {
+            "train_seconds": round(epoch_seconds, 1),
+            "train_graphs_per_s": round(epoch_graphs * loop.world / epoch_seconds, 1),
+            "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
+        }
+        for member, val_loss in zip(active, val_losses, strict=True):
+            row = _end_epoch(member, epoch, val_loss, timing, loop.rank)
+            if on_epoch is not None and loop.rank == 0:
+                on_epoch(member.train.horizon_s, row)
+        if timed_out:
+            for member in active:
+                member.stopped = "time limit"
+            break
+    return (graphs_seen * loop.world / train_seconds if train_seconds else math.nan), timed_out
+
+
 def fit(
-    build_dir: Path,
-    run_dir: Path,
-    model_config: ModelConfig,
-    train: TrainConfig,
-    device_choice: str = "auto",
-    resume: bool = False,
-    progress: ProgressCallback | None = None,
+    build_dir: Path, run_dir: Path, model_config: ModelConfig, train: TrainConfig,
+    device_choice: str = "auto", resume: bool = False, progress: ProgressCallback | None = None,
     on_epoch: EpochCallback | None = None,
-) -> FitResult:
-    """Train and write the run directory (see aigem.runs); returns what happened."""
+) -> FitResult:  # fmt: skip
+    """Train one model for `train.horizon_s` and write the run directory (see aigem.runs)."""
+    (result,) = fit_horizons(
+        build_dir, run_dir, None, model_config, train, device_choice, resume, progress, on_epoch
+    )
+    return result
+
+
+def fit_horizons(
+    build_dir: Path, run_dir: Path, horizons_s: tuple[float, ...] | None, model_config: ModelConfig,
+    train: TrainConfig, device_choice: str = "auto", resume: bool = False,
+    progress: ProgressCallback | None = None, on_epoch: EpochCallback | None = None,
+) -> tuple[FitResult, ...]:  # fmt: skip
+    """Train one model per horizon (ascending; each replaces `train.horizon_s`) in one loop, and
+    write the multi-horizon run directory (see aigem.runs); returns each model's result. None:
+    one model for `train.horizon_s`, in `run_dir` itself (`fit`)."""
     rank, world = _distributed()
     device = pick_device(device_choice)
     if device.type == "cuda" and world > 1:
@@ -209,90 +428,17 @@ def fit(
     train_set, train_loader, val_loader, sampler, generator = _loaders(
         build_dir, model_config, train, rank, world, device, workers
     )
-    steps = train.horizon_steps(train_set.config.time_step_s)
-    model = AiGem(model_config).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=train.learning_rate)
-    state, info = runs.start_run(
-        run_dir, build_dir, model_config, train, resume, model, optimizer, rank == 0
-    )
-    net = nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    report = progress or (lambda *_: None)
-    started, graphs_seen, train_seconds = time.monotonic(), 0, 0.0
-    stopped = "epochs"
-    epoch = state.next_epoch
-    for epoch in range(state.next_epoch, train.epochs):
-        # The shuffle depends on the epoch alone, so a resumed run sees the batches it would have.
-        generator.manual_seed(train.seed + epoch)
-        torch.manual_seed(train.seed + rank + 1000 * epoch)  # dropout
-        if sampler is not None:
-            sampler.set_epoch(epoch)
-        epoch_start, batches, epoch_graphs = time.monotonic(), 0, 0
-        # The losses are summed on the device and read every READ_LOSS_EVERY_S (and at the end
-        # of the epoch): a step never waits for the device.
-        running = torch.zeros((), dtype=torch.float64, device=device)
-        shown, read_at, read_batches = math.nan, time.monotonic(), 0
-        for index, batch in enumerate(train_loader):
-            batch = to_device(batch, device)
-            loss = masked_mse_m2(net(batch, steps), batch, train_set.scaler, steps)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            running += loss.detach()
-            batches, epoch_graphs = batches + 1, epoch_graphs + batch["graphs"]
-            last = index + 1 == len(train_loader)
-            if last or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
-                shown = _read_loss(running, batches, epoch, read_batches, batches)
-                read_at, read_batches = time.monotonic(), batches
-                threads.look()
-            report(epoch + 1, index + 1, len(train_loader), shown)
-            if (
-                train.max_minutes is not None
-                and time.monotonic() - started > 60 * train.max_minutes
-            ):
-                stopped = "time limit"
-                break
-        mean_loss = _read_loss(running, max(batches, 1), epoch, read_batches, batches)
-        epoch_seconds = time.monotonic() - epoch_start
-        train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
-        val_loss = evaluate_loss(model, val_loader, train_set.scaler, steps, device)
-        if not math.isfinite(val_loss):
-            raise NonFiniteLossError(
-                f"non-finite validation loss ({val_loss}) at epoch {epoch + 1}: the model diverged, "
-                f"or no validation target has a recorded step within {train.horizon_s} s"
-            )
-        timing = {
-            "train_seconds": round(epoch_seconds, 1),
-            "train_graphs_per_s": round(epoch_graphs * world / epoch_seconds, 1),
-            "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
-        }
-        state, row = runs.end_epoch(
-            run_dir,
-            state,
-            info,
-            epoch,
-            mean_loss,
-            val_loss,
-            model,
-            optimizer,
-            rank == 0,
-            timing,
-        )
-        if on_epoch is not None and rank == 0:
-            on_epoch(row)
-        if stopped != "epochs":
-            break
-        if train.patience_epochs is not None and epoch - state.best_epoch >= train.patience_epochs:
-            stopped = "early stopping"
-            break
-    if rank == 0:
-        runs.plot_curves(run_dir)
-    return FitResult(
-        run_dir=run_dir,
-        parameters=count_parameters(model),
-        epochs_done=state.next_epoch,
-        best_epoch=state.best_epoch + 1,
-        best_val_loss_m2=state.best_val_loss,
-        stopped_because=stopped,
-        train_graphs_per_s=graphs_seen * world / train_seconds if train_seconds else math.nan,
-        device=str(device),
-    )
+    loop = _Loop(device, rank, world, train_set.scaler, train_loader, val_loader, sampler,
+                 generator, threads)  # fmt: skip
+    members = _start_members(build_dir, run_dir, horizons_s, model_config, train, resume,
+                             train_set.config.time_step_s, loop)  # fmt: skip
+    graphs_per_s, timed_out = _train(loop, members, train, progress or (lambda *_: None), on_epoch)
+    for member in members:
+        member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
+        if rank == 0:
+            runs.plot_curves(member.run_dir)
+    return tuple(
+        FitResult(m.run_dir, m.train.horizon_s, count_parameters(m.model), m.state.next_epoch,
+                  m.state.best_epoch + 1, m.state.best_val_loss, m.stopped, graphs_per_s, str(device))
+        for m in members
+    )  # fmt: skip

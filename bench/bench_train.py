@@ -66,7 +66,8 @@ from torch.utils.data import DataLoader
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
-from aigem.training import fit, masked_mse_m2, to_device
+from aigem import model as aigem_model
+from aigem.training import fit, make_optimizer, masked_mse_m2, to_device
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
 SYNC_OPS = {"aten::_local_scalar_dense", "aten::nonzero", "aten::bincount", "aten::_unique",
@@ -102,22 +103,26 @@ class _Conversions(TorchFunctionMode):
 class _Counts:
     """The profiler and the conversion counter over a window of steps (see the docstring)."""
 
-    def __init__(self, device: torch.device) -> None:
+    def __init__(self, device: torch.device, conversions: bool = True) -> None:
         self.cuda = device.type == "cuda"
         activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if self.cuda else [])
         self.profiler = torch.profiler.profile(activities=activities)
-        self.conversions = _Conversions()
+        # A TorchFunctionMode makes compiled code compile again under it: not for compiled steps
+        self.conversions = _Conversions() if conversions else None
 
     def start(self) -> None:
         self.profiler.start()
-        self.conversions.__enter__()
+        if self.conversions is not None:
+            self.conversions.__enter__()
 
     def stop(self) -> None:
-        self.conversions.__exit__(None, None, None)
+        if self.conversions is not None:
+            self.conversions.__exit__(None, None, None)
         self.profiler.stop()
 
     def per_step(self, steps: int) -> dict[str, object]:
-        ops, kernels, cuda_syncs, syncs = 0, 0, 0, Counter(self.conversions.names)
+        syncs = Counter(self.conversions.names if self.conversions is not None else {})
+        ops, kernels, cuda_syncs = 0, 0, 0
         for event in self.profiler.events():
             name, ancestors, parent = event.name, [], event.cpu_parent
             while parent is not None:
@@ -171,12 +176,19 @@ def measure_loader(
 
 
 def measure_step(
-    batches: list[Batch], dataset: GraphDataset, device: torch.device, args: argparse.Namespace
+    batches: list[Batch],
+    dataset: GraphDataset,
+    device: torch.device,
+    args: argparse.Namespace,
+    compiled: bool = False,
 ) -> dict[str, object]:
-    """The model step alone on prepared batches: --warmup, --steps timed, --profile-steps counted."""
+    """The model step alone on prepared batches: --warmup, --steps timed, --profile-steps counted.
+    `compiled`: the decoder through torch.compile (compiled in the warm-up steps)."""
     torch.manual_seed(0)
     model = AiGem(ModelConfig()).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    if compiled:
+        model.compile_decoder()
+    optimizer = make_optimizer(model, TrainConfig(), device)
     steps = TrainConfig().horizon_steps(dataset.config.time_step_s)  # fit's default horizon
     on_device = [to_device(batch, device) for batch in batches]
 
@@ -186,8 +198,9 @@ def measure_step(
         loss.backward()
         optimizer.step()
 
+    warmup = on_device[: args.warmup] * (4 if compiled else 1)  # compiles a few variants first
     timed = on_device[args.warmup : args.warmup + args.steps]
-    for batch in on_device[: args.warmup]:
+    for batch in warmup:
         step(batch)
     _sync(device)
     start = time.perf_counter()
@@ -195,7 +208,7 @@ def measure_step(
         step(batch)
     _sync(device)
     seconds = time.perf_counter() - start
-    counts = _Counts(device)
+    counts = _Counts(device, conversions=not compiled)
     counts.start()
     for batch in on_device[args.warmup + args.steps :]:
         step(batch)
@@ -219,7 +232,7 @@ class _FitProbe:
         self.profiled_from: int | None = None  # batches done when profiling began
         self.profiled = 0  # batches profiled, once done
 
-    def __call__(self, epoch: int, done: int, total: int, loss: float) -> None:
+    def __call__(self, epoch: int, done: int, total: int, losses: object) -> None:
         if self.clock is None and done >= self.args.warmup:
             _sync(self.device)
             self.clock = (done, time.perf_counter())
@@ -288,6 +301,9 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=10, help="timed batches per measurement")
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
     parser.add_argument("--profile-steps", type=int, default=2, help="steps the profiler counts")
+    parser.add_argument("--compile", action="store_true",
+                        help="also the step with the decoder compiled (a minute or two to compile "
+                        "on the CPU)")  # fmt: skip
     args = parser.parse_args()
     if args.device == "cuda" and not torch.cuda.is_available():
         parser.error("--device cuda: no CUDA device is available")
@@ -309,6 +325,14 @@ def main() -> None:
         for device in devices:
             row = measure_step(batches, dataset, device, args)
             _row(device.type, size, "model step", row | {"threads": torch.get_num_threads()})
+            if device.type == "cpu":  # the accelerator's aggregation, run on the CPU
+                aigem_model.CPU_SPARSE = False
+                row = measure_step(batches, dataset, device, args)
+                aigem_model.CPU_SPARSE = True
+                _row(device.type, size, "gpu path", row | {"threads": torch.get_num_threads()})
+            if args.compile:
+                row = measure_step(batches, dataset, device, args, compiled=True)
+                _row(device.type, size, "compiled", row | {"threads": torch.get_num_threads()})
             row = measure_fit(args.build, size, device, args)
             _row(device.type, size, "fit loop", row | {"threads": torch.get_num_threads()})
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from aigem.config import ModelConfig
@@ -33,7 +34,9 @@ def test_output_shapes_and_horizon() -> None:
     batch = tiny_batch()
     assert model(batch).shape == (2, 25, 2)
     assert model(batch, steps=5).shape == (2, 5, 2)
-    assert torch.allclose(model(batch, steps=5), model(batch)[:, :5])  # a prefix of the long horizon
+    assert torch.allclose(
+        model(batch, steps=5), model(batch)[:, :5]
+    )  # a prefix of the long horizon
 
 
 def test_decoder_follows_the_residual_recursion() -> None:
@@ -74,19 +77,27 @@ def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(tiny_build) -> None:  #
 
     dataset = GraphDataset(tiny_build, "train")
     batch = Collate(dataset.scaler)(dataset.__getitems__(list(range(min(8, len(dataset))))))
-    for config in (ModelConfig(), ModelConfig(layers=2, heads=2), ModelConfig(concat_position=False)):
+    for config in (
+        ModelConfig(),
+        ModelConfig(layers=2, heads=2),
+        ModelConfig(concat_position=False),
+    ):
         torch.manual_seed(1)
         model = AiGem(config).eval()
         with torch.no_grad():
             fast, slow = model(batch, 10), _reference_forward(model, batch, 10)
         assert torch.allclose(fast, slow, atol=1e-5, rtol=1e-5)
     model = AiGem(ModelConfig(dropout=0.0))
-    fast_loss, slow_loss = model(batch, 5).square().sum(), _reference_forward(model, batch, 5).square().sum()
+    fast_loss, slow_loss = (
+        model(batch, 5).square().sum(),
+        _reference_forward(model, batch, 5).square().sum(),
+    )
     fast_grads = torch.autograd.grad(fast_loss, list(model.parameters()), allow_unused=True)
     slow_grads = torch.autograd.grad(slow_loss, list(model.parameters()), allow_unused=True)
     for a, b in zip(fast_grads, slow_grads, strict=True):
         if a is not None and b is not None:
             assert torch.allclose(a, b, atol=1e-4, rtol=1e-3)
+
 
 def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build) -> None:  # noqa: ANN001, F811
     """Same predictions and same gradients, in training mode (dropout) too, for several L."""
@@ -108,7 +119,9 @@ def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build
             torch.manual_seed(4)
             out = model(batch)
             outputs.append(out)
-            grads.append(torch.autograd.grad(out.square().sum(), list(model.parameters()), allow_unused=True))
+            grads.append(
+                torch.autograd.grad(out.square().sum(), list(model.parameters()), allow_unused=True)
+            )
         assert torch.equal(outputs[0], outputs[1])
         for a, b in zip(*grads, strict=True):
             assert (a is None and b is None) or torch.equal(a, b)
@@ -128,11 +141,15 @@ def test_cpu_sparse_aggregation_equals_the_accelerator_gather_scatter() -> None:
     n_dst, n_src, channels = 7, 10, 3
     dst = torch.tensor([0, 0, 1, 3, 3, 3, 5, 6, 6])  # destinations 2 and 4 have none
     col = torch.tensor([1, 4, 0, 2, 4, 9, 3, 0, 8])  # sorted by (destination, source)
-    crow = torch.cat([torch.zeros(1, dtype=torch.long), torch.bincount(dst, minlength=n_dst).cumsum(0)])
+    crow = torch.cat(
+        [torch.zeros(1, dtype=torch.long), torch.bincount(dst, minlength=n_dst).cumsum(0)]
+    )
     results = []
     for path in ("csr", "gather"):
         values = torch.linspace(0.1, 0.9, len(col), dtype=torch.float64).requires_grad_()
-        x = torch.randn(n_src, channels, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+        x = torch.randn(
+            n_src, channels, dtype=torch.float64, generator=torch.Generator().manual_seed(6)
+        )
         x.requires_grad_(True)
         if path == "csr":
             out = _AttentionSpMM.apply(values, x, crow, col)
@@ -158,22 +175,58 @@ def test_a_plan_made_with_the_batch_gives_the_same_output_and_gradients(tiny_bui
         planned = Collate(dataset.scaler, layers=layers)(dataset.__getitems__(ids))
         plain = {k: v for k, v in planned.items() if k != "plan"}
         plan = planned["plan"]
-        edges = [(plain["spatial_edges"], plain["spatial_attr"]), (plain["temporal_edges"], plain["temporal_attr"])]
+        edges = [
+            (plain["spatial_edges"], plain["spatial_attr"]),
+            (plain["temporal_edges"], plain["temporal_attr"]),
+        ]
         again = make_plan(len(plain["x"]), plain["target_node"], edges, layers)
-        assert plan.sizes == again.sizes and plan.layers == layers and plan.sizes[0] > plan.sizes[-1]
+        assert (
+            plan.sizes == again.sizes and plan.layers == layers and plan.sizes[0] > plan.sizes[-1]
+        )
         assert torch.equal(plan.order, again.order) and torch.equal(plan.outputs, again.outputs)
         for a, b in zip(plan.adjacency, again.adjacency, strict=True):
-            assert a.ends == b.ends and all(torch.equal(x, y) for x, y in zip(a.prefix(plan.sizes[1]), b.prefix(plan.sizes[1])))
+            assert a.ends == b.ends and all(
+                torch.equal(x, y) for x, y in zip(a.prefix(plan.sizes[1]), b.prefix(plan.sizes[1]))
+            )
             # ends[n] counts the edges into the first n destinations; row expands crow
             assert a.ends[plan.sizes[-1]] == int(a.crow[plan.sizes[-1]])
-            assert torch.equal(a.row, torch.repeat_interleave(torch.arange(plan.sizes[1]), a.crow.diff()))
+            assert torch.equal(
+                a.row, torch.repeat_interleave(torch.arange(plan.sizes[1]), a.crow.diff())
+            )
         model = AiGem(ModelConfig(layers=4))
         results = []
         for batch in (planned, plain):
             torch.manual_seed(4)  # the same dropout masks
             out = model(batch)
-            grads = torch.autograd.grad(out.square().sum(), list(model.parameters()), allow_unused=True)
+            grads = torch.autograd.grad(
+                out.square().sum(), list(model.parameters()), allow_unused=True
+            )
             results.append((out, grads))
         assert torch.equal(results[0][0], results[1][0])
         for a, b in zip(results[0][1], results[1][1], strict=True):
             assert (a is None and b is None) or torch.equal(a, b)
+
+
+def test_the_decoder_is_compiled_on_cuda_by_default_and_when_asked() -> None:
+    from aigem.config import TrainConfig
+
+    assert TrainConfig().compiles_on("cuda") and not TrainConfig().compiles_on("cpu")
+    assert TrainConfig(compile=True).compiles_on("cpu") and not TrainConfig(compile=False).compiles_on("cuda")
+
+
+@pytest.mark.slow
+def test_the_compiled_decoder_equals_the_eager_one() -> None:
+    """torch.compile on the CPU (a minute or so): same positions and gradients to float32 rounding."""
+    results = []
+    for compiled in (False, True):
+        torch.manual_seed(0)
+        model = AiGem(ModelConfig())
+        if compiled:
+            model.compile_decoder()
+        z, start = torch.randn(5, 64, requires_grad=True), torch.randn(5, 2)
+        out = model.decode(z, start, steps=25)
+        grads = torch.autograd.grad(out.square().sum(), [z, *model.decoder.parameters()])
+        results.append((out.detach(), grads))
+    assert torch.allclose(results[0][0], results[1][0], atol=1e-5, rtol=1e-5)
+    for a, b in zip(results[0][1], results[1][1], strict=True):
+        assert torch.allclose(a, b, atol=1e-4, rtol=1e-4)

@@ -23,7 +23,12 @@ def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
     assert [row[:3] for row in rows] == [
         [device, size, what]
         for size in ("2", "4")
-        for device, what in (("host", "loader"), ("cpu", "model step"), ("cpu", "fit loop"))
+        for device, what in (
+            ("host", "loader"),
+            ("cpu", "model step"),
+            ("cpu", "gpu path"),
+            ("cpu", "fit loop"),
+        )
     ]
     for row in rows:  # graphs/s and ms/batch measured; ops and syncs counted for the steps
         assert float(row[3].replace(",", "")) > 0 and float(row[4].replace(",", "")) > 0

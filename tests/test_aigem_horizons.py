@@ -1,0 +1,213 @@
+"""One model per horizon in one fit (the paper's protocol): each member is the single-horizon fit
+of its horizon, bit for bit; members stop and resume on their own; `aigem evaluate RUN` takes
+RMSE at h s from the h s model and ADE/FDE from the longest."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from itertools import count
+from pathlib import Path
+
+import pytest
+import torch
+from ngsim_cli.aigem import app
+from typer.testing import CliRunner
+
+from aigem import runs, training
+from aigem.config import ModelConfig, TrainConfig
+from aigem.evaluation import evaluate
+from aigem.training import fit, fit_horizons
+
+# threads=1: bit-reproducible, so that a member can be compared with a fit of its horizon alone
+TRAIN = TrainConfig(epochs=2, batch_size=8, seed=3, threads=1)
+ARGS = ["--epochs", "2", "--batch-size", "8", "--seed", "3", "--threads", "1", "--device", "cpu"]
+TIMING = ("train_seconds", "train_graphs_per_s", "val_seconds")
+
+
+@pytest.fixture(scope="module")
+def fitted(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A 1 s + 2 s run of two epochs, fitted through the CLI; (its directory, its stdout)."""
+    run = tmp_path_factory.mktemp("horizons") / "run"
+    result = CliRunner().invoke(
+        app, ["fit", str(tiny_build), "--out", str(run), "--horizon-s", "2,1", *ARGS]
+    )
+    assert result.exit_code == 0, result.output
+    return run, result.stdout
+
+
+def _rows(run_dir: Path) -> list[dict[str, float]]:
+    """metrics.jsonl without the timings."""
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in runs.read_metrics(run_dir)]
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=True)["model"]
+
+
+def _same_weights(a: Path, b: Path) -> bool:
+    one, other = _weights(a), _weights(b)
+    return one.keys() == other.keys() and all(torch.equal(one[k], other[k]) for k in one)
+
+
+def _same_run(a: Path, b: Path) -> bool:
+    """The same best and last weights and the same log (timings aside)."""
+    return (
+        _same_weights(a / runs.BEST, b / runs.BEST)
+        and _same_weights(a / runs.LAST, b / runs.LAST)
+        and _rows(a) == _rows(b)
+    )
+
+
+def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
+    run, out = fitted
+    assert sorted(p.name for p in run.iterdir()) == ["h1s", "h2s", runs.HORIZONS]
+    assert json.loads((run / runs.HORIZONS).read_text()) == {
+        "horizons_s": [1.0, 2.0],
+        "members": ["h1s", "h2s"],
+    }
+    for name in ("h1s", "h2s"):
+        files = sorted(p.name for p in (run / name).iterdir())
+        assert files == sorted([runs.BEST, runs.CURVES, runs.LAST, runs.METRICS, runs.RUN_INFO])
+    assert "1 s model: 2 epochs on cpu (epochs); best epoch" in out
+    assert f"Run: {run / 'h2s'}" in out.replace("\n", "")
+    assert "2 models trained together" in out
+
+
+def test_a_member_is_the_single_horizon_fit_bit_for_bit(
+    fitted: tuple[Path, str], tiny_build: Path, tmp_path: Path
+) -> None:
+    run, _ = fitted
+    alone = tmp_path / "alone"
+    result = fit(tiny_build, alone, ModelConfig(), TrainConfig(**{**TRAIN.to_dict(), "horizon_s": 1.0}), "cpu")  # fmt: skip
+    assert _same_run(run / "h1s", alone)
+    assert (run / "h1s" / runs.RUN_INFO).read_text() == (alone / runs.RUN_INFO).read_text()
+    assert result.best_val_loss_m2 == min(r["val_loss_m2"] for r in runs.read_metrics(run / "h1s"))
+
+
+def test_each_member_keeps_its_own_best_model(fitted: tuple[Path, str]) -> None:
+    run, _ = fitted
+    for name, horizon_s in (("h1s", 1.0), ("h2s", 2.0)):
+        best = torch.load(run / name / runs.BEST, map_location="cpu", weights_only=True)
+        assert best["info"]["train"]["horizon_s"] == horizon_s
+    assert not _same_weights(run / "h1s" / runs.BEST, run / "h2s" / runs.BEST)
+    assert _rows(run / "h1s") != _rows(run / "h2s")
+
+
+def test_one_member_stopping_early_leaves_the_others_training(
+    fitted: tuple[Path, str], tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The 1 s model's validation loss rises (1, 2, ...): with patience 1 it stops after epoch 2;
+    the 2 s model trains on, exactly as it would have."""
+    real, rising = training.evaluate_losses, (float(i) for i in count(1))
+
+    def rising_for_1s(models: list[tuple[torch.nn.Module, int]], *args: object) -> list[float]:
+        losses = real(models, *args)
+        return [next(rising) if steps == 5 else loss for (_, steps), loss in zip(models, losses)]
+
+    monkeypatch.setattr(training, "evaluate_losses", rising_for_1s)
+    run = tmp_path / "run"
+    train = TrainConfig(**{**TRAIN.to_dict(), "epochs": 3, "patience_epochs": 1})
+    short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")
+    assert (short.stopped_because, short.epochs_done, short.best_epoch) == ("early stopping", 2, 1)
+    assert (long.stopped_because, long.epochs_done) == ("epochs", 3)
+    assert [r["epoch"] for r in runs.read_metrics(run / "h1s")] == [1, 2]
+    assert _rows(run / "h2s")[:2] == _rows(fitted[0] / "h2s")  # unaffected by the other's stop
+    again = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu", resume=True)
+    assert [r.stopped_because for r in again] == ["early stopping", "epochs"]  # nothing to train
+    assert [r["epoch"] for r in runs.read_metrics(run / "h1s")] == [1, 2]
+
+
+def test_a_resumed_run_ends_as_an_uninterrupted_one(
+    fitted: tuple[Path, str], tiny_build: Path, tmp_path: Path
+) -> None:
+    straight, _ = fitted
+    run = tmp_path / "run"
+    one_epoch = TrainConfig(**{**TRAIN.to_dict(), "epochs": 1})
+    fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), one_epoch, "cpu")
+    after_one = (run / "h2s" / runs.LAST).read_bytes()
+    fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
+    assert _same_run(run / "h1s", straight / "h1s") and _same_run(run / "h2s", straight / "h2s")
+    # Killed in epoch 2 between the members' checkpoints: the 2 s model's row of epoch 2 is
+    # logged, its last.pt is still epoch 1's. Only the 2 s model trains again.
+    (run / "h2s" / runs.LAST).write_bytes(after_one)
+    h1s_last = (run / "h1s" / runs.LAST).read_bytes()
+    short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)  # fmt: skip
+    assert (short.epochs_done, short.stopped_because, long.epochs_done) == (2, "epochs", 2)
+    assert (run / "h1s" / runs.LAST).read_bytes() == h1s_last
+    assert _same_run(run / "h2s", straight / "h2s")
+    # A member without any checkpoint (killed before its first) starts over.
+    for name in (runs.LAST, runs.BEST, runs.METRICS):
+        (run / "h1s" / name).unlink()
+    fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
+    assert _same_run(run / "h1s", straight / "h1s")
+
+
+def test_evaluate_takes_each_metric_from_its_model(fitted: tuple[Path, str]) -> None:
+    run, _ = fitted
+    result = CliRunner().invoke(app, ["evaluate", str(run), "--json", "--device", "cpu"])
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    one, two = (evaluate(run / name, None, "test", "cpu") for name in ("h1s", "h2s"))
+    for kind in ("model", "constant_velocity"):
+        for region in ("all", "front", "mid", "rear"):
+            ours, one_s, two_s = document[kind][region], getattr(one, kind)[region], getattr(two, kind)[region]  # fmt: skip
+            assert ours["rmse_1s_m"] == one_s["rmse_1s_m"] and ours["n_1s"] == one_s["n_1s"]
+            for key in ("rmse_2s_m", "n_2s", "ade_m", "fde_m"):
+                assert ours[key] == two_s[key]
+    assert document["model"]["all"]["rmse_1s_m"] != two.model["all"]["rmse_1s_m"]  # another model
+    assert document["sources"]["rmse_1s_m"] == "h1s" and document["sources"]["fde_m"] == "h2s"
+    assert document["horizons_s"] == [1.0, 2.0] and set(document["members"]) == {"h1s", "h2s"}
+    assert document["parameters"] == 74_242 and "AiGem (paper)" in document["paper"]
+    table = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"]).stdout
+    assert "One model per horizon: RMSE at 1 s from h1s, 2 s from h2s; ADE and FDE from h2s" in table  # fmt: skip
+    assert "RMSE 2 s" in table and "RMSE 3 s" not in table.split("the paper's table")[0]
+    assert "synthetic" in table and "AiGem (this run)" in table
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ("0", "0 s is not a horizon in (0, 5] s"),
+        ("6", "6 s is not a horizon in (0, 5] s"),
+        ("a", "'a' is not a number of seconds"),
+        ("1,2,1", "1 s given more than once"),
+    ],
+)
+def test_bad_horizons_are_one_line_and_exit_2(
+    tiny_build: Path, tmp_path: Path, value: str, message: str
+) -> None:
+    run = tmp_path / "run"
+    result = CliRunner().invoke(
+        app, ["fit", str(tiny_build), "--out", str(run), "--horizon-s", value, *ARGS]
+    )
+    assert result.exit_code == 2 and result.stderr == f"error: --horizon-s {value}: {message}\n"
+    assert not run.exists()
+
+
+def test_a_multi_horizon_run_is_started_and_resumed_as_such_only(
+    fitted: tuple[Path, str], tiny_build: Path, tmp_path: Path
+) -> None:
+    run = Path(shutil.copytree(fitted[0], tmp_path / "run"))
+    runner = CliRunner()
+
+    def error(horizons: str, *more: str, out: Path = run) -> str:
+        result = runner.invoke(
+            app, ["fit", str(tiny_build), "--out", str(out), "--horizon-s", horizons, *ARGS, *more]
+        )
+        assert result.exit_code == 1 and result.stderr.count("\n") == 1, result.output
+        return result.stderr
+
+    assert error("1,2") == f"error: {run}: already holds a run; pass --resume to continue it, or choose another --out\n"  # fmt: skip
+    assert error("1,3", "--resume") == (
+        f"error: {run}: cannot resume with other horizons (1,2 -> 1,3 s): it changes what the run learns\n"
+    )  # fmt: skip
+    for more in ((), ("--resume",)):
+        assert error("2", *more) == (
+            f"error: {run}: holds a multi-horizon run (1,2 s): give --horizon-s 1,2 to resume it, or choose another --out\n"
+        )  # fmt: skip
+    assert "nothing to resume: no horizons.json" in error("1,2", "--resume", out=tmp_path / "new")
+    single = tmp_path / "single"
+    fit(tiny_build, single, ModelConfig(), TrainConfig(**{**TRAIN.to_dict(), "epochs": 1}), "cpu")
+    assert "is not a multi-horizon aigem run: it holds best.pt, curves.png, last.pt and 2 more" in error("1,2", out=single)  # fmt: skip
+    assert _rows(run / "h1s") == _rows(fitted[0] / "h1s")  # nothing was changed
