@@ -306,6 +306,7 @@ class AiGem(nn.Module):
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         self.config = config
+        self._compiled_decode = None  # set by compile_decoder
         widths = [config.node_features] + [config.hidden] * config.layers
         self.encoder = nn.ModuleList(EncoderLayer(w, config) for w in widths[:-1])
         self.dropout = nn.Dropout(config.dropout)
@@ -350,8 +351,7 @@ class AiGem(nn.Module):
         GRU inputs: z at step 1, z + g_1 at step 2, g_{k-1} + g_{k-2} after; h_0 = 0.
         Y_k = Y_{k-1} + MLP([g_k, Y_{k-1}]), Y_0 the present position.
         """
-        compiled = self.__dict__.get("_compiled_decode")
-        return (compiled or self._decode)(z_target, start_xy, steps)
+        return (self._compiled_decode or self._decode)(z_target, start_xy, steps)
 
     def _decode(self, z_target: torch.Tensor, start_xy: torch.Tensor, steps: int) -> torch.Tensor:
         hidden = torch.zeros_like(z_target)
