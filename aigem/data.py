@@ -21,7 +21,7 @@ from torch.utils.data import Dataset
 
 from aigem.model import make_plan
 
-from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, concat_batches
 from ngsim_graphs.scaling import FEATURES, scale

@@ -25,11 +25,11 @@ from torch.utils.data import DataLoader
 from aigem.checkpoints import build_identity, identity_difference
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset, Scaler
-from aigem.metrics import ErrorTotals, summarize
+from aigem.metrics import ErrorTotals, summarize_errors
 from aigem.model import AiGem, count_parameters
 from aigem.runs import BEST, load_model, member_dir, read_horizons
 from aigem.training import pick_device, to_device
-from ngsim_graphs.builds import open_build
+from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import Split
@@ -200,8 +200,8 @@ def evaluate(
         horizon_steps=steps,
         samples=len(dataset),
         parameters=count_parameters(model),
-        model=summarize(ours, dataset.config.time_step_s),
-        constant_velocity=summarize(baseline, dataset.config.time_step_s),
+        model=summarize_errors(ours, dataset.config.time_step_s),
+        constant_velocity=summarize_errors(baseline, dataset.config.time_step_s),
         build_dir=str(build_dir),
         same_build=same_build,
     )

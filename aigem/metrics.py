@@ -50,7 +50,7 @@ class ErrorTotals:
         self.actors += len(error)
 
 
-def summarize(totals: ErrorTotals, time_step_s: float) -> dict[str, dict[str, float | None]]:
+def summarize_errors(totals: ErrorTotals, time_step_s: float) -> dict[str, dict[str, float | None]]:
     """ADE, FDE and RMSE at each whole second, per region, in metres (None where nothing counts)."""
     steps_per_s = round(1.0 / time_step_s)
     result: dict[str, dict[str, float | None]] = {}

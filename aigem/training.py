@@ -32,15 +32,15 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset, Scaler
 from aigem.model import AiGem, count_parameters
-from ngsim_graphs.builds import open_build
+from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.sampling import N_TARGETS
 from ngsim_graphs.schema import Split
+from ngsim_graphs.schema import N_TARGETS
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
 # (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
 # for a model not training in this epoch): the CLI draws a bar from it.
-ProgressCallback = Callable[[int, int, int, tuple[float, ...]], None]
+TrainProgress = Callable[[int, int, int, tuple[float, ...]], None]
 # (the model's horizon in s, the row of its metrics.jsonl written at the end of an epoch): the CLI
 # prints it.
 EpochCallback = Callable[[float, dict[str, float]], None]
@@ -302,7 +302,7 @@ def _step(member: _Member, batch: dict[str, Any], scaler: Scaler, device: torch.
 
 def _train_epoch(
     loop: _Loop, members: list[_Member], active: list[_Member], epoch: int,
-    report: ProgressCallback, deadline: float,
+    report: TrainProgress, deadline: float,
 ) -> tuple[int, bool]:  # fmt: skip
     """One pass over the train loader, each batch (moved to the device once) training every model
     of `active`; returns the graphs seen and whether the time limit cut the epoch short. The
@@ -350,7 +350,7 @@ def _end_epoch(
 
 
 def _train(
-    loop: _Loop, members: list[_Member], train: TrainConfig, report: ProgressCallback,
+    loop: _Loop, members: list[_Member], train: TrainConfig, report: TrainProgress,
     on_epoch: EpochCallback | None,
 ) -> tuple[float, bool]:  # fmt: skip
     """The epochs, each training the models due for it (a resumed model may be ahead of the
@@ -397,7 +397,7 @@ def _train(
 
 def fit(
     build_dir: Path, run_dir: Path, model_config: ModelConfig, train: TrainConfig,
-    device_choice: str = "auto", resume: bool = False, progress: ProgressCallback | None = None,
+    device_choice: str = "auto", resume: bool = False, progress: TrainProgress | None = None,
     on_epoch: EpochCallback | None = None,
 ) -> FitResult:  # fmt: skip
     """Train one model for `train.horizon_s` and write the run directory (see aigem.runs)."""
@@ -410,7 +410,7 @@ def fit(
 def fit_horizons(
     build_dir: Path, run_dir: Path, horizons_s: tuple[float, ...] | None, model_config: ModelConfig,
     train: TrainConfig, device_choice: str = "auto", resume: bool = False,
-    progress: ProgressCallback | None = None, on_epoch: EpochCallback | None = None,
+    progress: TrainProgress | None = None, on_epoch: EpochCallback | None = None,
 ) -> tuple[FitResult, ...]:  # fmt: skip
     """Train one model per horizon (ascending; each replaces `train.horizon_s`) in one loop, and
     write the multi-horizon run directory (see aigem.runs); returns each model's result. None:

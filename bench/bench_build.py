@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_ingest import ensure_input, parse_input_args  # noqa: E402
 
 from ngsim_graphs import layout  # noqa: E402
-from ngsim_graphs.building import run_build  # noqa: E402
+from ngsim_graphs.pipeline import run_build  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
 
 

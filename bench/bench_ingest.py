@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig
 
 

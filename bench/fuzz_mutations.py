@@ -24,7 +24,7 @@ import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 FORMATS = ("portal", "csv", "txt")
 FILE_NAMES = {

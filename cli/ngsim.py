@@ -14,11 +14,11 @@ from rich.table import Table
 
 from ngsim_cli.console import exit_on_error, print_error, print_table, progress_bar, stderr
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
-from ngsim_graphs.building import BuildResult, run_build
-from ngsim_graphs.builds import open_build
+from ngsim_graphs.pipeline import BuildResult, run_build
+from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.plausibility import DESCRIPTIONS
+from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.schema import DropReason, RawFormat, Split, SplitMode
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 
@@ -64,7 +64,7 @@ def synth(
     ] = False,
 ) -> None:
     """Write synthetic NGSIM-shaped trajectories (simulated traffic, NOT real NGSIM data)."""
-    from ngsim_graphs.synthesis import write_synthetic  # the simulator loads only when used
+    from ngsim_graphs.synth.formats import write_synthetic  # the simulator loads only when used
 
     config = _config_or_exit(
         SynthConfig, raw_format=raw_format, recordings=recordings, minutes=minutes, seed=seed, quirks=quirks
@@ -248,7 +248,7 @@ def verify(build_dir: Annotated[Path, typer.Argument(help="A finished build dire
     Opening a build (stats, export, aigem) checks the manifest's own checksum, every file's size
     and every array's shape; verify also reads every byte. One line per damaged file, exit 1.
     """
-    from ngsim_graphs.builds import verify_build
+    from ngsim_graphs.build import verify_build
 
     with exit_on_error(), progress_bar() as progress:
         result = verify_build(build_dir, progress)
@@ -293,7 +293,7 @@ def export(
     --out must be new or empty, or (with --overwrite) hold only the tables of an earlier export;
     a folder holding anything else is refused. The tables land together when all are written.
     """
-    from ngsim_graphs.exporting import check_export_target, graph_tables, write_tables
+    from ngsim_graphs.export import check_export_target, graph_tables, write_tables
 
     with exit_on_error():
         check_export_target(out, overwrite)  # before the work, not only after it

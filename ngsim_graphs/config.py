@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
-from ngsim_graphs.recordings import KNOWN_LOCATION_NAMES
+from ngsim_graphs.sources.ngsim.recordings import KNOWN_LOCATION_NAMES
 from ngsim_graphs.schema import RawFormat, SplitMode
 
 FRAME_STEP_S = 0.1  # NGSIM's 10 Hz frame period

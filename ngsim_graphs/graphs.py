@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.frames import RecordingArrays, pair_search_key
+from ngsim_graphs.grid import RecordingArrays, pair_search_key
 
 
 SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding

@@ -13,8 +13,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ngsim_graphs.sampling import N_NODES, N_SPATIAL
 from ngsim_graphs.statistics import SPLITS, BuildValues
+from ngsim_graphs.schema import N_NODES, N_SPATIAL
 
 SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
 PLOT_NAMES = ("nodes_per_graph", "spatial_edges_per_graph", "node_degree", "speed", "heading")

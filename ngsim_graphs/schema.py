@@ -127,6 +127,7 @@ PROVENANCE_SCHEMA: Final = pl.Schema({SOURCE_FILE: pl.UInt16, SOURCE_LINE: pl.In
 # Recording identity columns, added by the reader to every raw row.
 PERIOD: Final = "period"
 RECORDING_KEY: Final[tuple[str, str]] = (LOCATION, PERIOD)
+RECORDING_INDEX: Final = "recording_index"  # a recording's index in its file, then in the build
 
 # NGSIM sentinels.
 NO_LEADER_TIME_HEADWAY_S: Final = 9999.99
@@ -173,7 +174,7 @@ TRACKS_SCHEMA: Final = pl.Schema(
 )
 
 # Grid nodes of a recording: the tracks table reduced to what graphs need, sorted by (step, track).
-STEP = "step"  # grid step index: frame_id // frames_per_step
+STEP = "step"  # grid step index: time_s / time_step_s
 GRID_NODE_SCHEMA: Final = pl.Schema(
     {
         STEP: pl.Int32,
@@ -195,7 +196,7 @@ PROXIMITY_SCHEMA: Final = pl.Schema(
     {STEP: pl.Int32, TRACK_A: pl.Int32, TRACK_B: pl.Int32, DISTANCE_M: pl.Float64}
 )
 
-# Samples of one split: one ego window each.
+# Samples of one split: one ego window each, with the counts of its graph.
 SAMPLE_ID = "sample_id"  # 0.. within the split, in (location, period, ego track, start) order
 EGO_TRACK_ID = "ego_track_id"
 EGO_VEHICLE_ID = "ego_vehicle_id"
@@ -216,3 +217,10 @@ SAMPLE_SCHEMA: Final = pl.Schema(
         ORIGIN_Y_M: pl.Float64,
     }
 )
+SPLIT: Final = "split"  # the split of an ego window, while a build assigns them
+N_NODES: Final = "n_nodes"
+N_SPATIAL: Final = "n_spatial_edges"
+N_TEMPORAL: Final = "n_temporal_edges"
+N_TARGETS: Final = "n_targets"
+N_FULL_TARGETS: Final = "n_targets_full_future"  # targets recorded at every future step
+COUNT_COLUMNS: Final[tuple[str, ...]] = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS, N_FULL_TARGETS)

@@ -15,7 +15,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.schema import Split, SplitMode
 
-SPLIT = "split"
 SPLIT_ORDER = (Split.TRAIN, Split.VAL, Split.TEST)
 
 
@@ -38,7 +37,7 @@ def split_by_vehicle(windows: pl.DataFrame, max_vehicle_id: int, config: BuildCo
     """
     first, second = _vehicle_cuts(max_vehicle_id, config)
     return windows.select(
-        _by_thresholds(pl.col(s.EGO_VEHICLE_ID), pl.lit(first), pl.lit(second)).alias(SPLIT)
+        _by_thresholds(pl.col(s.EGO_VEHICLE_ID), pl.lit(first), pl.lit(second)).alias(s.SPLIT)
     ).to_series()
 
 
@@ -50,7 +49,7 @@ def split_by_time(windows: pl.DataFrame, config: BuildConfig) -> pl.Series:
     train, val, _ = config.split_fractions
     present = windows[s.PRESENT_STEP].to_numpy()
     if len(present) == 0:
-        return pl.Series(SPLIT, [], dtype=pl.String)
+        return pl.Series(s.SPLIT, [], dtype=pl.String)
     ordered = np.sort(present)
     # floor, with a tolerance: (0.7 + 0.1) * 20 is 15.999999999999998 in floating point.
     cut = lambda fraction: ordered[min(len(ordered) - 1, math.floor(fraction * len(ordered) + 1e-9))]  # noqa: E731
@@ -58,7 +57,7 @@ def split_by_time(windows: pl.DataFrame, config: BuildConfig) -> pl.Series:
     gap = config.window_steps
     label = np.where(present < first, Split.TRAIN.value, np.where(present < second, Split.VAL.value, Split.TEST.value))
     in_gap = ((present >= first) & (present < first + gap)) | ((present >= second) & (present < second + gap))
-    return pl.Series(SPLIT, np.where(in_gap, None, label), dtype=pl.String)
+    return pl.Series(s.SPLIT, np.where(in_gap, None, label), dtype=pl.String)
 
 
 def split_randomly(windows: pl.DataFrame, recording_index: int, config: BuildConfig) -> pl.Series:
@@ -69,20 +68,20 @@ def split_randomly(windows: pl.DataFrame, recording_index: int, config: BuildCon
     train, val, _ = config.split_fractions
     label = np.where(draw < train, Split.TRAIN.value, np.where(draw < train + val, Split.VAL.value, Split.TEST.value))
     lookup = dict(zip(tracks.tolist(), label.tolist(), strict=True))
-    return windows[s.EGO_TRACK_ID].replace_strict(lookup, return_dtype=pl.String).alias(SPLIT)
+    return windows[s.EGO_TRACK_ID].replace_strict(lookup, return_dtype=pl.String).alias(s.SPLIT)
 
 
 def assign_splits(
     windows: pl.DataFrame, max_vehicle_id: int, recording_index: int, config: BuildConfig
 ) -> pl.DataFrame:
-    """`windows` with a SPLIT column; windows in a time-split gap are dropped."""
+    """`windows` with a s.SPLIT column; windows in a time-split gap are dropped."""
     if config.split is SplitMode.VEHICLE:
         labels = split_by_vehicle(windows, max_vehicle_id, config)
     elif config.split is SplitMode.TIME:
         labels = split_by_time(windows, config)
     else:
         labels = split_randomly(windows, recording_index, config)
-    return windows.with_columns(labels.alias(SPLIT)).drop_nulls(SPLIT)
+    return windows.with_columns(labels.alias(s.SPLIT)).drop_nulls(s.SPLIT)
 
 
 MIN_SPLIT_SHARE = 0.02  # a split with a smaller share of the samples is worth a warning
@@ -104,7 +103,7 @@ def _why_vehicle_split_is_small(
     """The rule, and the recordings that give `split` (almost) nothing, with their cuts."""
     per_recording = (
         windows.group_by(s.LOCATION, s.PERIOD)
-        .agg(pl.len().alias("all"), (pl.col(SPLIT) == split.value).sum().alias("split"))
+        .agg(pl.len().alias("all"), (pl.col(s.SPLIT) == split.value).sum().alias("split"))
         .sort(s.LOCATION, s.PERIOD)
     )
     reasons = []
@@ -131,13 +130,13 @@ def split_warnings(
     windows: pl.DataFrame, top_vehicle_ids: dict[str, tuple[int, int]], config: BuildConfig
 ) -> list[str]:
     """One line for each split that is empty or holds under MIN_SPLIT_SHARE of the samples, with
-    the likely reason. `windows`: every sample, with location, period and SPLIT;
+    the likely reason. `windows`: every sample, with location, period and s.SPLIT;
     `top_vehicle_ids`: the largest and second largest Vehicle_ID of each recording, by
     "location/period"."""
     total = windows.height
     warnings = []
     for split in SPLIT_ORDER:
-        n = int((windows[SPLIT] == split.value).sum()) if total else 0
+        n = int((windows[s.SPLIT] == split.value).sum()) if total else 0
         if total == 0 or n >= MIN_SPLIT_SHARE * total:
             continue
         what = "is empty" if n == 0 else f"holds {n:,} of {total:,} samples ({n / total:.1%})"

@@ -2,7 +2,7 @@
 
 Two stages: `collect_values` gathers the per-item values (one row per sample, one spatial
 in-degree per node of a seeded subset of graphs, one speed and heading per tracks row);
-`summarize` turns them and the manifest into plain dataclasses and dicts, JSON-ready through
+`summarize_build` turns them and the manifest into plain dataclasses and dicts, JSON-ready through
 `BuildStatistics.to_dict`. The histograms of `plotting` take the same values.
 
 Graph sizes come from the count columns of the samples tables: exact and cheap. Node degrees
@@ -18,13 +18,12 @@ import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.builds import OpenBuild
+from ngsim_graphs.build import OpenBuild
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.sampling import N_FULL_TARGETS, N_NODES, N_SPATIAL, N_TARGETS, N_TEMPORAL
 from ngsim_graphs.splits import SPLIT_ORDER
 
 SPLITS = tuple(split.value for split in SPLIT_ORDER)  # train, val, test
-GRAPH_SIZE_COLUMNS = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS)
+GRAPH_SIZE_COLUMNS = (s.N_NODES, s.N_SPATIAL, s.N_TEMPORAL, s.N_TARGETS)
 KINEMATIC_COLUMNS = (s.SPEED_MPS, s.HEADING_RAD)
 MAX_DEGREE_GRAPHS = 300  # graphs induced per split for the node degrees
 
@@ -113,7 +112,7 @@ def graph_size(samples: pl.DataFrame) -> dict[str, Distribution]:
 
 def target_share(samples: pl.DataFrame) -> TargetShare:
     """How many of a split's targets are recorded at every future step."""
-    targets, full = int(samples[N_TARGETS].sum()), int(samples[N_FULL_TARGETS].sum())
+    targets, full = int(samples[s.N_TARGETS].sum()), int(samples[s.N_FULL_TARGETS].sum())
     return TargetShare(targets, full, full / targets if targets else None)
 
 
@@ -157,12 +156,12 @@ def collect_values(build: OpenBuild, max_degree_graphs: int = MAX_DEGREE_GRAPHS,
     )
 
 
-def _recording_rows(build: OpenBuild) -> list[dict[str, Any]]:
+def _recordings_table(build: OpenBuild) -> list[dict[str, Any]]:
     keys = ("name", "location", "period", "vehicles", "tracks", "grid_rows", "samples")
     return [{key: r[key] for key in keys} for r in sorted(build.manifest["recordings"], key=lambda r: r["index"])]
 
 
-def summarize(build: OpenBuild, values: BuildValues) -> BuildStatistics:
+def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
     """The statistics of a build from its manifest and its collected values."""
     manifest, config = build.manifest, build.config
     return BuildStatistics(
@@ -170,7 +169,7 @@ def summarize(build: OpenBuild, values: BuildValues) -> BuildStatistics:
         config=manifest["config"],
         config_hash=manifest["config_hash"],
         counts=manifest["counts"],
-        recordings=_recording_rows(build),
+        recordings=_recordings_table(build),
         samples={split: values.samples[split].height for split in SPLITS},
         graph_size={split: graph_size(values.samples[split]) for split in SPLITS},
         node_degree={
@@ -193,5 +192,5 @@ def build_statistics(
 ) -> tuple[BuildStatistics, BuildValues]:
     """The statistics of a build, and the values behind them (for histograms)."""
     values = collect_values(build, max_degree_graphs, seed)
-    return summarize(build, values), values
+    return summarize_build(build, values), values
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
-from ngsim_graphs.synthesis import write_synthetic
+from ngsim_graphs.synth.formats import write_synthetic
 
 
 @pytest.fixture(scope="session")

@@ -14,7 +14,7 @@ import pytest
 from aigem_fixtures import tiny_build, two_recording_build  # noqa: F401  (shared by all tests)
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 US101_FIRST = OFFICIAL_RECORDINGS[0]  # us-101 0750am-0805am
 I80_FIRST = OFFICIAL_RECORDINGS[1]  # i-80 0400-0415

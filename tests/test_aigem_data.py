@@ -11,7 +11,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from aigem.data import Collate, GraphDataset, Scaler
-from ngsim_graphs.builds import open_build
+from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import config_hash, write_manifest
 from ngsim_graphs.scaling import scale

@@ -17,7 +17,7 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
 from aigem.evaluation import evaluate, score
 from aigem.training import fit
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.layout import write_manifest
 

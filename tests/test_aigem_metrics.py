@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from aigem.metrics import ErrorTotals, region_of, summarize
+from aigem.metrics import ErrorTotals, region_of, summarize_errors
 
 
 def test_hand_computed_two_actors() -> None:
@@ -21,7 +21,7 @@ def test_hand_computed_two_actors() -> None:
     mask[1, 5:] = False
     totals = ErrorTotals(steps=10)
     totals.add(predicted, truth, mask, present_y_m=np.array([20.0, -20.0]))
-    out = summarize(totals, 0.2)
+    out = summarize_errors(totals, 0.2)
     # ADE: (10 * 5 + 5 * 1) / 15; FDE: only actor 0 at step 10.
     assert out["all"]["ade_m"] == pytest.approx(55 / 15)
     assert out["all"]["fde_m"] == pytest.approx(5.0)
@@ -39,7 +39,7 @@ def test_pooled_rmse_is_not_the_mean_of_per_batch_rmse() -> None:
     for offset in (1.0, 3.0):
         truth = np.zeros((1, 5, 2))
         totals.add(truth + [offset, 0.0], truth, np.ones((1, 5), bool), np.array([0.0]))
-    assert summarize(totals, 0.2)["all"]["rmse_1s_m"] == pytest.approx(math.sqrt(5.0))  # not 2
+    assert summarize_errors(totals, 0.2)["all"]["rmse_1s_m"] == pytest.approx(math.sqrt(5.0))  # not 2
 
 
 def test_regions_by_present_y() -> None:

@@ -13,7 +13,7 @@ from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
 from aigem.pyg import SPATIAL, TEMPORAL, GraphPygDataset, to_hetero_data, to_model_batch
-from ngsim_graphs.builds import open_build
+from ngsim_graphs.build import open_build
 
 
 def _pyg_and_ours(build: Path, split: str, ids: list[int], history_steps: int | None):

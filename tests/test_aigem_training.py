@@ -19,7 +19,7 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
 from aigem.training import NonFiniteLossError, fit, masked_mse_m2
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 

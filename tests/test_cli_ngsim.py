@@ -21,7 +21,7 @@ from typer.testing import CliRunner, Result
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.synthesis import write_synthetic
+from ngsim_graphs.synth.formats import write_synthetic
 
 # A wide terminal so that table cells are not cut; errors are checked on a narrow one (they must
 # stay one line however long the path is).

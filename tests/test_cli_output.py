@@ -18,10 +18,11 @@ from conftest import straight_track, write_txt
 from ngsim_cli.ngsim import app
 from typer.testing import CliRunner, Result
 
-from ngsim_graphs import landing, layout, synthesis
+from ngsim_graphs import landing, layout
+from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.exporting import EXPORT_TABLES
-from ngsim_graphs.synthesis import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
+from ngsim_graphs.export import EXPORT_TABLES
+from ngsim_graphs.synth.formats import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
 
 NGSIM_FILE = "trajectories-0750am-0805am.txt"
 EXPORT_FILES = sorted(f"{name}.parquet" for name in EXPORT_TABLES)

@@ -20,7 +20,7 @@ import pytest
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.frames import grid_nodes, proximity_pairs, recording_arrays
+from ngsim_graphs.grid import grid_nodes, proximity_pairs, recording_arrays
 from ngsim_graphs.graphs import GraphBatch, concat_batches, induce_graphs
 
 ACTOR_DISTANCE_TOL_M = 1e-5  # actor-actor distances are stored as float32
@@ -183,17 +183,17 @@ def fast_path(
 ) -> GraphBatch:
     """grid_nodes -> proximity_pairs -> recording_arrays -> induce_graphs, from a tracks-like table.
 
-    The grid-node table goes back to NGSIM frame numbers (and a shuffled row order) first, so that
+    The grid-node table goes back to times in seconds (and a shuffled row order) first, so that
     grid_nodes' own step computation and sort are part of what is checked.
     """
     tracks = (
         table.with_columns(
-            (pl.col(s.STEP) * config.frames_per_step).cast(pl.Int32).alias(s.FRAME_ID)
+            (pl.col(s.STEP) * config.time_step_s).alias(s.TIME_S)
         )
         .drop(s.STEP)
         .sample(fraction=1.0, shuffle=True, seed=7)
     )
-    nodes = grid_nodes(tracks, config.frames_per_step)
+    nodes = grid_nodes(tracks, config.time_step_s)
     rec = recording_arrays(nodes, proximity_pairs(nodes, config.d_min_m))
     return induce_graphs(
         rec, np.array(egos, dtype=np.int32), np.array(starts, dtype=np.int64), config, first_step

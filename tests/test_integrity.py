@@ -18,7 +18,7 @@ import pytest
 from test_cli_ngsim import error_line, invoke
 
 from ngsim_graphs import integrity, layout
-from ngsim_graphs.builds import open_build, verify_build
+from ngsim_graphs.build import open_build, verify_build
 from ngsim_graphs.errors import NgsimInputError
 
 

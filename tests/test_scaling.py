@@ -8,10 +8,10 @@ import math
 import numpy as np
 import polars as pl
 import pytest
-from test_builds import all_graphs, grid_tables, synthetic_build
+from test_build import all_graphs, grid_tables, synthetic_build
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.scaling import TARGET_RANGES, empty_ranges, scale, update_ranges
 
 NAMES = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")

@@ -11,7 +11,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.schema import SplitMode
 from ngsim_graphs.splits import (
-    SPLIT,
     assign_splits,
     split_by_time,
     split_by_vehicle,
@@ -73,7 +72,7 @@ def test_vehicle_split_keeps_each_window_once_and_each_vehicle_in_one_split() ->
     out = assign_splits(windows, 300, 0, BuildConfig(split=SplitMode.VEHICLE))
     assert out.height == windows.height
     assert out.select(s.EGO_TRACK_ID, s.START_STEP).is_duplicated().sum() == 0
-    assert out.group_by(s.EGO_VEHICLE_ID).agg(pl.col(SPLIT).n_unique())[SPLIT].max() == 1
+    assert out.group_by(s.EGO_VEHICLE_ID).agg(pl.col(s.SPLIT).n_unique())[s.SPLIT].max() == 1
 
 
 def many_track_windows(n_tracks: int, rng: np.random.Generator) -> pl.DataFrame:
@@ -90,20 +89,20 @@ def test_random_split_by_ego_track_seeded() -> None:
     config = BuildConfig(split=SplitMode.RANDOM, seed=5)
     labels = split_randomly(windows, 0, config)
     framed = windows.with_columns(labels)
-    assert framed.group_by(s.EGO_TRACK_ID).agg(pl.col(SPLIT).n_unique())[SPLIT].max() == 1
+    assert framed.group_by(s.EGO_TRACK_ID).agg(pl.col(s.SPLIT).n_unique())[s.SPLIT].max() == 1
     assert labels.equals(split_randomly(windows, 0, config))  # same seed, same result
     assert not labels.equals(
         split_randomly(windows, 0, BuildConfig(split=SplitMode.RANDOM, seed=6))
     )
     assert not labels.equals(split_randomly(windows, 1, config))  # each recording draws its own
-    per_track = framed.unique(s.EGO_TRACK_ID)[SPLIT].value_counts(normalize=True)
+    per_track = framed.unique(s.EGO_TRACK_ID)[s.SPLIT].value_counts(normalize=True)
     share = dict(per_track.iter_rows())
     assert share["train"] == pytest.approx(0.7, abs=0.02)
     assert share["val"] == pytest.approx(0.1, abs=0.015)
     assert share["test"] == pytest.approx(0.2, abs=0.02)
     # assign_splits keeps every window of a random split, with these labels.
     out = assign_splits(windows, 6000, 0, config)
-    assert out[SPLIT].equals(labels)
+    assert out[s.SPLIT].equals(labels)
 
 
 def test_time_split_blocks_and_gaps() -> None:
@@ -112,7 +111,7 @@ def test_time_split_blocks_and_gaps() -> None:
     windows = many_track_windows(3000, np.random.default_rng(2))
     out = assign_splits(windows, 3000, 0, config)
     blocks = {
-        name: out.filter(pl.col(SPLIT) == name)[s.PRESENT_STEP] for name in ("train", "val", "test")
+        name: out.filter(pl.col(s.SPLIT) == name)[s.PRESENT_STEP] for name in ("train", "val", "test")
     }
     train, val, test = (blocks[n] for n in ("train", "val", "test"))
     assert min(len(train), len(val), len(test)) > 0
@@ -166,12 +165,12 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
         s.LOCATION: ["us-101"] * 10, s.PERIOD: ["r"] * 10, s.EGO_VEHICLE_ID: list(range(1, 11)),
     })  # fmt: skip
     config = BuildConfig(split_fractions=(0.5, 0.25, 0.25))
-    windows = windows.with_columns(split_by_vehicle(windows, 1_000, config).alias(SPLIT))
-    assert windows[SPLIT].to_list() == ["train"] * 10  # cuts at 500 and 750
+    windows = windows.with_columns(split_by_vehicle(windows, 1_000, config).alias(s.SPLIT))
+    assert windows[s.SPLIT].to_list() == ["train"] * 10  # cuts at 500 and 750
     warnings = split_warnings(windows, {"us-101/r": (1_000, 10)}, config)
     assert [w.split(":")[0] for w in warnings] == ["the val split is empty", "the test split is empty"]
     assert "<= round(0.5 * the recording's largest ID) and validates those <= round(0.75 * it)" in warnings[0]
     assert "us-101/r gives it 0 of 10: its largest Vehicle_ID is 1,000, far above the next largest (10), so the cuts lie at 500 and 750" in warnings[0]
-    assert split_warnings(windows.with_columns(pl.lit("val").alias(SPLIT)), {}, BuildConfig(split_fractions=(0.0, 1.0, 0.0))) == [
+    assert split_warnings(windows.with_columns(pl.lit("val").alias(s.SPLIT)), {}, BuildConfig(split_fractions=(0.0, 1.0, 0.0))) == [
         "the train split is empty: its fraction is 0", "the test split is empty: its fraction is 0",
     ]  # fmt: skip

@@ -10,9 +10,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs import layout
-from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.plotting import PLOT_NAMES, write_histograms
 from ngsim_graphs.statistics import (
@@ -23,7 +23,7 @@ from ngsim_graphs.statistics import (
     describe,
     pick_samples,
 )
-from ngsim_graphs.synthesis import write_synthetic
+from ngsim_graphs.synth.formats import write_synthetic
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_GRAPHS = 50  # below the train split's size, so that the degree subset is a real subset

@@ -11,13 +11,13 @@ import polars as pl
 import pytest
 from polars.testing import assert_frame_equal
 
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
-from ngsim_graphs.ingestion import build_tracks
+from ngsim_graphs.sources.ngsim.tracks import build_tracks
 from ngsim_graphs.layout import tracks_path
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 from ngsim_graphs.schema import RawFormat
-from ngsim_graphs.synthesis import recording_rows, write_synthetic
+from ngsim_graphs.synth.formats import simulated_rows, write_synthetic
 
 MINUTES = 0.5
 RECORDINGS = 2  # us-101 0750am and i-80 0400: both locations
@@ -28,7 +28,7 @@ def expected_tracks(quirks: bool) -> dict[tuple[str, str], pl.DataFrame]:
     tracks, first_id = {}, 0
     for index, recording in sorted(enumerate(OFFICIAL_RECORDINGS[:RECORDINGS]), key=lambda p: (p[1].location, p[1].period)):
         key = (recording.location, recording.period)
-        table, report = build_tracks(recording_rows(recording, index, config), key, BuildConfig(), first_id)
+        table, report = build_tracks(simulated_rows(recording, index, config), key, BuildConfig(), first_id)
         tracks[key], first_id = table, first_id + report.tracks
     return tracks
 

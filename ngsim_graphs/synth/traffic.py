@@ -2,7 +2,7 @@
 
 Car-following is the improved Intelligent Driver Model (IIDM, Treiber and Kesting 2013), lane
 changes are MOBIL (Kesting, Treiber, Helbing 2007) with biases for mandatory moves (see
-`roadway.change_bias`). A downstream bottleneck whose speed cap varies in time queues the traffic
+`road.change_bias`). A downstream bottleneck whose speed cap varies in time queues the traffic
 into the view and sends stop-and-go waves upstream. Every step is vectorised over the vehicles; the
 loop runs over time only. Units are NGSIM's: feet, seconds, feet/s, feet/s^2.
 
@@ -20,19 +20,18 @@ from typing import NamedTuple
 import numpy as np
 import polars as pl
 
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, Recording
-from ngsim_graphs.roadway import (
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, Recording
+from ngsim_graphs.synth.camera import Sightings, observed_rows
+from ngsim_graphs.synth.road import (
     ROADWAYS,
     EntryPoints,
     Regime,
     Roadway,
-    Sightings,
     bottleneck_cap_fps,
     change_bias,
     entry_points,
     lane_centre_ft,
     lane_open,
-    record_rows,
     regime_for,
 )
 
@@ -109,7 +108,7 @@ def simulate_recording(recording: Recording, minutes: float, seed: int) -> pl.Da
     Frame_ID runs from 0 at 10 Hz for `minutes`; Global_Time = frame0 + 100 * Frame_ID, frame0 being
     the recording's nominal start minus a seeded 0..30 s. Rows are sorted by (vehicle_id, frame_id).
     Deterministic in (recording, minutes, seed). Raises ValueError for a location without a
-    synthetic roadway (see `roadway.ROADWAYS`).
+    synthetic roadway (see `road.ROADWAYS`).
     """
     if recording.location not in ROADWAYS:
         raise ValueError(f"no synthetic roadway for location {recording.location!r}")
@@ -119,7 +118,7 @@ def simulate_recording(recording: Recording, minutes: float, seed: int) -> pl.Da
     n_frames = max(1, round(minutes * 60 / DT_S))
     sim = _start(roadway, regime_for(recording.location, recording.period), rng)
     sightings = _run(sim, n_frames)
-    return record_rows(sightings, np.concatenate(sim.created), roadway, frame0_ms, rng)
+    return observed_rows(sightings, np.concatenate(sim.created), roadway, frame0_ms, rng)
 
 
 def _recording_index(recording: Recording) -> int:

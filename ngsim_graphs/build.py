@@ -20,7 +20,7 @@ import polars as pl
 from ngsim_graphs import integrity, layout
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.frames import ARRAY_NAMES, RecordingArrays
+from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays
 from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, concat_batches, induce_graphs
 from ngsim_graphs.schema import Split
 

@@ -18,13 +18,13 @@ from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_
 
 from ngsim_graphs import layout
 from ngsim_graphs import schema as s
-from ngsim_graphs.building import run_build
-from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.schema import RawFormat
-from ngsim_graphs.synthesis import write_synthetic
+from ngsim_graphs.synth.formats import write_synthetic
 
 SYNTH = SynthConfig(raw_format=RawFormat.CSV, recordings=2, minutes=1.5, seed=7, quirks=True)
 SPLITS = ("train", "val", "test")

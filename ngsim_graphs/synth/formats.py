@@ -24,8 +24,8 @@ from ngsim_graphs import schema
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.landing import some_names
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
-from ngsim_graphs.traffic import simulate_recording
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
+from ngsim_graphs.synth.traffic import simulate_recording
 
 PORTAL_FILE_NAME = "Next_Generation_Simulation__NGSIM__Vehicle_Trajectories_and_Supporting_Data.csv"
 BOM = b"\xef\xbb\xbf"
@@ -180,7 +180,7 @@ def _write_files(
         written.append(_write_portal(paths[0], recordings, config, report))
         return
     for index, (recording, path) in enumerate(zip(recordings, paths, strict=True)):
-        rows = recording_rows(recording, index, config)
+        rows = simulated_rows(recording, index, config)
         with _atomic_file(path) as handle:
             if config.raw_format is schema.RawFormat.CSV:
                 _write_period_csv(handle, rows, config.quirks)
@@ -202,7 +202,7 @@ def _remove_empty_folders(out_dir: Path, created: list[Path]) -> None:
             folder.rmdir()
 
 
-def recording_rows(recording: Recording, index: int, config: SynthConfig) -> pl.DataFrame:
+def simulated_rows(recording: Recording, index: int, config: SynthConfig) -> pl.DataFrame:
     """The raw rows of one recording as every format carries them: with quirks, frame gaps."""
     rows = simulate_recording(recording, config.minutes, config.seed)
     if config.quirks:
@@ -309,7 +309,7 @@ def _write_portal(path: Path, recordings: tuple[Recording, ...], config: SynthCo
     with _atomic_file(path) as handle:
         handle.write((",".join(schema.PORTAL_HEADER) + "\n").encode())
         for index, recording in enumerate(recordings):
-            rows = recording_rows(recording, index, config)
+            rows = simulated_rows(recording, index, config)
             table = rows.with_columns(pl.lit(recording.location).alias(schema.LOCATION))
             table.select(_header_columns(schema.PORTAL_HEADER)).write_csv(
                 handle, include_header=False
@@ -327,7 +327,7 @@ def _write_quirky_portal(
     locations = [recording.location for recording in recordings] + [FOREIGN_RECORDING.location]
     parts = []
     for index, recording in enumerate(recordings):
-        rows = recording_rows(recording, index, config)
+        rows = simulated_rows(recording, index, config)
         extra = _duplicate_rows(rows, np.random.default_rng([config.seed, index, 2]))
         parts.append(pl.concat([rows, extra]).with_columns(pl.lit(index, pl.UInt8).alias("rec")))
         report(f"{recording.location} {recording.period}: {len(rows):,} rows")

@@ -25,7 +25,6 @@ FRAME0_MS = "frame0_epoch_ms"  # Global_Time - 100 * Frame_ID: constant within a
 # not a recording but stray rows (a damaged Global_Time); so is one near a larger group's.
 STRAY_GROUP_SHARE = 0.01
 MAX_RECORDINGS_PER_FILE = 100
-RECORDING_INDEX = "recording_index"
 
 
 @dataclass(frozen=True)
@@ -158,9 +157,9 @@ def identify_recordings(
     order = sorted(range(len(keys)), key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]))
     index_of_group = {accepted[i][2]: new for new, i in enumerate(order)}
     lookup = groups.with_columns(
-        pl.Series(RECORDING_INDEX, [index_of_group.get(i) for i in range(groups.height)], dtype=pl.UInt16)
-    ).select(s.LOCATION, FRAME0_MS, RECORDING_INDEX)
+        pl.Series(s.RECORDING_INDEX, [index_of_group.get(i) for i in range(groups.height)], dtype=pl.UInt16)
+    ).select(s.LOCATION, FRAME0_MS, s.RECORDING_INDEX)
     frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
     keyed = frame.select(s.LOCATION, frame0.alias(FRAME0_MS))
     index = keyed.join(lookup, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left")
-    return index[RECORDING_INDEX], [keys[i] for i in order]
+    return index[s.RECORDING_INDEX], [keys[i] for i in order]

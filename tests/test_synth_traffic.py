@@ -7,9 +7,9 @@ import polars as pl
 import pytest
 
 from ngsim_graphs import schema
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, Recording
-from ngsim_graphs.roadway import ROADWAYS
-from ngsim_graphs.traffic import simulate_recording
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, Recording
+from ngsim_graphs.synth.road import ROADWAYS
+from ngsim_graphs.synth.traffic import simulate_recording
 
 US101, I80 = OFFICIAL_RECORDINGS[0], OFFICIAL_RECORDINGS[1]
 MAX_SPEED_FPS = 45.0 / 0.3048

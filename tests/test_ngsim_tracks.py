@@ -11,7 +11,7 @@ from conftest import US101_FIRST, US101_SECOND, make_row, straight_track, write_
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.ingestion import build_tracks, read_file_recordings, recording_rows
+from ngsim_graphs.sources.ngsim.tracks import build_tracks, read_file_recordings
 
 
 KEY = ("us-101", "0750am-0805am")
@@ -54,11 +54,12 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     first = straight_track(3, range(4), start_ms=US101_FIRST.start_epoch_ms)
     second = straight_track(3, range(2), start_ms=US101_SECOND.start_epoch_ms)
     path = write_portal(tmp_path / "p.csv", second + first + [make_row(3, 9, local_x=None)])
-    rows, chosen, report = read_file_recordings(path, BuildConfig())
-    assert sorted(chosen) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
-    first = recording_rows(rows, chosen[("us-101", "0750am-0805am")])
+    read = read_file_recordings(path, BuildConfig())
+    report = read.report
+    assert sorted(read.recordings) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
+    first = read.recording_rows(("us-101", "0750am-0805am"))
     assert first.columns == [*s.RAW_SCHEMA.names(), *s.PROVENANCE_SCHEMA.names()]
     assert first.height == 4
-    assert recording_rows(rows, chosen[("us-101", "0805am-0820am")]).height == 2
+    assert read.recording_rows(("us-101", "0805am-0820am")).height == 2
     assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")
     assert report.recordings == ("us-101/0750am-0805am", "us-101/0805am-0820am")

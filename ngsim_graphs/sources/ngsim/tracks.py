@@ -9,70 +9,34 @@ and derive the heading. Every dropped row is counted per reason, with the first 
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.cleaning import drop_duplicate_rows, is_complete, split_at_gaps, to_si_units
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.kinematics import add_heading
-from ngsim_graphs.plausibility import jump_rows, outlier_rows, row_drop_reason, speed_mismatch_mps
-from ngsim_graphs.reading import ROW, read_raw_file
-from ngsim_graphs.recordings import RECORDING_INDEX, identify_recordings
-from ngsim_graphs.resampling import downsample_to_grid
 from ngsim_graphs.schema import DropReason
-
-RecordingKey = tuple[str, str]  # (location, period)
-
-
-@dataclass(frozen=True)
-class FileReport:
-    """What reading one input file found, and which of its rows were dropped before cleaning.
-
-    rows_read = rows_other_locations + rows_missing_values + sum(rows_dropped) + the rows it
-    gave its chosen recordings (RecordingReport.rows).
-    """
-
-    path: str
-    raw_format: str
-    size_bytes: int
-    sha256: str
-    rows_read: int
-    rows_other_locations: int  # of locations (or recordings) the build did not choose
-    rows_missing_values: int  # an empty required field
-    first_missing_line: int | None  # the first line with an empty required field
-    rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
-    first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
-    rows_checked: int  # rows of the chosen recordings with every required field, kept or dropped
-    locations_found: tuple[str, ...]  # every location the file holds, chosen or not
-    recordings: tuple[str, ...]  # "location/period" of each chosen recording the file holds
-
-
-@dataclass(frozen=True)
-class RecordingReport:
-    """What cleaning one recording counted, and the size of its tracks table."""
-
-    location: str
-    period: str
-    rows: int  # 10 Hz rows of the recording that passed the row checks (duplicates included)
-    exact_duplicates: int
-    conflicting_duplicates: int
-    position_outliers: int  # rows dropped: displaced from the neighbouring frames (outlier_rows)
-    position_jumps: int  # other moves beyond the jump limit, each of which split a track
-    gaps: int  # frame gaps, each of which split a vehicle's record into two tracks
-    vehicles: int
-    tracks: int
-    grid_rows: int  # rows of the tracks table (0.2 s grid)
-    # v_Vel against the motion the positions show (plausibility.speed_mismatch_mps)
-    speed_mismatch_mps: float = math.nan  # median |v_Vel - shown speed|
-    shown_speed_mps: float = math.nan  # median shown speed
-    speed_rows_compared: int = 0
-    first_outlier: tuple[int, int] | None = None  # (input file index, line) of the first outlier
+from ngsim_graphs.sources.contract import FileReport, FileRows, RecordingKey, RecordingReport, Source
+from ngsim_graphs.sources.ngsim.cleaning import (
+    drop_duplicate_rows,
+    is_complete,
+    split_at_gaps,
+    to_si_units,
+)
+from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file
+from ngsim_graphs.sources.ngsim.plausibility import (
+    check_dropped,
+    check_speed_column,
+    jump_rows,
+    outlier_rows,
+    row_drop_reason,
+    speed_mismatch_mps,
+)
+from ngsim_graphs.sources.ngsim.recordings import identify_recordings
+from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
 
 
 # The required columns as NGSIM's header spells them, for messages.
@@ -84,12 +48,12 @@ FILE_REASONS: tuple[DropReason, ...] = tuple(r for r in DropReason if r is not D
 
 def read_file_recordings(
     path: Path, config: BuildConfig, file_index: int = 0
-) -> tuple[pl.DataFrame, dict[RecordingKey, int], FileReport]:
+) -> FileRows:
     """Parse one file, drop what no recording can use, and tell its chosen recordings apart.
 
-    Returns (every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
-    columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, the
-    file's report). The index is null for incomplete, implausible and stray rows, which are
+    Returns every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
+    columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, and
+    the file's report. The index is null for incomplete, implausible and stray rows, which are
     dropped. No copy of the rows is made here: the caller takes one recording at a time.
     """
     raw = read_raw_file(path, config.locations)
@@ -113,7 +77,7 @@ def read_file_recordings(
     line = (pl.col(ROW) + raw.first_line).alias(s.SOURCE_LINE)
     rows = raw.frame.select(
         *s.RAW_SCHEMA.names(),
-        pl.when(usable & in_chosen).then(index).alias(RECORDING_INDEX),
+        pl.when(usable & in_chosen).then(index).alias(s.RECORDING_INDEX),
         pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
         line,
     )
@@ -124,7 +88,7 @@ def read_file_recordings(
         .agg(pl.len(), pl.col(s.SOURCE_LINE).min())
     )
     counts = {r: n for r, n, _ in dropped.iter_rows()}
-    kept = int(rows[RECORDING_INDEX].is_not_null().sum())
+    kept = int(rows[s.RECORDING_INDEX].is_not_null().sum())
     missing = int((~complete).sum())
     if missing == raw.frame.height:  # nothing to place in a recording: say why, naming the file
         raise NgsimInputError(
@@ -147,12 +111,7 @@ def read_file_recordings(
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
     )
-    return rows, chosen, report
-
-
-def recording_rows(rows: pl.DataFrame, index: int) -> pl.DataFrame:
-    """The rows of one recording out of a file's rows (see read_file_recordings)."""
-    return rows.filter(pl.col(RECORDING_INDEX) == index).drop(RECORDING_INDEX)
+    return FileRows(rows, chosen, report)
 
 
 def _first_source(rows: pl.DataFrame) -> tuple[int, int] | None:
@@ -204,3 +163,39 @@ def build_tracks(
         first_outlier=_first_source(unique.filter(outlier)),
     )
     return tracks, report
+
+
+def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) -> FileRows:
+    """read_file_recordings, then the rule of dropped rows (plausibility.check_dropped)."""
+    read = read_file_recordings(path, config, file_index)
+    report = read.report
+    check_dropped(
+        report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked,
+        config.limits, strict,
+    )  # fmt: skip
+    return read
+
+
+def recording_tracks(
+    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int,
+    files: list[FileReport], strict: bool,
+) -> tuple[pl.DataFrame, RecordingReport]:  # fmt: skip
+    """build_tracks, then the recording's checks: the speed column must be a speed; position
+    outliers follow the rule of every dropped row (see plausibility)."""
+    tracks, report = build_tracks(raw, key, config, first_track_id)
+    name = f"{report.location}/{report.period}"
+    sources = ", ".join(f.path for f in files if name in f.recordings)
+    check_speed_column(
+        sources, report.speed_mismatch_mps, report.shown_speed_mps, report.speed_rows_compared, config.limits
+    )
+    if report.first_outlier is not None:
+        file_index, line = report.first_outlier
+        reason = DropReason.POSITION_OUTLIER.value
+        check_dropped(
+            files[file_index].path, {reason: report.position_outliers}, {reason: line}, report.rows,
+            config.limits, strict,
+        )  # fmt: skip
+    return tracks, report
+
+
+SOURCE = Source(name="ngsim", find_files=find_raw_files, read_file=read_file, recording_tracks=recording_tracks)

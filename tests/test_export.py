@@ -8,11 +8,11 @@ import numpy as np
 import polars as pl
 import pytest
 
-from ngsim_graphs.building import run_build
-from ngsim_graphs.builds import OpenBuild, open_build
+from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
-from ngsim_graphs.exporting import graph_tables
-from ngsim_graphs.synthesis import write_synthetic
+from ngsim_graphs.export import graph_tables
+from ngsim_graphs.synth.formats import write_synthetic
 
 
 @pytest.fixture(scope="module")

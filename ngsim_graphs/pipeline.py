@@ -1,14 +1,19 @@
-"""`ngsim-graphs build`: raw NGSIM files to a finished, self-describing dataset directory.
+"""`ngsim-graphs build`: raw files to a finished, self-describing dataset directory.
 
-Memory stays bounded by one input file plus one recording: each file's rows are staged per
-recording as Parquet, then each recording is cleaned, windowed and written on its own; only the
-small per-sample table of every recording is kept until the end.
+A data source (`sources`) reads each input file and stages its rows per recording as Parquet;
+then each recording's tracks table goes through the stages that know no dataset: frame arrays,
+ego windows, splits, and every sample's graph induced once, in small batches, to count its
+nodes, edges and targets and to fit the scaler on the train split. The graphs themselves are
+not stored per sample (see README: the dataset induces them from the frame arrays).
+
+Memory stays bounded by one input file plus one recording; only the small per-sample table of
+every recording is kept until the end.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -20,24 +25,77 @@ from ngsim_graphs import __version__, landing, layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.frames import ARRAY_NAMES
-from ngsim_graphs.ingestion import (
-    FileReport,
-    RecordingKey,
-    RecordingReport,
-    build_tracks,
-    read_file_recordings,
-    recording_rows,
-)
-from ngsim_graphs.plausibility import check_dropped, check_speed_column
-from ngsim_graphs.reading import find_raw_files
-from ngsim_graphs.sampling import COUNT_COLUMNS, recording_samples
-from ngsim_graphs.scaling import FittedRanges, empty_ranges
-from ngsim_graphs.schema import DropReason
-from ngsim_graphs.splits import SPLIT, SPLIT_ORDER, split_warnings
+from ngsim_graphs.graphs import GraphBatch, induce_graphs
+from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays, grid_nodes, proximity_pairs, recording_arrays
+from ngsim_graphs.scaling import FittedRanges, empty_ranges, update_ranges
+from ngsim_graphs.schema import DropReason, Split
+from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
+from ngsim_graphs.sources.registry import choose_source
+from ngsim_graphs.splits import SPLIT_ORDER, assign_splits, split_warnings
+from ngsim_graphs.windows import ego_windows
+
+INDUCE_BATCH = 64  # samples per induction: small batches stay in the CPU caches
+
+
+
+@dataclass(frozen=True)
+class RecordingSamples:
+    """What one recording contributes to a build."""
+
+    pairs: pl.DataFrame  # PROXIMITY_SCHEMA
+    arrays: RecordingArrays
+    windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
+    ranges: FittedRanges  # widened by this recording's train samples
+
+
+def iter_graphs(rec: RecordingArrays, windows: pl.DataFrame, config: BuildConfig) -> Iterator[GraphBatch]:
+    """The graphs of `windows` (EGO_TRACK_ID, START_STEP) in order, INDUCE_BATCH at a time."""
+    egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
+    for first in range(0, len(egos), INDUCE_BATCH):
+        part = slice(first, first + INDUCE_BATCH)
+        yield induce_graphs(rec, egos[part], starts[part], config)
+
+
+def graph_counts(batch: GraphBatch) -> np.ndarray:
+    """(B, 5) int64: nodes, spatial edges, temporal edges, targets, targets with a full future."""
+    b = batch.n_samples
+    per = lambda nodes: np.bincount(batch.node_sample[nodes], minlength=b)  # noqa: E731
+    full = batch.target_node[batch.target_mask.all(axis=1)]
+    return np.stack(
+        [np.diff(batch.node_ptr), per(batch.spatial_edges[0]), per(batch.temporal_edges[0]),
+         per(batch.target_node), per(full)], axis=1,
+    )  # fmt: skip
+
+
+def recording_samples(
+    tracks: pl.DataFrame, recording_index: int, config: BuildConfig, ranges: FittedRanges
+) -> RecordingSamples:
+    """Frame arrays, proximity edges and split ego windows of one recording's tracks table."""
+    nodes = grid_nodes(tracks, config.time_step_s)
+    pairs = proximity_pairs(nodes, config.d_min_m)
+    arrays = recording_arrays(nodes, pairs)
+    max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
+    windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
+    train_flags = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
+    counts, first = [], 0
+    for batch in iter_graphs(arrays, windows, config):
+        is_train = train_flags[first : first + batch.n_samples]
+        first += batch.n_samples
+        counts.append(graph_counts(batch))
+        if is_train.any():
+            node_train = is_train[batch.node_sample]
+            edge_train = node_train[batch.spatial_edges[0]]
+            ranges = update_ranges(ranges, batch.node_features[node_train], batch.spatial_distance[edge_train])
+    table = np.concatenate(counts) if counts else np.zeros((0, len(s.COUNT_COLUMNS)), np.int64)
+    windows = windows.with_columns(
+        pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
+    )
+    return RecordingSamples(pairs=pairs, arrays=arrays, windows=windows, ranges=ranges)
+
+
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
-ProgressCallback = Callable[[str, int, int], None]
+BuildProgress = Callable[[str, int, int], None]
 
 
 @dataclass(frozen=True)
@@ -63,28 +121,25 @@ class RecordingOutput:
     longest_track_steps: int
     top_vehicle_ids: tuple[int, int]  # the largest and second largest Vehicle_ID
     proximity_edges: int
-    windows: pl.DataFrame  # with location, period, SPLIT and counts
+    windows: pl.DataFrame  # with location, period, s.SPLIT and counts
 
 
 def _stage_inputs(
-    files: list[Path], config: BuildConfig, root: Path, progress: ProgressCallback, strict: bool
-) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
+    source: Source, files: list[Path], config: BuildConfig, root: Path, progress: BuildProgress,
+    strict: bool,
+) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:  # fmt: skip
     """Read each file and stage its rows per recording, one recording in memory at a time."""
     reports: list[FileReport] = []
     staged: dict[RecordingKey, list[Path]] = {}
     for file_index, path in enumerate(files):
         progress(f"reading {path.name}", file_index, len(files))
-        rows, chosen, report = read_file_recordings(path, config, file_index)
-        check_dropped(
-            report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked,
-            config.limits, strict,
-        )  # fmt: skip
-        for key, recording_index in sorted(chosen.items()):
+        read = source.read_file(path, config, file_index, strict)
+        for key in sorted(read.recordings):
             target = layout.staged_raw_path(root, *key, file_index)
-            layout.write_staged(recording_rows(rows, recording_index), target)
+            layout.write_staged(read.recording_rows(key), target)
             staged.setdefault(key, []).append(target)
-        del rows
-        reports.append(report)
+        reports.append(read.report)
+        del read
     if not staged:
         found = sorted({loc for r in reports for loc in r.locations_found})
         more = f" (and {len(files) - 1} more)" if len(files) > 1 else ""
@@ -96,31 +151,13 @@ def _stage_inputs(
     return reports, staged
 
 
-def _check_recording(report: RecordingReport, files: list[FileReport], config: BuildConfig, strict: bool) -> None:
-    """The speed column must be a speed; position outliers follow the rule of every dropped row
-    (see plausibility)."""
-    name = f"{report.location}/{report.period}"
-    sources = ", ".join(f.path for f in files if name in f.recordings)
-    check_speed_column(
-        sources, report.speed_mismatch_mps, report.shown_speed_mps, report.speed_rows_compared, config.limits
-    )
-    if report.first_outlier is None:
-        return
-    file_index, line = report.first_outlier
-    reason = DropReason.POSITION_OUTLIER.value
-    check_dropped(
-        files[file_index].path, {reason: report.position_outliers}, {reason: line}, report.rows,
-        config.limits, strict,
-    )  # fmt: skip
-
-
 def _build_recording(
-    key: RecordingKey, index: int, staged: list[Path], config: BuildConfig, root: Path,
-    first_track_id: int, ranges: FittedRanges, files: list[FileReport], strict: bool,
+    source: Source, key: RecordingKey, index: int, staged: list[Path], config: BuildConfig,
+    root: Path, first_track_id: int, ranges: FittedRanges, files: list[FileReport], strict: bool,
 ) -> tuple[RecordingOutput, FittedRanges]:  # fmt: skip
     """Tracks, proximity edges, frame arrays and split windows of one recording, written."""
-    tracks, report = build_tracks(pl.read_parquet(staged), key, config, first_track_id)
-    _check_recording(report, files, config, strict)
+    raw = pl.read_parquet(staged)
+    tracks, report = source.recording_tracks(raw, key, config, first_track_id, files, strict)
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
     samples = recording_samples(tracks, index, config, ranges)
     layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
@@ -129,7 +166,7 @@ def _build_recording(
         layout.recording_arrays_dir(root, *key), {name: getattr(arrays, name) for name in ARRAY_NAMES}
     )
     windows = samples.windows.with_columns(
-        pl.lit(key[0]).alias(s.LOCATION), pl.lit(key[1]).alias(s.PERIOD), pl.lit(index).alias("recording_index")
+        pl.lit(key[0]).alias(s.LOCATION), pl.lit(key[1]).alias(s.PERIOD), pl.lit(index).alias(s.RECORDING_INDEX)
     )
     ids = tracks[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
@@ -145,16 +182,16 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
     counts: dict[str, dict[str, int]] = {}
     for split in SPLIT_ORDER:
         part = (
-            windows.filter(pl.col(SPLIT) == split.value)
+            windows.filter(pl.col(s.SPLIT) == split.value)
             .sort(s.LOCATION, s.PERIOD, s.EGO_TRACK_ID, s.START_STEP)
             .with_row_index(s.SAMPLE_ID)
         )
-        table = part.select(*s.SAMPLE_SCHEMA.names(), *COUNT_COLUMNS).cast(dict(s.SAMPLE_SCHEMA))
+        table = part.select(*s.SAMPLE_SCHEMA.names(), *s.COUNT_COLUMNS).cast(dict(s.SAMPLE_SCHEMA))
         layout.write_parquet(table, layout.samples_path(root, split.value))
         layout.write_arrays(
             layout.sample_arrays_dir(root, split.value),
             {
-                "recording_index": part["recording_index"].cast(pl.Int16).to_numpy(),
+                "recording_index": part[s.RECORDING_INDEX].cast(pl.Int16).to_numpy(),
                 "ego_track_id": part[s.EGO_TRACK_ID].to_numpy(),
                 "start_step": part[s.START_STEP].to_numpy(),
             },
@@ -197,6 +234,7 @@ def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
 
 
 def _manifest(
+    dataset: str,
     config: BuildConfig,
     files: list[FileReport],
     outputs: list[RecordingOutput],
@@ -230,6 +268,7 @@ def _manifest(
     return {
         "format_version": layout.FORMAT_VERSION,
         "software": {"ngsim_graphs": __version__, "polars": pl.__version__},
+        "dataset": dataset,
         "config": config_dict,
         "config_hash": layout.config_hash(config_dict),
         "inputs": [asdict(f) for f in files],
@@ -254,25 +293,27 @@ def run_build(
     out_dir: Path,
     config: BuildConfig,
     overwrite: bool = False,
-    progress: ProgressCallback | None = None,
+    progress: BuildProgress | None = None,
     strict: bool = False,
+    dataset: str | None = None,
 ) -> BuildResult:
-    """Read every NGSIM file under `raw_paths` and write the finished build into `out_dir`.
+    """Read every raw file under `raw_paths` and write the finished build into `out_dir`.
 
+    `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.
     """
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
     report_progress = progress or (lambda _what, _done, _total: None)
-    files, skipped = find_raw_files(raw_paths)
+    source, files, skipped = choose_source(raw_paths, dataset)
     with landing.build_directory(out_dir, overwrite) as root:
-        file_reports, staged = _stage_inputs(files, config, root, report_progress, strict)
+        file_reports, staged = _stage_inputs(source, files, config, root, report_progress, strict)
         outputs, ranges, next_track_id = [], empty_ranges(), 0
         for index, key in enumerate(sorted(staged)):
             report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))
             output, ranges = _build_recording(
-                key, index, staged[key], config, root, next_track_id, ranges, file_reports, strict
+                source, key, index, staged[key], config, root, next_track_id, ranges, file_reports, strict
             )
             outputs.append(output)
             next_track_id += output.report.tracks
@@ -280,7 +321,7 @@ def run_build(
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)
         warnings = _warnings(outputs, config)
-        manifest = _manifest(config, file_reports, outputs, samples, ranges, warnings)
+        manifest = _manifest(source.name, config, file_reports, outputs, samples, ranges, warnings)
         manifest = layout.write_manifest(root, manifest)
     return BuildResult(
         out_dir=out_dir,

@@ -15,11 +15,12 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from ngsim_graphs import schema, synthesis
+from ngsim_graphs import schema
+from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
 from ngsim_graphs.schema import RawFormat
-from ngsim_graphs.traffic import simulate_recording
+from ngsim_graphs.synth.traffic import simulate_recording
 
 MINUTES = 0.3
 QUOTED_THOUSANDS = re.compile(r'^"-?\d{1,3}(,\d{3})+(\.\d+)?"$')

@@ -7,7 +7,7 @@ import pytest
 from conftest import make_row
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.cleaning import (
+from ngsim_graphs.sources.ngsim.cleaning import (
     FEET_TO_M,
     drop_duplicate_rows,
     is_complete,

@@ -16,7 +16,7 @@ import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.faults import (
+from ngsim_graphs.sources.ngsim.faults import (
     CONTROL,
     EXTRA,
     LINE,

@@ -11,7 +11,7 @@ import pytest
 from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.frames import (
+from ngsim_graphs.grid import (
     PAIR_KEY_STEP,
     grid_nodes,
     proximity_pairs,
@@ -98,12 +98,12 @@ def test_proximity_pairs_by_hand() -> None:
 
 def test_grid_nodes_steps_columns_and_order() -> None:
     tracks = pl.DataFrame({
-        s.FRAME_ID: [14, 10, 12, 12], s.TRACK_ID: [3, 3, 3, 2], s.VEHICLE_ID: [7, 7, 7, 5],
+        s.TIME_S: [1.4, 1.0, 1.2, 1.2], s.TRACK_ID: [3, 3, 3, 2], s.VEHICLE_ID: [7, 7, 7, 5],
         s.X_M: [1.0, 2.0, 3.0, 4.0], s.Y_M: [5.0, 6.0, 7.0, 8.0],
         s.HEADING_RAD: [0.1, 0.2, 0.3, 0.4],
         s.SPEED_MPS: [9.0, 8.0, 7.0, 6.0], s.LANE_ID: [1, 1, 1, 2],
     })  # fmt: skip
-    nodes = grid_nodes(tracks, 2)
+    nodes = grid_nodes(tracks, 0.2)
     assert nodes.schema == s.GRID_NODE_SCHEMA
     assert nodes.rows() == [
         (5, 3, 7, 2.0, 6.0, 0.2, 8.0), (6, 2, 5, 4.0, 8.0, 0.4, 6.0), (6, 3, 7, 3.0, 7.0, 0.3, 7.0),

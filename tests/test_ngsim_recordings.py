@@ -10,7 +10,7 @@ from conftest import I80_FIRST, US101_FIRST, US101_SECOND, make_row
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.recordings import (
+from ngsim_graphs.sources.ngsim.recordings import (
     OFFICIAL_RECORDINGS,
     find_official_recording,
     identify_recordings,

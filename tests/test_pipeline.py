@@ -22,7 +22,7 @@ from polars.testing import assert_frame_equal
 
 from ngsim_graphs import layout
 from ngsim_graphs import schema as s
-from ngsim_graphs.building import run_build
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 

@@ -9,7 +9,7 @@ from conftest import make_row, straight_track, write_period_csv, write_portal, w
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.reading import ROW, find_raw_files, read_raw_file, sniff_format
+from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file, sniff_format
 from ngsim_graphs.schema import RawFormat
 
 US = ("us-101", "i-80")

@@ -25,7 +25,7 @@ from ngsim_graphs import schema as s
 class RecordingArrays:
     """One recording's grid nodes and proximity edges as flat arrays (CSR indexes).
 
-    Rows are grid nodes sorted by (step, track). Steps run 0..S-1 (frame_id // frames per step);
+    Rows are grid nodes sorted by (step, track). Steps run 0..S-1 (time_s / time_step_s);
     tracks run first_track_id..first_track_id+T-1 and are contiguous in steps.
     """
 
@@ -73,9 +73,13 @@ def pair_search_key(step: np.ndarray, y_m: np.ndarray) -> np.ndarray:
 ARRAY_NAMES = tuple(f.name for f in fields(RecordingArrays) if f.name != "first_track_id")
 
 
-def grid_nodes(tracks: pl.DataFrame, frames_per_step: int) -> pl.DataFrame:
-    """The tracks table as GRID_NODE_SCHEMA rows, sorted by (step, track)."""
-    step = (pl.col(s.FRAME_ID) // frames_per_step).cast(pl.Int32).alias(s.STEP)
+def grid_nodes(tracks: pl.DataFrame, time_step_s: float) -> pl.DataFrame:
+    """The tracks table as GRID_NODE_SCHEMA rows, sorted by (step, track).
+
+    A row's step is its time on the grid, `time_s / time_step_s`, rounded to the nearest integer
+    (the tracks table contract puts every row on the grid; see `ngsim_graphs.sources`).
+    """
+    step = (pl.col(s.TIME_S) / time_step_s).round().cast(pl.Int32).alias(s.STEP)
     columns = [step, *(pl.col(c) for c in s.GRID_NODE_SCHEMA.names() if c != s.STEP)]
     return tracks.select(columns).cast(dict(s.GRID_NODE_SCHEMA)).sort(s.STEP, s.TRACK_ID)
 

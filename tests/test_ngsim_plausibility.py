@@ -9,8 +9,8 @@ from conftest import make_row, straight_track
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig, PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.ingestion import build_tracks
-from ngsim_graphs.plausibility import check_dropped, jump_rows, outlier_rows, row_drop_reason
+from ngsim_graphs.sources.ngsim.tracks import build_tracks
+from ngsim_graphs.sources.ngsim.plausibility import check_dropped, jump_rows, outlier_rows, row_drop_reason
 from ngsim_graphs.schema import DropReason
 
 FT = 0.3048

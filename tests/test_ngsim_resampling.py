@@ -5,7 +5,7 @@ from __future__ import annotations
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.resampling import downsample_to_grid
+from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
 
 
 def test_grid_keeps_even_frames_whatever_the_row_order() -> None:

@@ -1,0 +1,128 @@
+"""The tracks table contract: what every data source gives the pipeline, and how.
+
+A source turns its dataset's files into one tracks table per recording (`schema.TRACKS_SCHEMA`,
+one row per track and grid step). Everything after the seam (grid nodes, windows, splits, graphs,
+scaling, the build directory) reads that table alone and knows no dataset. The contract:
+
+- **Recording**: one continuous observation of one road section, on one clock. Its key is
+  (`location`, `period`), two non-empty strings that make a file-system-safe name together.
+  NGSIM: ("us-101", "0750am-0805am"); highD: ("highd-2", "01"), its locationId and recording id.
+- **Vehicle and track**: `vehicle_id` >= 1 is the source's id, unique within the recording. A
+  vehicle's record is split where frames are missing (`segment` 0, 1, ...); `track_id` numbers
+  the tracks densely over the whole build in (recording, vehicle, segment) order. Nothing
+  interpolates across a gap.
+- **Time**: `time_s` is seconds since the recording's frame 0, and every row lies on the grid:
+  `time_s / time_step_s` is an integer (up to float rounding). The source resamples by frame
+  number, never by row position. `frame_id` is the source's own frame number (NGSIM 10 Hz, highD
+  25 Hz) and `global_time` milliseconds on the source's clock (NGSIM: since the epoch; highD:
+  since the recording's start): both are provenance only.
+- **Space**: metres, in the road's frame. `y_m` grows along the direction of travel, `x_m` is
+  lateral (NGSIM's Local_X: from the left edge of the road; highD: to the right of travel). The
+  point is the front centre of the vehicle. `heading_rad` is measured from +y towards +x
+  (`kinematics.add_heading`), `speed_mps` >= 0 is along the track, `accel_mps2` along it too.
+- **Attributes**: `lane_id` is the source's lane number; `v_class` is NGSIM's code (1 motorcycle,
+  2 car, 3 truck); `length_m`, `width_m`; `preceding` / `following` are vehicle ids or null;
+  `space_headway_m` / `time_headway_s` are null where there is no leader.
+- **Order**: rows sorted by (track_id, time_s), columns and dtypes exactly TRACKS_SCHEMA.
+
+A source also reports what it read and dropped (`FileReport` per input file, `RecordingReport`
+per recording): every dropped row is counted per reason, with the first line it was on.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import polars as pl
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
+
+RecordingKey = tuple[str, str]  # (location, period)
+
+
+@dataclass(frozen=True)
+class FileReport:
+    """What reading one input file found, and which of its rows were dropped before cleaning.
+
+    rows_read = rows_other_locations + rows_missing_values + sum(rows_dropped) + the rows it
+    gave its chosen recordings (RecordingReport.rows).
+    """
+
+    path: str
+    raw_format: str
+    size_bytes: int
+    sha256: str
+    rows_read: int
+    rows_other_locations: int  # of locations (or recordings) the build did not choose
+    rows_missing_values: int  # an empty required field
+    first_missing_line: int | None  # the first line with an empty required field
+    rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
+    first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
+    rows_checked: int  # rows of the chosen recordings with every required field, kept or dropped
+    locations_found: tuple[str, ...]  # every location the file holds, chosen or not
+    recordings: tuple[str, ...]  # "location/period" of each chosen recording the file holds
+
+
+@dataclass(frozen=True)
+class RecordingReport:
+    """What cleaning one recording counted, and the size of its tracks table."""
+
+    location: str
+    period: str
+    rows: int  # rows of the recording that passed the row checks (duplicates included)
+    exact_duplicates: int
+    conflicting_duplicates: int
+    position_outliers: int  # rows dropped: displaced from the neighbouring frames
+    position_jumps: int  # other moves beyond the jump limit, each of which split a track
+    gaps: int  # frame gaps, each of which split a vehicle's record into two tracks
+    vehicles: int
+    tracks: int
+    grid_rows: int  # rows of the tracks table (the grid)
+    # the speed column against the motion the positions show
+    speed_mismatch_mps: float = math.nan  # median |speed column - shown speed|
+    shown_speed_mps: float = math.nan  # median shown speed
+    speed_rows_compared: int = 0
+    first_outlier: tuple[int, int] | None = None  # (input file index, line) of the first outlier
+
+
+@dataclass(frozen=True)
+class FileRows:
+    """One input file, read: its rows, which recording each belongs to, and its report.
+
+    `rows` carry a RECORDING_INDEX column (null for rows no chosen recording keeps) and the
+    provenance columns SOURCE_FILE and SOURCE_LINE; `recordings` maps each chosen recording's
+    key to its index. Nothing is copied per recording until `recording_rows` is asked.
+    """
+
+    rows: pl.DataFrame
+    recordings: dict[RecordingKey, int]
+    report: FileReport
+
+    def recording_rows(self, key: RecordingKey) -> pl.DataFrame:
+        """The rows of one recording, without the RECORDING_INDEX column."""
+        index = self.recordings[key]
+        return self.rows.filter(pl.col(s.RECORDING_INDEX) == index).drop(s.RECORDING_INDEX)
+
+
+@dataclass(frozen=True)
+class Source:
+    """A dataset behind the contract: three functions, and the name the manifest records.
+
+    find_files(paths) -> (files to read, files skipped in the directories searched)
+    read_file(path, config, file_index, strict) -> FileRows, after the file's own checks
+    recording_tracks(rows, key, config, first_track_id, files, strict) -> (tracks, report):
+        the tracks table of one recording from all its rows (any order, from any of `files`),
+        tracks numbered from `first_track_id`
+    """
+
+    name: str
+    find_files: Callable[[list[Path]], tuple[list[Path], list[Path]]]
+    read_file: Callable[[Path, BuildConfig, int, bool], FileRows]
+    recording_tracks: Callable[
+        [pl.DataFrame, RecordingKey, BuildConfig, int, list[FileReport], bool],
+        tuple[pl.DataFrame, RecordingReport],
+    ]
