@@ -24,30 +24,32 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import manifest_path, read_manifest
+from ngsim_graphs.manifest import Manifest, json_form
 
 IDENTITY = ("build_config_hash", "build_manifest_sha256")  # a build's identity, as a run records it
 INFO_KEYS = ("build_dir", *IDENTITY, "build_config", "scaler", "model", "train")
 BEST_KEYS, LAST_KEYS = ("info", "model", "epoch"), ("info", "model", "optimizer", "state")
 
 
-def build_identity(build_dir: Path) -> tuple[dict[str, Any], dict[str, str]]:
+def build_identity(build_dir: Path) -> tuple[Manifest, dict[str, str]]:
     """A finished build's manifest and identity: {"build_config_hash", "build_manifest_sha256"}."""
     manifest = read_manifest(build_dir)  # refuses unfinished builds and other format versions
     digest = hashlib.sha256(manifest_path(build_dir).read_bytes()).hexdigest()
     return manifest, {
-        "build_config_hash": str(manifest.get("config_hash")),
+        "build_config_hash": str(manifest.config_hash),
         "build_manifest_sha256": digest,
     }
 
 
 def run_info(build_dir: Path, model_config: ModelConfig, train: TrainConfig) -> dict[str, Any]:
-    """What run.json and every checkpoint record: INFO_KEYS."""
+    """What run.json and every checkpoint record: INFO_KEYS (the build's config and scaler as
+    its manifest.json holds them)."""
     manifest, identity = build_identity(build_dir)
     return {
         "build_dir": str(Path(build_dir).resolve()),
         **identity,
-        "build_config": manifest.get("config"),
-        "scaler": manifest.get("scaler"),
+        "build_config": json_form(manifest.config.to_dict()),
+        "scaler": json_form(manifest.scaler.to_dict()),
         "model": model_config.to_dict(),
         "train": train.to_dict(),
     }

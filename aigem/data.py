@@ -10,7 +10,6 @@ steps. PyTorch Geometric's view of the same samples is in aigem.pyg.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,77 +19,30 @@ import torch
 from torch.utils.data import Dataset
 
 from aigem.model import make_plan
-
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, concat_batches
-from ngsim_graphs.scaling import FEATURES, scale
+from ngsim_graphs.scaling import FEATURES, SCALED, MinMaxScaler
 from ngsim_graphs.schema import Split
 
-SCALED = (*FEATURES, "distance_m")  # the quantities a scaler maps
+XY = FEATURES[:2]  # the scaled quantities a model predicts: x_m, y_m
 
 
-def scaler_is_complete(ranges: object) -> bool:
-    """Whether `ranges` holds numeric min, max and a two-number target range for every scaled
-    quantity (a build with an empty train split records nulls)."""
-    if not isinstance(ranges, dict):
-        return False
-    number = lambda v: isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-    for name in SCALED:
-        entry = ranges.get(name)
-        if not isinstance(entry, dict) or not (
-            number(entry.get("min")) and number(entry.get("max"))
-        ):
-            return False
-        target = entry.get("to")
-        if not isinstance(target, list | tuple) or len(target) != 2 or not all(map(number, target)):
-            return False
-    return True
+def run_scaler(values: object, path: Path) -> MinMaxScaler:
+    """A scaler recorded elsewhere (a run's, for another build); `path` names its file."""
+    try:
+        scaler = MinMaxScaler.from_dict(values)
+    except ValueError:
+        scaler = None
+    if scaler is None or not scaler.is_fitted:
+        raise NgsimInputError(path, "records no complete scaler (min, max and target range of "
+                              f"{', '.join(SCALED)})")  # fmt: skip
+    return scaler
 
 
-@dataclass(frozen=True)
-class Scaler:
-    """The build's MinMax ranges (fitted on train); physical values in, scaled values out."""
-
-    ranges: dict[str, dict]
-
-    @classmethod
-    def from_manifest(cls, manifest: dict, path: Path) -> Scaler:
-        """The scaler a build fitted on its train split; `path` names the build in errors."""
-        if not scaler_is_complete(manifest.get("scaler")):
-            raise NgsimInputError(
-                path, "the build has no fitted scaler (is its train split empty?)"
-            )
-        return cls(manifest["scaler"])
-
-    @classmethod
-    def from_ranges(cls, ranges: object, path: Path) -> Scaler:
-        """A scaler recorded elsewhere (a run's, for another build); `path` names its file."""
-        if not scaler_is_complete(ranges):
-            raise NgsimInputError(path, "records no complete scaler (min, max and target range of "
-                                  f"{', '.join(SCALED)})")  # fmt: skip
-        return cls(ranges)  # type: ignore[arg-type]
-
-    def _apply(self, name: str, values: np.ndarray) -> np.ndarray:
-        fitted = self.ranges[name]
-        return scale(values, fitted, tuple(fitted["to"]))
-
-    def features(self, physical: np.ndarray) -> np.ndarray:
-        """(N, 4) [x, y, heading, speed] -> scaled float32."""
-        columns = [self._apply(name, physical[:, i]) for i, name in enumerate(FEATURES)]
-        return np.stack(columns, axis=1).astype(np.float32)
-
-    def distance(self, metres: np.ndarray) -> np.ndarray:
-        return self._apply("distance_m", metres).astype(np.float32)
-
-    def xy_to_metres(self, scaled: torch.Tensor) -> torch.Tensor:
-        """(..., 2) scaled positions back to metres (differentiable)."""
-        out = []
-        for i, name in enumerate(FEATURES[:2]):
-            fitted, (low, high) = self.ranges[name], self.ranges[name]["to"]
-            span = (fitted["max"] - fitted["min"]) / (high - low)
-            out.append((scaled[..., i] - low) * span + fitted["min"])
-        return torch.stack(out, dim=-1)
+def xy_to_metres(scaler: MinMaxScaler, scaled: torch.Tensor) -> torch.Tensor:
+    """(..., 2) scaled positions back to metres (differentiable)."""
+    return torch.stack([scaler.unscale(name, scaled[..., i]) for i, name in enumerate(XY)], dim=-1)
 
 
 class GraphDataset(Dataset):
@@ -114,7 +66,7 @@ class GraphDataset(Dataset):
         build_dir: Path,
         split: Split | str = Split.TRAIN,
         history_steps: int | None = None,
-        scaler: Scaler | None = None,
+        scaler: MinMaxScaler | None = None,
     ) -> None:
         self.build_dir = Path(build_dir)
         self.split = Split(split)
@@ -124,10 +76,12 @@ class GraphDataset(Dataset):
             raise ValueError(f"history_steps must be at least 1, got {history_steps}")
         keep = self.config.history_steps if history_steps is None else history_steps
         self.first_step = max(0, self.config.history_steps - keep)
-        self.scaler = (
-            scaler if scaler is not None else Scaler.from_manifest(build.manifest, self.build_dir)
-        )
-        self.size = int(build.manifest["splits"][self.split.value])
+        if scaler is None and not build.manifest.scaler.is_fitted:
+            raise NgsimInputError(
+                self.build_dir, "the build has no fitted scaler (is its train split empty?)"
+            )
+        self.scaler = scaler if scaler is not None else build.manifest.scaler
+        self.size = int(build.manifest.splits[self.split.value])
         self._build: OpenBuild | None = None  # opened lazily in each worker process
 
     @property
@@ -166,7 +120,7 @@ class Collate:
     graphs (a Python int).
     """
 
-    scaler: Scaler
+    scaler: MinMaxScaler
     layers: int | None = None
 
     def __call__(self, graphs: list[GraphBatch]) -> dict[str, Any]:
@@ -174,9 +128,9 @@ class Collate:
         targets = batch.target_node
         present = batch.node_features[targets]
         out = {
-            "x": torch.from_numpy(self.scaler.features(batch.node_features)),  # (N, 4)
+            "x": torch.from_numpy(self.scaler.scale_features(batch.node_features)),  # (N, 4)
             "spatial_edges": torch.from_numpy(batch.spatial_edges),  # (2, E_s)
-            "spatial_attr": torch.from_numpy(self.scaler.distance(batch.spatial_distance))[
+            "spatial_attr": torch.from_numpy(self.scaler.scale_distance(batch.spatial_distance))[
                 :, None
             ],  # (E_s, 1)
             "temporal_edges": torch.from_numpy(batch.temporal_edges),  # (2, E_t)

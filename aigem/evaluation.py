@@ -24,7 +24,7 @@ from torch.utils.data import DataLoader
 
 from aigem.checkpoints import build_identity, identity_difference
 from aigem.config import ModelConfig
-from aigem.data import Collate, GraphDataset, Scaler
+from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.metrics import ErrorTotals, summarize_errors
 from aigem.model import AiGem, count_parameters
 from aigem.runs import BEST, load_model, member_dir, read_horizons
@@ -149,7 +149,7 @@ def score(
     ours, baseline = ErrorTotals(steps), ErrorTotals(steps)
     with torch.no_grad():
         for index, batch in enumerate(loader):
-            predicted = dataset.scaler.xy_to_metres(model(to_device(batch, device), steps))
+            predicted = xy_to_metres(dataset.scaler, model(to_device(batch, device), steps))
             if not bool(torch.isfinite(predicted).all()):
                 raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}")
             truth = batch["target_xy"][:, :steps].numpy()
@@ -183,7 +183,7 @@ def evaluate(
     model, info = load_model(run_dir, device)
     build_dir = resolve_build(info, build_dir)
     same_build = check_build(info, build_dir, run_dir, model.config, other_build)
-    scaler = Scaler.from_ranges(info["scaler"], run_dir / BEST)
+    scaler = run_scaler(info["scaler"], run_dir / BEST)
     dataset = GraphDataset(build_dir, split, model.config.history_steps_read, scaler)
     if len(dataset) == 0:
         raise NgsimInputError(
@@ -212,7 +212,10 @@ def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str,
     horizon: RMSE at s seconds (and its count) from the first model that reaches s, ADE and FDE
     from the last."""
     longest = list(members)[-1]
-    first = lambda key: next(name for name, result in members.items() if key in result.model["all"])
+
+    def first(key: str) -> str:
+        return next(name for name, result in members.items() if key in result.model["all"])
+
     sources = {key: longest if key in ("ade_m", "fde_m") else first(key)
                for key in members[longest].model["all"]}  # fmt: skip
 

@@ -32,8 +32,9 @@ import torch
 from torch_geometric.data import Dataset as PygDataset
 from torch_geometric.data import HeteroData
 
-from aigem.data import GraphDataset, Scaler
+from aigem.data import GraphDataset
 from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Split
 
 NODE = "vehicle"
@@ -41,7 +42,7 @@ SPATIAL = (NODE, "spatial", NODE)
 TEMPORAL = (NODE, "temporal", NODE)
 
 
-def to_hetero_data(graph: GraphBatch, scaler: Scaler, sample_id: int | None = None) -> HeteroData:
+def to_hetero_data(graph: GraphBatch, scaler: MinMaxScaler, sample_id: int | None = None) -> HeteroData:
     """One sample's graph (a one-sample GraphBatch) as a HeteroData that PyG batches correctly."""
     if graph.n_samples != 1:
         raise ValueError(f"one sample's graph expected, got {graph.n_samples}: PyG batches them")
@@ -53,14 +54,14 @@ def to_hetero_data(graph: GraphBatch, scaler: Scaler, sample_id: int | None = No
     is_target[graph.target_node] = True
     data = HeteroData()
     node = data[NODE]
-    node.x = torch.from_numpy(scaler.features(graph.node_features))
+    node.x = torch.from_numpy(scaler.scale_features(graph.node_features))
     node.step = torch.from_numpy(graph.node_step.astype(np.int64))
     node.is_ego = torch.from_numpy(graph.node_is_ego)
     node.track_id = torch.from_numpy(graph.node_track.astype(np.int64))
     node.is_target = torch.from_numpy(is_target)
     node.y, node.y_mask = torch.from_numpy(y), torch.from_numpy(y_mask)
     data[SPATIAL].edge_index = torch.from_numpy(graph.spatial_edges)
-    data[SPATIAL].edge_attr = torch.from_numpy(scaler.distance(graph.spatial_distance))[:, None]
+    data[SPATIAL].edge_attr = torch.from_numpy(scaler.scale_distance(graph.spatial_distance))[:, None]
     data[TEMPORAL].edge_index = torch.from_numpy(graph.temporal_edges)
     data[TEMPORAL].edge_attr = torch.full((graph.temporal_edges.shape[1], 1), graph.time_step_s)
     if sample_id is not None:
@@ -101,14 +102,14 @@ class GraphPygDataset(PygDataset):
         build_dir: Path,
         split: Split | str = Split.TRAIN,
         history_steps: int | None = None,
-        scaler: Scaler | None = None,
+        scaler: MinMaxScaler | None = None,
         transform: Callable[[HeteroData], HeteroData] | None = None,
     ) -> None:
         self.samples = GraphDataset(build_dir, split, history_steps, scaler)
         super().__init__(root=None, transform=transform)  # no raw or processed files
 
     @property
-    def scaler(self) -> Scaler:
+    def scaler(self) -> MinMaxScaler:
         return self.samples.scaler
 
     def len(self) -> int:

@@ -30,12 +30,12 @@ from torch.utils.data import DataLoader, DistributedSampler
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
-from aigem.data import Collate, GraphDataset, Scaler
+from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.model import AiGem, count_parameters
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.schema import Split
-from ngsim_graphs.schema import N_TARGETS
+from ngsim_graphs.scaling import MinMaxScaler
+from ngsim_graphs.schema import N_TARGETS, Split
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
 # (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
@@ -91,10 +91,10 @@ def seed_everything(seed: int) -> None:
 
 
 def masked_mse_m2(
-    model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: Scaler, steps: int
+    model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler, steps: int
 ) -> torch.Tensor:
     """Mean squared error in metres^2 over valid steps; (A, steps, 2) scaled predictions."""
-    predicted = scaler.xy_to_metres(model_out)
+    predicted = xy_to_metres(scaler, model_out)
     truth = batch["target_xy"][:, :steps]
     mask = batch["target_mask"][:, :steps].to(predicted.dtype)
     squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
@@ -111,7 +111,7 @@ def check_splits(build_dir: Path) -> None:
         Split.VAL: ("validation", "`aigem fit` keeps the best checkpoint and stops early by validation loss"),
     }  # fmt: skip
     for split, (name, reason) in why.items():
-        samples = int(build.manifest.get("splits", {}).get(split.value, 0))
+        samples = int(build.manifest.splits.get(split.value, 0))
         if samples == 0:
             raise NgsimInputError(build_dir, f"the {name} split ({split.value}) is empty: {reason}; "
                                   "rebuild with other split fractions or more data")  # fmt: skip
@@ -173,7 +173,7 @@ def _loaders(
 
 
 def evaluate_losses(
-    models: Sequence[tuple[nn.Module, int]], loader: DataLoader, scaler: Scaler, device: torch.device
+    models: Sequence[tuple[nn.Module, int]], loader: DataLoader, scaler: MinMaxScaler, device: torch.device
 ) -> list[float]:  # fmt: skip
     """Mean validation loss in metres^2 of each (model, steps), weighted by valid steps; one pass
     over `loader` for all of them."""
@@ -224,7 +224,7 @@ class _Loop:
     device: torch.device
     rank: int
     world: int
-    scaler: Scaler
+    scaler: MinMaxScaler
     train_loader: DataLoader
     val_loader: DataLoader
     sampler: DistributedSampler | None
@@ -284,12 +284,13 @@ def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
     if state.next_epoch >= train.epochs:
         return "epochs"
     patience = train.patience_epochs
-    if state.next_epoch > 0 and patience is not None and state.next_epoch - 1 - state.best_epoch >= patience:  # fmt: skip
+    waited = state.next_epoch - 1 - state.best_epoch  # epochs since the best one
+    if state.next_epoch > 0 and patience is not None and waited >= patience:
         return "early stopping"
     return None
 
 
-def _step(member: _Member, batch: dict[str, Any], scaler: Scaler, device: torch.device) -> None:
+def _step(member: _Member, batch: dict[str, Any], scaler: MinMaxScaler, device: torch.device) -> None:
     """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
     _set_rng_state(member.rng, device)
     loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
@@ -317,15 +318,20 @@ def _train_epoch(
         batches, graphs = batches + 1, graphs + batch["graphs"]
         if index + 1 == total or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
             for member in active:
-                member.shown = _read_loss(member.running, batches, epoch, read_batches, batches, member.who)  # fmt: skip
+                member.shown = _read_loss(
+                    member.running, batches, epoch, read_batches, batches, member.who
+                )
             read_at, read_batches = time.monotonic(), batches
             loop.threads.look()
-        report(epoch + 1, batches, total, tuple(m.shown if m in active else math.nan for m in members))  # fmt: skip
+        shown = tuple(m.shown if m in active else math.nan for m in members)
+        report(epoch + 1, batches, total, shown)
         cut = time.monotonic() > deadline
         if cut:
             break
     for member in active:  # the mean of the epoch (a time limit may have cut it)
-        member.shown = _read_loss(member.running, max(batches, 1), epoch, read_batches, batches, member.who)  # fmt: skip
+        member.shown = _read_loss(
+            member.running, max(batches, 1), epoch, read_batches, batches, member.who
+        )
     return graphs, cut
 
 

@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_ingest import ensure_input, parse_input_args  # noqa: E402
 
 from ngsim_graphs import layout  # noqa: E402
-from ngsim_graphs.pipeline import run_build  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
+from ngsim_graphs.pipeline import run_build  # noqa: E402
 
 
 def folder_bytes(folder: Path) -> dict[str, int]:
@@ -59,12 +59,12 @@ def main() -> None:
     n_spatial = int(samples["n_spatial_edges"].sum())
     n_temporal = int(samples["n_temporal_edges"].sum())
     sizes = folder_bytes(result.out_dir)
-    counts = result.manifest["counts"]
-    print(f"input              {tag}: {counts['rows_read']:,} rows, {len(result.recordings)} recordings")
+    counts = result.manifest.counts
+    print(f"input              {tag}: {counts.rows_read:,} rows, {len(result.recordings)} recordings")
     for stage, seconds in stages.items():
         print(f"  {stage:<17}{seconds:7.1f} s")
     print(f"wall               {wall_s:.1f} s")
-    print(f"samples            {samples.height:,} ({result.manifest['splits']})")
+    print(f"samples            {samples.height:,} ({dict(result.manifest.splits)})")
     print(f"graph edges        {n_spatial:,} spatial, {n_temporal:,} temporal (induced, not stored per sample)")
     print(f"samples per second {samples.height / wall_s:,.0f}")
     print(f"edges per second   {(n_spatial + n_temporal) / wall_s:,.0f}")

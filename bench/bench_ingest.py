@@ -16,8 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.pipeline import run_build
 
 
 def ensure_input(raw_dir: Path, raw_format: str, recordings: int, minutes: float, quirks: bool) -> float:
@@ -56,12 +56,12 @@ def main() -> None:
     wall_s = time.perf_counter() - start
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2  # ru_maxrss is KiB
 
-    counts = result.manifest["counts"]
+    counts = result.manifest.counts
     print(f"input            {tag}: {input_bytes / 1e9:.2f} GB (synth {synth_s:.1f} s, 0 = reused)")
-    print(f"rows read        {counts['rows_read']:,}")
-    print(f"tracks rows      {counts['grid_rows']:,} on the 0.2 s grid, {counts['tracks']:,} tracks")
+    print(f"rows read        {counts.rows_read:,}")
+    print(f"tracks rows      {counts.grid_rows:,} on the 0.2 s grid, {counts.tracks:,} tracks")
     print(f"wall             {wall_s:.1f} s")
-    print(f"rows per second  {counts['rows_read'] / wall_s:,.0f}")
+    print(f"rows per second  {counts.rows_read / wall_s:,.0f}")
     print(f"peak memory      {peak_gb:.2f} GB (max RSS of this process)")
 
 

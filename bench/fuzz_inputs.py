@@ -20,7 +20,6 @@ any. A case is reproduced by its seed, index, format and kind (`make_input`). Sy
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import shutil
@@ -48,6 +47,8 @@ from fuzz_mutations import (
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.layout import manifest_path, read_manifest
 
 SUCCESS, CLEAN_ERROR, OTHER = "success", "clean error", "other"
 TIMEOUT_S = 60.0
@@ -133,8 +134,8 @@ def classify(run: RunResult, input_path: Path, out: Path, data: bytes, fmt: str)
         problems = check_success(run, out, data, fmt)
         if problems:
             return OTHER, "exit 0 but " + "; ".join(problems)
-        counts = json.loads((out / "manifest.json").read_text())["counts"]
-        return SUCCESS, f"{counts['rows_read']} rows read, {counts['samples']} samples"
+        counts = read_manifest(out).counts
+        return SUCCESS, f"{counts.rows_read} rows read, {counts.samples} samples"
     return classify_failure(run, input_path, out)
 
 
@@ -157,25 +158,23 @@ def classify_failure(run: RunResult, input_path: Path, out: Path) -> tuple[str, 
 
 def check_success(run: RunResult, out: Path, data: bytes, fmt: str) -> list[str]:
     """What is implausible about a build that exited 0 (nothing: a plausible success)."""
-    if not (out / "manifest.json").is_file():
+    if not manifest_path(out).is_file():
         return ["no manifest.json"]
-    counts = json.loads((out / "manifest.json").read_text())["counts"]
+    try:
+        counts = read_manifest(out).counts
+    except NgsimInputError as err:
+        return [f"its manifest cannot be read: {err}"]
     problems = [
         f"stderr line {line!r}" for line in _lines(run.stderr) if not line.startswith("warning: ")
     ]
     if run.stdout.count("\n") == 0:
         problems.append("nothing on stdout")
-    dropped = counts["rows_dropped"]
+    dropped = counts.rows_dropped
     before_cleaning = sum(
         n for reason, n in dropped.items() if reason != s.DropReason.POSITION_OUTLIER.value
     )
-    accounted = (
-        counts["rows_other_locations"]
-        + counts["rows_missing_values"]
-        + before_cleaning
-        + counts["rows"]
-    )
-    read = counts["rows_read"]
+    accounted = counts.rows_other_locations + counts.rows_missing_values + before_cleaning + counts.rows
+    read = counts.rows_read
     if read != accounted:
         problems.append(f"rows_read {read} but {accounted} accounted for (other locations, missing")
         problems[-1] += " values, dropped, kept)"
@@ -183,15 +182,15 @@ def check_success(run: RunResult, out: Path, data: bytes, fmt: str) -> list[str]
     if not visible <= read <= non_empty:
         blank = f" (and {non_empty - visible} of spaces)" if non_empty != visible else ""
         problems.append(f"rows_read {read} but the file has {visible} data lines{blank}")
-    duplicates = counts["exact_duplicates"] + counts["conflicting_duplicates"]
-    cleaned = counts["rows"] - duplicates - dropped[s.DropReason.POSITION_OUTLIER.value]
-    if not 0 <= counts["grid_rows"] <= cleaned:
+    duplicates = counts.exact_duplicates + counts.conflicting_duplicates
+    cleaned = counts.rows - duplicates - dropped[s.DropReason.POSITION_OUTLIER.value]
+    if not 0 <= counts.grid_rows <= cleaned:
         problems.append(
-            f"grid_rows {counts['grid_rows']} not within 0..{cleaned} (rows kept after cleaning)"
+            f"grid_rows {counts.grid_rows} not within 0..{cleaned} (rows kept after cleaning)"
         )
-    if counts["samples"] <= 0:
+    if counts.samples <= 0:
         problems.append("no samples")
-    return problems + check_tracks(out, counts["grid_rows"])
+    return problems + check_tracks(out, counts.grid_rows)
 
 
 def check_tracks(out: Path, grid_rows: int) -> list[str]:

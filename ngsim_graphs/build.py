@@ -12,7 +12,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import polars as pl
@@ -20,8 +19,9 @@ import polars as pl
 from ngsim_graphs import integrity, layout
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays
 from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, concat_batches, induce_graphs
+from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays
+from ngsim_graphs.manifest import Manifest, RecordingEntry
 from ngsim_graphs.schema import Split
 
 
@@ -30,26 +30,31 @@ class OpenBuild:
     """A finished build directory, opened for reading."""
 
     root: Path
-    manifest: dict[str, Any]
+    manifest: Manifest
     config: BuildConfig
 
     def _open_arrays(self, folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Memory-mapped arrays of `folder`, each checked against its record in the manifest."""
         arrays = layout.open_arrays(folder, names)
-        records = self.manifest[integrity.FILES_KEY]
+        records = self.manifest.files
         for name, array in arrays.items():
             path = folder / f"{name}.npy"
             integrity.check_array(path, array, records.get(path.relative_to(self.root).as_posix()))
         return arrays
 
     @cached_property
+    def entries(self) -> tuple[RecordingEntry, ...]:
+        """The manifest's recordings, by recording index."""
+        return tuple(sorted(self.manifest.recordings, key=lambda r: r.index))
+
+    @cached_property
     def recordings(self) -> tuple[RecordingArrays, ...]:
         """Frame arrays of each recording, by recording index (memory-mapped)."""
         opened = []
-        for entry in sorted(self.manifest["recordings"], key=lambda r: r["index"]):
-            folder = layout.recording_arrays_dir(self.root, entry["location"], entry["period"])
+        for entry in self.entries:
+            folder = layout.recording_arrays_dir(self.root, entry.location, entry.period)
             arrays = self._open_arrays(folder, ARRAY_NAMES)
-            opened.append(RecordingArrays(**arrays, first_track_id=entry["first_track_id"]))
+            opened.append(RecordingArrays(**arrays, first_track_id=entry.first_track_id))
         return tuple(opened)
 
     def samples(self, split: Split | str) -> pl.DataFrame:
@@ -58,8 +63,7 @@ class OpenBuild:
 
     def tracks(self) -> pl.LazyFrame:
         """The tracks tables of every recording, scanned lazily (TRACKS_SCHEMA)."""
-        entries = sorted(self.manifest["recordings"], key=lambda r: r["index"])
-        paths = [layout.tracks_path(self.root, r["location"], r["period"]) for r in entries]
+        paths = [layout.tracks_path(self.root, r.location, r.period) for r in self.entries]
         return pl.scan_parquet(paths)
 
     @cached_property
@@ -73,7 +77,7 @@ class OpenBuild:
         if split not in self._sample_arrays:
             folder = layout.sample_arrays_dir(self.root, split.value)
             arrays = self._open_arrays(folder, layout.SAMPLE_ARRAYS)
-            size = self.manifest["splits"][split.value]
+            size = self.manifest.splits[split.value]
             if any(len(a) != size for a in arrays.values()):
                 raise NgsimInputError(
                     folder,
@@ -110,8 +114,8 @@ class OpenBuild:
             raise NgsimInputError(
                 self.root, f"a sample names recording {recording}, which the build does not have"
             )
-        entry = sorted(self.manifest["recordings"], key=lambda r: r["index"])[recording]
-        folder = layout.recording_arrays_dir(self.root, entry["location"], entry["period"])
+        entry = self.entries[recording]
+        folder = layout.recording_arrays_dir(self.root, entry.location, entry.period)
         try:
             batch = induce_graphs(
                 self.recordings[recording],
@@ -147,19 +151,18 @@ def read_table(path: Path) -> pl.DataFrame:
 def open_build(root: Path) -> OpenBuild:
     """Open a finished build; a clear error for anything else (unfinished, other version, edited,
     damaged: see `integrity`)."""
-    manifest = layout.read_manifest(root)
+    manifest = layout.read_manifest(root)  # typed: of a form that `Manifest` reads
     path = layout.manifest_path(root)
     try:
-        config = BuildConfig.from_dict(manifest["config"])
-        for entry in manifest["recordings"]:
-            for name in (entry["location"], entry["period"]):
+        for entry in manifest.recordings:
+            for name in (entry.location, entry.period):
                 integrity.inside(root, name, path)  # a name of the build, never a path
-        integrity.check_sizes(root, manifest[integrity.FILES_KEY], path)
+        integrity.check_sizes(root, manifest.files, path)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         if isinstance(err, NgsimInputError):
             raise
         raise NgsimInputError(path, f"unreadable build manifest: {err!r}") from None
-    return OpenBuild(root=root, manifest=manifest, config=config)
+    return OpenBuild(root=root, manifest=manifest, config=manifest.config)
 
 
 @dataclass(frozen=True)
@@ -176,12 +179,7 @@ def verify_build(
 ) -> Verification:
     """Read every file of a build and compare it with the manifest's checksums (and the manifest
     with its own). Unlike `open_build`, which checks sizes and shapes only, this reads it all."""
-    manifest = layout.read_manifest(root)
-    records = manifest.get(integrity.FILES_KEY)
-    if not isinstance(records, dict):
-        raise NgsimInputError(
-            layout.manifest_path(root), "unreadable build manifest: no file records"
-        )
+    records = layout.read_manifest(root).files
     problems = integrity.verify_files(root, records, layout.manifest_path(root), progress)
     size = sum(record["bytes"] for record in records.values())
     return Verification(files=len(records), bytes=size, problems=tuple(problems))

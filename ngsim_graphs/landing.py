@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import json
 import os
 import re
 import shutil
@@ -27,6 +26,7 @@ from ngsim_graphs.layout import (
     SAMPLES_DIR,
     STAGING_DIR,
     TRACKS_DIR,
+    is_our_manifest,
     manifest_path,
     os_errno,
 )
@@ -70,15 +70,6 @@ def check_outside_inputs(out: Path, inputs: list[Path]) -> None:
         raise NgsimOutputError(
             out, f"--out {relation} the input {raw}; choose an --out outside the inputs"
         )
-
-
-def _is_ours(manifest: Path) -> bool:
-    """Whether `manifest` is one that a build of this project wrote (any format version)."""
-    try:
-        content = json.loads(manifest.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return False
-    return isinstance(content, dict) and {"format_version", "config_hash"} <= content.keys()
 
 
 def _is_build_entry(parts: tuple[str, ...], is_dir: bool) -> bool:
@@ -132,7 +123,7 @@ def _check_target(out: Path, overwrite: bool) -> None:
     if not out.is_dir() or not any(out.iterdir()):
         return
     manifest = manifest_path(out)
-    if manifest.is_file() and not _is_ours(manifest):
+    if manifest.is_file() and not is_our_manifest(manifest):
         raise NgsimOutputError(
             out,
             f"directory is not empty and is not a build: its {MANIFEST_NAME} is not one of "

@@ -1,5 +1,7 @@
 """The output directory: every path in it and the manifest (written last, read with checks).
 
+The manifest's values are `manifest.Manifest`; this module alone reads and writes its file.
+
 A build is written into a hidden sibling directory (`.NAME.partial-PID`) and renamed into place
 only when complete, with the manifest written last. A directory without a complete manifest is
 therefore never a finished build, and an interrupted build leaves nothing that looks finished.
@@ -22,6 +24,7 @@ import polars as pl
 
 from ngsim_graphs import integrity
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.manifest import Manifest
 
 FORMAT_VERSION = 2  # 2: the manifest lists every file with its checksum, and its own checksum
 MANIFEST_NAME = "manifest.json"
@@ -145,21 +148,54 @@ def write_staged(frame: pl.DataFrame, path: Path) -> None:
         frame.write_parquet(path, compression="lz4", statistics=False)
 
 
-def write_manifest(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
+def write_manifest(root: Path, manifest: Manifest) -> Manifest:
     """Write the manifest atomically, the last file of a build: with the records (size, sha256,
-    array dtype and shape) of every other file of the build and its own checksum. Returns it."""
+    array dtype and shape) of every other file of the build and its own checksum. Returns it so
+    sealed (what `read_manifest` gives back)."""
+    body = manifest.to_dict()
+    for key in (integrity.FILES_KEY, integrity.CHECKSUM_KEY):  # a sealed one is sealed anew
+        body.pop(key, None)
+    written = write_manifest_json(root, body)
+    return manifest.sealed(written[integrity.FILES_KEY], written[integrity.CHECKSUM_KEY])
+
+
+def write_manifest_json(root: Path, body: dict[str, Any]) -> dict[str, Any]:
+    """Write a manifest's JSON value (sorted keys, indented) with the file records and its
+    checksum added; returns what was written. `write_manifest` writes a build's; tests seal
+    hand-edited ones with it."""
     target = manifest_path(root)
     partial = target.with_suffix(".json.partial")
     records = integrity.file_records(root, skip=(STAGING_DIR, MANIFEST_NAME, partial.name))
-    written = integrity.with_checksum({**manifest, integrity.FILES_KEY: records})
+    written = integrity.with_checksum({**body, integrity.FILES_KEY: records})
     with writing(partial):
         partial.write_text(json.dumps(written, indent=2, sort_keys=True) + "\n")
     os.replace(partial, target)
     return written
 
 
-def read_manifest(root: Path) -> dict[str, Any]:
-    """The manifest of a finished build; a clear error for anything else."""
+def is_our_manifest(path: Path) -> bool:
+    """Whether the file `path` is a manifest that a build of this project wrote (any format
+    version): a JSON object with a format version and a config hash."""
+    try:
+        content = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(content, dict) and {"format_version", "config_hash"} <= content.keys()
+
+
+def read_manifest(root: Path) -> Manifest:
+    """The manifest of a finished build; a clear error for anything else: no build, not JSON,
+    another format version, edited or damaged (`integrity`), or of another form."""
+    manifest = _read_manifest_json(root)
+    try:
+        return Manifest.from_dict(manifest)
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise NgsimInputError(manifest_path(root), f"unreadable build manifest: {err!r}") from None
+
+
+def _read_manifest_json(root: Path) -> dict[str, Any]:
+    """The JSON value of a finished build's manifest, of this format version and checked
+    against its checksum and config hash."""
     path = manifest_path(root)
     if not root.exists():
         raise NgsimInputError(root, "no such build directory")

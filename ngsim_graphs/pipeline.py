@@ -12,11 +12,9 @@ every recording is kept until the end.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import polars as pl
@@ -26,8 +24,15 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, induce_graphs
-from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays, grid_nodes, proximity_pairs, recording_arrays
-from ngsim_graphs.scaling import FittedRanges, empty_ranges, update_ranges
+from ngsim_graphs.grid import (
+    ARRAY_NAMES,
+    RecordingArrays,
+    grid_nodes,
+    proximity_pairs,
+    recording_arrays,
+)
+from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, SourceLine
+from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import DropReason, Split
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import choose_source
@@ -45,7 +50,7 @@ class RecordingSamples:
     pairs: pl.DataFrame  # PROXIMITY_SCHEMA
     arrays: RecordingArrays
     windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
-    ranges: FittedRanges  # widened by this recording's train samples
+    scaler: MinMaxScaler  # widened by this recording's train samples
 
 
 def iter_graphs(rec: RecordingArrays, windows: pl.DataFrame, config: BuildConfig) -> Iterator[GraphBatch]:
@@ -68,7 +73,7 @@ def graph_counts(batch: GraphBatch) -> np.ndarray:
 
 
 def recording_samples(
-    tracks: pl.DataFrame, recording_index: int, config: BuildConfig, ranges: FittedRanges
+    tracks: pl.DataFrame, recording_index: int, config: BuildConfig, scaler: MinMaxScaler
 ) -> RecordingSamples:
     """Frame arrays, proximity edges and split ego windows of one recording's tracks table."""
     nodes = grid_nodes(tracks, config.time_step_s)
@@ -85,12 +90,12 @@ def recording_samples(
         if is_train.any():
             node_train = is_train[batch.node_sample]
             edge_train = node_train[batch.spatial_edges[0]]
-            ranges = update_ranges(ranges, batch.node_features[node_train], batch.spatial_distance[edge_train])
+            scaler = scaler.widened(batch.node_features[node_train], batch.spatial_distance[edge_train])
     table = np.concatenate(counts) if counts else np.zeros((0, len(s.COUNT_COLUMNS)), np.int64)
     windows = windows.with_columns(
         pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
-    return RecordingSamples(pairs=pairs, arrays=arrays, windows=windows, ranges=ranges)
+    return RecordingSamples(pairs=pairs, arrays=arrays, windows=windows, scaler=scaler)
 
 
 
@@ -106,7 +111,7 @@ class BuildResult:
     files: tuple[FileReport, ...]
     skipped_files: tuple[str, ...]
     recordings: tuple[RecordingReport, ...]
-    manifest: dict[str, Any]
+    manifest: Manifest
     warnings: tuple[str, ...] = ()  # also in the manifest: splits that are empty or tiny
 
 
@@ -153,13 +158,13 @@ def _stage_inputs(
 
 def _build_recording(
     source: Source, key: RecordingKey, index: int, staged: list[Path], config: BuildConfig,
-    root: Path, first_track_id: int, ranges: FittedRanges, files: list[FileReport], strict: bool,
-) -> tuple[RecordingOutput, FittedRanges]:  # fmt: skip
+    root: Path, first_track_id: int, scaler: MinMaxScaler, files: list[FileReport], strict: bool,
+) -> tuple[RecordingOutput, MinMaxScaler]:  # fmt: skip
     """Tracks, proximity edges, frame arrays and split windows of one recording, written."""
     raw = pl.read_parquet(staged)
     tracks, report = source.recording_tracks(raw, key, config, first_track_id, files, strict)
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
-    samples = recording_samples(tracks, index, config, ranges)
+    samples = recording_samples(tracks, index, config, scaler)
     layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
     arrays = samples.arrays
     layout.write_arrays(
@@ -173,7 +178,7 @@ def _build_recording(
     output = RecordingOutput(
         report, index, first_track_id, arrays.n_steps, longest, (ids[0], ids[1]), samples.pairs.height, windows
     )
-    return output, samples.ranges
+    return output, samples.scaler
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
@@ -233,59 +238,74 @@ def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
     return split_warnings(windows, top, config)
 
 
+def _recording_entry(
+    o: RecordingOutput, samples: dict[str, dict[str, int]], files: list[FileReport]
+) -> RecordingEntry:
+    """The manifest's entry of one recording; its first outlier by input path, not index."""
+    name = layout.recording_name(o.report.location, o.report.period)
+    first = o.report.first_outlier
+    return RecordingEntry(
+        report=replace(o.report, first_outlier=None),
+        index=o.index,
+        name=name,
+        first_track_id=o.first_track_id,
+        n_steps=o.n_steps,
+        proximity_edges=o.proximity_edges,
+        samples={split: samples[split].get(name, 0) for split in samples},
+        first_outlier=None if first is None else SourceLine(files[first[0]].path, first[1]),
+    )
+
+
+def _counts(
+    files: list[FileReport], outputs: list[RecordingOutput], samples: dict[str, dict[str, int]]
+) -> BuildCounts:
+    """The build's totals over its input files and recordings."""
+
+    def total(key: str) -> int:
+        return sum(getattr(o.report, key) for o in outputs)
+
+    dropped = {reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files) for reason in DropReason}
+    dropped[DropReason.POSITION_OUTLIER.value] = total("position_outliers")
+    return BuildCounts(
+        rows_read=sum(f.rows_read for f in files),
+        rows_other_locations=sum(f.rows_other_locations for f in files),
+        rows_missing_values=sum(f.rows_missing_values for f in files),
+        rows_dropped=dropped,
+        rows=total("rows"),
+        exact_duplicates=total("exact_duplicates"),
+        conflicting_duplicates=total("conflicting_duplicates"),
+        position_jumps=total("position_jumps"),
+        gaps=total("gaps"),
+        tracks=total("tracks"),
+        grid_rows=total("grid_rows"),
+        proximity_edges=sum(o.proximity_edges for o in outputs),
+        samples=sum(sum(per.values()) for per in samples.values()),
+    )
+
+
 def _manifest(
     dataset: str,
     config: BuildConfig,
     files: list[FileReport],
     outputs: list[RecordingOutput],
     samples: dict[str, dict[str, int]],
-    ranges: FittedRanges,
+    scaler: MinMaxScaler,
     warnings: list[str],
-) -> dict[str, Any]:
-    config_dict = config.to_dict()
-    reports = [o.report for o in outputs]
-    totals = {
-        key: sum(getattr(r, key) for r in reports)
-        for key in ("rows", "exact_duplicates", "conflicting_duplicates", "position_jumps", "gaps", "tracks", "grid_rows")
-    }
-    dropped = {reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files) for reason in DropReason}
-    dropped[DropReason.POSITION_OUTLIER.value] = sum(r.position_outliers for r in reports)
-    recordings = []
-    for o in outputs:
-        name = layout.recording_name(o.report.location, o.report.period)
-        first = o.report.first_outlier
-        fields = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in asdict(o.report).items()}
-        recordings.append({
-            **fields,
-            "first_outlier": None if first is None else {"file": files[first[0]].path, "line": first[1]},
-            "index": o.index,
-            "name": name,
-            "first_track_id": o.first_track_id,
-            "n_steps": o.n_steps,
-            "proximity_edges": o.proximity_edges,
-            "samples": {split: samples[split].get(name, 0) for split in samples},
-        })  # fmt: skip
-    return {
-        "format_version": layout.FORMAT_VERSION,
-        "software": {"ngsim_graphs": __version__, "polars": pl.__version__},
-        "dataset": dataset,
-        "config": config_dict,
-        "config_hash": layout.config_hash(config_dict),
-        "inputs": [asdict(f) for f in files],
-        "recordings": recordings,
-        "splits": {split: sum(per.values()) for split, per in samples.items()},
-        "scaler": ranges.to_dict(),
-        "warnings": warnings,
-        "counts": {
-            "rows_read": sum(f.rows_read for f in files),
-            "rows_other_locations": sum(f.rows_other_locations for f in files),
-            "rows_missing_values": sum(f.rows_missing_values for f in files),
-            "rows_dropped": dropped,
-            **totals,
-            "proximity_edges": sum(o.proximity_edges for o in outputs),
-            "samples": sum(sum(per.values()) for per in samples.values()),
-        },
-    }
+) -> Manifest:
+    """What the build is, to be written last (`layout.write_manifest` adds the file records)."""
+    return Manifest(
+        format_version=layout.FORMAT_VERSION,
+        software={"ngsim_graphs": __version__, "polars": pl.__version__},
+        dataset=dataset,
+        config=config,
+        config_hash=layout.config_hash(config.to_dict()),
+        inputs=tuple(files),
+        recordings=tuple(_recording_entry(o, samples, files) for o in outputs),
+        splits={split: sum(per.values()) for split, per in samples.items()},
+        scaler=scaler,
+        warnings=tuple(warnings),
+        counts=_counts(files, outputs, samples),
+    )
 
 
 def run_build(
@@ -309,11 +329,11 @@ def run_build(
     source, files, skipped = choose_source(raw_paths, dataset)
     with landing.build_directory(out_dir, overwrite) as root:
         file_reports, staged = _stage_inputs(source, files, config, root, report_progress, strict)
-        outputs, ranges, next_track_id = [], empty_ranges(), 0
+        outputs, scaler, next_track_id = [], MinMaxScaler.empty(), 0
         for index, key in enumerate(sorted(staged)):
             report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))
-            output, ranges = _build_recording(
-                source, key, index, staged[key], config, root, next_track_id, ranges, file_reports, strict
+            output, scaler = _build_recording(
+                source, key, index, staged[key], config, root, next_track_id, scaler, file_reports, strict
             )
             outputs.append(output)
             next_track_id += output.report.tracks
@@ -321,7 +341,7 @@ def run_build(
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)
         warnings = _warnings(outputs, config)
-        manifest = _manifest(source.name, config, file_reports, outputs, samples, ranges, warnings)
+        manifest = _manifest(source.name, config, file_reports, outputs, samples, scaler, warnings)
         manifest = layout.write_manifest(root, manifest)
     return BuildResult(
         out_dir=out_dir,

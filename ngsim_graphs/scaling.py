@@ -1,58 +1,121 @@
-"""MinMax scaling fitted on the train split only (SPEC section 3).
+"""MinMax scaling fitted on the train split only (SPEC section 3): one type, both directions.
 
 x, y and heading map to (-1, 1); speed and spatial-edge distance to (0, 1); the temporal-edge
-attribute (t_s) is not scaled. Stored values stay physical: the fitted ranges go into the
-manifest and the dataset applies them.
+attribute (t_s) is not scaled. Stored values stay physical: the build fits a `MinMaxScaler`
+(`widened` over every train graph), the manifest records its `to_dict`, and the dataset reads it
+back (`from_dict`) and applies it. `scale` and `unscale` are plain arithmetic with Python floats,
+so they take numpy arrays and torch tensors alike (a tensor keeps its dtype, device and graph).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import numpy as np
 
+SCALED = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")  # the quantities, in order
+FEATURES = SCALED[:4]  # node feature columns, in order
+TARGET_RANGES: Mapping[str, tuple[float, float]] = {
+    "x_m": (-1.0, 1.0), "y_m": (-1.0, 1.0), "heading_rad": (-1.0, 1.0), "speed_mps": (0.0, 1.0),
+    "distance_m": (0.0, 1.0),
+}  # fmt: skip
 
-FEATURES = ("x_m", "y_m", "heading_rad", "speed_mps")  # node feature columns, in order
-TARGET_RANGES = {"x_m": (-1.0, 1.0), "y_m": (-1.0, 1.0), "heading_rad": (-1.0, 1.0),
-                 "speed_mps": (0.0, 1.0), "distance_m": (0.0, 1.0)}  # fmt: skip
+Values = TypeVar("Values")  # np.ndarray or torch.Tensor (anything with float arithmetic)
+
+
+def _number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
 
 
 @dataclass(frozen=True)
-class FittedRanges:
-    """Observed minimum and maximum of each scaled quantity, in physical units."""
+class MinMaxScaler:
+    """Observed minimum and maximum of each quantity of SCALED (physical units: m, rad, m/s),
+    and the range each maps onto. `low` is inf and `high` -inf where nothing was observed (an
+    empty train split): such a scaler is not `is_fitted` and cannot be applied."""
 
-    low: dict[str, float]
-    high: dict[str, float]
+    low: Mapping[str, float]
+    high: Mapping[str, float]
+    target: Mapping[str, tuple[float, float]] = field(default_factory=lambda: dict(TARGET_RANGES))
+
+    @classmethod
+    def empty(cls) -> MinMaxScaler:
+        """Nothing observed yet: `widened` by each train graph in turn."""
+        return cls({n: math.inf for n in SCALED}, {n: -math.inf for n in SCALED})
+
+    def widened(self, node_features: np.ndarray, distances_m: np.ndarray) -> MinMaxScaler:
+        """Widened by (N, 4) node features (FEATURES order) and (E,) spatial-edge distances."""
+        low, high = dict(self.low), dict(self.high)
+        values = {name: node_features[:, i] for i, name in enumerate(FEATURES)}
+        values["distance_m"] = distances_m
+        for name, column in values.items():
+            if len(column):
+                low[name] = min(low[name], float(column.min()))
+                high[name] = max(high[name], float(column.max()))
+        return MinMaxScaler(low, high, self.target)
+
+    @property
+    def is_fitted(self) -> bool:
+        """Whether every quantity has a finite minimum, maximum and target range (it can be
+        applied)."""
+        bounds = [(self.low[n], self.high[n], *self.target[n]) for n in SCALED]
+        return all(math.isfinite(v) for values in bounds for v in values)
+
+    def scale(self, name: str, values: Values) -> Values:
+        """Physical values of quantity `name` (any shape) -> scaled: [min, max] maps linearly
+        onto its target range; a constant quantity maps to the target's low end (finite values)."""
+        low, (to_low, to_high) = self.low[name], self.target[name]
+        span = self.high[name] - low
+        unit = (values - low) / span if span > 0 else values * 0.0  # type: ignore[operator]
+        return to_low + unit * (to_high - to_low)  # type: ignore[return-value]
+
+    def unscale(self, name: str, values: Values) -> Values:
+        """Scaled values of quantity `name` (any shape) -> physical units; `scale`'s inverse (a
+        constant quantity comes back as its one value). Differentiable for tensors."""
+        (to_low, to_high), low = self.target[name], self.low[name]
+        span = (self.high[name] - low) / (to_high - to_low)
+        return (values - to_low) * span + low  # type: ignore[operator,return-value]
+
+    def scale_features(self, node_features: np.ndarray) -> np.ndarray:
+        """(N, 4) physical [x, y, heading, speed] -> (N, 4) scaled float32."""
+        columns = [self.scale(name, node_features[:, i]) for i, name in enumerate(FEATURES)]
+        return np.stack(columns, axis=1).astype(np.float32)
+
+    def scale_distance(self, distances_m: np.ndarray) -> np.ndarray:
+        """(E,) spatial-edge distances in metres -> (E,) scaled float32."""
+        return self.scale("distance_m", distances_m).astype(np.float32)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready: min and max are null when the train split is empty."""
-        finite = lambda v: v if math.isfinite(v) else None  # noqa: E731
+        """JSON-ready, as the manifest records it: {name: {"min", "max", "to"}} in SCALED order;
+        min and max are null where not finite (nothing observed)."""
         return {
-            name: {"min": finite(self.low[name]), "max": finite(self.high[name]), "to": list(TARGET_RANGES[name])}
-            for name in TARGET_RANGES
+            name: {"min": _finite(self.low[name]), "max": _finite(self.high[name]), "to": list(self.target[name])}
+            for name in SCALED
         }
 
-
-def empty_ranges() -> FittedRanges:
-    return FittedRanges({n: float("inf") for n in TARGET_RANGES}, {n: float("-inf") for n in TARGET_RANGES})
-
-
-def update_ranges(ranges: FittedRanges, node_features: np.ndarray, distances_m: np.ndarray) -> FittedRanges:
-    """Widen `ranges` by (N, 4) node features (FEATURES order) and (E,) spatial-edge distances."""
-    low, high = dict(ranges.low), dict(ranges.high)
-    values = {name: node_features[:, i] for i, name in enumerate(FEATURES)}
-    values["distance_m"] = distances_m
-    for name, column in values.items():
-        if len(column):
-            low[name] = min(low[name], float(column.min()))
-            high[name] = max(high[name], float(column.max()))
-    return FittedRanges(low, high)
-
-
-def scale(values: np.ndarray, fitted: dict[str, float], target: tuple[float, float]) -> np.ndarray:
-    """Map [min, max] of `fitted` linearly onto `target`; a constant quantity maps to its low end."""
-    span = fitted["max"] - fitted["min"]
-    unit = (values - fitted["min"]) / span if span > 0 else np.zeros_like(values)
-    return target[0] + unit * (target[1] - target[0])
+    @classmethod
+    def from_dict(cls, values: object) -> MinMaxScaler:
+        """`to_dict`'s form back (a null min or max: nothing observed); ValueError for any other
+        form: a quantity missing, a value that is not a number, a target that is not two."""
+        if not isinstance(values, Mapping):
+            raise ValueError("the scaler is not a mapping")
+        low, high, target = {}, {}, {}
+        for name in SCALED:
+            entry = values.get(name)
+            if not isinstance(entry, Mapping):
+                raise ValueError(f"the scaler has no {name}")
+            bounds, to = (entry.get("min"), entry.get("max")), entry.get("to")
+            if not all(v is None or _number(v) for v in bounds):
+                raise ValueError(f"the scaler's {name} min or max is not a number")
+            if not isinstance(to, list | tuple) or len(to) != 2 or not all(map(_number, to)):
+                raise ValueError(f"the scaler's {name} target range is not two numbers")
+            low[name] = math.inf if bounds[0] is None else bounds[0]
+            high[name] = -math.inf if bounds[1] is None else bounds[1]
+            target[name] = (to[0], to[1])
+        return cls(low, high, target)

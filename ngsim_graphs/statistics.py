@@ -20,6 +20,7 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.manifest import json_form
 from ngsim_graphs.splits import SPLIT_ORDER
 
 SPLITS = tuple(split.value for split in SPLIT_ORDER)  # train, val, test
@@ -133,7 +134,7 @@ def spatial_in_degree(build: OpenBuild, split: str, sample_ids: np.ndarray) -> n
 
 def read_kinematics(build: OpenBuild) -> dict[str, np.ndarray]:
     """Speed and heading of every tracks row, reading only those columns of the tracks files."""
-    if not build.manifest["recordings"]:
+    if not build.manifest.recordings:
         return {name: np.zeros(0) for name in KINEMATIC_COLUMNS}
     try:
         frame = build.tracks().select(KINEMATIC_COLUMNS).collect()
@@ -157,8 +158,11 @@ def collect_values(build: OpenBuild, max_degree_graphs: int = MAX_DEGREE_GRAPHS,
 
 
 def _recordings_table(build: OpenBuild) -> list[dict[str, Any]]:
-    keys = ("name", "location", "period", "vehicles", "tracks", "grid_rows", "samples")
-    return [{key: r[key] for key in keys} for r in sorted(build.manifest["recordings"], key=lambda r: r["index"])]
+    return [
+        {"name": r.name, "location": r.location, "period": r.period, "vehicles": r.report.vehicles,
+         "tracks": r.report.tracks, "grid_rows": r.report.grid_rows, "samples": dict(r.samples)}
+        for r in build.entries
+    ]  # fmt: skip
 
 
 def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
@@ -166,9 +170,9 @@ def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
     manifest, config = build.manifest, build.config
     return BuildStatistics(
         build_dir=str(build.root),
-        config=manifest["config"],
-        config_hash=manifest["config_hash"],
-        counts=manifest["counts"],
+        config=json_form(config.to_dict()),  # as the manifest holds them: keys sorted
+        config_hash=manifest.config_hash,
+        counts=json_form(manifest.counts.to_dict()),
         recordings=_recordings_table(build),
         samples={split: values.samples[split].height for split in SPLITS},
         graph_size={split: graph_size(values.samples[split]) for split in SPLITS},
@@ -182,8 +186,8 @@ def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
             s.SPEED_MPS: describe(values.speed_mps),
             s.HEADING_RAD: describe(values.heading_rad),
         },
-        scaler=manifest["scaler"],
-        warnings=list(manifest.get("warnings", [])),
+        scaler=json_form(manifest.scaler.to_dict()),
+        warnings=list(manifest.warnings),
     )
 
 

@@ -10,11 +10,11 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aigem.data import Collate, GraphDataset, Scaler
+from aigem.data import Collate, GraphDataset, xy_to_metres
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.layout import config_hash, write_manifest
-from ngsim_graphs.scaling import scale
+from ngsim_graphs.layout import config_hash, write_manifest_json
+from ngsim_graphs.scaling import MinMaxScaler
 
 
 def same(a: object, b: object) -> bool:
@@ -24,7 +24,7 @@ def same(a: object, b: object) -> bool:
 
 def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
-    assert len(dataset) == open_build(tiny_build).manifest["splits"]["train"] > 4
+    assert len(dataset) == open_build(tiny_build).manifest.splits["train"] > 4
     ids = [3, 0, 2]
     batch = Collate(dataset.scaler)(dataset.__getitems__(ids))
     one_by_one = Collate(dataset.scaler)([dataset[i] for i in ids])
@@ -33,7 +33,7 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     assert batch["graphs"] == 3 and "plan" not in batch
     graphs = open_build(tiny_build).graphs("train", np.array(ids))
     ranges = json.loads((tiny_build / "manifest.json").read_text())["scaler"]
-    expected_x = scale(graphs.node_features[:, 0], ranges["x_m"], (-1.0, 1.0))
+    expected_x = MinMaxScaler.from_dict(ranges).scale("x_m", graphs.node_features[:, 0])
     assert np.allclose(batch["x"][:, 0].numpy(), expected_x, atol=1e-6)
     assert batch["x"].dtype == torch.float32 and batch["spatial_attr"].shape == (
         graphs.spatial_edges.shape[1],
@@ -43,7 +43,7 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
         batch["temporal_attr"].max()
     ) == pytest.approx(0.2)
     assert torch.equal(batch["target_xy"], torch.from_numpy(graphs.target_xy.astype(np.float32)))
-    metres = dataset.scaler.xy_to_metres(batch["x"][:, :2].double())
+    metres = xy_to_metres(dataset.scaler, batch["x"][:, :2].double())
     assert np.allclose(metres.numpy(), graphs.node_features[:, :2], atol=1e-4)
 
 
@@ -77,12 +77,12 @@ def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> Non
 def test_a_given_scaler_replaces_the_builds(tiny_build: Path) -> None:
     """Evaluation on another build scales inputs as in training: with the run's scaler."""
     own = GraphDataset(tiny_build, "val")
-    ranges = json.loads(json.dumps(own.scaler.ranges))
+    ranges = json.loads(json.dumps(own.scaler.to_dict()))
     ranges["x_m"]["max"] = ranges["x_m"]["max"] + 10.0  # a wider x range: smaller scaled x
-    other = GraphDataset(tiny_build, "val", scaler=Scaler(ranges))
-    assert other.scaler.ranges["x_m"]["max"] == own.scaler.ranges["x_m"]["max"] + 10.0
+    other = GraphDataset(tiny_build, "val", scaler=MinMaxScaler.from_dict(ranges))
+    assert other.scaler.to_dict()["x_m"]["max"] == own.scaler.to_dict()["x_m"]["max"] + 10.0
     a, b = (Collate(d.scaler)(d.__getitems__([0, 1])) for d in (own, other))
-    expected = scale(own.__getitems__([0, 1])[0].node_features[:, 0], ranges["x_m"], (-1.0, 1.0))
+    expected = MinMaxScaler.from_dict(ranges).scale("x_m", own.__getitems__([0, 1])[0].node_features[:, 0])
     assert np.allclose(b["x"][:, 0].numpy(), expected, atol=1e-6)
     assert not torch.allclose(a["x"][:, 0], b["x"][:, 0])
     assert torch.equal(a["x"][:, 1:], b["x"][:, 1:])  # y, heading, speed as before
@@ -99,6 +99,6 @@ def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_pa
         GraphDataset(copy, "train")
     # A newer ngsim-graphs' setting, in a manifest sealed as that version would seal it.
     config = {**manifest["config"], "new_rule": 1}
-    write_manifest(copy, {**manifest, "config": config, "config_hash": config_hash(config)})
+    write_manifest_json(copy, {**manifest, "config": config, "config_hash": config_hash(config)})
     with pytest.raises(NgsimInputError, match="unknown build settings"):
         GraphDataset(copy, "train")

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from ngsim_cli.aigem import app
 from typer.testing import CliRunner
 
 from aigem import runs
@@ -17,9 +16,10 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
 from aigem.evaluation import evaluate, score
 from aigem.training import fit
-from ngsim_graphs.pipeline import run_build
+from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.layout import write_manifest
+from ngsim_graphs.layout import write_manifest_json
+from ngsim_graphs.pipeline import run_build
 
 TINY = {"d_sense_m": 12.0, "d_min_m": 6.0}  # the settings of aigem_fixtures' tiny build
 
@@ -87,7 +87,7 @@ def test_another_build_is_scaled_with_the_runs_scaler(
     manifest = json.loads((edited / "manifest.json").read_text())
     manifest["scaler"]["x_m"]["max"] += 5.0
     manifest["scaler"]["speed_mps"]["max"] *= 2.0
-    write_manifest(edited, manifest)  # sealed anew, as a build of other train data would be
+    write_manifest_json(edited, manifest)  # sealed anew, as a build of other train data would be
     code, _, err = _evaluate(str(trained_run), "--data", str(edited))
     assert code == 1 and "(same config, but its manifest.json differs from the run's build" in err
     own = evaluate(trained_run, None, "test", "cpu")
@@ -97,7 +97,7 @@ def test_another_build_is_scaled_with_the_runs_scaler(
     # The override matters: the edited build's own scaler gives other predictions.
     model, _ = runs.load_model(trained_run)
     dataset = GraphDataset(edited, "test", model.config.history_steps_read)
-    assert dataset.scaler.ranges == manifest["scaler"]
+    assert dataset.scaler.to_dict() == manifest["scaler"]
     totals, _ = score(model, dataset, own.horizon_steps, torch.device("cpu"))
     edited_ade = totals.error_m[0].sum() / totals.count[0].sum()
     assert totals.count[0, 4] == own.model["all"]["n_1s"]  # the same targets

@@ -15,14 +15,14 @@ from typing import Self
 
 import pytest
 import torch
-from ngsim_cli.aigem import app
 from typer.testing import CliRunner
 
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from aigem.training import fit
-from ngsim_graphs.layout import write_manifest
+from ngsim_cli.aigem import app
+from ngsim_graphs.layout import write_manifest_json
 
 FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
 FIT = ["--epochs", "1", "--batch-size", "8", "--horizon-s", "1.0", "--seed", "3", "--device", "cpu"]
@@ -246,7 +246,7 @@ def test_resume_refuses_another_build_and_accepts_an_identical_rebuild(
     edited = Path(shutil.copytree(tiny_build, tmp_path / "edited"))
     manifest = json.loads((edited / "manifest.json").read_text())
     manifest["scaler"]["x_m"]["max"] += 1.0  # same config hash, another manifest
-    write_manifest(edited, manifest)  # sealed anew, as a build of other train data would be
+    write_manifest_json(edited, manifest)  # sealed anew, as a build of other train data would be
     runner = CliRunner()
     refused = runner.invoke(app, ["fit", str(edited), "--out", str(run), "--resume", *_fit_args(2)])
     assert _one_error_line(refused, edited) == (

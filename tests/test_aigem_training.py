@@ -10,18 +10,18 @@ from pathlib import Path
 
 import pytest
 import torch
-from ngsim_cli.aigem import app
 from torch.utils.data import DataLoader
 from typer.testing import CliRunner
 
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset
+from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.model import AiGem
 from aigem.training import NonFiniteLossError, fit, masked_mse_m2
-from ngsim_graphs.pipeline import run_build
+from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.pipeline import run_build
 
 FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
 
@@ -45,7 +45,7 @@ def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:
 def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
     batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
-    truth = dataset.scaler.xy_to_metres(torch.zeros(1, 1, 2))  # scaled 0 -> some metres
+    truth = xy_to_metres(dataset.scaler, torch.zeros(1, 1, 2))  # scaled 0 -> some metres
     scaled = torch.zeros(len(batch["target_node"]), 3, 2)
     batch["target_xy"][:, :3] = truth
     assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
@@ -143,8 +143,13 @@ def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path:
     assert (run / runs.BEST).is_file()
 
 
-EMPTY_VAL = "the validation split (val) is empty: `aigem fit` keeps the best checkpoint and stops early by validation loss"  # fmt: skip
-EMPTY_TRAIN = "the train split (train) is empty: there is nothing to train on (and the scaler is fitted on it)"  # fmt: skip
+EMPTY_VAL = (
+    "the validation split (val) is empty: `aigem fit` keeps the best checkpoint and stops early "
+    "by validation loss"
+)
+EMPTY_TRAIN = (
+    "the train split (train) is empty: there is nothing to train on (and the scaler is fitted on it)"
+)
 
 
 @pytest.mark.parametrize(

@@ -18,11 +18,11 @@ from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_
 
 from ngsim_graphs import layout
 from ngsim_graphs import schema as s
-from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.synth.formats import write_synthetic
 
@@ -54,9 +54,9 @@ def all_graphs(build: OpenBuild, split: str) -> GraphBatch:
 def grid_tables(build: OpenBuild) -> dict[tuple[str, str], pl.DataFrame]:
     """Each recording's tracks Parquet as a grid-node table, keyed by (location, period)."""
     tables = {}
-    for entry in build.manifest["recordings"]:
-        tracks = pl.read_parquet(layout.tracks_path(build.root, entry["location"], entry["period"]))
-        tables[(entry["location"], entry["period"])] = tracks.select(
+    for entry in build.manifest.recordings:
+        tracks = pl.read_parquet(layout.tracks_path(build.root, entry.location, entry.period))
+        tables[(entry.location, entry.period)] = tracks.select(
             (pl.col(s.FRAME_ID) // build.config.frames_per_step).alias(s.STEP),
             s.TRACK_ID, s.VEHICLE_ID, s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS,
         )  # fmt: skip
@@ -133,17 +133,17 @@ def test_samples_table_ids_order_and_counts(built: OpenBuild, split: str) -> Non
     arrays = built.sample_arrays(split)
     assert np.array_equal(arrays["ego_track_id"], samples[s.EGO_TRACK_ID].to_numpy())
     assert np.array_equal(arrays["start_step"], samples[s.START_STEP].to_numpy())
-    names = [
-        (e["location"], e["period"])
-        for e in sorted(built.manifest["recordings"], key=lambda e: e["index"])
-    ]
+    names = [(e.location, e.period) for e in sorted(built.manifest.recordings, key=lambda e: e.index)]
     assert [names[i] for i in arrays["recording_index"]] == list(
         samples.select(s.LOCATION, s.PERIOD).iter_rows()
     )
-    assert built.manifest["splits"][split] == samples.height
+    assert built.manifest.splits[split] == samples.height
     # Counts equal those of the induced graphs, sample by sample.
     batch = all_graphs(built, split)
-    per = lambda nodes: np.bincount(batch.node_sample[nodes], minlength=samples.height)
+
+    def per(nodes: np.ndarray) -> np.ndarray:
+        return np.bincount(batch.node_sample[nodes], minlength=samples.height)
+
     full = batch.target_node[batch.target_mask.all(axis=1)]
     expected = np.stack(
         [np.diff(batch.node_ptr), per(batch.spatial_edges[0]), per(batch.temporal_edges[0]),
@@ -220,7 +220,7 @@ def test_open_build_without_manifest(tmp_path: Path) -> None:
 
 
 def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:
-    manifest = dict(built.manifest, format_version=99)
+    manifest = dict(built.manifest.to_dict(), format_version=99)
     (tmp_path / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
     with pytest.raises(NgsimInputError, match=r"format version 99; expected 2") as err:
         open_build(tmp_path)
@@ -230,8 +230,8 @@ def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) 
 def test_open_build_with_missing_arrays(built: OpenBuild, tmp_path: Path) -> None:
     copy = tmp_path / "copy"
     shutil.copytree(built.root, copy)
-    entry = built.manifest["recordings"][0]
-    (layout.recording_arrays_dir(copy, entry["location"], entry["period"]) / "pair_key.npy").unlink()
+    entry = built.manifest.recordings[0]
+    (layout.recording_arrays_dir(copy, entry.location, entry.period) / "pair_key.npy").unlink()
     with pytest.raises(NgsimInputError, match="pair_key.npy: missing: the build is incomplete"):
         open_build(copy).graphs("train", np.arange(3))
 

@@ -22,9 +22,9 @@ from polars.testing import assert_frame_equal
 
 from ngsim_graphs import layout
 from ngsim_graphs import schema as s
-from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.pipeline import run_build
 
 FT = 0.3048
 # Windows of 3 grid steps (2 of history, 1 of future): the tiny inputs here give samples, and a
@@ -83,8 +83,8 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     result = run_build([raw], out, SHORT)
 
     on_disk = json.loads((out / "manifest.json").read_text())
-    assert on_disk == json.loads(json.dumps(result.manifest))
-    assert layout.read_manifest(out) == on_disk
+    assert on_disk == json.loads(json.dumps(result.manifest.to_dict()))
+    assert layout.read_manifest(out).to_dict() == on_disk
     assert on_disk["format_version"] == layout.FORMAT_VERSION == 2
     assert on_disk["config"] == json.loads(json.dumps(SHORT.to_dict()))
     assert on_disk["config"]["locations"] == ["us-101", "i-80"]
@@ -136,7 +136,7 @@ def test_config_hash_changes_with_config(tmp_path: Path, portal_rows: list) -> N
     a = run_build([raw], tmp_path / "a", SHORT).manifest
     b = run_build([raw], tmp_path / "b", replace(SHORT, min_heading_speed_mps=1.0)).manifest
     c = run_build([raw], tmp_path / "c", SHORT).manifest
-    assert a["config_hash"] == c["config_hash"] != b["config_hash"]
+    assert a.config_hash == c.config_hash != b.config_hash
 
 
 def test_tracks_table(tmp_path: Path, portal_rows: list) -> None:
@@ -225,7 +225,7 @@ def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: l
     (killed / layout.TRACKS_DIR).mkdir(parents=True)
     (killed / layout.TRACKS_DIR / "half.parquet").write_bytes(b"PAR1")
     result = run_build([raw], out, SHORT)
-    assert result.manifest["counts"]["tracks"] == 3
+    assert result.manifest.counts.tracks == 3
     assert not killed.exists()
     assert hidden_siblings(out) == []
     assert [f for f in sorted(snapshot(out)) if not f.startswith("arrays/")] == [
@@ -276,7 +276,7 @@ def test_csv_and_txt_of_the_same_data_give_identical_tracks(
         assert result.files[0].raw_format == name
         assert_frame_equal(tracks(tmp_path / name), reference)
         assert parquet_bytes(tmp_path / name) == parquet_bytes(tmp_path / "csv")
-        assert result.manifest["counts"] == results["csv"].manifest["counts"]
+        assert result.manifest.counts == results["csv"].manifest.counts
 
 
 def test_one_recording_from_two_files(tmp_path: Path) -> None:

@@ -3,7 +3,9 @@ min/max over every train sample's graph (train only: not the ranges of all split
 
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Callable
 
 import numpy as np
 import polars as pl
@@ -12,26 +14,30 @@ from test_build import all_graphs, grid_tables, synthetic_build
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild, open_build
-from ngsim_graphs.scaling import TARGET_RANGES, empty_ranges, scale, update_ranges
+from ngsim_graphs.scaling import SCALED, TARGET_RANGES, MinMaxScaler
 
 NAMES = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")
 SPLITS = ("train", "val", "test")
 
 
+def one(low: float, high: float, target: tuple[float, float]) -> MinMaxScaler:
+    """A scaler of x_m alone: enough to scale and unscale x_m."""
+    return MinMaxScaler({"x_m": low}, {"x_m": high}, {"x_m": target})
+
+
 def test_scale_maps_the_fitted_range_onto_the_target() -> None:
     values = np.array([-10.0, 0.0, 30.0, 50.0])
-    fitted = {"min": -10.0, "max": 30.0}
-    assert scale(values, fitted, (-1.0, 1.0)).tolist() == [-1.0, -0.5, 1.0, 2.0]
-    assert scale(values, fitted, (0.0, 1.0)).tolist() == [0.0, 0.25, 1.0, 1.5]
-    assert scale(values, {"min": 4.0, "max": 4.0}, (-1.0, 1.0)).tolist() == [-1.0] * 4  # constant
+    assert one(-10.0, 30.0, (-1.0, 1.0)).scale("x_m", values).tolist() == [-1.0, -0.5, 1.0, 2.0]
+    assert one(-10.0, 30.0, (0.0, 1.0)).scale("x_m", values).tolist() == [0.0, 0.25, 1.0, 1.5]
+    assert one(4.0, 4.0, (-1.0, 1.0)).scale("x_m", values).tolist() == [-1.0] * 4  # constant
 
 
 def test_update_ranges_and_to_dict() -> None:
-    ranges = empty_ranges()
+    ranges = MinMaxScaler.empty()
     assert ranges.to_dict()["x_m"] == {"min": None, "max": None, "to": [-1.0, 1.0]}
     features = np.array([[1.0, -2.0, 0.1, 5.0], [-3.0, 4.0, -0.2, 0.0]])
-    ranges = update_ranges(ranges, features, np.array([7.5, 2.5]))
-    ranges = update_ranges(ranges, np.array([[0.0, 9.0, 0.0, 1.0]]), np.empty(0))
+    ranges = ranges.widened(features, np.array([7.5, 2.5]))
+    ranges = ranges.widened(np.array([[0.0, 9.0, 0.0, 1.0]]), np.empty(0))
     assert ranges.to_dict() == {
         "x_m": {"min": -3.0, "max": 1.0, "to": [-1.0, 1.0]},
         "y_m": {"min": -2.0, "max": 9.0, "to": [-1.0, 1.0]},
@@ -40,6 +46,64 @@ def test_update_ranges_and_to_dict() -> None:
         "distance_m": {"min": 2.5, "max": 7.5, "to": [0.0, 1.0]},
     }
     assert set(TARGET_RANGES) == set(NAMES)
+
+
+def fitted() -> MinMaxScaler:
+    """x -10..30 m, y 0..100 m, heading -0.5..0.5 rad, speed 0..20 m/s, distance 2..42 m."""
+    features = np.array([[-10.0, 0.0, -0.5, 0.0], [30.0, 100.0, 0.5, 20.0]])
+    return MinMaxScaler.empty().widened(features, np.array([2.0, 42.0]))
+
+
+def test_a_value_scaled_by_hand() -> None:
+    """x 20 m: (20 + 10) / 40 = 0.75 of its range -> -1 + 0.75 * 2 = 0.5; y 25 m: 0.25 -> -0.5;
+    heading 0.25 rad: 0.75 -> 0.5; speed 5 m/s: 5 / 20 = 0.25 (target 0..1); distance 12 m: 0.25."""
+    scaler = fitted()
+    assert scaler.scale_features(np.array([[20.0, 25.0, 0.25, 5.0]])).tolist() == [[0.5, -0.5, 0.5, 0.25]]
+    assert scaler.scale_distance(np.array([12.0])).tolist() == [0.25]
+    assert scaler.scale_features(np.zeros((1, 4))).dtype == np.float32
+
+
+def test_numpy_and_torch_agree_and_unscale_inverts_scale() -> None:
+    torch = pytest.importorskip("torch")
+    scaler = fitted()
+    values = np.random.default_rng(0).uniform(-50.0, 150.0, size=(6, 3))
+    for name in SCALED:
+        scaled = scaler.scale(name, values)
+        as_tensor = scaler.scale(name, torch.from_numpy(values))
+        assert isinstance(as_tensor, torch.Tensor) and np.array_equal(as_tensor.numpy(), scaled)
+        assert np.allclose(scaler.unscale(name, scaled), values, rtol=0, atol=1e-12)
+        back = scaler.unscale(name, torch.from_numpy(scaled))
+        assert np.array_equal(back.numpy(), scaler.unscale(name, scaled))
+    x = torch.zeros(3, dtype=torch.float64, requires_grad=True)
+    scaler.unscale("x_m", x).sum().backward()  # differentiable: metres per scaled unit
+    assert x.grad.tolist() == [20.0] * 3
+    constant = one(4.0, 4.0, (-1.0, 1.0))
+    assert constant.unscale("x_m", constant.scale("x_m", np.array([4.0]))).tolist() == [4.0]
+
+
+def test_to_dict_and_from_dict_round_trip() -> None:
+    for scaler in (fitted(), MinMaxScaler.empty()):
+        again = MinMaxScaler.from_dict(json.loads(json.dumps(scaler.to_dict())))
+        assert again == scaler and again.to_dict() == scaler.to_dict()
+    assert fitted().is_fitted and not MinMaxScaler.empty().is_fitted
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda d: d.pop("speed_mps"), "has no speed_mps"),
+        (lambda d: d["x_m"].update(max=True), "x_m min or max is not a number"),
+        (lambda d: d["y_m"].update(min="1"), "y_m min or max is not a number"),
+        (lambda d: d["distance_m"].update(to=[0.0]), "distance_m target range is not two numbers"),
+    ],
+)
+def test_from_dict_refuses_other_forms(edit: Callable[[dict], object], message: str) -> None:
+    values = fitted().to_dict()
+    edit(values)
+    with pytest.raises(ValueError, match=message):
+        MinMaxScaler.from_dict(values)
+    with pytest.raises(ValueError, match="not a mapping"):
+        MinMaxScaler.from_dict([1, 2])
 
 
 def pairs_within(table: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
@@ -128,7 +192,7 @@ def test_scaler_is_fitted_on_every_train_graph_and_only_those(built: OpenBuild) 
         n: (min(r[n][0] for r in per_split.values()), max(r[n][1] for r in per_split.values()))
         for n in NAMES
     }
-    scaler = built.manifest["scaler"]
+    scaler = built.manifest.scaler.to_dict()
     for name in NAMES:
         assert scaler[name]["to"] == list(TARGET_RANGES[name])
         fitted = (scaler[name]["min"], scaler[name]["max"])
@@ -146,7 +210,7 @@ def test_scaler_is_fitted_on_every_train_graph_and_only_those(built: OpenBuild) 
 def test_scaler_equals_min_max_of_the_induced_train_graphs(built: OpenBuild) -> None:
     batch = all_graphs(built, "train")
     columns = [*batch.node_features.T, batch.spatial_distance]
-    scaler = built.manifest["scaler"]
+    scaler = built.manifest.scaler.to_dict()
     for name, column in zip(NAMES, columns, strict=True):
         assert (scaler[name]["min"], scaler[name]["max"]) == (
             float(column.min()),

@@ -10,10 +10,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from ngsim_graphs.pipeline import run_build
 from ngsim_graphs import layout
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.plotting import PLOT_NAMES, write_histograms
 from ngsim_graphs.statistics import (
     SPLITS,
@@ -70,7 +70,7 @@ def test_samples_per_split_match_manifest_and_parquet(build: OpenBuild, computed
     statistics, _ = computed
     for split in SPLITS:
         rows = pl.scan_parquet(build.root / "samples" / f"{split}.parquet").select(pl.len()).collect().item()
-        assert statistics.samples[split] == build.manifest["splits"][split] == rows
+        assert statistics.samples[split] == build.manifest.splits[split] == rows
     [recording] = statistics.recordings
     assert recording["samples"] == {split: statistics.samples[split] for split in SPLITS}
     assert sum(statistics.samples.values()) == statistics.counts["samples"]
@@ -131,10 +131,10 @@ def test_full_future_share_equals_the_target_masks(build: OpenBuild, computed) -
 
 def test_kinematics_over_every_tracks_row(build: OpenBuild, computed) -> None:
     statistics, values = computed
-    entry = build.manifest["recordings"][0]
-    tracks = pl.read_parquet(layout.tracks_path(build.root, entry["location"], entry["period"]))
+    entry = build.manifest.recordings[0]
+    tracks = pl.read_parquet(layout.tracks_path(build.root, entry.location, entry.period))
     speed, heading = statistics.kinematics["speed_mps"], statistics.kinematics["heading_rad"]
-    assert speed.count == heading.count == tracks.height == build.manifest["counts"]["grid_rows"]
+    assert speed.count == heading.count == tracks.height == build.manifest.counts.grid_rows
     assert speed.mean == pytest.approx(tracks["speed_mps"].mean())
     assert heading.max == pytest.approx(tracks["heading_rad"].max())
     assert len(values.speed_mps) == tracks.height
@@ -144,10 +144,10 @@ def test_kinematics_over_every_tracks_row(build: OpenBuild, computed) -> None:
 
 def test_scaler_and_config_come_from_the_manifest(build: OpenBuild, computed) -> None:
     statistics, _ = computed
-    assert statistics.scaler == build.manifest["scaler"]
-    assert statistics.config == build.manifest["config"]
+    assert statistics.scaler == build.manifest.to_dict()["scaler"]
+    assert statistics.config == build.manifest.to_dict()["config"]
     assert BuildConfig.from_dict(statistics.config) == build.config == BuildConfig()
-    assert statistics.config_hash == build.manifest["config_hash"]
+    assert statistics.config_hash == build.manifest.config_hash
 
 
 def test_to_dict_is_plain_json(computed) -> None:
