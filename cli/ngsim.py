@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -14,12 +15,13 @@ from rich.table import Table
 
 from ngsim_cli.console import exit_on_error, print_error, print_table, progress_bar, stderr
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
-from ngsim_graphs.pipeline import BuildResult, run_build
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
+from ngsim_graphs.pipeline import BuildResult, run_build
 from ngsim_graphs.schema import DropReason, RawFormat, Split, SplitMode
+from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
+from ngsim_graphs.sources.registry import DISPLAY_NAMES
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 
 app = typer.Typer(
@@ -54,7 +56,9 @@ def synth(
         ),
     ],
     raw_format: Annotated[
-        RawFormat, typer.Option("--format", help="portal: one combined CSV; csv/txt: one file per period.")
+        RawFormat,
+        typer.Option("--format", help="portal: one combined CSV; csv/txt: one file per period; highd: highD's "
+                     "NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv per recording (metres, 25 Hz)."),
     ] = RawFormat.TXT,
     recordings: Annotated[int, typer.Option(help="How many of the six NGSIM periods (1-6).")] = 6,
     minutes: Annotated[float, typer.Option(help="Length of each recording, minutes.")] = 15.0,
@@ -83,7 +87,7 @@ def _summary_table(result: BuildResult) -> Table:
     table.add_column("period", no_wrap=True)
     for column in ("rows", "dups", "conflicts", "gaps", "tracks", "grid rows", *SPLIT_NAMES):
         table.add_column(column, justify="right")
-    samples = {(r["location"], r["period"]): r["samples"] for r in result.manifest["recordings"]}
+    samples = {(r.location, r.period): r.samples for r in result.manifest.recordings}
     for r in result.recordings:
         per_split = samples.get((r.location, r.period), {})
         table.add_row(
@@ -98,30 +102,42 @@ def _summary_table(result: BuildResult) -> Table:
 def _dropped_lines(result: BuildResult) -> list[str]:
     """One line per reason rows were dropped for, with the first place it happened."""
     lines = []
-    for reason, n in result.manifest["counts"]["rows_dropped"].items():
+    for reason, n in result.manifest.counts.rows_dropped.items():
         if not n:
             continue
         if reason == DropReason.POSITION_OUTLIER.value:
-            first = min(r["first_outlier"]["file"] + f", line {r['first_outlier']['line']}"
-                        for r in result.manifest["recordings"] if r["first_outlier"])  # fmt: skip
+            first = min(f"{r.first_outlier.file}, line {r.first_outlier.line}"
+                        for r in result.manifest.recordings if r.first_outlier)  # fmt: skip
         else:
             first = next(f"{f.path}, line {f.first_dropped_line[reason]}"
                          for f in result.files if reason in f.first_dropped_line)  # fmt: skip
         noun = "row" if n == 1 else "rows"
         lines.append(f"dropped {n:,} {noun}: {DESCRIPTIONS[DropReason(reason)]} (first: {first}).")
-    jumps = result.manifest["counts"]["position_jumps"]
+    jumps = result.manifest.counts.position_jumps
     if jumps:
-        limit = result.manifest["config"]["limits"]["max_jump_m"]
+        limit = result.manifest.config.limits.max_jump_m
         noun = "jump" if jumps == 1 else "jumps"
         lines.append(f"split tracks at {jumps:,} position {noun} of more than {limit:g} m between frames.")
     return lines
 
 
+class DatasetChoice(str, Enum):
+    """`build --dataset`: told from the files, or forced (`sources.registry.SOURCES`)."""
+
+    AUTO = "auto"
+    NGSIM = "ngsim"
+    HIGHD = "highd"
+
+
 @app.command()
 def build(
-    raw_paths: Annotated[list[Path], typer.Argument(help="NGSIM files, or folders to search for them.")],
+    raw_paths: Annotated[list[Path], typer.Argument(help="NGSIM or highD files, or folders to search for them.")],
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
-    locations: Annotated[str, typer.Option(help="Comma-separated locations to keep.")] = "us-101,i-80",
+    locations: Annotated[
+        str,
+        typer.Option(help="Comma-separated locations to keep: us-101, i-80, lankershim, peachtree (NGSIM); "
+                     "highd-N by locationId (highD keeps every location when none of its own is named)."),
+    ] = "us-101,i-80",
     stride_s: Annotated[
         float,
         typer.Option(help="Time between the starts of two windows of one ego track, s: a multiple of the "
@@ -157,8 +173,13 @@ def build(
         bool,
         typer.Option(help="Fail on the first implausible or stray row instead of dropping and counting it."),
     ] = False,
+    dataset: Annotated[
+        DatasetChoice,
+        typer.Option(help="Which dataset the inputs are: auto tells it from the files' content; inputs "
+                     "holding both NGSIM and highD files need ngsim or highd."),
+    ] = DatasetChoice.AUTO,
 ) -> None:
-    """Read raw NGSIM files (any of the three formats) and write the graph dataset.
+    """Read raw NGSIM files (any of the three formats) or highD recordings and write the graph dataset.
 
     Rows beyond the physical limits (speed, acceleration, position, frame range, a jump between
     frames) or whose Global_Time disagrees with their recording are dropped one by one, counted
@@ -178,14 +199,16 @@ def build(
         heading_smoothing_s=heading_smoothing_s,
     )
     with exit_on_error(), progress_bar() as progress:
-        result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress, strict=strict)
+        chosen = None if dataset is DatasetChoice.AUTO else dataset.value
+        result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress, strict=strict,
+                           dataset=chosen)  # fmt: skip
     for skipped in result.skipped_files:
-        stdout.print(f"skipped (not NGSIM): {skipped}")
+        stdout.print(f"skipped (not {DISPLAY_NAMES[result.manifest.dataset]}): {skipped}")
     print_table(_summary_table(result))
-    counts, splits = result.manifest["counts"], result.manifest["splits"]
+    counts, splits = result.manifest.counts, result.manifest.splits
     stdout.print(
-        f"{counts['rows_read']:,} rows read, {counts['rows_other_locations']:,} of other locations, "
-        f"{counts['rows_missing_values']:,} with empty required fields dropped."
+        f"{counts.rows_read:,} rows read, {counts.rows_other_locations:,} of other locations, "
+        f"{counts.rows_missing_values:,} with empty required fields dropped."
     )
     for line in _dropped_lines(result):
         stdout.print(line, markup=False, highlight=False, soft_wrap=True)
@@ -193,7 +216,7 @@ def build(
         stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
     stdout.print(
         "samples: " + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
-        + f" ({counts['samples']:,} in all)."
+        + f" ({counts.samples:,} in all)."
     )
 
 
@@ -298,7 +321,7 @@ def export(
     with exit_on_error():
         check_export_target(out, overwrite)  # before the work, not only after it
         opened = open_build(build_dir)
-        ids = _sample_ids(samples, int(opened.manifest["splits"][split.value]))
+        ids = _sample_ids(samples, int(opened.manifest.splits[split.value]))
         tables = graph_tables(opened.graphs(split.value, ids), ids)
         tables["samples"] = opened.samples(split.value).filter(pl.col("sample_id").is_in(ids.tolist()))
         paths = write_tables(tables, out, overwrite)

@@ -19,10 +19,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import GraphBatch
 
-NODE = "node"  # sample-local node index
-SOURCE, DESTINATION = "source", "destination"  # sample-local node indices
-FUTURE_STEP = "future_step"  # 0..K_F-1: 0.2 s .. 5 s after the present
-RECORDED = "recorded"
 EXPORT_TABLES = ("nodes", "spatial_edges", "temporal_edges", "targets", "samples")
 
 
@@ -34,35 +30,35 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
     sample_of_node = np.asarray(sample_ids)[batch.node_sample]
     local = np.arange(len(batch.node_sample)) - batch.node_ptr[batch.node_sample]
     nodes = pl.DataFrame({
-        s.SAMPLE_ID: sample_of_node, NODE: local, "k": batch.node_step, s.TRACK_ID: batch.node_track,
-        "is_ego": batch.node_is_ego, s.X_M: batch.node_features[:, 0], s.Y_M: batch.node_features[:, 1],
+        s.SAMPLE_ID: sample_of_node, s.NODE: local, s.K: batch.node_step, s.TRACK_ID: batch.node_track,
+        s.IS_EGO: batch.node_is_ego, s.X_M: batch.node_features[:, 0], s.Y_M: batch.node_features[:, 1],
         s.HEADING_RAD: batch.node_features[:, 2], s.SPEED_MPS: batch.node_features[:, 3],
     })  # fmt: skip
 
     def edges(pairs: np.ndarray) -> dict[str, np.ndarray]:
-        return {s.SAMPLE_ID: sample_of_node[pairs[0]], "k": batch.node_step[pairs[0]],
-                SOURCE: local[pairs[0]], DESTINATION: local[pairs[1]]}  # fmt: skip
+        return {s.SAMPLE_ID: sample_of_node[pairs[0]], s.K: batch.node_step[pairs[0]],
+                s.EDGE_SOURCE: local[pairs[0]], s.EDGE_DESTINATION: local[pairs[1]]}  # fmt: skip
 
     spatial = pl.DataFrame({**edges(batch.spatial_edges), s.DISTANCE_M: batch.spatial_distance})
     temporal = pl.DataFrame(edges(batch.temporal_edges)).with_columns(
-        pl.lit(batch.time_step_s).alias("dt_s")
+        pl.lit(batch.time_step_s).alias(s.DT_S)
     )
     n_targets, k_f = batch.target_mask.shape
     target = np.repeat(batch.target_node, k_f)
     targets = pl.DataFrame({
-        s.SAMPLE_ID: sample_of_node[target], NODE: local[target], s.TRACK_ID: batch.node_track[target],
-        FUTURE_STEP: np.tile(np.arange(k_f), n_targets), s.X_M: batch.target_xy[..., 0].reshape(-1),
-        s.Y_M: batch.target_xy[..., 1].reshape(-1), RECORDED: batch.target_mask.reshape(-1),
+        s.SAMPLE_ID: sample_of_node[target], s.NODE: local[target], s.TRACK_ID: batch.node_track[target],
+        s.FUTURE_STEP: np.tile(np.arange(k_f), n_targets), s.X_M: batch.target_xy[..., 0].reshape(-1),
+        s.Y_M: batch.target_xy[..., 1].reshape(-1), s.RECORDED: batch.target_mask.reshape(-1),
     })  # fmt: skip
-    order = [s.SAMPLE_ID, "k", SOURCE, DESTINATION]
+    order = [s.SAMPLE_ID, s.K, s.EDGE_SOURCE, s.EDGE_DESTINATION]
     return {
-        "nodes": nodes.sort(s.SAMPLE_ID, NODE),
+        "nodes": nodes.sort(s.SAMPLE_ID, s.NODE),
         "spatial_edges": spatial.sort(order),
         "temporal_edges": temporal.sort(order),
         "targets": targets.with_columns(
-            pl.when(pl.col(RECORDED)).then(pl.col(s.X_M)).alias(s.X_M),
-            pl.when(pl.col(RECORDED)).then(pl.col(s.Y_M)).alias(s.Y_M),
-        ).sort(s.SAMPLE_ID, NODE, FUTURE_STEP),
+            pl.when(pl.col(s.RECORDED)).then(pl.col(s.X_M)).alias(s.X_M),
+            pl.when(pl.col(s.RECORDED)).then(pl.col(s.Y_M)).alias(s.Y_M),
+        ).sort(s.SAMPLE_ID, s.NODE, s.FUTURE_STEP),
     }
 
 

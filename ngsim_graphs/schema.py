@@ -13,11 +13,13 @@ import polars as pl
 
 
 class RawFormat(str, Enum):
-    """The three file formats in which NGSIM trajectories are distributed (SPEC section 1)."""
+    """The file formats of raw trajectories: NGSIM's three (SPEC section 1), which the NGSIM
+    reader tells apart, and highD's (SPEC section 8), which only the highD source reads."""
 
     PORTAL = "portal"  # combined CSV of all locations, with a Location column
     CSV = "csv"  # one period, CSV with a header
     TXT = "txt"  # one period, whitespace-separated, no header
+    HIGHD = "highd"  # highD: NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv per recording
 
 
 class SplitMode(str, Enum):
@@ -217,6 +219,16 @@ SAMPLE_SCHEMA: Final = pl.Schema(
         ORIGIN_Y_M: pl.Float64,
     }
 )
+# The explicit graph tables of `ngsim-graphs export` (sample-local node indices).
+NODE: Final = "node"  # sample-local node index
+K: Final = "k"  # history step of a node, 1..K_H
+IS_EGO: Final = "is_ego"
+EDGE_SOURCE: Final = "source"  # sample-local node index an edge leaves
+EDGE_DESTINATION: Final = "destination"  # sample-local node index an edge enters
+DT_S: Final = "dt_s"  # a temporal edge's attribute, the time step
+FUTURE_STEP: Final = "future_step"  # 0..K_F-1: 0.2 s .. 5 s after the present
+RECORDED: Final = "recorded"  # whether the target vehicle is recorded at that future step
+
 SPLIT: Final = "split"  # the split of an ego window, while a build assigns them
 N_NODES: Final = "n_nodes"
 N_SPATIAL: Final = "n_spatial_edges"
@@ -224,3 +236,102 @@ N_TEMPORAL: Final = "n_temporal_edges"
 N_TARGETS: Final = "n_targets"
 N_FULL_TARGETS: Final = "n_targets_full_future"  # targets recorded at every future step
 COUNT_COLUMNS: Final[tuple[str, ...]] = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS, N_FULL_TARGETS)
+
+
+# ---------------------------------------------------------------------------------------------
+# highD raw columns (SPEC section 8), as highD's header spells them; readers match them
+# case-insensitively. Each recording NN is three CSV files: NN_tracks.csv (one row per vehicle
+# and 25 Hz frame), NN_tracksMeta.csv (one row per vehicle), NN_recordingMeta.csv (one row).
+# Units are highD's own: metres, m/s, m/s^2, image coordinates (x right, y down).
+
+
+class HighdFile(str, Enum):
+    """The three files of one highD recording: the name's suffix, `NN_<suffix>.csv`."""
+
+    TRACKS = "tracks"
+    TRACKS_META = "tracksMeta"
+    RECORDING_META = "recordingMeta"
+
+
+HIGHD_FRAME: Final = "frame"  # 25 Hz frame number, from 1
+HIGHD_ID: Final = "id"  # track id in tracks/tracksMeta (>= 1); recording id in recordingMeta
+HIGHD_X: Final = "x"  # upper-left corner of the bounding box, image x (right), m
+HIGHD_Y: Final = "y"  # upper-left corner of the bounding box, image y (down), m
+HIGHD_WIDTH: Final = "width"  # the bounding box along image x: the vehicle's length, m
+HIGHD_HEIGHT: Final = "height"  # the bounding box along image y: the vehicle's width, m
+HIGHD_X_VELOCITY: Final = "xVelocity"
+HIGHD_Y_VELOCITY: Final = "yVelocity"
+HIGHD_X_ACCELERATION: Final = "xAcceleration"
+HIGHD_Y_ACCELERATION: Final = "yAcceleration"
+HIGHD_DHW: Final = "dhw"  # distance headway, m; 0: no preceding vehicle
+HIGHD_THW: Final = "thw"  # time headway, s; 0: no preceding vehicle
+HIGHD_TTC: Final = "ttc"  # time to collision, s; 0: none
+HIGHD_PRECEDING_X_VELOCITY: Final = "precedingXVelocity"
+HIGHD_PRECEDING_ID: Final = "precedingId"  # 0: none
+HIGHD_FOLLOWING_ID: Final = "followingId"  # 0: none
+HIGHD_LANE_ID: Final = "laneId"  # numbered from the top of the image, edges and median included
+
+HIGHD_TRACKS_HEADER: Final[tuple[str, ...]] = (
+    HIGHD_FRAME, HIGHD_ID, HIGHD_X, HIGHD_Y, HIGHD_WIDTH, HIGHD_HEIGHT, HIGHD_X_VELOCITY,
+    HIGHD_Y_VELOCITY, HIGHD_X_ACCELERATION, HIGHD_Y_ACCELERATION, "frontSightDistance",
+    "backSightDistance", HIGHD_DHW, HIGHD_THW, HIGHD_TTC, HIGHD_PRECEDING_X_VELOCITY,
+    HIGHD_PRECEDING_ID, HIGHD_FOLLOWING_ID, "leftPrecedingId", "leftAlongsideId",
+    "leftFollowingId", "rightPrecedingId", "rightAlongsideId", "rightFollowingId", HIGHD_LANE_ID,
+)  # fmt: skip
+# The tracks columns the reader parses, with their dtypes; the rest of the header is not read.
+HIGHD_TRACKS_SCHEMA: Final = pl.Schema(
+    {
+        HIGHD_FRAME: pl.Int32,
+        HIGHD_ID: pl.Int32,
+        HIGHD_X: pl.Float64,
+        HIGHD_Y: pl.Float64,
+        HIGHD_WIDTH: pl.Float64,
+        HIGHD_HEIGHT: pl.Float64,
+        HIGHD_X_VELOCITY: pl.Float64,
+        HIGHD_Y_VELOCITY: pl.Float64,
+        HIGHD_X_ACCELERATION: pl.Float64,
+        HIGHD_Y_ACCELERATION: pl.Float64,
+        HIGHD_DHW: pl.Float64,
+        HIGHD_THW: pl.Float64,
+        HIGHD_PRECEDING_ID: pl.Int32,
+        HIGHD_FOLLOWING_ID: pl.Int32,
+        HIGHD_LANE_ID: pl.Int16,
+    }
+)
+# A tracks row with one of these empty is dropped and counted (rows_missing_values).
+HIGHD_REQUIRED_COLUMNS: Final[tuple[str, ...]] = (
+    HIGHD_FRAME, HIGHD_ID, HIGHD_X, HIGHD_Y, HIGHD_WIDTH, HIGHD_HEIGHT, HIGHD_X_VELOCITY,
+)  # fmt: skip
+
+HIGHD_CLASS: Final = "class"  # "Car" or "Truck"
+HIGHD_DRIVING_DIRECTION: Final = "drivingDirection"  # 1: upper lanes, towards -x; 2: lower, +x
+HIGHD_TRACKS_META_HEADER: Final[tuple[str, ...]] = (
+    HIGHD_ID, HIGHD_WIDTH, HIGHD_HEIGHT, "initialFrame", "finalFrame", "numFrames", HIGHD_CLASS,
+    HIGHD_DRIVING_DIRECTION, "traveledDistance", "minXVelocity", "maxXVelocity", "meanXVelocity",
+    "minDHW", "minTHW", "minTTC", "numLaneChanges",
+)  # fmt: skip
+HIGHD_TRACKS_META_SCHEMA: Final = pl.Schema(
+    {HIGHD_ID: pl.Int32, HIGHD_CLASS: pl.String, HIGHD_DRIVING_DIRECTION: pl.Int8}
+)
+# highD's vehicle classes as NGSIM's v_class codes (matched case-insensitively).
+HIGHD_CLASS_CODES: Final[dict[str, int]] = {"car": 2, "truck": 3}
+
+HIGHD_FRAME_RATE: Final = "frameRate"  # 25
+HIGHD_LOCATION_ID: Final = "locationId"
+HIGHD_UPPER_LANE_MARKINGS: Final = "upperLaneMarkings"  # image y of the markings, "a;b;c", m
+HIGHD_LOWER_LANE_MARKINGS: Final = "lowerLaneMarkings"
+HIGHD_RECORDING_META_HEADER: Final[tuple[str, ...]] = (
+    HIGHD_ID, HIGHD_FRAME_RATE, HIGHD_LOCATION_ID, "speedLimit", "month", "weekDay", "startTime",
+    "duration", "totalDrivenDistance", "totalDrivenTime", "numVehicles", "numCars", "numTrucks",
+    HIGHD_UPPER_LANE_MARKINGS, HIGHD_LOWER_LANE_MARKINGS,
+)  # fmt: skip
+HIGHD_RECORDING_META_SCHEMA: Final = pl.Schema(
+    {
+        HIGHD_ID: pl.Int32,
+        HIGHD_FRAME_RATE: pl.Int32,
+        HIGHD_LOCATION_ID: pl.Int32,
+        HIGHD_UPPER_LANE_MARKINGS: pl.String,
+        HIGHD_LOWER_LANE_MARKINGS: pl.String,
+    }
+)
+HIGHD_NO_NEIGHBOUR: Final = 0  # precedingId/followingId, dhw/thw/ttc: none

@@ -11,12 +11,12 @@ import polars as pl
 import pytest
 from polars.testing import assert_frame_equal
 
-from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
-from ngsim_graphs.sources.ngsim.tracks import build_tracks
 from ngsim_graphs.layout import tracks_path
-from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
+from ngsim_graphs.sources.ngsim.tracks import build_tracks
 from ngsim_graphs.synth.formats import simulated_rows, write_synthetic
 
 MINUTES = 0.5
@@ -26,7 +26,8 @@ RECORDINGS = 2  # us-101 0750am and i-80 0400: both locations
 def expected_tracks(quirks: bool) -> dict[tuple[str, str], pl.DataFrame]:
     config = SynthConfig(recordings=RECORDINGS, minutes=MINUTES, seed=5, quirks=quirks)
     tracks, first_id = {}, 0
-    for index, recording in sorted(enumerate(OFFICIAL_RECORDINGS[:RECORDINGS]), key=lambda p: (p[1].location, p[1].period)):
+    chosen = enumerate(OFFICIAL_RECORDINGS[:RECORDINGS])
+    for index, recording in sorted(chosen, key=lambda p: (p[1].location, p[1].period)):
         key = (recording.location, recording.period)
         table, report = build_tracks(simulated_rows(recording, index, config), key, BuildConfig(), first_id)
         tracks[key], first_id = table, first_id + report.tracks
@@ -39,7 +40,7 @@ def references() -> dict[bool, dict[tuple[str, str], pl.DataFrame]]:
 
 
 @pytest.mark.parametrize("quirks", [False, True])
-@pytest.mark.parametrize("raw_format", list(RawFormat))
+@pytest.mark.parametrize("raw_format", [f for f in RawFormat if f is not RawFormat.HIGHD])  # see test_synth_highd
 def test_every_format_reads_back_to_the_simulated_tracks(
     tmp_path: Path, raw_format: RawFormat, quirks: bool, references: dict
 ) -> None:
@@ -50,7 +51,7 @@ def test_every_format_reads_back_to_the_simulated_tracks(
     assert [(r.location, r.period) for r in result.recordings] == sorted(expected)
     for (location, period), table in expected.items():
         assert_frame_equal(pl.read_parquet(tracks_path(tmp_path / "out", location, period)), table)
-    counts = result.manifest["counts"]
+    counts = result.manifest.to_dict()["counts"]
     if quirks and raw_format is RawFormat.PORTAL:
         assert counts["exact_duplicates"] > 0 and counts["conflicting_duplicates"] > 0
         assert counts["rows_missing_values"] > 0 and counts["rows_other_locations"] > 0

@@ -25,6 +25,8 @@ from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.landing import some_names
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
+from ngsim_graphs.synth.highd import DECIMALS as HIGHD_DECIMALS
+from ngsim_graphs.synth.highd import highd_paths, highd_tables
 from ngsim_graphs.synth.traffic import simulate_recording
 
 PORTAL_FILE_NAME = "Next_Generation_Simulation__NGSIM__Vehicle_Trajectories_and_Supporting_Data.csv"
@@ -58,7 +60,8 @@ def write_synthetic(
 ) -> list[Path]:
     """Simulate the first `config.recordings` official recordings and write them under out_dir.
 
-    PORTAL: one combined CSV; CSV and TXT: `<location>/trajectories-<period>.<ext>` per recording.
+    PORTAL: one combined CSV; CSV and TXT: `<location>/trajectories-<period>.<ext>` per recording;
+    HIGHD: `NN_tracks.csv`, `NN_tracksMeta.csv`, `NN_recordingMeta.csv` per recording (`synth.highd`).
     `out_dir` must be new, empty, or synth's own (it carries MARKER_NAME, which lists the files
     synth wrote there): files synth did not write are never replaced, and files of an earlier
     run that this run does not write are removed, so that the folder holds one run's data. On
@@ -92,6 +95,8 @@ def synthetic_paths(out_dir: Path, config: SynthConfig) -> list[Path]:
     """The files that `write_synthetic` writes for `config`, in order."""
     if config.raw_format is schema.RawFormat.PORTAL:
         return [out_dir / PORTAL_FILE_NAME]
+    if config.raw_format is schema.RawFormat.HIGHD:
+        return highd_paths(out_dir, config.recordings)
     return [
         out_dir / recording.location / f"trajectories-{recording.period}.{config.raw_format.value}"
         for recording in OFFICIAL_RECORDINGS[: config.recordings]
@@ -133,10 +138,12 @@ def _marker_text(config: SynthConfig, names: list[str], complete: bool) -> str:
     """What the marker tells a person, and the list of files that makes them synth's."""
     status = "complete" if complete else "INCOMPLETE (being written, or the run failed)"
     quirks = "on" if config.quirks else "off"
+    highd = config.raw_format is schema.RawFormat.HIGHD
     return (
-        "# Synthetic data: NOT real NGSIM trajectories\n\n"
+        f"# Synthetic data: NOT real {'highD' if highd else 'NGSIM'} trajectories\n\n"
         "The files listed below were written by `ngsim-graphs synth`: simulated traffic in the\n"
-        "formats of the NGSIM US-101 / I-80 files, not measurements. `ngsim-graphs synth` replaces\n"
+        + ("format of the highD files" if highd else "formats of the NGSIM US-101 / I-80 files")
+        + ", not measurements. `ngsim-graphs synth` replaces\n"
         "files in this folder only while this file is here, and only the files it lists.\n\n"
         f"Status: {status}.\n"
         f"Settings: format {config.raw_format.value}, {config.recordings} recordings of "
@@ -179,6 +186,9 @@ def _write_files(
     if config.raw_format is schema.RawFormat.PORTAL:
         written.append(_write_portal(paths[0], recordings, config, report))
         return
+    if config.raw_format is schema.RawFormat.HIGHD:
+        _write_highd(paths, recordings, config, report, written)
+        return
     for index, (recording, path) in enumerate(zip(recordings, paths, strict=True)):
         rows = simulated_rows(recording, index, config)
         with _atomic_file(path) as handle:
@@ -188,6 +198,21 @@ def _write_files(
                 _write_txt(handle, rows, config.quirks)
         written.append(path)
         report(f"{recording.location} {recording.period}: {len(rows):,} rows -> {path}")
+
+
+def _write_highd(
+    paths: list[Path], recordings: tuple[Recording, ...], config: SynthConfig,
+    report: Callable[[str], None], written: list[Path],
+) -> None:  # fmt: skip
+    """Each recording's three highD files (in `paths` order: tracks, tracksMeta, recordingMeta)."""
+    for index, recording in enumerate(recordings):
+        rows = simulated_rows(recording, index, config)
+        tables = highd_tables(rows, recording, index, config.minutes)
+        for table, path in zip(tables.values(), paths[3 * index : 3 * index + 3], strict=True):
+            with _atomic_file(path) as handle:
+                table.write_csv(handle, float_precision=HIGHD_DECIMALS)
+            written.append(path)
+        report(f"{recording.location} {recording.period}: {len(rows):,} rows -> {paths[3 * index]}")
 
 
 def _remove_empty_folders(out_dir: Path, created: list[Path]) -> None:

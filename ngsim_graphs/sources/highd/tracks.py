@@ -1,0 +1,228 @@
+"""highD files to the tracks table (SPEC section 8): the highD `Source`.
+
+Per input file: a tracks file is parsed, its rows beyond the physical limits or with an empty
+required field are dropped and counted, and the rest are mapped to the road frame (`geometry`)
+with the help of the recording's two meta files and staged for the recording. The meta files are
+inputs in their own right (listed in the manifest with size and checksum); they give no rows,
+so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting ones
+resolved, each vehicle's record split at frame gaps, the 0.2 s grid kept by frame number
+(`frame % 5 == 0`), time from the 25 Hz frame number, tracks numbered and the heading derived.
+
+Not done for highD, whose trajectories come smoothed from its own tracker: NGSIM's position
+outlier and jump checks and its speed-column check (the reports' counts are 0 and NaN).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import polars as pl
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.integrity import file_sha256
+from ngsim_graphs.kinematics import add_heading
+from ngsim_graphs.schema import DropReason, HighdFile
+from ngsim_graphs.sources.contract import (
+    FileReport,
+    FileRows,
+    RecordingKey,
+    RecordingReport,
+    Source,
+)
+from ngsim_graphs.sources.highd.files import (
+    FIRST_LINE,
+    ROW,
+    RecordingMeta,
+    count_data_rows,
+    find_highd_files,
+    read_recording_meta,
+    read_tracks,
+    read_tracks_meta,
+)
+from ngsim_graphs.sources.highd.geometry import STAGED_SCHEMA, row_drop_reason, to_road_frame
+from ngsim_graphs.sources.highd.recordings import (
+    FRAME_PERIOD_MS,
+    FRAME_RATE_HZ,
+    chosen_locations,
+    frames_per_step,
+    location_name,
+    parse_file_name,
+    period_name,
+    sibling,
+)
+from ngsim_graphs.sources.ngsim.cleaning import split_at_gaps
+from ngsim_graphs.sources.ngsim.plausibility import check_dropped
+from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
+
+FILE_REASONS: tuple[DropReason, ...] = tuple(r for r in DropReason if r is not DropReason.POSITION_OUTLIER)
+# Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
+# by these columns (the smallest y_m, then x_m, ...): a rule of the values alone, never of the
+# order of the file.
+CONFLICT_ORDER: tuple[str, ...] = (
+    s.Y_M, s.X_M, *(c for c in STAGED_SCHEMA if c not in (s.VEHICLE_ID, s.FRAME_ID, s.Y_M, s.X_M)),
+)  # fmt: skip
+
+
+def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
+    """The kind of file `path` is (by name), its recording's meta and key."""
+    named = parse_file_name(path)
+    if named is None:
+        raise NgsimInputError(path, "not named like a highD file (NN_tracks.csv, NN_tracksMeta.csv, ...)")
+    prefix, kind = named
+    meta_path = sibling(path, prefix, HighdFile.RECORDING_META)
+    if not meta_path.is_file():
+        raise NgsimInputError(path, f"no {meta_path.name} beside it: a highD recording needs all three files")
+    meta = read_recording_meta(meta_path)
+    if meta.recording_id != int(prefix):
+        raise NgsimInputError(
+            meta_path, f"recording id {meta.recording_id}, but the file name says {prefix}", line=FIRST_LINE
+        )
+    return kind, meta, (location_name(meta.location_id), period_name(meta.recording_id))
+
+
+def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> FileReport:
+    """A file's report; `counts` fill in what reading its rows found (a meta file has none)."""
+    fields: dict[str, object] = {
+        "rows_read": 0, "rows_other_locations": 0, "rows_missing_values": 0, "first_missing_line": None,
+        "rows_dropped": {r.value: 0 for r in FILE_REASONS}, "first_dropped_line": {}, "rows_checked": 0,
+    }  # fmt: skip
+    fields.update(counts)
+    kind = parse_file_name(path)
+    return FileReport(
+        path=str(path),
+        raw_format=f"highd-{kind[1].value if kind else 'tracks'}",
+        size_bytes=path.stat().st_size,
+        sha256=file_sha256(path),
+        locations_found=(key[0],),
+        recordings=(f"{key[0]}/{key[1]}",) if chosen else (),
+        **fields,  # type: ignore[arg-type]
+    )
+
+
+def _staged_rows(
+    path: Path, meta: RecordingMeta, config: BuildConfig, file_index: int
+) -> tuple[pl.DataFrame, dict[str, object]]:
+    """The usable rows of a tracks file in the road frame, with provenance; and its report."""
+    raw = read_tracks(path)
+    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
+    checked = raw.with_columns(
+        pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
+        complete.alias("complete"),
+        (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
+    )
+    usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
+    prefix = parse_file_name(path)[0]  # type: ignore[index]
+    vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
+    joined = usable.join(vehicles, left_on=s.HIGHD_ID, right_on=s.VEHICLE_ID, how="left", maintain_order="left")
+    unknown = joined.filter(pl.col(s.HIGHD_DRIVING_DIRECTION).is_null())
+    if unknown.height:
+        raise NgsimInputError(
+            path, f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
+            line=int(unknown[s.SOURCE_LINE][0]),
+        )  # fmt: skip
+    rows = to_road_frame(joined.with_columns(pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE)), meta)
+    dropped = checked.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+    missing = checked.filter(~pl.col("complete"))
+    counts = {reason: n for reason, n, _ in dropped.iter_rows()}
+    report: dict[str, object] = {
+        "rows_read": raw.height,
+        "rows_missing_values": missing.height,
+        "first_missing_line": int(missing[s.SOURCE_LINE].min()) if missing.height else None,
+        "rows_dropped": {r.value: counts.get(r.value, 0) for r in FILE_REASONS},
+        "first_dropped_line": {r: first for r, _, first in sorted(dropped.iter_rows())},
+        "rows_checked": raw.height - missing.height,
+    }
+    return rows, report
+
+
+def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) -> FileRows:
+    """Read one highD file: a tracks file gives its recording's rows (STAGED_SCHEMA, with
+    RECORDING_INDEX and provenance); a meta file is checked and gives none."""
+    frames_per_step(config.time_step_s, path)  # a grid the 25 Hz frames cannot land on fails first
+    kind, meta, key = _recording(path)
+    allowed = chosen_locations(config.locations)
+    chosen = allowed is None or key[0] in allowed
+    empty = pl.DataFrame(schema={**STAGED_SCHEMA, s.RECORDING_INDEX: pl.Int32, **s.PROVENANCE_SCHEMA})
+    if kind is HighdFile.TRACKS_META:
+        read_tracks_meta(path)  # its recording's meta was read above
+    if kind is not HighdFile.TRACKS:
+        return FileRows(empty, {}, _report(path, key, chosen))
+    if not chosen:
+        n = count_data_rows(path)
+        return FileRows(empty, {}, _report(path, key, chosen, rows_read=n, rows_other_locations=n))
+    rows, counts = _staged_rows(path, meta, config, file_index)
+    report = _report(path, key, chosen, **counts)
+    check_dropped(
+        report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked, config.limits, strict
+    )
+    staged = rows.with_columns(pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX))
+    return FileRows(staged.select(empty.columns), {key: 0}, report)
+
+
+def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
+    """Drop exact duplicates, then keep one row per (vehicle, frame) by CONFLICT_ORDER.
+
+    Returns (rows sorted by vehicle and frame, exact duplicates dropped, conflicting duplicates
+    dropped). Provenance columns are not values: two rows alike but for their line are exact.
+    """
+    keys = [s.VEHICLE_ID, s.FRAME_ID]
+    repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
+    multi = frame.filter(repeated)
+    values = [c for c in frame.columns if c not in s.PROVENANCE_SCHEMA]
+    unique = multi.unique(subset=values, keep="first", maintain_order=True)
+    ordered = unique.sort([*keys, *CONFLICT_ORDER], nulls_last=True)
+    kept = ordered.unique(subset=keys, keep="first", maintain_order=True)
+    cleaned = pl.concat([frame.filter(~repeated), kept]).sort(keys)
+    return cleaned, multi.height - unique.height, unique.height - kept.height
+
+
+def build_tracks(
+    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
+) -> tuple[pl.DataFrame, RecordingReport]:
+    """The tracks table of recording `key` from its staged rows (any order, duplicates allowed).
+
+    Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
+    by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
+    (ms since the recording's frame 0; highD's frames start at 1).
+    """
+    unique, exact, conflicting = drop_duplicate_rows(raw)
+    segmented, gaps = split_at_gaps(unique)
+    location, period = key
+    on_grid = downsample_to_grid(segmented, frames_per_step(config.time_step_s, Path(f"{location}/{period}")))
+    grid = on_grid.with_columns(
+        pl.lit(location).alias(s.LOCATION),
+        pl.lit(period).alias(s.PERIOD),
+        (pl.col(s.FRAME_ID) / FRAME_RATE_HZ).alias(s.TIME_S),
+        (pl.col(s.FRAME_ID).cast(pl.Int64) * FRAME_PERIOD_MS).alias(s.GLOBAL_TIME),
+    )
+    track_index = pl.struct(s.VEHICLE_ID, s.SEGMENT).rle_id().cast(pl.Int32)
+    numbered = grid.with_columns((track_index + first_track_id).alias(s.TRACK_ID))
+    tracks = add_heading(numbered, config.smoothing_window_steps, config.min_heading_speed_mps)
+    tracks = tracks.select(s.TRACKS_SCHEMA.names()).cast(dict(s.TRACKS_SCHEMA))
+    report = RecordingReport(
+        location=location,
+        period=period,
+        rows=raw.height,
+        exact_duplicates=exact,
+        conflicting_duplicates=conflicting,
+        position_outliers=0,
+        position_jumps=0,
+        gaps=gaps,
+        vehicles=unique[s.VEHICLE_ID].n_unique(),
+        tracks=tracks[s.TRACK_ID].n_unique(),
+        grid_rows=tracks.height,
+    )
+    return tracks, report
+
+
+def recording_tracks(
+    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int,
+    files: list[FileReport], strict: bool,
+) -> tuple[pl.DataFrame, RecordingReport]:  # fmt: skip
+    """build_tracks: the file checks (read_file) are all highD's rows go through."""
+    return build_tracks(raw, key, config, first_track_id)
+
+
+SOURCE = Source(name="highd", find_files=find_highd_files, read_file=read_file, recording_tracks=recording_tracks)

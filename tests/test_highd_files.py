@@ -1,0 +1,137 @@
+"""highD files: telling the three kinds apart, finding a recording's files, one-line errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from highd_fixtures import csv_text, track_rows, two_directions, write_recording
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.schema import HighdFile
+from ngsim_graphs.sources.highd.files import (
+    find_highd_files,
+    read_recording_meta,
+    read_tracks,
+    read_tracks_meta,
+    sniff_highd,
+)
+
+
+def test_the_header_tells_the_three_files_apart(tmp_path: Path) -> None:
+    tracks = two_directions(tmp_path)
+    assert sniff_highd(tracks) is HighdFile.TRACKS
+    assert sniff_highd(tmp_path / "01_tracksMeta.csv") is HighdFile.TRACKS_META
+    assert sniff_highd(tmp_path / "01_recordingMeta.csv") is HighdFile.RECORDING_META
+    ngsim = tmp_path / "trajectories-0400-0415.txt"
+    ngsim.write_text("1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18\n")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    assert sniff_highd(ngsim) is None and sniff_highd(empty) is None
+
+
+def test_a_folder_gives_each_recording_s_three_files_and_skips_the_rest(tmp_path: Path) -> None:
+    two_directions(tmp_path / "data", number=1)
+    two_directions(tmp_path / "data", number=2)
+    (tmp_path / "data" / "README.txt").write_text("highD sample\n")
+    orphan = tmp_path / "data" / "03_recordingMeta.csv"
+    orphan.write_text((tmp_path / "data" / "01_recordingMeta.csv").read_text())
+    files, skipped = find_highd_files([tmp_path])
+    names = [p.name for p in files]
+    assert names == ["01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv",
+                     "02_tracks.csv", "02_tracksMeta.csv", "02_recordingMeta.csv"]  # fmt: skip
+    assert sorted(p.name for p in skipped) == ["03_recordingMeta.csv", "README.txt"]
+
+
+def test_a_named_file_brings_its_recording(tmp_path: Path) -> None:
+    two_directions(tmp_path)
+    files, _ = find_highd_files([tmp_path / "01_tracksMeta.csv"])
+    assert [p.name for p in files] == ["01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv"]
+
+
+def test_a_missing_meta_file_is_an_error_naming_it(tmp_path: Path) -> None:
+    tracks = two_directions(tmp_path)
+    (tmp_path / "01_tracksMeta.csv").unlink()
+    with pytest.raises(NgsimInputError, match=r"01_tracks\.csv: no 01_tracksMeta\.csv beside it"):
+        find_highd_files([tmp_path])
+    with pytest.raises(NgsimInputError, match="no 01_tracksMeta.csv beside it"):
+        find_highd_files([tracks])
+
+
+def test_a_tracks_file_needs_its_recording_number_in_its_name(tmp_path: Path) -> None:
+    tracks = two_directions(tmp_path)
+    renamed = tracks.rename(tmp_path / "tracks.csv")
+    with pytest.raises(NgsimInputError, match=r"must be named NN_tracks\.csv"):
+        find_highd_files([renamed])
+
+
+def test_a_missing_column_is_named_with_a_hint(tmp_path: Path) -> None:
+    header = tuple("xVelocty" if c == s.HIGHD_X_VELOCITY else c for c in s.HIGHD_TRACKS_HEADER)
+    path = tmp_path / "01_tracks.csv"
+    path.write_text(csv_text(header, [{s.HIGHD_FRAME: 1, s.HIGHD_ID: 1}]))
+    with pytest.raises(NgsimInputError, match=r"line 1: missing column xVelocity \(found 'xVelocty': misspelled\?\)"):
+        read_tracks(path)
+
+
+def test_a_bad_number_names_the_file_the_line_and_the_column(tmp_path: Path) -> None:
+    rows = track_rows(1, range(1, 6), x0=100.0, y=19.0, x_velocity=25.0)
+    rows[3][s.HIGHD_X] = "10O.5"  # a letter O: line 5 (the header is line 1)
+    path = tmp_path / "01_tracks.csv"
+    path.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
+    with pytest.raises(NgsimInputError, match=r"01_tracks\.csv, line 5: column x: '10O\.5' is not a number"):
+        read_tracks(path)
+    rows[3][s.HIGHD_X] = 100.0
+    rows[1][s.HIGHD_FRAME] = 2.5
+    path.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
+    with pytest.raises(NgsimInputError, match=r"line 3: column frame: '2\.5' is not a whole number"):
+        read_tracks(path)
+
+
+def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> None:
+    path = tmp_path / "01_tracks.csv"
+    path.write_text("")
+    with pytest.raises(NgsimInputError, match="empty file"):
+        read_tracks(path)
+    path.write_text(",".join(s.HIGHD_TRACKS_HEADER) + "\n")
+    with pytest.raises(NgsimInputError, match="no data rows"):
+        read_tracks(path)
+    text = csv_text(s.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0))
+    path.write_text(text[: text.rindex(",", 0, len(text) - 12)])  # the last line cut short
+    with pytest.raises(NgsimInputError, match=r"line 4: \d+ fields where the header has 25 \(truncated line\?\)"):
+        read_tracks(path)
+
+
+def test_recording_meta_gives_id_location_and_markings(tmp_path: Path) -> None:
+    two_directions(tmp_path, number=7, location_id=3)
+    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv")
+    assert (meta.recording_id, meta.location_id) == (7, 3)
+    assert meta.upper_markings_m == (8.0, 11.5, 15.0) and meta.lower_markings_m == (18.0, 21.5, 25.0)
+
+
+def test_recording_meta_must_be_25_hz_with_increasing_markings(tmp_path: Path) -> None:
+    rows = track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
+    write_recording(tmp_path, rows, {1: ("Car", 2)}, frame_rate=30)
+    with pytest.raises(NgsimInputError, match=r"line 2: frameRate 30: highD recordings run at 25 Hz"):
+        read_recording_meta(tmp_path / "01_recordingMeta.csv")
+    path = tmp_path / "01_recordingMeta.csv"
+    path.write_text(path.read_text().replace("30", "25").replace("8.0;11.5;15.0", "8.0;x;15.0"))
+    with pytest.raises(NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0' is not a list"):
+        read_recording_meta(path)
+
+
+@pytest.mark.parametrize(
+    ("vehicle", "message"),
+    [(("Bus", 2), "a class other than Car or Truck"), (("Car", 3), "a drivingDirection other than 1 or 2")],
+)
+def test_tracks_meta_errors_name_the_line(tmp_path: Path, vehicle: tuple[str, int], message: str) -> None:
+    rows = track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
+    write_recording(tmp_path, rows, {1: ("Car", 2), 2: vehicle})
+    with pytest.raises(NgsimInputError, match=rf"01_tracksMeta\.csv, line 3: holds {message}"):
+        read_tracks_meta(tmp_path / "01_tracksMeta.csv")
+
+
+def test_tracks_meta_maps_classes_to_ngsim_codes(tmp_path: Path) -> None:
+    two_directions(tmp_path)
+    meta = read_tracks_meta(tmp_path / "01_tracksMeta.csv")
+    assert meta.rows() == [(1, 2, 2), (2, 3, 1)]  # (id, v_class, drivingDirection)
