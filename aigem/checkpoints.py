@@ -58,8 +58,10 @@ def run_info(build_dir: Path, model_config: ModelConfig, train: TrainConfig) -> 
 def identity_difference(run: dict[str, Any], identity: dict[str, str]) -> str | None:
     """How a build's identity differs from the one a run recorded (None: the same build)."""
     if identity["build_config_hash"] != run["build_config_hash"]:
-        return (f"its config hash {identity['build_config_hash'][:12]} is not the run's "
-                f"{run['build_config_hash'][:12]}")  # fmt: skip
+        return (
+            f"its config hash {identity['build_config_hash'][:12]} is not the run's "
+            f"{run['build_config_hash'][:12]}"
+        )
     if identity["build_manifest_sha256"] != run["build_manifest_sha256"]:
         return "same config, but its manifest.json differs from the run's build (other inputs, or edited)"
     return None
@@ -125,8 +127,11 @@ def load_checkpoint(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
         # UnpicklingError, UnicodeDecodeError, KeyError, ValueError, ... (found by fuzzing)
         blocked = re.search(r"GLOBAL (\S+)", str(err))
         if blocked:
-            raise NgsimInputError(path, f"refused: loading it would call {blocked.group(1)}; a checkpoint "
-                                  "holds tensors and plain data only (nothing in it was run)") from None  # fmt: skip
+            raise NgsimInputError(
+                path,
+                f"refused: loading it would call {blocked.group(1)}; a checkpoint "
+                "holds tensors and plain data only (nothing in it was run)",
+            ) from None
         raise NgsimInputError(
             path,
             f"unreadable checkpoint: truncated, damaged or not a torch file ({type(err).__name__})",
@@ -152,9 +157,15 @@ def check_weights(expected: dict[str, torch.Tensor], weights: object, path: Path
     unexpected = [k for k in weights if k not in expected]
     reshaped = [k for k in expected if k in weights and weights[k].shape != expected[k].shape]
     if missing or unexpected or reshaped:
-        parts = [f"{label} {names[:2]}{'...' if len(names) > 2 else ''}"
-                 for label, names in (("missing", missing), ("unexpected", unexpected), ("other shape", reshaped))
-                 if names]  # fmt: skip
+        parts = [
+            f"{label} {names[:2]}{'...' if len(names) > 2 else ''}"
+            for label, names in (
+                ("missing", missing),
+                ("unexpected", unexpected),
+                ("other shape", reshaped),
+            )
+            if names
+        ]
         raise NgsimInputError(path, f"its weights do not fit its model config: {'; '.join(parts)}")
 
 

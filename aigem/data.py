@@ -35,8 +35,9 @@ def run_scaler(values: object, path: Path) -> MinMaxScaler:
     except ValueError:
         scaler = None
     if scaler is None or not scaler.is_fitted:
-        raise NgsimInputError(path, "records no complete scaler (min, max and target range of "
-                              f"{', '.join(SCALED)})")  # fmt: skip
+        raise NgsimInputError(
+            path, f"records no complete scaler (min, max and target range of {', '.join(SCALED)})"
+        )
     return scaler
 
 

@@ -123,25 +123,38 @@ def check_build(
     _, identity = build_identity(build_dir)
     why = identity_difference(info, identity)
     if why and not other_build:
-        raise NgsimInputError(build_dir, f"not the build that run {run_dir} was trained on ({why}); "
-                              "pass --other-build to evaluate on another build")  # fmt: skip
+        raise NgsimInputError(
+            build_dir,
+            f"not the build that run {run_dir} was trained on ({why}); "
+            "pass --other-build to evaluate on another build",
+        )
     config = open_build(build_dir).config
     time_step_s = float(info["build_config"].get("time_step_s", math.nan))
     if not math.isclose(config.time_step_s, time_step_s):
-        raise NgsimInputError(build_dir, f"its time step is {config.time_step_s} s; the run was "
-                              f"trained on {time_step_s} s steps")  # fmt: skip
+        raise NgsimInputError(
+            build_dir,
+            f"its time step is {config.time_step_s} s; the run was "
+            f"trained on {time_step_s} s steps",
+        )
     steps = round(info["train"]["horizon_s"] / time_step_s)
     if config.history_steps < model.history_steps_read or config.future_steps < steps:
-        raise NgsimInputError(build_dir, f"its graphs have {config.history_steps} history and "
-                              f"{config.future_steps} future steps; the run's model reads "
-                              f"{model.history_steps_read} and predicts {steps}")  # fmt: skip
+        raise NgsimInputError(
+            build_dir,
+            f"its graphs have {config.history_steps} history and "
+            f"{config.future_steps} future steps; the run's model reads "
+            f"{model.history_steps_read} and predicts {steps}",
+        )
     return why is None
 
 
 def score(
-    model: AiGem, dataset: GraphDataset, steps: int, device: torch.device, batch_size: int = 64,
+    model: AiGem,
+    dataset: GraphDataset,
+    steps: int,
+    device: torch.device,
+    batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[ErrorTotals, ErrorTotals]:  # fmt: skip
+) -> tuple[ErrorTotals, ErrorTotals]:
     """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
     `steps` future steps; inputs scaled with `dataset.scaler`."""
     collate = Collate(dataset.scaler, layers=model.config.layers)
@@ -193,8 +206,11 @@ def evaluate(
     try:
         ours, baseline = score(model, dataset, steps, device, batch_size, progress)
     except NonFinitePredictionError as err:
-        raise NgsimInputError(run_dir / BEST, f"the model's predictions on {build_dir} ({Split(split).value} "
-                              f"split, {err}) are not finite (NaN or infinite); no metrics") from None  # fmt: skip
+        raise NgsimInputError(
+            run_dir / BEST,
+            f"the model's predictions on {build_dir} ({Split(split).value} "
+            f"split, {err}) are not finite (NaN or infinite); no metrics",
+        ) from None
     return Evaluation(
         split=Split(split).value,
         horizon_steps=steps,
@@ -216,12 +232,18 @@ def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str,
     def first(key: str) -> str:
         return next(name for name, result in members.items() if key in result.model["all"])
 
-    sources = {key: longest if key in ("ade_m", "fde_m") else first(key)
-               for key in members[longest].model["all"]}  # fmt: skip
+    sources = {
+        key: longest if key in ("ade_m", "fde_m") else first(key)
+        for key in members[longest].model["all"]
+    }
 
     def rows(kind: str) -> Rows:  # kind: "model" or "constant_velocity"
-        return {region: {key: getattr(members[source], kind)[region][key] for key, source in sources.items()}
-                for region in members[longest].model}  # fmt: skip
+        return {
+            region: {
+                key: getattr(members[source], kind)[region][key] for key, source in sources.items()
+            }
+            for region in members[longest].model
+        }
 
     return rows("model"), rows("constant_velocity"), sources
 
@@ -242,17 +264,30 @@ def evaluate_horizons(
         raise NgsimInputError(run_dir, "not a multi-horizon run: no horizons.json")
     members = {
         member_dir(run_dir, h).name: evaluate(
-            member_dir(run_dir, h), build_dir, split, device_choice, batch_size, progress, other_build
+            member_dir(run_dir, h),
+            build_dir,
+            split,
+            device_choice,
+            batch_size,
+            progress,
+            other_build,
         )
         for h in horizons_s
-    }  # fmt: skip
+    }
     model, baseline, sources = protocol_rows(members)
     longest = members[sources["ade_m"]]
     return HorizonsEvaluation(
-        split=longest.split, horizons_s=horizons_s, samples=longest.samples,
-        parameters=longest.parameters, model=model, constant_velocity=baseline, sources=sources,
-        members=members, build_dir=longest.build_dir, same_build=longest.same_build,
-    )  # fmt: skip
+        split=longest.split,
+        horizons_s=horizons_s,
+        samples=longest.samples,
+        parameters=longest.parameters,
+        model=model,
+        constant_velocity=baseline,
+        sources=sources,
+        members=members,
+        build_dir=longest.build_dir,
+        same_build=longest.same_build,
+    )
 
 
 def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:

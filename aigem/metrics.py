@@ -38,7 +38,9 @@ class ErrorTotals:
         self.error_m, self.squared_m2 = np.zeros(shape), np.zeros(shape)
         self.count = np.zeros(shape, dtype=np.int64)
 
-    def add(self, predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray, present_y_m: np.ndarray) -> None:
+    def add(
+        self, predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray, present_y_m: np.ndarray
+    ) -> None:
         """Add (A, K, 2) predictions and truths with their (A, K) mask; positions in metres."""
         error = np.sqrt(((predicted - truth) ** 2).sum(axis=-1)) * mask  # (A, K)
         one_hot = np.zeros((len(REGIONS), len(error)))

@@ -129,7 +129,7 @@ def make_plan(
             level[outputs] = layers
             buffers = [torch.empty(e.shape[1], dtype=torch.int32, device=device) for e, _ in edges]
             for _ in range(layers):
-                for (edge_index, _), buffer in zip(edges, buffers):
+                for (edge_index, _), buffer in zip(edges, buffers, strict=False):
                     torch.index_select(level, 0, edge_index[1], out=buffer).sub_(1)
                     level.scatter_reduce_(0, edge_index[0], buffer, "amax")
         # A stable sort by descending level makes each layer's node set a prefix.
@@ -150,7 +150,7 @@ def make_plan(
             crow[1:] = torch.cumsum(torch.bincount(dst, minlength=sizes[1]), 0)
             attr = attr.view(-1, 1) if attr.dim() == 1 else attr
             attr = attr.index_select(0, keep.index_select(0, sort))
-            ends = dict(zip(sizes[1:], crow[sizes[1:]].tolist()))
+            ends = dict(zip(sizes[1:], crow[sizes[1:]].tolist(), strict=False))
             adjacency.append(
                 _Adjacency(crow, src.index_select(0, sort), dst.index_select(0, sort), attr, ends)
             )
@@ -276,9 +276,14 @@ class EncoderLayer(nn.Module):
     def __init__(self, in_features: int, config: ModelConfig) -> None:
         super().__init__()
         gat = lambda: GATConv(  # noqa: E731
-            in_features, config.hidden, heads=config.heads, concat=False, edge_dim=1,
-            add_self_loops=False, dropout=config.dropout,
-        )  # fmt: skip
+            in_features,
+            config.hidden,
+            heads=config.heads,
+            concat=False,
+            edge_dim=1,
+            add_self_loops=False,
+            dropout=config.dropout,
+        )
         self.spatial = gat()
         self.temporal = gat()
         self.linear = nn.Linear(in_features, config.hidden)
@@ -378,9 +383,14 @@ class AiGem(nn.Module):
         if plan is not None and plan.layers != len(self.encoder):
             plan = None  # made for another model
         z_target = self._encode(
-            batch["x"], batch["spatial_edges"], batch["spatial_attr"],
-            batch["temporal_edges"], batch["temporal_attr"], target, plan,
-        )  # fmt: skip
+            batch["x"],
+            batch["spatial_edges"],
+            batch["spatial_attr"],
+            batch["temporal_edges"],
+            batch["temporal_attr"],
+            target,
+            plan,
+        )
         return self.decode(z_target, batch["x"][target, :2], steps or self.config.future_steps)
 
 

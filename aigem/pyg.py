@@ -42,7 +42,9 @@ SPATIAL = (NODE, "spatial", NODE)
 TEMPORAL = (NODE, "temporal", NODE)
 
 
-def to_hetero_data(graph: GraphBatch, scaler: MinMaxScaler, sample_id: int | None = None) -> HeteroData:
+def to_hetero_data(
+    graph: GraphBatch, scaler: MinMaxScaler, sample_id: int | None = None
+) -> HeteroData:
     """One sample's graph (a one-sample GraphBatch) as a HeteroData that PyG batches correctly."""
     if graph.n_samples != 1:
         raise ValueError(f"one sample's graph expected, got {graph.n_samples}: PyG batches them")
@@ -61,7 +63,9 @@ def to_hetero_data(graph: GraphBatch, scaler: MinMaxScaler, sample_id: int | Non
     node.is_target = torch.from_numpy(is_target)
     node.y, node.y_mask = torch.from_numpy(y), torch.from_numpy(y_mask)
     data[SPATIAL].edge_index = torch.from_numpy(graph.spatial_edges)
-    data[SPATIAL].edge_attr = torch.from_numpy(scaler.scale_distance(graph.spatial_distance))[:, None]
+    data[SPATIAL].edge_attr = torch.from_numpy(scaler.scale_distance(graph.spatial_distance))[
+        :, None
+    ]
     data[TEMPORAL].edge_index = torch.from_numpy(graph.temporal_edges)
     data[TEMPORAL].edge_attr = torch.full((graph.temporal_edges.shape[1], 1), graph.time_step_s)
     if sample_id is not None:

@@ -49,7 +49,13 @@ from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.model import AiGem
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
-RUN_INFO, METRICS, LAST, BEST, CURVES = "run.json", "metrics.jsonl", "last.pt", "best.pt", "curves.png"  # fmt: skip
+RUN_INFO, METRICS, LAST, BEST, CURVES = (
+    "run.json",
+    "metrics.jsonl",
+    "last.pt",
+    "best.pt",
+    "curves.png",
+)
 HORIZONS = "horizons.json"  # a multi-horizon run's members
 # Train settings that a resumed run must keep: they change what it learns. Epochs, time limit,
 # patience and workers may change.
@@ -177,15 +183,24 @@ def _write_info(run_dir: Path, info: dict[str, Any]) -> None:
 
 
 def start_run(
-    run_dir: Path, build_dir: Path, model_config: ModelConfig, train: TrainConfig, resume: bool,
-    model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
-) -> tuple[RunState, dict[str, Any]]:  # fmt: skip
+    run_dir: Path,
+    build_dir: Path,
+    model_config: ModelConfig,
+    train: TrainConfig,
+    resume: bool,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    is_writer: bool,
+) -> tuple[RunState, dict[str, Any]]:
     """Start a fresh run, or load the last checkpoint into `model` and `optimizer` to resume;
     returns the state and the run info that every checkpoint of this run carries. A directory
     with last.pt needs `resume`; one without it has nothing to resume and starts over."""
     if (horizons_s := read_horizons(run_dir)) is not None:
-        raise NgsimInputError(run_dir, f"holds a multi-horizon run ({_seconds(horizons_s)} s): give "
-                              f"--horizon-s {_seconds(horizons_s)} to resume it, or choose another --out")  # fmt: skip
+        raise NgsimInputError(
+            run_dir,
+            f"holds a multi-horizon run ({_seconds(horizons_s)} s): give "
+            f"--horizon-s {_seconds(horizons_s)} to resume it, or choose another --out",
+        )
     info = run_info(build_dir, model_config, train)
     if resume:
         state = _resume(run_dir, build_dir, info, model, optimizer)
@@ -225,10 +240,15 @@ def start_group(
     recorded = read_horizons(run_dir)
     if resume:
         if recorded is None:
-            raise NgsimInputError(run_dir, f"nothing to resume: no {HORIZONS} (not a multi-horizon run)")  # fmt: skip
+            raise NgsimInputError(
+                run_dir, f"nothing to resume: no {HORIZONS} (not a multi-horizon run)"
+            )
         if recorded != horizons_s:
-            raise NgsimInputError(run_dir, f"cannot resume with other horizons ({_seconds(recorded)} -> "
-                                  f"{_seconds(horizons_s)} s): it changes what the run learns")  # fmt: skip
+            raise NgsimInputError(
+                run_dir,
+                f"cannot resume with other horizons ({_seconds(recorded)} -> "
+                f"{_seconds(horizons_s)} s): it changes what the run learns",
+            )
         if not any((member / LAST).is_file() for member in members):
             raise NgsimInputError(run_dir, f"nothing to resume: no member has a {LAST}")
         return members
@@ -255,8 +275,11 @@ def _check_fresh_group(
     if not run_dir.is_dir():
         raise NgsimOutputError(run_dir, "exists and is not a directory")
     if recorded is not None:
-        raise NgsimOutputError(run_dir, f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
-                               "that never finished an epoch; choose another --out, or delete it")  # fmt: skip
+        raise NgsimOutputError(
+            run_dir,
+            f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
+            "that never finished an epoch; choose another --out, or delete it",
+        )
     _refuse_other_contents(run_dir, "a multi-horizon aigem run")
 
 
@@ -281,8 +304,11 @@ def _refuse_other_contents(run_dir: Path, what: str) -> None:
         shown = ", ".join(entries[:3]) + (
             f" and {len(entries) - 3} more" if len(entries) > 3 else ""
         )
-        raise NgsimOutputError(run_dir, f"directory is not empty and is not {what}: it holds {shown}; "
-                               "choose a new or empty --out")  # fmt: skip
+        raise NgsimOutputError(
+            run_dir,
+            f"directory is not empty and is not {what}: it holds {shown}; "
+            "choose a new or empty --out",
+        )
 
 
 def _resume(
@@ -359,15 +385,25 @@ def _run_state(saved: object, path: Path) -> RunState:
         raise NgsimInputError(
             path, f"its progress record is not aigem's (expected {', '.join(names)})"
         )
-    return RunState(next_epoch=int(saved["next_epoch"]), best_epoch=int(saved["best_epoch"]),
-                    best_val_loss=float(saved["best_val_loss"]))  # fmt: skip
+    return RunState(
+        next_epoch=int(saved["next_epoch"]),
+        best_epoch=int(saved["best_epoch"]),
+        best_val_loss=float(saved["best_val_loss"]),
+    )
 
 
 def end_epoch(
-    run_dir: Path, state: RunState, info: dict[str, Any], epoch: int, train_loss: float,
-    val_loss: float, model: nn.Module, optimizer: torch.optim.Optimizer, is_writer: bool,
+    run_dir: Path,
+    state: RunState,
+    info: dict[str, Any],
+    epoch: int,
+    train_loss: float,
+    val_loss: float,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    is_writer: bool,
     timing: dict[str, float] | None = None,
-) -> tuple[RunState, dict[str, float]]:  # fmt: skip
+) -> tuple[RunState, dict[str, float]]:
     """Log the epoch (with `timing`, e.g. seconds and graphs/s), keep the best model, and
     checkpoint with the run's `info`; returns the new state and the metrics row."""
     better = math.isfinite(val_loss) and val_loss < state.best_val_loss
@@ -377,9 +413,12 @@ def end_epoch(
         best_val_loss=val_loss if better else state.best_val_loss,
     )
     row = {
-        "epoch": epoch + 1, "train_loss_m2": train_loss, "val_loss_m2": val_loss,
-        "best_epoch": new.best_epoch + 1, **(timing or {}),
-    }  # fmt: skip
+        "epoch": epoch + 1,
+        "train_loss_m2": train_loss,
+        "val_loss_m2": val_loss,
+        "best_epoch": new.best_epoch + 1,
+        **(timing or {}),
+    }
     if not is_writer:
         return new, row
     if better:

@@ -108,16 +108,25 @@ def check_splits(build_dir: Path) -> None:
     build = open_build(build_dir)
     why = {
         Split.TRAIN: ("train", "there is nothing to train on (and the scaler is fitted on it)"),
-        Split.VAL: ("validation", "`aigem fit` keeps the best checkpoint and stops early by validation loss"),
-    }  # fmt: skip
+        Split.VAL: (
+            "validation",
+            "`aigem fit` keeps the best checkpoint and stops early by validation loss",
+        ),
+    }
     for split, (name, reason) in why.items():
         samples = int(build.manifest.splits.get(split.value, 0))
         if samples == 0:
-            raise NgsimInputError(build_dir, f"the {name} split ({split.value}) is empty: {reason}; "
-                                  "rebuild with other split fractions or more data")  # fmt: skip
+            raise NgsimInputError(
+                build_dir,
+                f"the {name} split ({split.value}) is empty: {reason}; "
+                "rebuild with other split fractions or more data",
+            )
         if int(build.samples(split)[N_TARGETS].sum()) == 0:
-            raise NgsimInputError(build_dir, f"the {name} split ({split.value}) has {samples} samples "
-                                  f"but no target actors: {reason}")  # fmt: skip
+            raise NgsimInputError(
+                build_dir,
+                f"the {name} split ({split.value}) has {samples} samples "
+                f"but no target actors: {reason}",
+            )
 
 
 def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
@@ -173,8 +182,11 @@ def _loaders(
 
 
 def evaluate_losses(
-    models: Sequence[tuple[nn.Module, int]], loader: DataLoader, scaler: MinMaxScaler, device: torch.device
-) -> list[float]:  # fmt: skip
+    models: Sequence[tuple[nn.Module, int]],
+    loader: DataLoader,
+    scaler: MinMaxScaler,
+    device: torch.device,
+) -> list[float]:
     """Mean validation loss in metres^2 of each (model, steps), weighted by valid steps; one pass
     over `loader` for all of them."""
     totals = torch.zeros(len(models), dtype=torch.float64, device=device)  # read once, at the end
@@ -202,7 +214,9 @@ def _read_loss(
     mean = float(running) / batches
     if not math.isfinite(mean):
         where = f"batch {last}" if last == first + 1 else f"batches {first + 1}-{last}"
-        raise NonFiniteLossError(f"{who}non-finite training loss ({mean}) at epoch {epoch + 1}, {where}")  # fmt: skip
+        raise NonFiniteLossError(
+            f"{who}non-finite training loss ({mean}) at epoch {epoch + 1}, {where}"
+        )
     return mean
 
 
@@ -252,17 +266,30 @@ class _Member:
 
 
 def _start_members(
-    build_dir: Path, run_dir: Path, horizons_s: tuple[float, ...] | None, model_config: ModelConfig,
-    train: TrainConfig, resume: bool, time_step_s: float, loop: _Loop,
-) -> list[_Member]:  # fmt: skip
+    build_dir: Path,
+    run_dir: Path,
+    horizons_s: tuple[float, ...] | None,
+    model_config: ModelConfig,
+    train: TrainConfig,
+    resume: bool,
+    time_step_s: float,
+    loop: _Loop,
+) -> list[_Member]:
     """The models of a fit, new or resumed: one in `run_dir` (horizons_s None), or one per horizon
     in its member directory, where a resume starts over a member that has no checkpoint yet."""
     if horizons_s is None:
         plans = [(run_dir, train, resume, "")]
     else:
         dirs = runs.start_group(run_dir, horizons_s, resume, loop.rank == 0)
-        plans = [(d, replace(train, horizon_s=h), resume and (d / runs.LAST).is_file(), f"the {h:g} s model: ")
-                 for d, h in zip(dirs, horizons_s, strict=True)]  # fmt: skip
+        plans = [
+            (
+                d,
+                replace(train, horizon_s=h),
+                resume and (d / runs.LAST).is_file(),
+                f"the {h:g} s model: ",
+            )
+            for d, h in zip(dirs, horizons_s, strict=True)
+        ]
     members = []
     for member_dir, member_train, member_resume, who in plans:
         seed_everything(train.seed + loop.rank)  # initialised as a fit of this model alone would
@@ -270,12 +297,32 @@ def _start_members(
         if train.compiles_on(loop.device.type):
             model.compile_decoder()
         optimizer = make_optimizer(model, member_train, loop.device)
-        state, info = runs.start_run(member_dir, build_dir, model_config, member_train,
-                                     member_resume, model, optimizer, loop.rank == 0)  # fmt: skip
+        state, info = runs.start_run(
+            member_dir,
+            build_dir,
+            model_config,
+            member_train,
+            member_resume,
+            model,
+            optimizer,
+            loop.rank == 0,
+        )
         net = nn.parallel.DistributedDataParallel(model) if loop.world > 1 else model
         steps = member_train.horizon_steps(time_step_s)
-        members.append(_Member(member_dir, member_train, steps, model, net, optimizer, info, state,
-                               who, _done_before(state, member_train)))  # fmt: skip
+        members.append(
+            _Member(
+                member_dir,
+                member_train,
+                steps,
+                model,
+                net,
+                optimizer,
+                info,
+                state,
+                who,
+                _done_before(state, member_train),
+            )
+        )
     return members
 
 
@@ -290,7 +337,9 @@ def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
     return None
 
 
-def _step(member: _Member, batch: dict[str, Any], scaler: MinMaxScaler, device: torch.device) -> None:
+def _step(
+    member: _Member, batch: dict[str, Any], scaler: MinMaxScaler, device: torch.device
+) -> None:
     """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
     _set_rng_state(member.rng, device)
     loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
@@ -302,9 +351,13 @@ def _step(member: _Member, batch: dict[str, Any], scaler: MinMaxScaler, device: 
 
 
 def _train_epoch(
-    loop: _Loop, members: list[_Member], active: list[_Member], epoch: int,
-    report: TrainProgress, deadline: float,
-) -> tuple[int, bool]:  # fmt: skip
+    loop: _Loop,
+    members: list[_Member],
+    active: list[_Member],
+    epoch: int,
+    report: TrainProgress,
+    deadline: float,
+) -> tuple[int, bool]:
     """One pass over the train loader, each batch (moved to the device once) training every model
     of `active`; returns the graphs seen and whether the time limit cut the epoch short. The
     losses are summed on the device and read every READ_LOSS_EVERY_S (and at the end of the
@@ -346,9 +399,17 @@ def _end_epoch(
             f"diverged, or no validation target has a recorded step within {member.train.horizon_s} s"
         )
     member.state, row = runs.end_epoch(
-        member.run_dir, member.state, member.info, epoch, member.shown, val_loss, member.model,
-        member.optimizer, rank == 0, timing,
-    )  # fmt: skip
+        member.run_dir,
+        member.state,
+        member.info,
+        epoch,
+        member.shown,
+        val_loss,
+        member.model,
+        member.optimizer,
+        rank == 0,
+        timing,
+    )
     patience = member.train.patience_epochs
     if patience is not None and epoch - member.state.best_epoch >= patience:
         member.stopped = "early stopping"
@@ -356,13 +417,18 @@ def _end_epoch(
 
 
 def _train(
-    loop: _Loop, members: list[_Member], train: TrainConfig, report: TrainProgress,
+    loop: _Loop,
+    members: list[_Member],
+    train: TrainConfig,
+    report: TrainProgress,
     on_epoch: EpochCallback | None,
-) -> tuple[float, bool]:  # fmt: skip
+) -> tuple[float, bool]:
     """The epochs, each training the models due for it (a resumed model may be ahead of the
     others); returns the graphs/s in training and whether the time limit ended it."""
     graphs_seen, train_seconds, timed_out = 0, 0.0, False
-    deadline = time.monotonic() + 60 * (train.max_minutes if train.max_minutes is not None else math.inf)  # fmt: skip
+    deadline = time.monotonic() + 60 * (
+        train.max_minutes if train.max_minutes is not None else math.inf
+    )
     first = min((m.state.next_epoch for m in members if m.stopped is None), default=train.epochs)
     for epoch in range(first, train.epochs):
         if all(m.stopped for m in members):
@@ -402,10 +468,15 @@ def _train(
 
 
 def fit(
-    build_dir: Path, run_dir: Path, model_config: ModelConfig, train: TrainConfig,
-    device_choice: str = "auto", resume: bool = False, progress: TrainProgress | None = None,
+    build_dir: Path,
+    run_dir: Path,
+    model_config: ModelConfig,
+    train: TrainConfig,
+    device_choice: str = "auto",
+    resume: bool = False,
+    progress: TrainProgress | None = None,
     on_epoch: EpochCallback | None = None,
-) -> FitResult:  # fmt: skip
+) -> FitResult:
     """Train one model for `train.horizon_s` and write the run directory (see aigem.runs)."""
     (result,) = fit_horizons(
         build_dir, run_dir, None, model_config, train, device_choice, resume, progress, on_epoch
@@ -414,10 +485,16 @@ def fit(
 
 
 def fit_horizons(
-    build_dir: Path, run_dir: Path, horizons_s: tuple[float, ...] | None, model_config: ModelConfig,
-    train: TrainConfig, device_choice: str = "auto", resume: bool = False,
-    progress: TrainProgress | None = None, on_epoch: EpochCallback | None = None,
-) -> tuple[FitResult, ...]:  # fmt: skip
+    build_dir: Path,
+    run_dir: Path,
+    horizons_s: tuple[float, ...] | None,
+    model_config: ModelConfig,
+    train: TrainConfig,
+    device_choice: str = "auto",
+    resume: bool = False,
+    progress: TrainProgress | None = None,
+    on_epoch: EpochCallback | None = None,
+) -> tuple[FitResult, ...]:
     """Train one model per horizon (ascending; each replaces `train.horizon_s`) in one loop, and
     write the multi-horizon run directory (see aigem.runs); returns each model's result. None:
     one model for `train.horizon_s`, in `run_dir` itself (`fit`)."""
@@ -434,17 +511,35 @@ def fit_horizons(
     train_set, train_loader, val_loader, sampler, generator = _loaders(
         build_dir, model_config, train, rank, world, device, workers
     )
-    loop = _Loop(device, rank, world, train_set.scaler, train_loader, val_loader, sampler,
-                 generator, threads)  # fmt: skip
-    members = _start_members(build_dir, run_dir, horizons_s, model_config, train, resume,
-                             train_set.config.time_step_s, loop)  # fmt: skip
+    loop = _Loop(
+        device, rank, world, train_set.scaler, train_loader, val_loader, sampler, generator, threads
+    )
+    members = _start_members(
+        build_dir,
+        run_dir,
+        horizons_s,
+        model_config,
+        train,
+        resume,
+        train_set.config.time_step_s,
+        loop,
+    )
     graphs_per_s, timed_out = _train(loop, members, train, progress or (lambda *_: None), on_epoch)
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
         if rank == 0:
             runs.plot_curves(member.run_dir)
     return tuple(
-        FitResult(m.run_dir, m.train.horizon_s, count_parameters(m.model), m.state.next_epoch,
-                  m.state.best_epoch + 1, m.state.best_val_loss, m.stopped, graphs_per_s, str(device))
+        FitResult(
+            m.run_dir,
+            m.train.horizon_s,
+            count_parameters(m.model),
+            m.state.next_epoch,
+            m.state.best_epoch + 1,
+            m.state.best_val_loss,
+            m.stopped,
+            graphs_per_s,
+            str(device),
+        )
         for m in members
-    )  # fmt: skip
+    )

@@ -42,9 +42,12 @@ def main() -> None:
     marks: list[tuple[str, float]] = []
     start = time.perf_counter()
     result = run_build(
-        [raw_dir], args.work_dir / f"graphs-{tag}", BuildConfig(), overwrite=True,
+        [raw_dir],
+        args.work_dir / f"graphs-{tag}",
+        BuildConfig(),
+        overwrite=True,
         progress=lambda what, _done, _total: marks.append((what, time.perf_counter())),
-    )  # fmt: skip
+    )
     end = time.perf_counter()
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
 
@@ -53,24 +56,36 @@ def main() -> None:
         stage = "reading + staging" if what.startswith("reading") else what.split(" ")[0]
         stages[stage] = stages.get(stage, 0.0) + until - at
     samples = pl.concat(
-        [pl.read_parquet(layout.samples_path(result.out_dir, split)) for split in ("train", "val", "test")]
+        [
+            pl.read_parquet(layout.samples_path(result.out_dir, split))
+            for split in ("train", "val", "test")
+        ]
     )
     wall_s = end - start
     n_spatial = int(samples["n_spatial_edges"].sum())
     n_temporal = int(samples["n_temporal_edges"].sum())
     sizes = folder_bytes(result.out_dir)
     counts = result.manifest.counts
-    print(f"input              {tag}: {counts.rows_read:,} rows, {len(result.recordings)} recordings")
+    print(
+        f"input              {tag}: {counts.rows_read:,} rows, {len(result.recordings)} recordings"
+    )
     for stage, seconds in stages.items():
         print(f"  {stage:<17}{seconds:7.1f} s")
     print(f"wall               {wall_s:.1f} s")
     print(f"samples            {samples.height:,} ({dict(result.manifest.splits)})")
-    print(f"graph edges        {n_spatial:,} spatial, {n_temporal:,} temporal (induced, not stored per sample)")
+    print(
+        f"graph edges        {n_spatial:,} spatial, {n_temporal:,} temporal (induced, not stored per sample)"
+    )
     print(f"samples per second {samples.height / wall_s:,.0f}")
     print(f"edges per second   {(n_spatial + n_temporal) / wall_s:,.0f}")
-    print(f"proximity edges    {counts['proximity_edges']:,} stored (pairs within d_min, once per step)")
-    print("output on disk     " + ", ".join(f"{k} {v / 1e6:.0f} MB" for k, v in sorted(sizes.items()))
-          + f"; total {sum(sizes.values()) / 1e9:.2f} GB")  # fmt: skip
+    print(
+        f"proximity edges    {counts['proximity_edges']:,} stored (pairs within d_min, once per step)"
+    )
+    print(
+        "output on disk     "
+        + ", ".join(f"{k} {v / 1e6:.0f} MB" for k, v in sorted(sizes.items()))
+        + f"; total {sum(sizes.values()) / 1e9:.2f} GB"
+    )
     print(f"peak memory        {peak_gb:.2f} GB (max RSS of this process)")
 
 

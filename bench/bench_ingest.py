@@ -20,14 +20,27 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.pipeline import run_build
 
 
-def ensure_input(raw_dir: Path, raw_format: str, recordings: int, minutes: float, quirks: bool) -> float:
+def ensure_input(
+    raw_dir: Path, raw_format: str, recordings: int, minutes: float, quirks: bool
+) -> float:
     """Synthesize the input unless it is already there; returns the seconds it took (0 if reused)."""
     if raw_dir.is_dir() and any(raw_dir.rglob("*.*")):
         return 0.0
     command = [
-        sys.executable, "-m", "ngsim_cli.ngsim", "synth", str(raw_dir), "--format", raw_format,
-        "--recordings", str(recordings), "--minutes", str(minutes), "--seed", "0",
-    ] + (["--quirks"] if quirks else [])  # fmt: skip
+        sys.executable,
+        "-m",
+        "ngsim_cli.ngsim",
+        "synth",
+        str(raw_dir),
+        "--format",
+        raw_format,
+        "--recordings",
+        str(recordings),
+        "--minutes",
+        str(minutes),
+        "--seed",
+        "0",
+    ] + (["--quirks"] if quirks else [])
     start = time.perf_counter()
     subprocess.run(command, check=True)
     return time.perf_counter() - start
@@ -35,7 +48,9 @@ def ensure_input(raw_dir: Path, raw_format: str, recordings: int, minutes: float
 
 def parse_input_args(description: str, default_format: str) -> tuple[argparse.Namespace, str, Path]:
     """The options that choose the synthetic input; returns (args, tag, raw folder)."""
-    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--format", default=default_format, choices=["portal", "csv", "txt"])
     parser.add_argument("--recordings", type=int, default=6)
     parser.add_argument("--minutes", type=float, default=15.0)

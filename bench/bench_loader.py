@@ -57,7 +57,9 @@ def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: 
     loader = DataLoader(
         dataset, batch_size=batch_size, shuffle=True, collate_fn=Collate(dataset.scaler)
     )
-    data = [b for _, b in zip(range(batches + 1), loader)]  # loading is not timed here
+    data = [
+        b for _, b in zip(range(batches + 1), loader, strict=False)
+    ]  # loading is not timed here
     steps = model.config.future_steps
     start = None
     for index, batch in enumerate(data):

@@ -63,19 +63,35 @@ from torch.overrides import TorchFunctionMode
 from torch.profiler import ProfilerActivity
 from torch.utils.data import DataLoader
 
+from aigem import model as aigem_model
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
-from aigem import model as aigem_model
 from aigem.training import fit, make_optimizer, masked_mse_m2, to_device
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
-SYNC_OPS = {"aten::_local_scalar_dense", "aten::nonzero", "aten::bincount", "aten::_unique",
-            "aten::_unique2", "aten::unique_dim", "aten::unique_consecutive",
-            "aten::masked_select", "aten::equal"}  # fmt: skip
+SYNC_OPS = {
+    "aten::_local_scalar_dense",
+    "aten::nonzero",
+    "aten::bincount",
+    "aten::_unique",
+    "aten::_unique2",
+    "aten::unique_dim",
+    "aten::unique_consecutive",
+    "aten::masked_select",
+    "aten::equal",
+}
 CUDA_SYNCS = {"cudaStreamSynchronize", "cudaEventSynchronize", "cudaMemcpy"}
-COLUMNS = {"graphs/s": 9, "ms/batch": 8, "ops/step": 8, "syncs/step": 10, "kernels/step": 12,
-           "cuda syncs/step": 15, "threads": 7, "syncs by op (per step)": 0}  # fmt: skip
+COLUMNS = {
+    "graphs/s": 9,
+    "ms/batch": 8,
+    "ops/step": 8,
+    "syncs/step": 10,
+    "kernels/step": 12,
+    "cuda syncs/step": 15,
+    "threads": 7,
+    "syncs by op (per step)": 0,
+}
 Batch = dict[str, torch.Tensor]
 
 
@@ -93,9 +109,11 @@ class _Conversions(TorchFunctionMode):
             self.names["tolist"] += 1
         elif (
             name in ("cpu", "to")
-            and isinstance(out, torch.Tensor) and out.device.type == "cpu"
-            and isinstance(args[0], torch.Tensor) and args[0].device.type != "cpu"
-        ):  # fmt: skip
+            and isinstance(out, torch.Tensor)
+            and out.device.type == "cpu"
+            and isinstance(args[0], torch.Tensor)
+            and args[0].device.type != "cpu"
+        ):
             self.names[f"{name} (to host)"] += 1
         return out
 
@@ -139,8 +157,11 @@ class _Counts:
             ):
                 syncs[name.removeprefix("aten::")] += 1
         by_op = ", ".join(f"{name} {count / steps:g}" for name, count in syncs.most_common())
-        row = {"ops/step": ops / steps, "syncs/step": sum(syncs.values()) / steps,
-               "syncs by op (per step)": by_op or "none"}  # fmt: skip
+        row = {
+            "ops/step": ops / steps,
+            "syncs/step": sum(syncs.values()) / steps,
+            "syncs by op (per step)": by_op or "none",
+        }
         if self.cuda:
             row |= {"kernels/step": kernels / steps, "cuda syncs/step": cuda_syncs / steps}
         return row
@@ -161,8 +182,9 @@ def measure_loader(
 ) -> tuple[float, list[Batch]]:
     """(graphs/s over `timed` batches after the first, `keep` batches for the model step)."""
     collate = Collate(dataset.scaler, layers=ModelConfig().layers)  # as fit: with the plan
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=True, num_workers=workers,
-                        collate_fn=collate)  # fmt: skip
+    loader = DataLoader(
+        dataset, batch_size=batch_size, shuffle=True, num_workers=workers, collate_fn=collate
+    )
     batches = _endless(loader)
     next(batches)  # workers start, first batch
     kept: list[Batch] = []
@@ -214,8 +236,11 @@ def measure_step(
         step(batch)
     counts.stop()
     graphs = sum(batch["graphs"] for batch in timed)  # a short batch: fewer
-    return {"graphs/s": graphs / seconds, "ms/batch": 1000 * seconds / len(timed),
-            **counts.per_step(args.profile_steps)}  # fmt: skip
+    return {
+        "graphs/s": graphs / seconds,
+        "ms/batch": 1000 * seconds / len(timed),
+        **counts.per_step(args.profile_steps),
+    }
 
 
 class _Enough(Exception):
@@ -241,7 +266,9 @@ class _FitProbe:
             self.timed = (done - self.clock[0], time.perf_counter() - self.clock[1])
             self.profiled_from = done
             self.counts.start()
-        elif self.profiled_from is not None and done >= self.profiled_from + self.args.profile_steps:  # fmt: skip
+        elif (
+            self.profiled_from is not None and done >= self.profiled_from + self.args.profile_steps
+        ):
             self.counts.stop()
             self.profiled = done - self.profiled_from
             raise _Enough
@@ -252,8 +279,13 @@ def measure_fit(
 ) -> dict[str, object]:
     """The whole fit loop at this batch size (see the docstring); empty where the epoch ran out."""
     probe = _FitProbe(device, args)
-    train = TrainConfig(epochs=1, batch_size=batch_size, workers=args.workers, seed=0,
-                        threads=torch.get_num_threads())  # fmt: skip
+    train = TrainConfig(
+        epochs=1,
+        batch_size=batch_size,
+        workers=args.workers,
+        seed=0,
+        threads=torch.get_num_threads(),
+    )
     with tempfile.TemporaryDirectory() as tmp:
         try:
             fit(build, Path(tmp) / "run", ModelConfig(), train, device.type, progress=probe)
@@ -271,13 +303,19 @@ def measure_fit(
 
 def describe_machine(devices: list[torch.device]) -> str:
     cpuinfo = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
-    names = [line.split(":", 1)[1].strip() for line in cpuinfo.splitlines() if line.startswith("model name")]  # fmt: skip
+    names = [
+        line.split(":", 1)[1].strip()
+        for line in cpuinfo.splitlines()
+        if line.startswith("model name")
+    ]
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     cuda = [torch.cuda.get_device_name(device) for device in devices if device.type == "cuda"]
-    return (f"machine: {names[0] if names else platform.machine()}, {os.cpu_count()} CPUs "
-            f"({usable} usable), torch {torch.__version__}, {torch.get_num_threads()} intra-op "
-            f"threads (OMP_NUM_THREADS {os.environ.get('OMP_NUM_THREADS', 'unset')})"
-            + (f"; cuda: {cuda[0]}" if cuda else ""))  # fmt: skip
+    return (
+        f"machine: {names[0] if names else platform.machine()}, {os.cpu_count()} CPUs "
+        f"({usable} usable), torch {torch.__version__}, {torch.get_num_threads()} intra-op "
+        f"threads (OMP_NUM_THREADS {os.environ.get('OMP_NUM_THREADS', 'unset')})"
+        + (f"; cuda: {cuda[0]}" if cuda else "")
+    )
 
 
 def _row(device: str, size: object, what: str, row: dict[str, object]) -> None:
@@ -295,15 +333,21 @@ def main() -> None:
     )
     parser.add_argument("build", type=Path)
     parser.add_argument("--batch-sizes", default="32,256,1024")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
-                        help="auto: the CPU, then CUDA when present")  # fmt: skip
+    parser.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="auto",
+        help="auto: the CPU, then CUDA when present",
+    )
     parser.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
     parser.add_argument("--steps", type=int, default=10, help="timed batches per measurement")
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
     parser.add_argument("--profile-steps", type=int, default=2, help="steps the profiler counts")
-    parser.add_argument("--compile", action="store_true",
-                        help="also the step with the decoder compiled (a minute or two to compile "
-                        "on the CPU)")  # fmt: skip
+    parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="also the step with the decoder compiled (a minute or two to compile on the CPU)",
+    )
     args = parser.parse_args()
     if args.device == "cuda" and not torch.cuda.is_available():
         parser.error("--device cuda: no CUDA device is available")
@@ -312,9 +356,11 @@ def main() -> None:
     read = ModelConfig().history_steps_read
     dataset = GraphDataset(args.build, "train", history_steps=read)
     print(describe_machine(devices))
-    print(f"build {args.build}: {len(dataset):,} train samples, graphs cut to {read} history "
-          f"steps; {args.workers} loader workers; {args.warmup} warm-up, {args.steps} timed, "
-          f"{args.profile_steps} profiled steps\n")  # fmt: skip
+    print(
+        f"build {args.build}: {len(dataset):,} train samples, graphs cut to {read} history "
+        f"steps; {args.workers} loader workers; {args.warmup} warm-up, {args.steps} timed, "
+        f"{args.profile_steps} profiled steps\n"
+    )
     _row("device", "batch", "measured", {column: column for column in COLUMNS})
     for size in (int(size) for size in args.batch_sizes.split(",")):
         timed = max(args.steps, math.ceil(min(LOADER_GRAPHS, len(dataset)) / size))

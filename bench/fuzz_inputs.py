@@ -173,7 +173,9 @@ def check_success(run: RunResult, out: Path, data: bytes, fmt: str) -> list[str]
     before_cleaning = sum(
         n for reason, n in dropped.items() if reason != s.DropReason.POSITION_OUTLIER.value
     )
-    accounted = counts.rows_other_locations + counts.rows_missing_values + before_cleaning + counts.rows
+    accounted = (
+        counts.rows_other_locations + counts.rows_missing_values + before_cleaning + counts.rows
+    )
     read = counts.rows_read
     if read != accounted:
         problems.append(f"rows_read {read} but {accounted} accounted for (other locations, missing")
@@ -272,7 +274,7 @@ def format_table(rows: list[list[str]]) -> str:
     return "\n".join(
         "  ".join(
             cell.ljust(w) if i == 0 else cell.rjust(w)
-            for i, (cell, w) in enumerate(zip(row, widths))
+            for i, (cell, w) in enumerate(zip(row, widths, strict=False))
         )
         for row in rows
     )

@@ -50,14 +50,28 @@ def base_rows() -> list[dict[str, float]]:
     for vehicle in range(1, N_VEHICLES + 1):
         for frame in range(N_FRAMES):
             x_ft, y_ft = 6.0 + 12.0 * (vehicle % 5), 40.0 * (vehicle // 5) + 3.5 * frame
-            rows.append({
-                s.VEHICLE_ID: vehicle, s.FRAME_ID: frame, s.TOTAL_FRAMES: N_FRAMES,
-                s.GLOBAL_TIME: frame0_ms + 100 * frame, s.LOCAL_X: x_ft, s.LOCAL_Y: y_ft,
-                s.GLOBAL_X: 6451000.0 + x_ft, s.GLOBAL_Y: 1873000.0 + y_ft, s.V_LENGTH: 15.0,
-                s.V_WIDTH: 6.0, s.V_CLASS: 2, s.V_VEL: 35.0, s.V_ACC: 0.0, s.LANE_ID: 1 + vehicle % 5,
-                s.PRECEDING: 0, s.FOLLOWING: 0, s.SPACE_HEADWAY: 0.0,
-                s.TIME_HEADWAY: s.NO_LEADER_TIME_HEADWAY_S,
-            })  # fmt: skip
+            rows.append(
+                {
+                    s.VEHICLE_ID: vehicle,
+                    s.FRAME_ID: frame,
+                    s.TOTAL_FRAMES: N_FRAMES,
+                    s.GLOBAL_TIME: frame0_ms + 100 * frame,
+                    s.LOCAL_X: x_ft,
+                    s.LOCAL_Y: y_ft,
+                    s.GLOBAL_X: 6451000.0 + x_ft,
+                    s.GLOBAL_Y: 1873000.0 + y_ft,
+                    s.V_LENGTH: 15.0,
+                    s.V_WIDTH: 6.0,
+                    s.V_CLASS: 2,
+                    s.V_VEL: 35.0,
+                    s.V_ACC: 0.0,
+                    s.LANE_ID: 1 + vehicle % 5,
+                    s.PRECEDING: 0,
+                    s.FOLLOWING: 0,
+                    s.SPACE_HEADWAY: 0.0,
+                    s.TIME_HEADWAY: s.NO_LEADER_TIME_HEADWAY_S,
+                }
+            )
     return rows
 
 
@@ -194,10 +208,11 @@ def flip_bytes(rng: np.random.Generator, data: bytes, fmt: str) -> tuple[bytes, 
     places = sorted(int(p) for p in rng.choice(len(data), size=n_flips, replace=False))
     changes = []
     for place in places:
-        if rng.random() < 0.5:
-            new = INTERESTING_BYTES[rng.integers(len(INTERESTING_BYTES))]
-        else:
-            new = int(rng.integers(256))
+        new = (
+            INTERESTING_BYTES[rng.integers(len(INTERESTING_BYTES))]
+            if rng.random() < 0.5
+            else int(rng.integers(256))
+        )
         new = new if new != out[place] else out[place] ^ 0x40
         line = data[:place].count(b"\n") + 1
         changes.append(f"byte {place:,} (line {line}) {bytes([out[place]])!r}->{bytes([new])!r}")

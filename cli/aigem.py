@@ -8,8 +8,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from ngsim_cli.console import exit_on_error, print_table, stderr, stdout
 from rich.table import Table
+
+from ngsim_cli.console import exit_on_error, print_table, stderr, stdout
 
 if TYPE_CHECKING:
     from aigem.training import FitResult
@@ -86,11 +87,10 @@ def fit(
     ] = False,
 ) -> None:
     """Train AiGem on DATA's train split; keep the best model by validation loss."""
-    from ngsim_cli.console import progress_bar
-
     from aigem.config import ModelConfig, TrainConfig, parse_horizons_s
     from aigem.model import AiGem, count_parameters
     from aigem.training import DeviceUnavailableError, NonFiniteLossError, fit_horizons
+    from ngsim_cli.console import progress_bar
 
     if device not in ("auto", "cpu", "cuda"):
         raise _fail(f"--device must be auto, cpu or cuda, not {device!r}", 2)
@@ -100,21 +100,40 @@ def fit(
         raise _fail(f"--horizon-s {horizon_s}: {err}", 2) from None
     try:
         train = TrainConfig(
-            horizon_s=horizons_s[0], epochs=epochs, batch_size=batch_size, max_minutes=max_minutes,
-            patience_epochs=patience, seed=seed, workers=workers, threads=threads,
+            horizon_s=horizons_s[0],
+            epochs=epochs,
+            batch_size=batch_size,
+            max_minutes=max_minutes,
+            patience_epochs=patience,
+            seed=seed,
+            workers=workers,
+            threads=threads,
             compile=compile_decoder,
-        )  # fmt: skip
+        )
     except ValueError as err:
         raise _fail(str(err), 2) from None
     model_config = ModelConfig(concat_position=not no_concat)
     stdout.print(f"AiGem: {count_parameters(AiGem(model_config)):,} parameters (the paper: 74.5 K)")
     several = len(horizons_s) > 1
     with exit_on_error(), progress_bar() as progress:
-        show = lambda epoch, done, total, losses: progress(f"epoch {epoch} loss {_losses(losses)} m²", done, total)  # fmt: skip
-        on_epoch = lambda horizon_s, row: _print_epoch(row, f"{horizon_s:g} s model, " if several else "")  # fmt: skip
+        show = lambda epoch, done, total, losses: progress(
+            f"epoch {epoch} loss {_losses(losses)} m²", done, total
+        )
+        on_epoch = lambda horizon_s, row: _print_epoch(
+            row, f"{horizon_s:g} s model, " if several else ""
+        )
         try:
-            results = fit_horizons(data, out, horizons_s if several else None, model_config,
-                                   train, device, resume, show, on_epoch)  # fmt: skip
+            results = fit_horizons(
+                data,
+                out,
+                horizons_s if several else None,
+                model_config,
+                train,
+                device,
+                resume,
+                show,
+                on_epoch,
+            )
         except (NonFiniteLossError, DeviceUnavailableError) as err:  # the project's: exit_on_error
             raise _fail(str(err)) from None
     _print_results(results, out)
@@ -151,8 +170,10 @@ def _print_epoch(row: dict[str, float], who: str = "") -> None:
         f"{who}epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
         f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
         f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation",
-        markup=False, highlight=False, soft_wrap=True,
-    )  # fmt: skip
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
@@ -168,8 +189,13 @@ def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
     fmt = lambda v: "-" if v is None else f"{v:.2f}"
     for name, row in rows.items():
         rmse = row.get("rmse_m") or [row.get(f"rmse_{s}s_m") for s in range(1, seconds + 1)]
-        table.add_row(name, fmt(row["ade_m"]), fmt(row["fde_m"]), *(fmt(v) for v in rmse[:seconds]),
-                      str(row.get("params_k", "")))  # fmt: skip
+        table.add_row(
+            name,
+            fmt(row["ade_m"]),
+            fmt(row["fde_m"]),
+            *(fmt(v) for v in rmse[:seconds]),
+            str(row.get("params_k", "")),
+        )
     return table
 
 
@@ -187,7 +213,10 @@ def evaluate(
         bool,
         typer.Option(
             "--other-build",
-            help="Allow a build other than the run's (e.g. train on US-101, test on I-80); inputs are scaled with the run's scaler.",
+            help=(
+                "Allow a build other than the run's (e.g. train on US-101, test on I-80); inputs "
+                "are scaled with the run's scaler."
+            ),
         ),
     ] = False,
     as_json: Annotated[
@@ -231,8 +260,10 @@ def evaluate(
         )
         longest, horizon_s = result.sources["ade_m"], result.horizons_s[-1]
         paper = "" if horizon_s == 5 else " (the paper's over 5 s)"
-        stdout.print(f"One model per horizon: RMSE at {rmse}; ADE and FDE from {longest}, over "
-                     f"{horizon_s:g} s{paper}. Constant velocity likewise, on the same targets.")  # fmt: skip
+        stdout.print(
+            f"One model per horizon: RMSE at {rmse}; ADE and FDE from {longest}, over "
+            f"{horizon_s:g} s{paper}. Constant velocity likewise, on the same targets."
+        )
     print_table(_metrics_table("the paper's table (NGSIM US-101 + I-80)", PAPER_TABLE, 5))
     other = (
         "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"

@@ -57,28 +57,37 @@ def synth(
     ],
     raw_format: Annotated[
         RawFormat,
-        typer.Option("--format", help="portal: one combined CSV; csv/txt: one file per period; highd: highD's "
-                     "NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv per recording (metres, 25 Hz)."),
+        typer.Option(
+            "--format",
+            help="portal: one combined CSV; csv/txt: one file per period; highd: highD's "
+            "NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv per recording (metres, 25 Hz).",
+        ),
     ] = RawFormat.TXT,
     recordings: Annotated[int, typer.Option(help="How many of the six NGSIM periods (1-6).")] = 6,
     minutes: Annotated[float, typer.Option(help="Length of each recording, minutes.")] = 15.0,
     seed: Annotated[int, typer.Option(help="Random seed; the same seed gives the same bytes.")] = 0,
     quirks: Annotated[
-        bool, typer.Option(help="Inject the quirks of real exports (BOM, CRLF, \"1,156\", duplicates, gaps, ...).")
+        bool,
+        typer.Option(
+            help='Inject the quirks of real exports (BOM, CRLF, "1,156", duplicates, gaps, ...).'
+        ),
     ] = False,
 ) -> None:
     """Write synthetic NGSIM-shaped trajectories (simulated traffic, NOT real NGSIM data)."""
     from ngsim_graphs.synth.formats import write_synthetic  # the simulator loads only when used
 
     config = _config_or_exit(
-        SynthConfig, raw_format=raw_format, recordings=recordings, minutes=minutes, seed=seed, quirks=quirks
+        SynthConfig,
+        raw_format=raw_format,
+        recordings=recordings,
+        minutes=minutes,
+        seed=seed,
+        quirks=quirks,
     )
     with exit_on_error(), progress_bar() as progress:
         paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
-
-
 
 
 def _summary_table(result: BuildResult) -> Table:
@@ -93,7 +102,17 @@ def _summary_table(result: BuildResult) -> Table:
         table.add_row(
             r.location,
             r.period,
-            *(f"{v:,}" for v in (r.rows, r.exact_duplicates, r.conflicting_duplicates, r.gaps, r.tracks, r.grid_rows)),
+            *(
+                f"{v:,}"
+                for v in (
+                    r.rows,
+                    r.exact_duplicates,
+                    r.conflicting_duplicates,
+                    r.gaps,
+                    r.tracks,
+                    r.grid_rows,
+                )
+            ),
             *(f"{per_split.get(split, 0):,}" for split in SPLIT_NAMES),
         )
     return table
@@ -106,18 +125,26 @@ def _dropped_lines(result: BuildResult) -> list[str]:
         if not n:
             continue
         if reason == DropReason.POSITION_OUTLIER.value:
-            first = min(f"{r.first_outlier.file}, line {r.first_outlier.line}"
-                        for r in result.manifest.recordings if r.first_outlier)  # fmt: skip
+            first = min(
+                f"{r.first_outlier.file}, line {r.first_outlier.line}"
+                for r in result.manifest.recordings
+                if r.first_outlier
+            )
         else:
-            first = next(f"{f.path}, line {f.first_dropped_line[reason]}"
-                         for f in result.files if reason in f.first_dropped_line)  # fmt: skip
+            first = next(
+                f"{f.path}, line {f.first_dropped_line[reason]}"
+                for f in result.files
+                if reason in f.first_dropped_line
+            )
         noun = "row" if n == 1 else "rows"
         lines.append(f"dropped {n:,} {noun}: {DESCRIPTIONS[DropReason(reason)]} (first: {first}).")
     jumps = result.manifest.counts.position_jumps
     if jumps:
         limit = result.manifest.config.limits.max_jump_m
         noun = "jump" if jumps == 1 else "jumps"
-        lines.append(f"split tracks at {jumps:,} position {noun} of more than {limit:g} m between frames.")
+        lines.append(
+            f"split tracks at {jumps:,} position {noun} of more than {limit:g} m between frames."
+        )
     return lines
 
 
@@ -131,37 +158,56 @@ class DatasetChoice(str, Enum):
 
 @app.command()
 def build(
-    raw_paths: Annotated[list[Path], typer.Argument(help="NGSIM or highD files, or folders to search for them.")],
+    raw_paths: Annotated[
+        list[Path], typer.Argument(help="NGSIM or highD files, or folders to search for them.")
+    ],
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
     locations: Annotated[
         str,
-        typer.Option(help="Comma-separated locations to keep: us-101, i-80, lankershim, peachtree (NGSIM); "
-                     "highd-N by locationId (highD keeps every location when none of its own is named)."),
+        typer.Option(
+            help="Comma-separated locations to keep: us-101, i-80, lankershim, peachtree (NGSIM); "
+            "highd-N by locationId (highD keeps every location when none of its own is named)."
+        ),
     ] = "us-101,i-80",
     stride_s: Annotated[
         float,
-        typer.Option(help="Time between the starts of two windows of one ego track, s: a multiple of the "
-                     "0.2 s grid step (8: non-overlapping 8 s windows; 0.2: a window at every step)."),
+        typer.Option(
+            help="Time between the starts of two windows of one ego track, s: a multiple of the "
+            "0.2 s grid step (8: non-overlapping 8 s windows; 0.2: a window at every step)."
+        ),
     ] = 8.0,
     d_sense_m: Annotated[
-        float, typer.Option(help="A vehicle at most this far from the ego at a history step is a node, m.")
+        float,
+        typer.Option(
+            help="A vehicle at most this far from the ego at a history step is a node, m."
+        ),
     ] = 50.0,
     d_min_m: Annotated[
         float,
-        typer.Option(help="Two actor nodes at most this far apart share spatial edges, m (0: only ego-actor "
-                     "edges)."),
+        typer.Option(
+            help="Two actor nodes at most this far apart share spatial edges, m (0: only ego-actor "
+            "edges)."
+        ),
     ] = 25.0,
     split: Annotated[
         SplitMode,
-        typer.Option(help="How ego windows are divided 70/10/20 into train/val/test: by ego Vehicle_ID "
-                     "per recording, by contiguous blocks of time, or at random by ego track."),
+        typer.Option(
+            help="How ego windows are divided 70/10/20 into train/val/test: by ego Vehicle_ID "
+            "per recording, by contiguous blocks of time, or at random by ego track."
+        ),
     ] = SplitMode.VEHICLE,
-    seed: Annotated[int, typer.Option(help="Seed of the random split (other splits ignore it).")] = 0,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the random split (other splits ignore it).")
+    ] = 0,
     ego_target: Annotated[
-        bool, typer.Option(help="Also predict the ego (by default only the actors at the present step).")
+        bool,
+        typer.Option(help="Also predict the ego (by default only the actors at the present step)."),
     ] = False,
     overwrite: Annotated[
-        bool, typer.Option(help="Replace an existing build in --out (never a folder that is not a build).")
+        bool,
+        typer.Option(
+            help="Replace an existing build in --out (never a folder that is not a build)."
+        ),
     ] = False,
     min_heading_speed_mps: Annotated[
         float, typer.Option(help="Below this speed the last heading is held, m/s.")
@@ -171,12 +217,16 @@ def build(
     ] = 1.0,
     strict: Annotated[
         bool,
-        typer.Option(help="Fail on the first implausible or stray row instead of dropping and counting it."),
+        typer.Option(
+            help="Fail on the first implausible or stray row instead of dropping and counting it."
+        ),
     ] = False,
     dataset: Annotated[
         DatasetChoice,
-        typer.Option(help="Which dataset the inputs are: auto tells it from the files' content; inputs "
-                     "holding both NGSIM and highD files need ngsim or highd."),
+        typer.Option(
+            help="Which dataset the inputs are: auto tells it from the files' content; inputs "
+            "holding both NGSIM and highD files need ngsim or highd."
+        ),
     ] = DatasetChoice.AUTO,
 ) -> None:
     """Read raw NGSIM files (any of the three formats) or highD recordings and write the graph dataset.
@@ -200,8 +250,15 @@ def build(
     )
     with exit_on_error(), progress_bar() as progress:
         chosen = None if dataset is DatasetChoice.AUTO else dataset.value
-        result = run_build(raw_paths, out, config, overwrite=overwrite, progress=progress, strict=strict,
-                           dataset=chosen)  # fmt: skip
+        result = run_build(
+            raw_paths,
+            out,
+            config,
+            overwrite=overwrite,
+            progress=progress,
+            strict=strict,
+            dataset=chosen,
+        )
     for skipped in result.skipped_files:
         stdout.print(f"skipped (not {DISPLAY_NAMES[result.manifest.dataset]}): {skipped}")
     print_table(_summary_table(result))
@@ -215,7 +272,8 @@ def build(
     for warning in result.warnings:
         stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
     stdout.print(
-        "samples: " + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
+        "samples: "
+        + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
         + f" ({counts.samples:,} in all)."
     )
 
@@ -227,20 +285,29 @@ def _write_plots(values, folder: Path) -> list[Path]:  # type: ignore[no-untyped
     try:
         return write_histograms(values, folder)
     except OSError as err:
-        stderr.print(f"error: {folder}: cannot write plots: {err.strerror or err}", markup=False,
-                     highlight=False, soft_wrap=True)  # fmt: skip
+        stderr.print(
+            f"error: {folder}: cannot write plots: {err.strerror or err}",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
         raise typer.Exit(1) from None
 
 
 @app.command()
 def stats(
     build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")],
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON document, nothing else.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON document, nothing else.")
+    ] = False,
     plots: Annotated[
         Path | None, typer.Option("--plots", help="Folder to write PNG histograms into (created).")
     ] = None,
     degree_graphs: Annotated[
-        int, typer.Option(min=1, help="Graphs per split induced (at random) for the node-degree statistics.")
+        int,
+        typer.Option(
+            min=1, help="Graphs per split induced (at random) for the node-degree statistics."
+        ),
     ] = MAX_DEGREE_GRAPHS,
     seed: Annotated[int, typer.Option(help="Seed of the random choice of those graphs.")] = 0,
 ) -> None:
@@ -279,7 +346,9 @@ def verify(build_dir: Annotated[Path, typer.Argument(help="A finished build dire
         print_error(problem)
     if result.problems:
         raise typer.Exit(1)
-    stdout.print(f"{build_dir}: all {result.files:,} files match the manifest ({result.bytes / 1e6:,.1f} MB read).")
+    stdout.print(
+        f"{build_dir}: all {result.files:,} files match the manifest ({result.bytes / 1e6:,.1f} MB read)."
+    )
 
 
 def _sample_ids(text: str, available: int) -> np.ndarray:
@@ -291,7 +360,9 @@ def _sample_ids(text: str, available: int) -> np.ndarray:
         else:
             ids = np.array([int(part) for part in text.split(",") if part.strip()])
     except ValueError:
-        raise _usage_error(f"--samples {text!r}: give START:END or a comma-separated list") from None
+        raise _usage_error(
+            f"--samples {text!r}: give START:END or a comma-separated list"
+        ) from None
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= available:
         raise _usage_error(f"--samples {text!r}: the split has samples 0..{available - 1}")
     return ids
@@ -304,7 +375,9 @@ def export(
         Path, typer.Option("--out", help="Folder for the Parquet tables: new or empty (created).")
     ],
     split: Annotated[Split, typer.Option(help="Split of the samples.")] = Split.TEST,
-    samples: Annotated[str, typer.Option(help="Sample ids: START:END (END excluded) or 3,7,9.")] = "0:100",
+    samples: Annotated[
+        str, typer.Option(help="Sample ids: START:END (END excluded) or 3,7,9.")
+    ] = "0:100",
     overwrite: Annotated[
         bool, typer.Option(help="Replace an earlier export (a folder holding only its tables).")
     ] = False,
@@ -323,7 +396,9 @@ def export(
         opened = open_build(build_dir)
         ids = _sample_ids(samples, int(opened.manifest.splits[split.value]))
         tables = graph_tables(opened.graphs(split.value, ids), ids)
-        tables["samples"] = opened.samples(split.value).filter(pl.col("sample_id").is_in(ids.tolist()))
+        tables["samples"] = opened.samples(split.value).filter(
+            pl.col("sample_id").is_in(ids.tolist())
+        )
         paths = write_tables(tables, out, overwrite)
     for path, table in zip(paths, tables.values(), strict=True):
         stdout.print(f"{path}  {table.height:,} rows")

@@ -21,8 +21,12 @@ def _number(value: float | None, digits: int = 1) -> str:
 def _distribution_cells(d: Distribution, digits: int = 1, counts: bool = False) -> list[str]:
     """mean, min, p5, p50, p95, max; min and max without decimals for counts."""
     extreme = 0 if counts else digits
-    return [_number(d.mean, digits), _number(d.min, extreme), *(_number(v, digits) for v in (d.p5, d.p50, d.p95)),
-            _number(d.max, extreme)]  # fmt: skip
+    return [
+        _number(d.mean, digits),
+        _number(d.min, extreme),
+        *(_number(v, digits) for v in (d.p5, d.p50, d.p95)),
+        _number(d.max, extreme),
+    ]
 
 
 def _table(title: str, first: list[str], right: list[str]) -> Table:
@@ -36,19 +40,27 @@ def _table(title: str, first: list[str], right: list[str]) -> Table:
 
 DISTRIBUTION_COLUMNS = ["mean", "min", "p5", "p50", "p95", "max"]
 GRAPH_SIZE_LABELS = {
-    "n_nodes": "nodes", "n_spatial_edges": "spatial edges", "n_temporal_edges": "temporal edges",
+    "n_nodes": "nodes",
+    "n_spatial_edges": "spatial edges",
+    "n_temporal_edges": "temporal edges",
     "n_targets": "targets",
-}  # fmt: skip
+}
 
 
 def _recordings_table(st: BuildStatistics) -> Table:
-    table = _table("Recordings (samples per split)", ["recording"],
-                   ["vehicles", "tracks", "rows 0.2 s", *SPLIT_NAMES])  # fmt: skip
+    table = _table(
+        "Recordings (samples per split)",
+        ["recording"],
+        ["vehicles", "tracks", "rows 0.2 s", *SPLIT_NAMES],
+    )
     for r in st.recordings:
         table.add_row(
-            f"{r['location']} {r['period']}", f"{r['vehicles']:,}", f"{r['tracks']:,}", f"{r['grid_rows']:,}",
+            f"{r['location']} {r['period']}",
+            f"{r['vehicles']:,}",
+            f"{r['tracks']:,}",
+            f"{r['grid_rows']:,}",
             *(f"{r['samples'].get(split, 0):,}" for split in SPLIT_NAMES),
-        )  # fmt: skip
+        )
     return table
 
 
@@ -56,10 +68,16 @@ def _rows_table(st: BuildStatistics) -> Table:
     """Where the rows read went: each reason a row was dropped for, and what reached the tracks."""
     c = st.counts
     table = _table("Rows read (10 Hz) and where they went", ["rows"], ["count", "share"])
-    lines = [("read", c["rows_read"]), ("of other locations", c["rows_other_locations"]),
-             ("an empty required field", c["rows_missing_values"])]  # fmt: skip
+    lines = [
+        ("read", c["rows_read"]),
+        ("of other locations", c["rows_other_locations"]),
+        ("an empty required field", c["rows_missing_values"]),
+    ]
     lines += [(reason.replace("_", " "), n) for reason, n in c["rows_dropped"].items() if n]
-    lines += [("exact duplicates", c["exact_duplicates"]), ("conflicting duplicates", c["conflicting_duplicates"])]
+    lines += [
+        ("exact duplicates", c["exact_duplicates"]),
+        ("conflicting duplicates", c["conflicting_duplicates"]),
+    ]
     for label, n in lines:
         table.add_row(label, f"{n:,}", _share(n, c["rows_read"]))
     return table
@@ -76,9 +94,12 @@ def _splits_table(st: BuildStatistics) -> Table:
     for split in SPLIT_NAMES:
         n, targets = st.samples[split], st.targets[split]
         table.add_row(
-            split, f"{n:,}", _share(n, total), f"{targets.targets:,}",
+            split,
+            f"{n:,}",
+            _share(n, total),
+            f"{targets.targets:,}",
             f"{targets.full_future:,} ({_share(targets.full_future, targets.targets)})",
-        )  # fmt: skip
+        )
     return table
 
 
@@ -86,15 +107,20 @@ def _graph_size_table(st: BuildStatistics) -> Table:
     table = _table("Graph size (all samples, exact)", ["split", "per graph"], DISTRIBUTION_COLUMNS)
     for split in SPLIT_NAMES:
         for column, label in GRAPH_SIZE_LABELS.items():
-            table.add_row(split, label, *_distribution_cells(st.graph_size[split][column], counts=True))
+            table.add_row(
+                split, label, *_distribution_cells(st.graph_size[split][column], counts=True)
+            )
         table.add_section()
     return table
 
 
 def _degree_table(st: BuildStatistics) -> Table:
     n_graphs = sum(d.sampled_graphs for d in st.node_degree.values())
-    table = _table(f"Spatial in-degree per node (from {n_graphs:,} sampled graphs)",
-                   ["split"], ["graphs", "nodes", *DISTRIBUTION_COLUMNS])  # fmt: skip
+    table = _table(
+        f"Spatial in-degree per node (from {n_graphs:,} sampled graphs)",
+        ["split"],
+        ["graphs", "nodes", *DISTRIBUTION_COLUMNS],
+    )
     for split in SPLIT_NAMES:
         graphs, d = st.node_degree[split].sampled_graphs, st.node_degree[split].spatial_in_degree
         table.add_row(split, f"{graphs:,}", f"{d.count:,}", *_distribution_cells(d, counts=True))
@@ -103,7 +129,11 @@ def _degree_table(st: BuildStatistics) -> Table:
 
 def _kinematics_table(st: BuildStatistics) -> Table:
     rows = st.kinematics["speed_mps"].count
-    table = _table(f"Kinematics ({rows:,} tracks rows)", ["quantity"], ["mean", "std", *DISTRIBUTION_COLUMNS[1:]])
+    table = _table(
+        f"Kinematics ({rows:,} tracks rows)",
+        ["quantity"],
+        ["mean", "std", *DISTRIBUTION_COLUMNS[1:]],
+    )
     for name, label, digits in (("speed_mps", "speed m/s", 2), ("heading_rad", "heading rad", 3)):
         d = st.kinematics[name]
         mean, *rest = _distribution_cells(d, digits)
@@ -115,7 +145,9 @@ def _scaler_table(st: BuildStatistics) -> Table:
     table = _table("Scaler (MinMax, fitted on train)", ["quantity"], ["min", "max", "maps to"])
     for name, fitted in st.scaler.items():
         low, high = fitted["to"]
-        table.add_row(name, _number(fitted["min"], 3), _number(fitted["max"], 3), f"({low:g}, {high:g})")
+        table.add_row(
+            name, _number(fitted["min"], 3), _number(fitted["max"], 3), f"({low:g}, {high:g})"
+        )
     return table
 
 
@@ -123,15 +155,23 @@ def _config_table(st: BuildStatistics) -> Table:
     table = _table(f"Build config (sha256 {st.config_hash[:12]})", ["setting"], ["value"])
     flat = {}
     for name, value in st.config.items():  # nested settings (the physical limits) one per row
-        flat.update({f"{name}.{k}": v for k, v in value.items()} if isinstance(value, dict) else {name: value})
+        flat.update(
+            {f"{name}.{k}": v for k, v in value.items()}
+            if isinstance(value, dict)
+            else {name: value}
+        )
     for name, value in flat.items():
         table.add_row(name, ", ".join(map(str, value)) if isinstance(value, list) else str(value))
     return table
 
 
 STATS_TABLES = (
-    _recordings_table, _rows_table, _splits_table, _graph_size_table, _degree_table, _kinematics_table, _scaler_table,
+    _recordings_table,
+    _rows_table,
+    _splits_table,
+    _graph_size_table,
+    _degree_table,
+    _kinematics_table,
+    _scaler_table,
     _config_table,
-)  # fmt: skip
-
-
+)

@@ -37,7 +37,12 @@ class PhysicalLimits:
     max_dropped_share: float = 0.01
 
     def __post_init__(self) -> None:
-        positive = (self.max_speed_mps, self.max_abs_accel_mps2, self.max_abs_position_m, self.max_jump_m)
+        positive = (
+            self.max_speed_mps,
+            self.max_abs_accel_mps2,
+            self.max_abs_position_m,
+            self.max_jump_m,
+        )
         if min(positive) <= 0 or self.max_frame_id < 1 or self.max_outlier_frames < 1:
             raise ValueError("physical limits must be positive")
         if not 0 <= self.max_dropped_share <= 1:
@@ -66,20 +71,27 @@ class BuildConfig:
     def __post_init__(self) -> None:
         # A source's filter is the names of its own locations; none named: all of them (highD).
         unknown = sorted(
-            name for name in set(self.locations) if name not in KNOWN_LOCATION_NAMES and not is_highd_location(name)
+            name
+            for name in set(self.locations)
+            if name not in KNOWN_LOCATION_NAMES and not is_highd_location(name)
         )
         if unknown or not self.locations:
             raise ValueError(
                 f"unknown location(s) {unknown}; choose from {', '.join(KNOWN_LOCATION_NAMES)} "
                 "or highd-N (a highD locationId)"
             )
-        if self.frames_per_step < 1 or abs(self.frames_per_step * FRAME_STEP_S - self.time_step_s) > 1e-9:
+        if (
+            self.frames_per_step < 1
+            or abs(self.frames_per_step * FRAME_STEP_S - self.time_step_s) > 1e-9
+        ):
             raise ValueError(f"time_step_s must be a positive multiple of {FRAME_STEP_S} s")
         if self.heading_smoothing_s < 0 or self.min_heading_speed_mps < 0:
             raise ValueError("heading_smoothing_s and min_heading_speed_mps must be >= 0")
         stride = self.stride_s / self.time_step_s
         if stride < 1 - 1e-9 or abs(stride - round(stride)) > 1e-6:
-            raise ValueError(f"stride_s must be a positive multiple of time_step_s ({self.time_step_s} s)")
+            raise ValueError(
+                f"stride_s must be a positive multiple of time_step_s ({self.time_step_s} s)"
+            )
         if self.history_steps < 2 or self.future_steps < 1:
             raise ValueError("history_steps must be >= 2 and future_steps >= 1")
         if self.d_sense_m <= 0 or self.d_min_m < 0:

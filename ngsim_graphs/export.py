@@ -29,15 +29,27 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
     """
     sample_of_node = np.asarray(sample_ids)[batch.node_sample]
     local = np.arange(len(batch.node_sample)) - batch.node_ptr[batch.node_sample]
-    nodes = pl.DataFrame({
-        s.SAMPLE_ID: sample_of_node, s.NODE: local, s.K: batch.node_step, s.TRACK_ID: batch.node_track,
-        s.IS_EGO: batch.node_is_ego, s.X_M: batch.node_features[:, 0], s.Y_M: batch.node_features[:, 1],
-        s.HEADING_RAD: batch.node_features[:, 2], s.SPEED_MPS: batch.node_features[:, 3],
-    })  # fmt: skip
+    nodes = pl.DataFrame(
+        {
+            s.SAMPLE_ID: sample_of_node,
+            s.NODE: local,
+            s.K: batch.node_step,
+            s.TRACK_ID: batch.node_track,
+            s.IS_EGO: batch.node_is_ego,
+            s.X_M: batch.node_features[:, 0],
+            s.Y_M: batch.node_features[:, 1],
+            s.HEADING_RAD: batch.node_features[:, 2],
+            s.SPEED_MPS: batch.node_features[:, 3],
+        }
+    )
 
     def edges(pairs: np.ndarray) -> dict[str, np.ndarray]:
-        return {s.SAMPLE_ID: sample_of_node[pairs[0]], s.K: batch.node_step[pairs[0]],
-                s.EDGE_SOURCE: local[pairs[0]], s.EDGE_DESTINATION: local[pairs[1]]}  # fmt: skip
+        return {
+            s.SAMPLE_ID: sample_of_node[pairs[0]],
+            s.K: batch.node_step[pairs[0]],
+            s.EDGE_SOURCE: local[pairs[0]],
+            s.EDGE_DESTINATION: local[pairs[1]],
+        }
 
     spatial = pl.DataFrame({**edges(batch.spatial_edges), s.DISTANCE_M: batch.spatial_distance})
     temporal = pl.DataFrame(edges(batch.temporal_edges)).with_columns(
@@ -45,11 +57,17 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
     )
     n_targets, k_f = batch.target_mask.shape
     target = np.repeat(batch.target_node, k_f)
-    targets = pl.DataFrame({
-        s.SAMPLE_ID: sample_of_node[target], s.NODE: local[target], s.TRACK_ID: batch.node_track[target],
-        s.FUTURE_STEP: np.tile(np.arange(k_f), n_targets), s.X_M: batch.target_xy[..., 0].reshape(-1),
-        s.Y_M: batch.target_xy[..., 1].reshape(-1), s.RECORDED: batch.target_mask.reshape(-1),
-    })  # fmt: skip
+    targets = pl.DataFrame(
+        {
+            s.SAMPLE_ID: sample_of_node[target],
+            s.NODE: local[target],
+            s.TRACK_ID: batch.node_track[target],
+            s.FUTURE_STEP: np.tile(np.arange(k_f), n_targets),
+            s.X_M: batch.target_xy[..., 0].reshape(-1),
+            s.Y_M: batch.target_xy[..., 1].reshape(-1),
+            s.RECORDED: batch.target_mask.reshape(-1),
+        }
+    )
     order = [s.SAMPLE_ID, s.K, s.EDGE_SOURCE, s.EDGE_DESTINATION]
     return {
         "nodes": nodes.sort(s.SAMPLE_ID, s.NODE),

@@ -24,7 +24,6 @@ import numpy as np
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.grid import RecordingArrays, pair_search_key
 
-
 SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding
 
 
@@ -50,7 +49,9 @@ class GraphBatch:
     node_is_ego: np.ndarray  # (N,) bool
     node_features: np.ndarray  # (N, 4) float64 [x_m, y_m, heading_rad, speed_mps], sample frame
     spatial_edges: np.ndarray  # (2, E_s) int64 [source, destination]
-    spatial_distance: np.ndarray  # (E_s,) float64 metres (actor-actor: as stored, float32 precision)
+    spatial_distance: (
+        np.ndarray
+    )  # (E_s,) float64 metres (actor-actor: as stored, float32 precision)
     temporal_edges: np.ndarray  # (2, E_t) int64 [node at k, node at k+1]
     target_node: np.ndarray  # (T,) int64 node of each target (present step), by sample
     target_xy: np.ndarray  # (T, K_F, 2) float64 future positions, sample frame; 0 where masked
@@ -137,7 +138,16 @@ def induce_graphs(
     features[:, :2] -= origin[node_sample]
 
     spatial, distance = _spatial_edges(
-        rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, node_sample, config.d_sense_m
+        rec,
+        ss_step,
+        ego_rows,
+        cand_ss,
+        cand_is_ego,
+        cand_dist,
+        node_of_cand,
+        order,
+        node_sample,
+        config.d_sense_m,
     )
     node_track = rec.node_track[node_row]
     node_step = (first_step + node_ss % n_kept).astype(np.int8)
@@ -162,7 +172,18 @@ def induce_graphs(
     )
 
 
-def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node_of_cand, order, node_sample, d_sense_m):
+def _spatial_edges(
+    rec,
+    ss_step,
+    ego_rows,
+    cand_ss,
+    cand_is_ego,
+    cand_dist,
+    node_of_cand,
+    order,
+    node_sample,
+    d_sense_m,
+):
     """Ego <-> actor edges, then actor <-> actor edges among nodes, in both directions.
 
     Edges come by sample; within a sample grouped by kind (ego->actor, actor->ego,
@@ -187,7 +208,9 @@ def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node
     node_a = node_of_cand[base[pair_ss] + pair_rows[:, 0]]
     node_b = node_of_cand[base[pair_ss] + pair_rows[:, 1]]
     ego_row = ego_rows[pair_ss]
-    keep = (node_a >= 0) & (node_b >= 0) & (pair_rows[:, 0] != ego_row) & (pair_rows[:, 1] != ego_row)
+    keep = (
+        (node_a >= 0) & (node_b >= 0) & (pair_rows[:, 0] != ego_row) & (pair_rows[:, 1] != ego_row)
+    )
     node_a, node_b = node_a[keep], node_b[keep]
     pair_dist = rec.pair_dist[pair_index[keep]].astype(np.float64)
     src = np.concatenate([ego_src, ego_dst, node_a, node_b])
@@ -198,14 +221,18 @@ def _spatial_edges(rec, ss_step, ego_rows, cand_ss, cand_is_ego, cand_dist, node
     return np.stack([src[by_sample], dst[by_sample]]), dist[by_sample]
 
 
-def _temporal_edges(node_sample: np.ndarray, node_track: np.ndarray, node_step: np.ndarray) -> np.ndarray:
+def _temporal_edges(
+    node_sample: np.ndarray, node_track: np.ndarray, node_step: np.ndarray
+) -> np.ndarray:
     """Node of (sample, track) at step k -> its node at k+1, where both exist.
 
     Only consecutive steps are joined (and spatial edges stay within a step): that is why a model
     of L layers reads the last L + 1 steps alone (`ModelConfig.history_steps_read`), which the
     dataset relies on to cut graphs. Joining further steps would need that changed too."""
     by = np.lexsort((node_step, node_track, node_sample))
-    same = (node_sample[by][1:] == node_sample[by][:-1]) & (node_track[by][1:] == node_track[by][:-1])
+    same = (node_sample[by][1:] == node_sample[by][:-1]) & (
+        node_track[by][1:] == node_track[by][:-1]
+    )
     follows = same & (node_step[by][1:] == node_step[by][:-1] + 1)
     src, dst = by[:-1][follows], by[1:][follows]
     order = np.lexsort((dst, src))
@@ -222,7 +249,9 @@ def _targets(rec, node_sample, node_step, node_track, node_is_ego, origin, start
     rows = rec.row_at(np.repeat(node_track[target_node], config.future_steps), future.reshape(-1))
     rows = rows.reshape(len(target_node), config.future_steps)
     mask = rows >= 0
-    xy = np.where(mask[..., None], rec.node_state[np.maximum(rows, 0), :2] - origin[sample][:, None], 0.0)
+    xy = np.where(
+        mask[..., None], rec.node_state[np.maximum(rows, 0), :2] - origin[sample][:, None], 0.0
+    )
     return target_node, xy, mask
 
 
@@ -234,16 +263,26 @@ def concat_batches(batches: list[GraphBatch]) -> GraphBatch:
     sample_offsets = np.cumsum([0] + [b.n_samples for b in batches])
     join = lambda name: np.concatenate([getattr(b, name) for b in batches])  # noqa: E731
     return GraphBatch(
-        node_ptr=np.concatenate([[0]] + [b.node_ptr[1:] + o for b, o in zip(batches, node_offsets, strict=False)]),
-        node_sample=np.concatenate([b.node_sample + o for b, o in zip(batches, sample_offsets, strict=False)]),
+        node_ptr=np.concatenate(
+            [[0]] + [b.node_ptr[1:] + o for b, o in zip(batches, node_offsets, strict=False)]
+        ),
+        node_sample=np.concatenate(
+            [b.node_sample + o for b, o in zip(batches, sample_offsets, strict=False)]
+        ),
         node_step=join("node_step"),
         node_track=join("node_track"),
         node_is_ego=join("node_is_ego"),
         node_features=join("node_features"),
-        spatial_edges=np.concatenate([b.spatial_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1),
+        spatial_edges=np.concatenate(
+            [b.spatial_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1
+        ),
         spatial_distance=join("spatial_distance"),
-        temporal_edges=np.concatenate([b.temporal_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1),
-        target_node=np.concatenate([b.target_node + o for b, o in zip(batches, node_offsets, strict=False)]),
+        temporal_edges=np.concatenate(
+            [b.temporal_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1
+        ),
+        target_node=np.concatenate(
+            [b.target_node + o for b, o in zip(batches, node_offsets, strict=False)]
+        ),
         target_xy=join("target_xy"),
         target_mask=join("target_mask"),
         time_step_s=batches[0].time_step_s,

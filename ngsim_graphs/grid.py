@@ -148,7 +148,9 @@ def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArray
     track_ptr = _csr_ptr(local_track[by_track], n_tracks)
     track_first_step = step[by_track[track_ptr[:-1]]] if n_tracks else np.empty(0, np.int32)
     # Pair endpoints as rows (through the track index), lower y first, by (step, lower y).
-    rows_of = lambda t, st: by_track[track_ptr[t - first_track] + (st - track_first_step[t - first_track])]  # noqa: E731
+    rows_of = lambda t, st: by_track[
+        track_ptr[t - first_track] + (st - track_first_step[t - first_track])
+    ]  # noqa: E731
     pair_step = pairs[s.STEP].to_numpy()
     rows_a = rows_of(pairs[s.TRACK_A].to_numpy(), pair_step)
     rows_b = rows_of(pairs[s.TRACK_B].to_numpy(), pair_step)

@@ -82,15 +82,33 @@ class RecordingEntry:
 
     def to_dict(self) -> dict[str, Any]:
         """The report's fields (NaN as null) beside the entry's own."""
-        report = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in asdict(self.report).items()}
+        report = {
+            k: (None if isinstance(v, float) and math.isnan(v) else v)
+            for k, v in asdict(self.report).items()
+        }
         outlier = None if self.first_outlier is None else asdict(self.first_outlier)
-        return {**report, "first_outlier": outlier, "index": self.index, "name": self.name,
-                "first_track_id": self.first_track_id, "n_steps": self.n_steps,
-                "proximity_edges": self.proximity_edges, "samples": dict(self.samples)}  # fmt: skip
+        return {
+            **report,
+            "first_outlier": outlier,
+            "index": self.index,
+            "name": self.name,
+            "first_track_id": self.first_track_id,
+            "n_steps": self.n_steps,
+            "proximity_edges": self.proximity_edges,
+            "samples": dict(self.samples),
+        }
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> RecordingEntry:
-        own = {"index", "name", "first_track_id", "n_steps", "proximity_edges", "samples", "first_outlier"}
+        own = {
+            "index",
+            "name",
+            "first_track_id",
+            "n_steps",
+            "proximity_edges",
+            "samples",
+            "first_outlier",
+        }
         report = {k: v for k, v in values.items() if k not in own}
         outlier = values["first_outlier"]
         return cls(
@@ -179,7 +197,9 @@ class Manifest:
         """The manifest of a JSON value; KeyError, TypeError or ValueError for another form (a
         build setting this version does not know is a ValueError)."""
         files = values.get(FILES_KEY, {} if CHECKSUM_KEY not in values else None)  # sealed: both
-        if not isinstance(files, Mapping) or not all(isinstance(r, Mapping) for r in files.values()):
+        if not isinstance(files, Mapping) or not all(
+            isinstance(r, Mapping) for r in files.values()
+        ):
             raise ValueError("no file records")
         return cls(
             format_version=values["format_version"],

@@ -42,7 +42,6 @@ from ngsim_graphs.windows import ego_windows
 INDUCE_BATCH = 64  # samples per induction: small batches stay in the CPU caches
 
 
-
 @dataclass(frozen=True)
 class RecordingSamples:
     """What one recording contributes to a build."""
@@ -53,7 +52,9 @@ class RecordingSamples:
     scaler: MinMaxScaler  # widened by this recording's train samples
 
 
-def iter_graphs(rec: RecordingArrays, windows: pl.DataFrame, config: BuildConfig) -> Iterator[GraphBatch]:
+def iter_graphs(
+    rec: RecordingArrays, windows: pl.DataFrame, config: BuildConfig
+) -> Iterator[GraphBatch]:
     """The graphs of `windows` (EGO_TRACK_ID, START_STEP) in order, INDUCE_BATCH at a time."""
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     for first in range(0, len(egos), INDUCE_BATCH):
@@ -67,9 +68,15 @@ def graph_counts(batch: GraphBatch) -> np.ndarray:
     per = lambda nodes: np.bincount(batch.node_sample[nodes], minlength=b)  # noqa: E731
     full = batch.target_node[batch.target_mask.all(axis=1)]
     return np.stack(
-        [np.diff(batch.node_ptr), per(batch.spatial_edges[0]), per(batch.temporal_edges[0]),
-         per(batch.target_node), per(full)], axis=1,
-    )  # fmt: skip
+        [
+            np.diff(batch.node_ptr),
+            per(batch.spatial_edges[0]),
+            per(batch.temporal_edges[0]),
+            per(batch.target_node),
+            per(full),
+        ],
+        axis=1,
+    )
 
 
 def recording_samples(
@@ -90,13 +97,14 @@ def recording_samples(
         if is_train.any():
             node_train = is_train[batch.node_sample]
             edge_train = node_train[batch.spatial_edges[0]]
-            scaler = scaler.widened(batch.node_features[node_train], batch.spatial_distance[edge_train])
+            scaler = scaler.widened(
+                batch.node_features[node_train], batch.spatial_distance[edge_train]
+            )
     table = np.concatenate(counts) if counts else np.zeros((0, len(s.COUNT_COLUMNS)), np.int64)
     windows = windows.with_columns(
         pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
     return RecordingSamples(pairs=pairs, arrays=arrays, windows=windows, scaler=scaler)
-
 
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -130,9 +138,13 @@ class RecordingOutput:
 
 
 def _stage_inputs(
-    source: Source, files: list[Path], config: BuildConfig, root: Path, progress: BuildProgress,
+    source: Source,
+    files: list[Path],
+    config: BuildConfig,
+    root: Path,
+    progress: BuildProgress,
     strict: bool,
-) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:  # fmt: skip
+) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
     """Read each file and stage its rows per recording, one recording in memory at a time."""
     reports: list[FileReport] = []
     staged: dict[RecordingKey, list[Path]] = {}
@@ -157,9 +169,17 @@ def _stage_inputs(
 
 
 def _build_recording(
-    source: Source, key: RecordingKey, index: int, staged: list[Path], config: BuildConfig,
-    root: Path, first_track_id: int, scaler: MinMaxScaler, files: list[FileReport], strict: bool,
-) -> tuple[RecordingOutput, MinMaxScaler]:  # fmt: skip
+    source: Source,
+    key: RecordingKey,
+    index: int,
+    staged: list[Path],
+    config: BuildConfig,
+    root: Path,
+    first_track_id: int,
+    scaler: MinMaxScaler,
+    files: list[FileReport],
+    strict: bool,
+) -> tuple[RecordingOutput, MinMaxScaler]:
     """Tracks, proximity edges, frame arrays and split windows of one recording, written."""
     raw = pl.read_parquet(staged)
     tracks, report = source.recording_tracks(raw, key, config, first_track_id, files, strict)
@@ -168,15 +188,25 @@ def _build_recording(
     layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
     arrays = samples.arrays
     layout.write_arrays(
-        layout.recording_arrays_dir(root, *key), {name: getattr(arrays, name) for name in ARRAY_NAMES}
+        layout.recording_arrays_dir(root, *key),
+        {name: getattr(arrays, name) for name in ARRAY_NAMES},
     )
     windows = samples.windows.with_columns(
-        pl.lit(key[0]).alias(s.LOCATION), pl.lit(key[1]).alias(s.PERIOD), pl.lit(index).alias(s.RECORDING_INDEX)
+        pl.lit(key[0]).alias(s.LOCATION),
+        pl.lit(key[1]).alias(s.PERIOD),
+        pl.lit(index).alias(s.RECORDING_INDEX),
     )
     ids = tracks[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
     output = RecordingOutput(
-        report, index, first_track_id, arrays.n_steps, longest, (ids[0], ids[1]), samples.pairs.height, windows
+        report,
+        index,
+        first_track_id,
+        arrays.n_steps,
+        longest,
+        (ids[0], ids[1]),
+        samples.pairs.height,
+        windows,
     )
     return output, samples.scaler
 
@@ -226,10 +256,14 @@ def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
     return f"every window falls in a gap between the blocks of the {config.split.value} split"
 
 
-def _check_some_samples(outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]) -> None:
+def _check_some_samples(
+    outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]
+) -> None:
     if sum(o.windows.height for o in outputs) == 0:
         more = f" (and {len(raw_paths) - 1} more)" if len(raw_paths) > 1 else ""
-        raise NgsimInputError(f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}")
+        raise NgsimInputError(
+            f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}"
+        )
 
 
 def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
@@ -264,7 +298,10 @@ def _counts(
     def total(key: str) -> int:
         return sum(getattr(o.report, key) for o in outputs)
 
-    dropped = {reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files) for reason in DropReason}
+    dropped = {
+        reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files)
+        for reason in DropReason
+    }
     dropped[DropReason.POSITION_OUTLIER.value] = total("position_outliers")
     return BuildCounts(
         rows_read=sum(f.rows_read for f in files),
@@ -333,7 +370,16 @@ def run_build(
         for index, key in enumerate(sorted(staged)):
             report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))
             output, scaler = _build_recording(
-                source, key, index, staged[key], config, root, next_track_id, scaler, file_reports, strict
+                source,
+                key,
+                index,
+                staged[key],
+                config,
+                root,
+                next_track_id,
+                scaler,
+                file_reports,
+                strict,
             )
             outputs.append(output)
             next_track_id += output.report.tracks

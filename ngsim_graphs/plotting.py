@@ -13,8 +13,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ngsim_graphs.statistics import SPLITS, BuildValues
 from ngsim_graphs.schema import N_NODES, N_SPATIAL
+from ngsim_graphs.statistics import SPLITS, BuildValues
 
 SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
 PLOT_NAMES = ("nodes_per_graph", "spatial_edges_per_graph", "node_degree", "speed", "heading")
@@ -30,22 +30,36 @@ def _integer_bins(values: list[np.ndarray], max_bins: int = 60) -> np.ndarray:
     return np.arange(low, high + width + 1, width) - 0.5
 
 
-def _split_histogram(folder: Path, name: str, per_split: dict[str, np.ndarray], title: str, xlabel: str,
-                     ylabel: str) -> Path:  # fmt: skip
+def _split_histogram(
+    folder: Path, name: str, per_split: dict[str, np.ndarray], title: str, xlabel: str, ylabel: str
+) -> Path:
     """Stacked histogram of one quantity, the splits in their colours."""
     splits = [split for split in SPLITS if split in per_split]
     data = [np.asarray(per_split[split]) for split in splits]
     figure, axes = _figure()
     labels = [f"{split} (n={len(values):,})" for split, values in zip(splits, data, strict=True)]
-    axes.hist(data, bins=_integer_bins(data), stacked=True, histtype="stepfilled", label=labels,
-              color=[SPLIT_COLOURS[split] for split in splits])  # fmt: skip
+    axes.hist(
+        data,
+        bins=_integer_bins(data),
+        stacked=True,
+        histtype="stepfilled",
+        label=labels,
+        color=[SPLIT_COLOURS[split] for split in splits],
+    )
     axes.set(title=title, xlabel=xlabel, ylabel=ylabel)
     axes.legend(title="split")
     return _save(figure, folder / f"{name}.png")
 
 
-def _histogram(folder: Path, name: str, values: np.ndarray, title: str, xlabel: str, ylabel: str,
-               log_y: bool = False) -> Path:  # fmt: skip
+def _histogram(
+    folder: Path,
+    name: str,
+    values: np.ndarray,
+    title: str,
+    xlabel: str,
+    ylabel: str,
+    log_y: bool = False,
+) -> Path:
     figure, axes = _figure()
     axes.hist(values, bins=80, histtype="stepfilled", color="tab:blue")
     if log_y:
@@ -75,15 +89,40 @@ def write_histograms(values: BuildValues, folder: Path) -> list[Path]:
     n_graphs = sum(values.degree_graphs.values())
     rows = f"{len(values.speed_mps):,} tracks rows"
     return [
-        _split_histogram(folder, "nodes_per_graph", nodes, "Nodes per graph (all history steps)",
-                         "nodes per graph", "samples"),
-        _split_histogram(folder, "spatial_edges_per_graph", edges,
-                         "Spatial edges per graph (directed, all history steps)",
-                         "spatial edges per graph", "samples"),
-        _split_histogram(folder, "node_degree", values.spatial_in_degree,
-                         f"Spatial in-degree per node (from {n_graphs:,} sampled graphs)",
-                         "spatial in-degree (edges into a node at its step)", "nodes"),
-        _histogram(folder, "speed", values.speed_mps, f"Speed ({rows})", "speed (m/s)", "tracks rows"),
-        _histogram(folder, "heading", values.heading_rad, f"Heading ({rows}, log scale)",
-                   "heading (rad, from +y towards +x)", "tracks rows", log_y=True),
-    ]  # fmt: skip
+        _split_histogram(
+            folder,
+            "nodes_per_graph",
+            nodes,
+            "Nodes per graph (all history steps)",
+            "nodes per graph",
+            "samples",
+        ),
+        _split_histogram(
+            folder,
+            "spatial_edges_per_graph",
+            edges,
+            "Spatial edges per graph (directed, all history steps)",
+            "spatial edges per graph",
+            "samples",
+        ),
+        _split_histogram(
+            folder,
+            "node_degree",
+            values.spatial_in_degree,
+            f"Spatial in-degree per node (from {n_graphs:,} sampled graphs)",
+            "spatial in-degree (edges into a node at its step)",
+            "nodes",
+        ),
+        _histogram(
+            folder, "speed", values.speed_mps, f"Speed ({rows})", "speed (m/s)", "tracks rows"
+        ),
+        _histogram(
+            folder,
+            "heading",
+            values.heading_rad,
+            f"Heading ({rows}, log scale)",
+            "heading (rad, from +y towards +x)",
+            "tracks rows",
+            log_y=True,
+        ),
+    ]

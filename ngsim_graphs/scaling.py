@@ -19,9 +19,12 @@ import numpy as np
 SCALED = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")  # the quantities, in order
 FEATURES = SCALED[:4]  # node feature columns, in order
 TARGET_RANGES: Mapping[str, tuple[float, float]] = {
-    "x_m": (-1.0, 1.0), "y_m": (-1.0, 1.0), "heading_rad": (-1.0, 1.0), "speed_mps": (0.0, 1.0),
+    "x_m": (-1.0, 1.0),
+    "y_m": (-1.0, 1.0),
+    "heading_rad": (-1.0, 1.0),
+    "speed_mps": (0.0, 1.0),
     "distance_m": (0.0, 1.0),
-}  # fmt: skip
+}
 
 Values = TypeVar("Values")  # np.ndarray or torch.Tensor (anything with float arithmetic)
 
@@ -47,7 +50,7 @@ class MinMaxScaler:
     @classmethod
     def empty(cls) -> MinMaxScaler:
         """Nothing observed yet: `widened` by each train graph in turn."""
-        return cls({n: math.inf for n in SCALED}, {n: -math.inf for n in SCALED})
+        return cls(dict.fromkeys(SCALED, math.inf), dict.fromkeys(SCALED, -math.inf))
 
     def widened(self, node_features: np.ndarray, distances_m: np.ndarray) -> MinMaxScaler:
         """Widened by (N, 4) node features (FEATURES order) and (E,) spatial-edge distances."""
@@ -95,7 +98,11 @@ class MinMaxScaler:
         """JSON-ready, as the manifest records it: {name: {"min", "max", "to"}} in SCALED order;
         min and max are null where not finite (nothing observed)."""
         return {
-            name: {"min": _finite(self.low[name]), "max": _finite(self.high[name]), "to": list(self.target[name])}
+            name: {
+                "min": _finite(self.low[name]),
+                "max": _finite(self.high[name]),
+                "to": list(self.target[name]),
+            }
             for name in SCALED
         }
 

@@ -77,18 +77,54 @@ LOCATION: Final = "location"
 # The 18 columns of the original whitespace text files, in file order. Per-period CSVs and the
 # portal CSV carry them too (plus zone/intersection columns the pipeline does not use).
 TXT_COLUMNS: Final[tuple[str, ...]] = (
-    VEHICLE_ID, FRAME_ID, TOTAL_FRAMES, GLOBAL_TIME, LOCAL_X, LOCAL_Y, GLOBAL_X, GLOBAL_Y,
-    V_LENGTH, V_WIDTH, V_CLASS, V_VEL, V_ACC, LANE_ID, PRECEDING, FOLLOWING,
-    SPACE_HEADWAY, TIME_HEADWAY,
-)  # fmt: skip
+    VEHICLE_ID,
+    FRAME_ID,
+    TOTAL_FRAMES,
+    GLOBAL_TIME,
+    LOCAL_X,
+    LOCAL_Y,
+    GLOBAL_X,
+    GLOBAL_Y,
+    V_LENGTH,
+    V_WIDTH,
+    V_CLASS,
+    V_VEL,
+    V_ACC,
+    LANE_ID,
+    PRECEDING,
+    FOLLOWING,
+    SPACE_HEADWAY,
+    TIME_HEADWAY,
+)
 
 # The 25 columns of the combined portal CSV, in file order, with the official header spelling.
 PORTAL_HEADER: Final[tuple[str, ...]] = (
-    "Vehicle_ID", "Frame_ID", "Total_Frames", "Global_Time", "Local_X", "Local_Y", "Global_X",
-    "Global_Y", "v_length", "v_Width", "v_Class", "v_Vel", "v_Acc", "Lane_ID", "O_Zone", "D_Zone",
-    "Int_ID", "Section_ID", "Direction", "Movement", "Preceding", "Following", "Space_Headway",
-    "Time_Headway", "Location",
-)  # fmt: skip
+    "Vehicle_ID",
+    "Frame_ID",
+    "Total_Frames",
+    "Global_Time",
+    "Local_X",
+    "Local_Y",
+    "Global_X",
+    "Global_Y",
+    "v_length",
+    "v_Width",
+    "v_Class",
+    "v_Vel",
+    "v_Acc",
+    "Lane_ID",
+    "O_Zone",
+    "D_Zone",
+    "Int_ID",
+    "Section_ID",
+    "Direction",
+    "Movement",
+    "Preceding",
+    "Following",
+    "Space_Headway",
+    "Time_Headway",
+    "Location",
+)
 
 # The header of a per-period CSV: the portal's columns without Location.
 PERIOD_CSV_HEADER: Final[tuple[str, ...]] = PORTAL_HEADER[:-1]
@@ -118,8 +154,13 @@ RAW_SCHEMA: Final = pl.Schema(
     }
 )
 REQUIRED_VALUE_COLUMNS: Final[tuple[str, ...]] = (
-    VEHICLE_ID, FRAME_ID, GLOBAL_TIME, LOCAL_X, LOCAL_Y, V_VEL,
-)  # fmt: skip
+    VEHICLE_ID,
+    FRAME_ID,
+    GLOBAL_TIME,
+    LOCAL_X,
+    LOCAL_Y,
+    V_VEL,
+)
 
 # Where a raw row came from, carried until cleaning so that drops can name the file and line.
 SOURCE_FILE: Final = "__source_file"  # index of the input file in the build's list of inputs
@@ -272,12 +313,32 @@ HIGHD_FOLLOWING_ID: Final = "followingId"  # 0: none
 HIGHD_LANE_ID: Final = "laneId"  # numbered from the top of the image, edges and median included
 
 HIGHD_TRACKS_HEADER: Final[tuple[str, ...]] = (
-    HIGHD_FRAME, HIGHD_ID, HIGHD_X, HIGHD_Y, HIGHD_WIDTH, HIGHD_HEIGHT, HIGHD_X_VELOCITY,
-    HIGHD_Y_VELOCITY, HIGHD_X_ACCELERATION, HIGHD_Y_ACCELERATION, "frontSightDistance",
-    "backSightDistance", HIGHD_DHW, HIGHD_THW, HIGHD_TTC, HIGHD_PRECEDING_X_VELOCITY,
-    HIGHD_PRECEDING_ID, HIGHD_FOLLOWING_ID, "leftPrecedingId", "leftAlongsideId",
-    "leftFollowingId", "rightPrecedingId", "rightAlongsideId", "rightFollowingId", HIGHD_LANE_ID,
-)  # fmt: skip
+    HIGHD_FRAME,
+    HIGHD_ID,
+    HIGHD_X,
+    HIGHD_Y,
+    HIGHD_WIDTH,
+    HIGHD_HEIGHT,
+    HIGHD_X_VELOCITY,
+    HIGHD_Y_VELOCITY,
+    HIGHD_X_ACCELERATION,
+    HIGHD_Y_ACCELERATION,
+    "frontSightDistance",
+    "backSightDistance",
+    HIGHD_DHW,
+    HIGHD_THW,
+    HIGHD_TTC,
+    HIGHD_PRECEDING_X_VELOCITY,
+    HIGHD_PRECEDING_ID,
+    HIGHD_FOLLOWING_ID,
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+    HIGHD_LANE_ID,
+)
 # The tracks columns the reader parses, with their dtypes; the rest of the header is not read.
 HIGHD_TRACKS_SCHEMA: Final = pl.Schema(
     {
@@ -300,16 +361,35 @@ HIGHD_TRACKS_SCHEMA: Final = pl.Schema(
 )
 # A tracks row with one of these empty is dropped and counted (rows_missing_values).
 HIGHD_REQUIRED_COLUMNS: Final[tuple[str, ...]] = (
-    HIGHD_FRAME, HIGHD_ID, HIGHD_X, HIGHD_Y, HIGHD_WIDTH, HIGHD_HEIGHT, HIGHD_X_VELOCITY,
-)  # fmt: skip
+    HIGHD_FRAME,
+    HIGHD_ID,
+    HIGHD_X,
+    HIGHD_Y,
+    HIGHD_WIDTH,
+    HIGHD_HEIGHT,
+    HIGHD_X_VELOCITY,
+)
 
 HIGHD_CLASS: Final = "class"  # "Car" or "Truck"
 HIGHD_DRIVING_DIRECTION: Final = "drivingDirection"  # 1: upper lanes, towards -x; 2: lower, +x
 HIGHD_TRACKS_META_HEADER: Final[tuple[str, ...]] = (
-    HIGHD_ID, HIGHD_WIDTH, HIGHD_HEIGHT, "initialFrame", "finalFrame", "numFrames", HIGHD_CLASS,
-    HIGHD_DRIVING_DIRECTION, "traveledDistance", "minXVelocity", "maxXVelocity", "meanXVelocity",
-    "minDHW", "minTHW", "minTTC", "numLaneChanges",
-)  # fmt: skip
+    HIGHD_ID,
+    HIGHD_WIDTH,
+    HIGHD_HEIGHT,
+    "initialFrame",
+    "finalFrame",
+    "numFrames",
+    HIGHD_CLASS,
+    HIGHD_DRIVING_DIRECTION,
+    "traveledDistance",
+    "minXVelocity",
+    "maxXVelocity",
+    "meanXVelocity",
+    "minDHW",
+    "minTHW",
+    "minTTC",
+    "numLaneChanges",
+)
 HIGHD_TRACKS_META_SCHEMA: Final = pl.Schema(
     {HIGHD_ID: pl.Int32, HIGHD_CLASS: pl.String, HIGHD_DRIVING_DIRECTION: pl.Int8}
 )
@@ -321,10 +401,22 @@ HIGHD_LOCATION_ID: Final = "locationId"
 HIGHD_UPPER_LANE_MARKINGS: Final = "upperLaneMarkings"  # image y of the markings, "a;b;c", m
 HIGHD_LOWER_LANE_MARKINGS: Final = "lowerLaneMarkings"
 HIGHD_RECORDING_META_HEADER: Final[tuple[str, ...]] = (
-    HIGHD_ID, HIGHD_FRAME_RATE, HIGHD_LOCATION_ID, "speedLimit", "month", "weekDay", "startTime",
-    "duration", "totalDrivenDistance", "totalDrivenTime", "numVehicles", "numCars", "numTrucks",
-    HIGHD_UPPER_LANE_MARKINGS, HIGHD_LOWER_LANE_MARKINGS,
-)  # fmt: skip
+    HIGHD_ID,
+    HIGHD_FRAME_RATE,
+    HIGHD_LOCATION_ID,
+    "speedLimit",
+    "month",
+    "weekDay",
+    "startTime",
+    "duration",
+    "totalDrivenDistance",
+    "totalDrivenTime",
+    "numVehicles",
+    "numCars",
+    "numTrucks",
+    HIGHD_UPPER_LANE_MARKINGS,
+    HIGHD_LOWER_LANE_MARKINGS,
+)
 HIGHD_RECORDING_META_SCHEMA: Final = pl.Schema(
     {
         HIGHD_ID: pl.Int32,

@@ -52,11 +52,19 @@ def split_by_time(windows: pl.DataFrame, config: BuildConfig) -> pl.Series:
         return pl.Series(s.SPLIT, [], dtype=pl.String)
     ordered = np.sort(present)
     # floor, with a tolerance: (0.7 + 0.1) * 20 is 15.999999999999998 in floating point.
-    cut = lambda fraction: ordered[min(len(ordered) - 1, math.floor(fraction * len(ordered) + 1e-9))]  # noqa: E731
+    cut = lambda fraction: ordered[
+        min(len(ordered) - 1, math.floor(fraction * len(ordered) + 1e-9))
+    ]  # noqa: E731
     first, second = cut(train), cut(train + val)
     gap = config.window_steps
-    label = np.where(present < first, Split.TRAIN.value, np.where(present < second, Split.VAL.value, Split.TEST.value))
-    in_gap = ((present >= first) & (present < first + gap)) | ((present >= second) & (present < second + gap))
+    label = np.where(
+        present < first,
+        Split.TRAIN.value,
+        np.where(present < second, Split.VAL.value, Split.TEST.value),
+    )
+    in_gap = ((present >= first) & (present < first + gap)) | (
+        (present >= second) & (present < second + gap)
+    )
     return pl.Series(s.SPLIT, np.where(in_gap, None, label), dtype=pl.String)
 
 
@@ -66,7 +74,11 @@ def split_randomly(windows: pl.DataFrame, recording_index: int, config: BuildCon
     rng = np.random.default_rng([config.seed, recording_index])
     draw = rng.random(len(tracks))
     train, val, _ = config.split_fractions
-    label = np.where(draw < train, Split.TRAIN.value, np.where(draw < train + val, Split.VAL.value, Split.TEST.value))
+    label = np.where(
+        draw < train,
+        Split.TRAIN.value,
+        np.where(draw < train + val, Split.VAL.value, Split.TEST.value),
+    )
     lookup = dict(zip(tracks.tolist(), label.tolist(), strict=True))
     return windows[s.EGO_TRACK_ID].replace_strict(lookup, return_dtype=pl.String).alias(s.SPLIT)
 
@@ -98,7 +110,10 @@ def _matlab_round(x: float) -> int:
 
 
 def _why_vehicle_split_is_small(
-    windows: pl.DataFrame, split: Split, top_vehicle_ids: dict[str, tuple[int, int]], config: BuildConfig
+    windows: pl.DataFrame,
+    split: Split,
+    top_vehicle_ids: dict[str, tuple[int, int]],
+    config: BuildConfig,
 ) -> str:
     """The rule, and the recordings that give `split` (almost) nothing, with their cuts."""
     per_recording = (

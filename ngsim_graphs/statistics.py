@@ -50,9 +50,15 @@ def describe(values: np.ndarray) -> Distribution:
         return Distribution(0, None, None, None, None, None, None, None)
     p5, p50, p95 = (float(p) for p in np.percentile(values, [5, 50, 95]))
     return Distribution(
-        count=len(values), mean=float(values.mean()), std=float(values.std()),
-        min=float(values.min()), p5=p5, p50=p50, p95=p95, max=float(values.max()),
-    )  # fmt: skip
+        count=len(values),
+        mean=float(values.mean()),
+        std=float(values.std()),
+        min=float(values.min()),
+        p5=p5,
+        p50=p50,
+        p95=p95,
+        max=float(values.max()),
+    )
 
 
 @dataclass(frozen=True)
@@ -139,19 +145,29 @@ def read_kinematics(build: OpenBuild) -> dict[str, np.ndarray]:
     try:
         frame = build.tracks().select(KINEMATIC_COLUMNS).collect()
     except pl.exceptions.PolarsError as err:
-        raise NgsimInputError(build.root / "tracks", f"unreadable tracks table (damaged?): {err}") from None
-    return {name: frame[name].drop_nulls().to_numpy().astype(np.float64) for name in KINEMATIC_COLUMNS}
+        raise NgsimInputError(
+            build.root / "tracks", f"unreadable tracks table (damaged?): {err}"
+        ) from None
+    return {
+        name: frame[name].drop_nulls().to_numpy().astype(np.float64) for name in KINEMATIC_COLUMNS
+    }
 
 
-def collect_values(build: OpenBuild, max_degree_graphs: int = MAX_DEGREE_GRAPHS, seed: int = 0) -> BuildValues:
+def collect_values(
+    build: OpenBuild, max_degree_graphs: int = MAX_DEGREE_GRAPHS, seed: int = 0
+) -> BuildValues:
     """Read the samples tables and tracks columns, and induce the degree subset of each split."""
     samples = {split: build.samples(split) for split in SPLITS}
-    picked = {split: pick_samples(samples[split].height, max_degree_graphs, seed) for split in SPLITS}
+    picked = {
+        split: pick_samples(samples[split].height, max_degree_graphs, seed) for split in SPLITS
+    }
     kinematics = read_kinematics(build)
     return BuildValues(
         samples=samples,
         degree_graphs={split: len(ids) for split, ids in picked.items()},
-        spatial_in_degree={split: spatial_in_degree(build, split, ids) for split, ids in picked.items()},
+        spatial_in_degree={
+            split: spatial_in_degree(build, split, ids) for split, ids in picked.items()
+        },
         speed_mps=kinematics[s.SPEED_MPS],
         heading_rad=kinematics[s.HEADING_RAD],
     )
@@ -159,10 +175,17 @@ def collect_values(build: OpenBuild, max_degree_graphs: int = MAX_DEGREE_GRAPHS,
 
 def _recordings_table(build: OpenBuild) -> list[dict[str, Any]]:
     return [
-        {"name": r.name, "location": r.location, "period": r.period, "vehicles": r.report.vehicles,
-         "tracks": r.report.tracks, "grid_rows": r.report.grid_rows, "samples": dict(r.samples)}
+        {
+            "name": r.name,
+            "location": r.location,
+            "period": r.period,
+            "vehicles": r.report.vehicles,
+            "tracks": r.report.tracks,
+            "grid_rows": r.report.grid_rows,
+            "samples": dict(r.samples),
+        }
         for r in build.entries
-    ]  # fmt: skip
+    ]
 
 
 def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
@@ -177,7 +200,9 @@ def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
         samples={split: values.samples[split].height for split in SPLITS},
         graph_size={split: graph_size(values.samples[split]) for split in SPLITS},
         node_degree={
-            split: DegreeSummary(values.degree_graphs[split], describe(values.spatial_in_degree[split]))
+            split: DegreeSummary(
+                values.degree_graphs[split], describe(values.spatial_in_degree[split])
+            )
             for split in SPLITS
         },
         targets={split: target_share(values.samples[split]) for split in SPLITS},
@@ -197,4 +222,3 @@ def build_statistics(
     """The statistics of a build, and the values behind them (for histograms)."""
     values = collect_values(build, max_degree_graphs, seed)
     return summarize_build(build, values), values
-

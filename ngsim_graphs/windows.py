@@ -31,7 +31,9 @@ def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
         .select(
             pl.col(s.TRACK_ID).alias(s.EGO_TRACK_ID),
             pl.col(s.VEHICLE_ID).alias(s.EGO_VEHICLE_ID),
-            (pl.col("first") + pl.col("index") * config.stride_steps).cast(pl.Int32).alias(s.START_STEP),
+            (pl.col("first") + pl.col("index") * config.stride_steps)
+            .cast(pl.Int32)
+            .alias(s.START_STEP),
         )
         .with_columns((pl.col(s.START_STEP) + config.history_steps - 1).alias(s.PRESENT_STEP))
     )

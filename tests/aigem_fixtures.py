@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.synth.formats import write_synthetic
 
 

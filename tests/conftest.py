@@ -61,7 +61,14 @@ def straight_track(
 ) -> list[dict[str, float]]:
     """A vehicle driving straight along +y at constant speed, one row per frame."""
     return [
-        make_row(vehicle_id, f, local_x_ft=x_ft, local_y_ft=speed_fps * 0.1 * f, v_vel_fps=speed_fps, **kw)
+        make_row(
+            vehicle_id,
+            f,
+            local_x_ft=x_ft,
+            local_y_ft=speed_fps * 0.1 * f,
+            v_vel_fps=speed_fps,
+            **kw,
+        )
         for f in frames
     ]
 
@@ -80,7 +87,9 @@ def _text(value: float | str | None, thousands: bool) -> str:
 
 def write_txt(path: Path, rows: list[dict], final_newline: bool = False) -> Path:
     """Original whitespace text: padded fields, leading/trailing spaces, no final newline."""
-    lines = ["   " + "  ".join(_text(r[c], False).rjust(6) for c in s.TXT_COLUMNS) + "  " for r in rows]
+    lines = [
+        "   " + "  ".join(_text(r[c], False).rjust(6) for c in s.TXT_COLUMNS) + "  " for r in rows
+    ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + ("\n" if final_newline else ""))
     return path

@@ -51,16 +51,22 @@ def write_recording(
     tracks.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
     meta_rows = [{s.HIGHD_ID: vid, s.HIGHD_WIDTH: 4.0, s.HIGHD_HEIGHT: 2.0, s.HIGHD_CLASS: cls,
                   s.HIGHD_DRIVING_DIRECTION: direction} for vid, (cls, direction) in vehicles.items()]  # fmt: skip
-    (folder / f"{prefix}_tracksMeta.csv").write_text(csv_text(s.HIGHD_TRACKS_META_HEADER, meta_rows))
+    (folder / f"{prefix}_tracksMeta.csv").write_text(
+        csv_text(s.HIGHD_TRACKS_META_HEADER, meta_rows)
+    )
     recording = {s.HIGHD_ID: number, s.HIGHD_FRAME_RATE: frame_rate, s.HIGHD_LOCATION_ID: location_id,
                  "speedLimit": -1, "month": "09.2017", "weekDay": "Tue", "startTime": "08:38",
                  s.HIGHD_UPPER_LANE_MARKINGS: ";".join(map(str, UPPER_MARKINGS)),
                  s.HIGHD_LOWER_LANE_MARKINGS: ";".join(map(str, LOWER_MARKINGS))}  # fmt: skip
-    (folder / f"{prefix}_recordingMeta.csv").write_text(csv_text(s.HIGHD_RECORDING_META_HEADER, [recording]))
+    (folder / f"{prefix}_recordingMeta.csv").write_text(
+        csv_text(s.HIGHD_RECORDING_META_HEADER, [recording])
+    )
     return tracks
 
 
-def two_directions(folder: Path, frames: range = range(1, 301), number: int = 1, location_id: int = 2) -> Path:
+def two_directions(
+    folder: Path, frames: range = range(1, 301), number: int = 1, location_id: int = 2
+) -> Path:
     """Vehicle 1 (Car) on the lower lanes at 25 m/s, vehicle 2 (Truck) on the upper lanes at
     -25 m/s: 1 m per frame each. Returns the tracks file."""
     rows = track_rows(1, frames, x0=100.0, y=19.0, x_velocity=25.0)

@@ -82,7 +82,9 @@ def test_a_given_scaler_replaces_the_builds(tiny_build: Path) -> None:
     other = GraphDataset(tiny_build, "val", scaler=MinMaxScaler.from_dict(ranges))
     assert other.scaler.to_dict()["x_m"]["max"] == own.scaler.to_dict()["x_m"]["max"] + 10.0
     a, b = (Collate(d.scaler)(d.__getitems__([0, 1])) for d in (own, other))
-    expected = MinMaxScaler.from_dict(ranges).scale("x_m", own.__getitems__([0, 1])[0].node_features[:, 0])
+    expected = MinMaxScaler.from_dict(ranges).scale(
+        "x_m", own.__getitems__([0, 1])[0].node_features[:, 0]
+    )
     assert np.allclose(b["x"][:, 0].numpy(), expected, atol=1e-6)
     assert not torch.allclose(a["x"][:, 0], b["x"][:, 0])
     assert torch.equal(a["x"][:, 1:], b["x"][:, 1:])  # y, heading, speed as before

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import pytest
 import torch
-from ngsim_cli.aigem import app
 from typer.testing import CliRunner
 
 from aigem import runs, training
 from aigem.config import ModelConfig, TrainConfig
 from aigem.evaluation import evaluate
 from aigem.training import fit, fit_horizons
+from ngsim_cli.aigem import app
 
 # threads=1: bit-reproducible, so that a member can be compared with a fit of its horizon alone
 TRAIN = TrainConfig(epochs=2, batch_size=8, seed=3, threads=1)
@@ -79,7 +79,13 @@ def test_a_member_is_the_single_horizon_fit_bit_for_bit(
 ) -> None:
     run, _ = fitted
     alone = tmp_path / "alone"
-    result = fit(tiny_build, alone, ModelConfig(), TrainConfig(**{**TRAIN.to_dict(), "horizon_s": 1.0}), "cpu")  # fmt: skip
+    result = fit(
+        tiny_build,
+        alone,
+        ModelConfig(),
+        TrainConfig(**{**TRAIN.to_dict(), "horizon_s": 1.0}),
+        "cpu",
+    )
     assert _same_run(run / "h1s", alone)
     assert (run / "h1s" / runs.RUN_INFO).read_text() == (alone / runs.RUN_INFO).read_text()
     assert result.best_val_loss_m2 == min(r["val_loss_m2"] for r in runs.read_metrics(run / "h1s"))
@@ -103,7 +109,10 @@ def test_one_member_stopping_early_leaves_the_others_training(
 
     def rising_for_1s(models: list[tuple[torch.nn.Module, int]], *args: object) -> list[float]:
         losses = real(models, *args)
-        return [next(rising) if steps == 5 else loss for (_, steps), loss in zip(models, losses)]
+        return [
+            next(rising) if steps == 5 else loss
+            for (_, steps), loss in zip(models, losses, strict=False)
+        ]
 
     monkeypatch.setattr(training, "evaluate_losses", rising_for_1s)
     run = tmp_path / "run"
@@ -151,7 +160,11 @@ def test_evaluate_takes_each_metric_from_its_model(fitted: tuple[Path, str]) -> 
     one, two = (evaluate(run / name, None, "test", "cpu") for name in ("h1s", "h2s"))
     for kind in ("model", "constant_velocity"):
         for region in ("all", "front", "mid", "rear"):
-            ours, one_s, two_s = document[kind][region], getattr(one, kind)[region], getattr(two, kind)[region]  # fmt: skip
+            ours, one_s, two_s = (
+                document[kind][region],
+                getattr(one, kind)[region],
+                getattr(two, kind)[region],
+            )
             assert ours["rmse_1s_m"] == one_s["rmse_1s_m"] and ours["n_1s"] == one_s["n_1s"]
             for key in ("rmse_2s_m", "n_2s", "ade_m", "fde_m"):
                 assert ours[key] == two_s[key]
@@ -198,16 +211,23 @@ def test_a_multi_horizon_run_is_started_and_resumed_as_such_only(
         assert result.exit_code == 1 and result.stderr.count("\n") == 1, result.output
         return result.stderr
 
-    assert error("1,2") == f"error: {run}: already holds a run; pass --resume to continue it, or choose another --out\n"  # fmt: skip
+    assert (
+        error("1,2")
+        == f"error: {run}: already holds a run; pass --resume to continue it, or choose another --out\n"
+    )
     assert error("1,3", "--resume") == (
         f"error: {run}: cannot resume with other horizons (1,2 -> 1,3 s): it changes what the run learns\n"
     )  # fmt: skip
     for more in ((), ("--resume",)):
         assert error("2", *more) == (
-            f"error: {run}: holds a multi-horizon run (1,2 s): give --horizon-s 1,2 to resume it, or choose another --out\n"
-        )  # fmt: skip
+            f"error: {run}: holds a multi-horizon run (1,2 s): give --horizon-s 1,2 to resume it, "
+            "or choose another --out\n"
+        )
     assert "nothing to resume: no horizons.json" in error("1,2", "--resume", out=tmp_path / "new")
     single = tmp_path / "single"
     fit(tiny_build, single, ModelConfig(), TrainConfig(**{**TRAIN.to_dict(), "epochs": 1}), "cpu")
-    assert "is not a multi-horizon aigem run: it holds best.pt, curves.png, last.pt and 2 more" in error("1,2", out=single)  # fmt: skip
+    assert (
+        "is not a multi-horizon aigem run: it holds best.pt, curves.png, last.pt and 2 more"
+        in error("1,2", out=single)
+    )
     assert _rows(run / "h1s") == _rows(fitted[0] / "h1s")  # nothing was changed

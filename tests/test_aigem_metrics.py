@@ -29,7 +29,9 @@ def test_hand_computed_two_actors() -> None:
     assert out["all"]["rmse_1s_m"] == pytest.approx(math.sqrt(13.0))
     assert out["all"]["rmse_2s_m"] == pytest.approx(5.0)
     assert (out["all"]["n_1s"], out["all"]["n_2s"]) == (2, 1)
-    assert out["front"]["ade_m"] == pytest.approx(5.0) and out["rear"]["ade_m"] == pytest.approx(1.0)
+    assert out["front"]["ade_m"] == pytest.approx(5.0) and out["rear"]["ade_m"] == pytest.approx(
+        1.0
+    )
     assert out["mid"]["ade_m"] is None and out["rear"]["fde_m"] is None
     assert totals.actors == 2
 
@@ -39,7 +41,9 @@ def test_pooled_rmse_is_not_the_mean_of_per_batch_rmse() -> None:
     for offset in (1.0, 3.0):
         truth = np.zeros((1, 5, 2))
         totals.add(truth + [offset, 0.0], truth, np.ones((1, 5), bool), np.array([0.0]))
-    assert summarize_errors(totals, 0.2)["all"]["rmse_1s_m"] == pytest.approx(math.sqrt(5.0))  # not 2
+    assert summarize_errors(totals, 0.2)["all"]["rmse_1s_m"] == pytest.approx(
+        math.sqrt(5.0)
+    )  # not 2
 
 
 def test_regions_by_present_y() -> None:

@@ -147,9 +147,7 @@ EMPTY_VAL = (
     "the validation split (val) is empty: `aigem fit` keeps the best checkpoint and stops early "
     "by validation loss"
 )
-EMPTY_TRAIN = (
-    "the train split (train) is empty: there is nothing to train on (and the scaler is fitted on it)"
-)
+EMPTY_TRAIN = "the train split (train) is empty: there is nothing to train on (and the scaler is fitted on it)"
 
 
 @pytest.mark.parametrize(

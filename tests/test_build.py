@@ -133,7 +133,9 @@ def test_samples_table_ids_order_and_counts(built: OpenBuild, split: str) -> Non
     arrays = built.sample_arrays(split)
     assert np.array_equal(arrays["ego_track_id"], samples[s.EGO_TRACK_ID].to_numpy())
     assert np.array_equal(arrays["start_step"], samples[s.START_STEP].to_numpy())
-    names = [(e.location, e.period) for e in sorted(built.manifest.recordings, key=lambda e: e.index)]
+    names = [
+        (e.location, e.period) for e in sorted(built.manifest.recordings, key=lambda e: e.index)
+    ]
     assert [names[i] for i in arrays["recording_index"]] == list(
         samples.select(s.LOCATION, s.PERIOD).iter_rows()
     )

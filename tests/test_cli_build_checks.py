@@ -292,22 +292,33 @@ def test_an_empty_location_column_is_said(tmp_path: Path, rows: list[dict]) -> N
     )
 
 
-def test_a_displaced_burst_is_dropped_and_a_displaced_stretch_is_said(tmp_path: Path, rows: list[dict]) -> None:
+def test_a_displaced_burst_is_dropped_and_a_displaced_stretch_is_said(
+    tmp_path: Path, rows: list[dict]
+) -> None:
     # Vehicle 6 (rows 500..599): frames 40 and 41 displaced 500 ft, frames 70..99 displaced too.
     for i in (540, 541, *range(570, 600)):
         rows[i] = {**rows[i], s.LOCAL_Y: rows[i][s.LOCAL_Y] + 500.0}
     path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
-    assert f"dropped 2 rows: position jumps away from the neighbouring frames (first: {path}, line 541)." in result.stdout
+    assert (
+        f"dropped 2 rows: position jumps away from the neighbouring frames (first: {path}, line 541)."
+        in result.stdout
+    )
     assert "split tracks at 1 position jump of more than 10 m between frames." in result.stdout
     counts = manifest(out)["counts"]
-    assert (counts["rows_dropped"][DropReason.POSITION_OUTLIER.value], counts["position_jumps"]) == (2, 1)
-
+    assert (
+        counts["rows_dropped"][DropReason.POSITION_OUTLIER.value],
+        counts["position_jumps"],
+    ) == (2, 1)
 
 
 def test_files_of_locations_left_out_are_not_checked(tmp_path: Path, rows: list[dict]) -> None:
-    i80 = [make_row(v, f, v_vel_fps=35.0, local_y_ft=3.5 * f, start_ms=I80_FIRST.start_epoch_ms) for v in (1, 2) for f in range(100)]
+    i80 = [
+        make_row(v, f, v_vel_fps=35.0, local_y_ft=3.5 * f, start_ms=I80_FIRST.start_epoch_ms)
+        for v in (1, 2)
+        for f in range(100)
+    ]
     i80[30] = {**i80[30], s.V_VEL: -5.0}  # implausible, but of i-80
     i80[60] = {**i80[60], s.GLOBAL_TIME: i80[60][s.GLOBAL_TIME] + 100}  # a stray, of i-80 too
     raw = tmp_path / "raw"

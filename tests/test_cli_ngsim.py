@@ -168,7 +168,9 @@ def test_truncated_last_line_csv(tmp_path: Path, rows: list[dict]) -> None:
     path.write_text(text[: last_start + 25])  # header + 59 full rows + a cut 61st line
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out, env=NARROW)
-    assert_failed_cleanly(result, out, {}, path, "line 61:", "5 fields where the header has 24 (truncated line?)")
+    assert_failed_cleanly(
+        result, out, {}, path, "line 61:", "5 fields where the header has 24 (truncated line?)"
+    )
 
 
 def test_truncated_last_line_txt(tmp_path: Path, rows: list[dict]) -> None:
@@ -238,7 +240,9 @@ def test_row_with_more_fields_than_header(tmp_path: Path, rows: list[dict]) -> N
     path = _rewrite_csv(write_period_csv(tmp_path / "a.csv", rows), lambda t: t[4].append("7"))
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out)
-    assert_failed_cleanly(result, out, {}, path, "line 5:", "25 fields where the header has 24 (an unquoted comma?)")
+    assert_failed_cleanly(
+        result, out, {}, path, "line 5:", "25 fields where the header has 24 (an unquoted comma?)"
+    )
 
 
 def test_row_with_fewer_fields_than_header_mid_file(tmp_path: Path, rows: list[dict]) -> None:
@@ -303,7 +307,9 @@ def test_build_reports_skipped_files_of_a_directory(tmp_path: Path, long_rows: l
     assert f"skipped (not NGSIM): {(raw / 'README.txt').resolve()}" in result.stdout
 
 
-def test_build_into_non_empty_directory_needs_overwrite(tmp_path: Path, long_rows: list[dict]) -> None:
+def test_build_into_non_empty_directory_needs_overwrite(
+    tmp_path: Path, long_rows: list[dict]
+) -> None:
     path = write_period_csv(tmp_path / "a.csv", long_rows)
     out = tmp_path / "out"
     out.mkdir()
@@ -347,12 +353,22 @@ def test_stats_table(finished_build: Path) -> None:
     row = _table_row(result.stdout, "us-101 0750am-0805am")
     assert row == ["us-101 0750am-0805am", "2", "2", "82", "1", "1", "0"]
     # 82 grid rows: 41 steps of vehicle 1 at 9.144 m/s (30 ft/s) and 41 of vehicle 2 at 40 ft/s
-    assert _table_row(result.stdout, "speed m/s")[:2] == ["speed m/s", f"{(30 + 40) / 2 * 0.3048:.2f}"]
+    assert _table_row(result.stdout, "speed m/s")[:2] == [
+        "speed m/s",
+        f"{(30 + 40) / 2 * 0.3048:.2f}",
+    ]
     # one sample per vehicle; the other vehicle is its one target, recorded for the whole future
     assert _table_rows(result.stdout, "train", "1")[0] == ["train", "1", "50.0%", "1", "1 (100.0%)"]
     assert _table_rows(result.stdout, "test", "0")[0][:5] == ["test", "0", "0.0%", "0", "0 (-)"]
     # 16 steps, both vehicles at each: 32 nodes, 32 ego<->actor edges, 2 x 15 temporal edges
-    assert _table_rows(result.stdout, "train", "nodes")[0][2:] == ["32.0", "32", "32.0", "32.0", "32.0", "32"]
+    assert _table_rows(result.stdout, "train", "nodes")[0][2:] == [
+        "32.0",
+        "32",
+        "32.0",
+        "32.0",
+        "32.0",
+        "32",
+    ]
     assert _table_rows(result.stdout, "train", "temporal edges")[0][2] == "30.0"
     assert _table_row(result.stdout, "limits.max_speed_mps") == ["limits.max_speed_mps", "70.0"]
     assert _table_rows(result.stdout, "read") == [["read", "164", "100.0%"]]
@@ -389,8 +405,16 @@ def test_stats_json(finished_build: Path) -> None:
     assert document["graph_size"]["test"]["n_nodes"] == {
         "count": 0, "mean": None, "std": None, "min": None, "p5": None, "p50": None, "p95": None, "max": None
     }  # fmt: skip
-    assert document["targets"]["test"] == {"targets": 0, "full_future": 0, "full_future_share": None}
-    assert document["targets"]["train"] == {"targets": 1, "full_future": 1, "full_future_share": 1.0}
+    assert document["targets"]["test"] == {
+        "targets": 0,
+        "full_future": 0,
+        "full_future_share": None,
+    }
+    assert document["targets"]["train"] == {
+        "targets": 1,
+        "full_future": 1,
+        "full_future_share": 1.0,
+    }
     assert document["kinematics"]["speed_mps"]["count"] == 82
     assert document["plots"] == []
 
@@ -440,8 +464,22 @@ def test_stats_on_bad_manifest(finished_build: Path, text: str, fragment: str) -
     ("args", "expected"),
     [
         ((), ("build", "stats", "synth")),
-        (("build",), ("--out", "--locations", "--overwrite", "--stride-s", "--d-sense-m", "--d-min-m",
-                      "--split", "vehicle|time|random", "--seed", "--ego-target", "--no-ego-target")),
+        (
+            ("build",),
+            (
+                "--out",
+                "--locations",
+                "--overwrite",
+                "--stride-s",
+                "--d-sense-m",
+                "--d-min-m",
+                "--split",
+                "vehicle|time|random",
+                "--seed",
+                "--ego-target",
+                "--no-ego-target",
+            ),
+        ),
         (("stats",), ("--json", "--plots")),
         (("synth",), ("--format", "--recordings", "--minutes", "--seed", "--quirks")),
     ],
@@ -495,7 +533,18 @@ def test_build_prints_samples_per_split(synthetic_raw: Path, tmp_path: Path) -> 
     assert f"{line} ({manifest['counts']['samples']:,} in all)." in result.stdout
 
 
-RANDOM_D_MIN_0 = ("--stride-s", "4", "--d-sense-m", "40", "--d-min-m", "0", "--split", "random", "--seed", "3")
+RANDOM_D_MIN_0 = (
+    "--stride-s",
+    "4",
+    "--d-sense-m",
+    "40",
+    "--d-min-m",
+    "0",
+    "--split",
+    "random",
+    "--seed",
+    "3",
+)
 
 
 def test_build_options_reach_the_config(synthetic_raw: Path, tmp_path: Path) -> None:
@@ -508,7 +557,9 @@ def test_build_options_reach_the_config(synthetic_raw: Path, tmp_path: Path) -> 
     for split in ("train", "val", "test"):
         samples = _samples(out, split)
         assert samples.height > 0
-        assert (samples["n_spatial_edges"] == 2 * (samples["n_nodes"] - config["history_steps"])).all()
+        assert (
+            samples["n_spatial_edges"] == 2 * (samples["n_nodes"] - config["history_steps"])
+        ).all()
     # the same seed gives the same split, table for table
     again = tmp_path / "again"
     assert invoke("build", synthetic_raw, "--out", again, *RANDOM_D_MIN_0).exit_code == 0
@@ -518,13 +569,23 @@ def test_build_options_reach_the_config(synthetic_raw: Path, tmp_path: Path) -> 
 
 def test_random_split_depends_on_the_seed(synthetic_raw: Path, tmp_path: Path) -> None:
     first, second = tmp_path / "first", tmp_path / "second"
-    assert invoke("build", synthetic_raw, "--out", first, "--split", "random", "--seed", "3").exit_code == 0
-    assert invoke("build", synthetic_raw, "--out", second, "--split", "random", "--seed", "4").exit_code == 0
+    assert (
+        invoke("build", synthetic_raw, "--out", first, "--split", "random", "--seed", "3").exit_code
+        == 0
+    )
+    assert (
+        invoke(
+            "build", synthetic_raw, "--out", second, "--split", "random", "--seed", "4"
+        ).exit_code
+        == 0
+    )
     assert not _samples(first, "train").equals(_samples(second, "train"))
     assert _manifest(first)["counts"]["samples"] == _manifest(second)["counts"]["samples"]
 
 
-def test_ego_target_adds_one_target_per_sample(synthetic_build: Path, synthetic_raw: Path, tmp_path: Path) -> None:
+def test_ego_target_adds_one_target_per_sample(
+    synthetic_build: Path, synthetic_raw: Path, tmp_path: Path
+) -> None:
     out = tmp_path / "out"
     assert invoke("build", synthetic_raw, "--out", out, "--ego-target").exit_code == 0
     assert _manifest(out)["config"]["ego_is_target"] is True
@@ -543,7 +604,9 @@ def test_ego_target_adds_one_target_per_sample(synthetic_build: Path, synthetic_
         ("--d-min-m", "-0.5", "d_min_m >= 0"),
     ],
 )
-def test_invalid_build_option(tmp_path: Path, rows: list[dict], option: str, value: str, fragment: str) -> None:
+def test_invalid_build_option(
+    tmp_path: Path, rows: list[dict], option: str, value: str, fragment: str
+) -> None:
     path = write_txt(tmp_path / "a.txt", rows)
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out, option, value, env=NARROW)

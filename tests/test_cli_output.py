@@ -15,13 +15,13 @@ import numpy as np
 import polars as pl
 import pytest
 from conftest import straight_track, write_txt
-from ngsim_cli.ngsim import app
 from typer.testing import CliRunner, Result
 
+from ngsim_cli.ngsim import app
 from ngsim_graphs import landing, layout
-from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.export import EXPORT_TABLES
+from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.formats import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
 
 NGSIM_FILE = "trajectories-0750am-0805am.txt"
@@ -360,5 +360,6 @@ def test_out_given_as_dot(tmp_path: Path, raw: Path, monkeypatch: pytest.MonkeyP
     result = invoke("build", raw, "--out", ".")
     assert result.exit_code == 0, result.output
     assert (here / "manifest.json").is_file()
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no lock left
-
+    assert (
+        sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+    )  # no lock left

@@ -20,8 +20,8 @@ import pytest
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.grid import grid_nodes, proximity_pairs, recording_arrays
 from ngsim_graphs.graphs import GraphBatch, concat_batches, induce_graphs
+from ngsim_graphs.grid import grid_nodes, proximity_pairs, recording_arrays
 
 ACTOR_DISTANCE_TOL_M = 1e-5  # actor-actor distances are stored as float32
 GRID_COLUMNS = (s.STEP, s.TRACK_ID, s.VEHICLE_ID, s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS)
@@ -187,9 +187,7 @@ def fast_path(
     grid_nodes' own step computation and sort are part of what is checked.
     """
     tracks = (
-        table.with_columns(
-            (pl.col(s.STEP) * config.time_step_s).alias(s.TIME_S)
-        )
+        table.with_columns((pl.col(s.STEP) * config.time_step_s).alias(s.TIME_S))
         .drop(s.STEP)
         .sample(fraction=1.0, shuffle=True, seed=7)
     )

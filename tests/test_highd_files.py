@@ -70,7 +70,10 @@ def test_a_missing_column_is_named_with_a_hint(tmp_path: Path) -> None:
     header = tuple("xVelocty" if c == s.HIGHD_X_VELOCITY else c for c in s.HIGHD_TRACKS_HEADER)
     path = tmp_path / "01_tracks.csv"
     path.write_text(csv_text(header, [{s.HIGHD_FRAME: 1, s.HIGHD_ID: 1}]))
-    with pytest.raises(NgsimInputError, match=r"line 1: missing column xVelocity \(found 'xVelocty': misspelled\?\)"):
+    with pytest.raises(
+        NgsimInputError,
+        match=r"line 1: missing column xVelocity \(found 'xVelocty': misspelled\?\)",
+    ):
         read_tracks(path)
 
 
@@ -79,12 +82,16 @@ def test_a_bad_number_names_the_file_the_line_and_the_column(tmp_path: Path) -> 
     rows[3][s.HIGHD_X] = "10O.5"  # a letter O: line 5 (the header is line 1)
     path = tmp_path / "01_tracks.csv"
     path.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
-    with pytest.raises(NgsimInputError, match=r"01_tracks\.csv, line 5: column x: '10O\.5' is not a number"):
+    with pytest.raises(
+        NgsimInputError, match=r"01_tracks\.csv, line 5: column x: '10O\.5' is not a number"
+    ):
         read_tracks(path)
     rows[3][s.HIGHD_X] = 100.0
     rows[1][s.HIGHD_FRAME] = 2.5
     path.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
-    with pytest.raises(NgsimInputError, match=r"line 3: column frame: '2\.5' is not a whole number"):
+    with pytest.raises(
+        NgsimInputError, match=r"line 3: column frame: '2\.5' is not a whole number"
+    ):
         read_tracks(path)
 
 
@@ -96,9 +103,13 @@ def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> Non
     path.write_text(",".join(s.HIGHD_TRACKS_HEADER) + "\n")
     with pytest.raises(NgsimInputError, match="no data rows"):
         read_tracks(path)
-    text = csv_text(s.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0))
+    text = csv_text(
+        s.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
+    )
     path.write_text(text[: text.rindex(",", 0, len(text) - 12)])  # the last line cut short
-    with pytest.raises(NgsimInputError, match=r"line 4: \d+ fields where the header has 25 \(truncated line\?\)"):
+    with pytest.raises(
+        NgsimInputError, match=r"line 4: \d+ fields where the header has 25 \(truncated line\?\)"
+    ):
         read_tracks(path)
 
 
@@ -106,25 +117,38 @@ def test_recording_meta_gives_id_location_and_markings(tmp_path: Path) -> None:
     two_directions(tmp_path, number=7, location_id=3)
     meta = read_recording_meta(tmp_path / "07_recordingMeta.csv")
     assert (meta.recording_id, meta.location_id) == (7, 3)
-    assert meta.upper_markings_m == (8.0, 11.5, 15.0) and meta.lower_markings_m == (18.0, 21.5, 25.0)
+    assert meta.upper_markings_m == (8.0, 11.5, 15.0) and meta.lower_markings_m == (
+        18.0,
+        21.5,
+        25.0,
+    )
 
 
 def test_recording_meta_must_be_25_hz_with_increasing_markings(tmp_path: Path) -> None:
     rows = track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
     write_recording(tmp_path, rows, {1: ("Car", 2)}, frame_rate=30)
-    with pytest.raises(NgsimInputError, match=r"line 2: frameRate 30: highD recordings run at 25 Hz"):
+    with pytest.raises(
+        NgsimInputError, match=r"line 2: frameRate 30: highD recordings run at 25 Hz"
+    ):
         read_recording_meta(tmp_path / "01_recordingMeta.csv")
     path = tmp_path / "01_recordingMeta.csv"
     path.write_text(path.read_text().replace("30", "25").replace("8.0;11.5;15.0", "8.0;x;15.0"))
-    with pytest.raises(NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0' is not a list"):
+    with pytest.raises(
+        NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0' is not a list"
+    ):
         read_recording_meta(path)
 
 
 @pytest.mark.parametrize(
     ("vehicle", "message"),
-    [(("Bus", 2), "a class other than Car or Truck"), (("Car", 3), "a drivingDirection other than 1 or 2")],
+    [
+        (("Bus", 2), "a class other than Car or Truck"),
+        (("Car", 3), "a drivingDirection other than 1 or 2"),
+    ],
 )
-def test_tracks_meta_errors_name_the_line(tmp_path: Path, vehicle: tuple[str, int], message: str) -> None:
+def test_tracks_meta_errors_name_the_line(
+    tmp_path: Path, vehicle: tuple[str, int], message: str
+) -> None:
     rows = track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
     write_recording(tmp_path, rows, {1: ("Car", 2), 2: vehicle})
     with pytest.raises(NgsimInputError, match=rf"01_tracksMeta\.csv, line 3: holds {message}"):

@@ -69,10 +69,16 @@ def test_a_left_lane_change_lowers_x_in_both_directions(tmp_path: Path) -> None:
 
 
 def test_lanes_classes_neighbours_and_headways_are_kept(tmp_path: Path) -> None:
-    rows = track_rows(1, range(1, 11), x0=130.0, y=19.0, x_velocity=25.0, dhw=26.0, thw=1.04, precedingId=3)
+    rows = track_rows(
+        1, range(1, 11), x0=130.0, y=19.0, x_velocity=25.0, dhw=26.0, thw=1.04, precedingId=3
+    )
     rows += track_rows(3, range(1, 11), x0=160.0, y=19.0, x_velocity=25.0, followingId=1)
-    rows += track_rows(2, range(1, 11), x0=400.0, y=12.0, x_velocity=-20.0, xAcceleration=-1.5, laneId=3)
-    tracks, _ = tracks_of(write_recording(tmp_path, rows, {1: ("Car", 2), 2: ("Truck", 1), 3: ("Car", 2)}))
+    rows += track_rows(
+        2, range(1, 11), x0=400.0, y=12.0, x_velocity=-20.0, xAcceleration=-1.5, laneId=3
+    )
+    tracks, _ = tracks_of(
+        write_recording(tmp_path, rows, {1: ("Car", 2), 2: ("Truck", 1), 3: ("Car", 2)})
+    )
     at_5 = tracks.filter(pl.col(s.FRAME_ID) == 5).sort(s.VEHICLE_ID)
     columns = (s.VEHICLE_ID, s.LANE_ID, s.V_CLASS, s.PRECEDING, s.FOLLOWING, s.SPACE_HEADWAY_M,
                s.TIME_HEADWAY_S, s.SPEED_MPS, s.ACCEL_MPS2)  # fmt: skip
@@ -122,9 +128,13 @@ def test_a_track_without_meta_row_and_a_grid_off_the_frames_are_errors(tmp_path:
     rows = track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
     rows += track_rows(9, range(1, 4), x0=150.0, y=19.0, x_velocity=25.0)
     path = write_recording(tmp_path, rows, {1: ("Car", 2)})
-    with pytest.raises(NgsimInputError, match=r"line 5: track id 9 has no row in 01_tracksMeta\.csv"):
+    with pytest.raises(
+        NgsimInputError, match=r"line 5: track id 9 has no row in 01_tracksMeta\.csv"
+    ):
         read_file(path, BuildConfig(), 0, False)
-    with pytest.raises(NgsimInputError, match=r"grid step of 0\.1 s is not a multiple of highD's frame period"):
+    with pytest.raises(
+        NgsimInputError, match=r"grid step of 0\.1 s is not a multiple of highD's frame period"
+    ):
         read_file(path, BuildConfig(time_step_s=0.1), 0, False)
 
 
@@ -133,7 +143,10 @@ def test_the_location_filter_names_highd_locations_or_keeps_them_all(tmp_path: P
     assert read_file(path, BuildConfig(), 0, False).recordings == {KEY: 0}  # default: us-101, i-80
     assert read_file(path, BuildConfig(locations=("highd-2",)), 0, False).recordings == {KEY: 0}
     other = read_file(path, BuildConfig(locations=("us-101", "highd-3")), 0, False)
-    assert other.recordings == {} and other.report.rows_other_locations == other.report.rows_read == 600
+    assert (
+        other.recordings == {}
+        and other.report.rows_other_locations == other.report.rows_read == 600
+    )
     with pytest.raises(ValueError, match="unknown location"):
         BuildConfig(locations=("highd-x",))
 
@@ -142,7 +155,9 @@ def test_detection_from_content(tmp_path: Path) -> None:
     two_directions(tmp_path / "highd")
     ngsim = tmp_path / "ngsim" / "trajectories-0400-0415.txt"
     ngsim.parent.mkdir()
-    ngsim.write_text("1 2 1 1113433136100 16.5 35.4 6042842.1 2133117.9 14.5 4.9 2 40.0 0.0 2 0 0 0.0 0.0\n")
+    ngsim.write_text(
+        "1 2 1 1113433136100 16.5 35.4 6042842.1 2133117.9 14.5 4.9 2 40.0 0.0 2 0 0 0.0 0.0\n"
+    )
     assert choose_source([tmp_path / "highd"])[0].name == "highd"
     assert choose_source([tmp_path / "ngsim"])[0].name == "ngsim"
     both = "hold NGSIM files .* and highD files .*--dataset ngsim or --dataset highd"
@@ -160,6 +175,7 @@ def test_a_build_lists_the_three_files_as_inputs(tmp_path: Path) -> None:
     inputs = {Path(f["path"]).name: f for f in manifest["inputs"]}
     assert sorted(inputs) == ["01_recordingMeta.csv", "01_tracks.csv", "01_tracksMeta.csv"]
     assert [inputs[n]["rows_read"] for n in sorted(inputs)] == [0, 2200, 0]
-    assert all(len(f["sha256"]) == 64 and f["recordings"] == ["highd-2/01"] for f in inputs.values())
+    assert all(
+        len(f["sha256"]) == 64 and f["recordings"] == ["highd-2/01"] for f in inputs.values()
+    )
     assert manifest["counts"]["rows"] == 2200 and sum(manifest["splits"].values()) > 0
-

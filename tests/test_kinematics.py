@@ -51,7 +51,9 @@ def test_smoothing_is_a_centred_moving_average_shrinking_symmetrically() -> None
 def test_steady_lane_change_keeps_its_heading_up_to_the_track_ends() -> None:
     xs = [0.3 * k for k in range(8)]
     ys = [2.0 * k for k in range(8)]
-    assert headings(track(xs, ys, [10.0] * 8), window=5) == pytest.approx([math.atan2(0.3, 2.0)] * 8)
+    assert headings(track(xs, ys, [10.0] * 8), window=5) == pytest.approx(
+        [math.atan2(0.3, 2.0)] * 8
+    )
 
 
 def test_stopped_vehicle_holds_last_heading() -> None:
@@ -72,4 +74,6 @@ def test_track_starting_stopped_takes_first_moving_heading_and_never_moving_is_z
 def test_tracks_do_not_leak_into_each_other() -> None:
     a = track([0.0, 0.0], [0.0, 2.0], [10.0, 10.0], track_id=0)
     b = track([5.0, 6.0], [0.0, 1.0], [10.0, 10.0], track_id=1)
-    assert headings(pl.concat([a, b]), window=3) == pytest.approx([0.0, 0.0, math.pi / 4, math.pi / 4])
+    assert headings(pl.concat([a, b]), window=3) == pytest.approx(
+        [0.0, 0.0, math.pi / 4, math.pi / 4]
+    )

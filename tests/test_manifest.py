@@ -80,11 +80,17 @@ def test_a_sealed_manifest_of_another_form_is_one_error_line(
     layout.write_manifest_json(copy, values)  # sealed: it passes the checksum
     with pytest.raises(NgsimInputError, match="unreadable build manifest") as err:
         layout.read_manifest(copy)
-    assert str(err.value).startswith(f"{layout.manifest_path(copy)}: ") and "\n" not in str(err.value)
+    assert str(err.value).startswith(f"{layout.manifest_path(copy)}: ") and "\n" not in str(
+        err.value
+    )
 
 
 def test_json_form_is_the_form_json_gives_back() -> None:
     value = {"b": (1, SplitMode.TIME), "a": {"d": [2.5], "c": None}}
     assert json_form(value) == json.loads(json.dumps(value))
     assert list(json_form(value)) == ["a", "b"] and list(json_form(value)["a"]) == ["c", "d"]
-    assert json_form(MinMaxScaler.empty().to_dict())["x_m"] == {"max": None, "min": None, "to": [-1.0, 1.0]}
+    assert json_form(MinMaxScaler.empty().to_dict())["x_m"] == {
+        "max": None,
+        "min": None,
+        "to": [-1.0, 1.0],
+    }

@@ -46,7 +46,12 @@ def test_exact_and_conflicting_duplicates() -> None:
 
 
 def test_duplicate_rule_does_not_depend_on_row_order() -> None:
-    rows = [make_row(v, f, local_y_ft=10.0 * f + d) for v in (1, 2) for f in range(5) for d in (0.0, 0.7, 0.3)]
+    rows = [
+        make_row(v, f, local_y_ft=10.0 * f + d)
+        for v in (1, 2)
+        for f in range(5)
+        for d in (0.0, 0.7, 0.3)
+    ]
     forward = drop_duplicate_rows(raw(rows))[0]
     backward = drop_duplicate_rows(raw(rows[::-1]))[0]
     shuffled = drop_duplicate_rows(raw(rows).sample(fraction=1.0, shuffle=True, seed=3))[0]
@@ -64,7 +69,9 @@ def test_tracks_split_at_frame_gaps() -> None:
 
 def test_si_units_and_sentinels() -> None:
     rows = [
-        make_row(1, 3, local_x_ft=10.0, local_y_ft=100.0, v_vel_fps=50.0, v_acc=-2.0, v_length=16.0),
+        make_row(
+            1, 3, local_x_ft=10.0, local_y_ft=100.0, v_vel_fps=50.0, v_acc=-2.0, v_length=16.0
+        ),
         make_row(1, 4, preceding=7, following=9, space_headway=80.0, time_headway=1.6),
     ]
     frame = raw(rows).with_columns(pl.lit(0, dtype=pl.Int16).alias(s.SEGMENT))

@@ -9,8 +9,8 @@ from conftest import make_row, straight_track, write_period_csv, write_portal, w
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file, sniff_format
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file, sniff_format
 
 US = ("us-101", "i-80")
 
@@ -56,7 +56,9 @@ def test_header_spelling_and_case_variants(tmp_path: Path) -> None:
         {"v_length": "v_Length", "Vehicle_ID": "VEHICLE_ID", "Local_Y": "local_y"}.get(h, h)
         for h in s.PERIOD_CSV_HEADER
     )
-    path = write_period_csv(tmp_path / "c.csv", straight_track(3, range(2)), header=header, crlf=True)
+    path = write_period_csv(
+        tmp_path / "c.csv", straight_track(3, range(2)), header=header, crlf=True
+    )
     frame = read_raw_file(path, US).frame
     assert frame[s.VEHICLE_ID].to_list() == [3, 3]
     assert frame[s.V_LENGTH].to_list() == [15.0, 15.0]
@@ -91,14 +93,19 @@ def test_location_filter_counts_and_keeps_chosen(tmp_path: Path) -> None:
 
 def test_file_without_chosen_locations_names_those_it_holds(tmp_path: Path) -> None:
     path = write_portal(tmp_path / "p.csv", [make_row(1, 0)], locations="peachtree")
-    with pytest.raises(NgsimInputError, match=r"p\.csv: holds none of the chosen.*it holds: peachtree"):
+    with pytest.raises(
+        NgsimInputError, match=r"p\.csv: holds none of the chosen.*it holds: peachtree"
+    ):
         read_raw_file(path, US)
 
 
 def test_malformed_number_names_line_and_column(tmp_path: Path) -> None:
     rows = straight_track(1, range(4))
     rows[2][s.V_VEL] = "3O.5"  # letter O for zero
-    for path, line in ((write_portal(tmp_path / "p.csv", rows), 4), (write_txt(tmp_path / "t.txt", rows), 3)):
+    for path, line in (
+        (write_portal(tmp_path / "p.csv", rows), 4),
+        (write_txt(tmp_path / "t.txt", rows), 3),
+    ):
         with pytest.raises(NgsimInputError) as err:
             read_raw_file(path, US)
         assert str(err.value) == f"{path}, line {line}: column v_Vel: '3O.5' is not a number"
@@ -120,7 +127,10 @@ def test_more_fields_than_header_is_an_error(tmp_path: Path) -> None:
     lines = path.read_text().splitlines()
     lines[2] += ",7"
     path.write_text("\n".join(lines) + "\n")
-    with pytest.raises(NgsimInputError, match=r"c\.csv, line 3: 25 fields where the header has 24 \(an unquoted comma\?\)"):
+    with pytest.raises(
+        NgsimInputError,
+        match=r"c\.csv, line 3: 25 fields where the header has 24 \(an unquoted comma\?\)",
+    ):
         read_raw_file(path, US)
 
 
@@ -169,7 +179,11 @@ def test_whole_numbers_written_with_a_point_are_integers(tmp_path: Path) -> None
     # Some exports write integer columns as floats ("2.0"); only a fraction is wrong.
     pointed = [{**make_row(1, f, lane_id="2.0"), s.FRAME_ID: f"{f}.0"} for f in range(3)]
     plain = [make_row(1, f) for f in range(3)]
-    assert values(write_txt(tmp_path / "t.txt", pointed)) == values(write_txt(tmp_path / "u.txt", plain))
+    assert values(write_txt(tmp_path / "t.txt", pointed)) == values(
+        write_txt(tmp_path / "u.txt", plain)
+    )
     pointed[2] = {**pointed[2], s.LANE_ID: "2.5"}
-    with pytest.raises(NgsimInputError, match=r"t\.txt, line 3: column Lane_ID: '2\.5' is not a whole"):
+    with pytest.raises(
+        NgsimInputError, match=r"t\.txt, line 3: column Lane_ID: '2\.5' is not a whole"
+    ):
         read_raw_file(write_txt(tmp_path / "t.txt", pointed), US)

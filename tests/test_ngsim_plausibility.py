@@ -9,9 +9,14 @@ from conftest import make_row, straight_track
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig, PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.sources.ngsim.tracks import build_tracks
-from ngsim_graphs.sources.ngsim.plausibility import check_dropped, jump_rows, outlier_rows, row_drop_reason
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.ngsim.plausibility import (
+    check_dropped,
+    jump_rows,
+    outlier_rows,
+    row_drop_reason,
+)
+from ngsim_graphs.sources.ngsim.tracks import build_tracks
 
 FT = 0.3048
 LIMITS = PhysicalLimits()
@@ -77,13 +82,19 @@ def test_a_short_displaced_burst_is_an_outlier_a_long_one_a_jump() -> None:
     # Frames 0..29 at 3 ft per frame; frames 10..12 displaced 1 km: three outliers, no jump left.
     # Displaced for 11 frames (10..20), longer than 1 s: two jumps (at 10 and 21), no outlier.
     for last, outliers in ((12, [10, 11, 12]), (20, [])):
-        rows = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if 10 <= f <= last else 0.0)) for f in range(30)]
+        rows = [
+            make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if 10 <= f <= last else 0.0))
+            for f in range(30)
+        ]
         outlier, jump = _flags(rows)
         assert [f for f in range(30) if outlier[f]] == outliers
         assert [f for f in range(30) if jump[f]] == [10, last + 1]  # before any row is dropped
         frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
         _, report = build_tracks(frame, ("us-101", "0750am-0805am"), BuildConfig(), 0)
-        assert (report.position_outliers, report.position_jumps) == (len(outliers), 0 if outliers else 2)
+        assert (report.position_outliers, report.position_jumps) == (
+            len(outliers),
+            0 if outliers else 2,
+        )
 
 
 def test_a_displaced_rest_of_record_is_a_jump_not_an_outlier() -> None:

@@ -143,7 +143,11 @@ def test_a_small_group_naming_an_official_period_of_its_own_is_a_recording() -> 
 
 
 def test_only_usable_rows_form_recordings_but_all_are_placed() -> None:
-    rows = [make_row(1, f) for f in range(200)] + [make_row(2, f, start_ms=I80_FIRST.start_epoch_ms) for f in range(3)]
-    usable = pl.Series([True] * 200 + [False] * 3)  # the i-80 rows failed a check: no recording of their own
+    rows = [make_row(1, f) for f in range(200)] + [
+        make_row(2, f, start_ms=I80_FIRST.start_epoch_ms) for f in range(3)
+    ]
+    usable = pl.Series(
+        [True] * 200 + [False] * 3
+    )  # the i-80 rows failed a check: no recording of their own
     index, names = identify_recordings(frame_of(rows, [None] * 203), Path("t.txt"), usable)
     assert names == [("us-101", "0750am-0805am")] and index.to_list() == [0] * 200 + [None] * 3

@@ -13,7 +13,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.sources.ngsim.tracks import build_tracks, read_file_recordings
 
-
 KEY = ("us-101", "0750am-0805am")
 
 

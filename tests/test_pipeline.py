@@ -121,13 +121,16 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     }
     # Vehicle split: largest Vehicle_ID 2, cuts at round(1.4) = 1 and round(1.6) = 2.
     assert on_disk["splits"] == {"train": 2, "val": 1, "test": 0}
-    assert len(on_disk["warnings"]) == 1 and on_disk["warnings"][0].startswith("the test split is empty")
+    assert len(on_disk["warnings"]) == 1 and on_disk["warnings"][0].startswith(
+        "the test split is empty"
+    )
     [recording] = on_disk["recordings"]
     assert recording["location"] == "us-101" and recording["period"] == FIRST
     assert recording["vehicles"] == 2
-    assert on_disk["files"][f"tracks/us-101_{FIRST}.parquet"]["sha256"] == hashlib.sha256(
-        layout.tracks_path(out, "us-101", FIRST).read_bytes()
-    ).hexdigest()
+    assert (
+        on_disk["files"][f"tracks/us-101_{FIRST}.parquet"]["sha256"]
+        == hashlib.sha256(layout.tracks_path(out, "us-101", FIRST).read_bytes()).hexdigest()
+    )
     assert result.files[0].sha256 == source["sha256"]
 
 
@@ -200,9 +203,7 @@ def test_failure_mid_build_leaves_previous_build(tmp_path: Path, portal_rows: li
     bad.write_text(bad.read_text()[:-40])  # the last line cut off
     seen: list[str] = []
     with pytest.raises(NgsimInputError, match=r"b_bad\.txt, line 10: "):
-        run_build(
-            [good, bad], out, SHORT, overwrite=True, progress=lambda w, *_: seen.append(w)
-        )
+        run_build([good, bad], out, SHORT, overwrite=True, progress=lambda w, *_: seen.append(w))
     assert seen[:2] == ["reading a_good.csv", "reading b_bad.txt"]  # the good file was staged first
     assert snapshot(out) == before
     assert hidden_siblings(out) == []

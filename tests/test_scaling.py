@@ -58,7 +58,9 @@ def test_a_value_scaled_by_hand() -> None:
     """x 20 m: (20 + 10) / 40 = 0.75 of its range -> -1 + 0.75 * 2 = 0.5; y 25 m: 0.25 -> -0.5;
     heading 0.25 rad: 0.75 -> 0.5; speed 5 m/s: 5 / 20 = 0.25 (target 0..1); distance 12 m: 0.25."""
     scaler = fitted()
-    assert scaler.scale_features(np.array([[20.0, 25.0, 0.25, 5.0]])).tolist() == [[0.5, -0.5, 0.5, 0.25]]
+    assert scaler.scale_features(np.array([[20.0, 25.0, 0.25, 5.0]])).tolist() == [
+        [0.5, -0.5, 0.5, 0.25]
+    ]
     assert scaler.scale_distance(np.array([12.0])).tolist() == [0.25]
     assert scaler.scale_features(np.zeros((1, 4))).dtype == np.float32
 
@@ -203,7 +205,7 @@ def test_scaler_is_fitted_on_every_train_graph_and_only_those(built: OpenBuild) 
         assert every[name][0] <= train[name][0] and train[name][1] <= every[name][1]
     differs = [n for n in NAMES if not np.allclose(every[n], train[n], rtol=0, atol=1e-5)]
     assert differs, "the ranges over all splits should differ from the train ones somewhere"
-    assert 0 < train["distance_m"][0] and train["distance_m"][1] <= built.config.d_sense_m
+    assert train["distance_m"][0] > 0 and train["distance_m"][1] <= built.config.d_sense_m
     assert train["speed_mps"][0] >= 0 and all(math.isfinite(v) for r in train.values() for v in r)
 
 

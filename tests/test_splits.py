@@ -111,7 +111,8 @@ def test_time_split_blocks_and_gaps() -> None:
     windows = many_track_windows(3000, np.random.default_rng(2))
     out = assign_splits(windows, 3000, 0, config)
     blocks = {
-        name: out.filter(pl.col(s.SPLIT) == name)[s.PRESENT_STEP] for name in ("train", "val", "test")
+        name: out.filter(pl.col(s.SPLIT) == name)[s.PRESENT_STEP]
+        for name in ("train", "val", "test")
     }
     train, val, test = (blocks[n] for n in ("train", "val", "test"))
     assert min(len(train), len(val), len(test)) > 0
@@ -168,9 +169,19 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
     windows = windows.with_columns(split_by_vehicle(windows, 1_000, config).alias(s.SPLIT))
     assert windows[s.SPLIT].to_list() == ["train"] * 10  # cuts at 500 and 750
     warnings = split_warnings(windows, {"us-101/r": (1_000, 10)}, config)
-    assert [w.split(":")[0] for w in warnings] == ["the val split is empty", "the test split is empty"]
-    assert "<= round(0.5 * the recording's largest ID) and validates those <= round(0.75 * it)" in warnings[0]
-    assert "us-101/r gives it 0 of 10: its largest Vehicle_ID is 1,000, far above the next largest (10), so the cuts lie at 500 and 750" in warnings[0]
-    assert split_warnings(windows.with_columns(pl.lit("val").alias(s.SPLIT)), {}, BuildConfig(split_fractions=(0.0, 1.0, 0.0))) == [
+    assert [w.split(":")[0] for w in warnings] == [
+        "the val split is empty",
+        "the test split is empty",
+    ]
+    assert (
+        "<= round(0.5 * the recording's largest ID) and validates those <= round(0.75 * it)"
+        in warnings[0]
+    )
+    assert (
+        "us-101/r gives it 0 of 10: its largest Vehicle_ID is 1,000, far above the next largest "
+        "(10), so the cuts lie at 500 and 750" in warnings[0]
+    )
+    only_val = BuildConfig(split_fractions=(0.0, 1.0, 0.0))
+    assert split_warnings(windows.with_columns(pl.lit("val").alias(s.SPLIT)), {}, only_val) == [
         "the train split is empty: its fraction is 0", "the test split is empty: its fraction is 0",
     ]  # fmt: skip

@@ -69,7 +69,12 @@ def test_pick_samples_is_seeded_sorted_and_bounded() -> None:
 def test_samples_per_split_match_manifest_and_parquet(build: OpenBuild, computed) -> None:
     statistics, _ = computed
     for split in SPLITS:
-        rows = pl.scan_parquet(build.root / "samples" / f"{split}.parquet").select(pl.len()).collect().item()
+        rows = (
+            pl.scan_parquet(build.root / "samples" / f"{split}.parquet")
+            .select(pl.len())
+            .collect()
+            .item()
+        )
         assert statistics.samples[split] == build.manifest.splits[split] == rows
     [recording] = statistics.recordings
     assert recording["samples"] == {split: statistics.samples[split] for split in SPLITS}
@@ -89,7 +94,9 @@ def test_graph_size_equals_polars_on_the_samples_tables(build: OpenBuild, comput
             assert d.min <= d.p5 <= d.p50 <= d.p95 <= d.max
 
 
-def test_degree_mean_is_spatial_edges_over_nodes_of_the_sampled_graphs(build: OpenBuild, computed) -> None:
+def test_degree_mean_is_spatial_edges_over_nodes_of_the_sampled_graphs(
+    build: OpenBuild, computed
+) -> None:
     statistics, values = computed
     for split in SPLITS:
         ids = pick_samples(build.samples(split).height, MAX_GRAPHS, seed=0)
@@ -97,7 +104,9 @@ def test_degree_mean_is_spatial_edges_over_nodes_of_the_sampled_graphs(build: Op
         summary = statistics.node_degree[split]
         assert summary.sampled_graphs == len(ids) == min(MAX_GRAPHS, build.samples(split).height)
         assert summary.spatial_in_degree.count == len(batch.node_track)
-        assert summary.spatial_in_degree.mean == pytest.approx(batch.spatial_edges.shape[1] / len(batch.node_track))
+        assert summary.spatial_in_degree.mean == pytest.approx(
+            batch.spatial_edges.shape[1] / len(batch.node_track)
+        )
         assert values.spatial_in_degree[split].sum() == batch.spatial_edges.shape[1]
 
 
@@ -114,7 +123,9 @@ def test_degree_subset_depends_on_the_seed_only(build: OpenBuild, computed) -> N
     _, values = computed
     again = build_statistics(build, max_degree_graphs=MAX_GRAPHS, seed=0)[1]
     other = build_statistics(build, max_degree_graphs=MAX_GRAPHS, seed=1)[1]
-    np.testing.assert_array_equal(values.spatial_in_degree["train"], again.spatial_in_degree["train"])
+    np.testing.assert_array_equal(
+        values.spatial_in_degree["train"], again.spatial_in_degree["train"]
+    )
     assert not np.array_equal(values.spatial_in_degree["train"], other.spatial_in_degree["train"])
 
 
@@ -153,10 +164,21 @@ def test_scaler_and_config_come_from_the_manifest(build: OpenBuild, computed) ->
 def test_to_dict_is_plain_json(computed) -> None:
     statistics, _ = computed
     document = json.loads(json.dumps(statistics.to_dict(), allow_nan=False))
-    for key in ("samples", "graph_size", "node_degree", "targets", "kinematics", "scaler", "config"):
+    for key in (
+        "samples",
+        "graph_size",
+        "node_degree",
+        "targets",
+        "kinematics",
+        "scaler",
+        "config",
+    ):
         assert key in document
     assert document["node_degree"]["train"]["sampled_graphs"] == MAX_GRAPHS
-    assert document["graph_size"]["val"]["n_nodes"]["mean"] == statistics.graph_size["val"]["n_nodes"].mean
+    assert (
+        document["graph_size"]["val"]["n_nodes"]["mean"]
+        == statistics.graph_size["val"]["n_nodes"].mean
+    )
 
 
 def test_histograms_are_png_files(tmp_path: Path, computed) -> None:
@@ -166,4 +188,3 @@ def test_histograms_are_png_files(tmp_path: Path, computed) -> None:
     for path in paths:
         data = path.read_bytes()
         assert data.startswith(PNG_SIGNATURE) and len(data) > 5_000
-

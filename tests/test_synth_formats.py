@@ -16,10 +16,10 @@ import polars as pl
 import pytest
 
 from ngsim_graphs import schema
-from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
+from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.traffic import simulate_recording
 
 MINUTES = 0.3
@@ -174,7 +174,7 @@ def test_portal_quirks_order_duplicates_and_empty_fields(quirky_portal: tuple[by
     # The two us-101 periods interleave: their frame-0 times alternate along the file.
     frame0 = [_number(r[3]) - 100 * _number(r[1]) for r in rows if r[-1] == "us-101"]
     assert len(set(frame0)) == 2
-    assert sum(a != b for a, b in zip(frame0, frame0[1:])) > 100
+    assert sum(a != b for a, b in zip(frame0, frame0[1:], strict=False)) > 100
     counts = Counter(tuple(row) for row in rows)
     assert sum(n - 1 for n in counts.values()) >= 3  # exact duplicates
     by_key: dict[tuple, list[list[str]]] = {}

@@ -48,7 +48,9 @@ def test_tracks_table_by_hand() -> None:
     assert lower[s.HIGHD_X].to_list() == pytest.approx(expected_x, abs=1e-9)
     # centre 6 ft = 1.8288 m below the median marking; the box 6 ft wide, its top 0.9144 m higher
     assert lower[s.HIGHD_Y].to_list() == pytest.approx([32.946 + 0.9144] * 6)
-    assert lower.select(s.HIGHD_WIDTH, s.HIGHD_HEIGHT, s.HIGHD_LANE_ID, s.HIGHD_X_VELOCITY).unique().rows() == [
+    assert lower.select(
+        s.HIGHD_WIDTH, s.HIGHD_HEIGHT, s.HIGHD_LANE_ID, s.HIGHD_X_VELOCITY
+    ).unique().rows() == [
         (pytest.approx(15 * FT), pytest.approx(6 * FT), 9, pytest.approx(30 * FT))  # lane 1 + 6 + 2
     ]
     upper = tracks_table(rows, layout, UPPER)
@@ -56,7 +58,9 @@ def test_tracks_table_by_hand() -> None:
     expected_x = [25 + 640.08 - (100 + 1.2 * (f - 5)) * FT for f in range(5, 11)]
     assert upper[s.HIGHD_X].to_list() == pytest.approx(expected_x, abs=1e-9)
     assert upper[s.HIGHD_Y].to_list() == pytest.approx([29.946 - 1.8288 - 0.9144] * 6)
-    assert upper.select(s.HIGHD_LANE_ID, s.HIGHD_X_VELOCITY).unique().rows() == [(7, pytest.approx(-30 * FT))]
+    assert upper.select(s.HIGHD_LANE_ID, s.HIGHD_X_VELOCITY).unique().rows() == [
+        (7, pytest.approx(-30 * FT))
+    ]
 
 
 def test_synth_highd_is_deterministic_and_lists_its_files(tmp_path: Path) -> None:
@@ -107,20 +111,30 @@ def _nodes(batch: GraphBatch, build: OpenBuild) -> pl.DataFrame:
         "node": np.arange(len(f)), "pair": batch.node_sample, "step": batch.node_step, s.TRACK_ID: batch.node_track,
         "ego": batch.node_is_ego, "x": f[:, 0], "y": f[:, 1], "heading": f[:, 2], "speed": f[:, 3],
     }).join(tracks, on=s.TRACK_ID, how="left")  # fmt: skip
-    egos = nodes.filter("ego").select("pair", "step", pl.col("x").alias("ex"), pl.col("y").alias("ey"))
+    egos = nodes.filter("ego").select(
+        "pair", "step", pl.col("x").alias("ex"), pl.col("y").alias("ey")
+    )
     distance = ((pl.col("x") - pl.col("ex")) ** 2 + (pl.col("y") - pl.col("ey")) ** 2).sqrt()
     return nodes.join(egos, on=["pair", "step"]).with_columns(distance.alias("d_ego"))
 
 
-def _edges(batch: GraphBatch, nodes: pl.DataFrame, edges: np.ndarray, dist: np.ndarray | None) -> pl.DataFrame:
+def _edges(
+    batch: GraphBatch, nodes: pl.DataFrame, edges: np.ndarray, dist: np.ndarray | None
+) -> pl.DataFrame:
     """Edges keyed by their end nodes' (pair, step, vehicle, segment)."""
     key = nodes.select("node", "pair", "step", s.VEHICLE_ID, s.SEGMENT, "ego")
-    frame = pl.DataFrame({"src": edges[0], "dst": edges[1], "dist": dist if dist is not None else 0.0})
+    frame = pl.DataFrame(
+        {"src": edges[0], "dst": edges[1], "dist": dist if dist is not None else 0.0}
+    )
     frame = frame.join(key.rename(lambda c: f"{c}_s"), left_on="src", right_on="node_s")
-    return frame.join(key.rename(lambda c: f"{c}_d"), left_on="dst", right_on="node_d").drop("src", "dst")
+    return frame.join(key.rename(lambda c: f"{c}_d"), left_on="dst", right_on="node_d").drop(
+        "src", "dst"
+    )
 
 
-def _compare_graphs(a: GraphBatch, b: GraphBatch, na: pl.DataFrame, nb: pl.DataFrame, config: BuildConfig) -> None:
+def _compare_graphs(
+    a: GraphBatch, b: GraphBatch, na: pl.DataFrame, nb: pl.DataFrame, config: BuildConfig
+) -> None:
     """Nodes and edges of matched samples (`na`, `nb`: their _nodes)."""
     keys = ["pair", "step", s.VEHICLE_ID, s.SEGMENT]
     nodes = na.join(nb, on=keys, how="full", coalesce=True, suffix="_h")

@@ -29,7 +29,9 @@ def expected_tracks(quirks: bool) -> dict[tuple[str, str], pl.DataFrame]:
     chosen = enumerate(OFFICIAL_RECORDINGS[:RECORDINGS])
     for index, recording in sorted(chosen, key=lambda p: (p[1].location, p[1].period)):
         key = (recording.location, recording.period)
-        table, report = build_tracks(simulated_rows(recording, index, config), key, BuildConfig(), first_id)
+        table, report = build_tracks(
+            simulated_rows(recording, index, config), key, BuildConfig(), first_id
+        )
         tracks[key], first_id = table, first_id + report.tracks
     return tracks
 
@@ -40,11 +42,15 @@ def references() -> dict[bool, dict[tuple[str, str], pl.DataFrame]]:
 
 
 @pytest.mark.parametrize("quirks", [False, True])
-@pytest.mark.parametrize("raw_format", [f for f in RawFormat if f is not RawFormat.HIGHD])  # see test_synth_highd
+@pytest.mark.parametrize(
+    "raw_format", [f for f in RawFormat if f is not RawFormat.HIGHD]
+)  # see test_synth_highd
 def test_every_format_reads_back_to_the_simulated_tracks(
     tmp_path: Path, raw_format: RawFormat, quirks: bool, references: dict
 ) -> None:
-    config = SynthConfig(raw_format=raw_format, recordings=RECORDINGS, minutes=MINUTES, seed=5, quirks=quirks)
+    config = SynthConfig(
+        raw_format=raw_format, recordings=RECORDINGS, minutes=MINUTES, seed=5, quirks=quirks
+    )
     write_synthetic(tmp_path / "raw", config)
     result = run_build([tmp_path / "raw"], tmp_path / "out", BuildConfig())
     expected = references[quirks]

@@ -69,8 +69,8 @@ def test_frames_contiguous_and_total_frames(rows: pl.DataFrame) -> None:
 
 
 def test_vehicle_ids_dense_in_order_of_entry(rows: pl.DataFrame) -> None:
-    first = rows.group_by(schema.VEHICLE_ID).agg(pl.col(schema.FRAME_ID).min()).sort(
-        schema.VEHICLE_ID
+    first = (
+        rows.group_by(schema.VEHICLE_ID).agg(pl.col(schema.FRAME_ID).min()).sort(schema.VEHICLE_ID)
     )
     assert first[schema.VEHICLE_ID].to_list() == list(range(1, len(first) + 1))
     assert first[schema.FRAME_ID].is_sorted()

@@ -22,10 +22,14 @@ DISPLAY_NAMES: dict[str, str] = {NGSIM.name: "NGSIM", HIGHD.name: "highD"}
 DATASET_NAMES: tuple[str, ...] = tuple(SOURCES)
 
 
-def choose_source(paths: list[Path], dataset: str | None = None) -> tuple[Source, list[Path], list[Path]]:
+def choose_source(
+    paths: list[Path], dataset: str | None = None
+) -> tuple[Source, list[Path], list[Path]]:
     """(the source, its files to read, files skipped) for `paths`; `dataset` forces the source."""
     if dataset is not None and dataset not in SOURCES:
-        raise NgsimInputError(paths[0], f"unknown dataset {dataset!r}; choose from {', '.join(DATASET_NAMES)}")
+        raise NgsimInputError(
+            paths[0], f"unknown dataset {dataset!r}; choose from {', '.join(DATASET_NAMES)}"
+        )
     source = SOURCES[dataset or detect_dataset(paths)]
     files, skipped = source.find_files(paths)
     return source, files, skipped
@@ -57,7 +61,9 @@ def detect_dataset(paths: list[Path]) -> str:
         if path.is_file():
             candidates = [(path, True)]
         elif path.is_dir():
-            found = (p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in CANDIDATE_SUFFIXES)
+            found = (
+                p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in CANDIDATE_SUFFIXES
+            )
             candidates = [(p, False) for p in sorted(found)]
         else:
             continue  # missing: the source's find_files says so
@@ -66,7 +72,11 @@ def detect_dataset(paths: list[Path]) -> str:
             if name is not None:
                 first.setdefault(name, candidate)
     if len(first) > 1:
-        held = " and ".join(f"{DISPLAY_NAMES[name]} files ({first[name]})" for name in DATASET_NAMES if name in first)
+        held = " and ".join(
+            f"{DISPLAY_NAMES[name]} files ({first[name]})"
+            for name in DATASET_NAMES
+            if name in first
+        )
         raise NgsimInputError(
             paths[0] if len(paths) == 1 else ", ".join(map(str, paths)),
             f"the inputs hold {held}; choose one with --dataset {' or --dataset '.join(DATASET_NAMES)}",

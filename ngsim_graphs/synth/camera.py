@@ -47,8 +47,13 @@ class Sightings(NamedTuple):
     noise_y_ft: np.ndarray
 
 
-def observed_rows(seen: Sightings, vehicles: np.ndarray, roadway: Roadway, frame0_ms: int,
-                rng: np.random.Generator) -> pl.DataFrame:  # fmt: skip
+def observed_rows(
+    seen: Sightings,
+    vehicles: np.ndarray,
+    roadway: Roadway,
+    frame0_ms: int,
+    rng: np.random.Generator,
+) -> pl.DataFrame:
     """NGSIM rows of a recording: ids by entry, jitter, lanes, neighbours, headways, rounding.
 
     `vehicles` is a structured array with fields length, width (ft) and v_class, indexed by uid.

@@ -201,9 +201,12 @@ def _write_files(
 
 
 def _write_highd(
-    paths: list[Path], recordings: tuple[Recording, ...], config: SynthConfig,
-    report: Callable[[str], None], written: list[Path],
-) -> None:  # fmt: skip
+    paths: list[Path],
+    recordings: tuple[Recording, ...],
+    config: SynthConfig,
+    report: Callable[[str], None],
+    written: list[Path],
+) -> None:
     """Each recording's three highD files (in `paths` order: tracks, tracksMeta, recordingMeta)."""
     for index, recording in enumerate(recordings):
         rows = simulated_rows(recording, index, config)
@@ -241,9 +244,12 @@ def drop_frame_runs(rows: pl.DataFrame, rng: np.random.Generator) -> pl.DataFram
     Total_Frames keeps the original count, as in NGSIM. At least one vehicle gets a gap when any
     record is long enough (50 frames).
     """
-    spans = rows.group_by(schema.VEHICLE_ID).agg(
-        pl.col(schema.FRAME_ID).min().alias("first"), pl.len().alias("n")
-    ).filter(pl.col("n") >= 50).sort(schema.VEHICLE_ID)  # fmt: skip
+    spans = (
+        rows.group_by(schema.VEHICLE_ID)
+        .agg(pl.col(schema.FRAME_ID).min().alias("first"), pl.len().alias("n"))
+        .filter(pl.col("n") >= 50)
+        .sort(schema.VEHICLE_ID)
+    )
     if spans.is_empty():
         return rows
     chosen = rng.random(len(spans)) < GAP_VEHICLE_SHARE
@@ -324,8 +330,12 @@ def _write_txt(handle: BinaryIO, rows: pl.DataFrame, quirks: bool) -> None:
         handle.truncate()
 
 
-def _write_portal(path: Path, recordings: tuple[Recording, ...], config: SynthConfig,
-                  report: Callable[[str], None]) -> Path:  # fmt: skip
+def _write_portal(
+    path: Path,
+    recordings: tuple[Recording, ...],
+    config: SynthConfig,
+    report: Callable[[str], None],
+) -> Path:
     """The combined portal CSV: plain and streamed per recording, or with every export quirk."""
     if config.quirks:
         with _atomic_file(path) as handle:
@@ -344,9 +354,11 @@ def _write_portal(path: Path, recordings: tuple[Recording, ...], config: SynthCo
 
 
 def _write_quirky_portal(
-    handle: BinaryIO, recordings: tuple[Recording, ...], config: SynthConfig,
+    handle: BinaryIO,
+    recordings: tuple[Recording, ...],
+    config: SynthConfig,
     report: Callable[[str], None],
-) -> None:  # fmt: skip
+) -> None:
     """All recordings plus duplicates, conflicts, empty fields and a foreign location, sorted by
     Global_Y (which interleaves periods), with a BOM, CRLF and quoted thousands separators."""
     locations = [recording.location for recording in recordings] + [FOREIGN_RECORDING.location]
@@ -361,9 +373,10 @@ def _write_quirky_portal(
     table = pl.concat(parts, rechunk=False)  # a rechunk would briefly hold every row twice
     del parts
     order = table.select(
-        pl.arg_sort_by([schema.GLOBAL_Y, "rec", schema.VEHICLE_ID, schema.FRAME_ID],
-                       maintain_order=True)
-    ).to_series()  # fmt: skip
+        pl.arg_sort_by(
+            [schema.GLOBAL_Y, "rec", schema.VEHICLE_ID, schema.FRAME_ID], maintain_order=True
+        )
+    ).to_series()
     handle.write(BOM + (",".join(schema.PORTAL_HEADER) + "\r\n").encode())
     location = pl.col("rec").replace_strict(dict(enumerate(locations)), return_dtype=pl.String)
     for start in range(0, len(order), CHUNK_ROWS):
@@ -380,6 +393,7 @@ def _write_quirky_portal(
 def _duplicate_rows(rows: pl.DataFrame, rng: np.random.Generator) -> pl.DataFrame:
     """Extra rows of one recording: exact copies, copies with a larger Local_Y, copies without
     Local_X. Shares of the recording's rows, at least one of each kind."""
+
     def pick(share: float) -> pl.DataFrame:
         count = min(len(rows), max(1, round(share * len(rows))))
         return rows[np.sort(rng.choice(len(rows), count, replace=False))]
@@ -398,9 +412,12 @@ def _with_thousands(name: str) -> pl.Expr:
     text = value.abs().cast(pl.String)
     dot = text.str.find(".", literal=True).fill_null(text.str.len_chars())
     grouped = (
-        text.str.head(dot).str.reverse().str.replace_all(r"(\d{3})", "$1,")
-        .str.strip_chars_end(",").str.reverse()
-    )  # fmt: skip
+        text.str.head(dot)
+        .str.reverse()
+        .str.replace_all(r"(\d{3})", "$1,")
+        .str.strip_chars_end(",")
+        .str.reverse()
+    )
     sign = pl.when(value < 0).then(pl.lit("-")).otherwise(pl.lit(""))
     quoted = pl.concat_str([pl.lit('"'), sign, grouped, text.str.slice(dot), pl.lit('"')])
     return pl.when(value.abs() >= 1000).then(quoted).otherwise(value.cast(pl.String)).alias(name)

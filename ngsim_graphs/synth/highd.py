@@ -72,13 +72,19 @@ def image_layout(location: str) -> ImageLayout:
     roadway = ROADWAYS[location]
     width_m = LANE_WIDTH_FT * FEET_TO_M
     upper = tuple(round(TOP_M + i * width_m, DECIMALS) for i in range(roadway.lanes + 1))
-    lower = tuple(round(upper[-1] + MEDIAN_M + i * width_m, DECIMALS) for i in range(roadway.lanes + 1))
+    lower = tuple(
+        round(upper[-1] + MEDIAN_M + i * width_m, DECIMALS) for i in range(roadway.lanes + 1)
+    )
     return ImageLayout(roadway.lanes, roadway.length_ft * FEET_TO_M, upper, lower)
 
 
 def highd_paths(out_dir: Path, recordings: int) -> list[Path]:
     """The files of `recordings` highD recordings in out_dir: per recording, in HighdFile order."""
-    return [out_dir / f"{number:02d}_{kind.value}.csv" for number in range(1, recordings + 1) for kind in HighdFile]
+    return [
+        out_dir / f"{number:02d}_{kind.value}.csv"
+        for number in range(1, recordings + 1)
+        for kind in HighdFile
+    ]
 
 
 def driving_direction(index: int) -> int:
@@ -88,7 +94,10 @@ def driving_direction(index: int) -> int:
 
 def _metric(rows: pl.DataFrame) -> pl.DataFrame:
     """NGSIM rows (sorted by vehicle, frame) in metres, with the leader's speed (m/s, 0: none)."""
-    feet = [pl.col(c) * FEET_TO_M for c in (s.LOCAL_X, s.LOCAL_Y, s.V_VEL, s.V_ACC, s.V_LENGTH, s.V_WIDTH)]
+    feet = [
+        pl.col(c) * FEET_TO_M
+        for c in (s.LOCAL_X, s.LOCAL_Y, s.V_VEL, s.V_ACC, s.V_LENGTH, s.V_WIDTH)
+    ]
     metric = rows.with_columns(*feet, (pl.col(s.SPACE_HEADWAY) * FEET_TO_M).alias(s.HIGHD_DHW))
     leader = metric.select(
         s.FRAME_ID, pl.col(s.VEHICLE_ID).alias(s.PRECEDING), pl.col(s.V_VEL).alias("leader_v")
@@ -104,14 +113,20 @@ def _on_25_hz(rows: pl.DataFrame) -> pl.DataFrame:
     has_next = (pl.col(s.VEHICLE_ID).shift(-1) == pl.col(s.VEHICLE_ID)) & (n.shift(-1) == n + 1)
     even = n % 2 == 0
     first = pl.when(even).then(n * 5 // 2 + 5).otherwise((n * 5 + 1) // 2 + 5)  # ceil(2.5 n) + 5
-    count = pl.when(has_next.fill_null(False)).then(pl.when(even).then(3).otherwise(2)).otherwise(even.cast(pl.Int32))
+    count = (
+        pl.when(has_next.fill_null(False))
+        .then(pl.when(even).then(3).otherwise(2))
+        .otherwise(even.cast(pl.Int32))
+    )
     nexts = [pl.col(c).shift(-1).alias(f"next_{c}") for c in _INTERPOLATED]
     spread = rows.with_columns(*nexts, first.alias("first"), pl.int_ranges(0, count).alias("j"))
     exploded = spread.explode("j").drop_nulls("j")
     frame = pl.col("first") + pl.col("j")
     weight = (2 * frame - 10 - 5 * n) / 5  # (f - 5) / 2.5 - n, exactly 0 on the grid
     between = [
-        pl.when(weight == 0).then(pl.col(c)).otherwise(pl.col(c) + weight * (pl.col(f"next_{c}") - pl.col(c)))
+        pl.when(weight == 0)
+        .then(pl.col(c))
+        .otherwise(pl.col(c) + weight * (pl.col(f"next_{c}") - pl.col(c)))
         for c in _INTERPOLATED
     ]
     return exploded.with_columns(frame.cast(pl.Int32).alias(s.HIGHD_FRAME), *between)
@@ -136,19 +151,28 @@ def tracks_table(rows: pl.DataFrame, layout: ImageLayout, direction: int) -> pl.
     zero = pl.lit(0.0)
     front_gap = layout.image_length_m - x - length
     table = frames.with_columns(
-        x.alias(s.HIGHD_X), y.alias(s.HIGHD_Y), length.alias(s.HIGHD_WIDTH), width.alias(s.HIGHD_HEIGHT),
-        (sign * pl.col(s.V_VEL) + 0.0).alias(s.HIGHD_X_VELOCITY), zero.alias(s.HIGHD_Y_VELOCITY),
-        (sign * pl.col(s.V_ACC) + 0.0).alias(s.HIGHD_X_ACCELERATION), zero.alias(s.HIGHD_Y_ACCELERATION),
+        x.alias(s.HIGHD_X),
+        y.alias(s.HIGHD_Y),
+        length.alias(s.HIGHD_WIDTH),
+        width.alias(s.HIGHD_HEIGHT),
+        (sign * pl.col(s.V_VEL) + 0.0).alias(s.HIGHD_X_VELOCITY),
+        zero.alias(s.HIGHD_Y_VELOCITY),
+        (sign * pl.col(s.V_ACC) + 0.0).alias(s.HIGHD_X_ACCELERATION),
+        zero.alias(s.HIGHD_Y_ACCELERATION),
         (front_gap if direction == LOWER else x).alias("frontSightDistance"),
         (x if direction == LOWER else front_gap).alias("backSightDistance"),
         pl.when(ahead).then(pl.col(s.HIGHD_DHW)).otherwise(zero).alias(s.HIGHD_DHW),
         pl.when(timed).then(pl.col(s.TIME_HEADWAY)).otherwise(zero).alias(s.HIGHD_THW),
-        pl.when(closing).then(pl.col(s.HIGHD_DHW) / (pl.col(s.V_VEL) - pl.col("leader_v")))
-        .otherwise(zero).alias(s.HIGHD_TTC),
+        pl.when(closing)
+        .then(pl.col(s.HIGHD_DHW) / (pl.col(s.V_VEL) - pl.col("leader_v")))
+        .otherwise(zero)
+        .alias(s.HIGHD_TTC),
         (sign * pl.col("leader_v") + 0.0).alias(s.HIGHD_PRECEDING_X_VELOCITY),  # + 0.0: no -0.0
-        pl.col(s.PRECEDING).alias(s.HIGHD_PRECEDING_ID), pl.col(s.FOLLOWING).alias(s.HIGHD_FOLLOWING_ID),
-        lane.cast(pl.Int16).alias(s.HIGHD_LANE_ID), pl.col(s.VEHICLE_ID).alias(s.HIGHD_ID),
-    )  # fmt: skip
+        pl.col(s.PRECEDING).alias(s.HIGHD_PRECEDING_ID),
+        pl.col(s.FOLLOWING).alias(s.HIGHD_FOLLOWING_ID),
+        lane.cast(pl.Int16).alias(s.HIGHD_LANE_ID),
+        pl.col(s.VEHICLE_ID).alias(s.HIGHD_ID),
+    )
     others = [pl.lit(0).alias(c) for c in s.HIGHD_TRACKS_HEADER if c not in table.columns]
     return table.with_columns(*others).select(s.HIGHD_TRACKS_HEADER).sort(s.HIGHD_ID, s.HIGHD_FRAME)
 
@@ -160,20 +184,32 @@ def _positive_min(column: str) -> pl.Expr:
 
 def tracks_meta_table(tracks: pl.DataFrame, rows: pl.DataFrame, direction: int) -> pl.DataFrame:
     """The NN_tracksMeta.csv table: one row per vehicle of `tracks` (its NN_tracks.csv table)."""
-    classes = rows.group_by(s.VEHICLE_ID).agg(pl.col(s.V_CLASS).first()).rename({s.VEHICLE_ID: s.HIGHD_ID})
+    classes = (
+        rows.group_by(s.VEHICLE_ID)
+        .agg(pl.col(s.V_CLASS).first())
+        .rename({s.VEHICLE_ID: s.HIGHD_ID})
+    )
     speed = pl.col(s.HIGHD_X_VELOCITY).abs()
     per_vehicle = tracks.group_by(s.HIGHD_ID).agg(
-        pl.col(s.HIGHD_WIDTH).first(), pl.col(s.HIGHD_HEIGHT).first(),
-        pl.col(s.HIGHD_FRAME).min().alias("initialFrame"), pl.col(s.HIGHD_FRAME).max().alias("finalFrame"),
+        pl.col(s.HIGHD_WIDTH).first(),
+        pl.col(s.HIGHD_HEIGHT).first(),
+        pl.col(s.HIGHD_FRAME).min().alias("initialFrame"),
+        pl.col(s.HIGHD_FRAME).max().alias("finalFrame"),
         pl.len().alias("numFrames"),
         (pl.col(s.HIGHD_X).last() - pl.col(s.HIGHD_X).first()).abs().alias("traveledDistance"),
-        speed.min().alias("minXVelocity"), speed.max().alias("maxXVelocity"), speed.mean().alias("meanXVelocity"),
-        _positive_min(s.HIGHD_DHW).alias("minDHW"), _positive_min(s.HIGHD_THW).alias("minTHW"),
+        speed.min().alias("minXVelocity"),
+        speed.max().alias("maxXVelocity"),
+        speed.mean().alias("meanXVelocity"),
+        _positive_min(s.HIGHD_DHW).alias("minDHW"),
+        _positive_min(s.HIGHD_THW).alias("minTHW"),
         _positive_min(s.HIGHD_TTC).alias("minTTC"),
         (pl.col(s.HIGHD_LANE_ID).diff() != 0).sum().alias("numLaneChanges"),
-    )  # fmt: skip
+    )
     named = per_vehicle.join(classes, on=s.HIGHD_ID).with_columns(
-        pl.when(pl.col(s.V_CLASS) == 3).then(pl.lit("Truck")).otherwise(pl.lit("Car")).alias(s.HIGHD_CLASS),
+        pl.when(pl.col(s.V_CLASS) == 3)
+        .then(pl.lit("Truck"))
+        .otherwise(pl.lit("Car"))
+        .alias(s.HIGHD_CLASS),
         pl.lit(direction).alias(s.HIGHD_DRIVING_DIRECTION),
     )
     return named.select(s.HIGHD_TRACKS_META_HEADER).sort(s.HIGHD_ID)
@@ -190,11 +226,22 @@ def recording_meta_table(
     start = datetime.fromtimestamp(recording.start_epoch_ms / 1000, PACIFIC_DAYLIGHT)
     trucks = int((meta[s.HIGHD_CLASS] == "Truck").sum())
     values = [
-        recording_id, FRAME_RATE_HZ, LOCATION_IDS[recording.location], -1.0, f"{start:%m.%Y}", f"{start:%a}",
-        f"{start:%H:%M}", float(minutes * 60), float(meta["traveledDistance"].sum()),
-        float(meta["numFrames"].sum()) / FRAME_RATE_HZ, meta.height, meta.height - trucks, trucks,
-        _markings(layout.upper_markings_m), _markings(layout.lower_markings_m),
-    ]  # fmt: skip
+        recording_id,
+        FRAME_RATE_HZ,
+        LOCATION_IDS[recording.location],
+        -1.0,
+        f"{start:%m.%Y}",
+        f"{start:%a}",
+        f"{start:%H:%M}",
+        float(minutes * 60),
+        float(meta["traveledDistance"].sum()),
+        float(meta["numFrames"].sum()) / FRAME_RATE_HZ,
+        meta.height,
+        meta.height - trucks,
+        trucks,
+        _markings(layout.upper_markings_m),
+        _markings(layout.lower_markings_m),
+    ]
     return pl.DataFrame([values], schema=list(s.HIGHD_RECORDING_META_HEADER), orient="row")
 
 

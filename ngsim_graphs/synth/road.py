@@ -16,7 +16,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-
 LANE_WIDTH_FT = 12.0
 
 
@@ -154,8 +153,9 @@ def entry_points(roadway: Roadway, regime: Regime) -> EntryPoints:
     )
 
 
-def lane_open(roadway: Roadway, target: np.ndarray, y_ft: np.ndarray,
-              exits: np.ndarray) -> np.ndarray:  # fmt: skip
+def lane_open(
+    roadway: Roadway, target: np.ndarray, y_ft: np.ndarray, exits: np.ndarray
+) -> np.ndarray:
     """Whether vehicles at y_ft (N,) may move into target lanes (N,): the lane exists there and,
     for an auxiliary lane, the vehicle is not too close to its end. Nobody enters a merge lane."""
     is_open = (target >= 1) & (target <= roadway.main_lanes)
@@ -166,8 +166,9 @@ def lane_open(roadway: Roadway, target: np.ndarray, y_ft: np.ndarray,
     return is_open
 
 
-def change_bias(roadway: Roadway, lane: np.ndarray, target: np.ndarray, y_ft: np.ndarray,
-                exits: np.ndarray) -> np.ndarray:  # fmt: skip
+def change_bias(
+    roadway: Roadway, lane: np.ndarray, target: np.ndarray, y_ft: np.ndarray, exits: np.ndarray
+) -> np.ndarray:
     """Extra lane-change incentive (ft/s^2, (N,)) for mandatory moves: out of the extra lane
     before it ends, towards the off-ramp before it leaves; both grow as the point nears."""
     bias = np.zeros(len(lane))

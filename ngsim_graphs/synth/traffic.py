@@ -171,9 +171,10 @@ def _new_vehicles(sim: _Simulation, n: int) -> np.ndarray:
         np.where(moto, rng.uniform(6.5, 8.0, n), rng.normal(15.2, 1.9, n).clip(11.5, 21.5)),
     )
     new["width"] = np.where(
-        truck, rng.uniform(7.8, 8.5, n),
+        truck,
+        rng.uniform(7.8, 8.5, n),
         np.where(moto, rng.uniform(2.5, 3.3, n), rng.normal(6.1, 0.4, n).clip(5.0, 7.5)),
-    )  # fmt: skip
+    )
     new["v_class"] = v_class
     new["v0"] = free * rng.normal(1.0, 0.08, n) * np.where(truck, 0.88, np.where(moto, 1.05, 1.0))
     new["headway_s"] = rng.normal(1.35, 0.25, n).clip(0.9, 2.2) + np.where(truck, 0.4, 0.0)
@@ -223,9 +224,12 @@ def _lane_index(fleet: np.ndarray, roadway: Roadway) -> tuple[_LaneIndex, _LaneI
     if roadway.extra_lane_ft is not None:
         must_leave = ~fleet["exits"] if roadway.extra_lane_exits else True
         waiting = np.flatnonzero(
-            (fleet["lane"] == roadway.lanes) & (fleet["from_lane"] == roadway.lanes) & must_leave
-            & (fleet["y"] > roadway.extra_lane_ft[1] - YIELD_FT) & (fleet["v"] < YIELD_FPS)
-        )  # fmt: skip
+            (fleet["lane"] == roadway.lanes)
+            & (fleet["from_lane"] == roadway.lanes)
+            & must_leave
+            & (fleet["y"] > roadway.extra_lane_ft[1] - YIELD_FT)
+            & (fleet["v"] < YIELD_FPS)
+        )
     vehicle = np.concatenate([np.arange(len(fleet)), changing, waiting])
     lane = np.concatenate(
         [fleet["lane"], fleet["from_lane"][changing], np.full(waiting.size, roadway.main_lanes)]
@@ -237,8 +241,9 @@ def _lane_index(fleet: np.ndarray, roadway: Roadway) -> tuple[_LaneIndex, _LaneI
     if waiting.size == 0:
         return following, following
     real = ~courtesy
-    return following, _LaneIndex(keys[order][real], vehicle[order][real], lane[order][real],
-                                 courtesy[real])  # fmt: skip
+    return following, _LaneIndex(
+        keys[order][real], vehicle[order][real], lane[order][real], courtesy[real]
+    )
 
 
 def _neighbours_at(
@@ -256,8 +261,9 @@ def _neighbours_at(
     return leader, follower
 
 
-def _idm(fleet: np.ndarray, rows: np.ndarray, v0: np.ndarray, gap: np.ndarray,
-         v_lead: np.ndarray) -> np.ndarray:  # fmt: skip
+def _idm(
+    fleet: np.ndarray, rows: np.ndarray, v0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray
+) -> np.ndarray:
     """IIDM acceleration (ft/s^2) of fleet rows behind a leader gap ft away (inf: none) at v_lead.
 
     The improved IDM (Treiber and Kesting 2013) keeps the IDM's dynamics but not its low free-flow
@@ -284,8 +290,9 @@ def _desired_speed(fleet: np.ndarray, roadway: Roadway, cap_fps: float) -> np.nd
     return np.where(inside, np.minimum(fleet["v0"], cap_fps), fleet["v0"])
 
 
-def _gap_to(fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray,
-            y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def _gap_to(
+    fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Gap (ft; inf without a leader) from positions y to leader rows (-1: none), and the leaders'
     speed (the rows' own where there is none, so that nothing is approached)."""
     has = leader >= 0
@@ -294,8 +301,9 @@ def _gap_to(fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray,
     return gap, np.where(has, fleet["v"][safe], fleet["v"][rows])
 
 
-def _accelerations(fleet: np.ndarray, index: _LaneIndex, roadway: Roadway,
-                   cap_fps: float) -> np.ndarray:  # fmt: skip
+def _accelerations(
+    fleet: np.ndarray, index: _LaneIndex, roadway: Roadway, cap_fps: float
+) -> np.ndarray:
     """IIDM acceleration (N,) ft/s^2 of every vehicle: the harder of its lanes' constraints."""
     veh = index.vehicle
     leader = np.full(len(veh), -1)
@@ -346,8 +354,14 @@ def _change_lanes(sim: _Simulation, index: _LaneIndex, acc: np.ndarray, step: in
     fleet["change_dur_s"][moving] = sim.rng.uniform(3.0, 5.0, moving.size)
 
 
-def _change_gain(fleet: np.ndarray, index: _LaneIndex, acc: np.ndarray, rows: np.ndarray,
-                 target: np.ndarray, roadway: Roadway) -> np.ndarray:  # fmt: skip
+def _change_gain(
+    fleet: np.ndarray,
+    index: _LaneIndex,
+    acc: np.ndarray,
+    rows: np.ndarray,
+    target: np.ndarray,
+    roadway: Roadway,
+) -> np.ndarray:
     """MOBIL incentive (ft/s^2) of moving rows to target lanes; -inf where unsafe or impossible."""
     y = fleet["y"][rows]
     leader, follower = _neighbours_at(index, target, y)
@@ -364,9 +378,11 @@ def _change_gain(fleet: np.ndarray, index: _LaneIndex, acc: np.ndarray, rows: np
     gain = own_new - acc[rows] + POLITENESS * follower_loss + bias
     safe_brake = SAFE_BRAKE_FPS2 + np.maximum(bias, 0.0)  # mandatory moves accept harder braking
     safe = (
-        (gap_ahead > MIN_GAP_FT) & (gap_behind > MIN_GAP_FT)
-        & (own_new > -safe_brake) & (np.where(has_f, follower_new, 0.0) > -safe_brake)
-    )  # fmt: skip
+        (gap_ahead > MIN_GAP_FT)
+        & (gap_behind > MIN_GAP_FT)
+        & (own_new > -safe_brake)
+        & (np.where(has_f, follower_new, 0.0) > -safe_brake)
+    )
     return np.where(safe & lane_open(roadway, target, y, exits), gain, -np.inf)
 
 
@@ -400,8 +416,15 @@ def _in_view(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
     # A foot of margin at the edges keeps the jittered Local_Y inside [0, length].
     inside = (fleet["y"] >= 1.0) & (fleet["y"] <= roadway.length_ft - 1.0)
     seen = fleet[inside]
-    columns = (seen["uid"], seen["y"], _lateral_ft(seen), seen["v"], seen["acc"], seen["noise_x"],
-               seen["noise_y"])  # fmt: skip
+    columns = (
+        seen["uid"],
+        seen["y"],
+        _lateral_ft(seen),
+        seen["v"],
+        seen["acc"],
+        seen["noise_x"],
+        seen["noise_y"],
+    )
     return np.column_stack(columns).astype(np.float64)
 
 
@@ -442,4 +465,3 @@ def _leave(sim: _Simulation) -> None:
         fleet["exits"] &= fleet["y"] < end  # those who missed it drive on
     if gone.any():
         sim.fleet = fleet[~gone]
-

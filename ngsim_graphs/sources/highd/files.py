@@ -33,9 +33,15 @@ FIRST_LINE = 2  # the line of data row 0: ROW + FIRST_LINE is a row's line
 _BAD = "__bad"
 # Header columns that tell each kind of file (lower case); the kinds share no such set.
 SIGNATURES: dict[HighdFile, frozenset[str]] = {
-    HighdFile.TRACKS: frozenset(c.lower() for c in (s.HIGHD_FRAME, s.HIGHD_X_VELOCITY, s.HIGHD_LANE_ID)),
-    HighdFile.TRACKS_META: frozenset(c.lower() for c in ("initialFrame", s.HIGHD_DRIVING_DIRECTION)),
-    HighdFile.RECORDING_META: frozenset(c.lower() for c in (s.HIGHD_FRAME_RATE, s.HIGHD_LOCATION_ID)),
+    HighdFile.TRACKS: frozenset(
+        c.lower() for c in (s.HIGHD_FRAME, s.HIGHD_X_VELOCITY, s.HIGHD_LANE_ID)
+    ),
+    HighdFile.TRACKS_META: frozenset(
+        c.lower() for c in ("initialFrame", s.HIGHD_DRIVING_DIRECTION)
+    ),
+    HighdFile.RECORDING_META: frozenset(
+        c.lower() for c in (s.HIGHD_FRAME_RATE, s.HIGHD_LOCATION_ID)
+    ),
 }
 HEADERS = {
     HighdFile.TRACKS: s.HIGHD_TRACKS_HEADER,
@@ -75,7 +81,9 @@ def recording_files(path: Path) -> list[Path]:
     kind = sniff_highd(path)
     if kind is None:
         raise NgsimInputError(
-            path, "not a highD file: the header is none of tracks, tracksMeta, recordingMeta", line=1
+            path,
+            "not a highD file: the header is none of tracks, tracksMeta, recordingMeta",
+            line=1,
         )
     named = parse_file_name(path)
     if named is None:
@@ -86,11 +94,15 @@ def recording_files(path: Path) -> list[Path]:
         )
     prefix, name_kind = named
     if name_kind is not kind:
-        raise NgsimInputError(path, f"named like a {name_kind.value} file but holds a {kind.value} header")
+        raise NgsimInputError(
+            path, f"named like a {name_kind.value} file but holds a {kind.value} header"
+        )
     files = [sibling(path, prefix, other) for other in HighdFile]
     for other, file in zip(HighdFile, files, strict=True):
         if not file.is_file():
-            raise NgsimInputError(path, f"no {file.name} beside it: a highD recording needs all three files")
+            raise NgsimInputError(
+                path, f"no {file.name} beside it: a highD recording needs all three files"
+            )
         if other is not kind and sniff_highd(file) is not other:
             raise NgsimInputError(file, f"does not hold a highD {other.value} header", line=1)
     return files
@@ -143,9 +155,15 @@ def _scan_text(path: Path, header: list[str]) -> pl.LazyFrame:
     dropped. A row's surplus fields land in EXTRA, so that ragged rows can be found."""
     names = [name.lower() for name in header]
     frame = pl.scan_csv(
-        path, has_header=False, skip_rows=1, schema=dict.fromkeys([*names, EXTRA], pl.String),
-        missing_columns="insert", truncate_ragged_lines=True, quote_char='"', encoding="utf8-lossy",
-    )  # fmt: skip
+        path,
+        has_header=False,
+        skip_rows=1,
+        schema=dict.fromkeys([*names, EXTRA], pl.String),
+        missing_columns="insert",
+        truncate_ragged_lines=True,
+        quote_char='"',
+        encoding="utf8-lossy",
+    )
     not_blank = pl.any_horizontal(pl.col(names).is_not_null())
     return frame.with_row_index(ROW).filter(not_blank)
 
@@ -172,7 +190,9 @@ def _raise_bad_number(path: Path, text: pl.LazyFrame, row: int, schema: pl.Schem
     for (column, dtype), value in zip(schema.items(), fields, strict=True):
         problem = number_problem(value or "", dtype)
         if problem:
-            raise NgsimInputError(path, f"column {column}: {value!r} {problem}", line=row + FIRST_LINE)
+            raise NgsimInputError(
+                path, f"column {column}: {value!r} {problem}", line=row + FIRST_LINE
+            )
     raise NgsimInputError(path, "a value is out of range", line=row + FIRST_LINE)
 
 
@@ -191,12 +211,16 @@ def read_columns(path: Path, kind: HighdFile, schema: pl.Schema) -> pl.DataFrame
     parsed = [_parsed(column, dtype) for column, dtype in schema.items()]
     try:
         frame = text.select(
-            ROW, *(value for value, _ in parsed), pl.any_horizontal(bad for _, bad in parsed).alias(_BAD),
+            ROW,
+            *(value for value, _ in parsed),
+            pl.any_horizontal(bad for _, bad in parsed).alias(_BAD),
             odd.alias(EXTRA),
-        ).collect(engine="streaming")  # fmt: skip
+        ).collect(engine="streaming")
     except pl.exceptions.ComputeError as err:
         raise_bad_quoting(path)
-        raise NgsimInputError(path, f"cannot parse as CSV: {str(err).strip().splitlines()[0]}") from None
+        raise NgsimInputError(
+            path, f"cannot parse as CSV: {str(err).strip().splitlines()[0]}"
+        ) from None
     if frame.height == 0:
         raise NgsimInputError(path, "no data rows")
     if frame[EXTRA].any():
@@ -221,7 +245,9 @@ def _markings(path: Path, column: str, text: str | None) -> tuple[float, ...]:
         values = ()
     if len(values) < 2 or any(b <= a for a, b in zip(values, values[1:], strict=False)):
         raise NgsimInputError(
-            path, f"column {column}: {text!r} is not a list of increasing numbers 'a;b;c'", line=FIRST_LINE
+            path,
+            f"column {column}: {text!r} is not a list of increasing numbers 'a;b;c'",
+            line=FIRST_LINE,
         )
     return values
 
@@ -234,16 +260,24 @@ def read_recording_meta(path: Path) -> RecordingMeta:
     row = frame.row(0, named=True)
     for column in (s.HIGHD_ID, s.HIGHD_FRAME_RATE, s.HIGHD_LOCATION_ID):
         if row[column] is None or row[column] < 1:
-            raise NgsimInputError(path, f"column {column}: {row[column]!r} is not a positive number", line=FIRST_LINE)
+            raise NgsimInputError(
+                path, f"column {column}: {row[column]!r} is not a positive number", line=FIRST_LINE
+            )
     if row[s.HIGHD_FRAME_RATE] != FRAME_RATE_HZ:
         raise NgsimInputError(
-            path, f"frameRate {row[s.HIGHD_FRAME_RATE]}: highD recordings run at {FRAME_RATE_HZ} Hz", line=FIRST_LINE
+            path,
+            f"frameRate {row[s.HIGHD_FRAME_RATE]}: highD recordings run at {FRAME_RATE_HZ} Hz",
+            line=FIRST_LINE,
         )
     return RecordingMeta(
         recording_id=row[s.HIGHD_ID],
         location_id=row[s.HIGHD_LOCATION_ID],
-        upper_markings_m=_markings(path, s.HIGHD_UPPER_LANE_MARKINGS, row[s.HIGHD_UPPER_LANE_MARKINGS]),
-        lower_markings_m=_markings(path, s.HIGHD_LOWER_LANE_MARKINGS, row[s.HIGHD_LOWER_LANE_MARKINGS]),
+        upper_markings_m=_markings(
+            path, s.HIGHD_UPPER_LANE_MARKINGS, row[s.HIGHD_UPPER_LANE_MARKINGS]
+        ),
+        lower_markings_m=_markings(
+            path, s.HIGHD_LOWER_LANE_MARKINGS, row[s.HIGHD_LOWER_LANE_MARKINGS]
+        ),
     )
 
 
@@ -254,7 +288,9 @@ def read_tracks_meta(path: Path) -> pl.DataFrame:
     or an id that appears twice.
     """
     frame = read_columns(path, HighdFile.TRACKS_META, s.HIGHD_TRACKS_META_SCHEMA)
-    code = pl.col(s.HIGHD_CLASS).str.to_lowercase().replace_strict(s.HIGHD_CLASS_CODES, default=None)
+    code = (
+        pl.col(s.HIGHD_CLASS).str.to_lowercase().replace_strict(s.HIGHD_CLASS_CODES, default=None)
+    )
     checked = frame.with_columns(code.cast(pl.Int8).alias(s.V_CLASS))
     problems = (
         (pl.any_horizontal(pl.col(s.HIGHD_TRACKS_META_SCHEMA.names()).is_null()), "an empty field"),

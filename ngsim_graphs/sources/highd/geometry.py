@@ -104,11 +104,16 @@ def to_road_frame(rows: pl.DataFrame, meta: RecordingMeta) -> pl.DataFrame:
     """
     upper = pl.col(s.HIGHD_DRIVING_DIRECTION) == UPPER
     centre_y = pl.col(s.HIGHD_Y) + pl.col(s.HIGHD_HEIGHT) / 2
-    x_m = pl.when(upper).then(meta.upper_markings_m[-1] - centre_y).otherwise(centre_y - meta.lower_markings_m[0])
+    x_m = (
+        pl.when(upper)
+        .then(meta.upper_markings_m[-1] - centre_y)
+        .otherwise(centre_y - meta.lower_markings_m[0])
+    )
     y_m = (
-        pl.when(upper).then(UPPER_ORIGIN_M - pl.col(s.HIGHD_X))
+        pl.when(upper)
+        .then(UPPER_ORIGIN_M - pl.col(s.HIGHD_X))
         .otherwise(pl.col(s.HIGHD_X) + pl.col(s.HIGHD_WIDTH))
-    )  # fmt: skip
+    )
     along = pl.when(upper).then(-1.0).otherwise(1.0)
     no_leader = pl.col(s.HIGHD_PRECEDING_ID).fill_null(s.HIGHD_NO_NEIGHBOUR) == s.HIGHD_NO_NEIGHBOUR
     provenance = [c for c in rows.columns if c in s.PROVENANCE_SCHEMA]
@@ -125,7 +130,10 @@ def to_road_frame(rows: pl.DataFrame, meta: RecordingMeta) -> pl.DataFrame:
         pl.col(s.HIGHD_HEIGHT).alias(s.WIDTH_M),
         _none_if_zero(s.HIGHD_PRECEDING_ID).alias(s.PRECEDING),
         _none_if_zero(s.HIGHD_FOLLOWING_ID).alias(s.FOLLOWING),
-        pl.when(no_leader).then(None).otherwise(_none_if_zero(s.HIGHD_DHW)).alias(s.SPACE_HEADWAY_M),
+        pl.when(no_leader)
+        .then(None)
+        .otherwise(_none_if_zero(s.HIGHD_DHW))
+        .alias(s.SPACE_HEADWAY_M),
         _none_if_zero(s.HIGHD_THW).alias(s.TIME_HEADWAY_S),
         *provenance,
     )

@@ -56,28 +56,38 @@ from ngsim_graphs.sources.ngsim.cleaning import split_at_gaps
 from ngsim_graphs.sources.ngsim.plausibility import check_dropped
 from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
 
-FILE_REASONS: tuple[DropReason, ...] = tuple(r for r in DropReason if r is not DropReason.POSITION_OUTLIER)
+FILE_REASONS: tuple[DropReason, ...] = tuple(
+    r for r in DropReason if r is not DropReason.POSITION_OUTLIER
+)
 # Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
 # by these columns (the smallest y_m, then x_m, ...): a rule of the values alone, never of the
 # order of the file.
 CONFLICT_ORDER: tuple[str, ...] = (
-    s.Y_M, s.X_M, *(c for c in STAGED_SCHEMA if c not in (s.VEHICLE_ID, s.FRAME_ID, s.Y_M, s.X_M)),
-)  # fmt: skip
+    s.Y_M,
+    s.X_M,
+    *(c for c in STAGED_SCHEMA if c not in (s.VEHICLE_ID, s.FRAME_ID, s.Y_M, s.X_M)),
+)
 
 
 def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
     """The kind of file `path` is (by name), its recording's meta and key."""
     named = parse_file_name(path)
     if named is None:
-        raise NgsimInputError(path, "not named like a highD file (NN_tracks.csv, NN_tracksMeta.csv, ...)")
+        raise NgsimInputError(
+            path, "not named like a highD file (NN_tracks.csv, NN_tracksMeta.csv, ...)"
+        )
     prefix, kind = named
     meta_path = sibling(path, prefix, HighdFile.RECORDING_META)
     if not meta_path.is_file():
-        raise NgsimInputError(path, f"no {meta_path.name} beside it: a highD recording needs all three files")
+        raise NgsimInputError(
+            path, f"no {meta_path.name} beside it: a highD recording needs all three files"
+        )
     meta = read_recording_meta(meta_path)
     if meta.recording_id != int(prefix):
         raise NgsimInputError(
-            meta_path, f"recording id {meta.recording_id}, but the file name says {prefix}", line=FIRST_LINE
+            meta_path,
+            f"recording id {meta.recording_id}, but the file name says {prefix}",
+            line=FIRST_LINE,
         )
     return kind, meta, (location_name(meta.location_id), period_name(meta.recording_id))
 
@@ -85,9 +95,14 @@ def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
 def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> FileReport:
     """A file's report; `counts` fill in what reading its rows found (a meta file has none)."""
     fields: dict[str, object] = {
-        "rows_read": 0, "rows_other_locations": 0, "rows_missing_values": 0, "first_missing_line": None,
-        "rows_dropped": {r.value: 0 for r in FILE_REASONS}, "first_dropped_line": {}, "rows_checked": 0,
-    }  # fmt: skip
+        "rows_read": 0,
+        "rows_other_locations": 0,
+        "rows_missing_values": 0,
+        "first_missing_line": None,
+        "rows_dropped": {r.value: 0 for r in FILE_REASONS},
+        "first_dropped_line": {},
+        "rows_checked": 0,
+    }
     fields.update(counts)
     kind = parse_file_name(path)
     return FileReport(
@@ -115,15 +130,22 @@ def _staged_rows(
     usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
-    joined = usable.join(vehicles, left_on=s.HIGHD_ID, right_on=s.VEHICLE_ID, how="left", maintain_order="left")
+    joined = usable.join(
+        vehicles, left_on=s.HIGHD_ID, right_on=s.VEHICLE_ID, how="left", maintain_order="left"
+    )
     unknown = joined.filter(pl.col(s.HIGHD_DRIVING_DIRECTION).is_null())
     if unknown.height:
         raise NgsimInputError(
-            path, f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
+            path,
+            f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
             line=int(unknown[s.SOURCE_LINE][0]),
-        )  # fmt: skip
-    rows = to_road_frame(joined.with_columns(pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE)), meta)
-    dropped = checked.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+        )
+    rows = to_road_frame(
+        joined.with_columns(pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE)), meta
+    )
+    dropped = (
+        checked.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+    )
     missing = checked.filter(~pl.col("complete"))
     counts = {reason: n for reason, n, _ in dropped.iter_rows()}
     report: dict[str, object] = {
@@ -144,7 +166,9 @@ def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) ->
     kind, meta, key = _recording(path)
     allowed = chosen_locations(config.locations)
     chosen = allowed is None or key[0] in allowed
-    empty = pl.DataFrame(schema={**STAGED_SCHEMA, s.RECORDING_INDEX: pl.Int32, **s.PROVENANCE_SCHEMA})
+    empty = pl.DataFrame(
+        schema={**STAGED_SCHEMA, s.RECORDING_INDEX: pl.Int32, **s.PROVENANCE_SCHEMA}
+    )
     if kind is HighdFile.TRACKS_META:
         read_tracks_meta(path)  # its recording's meta was read above
     if kind is not HighdFile.TRACKS:
@@ -155,7 +179,12 @@ def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) ->
     rows, counts = _staged_rows(path, meta, config, file_index)
     report = _report(path, key, chosen, **counts)
     check_dropped(
-        report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked, config.limits, strict
+        report.path,
+        report.rows_dropped,
+        report.first_dropped_line,
+        report.rows_checked,
+        config.limits,
+        strict,
     )
     staged = rows.with_columns(pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX))
     return FileRows(staged.select(empty.columns), {key: 0}, report)
@@ -190,7 +219,9 @@ def build_tracks(
     unique, exact, conflicting = drop_duplicate_rows(raw)
     segmented, gaps = split_at_gaps(unique)
     location, period = key
-    on_grid = downsample_to_grid(segmented, frames_per_step(config.time_step_s, Path(f"{location}/{period}")))
+    on_grid = downsample_to_grid(
+        segmented, frames_per_step(config.time_step_s, Path(f"{location}/{period}"))
+    )
     grid = on_grid.with_columns(
         pl.lit(location).alias(s.LOCATION),
         pl.lit(period).alias(s.PERIOD),
@@ -218,11 +249,20 @@ def build_tracks(
 
 
 def recording_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int,
-    files: list[FileReport], strict: bool,
-) -> tuple[pl.DataFrame, RecordingReport]:  # fmt: skip
+    raw: pl.DataFrame,
+    key: RecordingKey,
+    config: BuildConfig,
+    first_track_id: int,
+    files: list[FileReport],
+    strict: bool,
+) -> tuple[pl.DataFrame, RecordingReport]:
     """build_tracks: the file checks (read_file) are all highD's rows go through."""
     return build_tracks(raw, key, config, first_track_id)
 
 
-SOURCE = Source(name="highd", find_files=find_highd_files, read_file=read_file, recording_tracks=recording_tracks)
+SOURCE = Source(
+    name="highd",
+    find_files=find_highd_files,
+    read_file=read_file,
+    recording_tracks=recording_tracks,
+)

@@ -129,7 +129,10 @@ def raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) 
 # so it is not the judge of what the reader could not parse.
 _DECIMAL = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _NOT_FINITE = ("inf", "infinity", "nan")
-_RUST_WHITESPACE = " \t\n\v\f\r\x85\xa0\u1680\u2000\u2001\u2002\u2003\u2004\u2005\u2006\u2007\u2008\u2009\u200a\u2028\u2029\u202f\u205f\u3000"
+_RUST_WHITESPACE = (
+    " \t\n\v\f\r\x85\xa0\u1680\u2000\u2001\u2002\u2003\u2004\u2005\u2006\u2007\u2008\u2009"
+    "\u200a\u2028\u2029\u202f\u205f\u3000"
+)
 
 
 def number_problem(text: str, dtype: pl.DataType) -> str | None:

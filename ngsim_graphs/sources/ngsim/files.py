@@ -16,6 +16,7 @@ import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim.faults import (
     CONTROL,
     EXTRA,
@@ -29,7 +30,6 @@ from ngsim_graphs.sources.ngsim.faults import (
     raise_odd_shape,
     scan_lines,
 )
-from ngsim_graphs.schema import RawFormat
 
 SNIFF_BYTES = 64 * 1024
 CANDIDATE_SUFFIXES = (".csv", ".txt")
@@ -175,7 +175,7 @@ def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
         path,
         has_header=False,
         skip_rows=1,
-        schema={name: pl.String for name in [*names, EXTRA]},
+        schema=dict.fromkeys([*names, EXTRA], pl.String),
         missing_columns="insert",
         truncate_ragged_lines=True,
         quote_char='"',

@@ -13,10 +13,10 @@ import math
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.config import FRAME_STEP_S, PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 
 # The row checks in the order they are tried: a row is counted under the first that fails.
 ROW_CHECKS: tuple[DropReason, ...] = (

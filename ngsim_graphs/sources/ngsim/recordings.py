@@ -82,7 +82,9 @@ def location_from_path(path: Path) -> str | None:
     return None
 
 
-def _name_recording(frame0_ms: int, last_frame: int, location: str | None, path: Path) -> tuple[str, str]:
+def _name_recording(
+    frame0_ms: int, last_frame: int, location: str | None, path: Path
+) -> tuple[str, str]:
     official = find_official_recording(frame0_ms, location)
     if official is not None:
         return official.location, official.period
@@ -98,7 +100,9 @@ def _name_recording(frame0_ms: int, last_frame: int, location: str | None, path:
     return named, period_label(frame0_ms, last_frame)
 
 
-def _names_an_unclaimed_period(frame0_ms: int, location: str | None, keys: list[tuple[str, str]]) -> bool:
+def _names_an_unclaimed_period(
+    frame0_ms: int, location: str | None, keys: list[tuple[str, str]]
+) -> bool:
     """Whether a frame-0 time names an official period (of `location`, if known) not yet taken:
     a small recording of its own rather than stray rows (random times seldom land there)."""
     official = find_official_recording(frame0_ms, location)
@@ -140,7 +144,9 @@ def identify_recordings(
     keys: list[tuple[str, str]] = []
     groups = _frame0_groups(frame if usable is None else frame.filter(usable))
     for position, (location, frame0_ms, _rows, last_frame, small) in enumerate(groups.iter_rows()):
-        near = any(loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted)
+        near = any(
+            loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted
+        )
         if near or (small and not _names_an_unclaimed_period(frame0_ms, location, keys)):
             continue
         key = _name_recording(frame0_ms, last_frame, location, path)
@@ -154,12 +160,21 @@ def identify_recordings(
             )
         accepted.append((location, frame0_ms, position))
         keys.append(key)
-    order = sorted(range(len(keys)), key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]))
+    order = sorted(
+        range(len(keys)),
+        key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]),
+    )
     index_of_group = {accepted[i][2]: new for new, i in enumerate(order)}
     lookup = groups.with_columns(
-        pl.Series(s.RECORDING_INDEX, [index_of_group.get(i) for i in range(groups.height)], dtype=pl.UInt16)
+        pl.Series(
+            s.RECORDING_INDEX,
+            [index_of_group.get(i) for i in range(groups.height)],
+            dtype=pl.UInt16,
+        )
     ).select(s.LOCATION, FRAME0_MS, s.RECORDING_INDEX)
     frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
     keyed = frame.select(s.LOCATION, frame0.alias(FRAME0_MS))
-    index = keyed.join(lookup, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left")
+    index = keyed.join(
+        lookup, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left"
+    )
     return index[s.RECORDING_INDEX], [keys[i] for i in order]

@@ -19,7 +19,13 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.kinematics import add_heading
 from ngsim_graphs.schema import DropReason
-from ngsim_graphs.sources.contract import FileReport, FileRows, RecordingKey, RecordingReport, Source
+from ngsim_graphs.sources.contract import (
+    FileReport,
+    FileRows,
+    RecordingKey,
+    RecordingReport,
+    Source,
+)
 from ngsim_graphs.sources.ngsim.cleaning import (
     drop_duplicate_rows,
     is_complete,
@@ -38,17 +44,16 @@ from ngsim_graphs.sources.ngsim.plausibility import (
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
 from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
 
-
 # The required columns as NGSIM's header spells them, for messages.
 REQUIRED_NAMES = tuple(
     next(h for h in s.PORTAL_HEADER if h.lower() == column) for column in s.REQUIRED_VALUE_COLUMNS
 )
-FILE_REASONS: tuple[DropReason, ...] = tuple(r for r in DropReason if r is not DropReason.POSITION_OUTLIER)
+FILE_REASONS: tuple[DropReason, ...] = tuple(
+    r for r in DropReason if r is not DropReason.POSITION_OUTLIER
+)
 
 
-def read_file_recordings(
-    path: Path, config: BuildConfig, file_index: int = 0
-) -> FileRows:
+def read_file_recordings(path: Path, config: BuildConfig, file_index: int = 0) -> FileRows:
     """Parse one file, drop what no recording can use, and tell its chosen recordings apart.
 
     Returns every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
@@ -70,10 +75,12 @@ def read_file_recordings(
     other = (index.is_not_null() & ~in_chosen) | (pl.lit(not chosen) & index.is_null())
     stray = usable & index.is_null()
     reason = pl.select(
-        pl.when(~complete | other).then(None)
-        .when(stray).then(pl.lit(DropReason.GLOBAL_TIME.value))
+        pl.when(~complete | other)
+        .then(None)
+        .when(stray)
+        .then(pl.lit(DropReason.GLOBAL_TIME.value))
         .otherwise(reason)
-    ).to_series()  # fmt: skip
+    ).to_series()
     line = (pl.col(ROW) + raw.first_line).alias(s.SOURCE_LINE)
     rows = raw.frame.select(
         *s.RAW_SCHEMA.names(),
@@ -104,7 +111,9 @@ def read_file_recordings(
         rows_read=raw.rows_read,
         rows_other_locations=raw.rows_read - kept - missing - sum(counts.values()),
         rows_missing_values=missing,
-        first_missing_line=None if missing == 0 else int(rows.filter(~complete)[s.SOURCE_LINE].min()),
+        first_missing_line=None
+        if missing == 0
+        else int(rows.filter(~complete)[s.SOURCE_LINE].min()),
         rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
         first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
         rows_checked=kept + sum(counts.values()),
@@ -170,32 +179,50 @@ def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) ->
     read = read_file_recordings(path, config, file_index)
     report = read.report
     check_dropped(
-        report.path, report.rows_dropped, report.first_dropped_line, report.rows_checked,
-        config.limits, strict,
-    )  # fmt: skip
+        report.path,
+        report.rows_dropped,
+        report.first_dropped_line,
+        report.rows_checked,
+        config.limits,
+        strict,
+    )
     return read
 
 
 def recording_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int,
-    files: list[FileReport], strict: bool,
-) -> tuple[pl.DataFrame, RecordingReport]:  # fmt: skip
+    raw: pl.DataFrame,
+    key: RecordingKey,
+    config: BuildConfig,
+    first_track_id: int,
+    files: list[FileReport],
+    strict: bool,
+) -> tuple[pl.DataFrame, RecordingReport]:
     """build_tracks, then the recording's checks: the speed column must be a speed; position
     outliers follow the rule of every dropped row (see plausibility)."""
     tracks, report = build_tracks(raw, key, config, first_track_id)
     name = f"{report.location}/{report.period}"
     sources = ", ".join(f.path for f in files if name in f.recordings)
     check_speed_column(
-        sources, report.speed_mismatch_mps, report.shown_speed_mps, report.speed_rows_compared, config.limits
+        sources,
+        report.speed_mismatch_mps,
+        report.shown_speed_mps,
+        report.speed_rows_compared,
+        config.limits,
     )
     if report.first_outlier is not None:
         file_index, line = report.first_outlier
         reason = DropReason.POSITION_OUTLIER.value
         check_dropped(
-            files[file_index].path, {reason: report.position_outliers}, {reason: line}, report.rows,
-            config.limits, strict,
-        )  # fmt: skip
+            files[file_index].path,
+            {reason: report.position_outliers},
+            {reason: line},
+            report.rows,
+            config.limits,
+            strict,
+        )
     return tracks, report
 
 
-SOURCE = Source(name="ngsim", find_files=find_raw_files, read_file=read_file, recording_tracks=recording_tracks)
+SOURCE = Source(
+    name="ngsim", find_files=find_raw_files, read_file=read_file, recording_tracks=recording_tracks
+)
