@@ -40,6 +40,7 @@ import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.kinematics import add_heading
 
 RecordingKey = tuple[str, str]  # (location, period)
 
@@ -126,3 +127,14 @@ class Source:
         [pl.DataFrame, RecordingKey, BuildConfig, int, list[FileReport], bool],
         tuple[pl.DataFrame, RecordingReport],
     ]
+
+
+def finish_tracks(grid: pl.DataFrame, first_track_id: int, config: BuildConfig) -> pl.DataFrame:
+    """The tracks table from a recording's rows on the grid, in SI units, sorted by (vehicle,
+    segment, frame): tracks numbered from `first_track_id` in (vehicle, segment) order, the
+    heading derived (`kinematics.add_heading`), exactly TRACKS_SCHEMA's columns and dtypes."""
+    track_index = pl.struct(s.VEHICLE_ID, s.SEGMENT).rle_id().cast(pl.Int32)
+    numbered = grid.with_columns((track_index + first_track_id).alias(s.TRACK_ID))
+    tracks = add_heading(numbered, config.smoothing_window_steps, config.min_heading_speed_mps)
+    tracks = tracks.select(s.TRACKS_SCHEMA.names()).cast(dict(s.TRACKS_SCHEMA))
+    return tracks

@@ -22,7 +22,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
-from ngsim_graphs.kinematics import add_heading
 from ngsim_graphs.schema import DropReason, HighdFile
 from ngsim_graphs.sources.contract import (
     FileReport,
@@ -30,6 +29,7 @@ from ngsim_graphs.sources.contract import (
     RecordingKey,
     RecordingReport,
     Source,
+    finish_tracks,
 )
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
@@ -228,10 +228,7 @@ def build_tracks(
         (pl.col(s.FRAME_ID) / FRAME_RATE_HZ).alias(s.TIME_S),
         (pl.col(s.FRAME_ID).cast(pl.Int64) * FRAME_PERIOD_MS).alias(s.GLOBAL_TIME),
     )
-    track_index = pl.struct(s.VEHICLE_ID, s.SEGMENT).rle_id().cast(pl.Int32)
-    numbered = grid.with_columns((track_index + first_track_id).alias(s.TRACK_ID))
-    tracks = add_heading(numbered, config.smoothing_window_steps, config.min_heading_speed_mps)
-    tracks = tracks.select(s.TRACKS_SCHEMA.names()).cast(dict(s.TRACKS_SCHEMA))
+    tracks = finish_tracks(grid, first_track_id, config)
     report = RecordingReport(
         location=location,
         period=period,

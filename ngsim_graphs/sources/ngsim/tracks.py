@@ -17,7 +17,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
-from ngsim_graphs.kinematics import add_heading
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.contract import (
     FileReport,
@@ -25,6 +24,7 @@ from ngsim_graphs.sources.contract import (
     RecordingKey,
     RecordingReport,
     Source,
+    finish_tracks,
 )
 from ngsim_graphs.sources.ngsim.cleaning import (
     drop_duplicate_rows,
@@ -150,10 +150,7 @@ def build_tracks(
         pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD)
     )
     grid = to_si_units(on_grid)
-    track_index = pl.struct(s.VEHICLE_ID, s.SEGMENT).rle_id().cast(pl.Int32)
-    numbered = grid.with_columns((track_index + first_track_id).alias(s.TRACK_ID))
-    tracks = add_heading(numbered, config.smoothing_window_steps, config.min_heading_speed_mps)
-    tracks = tracks.select(s.TRACKS_SCHEMA.names()).cast(dict(s.TRACKS_SCHEMA))
+    tracks = finish_tracks(grid, first_track_id, config)
     report = RecordingReport(
         location=location,
         period=period,
