@@ -25,6 +25,7 @@ from ngsim_graphs.sources.ngsim.faults import (
     check_csv_field_counts,
     number_problem,
     raise_bad_quoting,
+    scan_csv_fields,
     scan_lines,
 )
 
@@ -150,24 +151,6 @@ def _check_header(path: Path, header: list[str], kind: HighdFile, needed: list[s
             raise NgsimInputError(path, f"missing column {column}{hint}", line=1)
 
 
-def _scan_text(path: Path, header: list[str]) -> pl.LazyFrame:
-    """Every data row as text columns named by the lower-cased header, with ROW; blank lines
-    dropped. A row's surplus fields land in EXTRA, so that ragged rows can be found."""
-    names = [name.lower() for name in header]
-    frame = pl.scan_csv(
-        path,
-        has_header=False,
-        skip_rows=1,
-        schema=dict.fromkeys([*names, EXTRA], pl.String),
-        missing_columns="insert",
-        truncate_ragged_lines=True,
-        quote_char='"',
-        encoding="utf8-lossy",
-    )
-    not_blank = pl.any_horizontal(pl.col(names).is_not_null())
-    return frame.with_row_index(ROW).filter(not_blank)
-
-
 def _parsed(column: str, dtype: pl.DataType) -> tuple[pl.Expr, pl.Expr]:
     """The column `column` (lower-cased in the text) parsed as `dtype`, and whether its text is
     not empty yet no value of that dtype (not a number, not finite, not whole, out of range)."""
@@ -206,7 +189,7 @@ def read_columns(path: Path, kind: HighdFile, schema: pl.Schema) -> pl.DataFrame
     if header is None:
         raise NgsimInputError(path, "empty file: no header and no data")
     _check_header(path, header, kind, list(schema))
-    text = _scan_text(path, header)
+    text = scan_csv_fields(path, [name.lower() for name in header])
     odd = pl.col(EXTRA).is_not_null() | pl.col(header[-1].lower()).is_null()
     parsed = [_parsed(column, dtype) for column, dtype in schema.items()]
     try:

@@ -253,7 +253,7 @@ def recording_tracks(
     files: list[FileReport],
     strict: bool,
 ) -> tuple[pl.DataFrame, RecordingReport]:
-    """build_tracks: the file checks (read_file) are all highD's rows go through."""
+    """build_tracks. highD has no per-recording checks: its rows were checked as read (read_file)."""
     return build_tracks(raw, key, config, first_track_id)
 
 

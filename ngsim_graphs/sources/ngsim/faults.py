@@ -48,6 +48,25 @@ def scan_lines(path: Path, skip_rows: int = 1) -> pl.LazyFrame:
     )
 
 
+def scan_csv_fields(path: Path, names: list[str]) -> pl.LazyFrame:
+    """A CSV's data rows as text columns `names` (the header, lower-cased), with ROW; blank
+    lines dropped. Polars drops a row's surplus fields silently: the one spare column EXTRA
+    keeps the first of them, so that ragged rows can be found."""
+    frame = pl.scan_csv(
+        path,
+        has_header=False,
+        skip_rows=1,
+        schema=dict.fromkeys([*names, EXTRA], pl.String),
+        missing_columns="insert",
+        truncate_ragged_lines=True,
+        quote_char='"',
+        encoding="utf8-lossy",
+    )
+    # Blank lines read as all-null rows: neither data nor another location.
+    not_blank = pl.any_horizontal(pl.col(names).is_not_null())
+    return frame.with_row_index(ROW).filter(not_blank)
+
+
 def raise_control_character(path: Path, row: int, first_line: int) -> None:
     raise NgsimInputError(
         path, "holds a control character (0x1F): not NGSIM text", line=row + first_line

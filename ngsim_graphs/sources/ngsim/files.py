@@ -28,6 +28,7 @@ from ngsim_graphs.sources.ngsim.faults import (
     raise_bad_number,
     raise_bad_quoting,
     raise_odd_shape,
+    scan_csv_fields,
     scan_lines,
 )
 
@@ -171,22 +172,10 @@ def _scan_csv_text(path: Path) -> tuple[pl.LazyFrame, list[str]]:
     """
     header = _header_names(_first_line(path))
     names = [name.lower() for name in header]
-    frame = pl.scan_csv(
-        path,
-        has_header=False,
-        skip_rows=1,
-        schema=dict.fromkeys([*names, EXTRA], pl.String),
-        missing_columns="insert",
-        truncate_ragged_lines=True,
-        quote_char='"',
-        encoding="utf8-lossy",
-    )
     # A short row reads as empty trailing fields, which cannot be told apart here from fields
     # left empty; an empty last field marks the row as odd, and the exact check decides.
     odd = pl.col(EXTRA).is_not_null() | pl.col(names[-1]).is_null()
-    # Blank lines read as all-null rows: neither data nor another location.
-    not_blank = pl.any_horizontal(pl.col(names).is_not_null())
-    text = frame.with_row_index(ROW).filter(not_blank).with_columns(odd.alias(ODD))
+    text = scan_csv_fields(path, names).with_columns(odd.alias(ODD))
     return text, header
 
 
