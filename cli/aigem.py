@@ -10,7 +10,15 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_error, print_table, stderr, stdout
+from aigem import __version__
+from ngsim_cli.console import (
+    HELP_SETTINGS,
+    exit_on_error,
+    print_table,
+    stderr,
+    stdout,
+    version_callback,
+)
 
 if TYPE_CHECKING:
     from aigem.training import FitResult
@@ -19,7 +27,23 @@ app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
+    **HELP_SETTINGS,
 )
+
+
+@app.callback()
+def _program(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            help="Print the program's version and exit.",
+            callback=version_callback("aigem", __version__),
+            is_eager=True,
+        ),
+    ] = False,
+) -> None:
+    """AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output)."""
 
 
 def _fail(message: str, code: int = 1) -> typer.Exit:
@@ -27,9 +51,11 @@ def _fail(message: str, code: int = 1) -> typer.Exit:
     return typer.Exit(code)
 
 
-@app.command()
+@app.command(short_help="Train AiGem on a build (one horizon or the paper's five).")
 def fit(
-    data: Annotated[Path, typer.Argument(help="A finished ngsim-graphs build directory.")],
+    data: Annotated[
+        Path, typer.Argument(metavar="DATA", help="A finished ngsim-graphs build directory.")
+    ],
     out: Annotated[
         Path, typer.Option("--out", help="Run directory: checkpoints, metrics log, curves.")
     ],
@@ -199,9 +225,11 @@ def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
     return table
 
 
-@app.command()
+@app.command(short_help="Score a run against constant velocity and the paper.")
 def evaluate(
-    run: Annotated[Path, typer.Argument(help="A run directory written by `aigem fit`.")],
+    run: Annotated[
+        Path, typer.Argument(metavar="RUN", help="A run directory written by `aigem fit`.")
+    ],
     data: Annotated[
         Path | None,
         typer.Option(

@@ -47,6 +47,22 @@ def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
         yield update
 
 
+# Help as plain text wrapped to the terminal, up to 100 columns: the boxed tables of rich's help
+# squeeze an option's help into a narrow column next to its names and types.
+HELP_SETTINGS = {"rich_markup_mode": None, "context_settings": {"max_content_width": 100}}
+
+
+def version_callback(program: str, version: str) -> Callable[[bool], None]:
+    """The callback of an eager `--version` option: prints `program version` and exits 0."""
+
+    def show(value: bool) -> None:
+        if value:
+            stdout.print(f"{program} {version}", markup=False, highlight=False)
+            raise typer.Exit(0)
+
+    return show
+
+
 def print_error(message: str) -> None:
     """One line `error: ...` on stderr, never wrapped or marked up."""
     stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)

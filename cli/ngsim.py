@@ -13,8 +13,17 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_error, print_error, print_table, progress_bar, stderr
+from ngsim_cli.console import (
+    HELP_SETTINGS,
+    exit_on_error,
+    print_error,
+    print_table,
+    progress_bar,
+    stderr,
+    version_callback,
+)
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
+from ngsim_graphs import __version__
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
@@ -28,8 +37,24 @@ app = typer.Typer(
     help="NGSIM US-101 / I-80 trajectories to spatial-temporal graph datasets.",
     no_args_is_help=True,
     add_completion=False,
+    **HELP_SETTINGS,
 )
 stdout = Console()
+
+
+@app.callback()
+def _program(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            help="Print the program's version and exit.",
+            callback=version_callback("ngsim-graphs", __version__),
+            is_eager=True,
+        ),
+    ] = False,
+) -> None:
+    """NGSIM US-101 / I-80 (and highD) trajectories to spatial-temporal graph datasets."""
 
 
 def _usage_error(message: str) -> typer.Exit:
@@ -46,13 +71,14 @@ def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
         raise _usage_error(str(err)) from None
 
 
-@app.command()
+@app.command(short_help="Write synthetic NGSIM- or highD-format trajectories.")
 def synth(
     out_dir: Annotated[
         Path,
         typer.Argument(
+            metavar="OUT_DIR",
             help="Folder to write the files into: new, empty, or one synth wrote before (it "
-            "carries SYNTHETIC.md); synth never replaces files it did not write."
+            "carries SYNTHETIC.md); synth never replaces files it did not write.",
         ),
     ],
     raw_format: Annotated[
@@ -156,10 +182,13 @@ class DatasetChoice(str, Enum):
     HIGHD = "highd"
 
 
-@app.command()
+@app.command(short_help="Build the graph dataset from NGSIM or highD files.")
 def build(
     raw_paths: Annotated[
-        list[Path], typer.Argument(help="NGSIM or highD files, or folders to search for them.")
+        list[Path],
+        typer.Argument(
+            metavar="RAW_PATH", help="NGSIM or highD files, or folders to search for them."
+        ),
     ],
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
     locations: Annotated[
@@ -294,9 +323,9 @@ def _write_plots(values, folder: Path) -> list[Path]:  # type: ignore[no-untyped
         raise typer.Exit(1) from None
 
 
-@app.command()
+@app.command(short_help="Summarize a build: samples, graph sizes, degrees, plots.")
 def stats(
-    build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")],
+    build_dir: Annotated[Path, typer.Argument(metavar="DIR", help="A finished build directory.")],
     as_json: Annotated[
         bool, typer.Option("--json", help="Print one JSON document, nothing else.")
     ] = False,
@@ -331,8 +360,10 @@ def stats(
         stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
 
 
-@app.command()
-def verify(build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")]) -> None:
+@app.command(short_help="Check every file of a build against its checksums.")
+def verify(
+    build_dir: Annotated[Path, typer.Argument(metavar="DIR", help="A finished build directory.")],
+) -> None:
     """Read every file of a build and compare it with the checksums in its manifest.
 
     Opening a build (stats, export, aigem) checks the manifest's own checksum, every file's size
@@ -368,9 +399,9 @@ def _sample_ids(text: str, available: int) -> np.ndarray:
     return ids
 
 
-@app.command()
+@app.command(short_help="Write chosen samples' graphs as explicit Parquet tables.")
 def export(
-    build_dir: Annotated[Path, typer.Argument(help="A finished build directory.")],
+    build_dir: Annotated[Path, typer.Argument(metavar="DIR", help="A finished build directory.")],
     out: Annotated[
         Path, typer.Option("--out", help="Folder for the Parquet tables: new or empty (created).")
     ],
