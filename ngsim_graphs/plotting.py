@@ -30,25 +30,32 @@ def _integer_bins(values: list[np.ndarray], max_bins: int = 60) -> np.ndarray:
     return np.arange(low, high + width + 1, width) - 0.5
 
 
-def _split_histogram(
-    folder: Path, name: str, per_split: dict[str, np.ndarray], title: str, xlabel: str, ylabel: str
-) -> Path:
-    """Stacked histogram of one quantity, the splits in their colours."""
-    splits = [split for split in SPLITS if split in per_split]
-    data = [np.asarray(per_split[split]) for split in splits]
-    figure, axes = _figure()
-    labels = [f"{split} (n={len(values):,})" for split, values in zip(splits, data, strict=True)]
-    axes.hist(
-        data,
-        bins=_integer_bins(data),
-        stacked=True,
-        histtype="stepfilled",
-        label=labels,
-        color=[SPLIT_COLOURS[split] for split in splits],
-    )
-    axes.set(title=title, xlabel=xlabel, ylabel=ylabel)
+def share_figure(per_split: dict[str, np.ndarray], title: str, xlabel: str, unit: str) -> Figure:
+    """One quantity per split as the share of its items (`unit`: "graphs", "nodes") in each bin:
+    step lines on the same bins, each split's summing to 1, not stacked, so that the small splits
+    show beside train; n per split in the legend. A split without values is named in the legend,
+    nothing drawn."""
+    data = {split: np.asarray(per_split[split]) for split in SPLITS if split in per_split}
+    bins = _integer_bins(list(data.values()), max_bins=40)
+    figure, axes = _figure(top=0.86 if "\n" in title else 0.92)
+    for split, values in data.items():
+        label = f"{split} (n={len(values):,} {unit})"
+        if len(values):
+            shares = np.histogram(values, bins=bins)[0] / len(values)
+            axes.stairs(shares, bins, color=SPLIT_COLOURS[split], linewidth=1.6, label=label)
+        else:
+            axes.plot([], [], color=SPLIT_COLOURS[split], label=f"{label}: none drawn")
+    width = int(round(bins[1] - bins[0]))
+    per = "" if width == 1 else f" per bin ({width} wide)"
+    axes.set(title=title, xlabel=xlabel, ylabel=f"share of {unit}{per}")
     axes.legend(title="split")
-    return _save(figure, folder / f"{name}.png")
+    return figure
+
+
+def degree_title(degree_graphs: dict[str, int]) -> str:
+    """The node-degree plot's title: how many graphs of each split its degrees come from."""
+    sampled = ", ".join(f"{split} {degree_graphs[split]:,}" for split in SPLITS)
+    return f"Spatial in-degree per node, share per split\n(graphs sampled per split: {sampled})"
 
 
 def _histogram(
@@ -68,10 +75,10 @@ def _histogram(
     return _save(figure, folder / f"{name}.png")
 
 
-def _figure() -> tuple[Figure, Axes]:
+def _figure(top: float = 0.92) -> tuple[Figure, Axes]:
     # Fixed margins: a layout engine would cost more than drawing the figure.
     figure = Figure(figsize=(7, 4.5))
-    figure.subplots_adjust(left=0.12, right=0.97, bottom=0.12, top=0.92)
+    figure.subplots_adjust(left=0.12, right=0.97, bottom=0.12, top=top)
     return figure, figure.add_subplot()
 
 
@@ -86,33 +93,29 @@ def write_histograms(values: BuildValues, folder: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     nodes = {split: values.samples[split][N_NODES].to_numpy() for split in SPLITS}
     edges = {split: values.samples[split][N_SPATIAL].to_numpy() for split in SPLITS}
-    n_graphs = sum(values.degree_graphs.values())
     rows = f"{len(values.speed_mps):,} tracks rows"
-    return [
-        _split_histogram(
-            folder,
-            "nodes_per_graph",
+    shares = {
+        "nodes_per_graph": share_figure(
             nodes,
-            "Nodes per graph (all history steps)",
+            "Nodes per graph (all history steps), share per split",
             "nodes per graph",
-            "samples",
+            "graphs",
         ),
-        _split_histogram(
-            folder,
-            "spatial_edges_per_graph",
+        "spatial_edges_per_graph": share_figure(
             edges,
-            "Spatial edges per graph (directed, all history steps)",
+            "Spatial edges per graph (directed, all history steps), share per split",
             "spatial edges per graph",
-            "samples",
+            "graphs",
         ),
-        _split_histogram(
-            folder,
-            "node_degree",
+        "node_degree": share_figure(
             values.spatial_in_degree,
-            f"Spatial in-degree per node (from {n_graphs:,} sampled graphs)",
+            degree_title(values.degree_graphs),
             "spatial in-degree (edges into a node at its step)",
             "nodes",
         ),
+    }
+    return [
+        *(_save(figure, folder / f"{name}.png") for name, figure in shares.items()),
         _histogram(
             folder, "speed", values.speed_mps, f"Speed ({rows})", "speed (m/s)", "tracks rows"
         ),

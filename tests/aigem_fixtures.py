@@ -26,3 +26,15 @@ def two_recording_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_synthetic(root / "raw", SynthConfig(recordings=2, minutes=0.3, seed=12))
     run_build([root / "raw"], root / "build", BuildConfig(d_sense_m=12.0, d_min_m=6.0))
     return root / "build"
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A one-epoch, 2 s run on the tiny build (a model to predict with, not a good one)."""
+    from aigem.config import ModelConfig, TrainConfig  # torch loads only for tests that use it
+    from aigem.training import fit
+
+    run = tmp_path_factory.mktemp("tiny_run") / "run"
+    train = TrainConfig(epochs=1, batch_size=8, horizon_s=2.0, seed=3)
+    fit(tiny_build, run, ModelConfig(), train, "cpu")
+    return run

@@ -11,7 +11,7 @@ import io
 from pathlib import Path
 
 import pytest
-from aigem_fixtures import tiny_build, two_recording_build  # noqa: F401  (shared by all tests)
+from aigem_fixtures import tiny_build, tiny_run, two_recording_build  # noqa: F401  (shared)
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS

@@ -1,0 +1,90 @@
+"""A run's predictions for chosen samples, beside constant velocity's, in metres: for pictures.
+
+The graphs are returned whole (every history step, metres, as the build stores them) for
+drawing; the model reads the same samples' last `history_steps_read` steps, scaled with the run's
+scaler, as in `aigem.evaluation`. Both batches hold the same targets in the same order (the
+actor nodes of the present step, by sample and track id), which is checked, not assumed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from aigem.checkpoints import build_identity, identity_difference
+from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
+from aigem.evaluation import check_build, constant_velocity, resolve_build
+from aigem.runs import BEST, load_model, member_dir, read_horizons
+from aigem.training import pick_device, to_device
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.schema import Split
+
+MODEL_LABEL = "AiGem"
+BASELINE_LABEL = "constant velocity"
+
+
+def predicting_run(run_dir: Path | str) -> Path:
+    """The run whose model predicts: `run_dir` itself, or the longest-horizon member of a
+    multi-horizon run (RUN/h5s of RUN/h1s..h5s)."""
+    run_dir = Path(run_dir)
+    horizons_s = read_horizons(run_dir)
+    return run_dir if horizons_s is None else member_dir(run_dir, max(horizons_s))
+
+
+def same_targets(a: GraphBatch, b: GraphBatch) -> bool:
+    """Whether two batches of the same samples hold the same targets in the same order (their
+    sample and track)."""
+    return np.array_equal(a.node_sample[a.target_node], b.node_sample[b.target_node]) and (
+        np.array_equal(a.node_track[a.target_node], b.node_track[b.target_node])
+    )
+
+
+def predict_samples(
+    run_dir: Path | str,
+    build_dir: Path | str | None,
+    split: Split | str,
+    sample_ids: np.ndarray | Sequence[int],
+    device_choice: str = "cpu",
+) -> tuple[GraphBatch, dict[str, np.ndarray]]:
+    """The graphs of samples `sample_ids` of `split` (metres, every history step) and
+    {"AiGem": (T, K, 2), "constant velocity": (T, K, 2)} predicted positions in metres, in the
+    sample frame, aligned with the graphs' T targets; K: the run's horizon in steps.
+
+    `build_dir` must be the run's own build (None: the one it records), as `aigem evaluate`
+    requires without --other-build.
+    """
+    run_dir = predicting_run(Path(run_dir))
+    build_dir = None if build_dir is None else Path(build_dir)
+    device = pick_device(device_choice)
+    model, info = load_model(run_dir, device)
+    build_dir = resolve_build(info, build_dir)
+    why = identity_difference(info, build_identity(build_dir)[1])
+    if why:  # check_build would say so too, but name an option of `aigem evaluate`
+        raise NgsimInputError(
+            build_dir,
+            f"not the build that run {run_dir} was trained on ({why}); "
+            "its predictions are made on its own build only",
+        )
+    check_build(info, build_dir, run_dir, model.config, other_build=False)
+    scaler = run_scaler(info["scaler"], run_dir / BEST)
+    dataset = GraphDataset(build_dir, split, model.config.history_steps_read, scaler)
+    ids = np.asarray(sample_ids, dtype=np.int64)
+    graphs = dataset.build.graphs(dataset.split, ids)
+    read = dataset.build.graphs(dataset.split, ids, dataset.first_step)  # what the model reads
+    if not same_targets(graphs, read):
+        raise RuntimeError("the model's batch holds other targets than the drawn graphs")
+    batch = Collate(scaler, layers=model.config.layers)([read])
+    steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
+    with torch.no_grad():
+        predicted = xy_to_metres(scaler, model(to_device(batch, device), steps)).cpu().numpy()
+    if not np.isfinite(predicted).all():
+        raise NgsimInputError(run_dir / BEST, "its predictions are not finite (NaN or infinite)")
+    present = graphs.node_features[graphs.target_node]  # (T, 4)
+    return graphs, {
+        MODEL_LABEL: predicted.astype(np.float64),
+        BASELINE_LABEL: constant_velocity(present, steps, dataset.config.time_step_s),
+    }

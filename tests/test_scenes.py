@@ -1,0 +1,190 @@
+"""ngsim_graphs.scenes: what a panel draws is counted from the sample, on a hand-made batch whose
+counts are known by hand and on a real tiny build checked against its samples table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from PIL import Image
+
+from ngsim_graphs.build import open_build
+from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.scenes import DrawnScene, draw_scene, scene_titles, write_scenes
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+D_SENSE_M = 12.0
+
+
+def hand_batch() -> GraphBatch:
+    """Two samples of 3 history steps (step 2 is the present).
+
+    Sample 0: the ego (track 10) at steps 0-2; actor A (11) at 0-2; actor B (12) at 1-2.
+    Nodes 0: ego@0, 1: A@0, 2: ego@1, 3: A@1, 4: B@1, 5: ego@2, 6: A@2, 7: B@2.
+    Spatial: ego<->A at 0 (2 directed); ego<->A, ego<->B at 1 (4); at the present step 2:
+    ego<->A, ego<->B (4 ego edges) and A<->B (2 actor edges). Temporal: 0->2, 2->5, 1->3, 3->6,
+    4->7 (5). Targets: A@2, B@2.
+    Sample 1: the ego (20) at 0-2, actor C (21) at step 2 only. Nodes 8: ego@0, 9: ego@1,
+    10: ego@2, 11: C@2. Spatial at the present: ego<->C (2). Temporal: 8->9, 9->10 (2).
+    Target: C, recorded at its first two future steps only.
+    """
+    xy = [(0, -6), (3, -2), (0, -3), (3, 1), (-3, 4), (0, 0), (3, 4), (-3, 7)]
+    xy += [(0, -4), (0, -2), (0, 0), (3.5, 2)]
+    features = np.array([(x, y, 0.0, 15.0) for x, y in xy], dtype=np.float64)
+    spatial = [(0, 1), (1, 0), (2, 3), (3, 2), (2, 4), (4, 2)]
+    spatial += [(5, 6), (5, 7), (6, 5), (7, 5), (6, 7), (7, 6)]
+    spatial += [(10, 11), (11, 10)]
+    temporal = [(0, 2), (2, 5), (1, 3), (3, 6), (4, 7), (8, 9), (9, 10)]
+    target_xy = np.zeros((3, 4, 2))
+    target_xy[:, :, 1] = np.arange(1, 5) * 3.0
+    target_xy[:, :, 0] = [[3.0], [-3.0], [3.5]]
+    mask = np.ones((3, 4), dtype=bool)
+    mask[2, 2:] = False
+    return GraphBatch(
+        node_ptr=np.array([0, 8, 12]),
+        node_sample=np.array([0] * 8 + [1] * 4),
+        node_step=np.array([0, 0, 1, 1, 1, 2, 2, 2, 0, 1, 2, 2], dtype=np.int8),
+        node_track=np.array([10, 11, 10, 11, 12, 10, 11, 12, 20, 20, 20, 21], dtype=np.int32),
+        node_is_ego=np.array([1, 0, 1, 0, 0, 1, 0, 0, 1, 1, 1, 0], dtype=bool),
+        node_features=features,
+        spatial_edges=np.array(spatial, dtype=np.int64).T,
+        spatial_distance=np.ones(len(spatial)),
+        temporal_edges=np.array(temporal, dtype=np.int64).T,
+        target_node=np.array([6, 7, 11]),
+        target_xy=target_xy,
+        target_mask=mask,
+        time_step_s=0.2,
+    )
+
+
+def _axes():  # noqa: ANN202
+    return Figure().add_subplot()
+
+
+def test_hand_made_counts() -> None:
+    batch = hand_batch()
+    assert draw_scene(_axes(), batch, 0, D_SENSE_M, "zero") == DrawnScene(
+        nodes=8,
+        spatial_edges=6,
+        ego_edges=4,
+        actor_edges=2,
+        temporal_edges=5,
+        targets=2,
+        predicted={},
+    )
+    assert draw_scene(_axes(), batch, 1, D_SENSE_M, "one") == DrawnScene(
+        nodes=4,
+        spatial_edges=2,
+        ego_edges=2,
+        actor_edges=0,
+        temporal_edges=2,
+        targets=1,
+        predicted={},
+    )
+
+
+def test_undirected_pairs_are_drawn_once() -> None:
+    axes = _axes()
+    draw_scene(axes, hand_batch(), 0, D_SENSE_M, "zero")
+    lines = [c for c in axes.collections if isinstance(c, LineCollection)]
+    # ego-actor pairs at the present (ego-A, ego-B), actor-actor (A-B), temporal edges
+    assert [len(c.get_segments()) for c in lines] == [2, 1, 5]
+    assert {tuple(map(tuple, s)) for s in lines[1].get_segments()} == {((3, 4), (-3, 7))}
+
+
+def test_futures_predictions_title_and_limits() -> None:
+    axes = _axes()
+    batch = hand_batch()
+    predictions = {"model": np.zeros((3, 2, 2)), "other": np.ones((3, 4, 2))}
+    scene = draw_scene(axes, batch, 1, D_SENSE_M, "recording, ego 20", predictions)
+    assert scene.predicted == {"model": 1, "other": 1}
+    truth, model, other = axes.lines  # one target: its future, then a line per prediction
+    assert np.array_equal(truth.get_xydata()[:, 1], [2, 3, 6, np.nan, np.nan], equal_nan=True)
+    assert len(model.get_xydata()) == 3 and len(other.get_xydata()) == 5  # from the present
+    assert axes.get_title().splitlines() == [
+        "recording, ego 20",
+        "4 nodes, 2 temporal edges,",
+        "2 spatial edges at present, 1 target",
+    ]
+    (x_low, x_high), (y_low, y_high) = axes.get_xlim(), axes.get_ylim()
+    assert x_low < -D_SENSE_M and x_high > D_SENSE_M and y_low < -D_SENSE_M and y_high > D_SENSE_M
+
+
+@pytest.mark.parametrize("shape", [(2, 4, 2), (3, 5, 2), (3, 4, 3), (3, 4)])
+def test_predictions_of_another_shape(shape: tuple[int, ...]) -> None:
+    with pytest.raises(ValueError, match="expected \\(3, K <= 4, 2\\)"):
+        draw_scene(_axes(), hand_batch(), 0, D_SENSE_M, "t", {"bad": np.zeros(shape)})
+
+
+def test_sample_out_of_the_batch() -> None:
+    with pytest.raises(ValueError, match="sample 2 is not in a batch of 2"):
+        draw_scene(_axes(), hand_batch(), 2, D_SENSE_M, "t")
+
+
+def test_write_scenes_png(tmp_path: Path) -> None:
+    path = tmp_path / "scenes.png"
+    predictions = {"model": np.zeros((3, 4, 2))}
+    scenes = write_scenes(path, hand_batch(), ["a", "b"], D_SENSE_M, predictions, columns=1)
+    assert [s.nodes for s in scenes] == [8, 4] and [s.predicted for s in scenes] == [
+        {"model": 2},
+        {"model": 1},
+    ]
+    assert path.read_bytes().startswith(PNG_SIGNATURE) and path.stat().st_size > 20_000
+    width, height = Image.open(path).size
+    assert height > 1.5 * width  # one column of two panels
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes.png"]  # no partial file left
+
+
+def test_write_scenes_refuses_to_replace(tmp_path: Path) -> None:
+    path = tmp_path / "taken.png"
+    path.write_text("mine\n")
+    with pytest.raises(NgsimOutputError, match="exists; not replaced"):
+        write_scenes(path, hand_batch(), ["a", "b"], D_SENSE_M, overwrite=False)
+    assert path.read_text() == "mine\n" and len(list(tmp_path.iterdir())) == 1
+    write_scenes(path, hand_batch(), ["a", "b"], D_SENSE_M)  # overwrite, by default
+    assert path.read_bytes().startswith(PNG_SIGNATURE)
+
+
+def test_write_scenes_needs_a_title_per_sample(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="1 titles for 2 samples"):
+        write_scenes(tmp_path / "x.png", hand_batch(), ["a"], D_SENSE_M)
+
+
+def _present_spatial_edges(batch: GraphBatch, sample: int) -> tuple[int, int]:
+    """(ego, actor-actor) directed spatial edges of a sample at its present step, edge by edge."""
+    first, last = batch.node_ptr[sample], batch.node_ptr[sample + 1]
+    present = max(batch.node_step[first:last])
+    ego = actor = 0
+    for source, destination in batch.spatial_edges.T:
+        if first <= source < last and batch.node_step[source] == present:
+            if batch.node_is_ego[source] or batch.node_is_ego[destination]:
+                ego += 1
+            else:
+                actor += 1
+    return ego, actor
+
+
+def test_counts_of_a_real_build(tiny_build: Path, tmp_path: Path) -> None:
+    opened = open_build(tiny_build)
+    ids = np.arange(4)
+    batch = opened.graphs("val", ids)
+    samples = opened.samples("val")
+    titles = scene_titles(samples, "val", ids)
+    scenes = write_scenes(tmp_path / "val.png", batch, titles, opened.config.d_sense_m)
+    assert len(scenes) == 4
+    for b, scene in enumerate(scenes):
+        row = samples.row(b, named=True)
+        assert scene.nodes == row["n_nodes"] == batch.node_ptr[b + 1] - batch.node_ptr[b]
+        assert scene.temporal_edges == row["n_temporal_edges"]
+        assert scene.targets == row["n_targets"]
+        assert (scene.ego_edges, scene.actor_edges) == _present_spatial_edges(batch, b)
+        assert scene.spatial_edges == scene.ego_edges + scene.actor_edges
+        assert scene.spatial_edges <= row["n_spatial_edges"]
+    assert sum(scene.spatial_edges for scene in scenes) > 0  # the check above checked something
+    assert titles[0] == (
+        f"{row['location']} {row['period']}, ego vehicle {samples['ego_vehicle_id'][0]}, val #0"
+    )
