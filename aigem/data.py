@@ -102,10 +102,14 @@ class GraphDataset(Dataset):
         recording order), and in the given order within a recording. Losses and metrics are sums
         over a batch's targets, so the order changes them by float rounding only; in training it
         decides which dropout mask a target gets."""
+        return [self.build.graphs(self.split, self.batch_order(indices), self.first_step)]
+
+    def batch_order(self, indices: list[int] | np.ndarray) -> np.ndarray:
+        """(B,) the sample ids of a batch of `indices` in the order its graphs come: by
+        recording, stable (sample b of the batch is split sample batch_order(indices)[b])."""
         ids = np.asarray(indices, dtype=np.int64)
         recording = self.build.sample_arrays(self.split)["recording_index"][ids]
-        ids = ids[np.argsort(recording, kind="stable")]
-        return [self.build.graphs(self.split, ids, self.first_step)]
+        return ids[np.argsort(recording, kind="stable")]
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_build": None}  # memory maps are reopened by each worker

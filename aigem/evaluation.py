@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +22,11 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
+from aigem.baseline import constant_velocity
 from aigem.checkpoints import build_identity, identity_difference
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.metrics import ErrorTotals, summarize_errors
+from aigem.metrics import ErrorTotals, step_errors, summarize_errors
 from aigem.model import AiGem, count_parameters
 from aigem.runs import BEST, load_model, member_dir, read_horizons
 from aigem.training import pick_device, to_device
@@ -58,6 +59,25 @@ PAPER_TABLE = {
 
 
 @dataclass(frozen=True)
+class FinalErrors:
+    """The final displacement error (metres) of each target valid at the last predicted step, of
+    the model and of constant velocity, and the target's sample (its index in the split)."""
+
+    sample: np.ndarray  # (T,) int64
+    model_m: np.ndarray  # (T,) float64
+    constant_velocity_m: np.ndarray  # (T,) float64
+
+
+@dataclass(frozen=True)
+class Scores:
+    """What `score_targets` accumulates over a split (metres)."""
+
+    model: ErrorTotals
+    constant_velocity: ErrorTotals
+    final: FinalErrors
+
+
+@dataclass(frozen=True)
 class Evaluation:
     split: str
     horizon_steps: int
@@ -67,6 +87,11 @@ class Evaluation:
     constant_velocity: dict[str, dict[str, float | None]]
     build_dir: str
     same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
+    time_step_s: float
+    # "model" / "constant_velocity" -> region -> rmse_m, mean_error_m, n: a list of K (None
+    # where no target counts), at future steps 1..K (metrics.step_errors)
+    steps: dict[str, dict[str, dict[str, list]]]
+    final: FinalErrors | None = field(default=None, repr=False, compare=False)  # not in --json
 
 
 Rows = dict[str, dict[str, float | None]]  # region -> metric -> metres (or a count)
@@ -91,15 +116,6 @@ class HorizonsEvaluation:
 
 class NonFinitePredictionError(ValueError):
     """The model predicted NaN or infinite positions: no metric of them would mean anything."""
-
-
-def constant_velocity(state: np.ndarray, steps: int, time_step_s: float) -> np.ndarray:
-    """(A, 4) present [x, y, heading, speed] -> (A, steps, 2) positions at constant velocity."""
-    k = np.arange(1, steps + 1)[None, :, None] * time_step_s
-    velocity = state[:, 3:4] * np.stack(
-        [np.sin(state[:, 2]), np.cos(state[:, 2])], axis=1
-    )  # (A, 2)
-    return state[:, None, :2] + k * velocity[:, None, :]
 
 
 def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
@@ -147,19 +163,20 @@ def check_build(
     return why is None
 
 
-def score(
+def score_targets(
     model: AiGem,
     dataset: GraphDataset,
     steps: int,
     device: torch.device,
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[ErrorTotals, ErrorTotals]:
+) -> Scores:
     """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
-    `steps` future steps; inputs scaled with `dataset.scaler`."""
+    `steps` future steps, and each target's final error; inputs scaled with `dataset.scaler`."""
     collate = Collate(dataset.scaler, layers=model.config.layers)
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
     ours, baseline = ErrorTotals(steps), ErrorTotals(steps)
+    finals: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     with torch.no_grad():
         for index, batch in enumerate(loader):
             predicted = xy_to_metres(dataset.scaler, model(to_device(batch, device), steps))
@@ -168,16 +185,66 @@ def score(
             truth = batch["target_xy"][:, :steps].numpy()
             mask = batch["target_mask"][:, :steps].numpy()
             state = batch["target_state"].numpy().astype(np.float64)
-            ours.add(predicted.cpu().numpy(), truth, mask, state[:, 1])
-            baseline.add(
-                constant_velocity(state, steps, dataset.config.time_step_s),
-                truth,
-                mask,
-                state[:, 1],
+            cv = constant_velocity(state, steps, dataset.config.time_step_s)
+            predicted = predicted.cpu().numpy()
+            ours.add(predicted, truth, mask, state[:, 1])
+            baseline.add(cv, truth, mask, state[:, 1])
+            first = index * batch_size  # the loader's batches are consecutive indices
+            ids = dataset.batch_order(np.arange(first, first + batch["graphs"]))
+            last = mask[:, -1]
+            finals.append(
+                (
+                    ids[batch["target_sample"].numpy()[last]],
+                    np.linalg.norm(predicted[last, -1] - truth[last, -1], axis=-1).astype(float),
+                    np.linalg.norm(cv[last, -1] - truth[last, -1], axis=-1),
+                )
             )
             if progress:
                 progress(index + 1, len(loader))
-    return ours, baseline
+    if not finals:  # no batch: an empty split
+        finals = [(np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]
+    final = FinalErrors(*(np.concatenate(part) for part in zip(*finals, strict=True)))
+    return Scores(ours, baseline, final)
+
+
+def score(
+    model: AiGem,
+    dataset: GraphDataset,
+    steps: int,
+    device: torch.device,
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[ErrorTotals, ErrorTotals]:
+    """Error totals (metres) of the model and of constant velocity (score_targets)."""
+    scores = score_targets(model, dataset, steps, device, batch_size, progress)
+    return scores.model, scores.constant_velocity
+
+
+def _step_lists(totals: ErrorTotals) -> dict[str, dict[str, list]]:
+    """metrics.step_errors as JSON-ready lists (None for NaN)."""
+    return {
+        region: {
+            key: [None if v != v else (int(v) if key == "n" else float(v)) for v in values]
+            for key, values in curves.items()
+        }
+        for region, curves in step_errors(totals).items()
+    }
+
+
+def scene_choice(
+    sample_of_target: np.ndarray, final_error_m: np.ndarray, per_group: int = 3
+) -> dict[str, np.ndarray]:
+    """The samples to draw: `worst`, `median` and `best`, `per_group` sample ids each (worst
+    first, then around the median, then best first), by scene error: the mean final displacement
+    error over a sample's targets (those given: valid at the last step). With fewer than
+    3 * per_group samples the groups overlap; ties go to the lower sample id."""
+    samples, inverse = np.unique(np.asarray(sample_of_target), return_inverse=True)
+    scene_m = np.bincount(inverse, weights=final_error_m) / np.bincount(inverse)
+    ranked = samples[np.argsort(scene_m, kind="stable")]  # best first
+    group = min(per_group, len(ranked))
+    middle = (len(ranked) - group) // 2
+    worst = samples[np.argsort(-scene_m, kind="stable")][:group]
+    return {"worst": worst, "median": ranked[middle : middle + group], "best": ranked[:group]}
 
 
 def evaluate(
@@ -204,7 +271,7 @@ def evaluate(
         )
     steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
     try:
-        ours, baseline = score(model, dataset, steps, device, batch_size, progress)
+        scores = score_targets(model, dataset, steps, device, batch_size, progress)
     except NonFinitePredictionError as err:
         raise NgsimInputError(
             run_dir / BEST,
@@ -216,10 +283,16 @@ def evaluate(
         horizon_steps=steps,
         samples=len(dataset),
         parameters=count_parameters(model),
-        model=summarize_errors(ours, dataset.config.time_step_s),
-        constant_velocity=summarize_errors(baseline, dataset.config.time_step_s),
+        model=summarize_errors(scores.model, dataset.config.time_step_s),
+        constant_velocity=summarize_errors(scores.constant_velocity, dataset.config.time_step_s),
         build_dir=str(build_dir),
         same_build=same_build,
+        time_step_s=dataset.config.time_step_s,
+        steps={
+            "model": _step_lists(scores.model),
+            "constant_velocity": _step_lists(scores.constant_velocity),
+        },
+        final=scores.final,
     )
 
 
@@ -292,7 +365,12 @@ def evaluate_horizons(
 
 def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
     """One JSON-ready document; a multi-horizon run's holds each member's evaluation too."""
-    document = dict(result.__dict__)
+    document = _public(result)
     if isinstance(result, HorizonsEvaluation):
-        document["members"] = {name: m.__dict__ for name, m in result.members.items()}
+        document["members"] = {name: _public(m) for name, m in result.members.items()}
     return {**document, "paper": PAPER_TABLE}
+
+
+def _public(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
+    """The fields of --json: all but the per-target final errors (arrays, for pictures)."""
+    return {key: value for key, value in result.__dict__.items() if key != "final"}

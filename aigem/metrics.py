@@ -70,3 +70,18 @@ def summarize_errors(totals: ErrorTotals, time_step_s: float) -> dict[str, dict[
             row[f"n_{second}s"] = int(count[k])
         result[region] = row
     return result
+
+
+def step_errors(totals: ErrorTotals) -> dict[str, dict[str, np.ndarray]]:
+    """Per region of REGIONS, at each future step k = 1..K: `rmse_m` (sqrt of the pooled mean
+    squared error), `mean_error_m` (mean displacement error) and `n` (valid targets), each (K,);
+    NaN where no target counts. At step 5h, `rmse_m` is summarize_errors' RMSE at h s; at the
+    last step, `mean_error_m` is its FDE."""
+    count = totals.count.astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_sq = np.where(count > 0, totals.squared_m2 / count, np.nan)  # (4, K)
+        mean = np.where(count > 0, totals.error_m / count, np.nan)
+    return {
+        region: {"rmse_m": np.sqrt(mean_sq[i]), "mean_error_m": mean[i], "n": totals.count[i]}
+        for i, region in enumerate(REGIONS)
+    }

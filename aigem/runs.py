@@ -5,7 +5,9 @@
     RUN/metrics.jsonl   one line per epoch: train and validation loss (metres^2), best so far
     RUN/last.pt         model, optimizer and progress after the last finished epoch (resume)
     RUN/best.pt         the model of the epoch with the lowest validation loss
-    RUN/curves.png      training and validation loss per epoch
+    RUN/baseline.json   constant velocity's validation loss, in the definition of the log's
+                        val_loss_m2 (aigem.baseline): the line a model has to get below
+    RUN/curves.png      training and validation loss per epoch, the best epoch, the baseline
 
 Every checkpoint carries run.json's content as its `info`, so a checkpoint alone says which build
 it belongs to and how its inputs are scaled (aigem.checkpoints reads and checks them).
@@ -57,6 +59,7 @@ RUN_INFO, METRICS, LAST, BEST, CURVES = (
     "curves.png",
 )
 HORIZONS = "horizons.json"  # a multi-horizon run's members
+BASELINE = "baseline.json"  # constant velocity's validation loss
 # Train settings that a resumed run must keep: they change what it learns. Epochs, time limit,
 # patience and workers may change.
 RESUME_FIXED = ("horizon_s", "batch_size", "learning_rate", "seed")
@@ -226,6 +229,7 @@ def start_run(
         # disk): nothing to resume, so its log rows and best.pt go, and the run starts over.
         _drop_metrics_after(run_dir, 0)
         (run_dir / BEST).unlink(missing_ok=True)
+        (run_dir / BASELINE).unlink(missing_ok=True)  # an earlier start's: fit writes it anew
     return RunState(), info
 
 
@@ -464,25 +468,30 @@ def read_metrics(run_dir: Path) -> list[dict[str, float]]:
     return rows
 
 
+def write_baseline(run_dir: Path, val_loss_m2: float, steps: int) -> None:
+    """Record constant velocity's validation loss (metres^2) over `steps` future steps."""
+    text = json.dumps({"constant_velocity_val_loss_m2": val_loss_m2, "steps": steps}) + "\n"
+    _write_atomic(run_dir / BASELINE, text.encode())
+
+
+def read_baseline(run_dir: Path) -> float | None:
+    """Constant velocity's validation loss (metres^2) as fit recorded it; None when the run has
+    none (a run of an older aigem) or it is unreadable: a missing baseline only costs the line."""
+    try:
+        value = json.loads((run_dir / BASELINE).read_text())["constant_velocity_val_loss_m2"]
+    except (OSError, ValueError, TypeError, KeyError):
+        return None
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
 def plot_curves(run_dir: Path) -> Path | None:
-    """Training and validation loss per epoch as a PNG; None before the first epoch."""
+    """Training and validation loss per epoch, the best epoch and constant velocity's validation
+    loss as a PNG (aigem.plots); None before the first epoch."""
+    from aigem.plots import curves_png  # matplotlib, imported only when drawing
+
     rows = read_metrics(run_dir)
     if not rows:
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    epochs = [r["epoch"] for r in rows]
-    figure, axes = plt.subplots(figsize=(6, 4))
-    axes.plot(epochs, [r["train_loss_m2"] for r in rows], marker="o", label="train")
-    axes.plot(epochs, [r["val_loss_m2"] for r in rows], marker="o", label="validation")
-    axes.set(xlabel="epoch", ylabel="MSE (m²)", title="AiGem training", yscale="log")
-    axes.legend()
-    figure.tight_layout()
-    image = io.BytesIO()
-    figure.savefig(image, format="png", dpi=120)
-    plt.close(figure)
-    _write_atomic(run_dir / CURVES, image.getvalue())
+    horizon_s = read_run_info(run_dir)["train"].get("horizon_s")
+    _write_atomic(run_dir / CURVES, curves_png(rows, read_baseline(run_dir), horizon_s))
     return run_dir / CURVES

@@ -28,6 +28,7 @@ from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
 from aigem import runs
+from aigem.baseline import record_baselines
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
@@ -410,6 +411,8 @@ def _end_epoch(
         rank == 0,
         timing,
     )
+    if rank == 0:
+        runs.plot_curves(member.run_dir)  # after every epoch: a long run shows its course
     patience = member.train.patience_epochs
     if patience is not None and epoch - member.state.best_epoch >= patience:
         member.stopped = "early stopping"
@@ -524,11 +527,13 @@ def fit_horizons(
         train_set.config.time_step_s,
         loop,
     )
+    if rank == 0:  # constant velocity's validation loss at each horizon, once per run
+        record_baselines(build_dir, [(m.run_dir, m.steps) for m in members])
     graphs_per_s, timed_out = _train(loop, members, train, progress or (lambda *_: None), on_epoch)
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
-        if rank == 0:
-            runs.plot_curves(member.run_dir)
+        if rank == 0 and not (member.run_dir / runs.CURVES).exists():
+            runs.plot_curves(member.run_dir)  # a resumed model with no epoch left, of an old run
     return tuple(
         FitResult(
             m.run_dir,

@@ -21,6 +21,7 @@ from ngsim_cli.console import (
 )
 
 if TYPE_CHECKING:
+    from aigem.evaluation import Evaluation, HorizonsEvaluation
     from aigem.training import FitResult
 
 app = typer.Typer(
@@ -251,6 +252,16 @@ def evaluate(
         bool, typer.Option("--json", help="Print one JSON document, nothing else.")
     ] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
+    plots: Annotated[
+        Path | None,
+        typer.Option(
+            "--plots",
+            metavar="DIR",
+            help="Also draw PNGs into DIR (created): error by horizon and by region, the final "
+            "error's distribution (beside constant velocity and the paper's points), and the "
+            "worst, median and best scenes.",
+        ),
+    ] = None,
 ) -> None:
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity. A
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
@@ -272,6 +283,7 @@ def evaluate(
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
             raise _fail(str(err)) from None
+        drawn = _draw(result, run, plots, device) if plots is not None else []
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))
         return
@@ -300,6 +312,18 @@ def evaluate(
         f"These numbers come from {result.build_dir}{other}. If it was made by `ngsim-graphs "
         "synth`, they are synthetic results and not comparable to the paper's NGSIM numbers."
     )
+    if drawn:
+        scenes = "" if result.same_build else " (no scenes: drawn on the run's own build only)"
+        stdout.print(f"Plots in {plots}: {', '.join(path.name for path in drawn)}{scenes}")
+
+
+def _draw(
+    result: Evaluation | HorizonsEvaluation, run: Path, folder: Path, device: str
+) -> list[Path]:
+    """The pictures of `evaluate --plots`; returns the paths written."""
+    from aigem.pictures import write_evaluation_plots
+
+    return write_evaluation_plots(result, folder, run, device)
 
 
 def main() -> None:

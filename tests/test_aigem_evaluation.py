@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from typer.testing import CliRunner
@@ -14,7 +15,7 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
-from aigem.evaluation import evaluate, score
+from aigem.evaluation import as_dict, evaluate, scene_choice, score, score_targets
 from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
@@ -156,3 +157,52 @@ def test_an_empty_split_is_one_error_line_not_empty_metrics(
         and out == ""
         and err == f"error: {no_val}: its val split is empty: nothing to evaluate\n"
     )
+
+
+def test_scene_choice_by_hand() -> None:
+    # Scene errors (mean over a sample's targets): 0 -> 2, 1 -> 9, 2 -> 4, 3 -> 1, 4 -> 6,
+    # 5 -> 3, 6 -> 5; sample 7 has no target valid at the last step and is never chosen.
+    sample = np.array([0, 0, 1, 2, 2, 2, 3, 4, 5, 6])
+    error_m = np.array([1.0, 3.0, 9.0, 3.0, 4.0, 5.0, 1.0, 6.0, 3.0, 5.0])
+    chosen = scene_choice(sample, error_m, per_group=2)
+    # Ranked best first: 3 (1), 0 (2), 5 (3), 2 (4), 6 (5), 4 (6), 1 (9); the middle pair
+    # starts at (7 - 2) // 2 = 2.
+    assert chosen["best"].tolist() == [3, 0]
+    assert chosen["median"].tolist() == [5, 2]
+    assert chosen["worst"].tolist() == [1, 4]
+    few = scene_choice(np.array([4, 9]), np.array([1.0, 1.0]), per_group=3)  # a tie: lower id
+    assert few["best"].tolist() == [4, 9] and few["worst"].tolist() == [4, 9]
+
+
+def test_per_step_curves_and_final_errors_agree_with_the_table(trained_run: Path) -> None:
+    result = evaluate(trained_run, None, "test", "cpu")
+    table, curves = result.model["all"], result.steps["model"]["all"]
+    assert result.horizon_steps == 10 and len(curves["rmse_m"]) == 10  # 2 s at 0.2 s
+    assert curves["rmse_m"][4] == pytest.approx(table["rmse_1s_m"])
+    assert curves["rmse_m"][9] == pytest.approx(table["rmse_2s_m"])
+    assert curves["mean_error_m"][-1] == pytest.approx(table["fde_m"])
+    final = result.final
+    assert len(final.model_m) == curves["n"][-1] == table["n_2s"]
+    assert final.model_m.mean() == pytest.approx(table["fde_m"])
+    assert final.constant_velocity_m.mean() == pytest.approx(
+        result.constant_velocity["all"]["fde_m"]
+    )
+    assert set(final.sample.tolist()) <= set(range(result.samples))
+    document = json.loads(json.dumps(as_dict(result)))  # JSON-ready: no arrays
+    assert "final" not in document and document["steps"]["constant_velocity"]["all"]["n"][0] > 0
+
+
+def test_each_final_error_is_tied_to_its_own_sample(trained_run: Path) -> None:
+    """A batch holds its graphs by recording, not in index order: the sample of each final error
+    is the same whether the samples come one by one or in batches of any size."""
+    model, _ = runs.load_model(trained_run)
+    dataset = GraphDataset(runs.read_run_info(trained_run)["build_dir"], "test", 5)
+    pairs = {}
+    for batch_size in (1, 5, 64):
+        final = score_targets(model, dataset, 10, torch.device("cpu"), batch_size).final
+        order = np.lexsort((final.model_m, final.sample))  # by sample, then error
+        pairs[batch_size] = (final.sample[order], final.model_m[order])
+    for batch_size in (5, 64):  # the same samples with the same errors, up to float rounding
+        assert pairs[batch_size][0].tolist() == pairs[1][0].tolist()
+        np.testing.assert_allclose(pairs[batch_size][1], pairs[1][1], atol=1e-3)
+    assert len(set(pairs[1][0].tolist())) > 1

@@ -68,7 +68,8 @@ def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
     }
     for name in ("h1s", "h2s"):
         files = sorted(p.name for p in (run / name).iterdir())
-        assert files == sorted([runs.BEST, runs.CURVES, runs.LAST, runs.METRICS, runs.RUN_INFO])
+        owned = [runs.BASELINE, runs.BEST, runs.CURVES, runs.LAST, runs.METRICS, runs.RUN_INFO]
+        assert files == sorted(owned)
     assert "1 s model: 2 epochs on cpu (epochs); best epoch" in out
     assert f"Run: {run / 'h2s'}" in out.replace("\n", "")
     assert "2 models trained together" in out
@@ -227,7 +228,7 @@ def test_a_multi_horizon_run_is_started_and_resumed_as_such_only(
     single = tmp_path / "single"
     fit(tiny_build, single, ModelConfig(), TrainConfig(**{**TRAIN.to_dict(), "epochs": 1}), "cpu")
     assert (
-        "is not a multi-horizon aigem run: it holds best.pt, curves.png, last.pt and 2 more"
+        "is not a multi-horizon aigem run: it holds baseline.json, best.pt, curves.png and 3 more"
         in error("1,2", out=single)
     )
     assert _rows(run / "h1s") == _rows(fitted[0] / "h1s")  # nothing was changed

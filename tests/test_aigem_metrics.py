@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from aigem.metrics import ErrorTotals, region_of, summarize_errors
+from aigem.metrics import ErrorTotals, region_of, step_errors, summarize_errors
 
 
 def test_hand_computed_two_actors() -> None:
@@ -48,3 +48,28 @@ def test_pooled_rmse_is_not_the_mean_of_per_batch_rmse() -> None:
 
 def test_regions_by_present_y() -> None:
     assert region_of(np.array([15.1, 15.0, 0.0, -15.0, -15.1])).tolist() == [0, 1, 1, 1, 2]
+
+
+def test_step_errors_by_hand() -> None:
+    """The two actors of the first test: actor 0 (front) off by 5 m at all 10 steps, actor 1
+    (rear) off by 1 m at steps 1..5 and masked after."""
+    truth = np.zeros((2, 10, 2))
+    predicted = truth.copy()
+    predicted[0] += [3.0, 4.0]
+    predicted[1, :, 0] += 1.0
+    mask = np.ones((2, 10), bool)
+    mask[1, 5:] = False
+    totals = ErrorTotals(steps=10)
+    totals.add(predicted, truth, mask, present_y_m=np.array([20.0, -20.0]))
+    curves = step_errors(totals)
+    both, alone = [math.sqrt(13.0)] * 5, [5.0] * 5  # sqrt((25 + 1) / 2), then actor 0 only
+    np.testing.assert_allclose(curves["all"]["rmse_m"], both + alone)
+    np.testing.assert_allclose(curves["all"]["mean_error_m"], [3.0] * 5 + [5.0] * 5)
+    assert curves["all"]["n"].tolist() == [2] * 5 + [1] * 5
+    np.testing.assert_allclose(curves["front"]["rmse_m"], [5.0] * 10)
+    np.testing.assert_allclose(curves["rear"]["mean_error_m"], [1.0] * 5 + [np.nan] * 5)
+    assert np.isnan(curves["mid"]["rmse_m"]).all() and curves["mid"]["n"].tolist() == [0] * 10
+    # The same numbers as the table's: RMSE at 1 s is step 5's, FDE the last step's mean error.
+    table = summarize_errors(totals, 0.2)["all"]
+    assert curves["all"]["rmse_m"][4] == pytest.approx(table["rmse_1s_m"])
+    assert curves["all"]["mean_error_m"][-1] == pytest.approx(table["fde_m"])

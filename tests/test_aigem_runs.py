@@ -18,6 +18,7 @@ import torch
 from typer.testing import CliRunner
 
 from aigem import runs
+from aigem.baseline import constant_velocity_loss_m2
 from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from aigem.training import fit
@@ -155,6 +156,23 @@ def test_a_damaged_or_foreign_checkpoint_is_one_error_line(
     assert expected[kind] in line
 
 
+def test_fit_records_constant_velocitys_validation_loss(
+    trained_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    expected = constant_velocity_loss_m2(tiny_build, "val", [5])[5]  # 1 s: 5 steps
+    assert json.loads((trained_run / runs.BASELINE).read_text()) == {
+        "constant_velocity_val_loss_m2": expected,
+        "steps": 5,
+    }
+    assert runs.read_baseline(trained_run) == expected
+    # A run of an older aigem has none (or a damaged one): resuming it records it.
+    run = _copy(trained_run, tmp_path)
+    (run / runs.BASELINE).write_text("{")
+    assert runs.read_baseline(run) is None
+    fit(tiny_build, run, ModelConfig(), TrainConfig(**{**FAST.to_dict(), "epochs": 2}), "cpu", True)
+    assert runs.read_baseline(run) == expected
+
+
 def test_a_directory_that_is_not_a_run(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
     runner = CliRunner()
     missing = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--device", "cpu"])
@@ -210,7 +228,7 @@ class _FullDisk:
         self.file.close()
 
 
-@pytest.mark.parametrize("name", [runs.RUN_INFO, runs.BEST, runs.LAST])
+@pytest.mark.parametrize("name", [runs.RUN_INFO, runs.BASELINE, runs.BEST, runs.LAST])
 def test_a_full_disk_is_one_error_line_and_leaves_no_torn_file(
     tiny_build: Path,
     tmp_path: Path,

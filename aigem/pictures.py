@@ -1,0 +1,140 @@
+"""What `aigem evaluate --plots DIR` writes: the figures of aigem.plots, and a grid of scenes.
+
+    DIR/error_by_horizon.png          RMSE and mean displacement error at every 0.2 s step
+    DIR/error_by_region.png           the same for front, mid and rear actors
+    DIR/final_error_distribution.png  ECDF of each target's final displacement error
+    DIR/scenes.png                    the worst, median and best scenes by AiGem's error
+
+DIR is created; these files replace our own of an earlier call, nothing else in DIR is touched.
+Each is written under a temporary name and renamed, so a kill never leaves a torn picture.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from aigem.evaluation import Evaluation, HorizonsEvaluation, scene_choice
+from aigem.plots import (
+    error_by_horizon,
+    error_by_region,
+    final_error_distribution,
+    longest,
+    png_bytes,
+)
+from ngsim_graphs.build import open_build
+from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.synth.formats import MARKER_NAME
+
+FIGURES = {
+    "error_by_horizon": error_by_horizon,
+    "error_by_region": error_by_region,
+    "final_error_distribution": final_error_distribution,
+}
+SCENES = "scenes.png"
+SCENE_GROUPS = ("worst", "median", "best")
+
+
+def describe_build(build_dir: str | Path) -> str:
+    """Where our numbers come from, for a figure: the build, its recordings, and whether its
+    inputs were written by `ngsim-graphs synth` (synth's marker lists them)."""
+    build = open_build(Path(build_dir))
+    entries = build.entries
+    locations = ", ".join(sorted({entry.location for entry in entries}))
+    synthetic = any(_synthetic(Path(report.path)) for report in build.manifest.inputs)
+    kind = (
+        "SYNTHETIC data (ngsim-graphs synth)"
+        if synthetic
+        else f"{build.manifest.dataset}-format inputs without synth's marker"
+    )
+    plural = "s" if len(entries) != 1 else ""
+    name = Path(build_dir).resolve().name  # the folder, not a path of this machine
+    return f"build {name}: {len(entries)} recording{plural} of {locations}, {kind}"
+
+
+def _synthetic(path: Path) -> bool:
+    """Whether `ngsim-graphs synth` wrote the input file `path`: its folder, or the one above
+    (synth's <location>/<file> layouts), has synth's marker, which lists the file."""
+    for folder in path.parents[:2]:
+        marker = folder / MARKER_NAME
+        try:
+            listed = marker.read_text(errors="replace").splitlines() if marker.is_file() else []
+        except OSError:
+            listed = []
+        if f"- {path.relative_to(folder).as_posix()}" in listed:
+            return True
+    return False
+
+
+def _write(path: Path, data: bytes) -> Path:
+    """Write through `path.partial` and a rename: a kill never leaves a torn picture."""
+    partial = path.with_name(path.name + ".partial")
+    try:
+        partial.write_bytes(data)
+        os.replace(partial, path)
+    except OSError as err:
+        partial.unlink(missing_ok=True)
+        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
+    return path
+
+
+def write_scene_grid(
+    result: Evaluation | HorizonsEvaluation,
+    run_dir: Path,
+    path: Path,
+    device_choice: str = "cpu",
+    per_group: int = 3,
+) -> Path | None:
+    """`path`: a row each of the worst, median and best `per_group` scenes of the evaluated split
+    by scene error (the mean final displacement error of AiGem over a sample's targets valid at
+    the last step; evaluation.scene_choice), with history, recorded future, and the predictions
+    of AiGem (a multi-horizon run's longest model) and constant velocity. None, drawing nothing,
+    where no target is valid at the last step or the evaluation was on another build than the
+    run's (its predictions are drawn on its own build only)."""
+    from aigem.prediction import predict_samples  # the model, imported only when drawing
+    from ngsim_graphs.scenes import scene_titles, write_scenes
+
+    final = longest(result).final
+    if not result.same_build or final is None or not len(final.sample):
+        return None
+    chosen = scene_choice(final.sample, final.model_m, per_group)
+    ids = np.concatenate([chosen[group] for group in SCENE_GROUPS])
+    batch, predictions = predict_samples(
+        run_dir, Path(result.build_dir), result.split, ids, device_choice
+    )
+    build = open_build(Path(result.build_dir))
+    names = scene_titles(build.samples(result.split), result.split, ids)
+    places = [(group, rank + 1) for group in SCENE_GROUPS for rank in range(len(chosen[group]))]
+    titles = [
+        f"{group} {rank}: AiGem's mean final error {scene_m:.2f} m\n{name}"
+        for (group, rank), name, scene_m in zip(
+            places, names, [final.model_m[final.sample == i].mean() for i in ids], strict=True
+        )
+    ]
+    write_scenes(path, batch, titles, build.config.d_sense_m, predictions, columns=per_group)
+    return path
+
+
+def write_evaluation_plots(
+    result: Evaluation | HorizonsEvaluation,
+    folder: Path,
+    run_dir: Path | None = None,
+    device_choice: str = "cpu",
+) -> list[Path]:
+    """Write the FIGURES as `<name>.png` into `folder` (created), and, given the evaluated
+    `run_dir`, the scene grid (write_scene_grid); returns the paths written."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise NgsimOutputError(folder, f"cannot create: {err.strerror or err}") from None
+    label = describe_build(result.build_dir)
+    written = [
+        _write(folder / f"{name}.png", png_bytes(draw(result, label)))
+        for name, draw in FIGURES.items()
+    ]
+    if run_dir is not None:
+        scenes = write_scene_grid(result, run_dir, folder / SCENES, device_choice)
+        written += [scenes] if scenes is not None else []
+    return written

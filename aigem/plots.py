@@ -1,0 +1,335 @@
+"""aigem's figures: a run's training curves, and an evaluation's errors (aigem.pictures writes
+them as `aigem evaluate --plots DIR`). Each function takes the numbers and returns a Figure.
+
+    curves_figure             loss per epoch, the best epoch, constant velocity's loss (curves.png)
+    error_by_horizon          RMSE and mean displacement error at every future step, AiGem and
+                              constant velocity, beside the paper's table (NGSIM) as markers
+    error_by_region           the same per region of the actor's present position
+    final_error_distribution  the final displacement error of each target, as an ECDF
+
+A multi-horizon run draws its longest model's curves, and its RMSE at h s from the h s model
+(the paper's protocol) as diamonds. Our curves are labelled with the build they come from
+(`label`), never as NGSIM: a build of `ngsim-graphs synth` data is synthetic.
+
+Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot` (as
+ngsim_graphs.plotting): no global state, no display, nothing kept open.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import textwrap
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
+from matplotlib.ticker import LogFormatter, MaxNLocator
+
+from aigem.evaluation import PAPER_TABLE, Evaluation, HorizonsEvaluation
+from aigem.metrics import FRONT_Y_M, REGIONS
+
+OURS, BASELINE = "tab:blue", "tab:orange"
+PAPER_MARKERS = {
+    "AiGem": ("o", "tab:blue"),
+    "CS-LSTM": ("s", "tab:green"),
+    "GSTCN": ("^", "tab:red"),
+}
+FOOTER_CHARS_PER_IN = 14  # characters of 8-point text per inch of figure width, with room
+REGION_TITLES = {
+    "front": f"front (y > {FRONT_Y_M:g} m)",
+    "mid": f"mid (|y| ≤ {FRONT_Y_M:g} m)",
+    "rear": f"rear (y < -{FRONT_Y_M:g} m)",
+}
+
+
+def png_bytes(figure: Figure) -> bytes:
+    FigureCanvasAgg(figure)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=110)
+    return buffer.getvalue()
+
+
+# ------------------------------------------------------------------------------------------------
+# Training curves
+
+
+class _PlainLog(LogFormatter):
+    """Log-axis labels as plain numbers (600, 0.1), not 6 x 10^2 or 1e-01."""
+
+    def _num_to_string(self, x: float, vmin: float, vmax: float) -> str:
+        return f"{x:g}"
+
+
+def curves_png(
+    rows: list[dict[str, float]], baseline_m2: float | None, horizon_s: float | None
+) -> bytes:
+    """curves.png of a run (curves_figure)."""
+    return png_bytes(curves_figure(rows, baseline_m2, horizon_s))
+
+
+def curves_figure(
+    rows: list[dict[str, float]], baseline_m2: float | None, horizon_s: float | None
+) -> Figure:
+    """A run's training from its metrics.jsonl rows: train and validation MSE (m²) per epoch,
+    the best epoch (by validation MSE) marked, constant velocity's validation MSE as a line."""
+    figure = Figure(figsize=(7, 4.5), layout="constrained")
+    axes = figure.add_subplot()
+    epochs = [row["epoch"] for row in rows]
+    axes.plot(
+        epochs,
+        [r["train_loss_m2"] for r in rows],
+        marker="o",
+        ms=3,
+        label="train (mean over the epoch)",
+    )
+    axes.plot(epochs, [r["val_loss_m2"] for r in rows], marker="o", ms=3, label="validation")
+    best = int(rows[-1]["best_epoch"])
+    best_m2 = next((r["val_loss_m2"] for r in rows if r["epoch"] == best), None)
+    if best_m2 is not None:
+        axes.axvline(best, color="tab:green", lw=1, ls=":")
+        axes.plot(
+            [best],
+            [best_m2],
+            "*",
+            ms=13,
+            color="tab:green",
+            label=f"best: epoch {best}, validation {best_m2:.3g} m²",
+        )
+    if baseline_m2 is not None and math.isfinite(baseline_m2):
+        axes.axhline(
+            baseline_m2,
+            color="tab:gray",
+            ls="--",
+            label=f"constant velocity, validation ({baseline_m2:.3g} m²)",
+        )
+    axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+    axes.set_xlim(0.5, max(epochs) + 0.5)
+    horizon = "" if horizon_s is None else f", {horizon_s:g} s horizon"
+    axes.set(
+        xlabel="epoch",
+        ylabel="MSE over valid future steps (m², log)",
+        yscale="log",
+        title=f"AiGem training{horizon}",
+    )
+    axes.yaxis.set_major_formatter(_PlainLog(labelOnlyBase=False))
+    axes.yaxis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
+    axes.legend(loc="upper right")  # where falling losses leave room
+    return figure
+
+
+# ------------------------------------------------------------------------------------------------
+# Evaluation figures
+
+
+def longest(result: Evaluation | HorizonsEvaluation) -> Evaluation:
+    """The evaluation whose per-step curves are drawn: a multi-horizon run's longest model's."""
+    if isinstance(result, HorizonsEvaluation):
+        return result.members[result.sources["ade_m"]]
+    return result
+
+
+def _times_s(evaluation: Evaluation) -> np.ndarray:
+    return np.arange(1, evaluation.horizon_steps + 1) * evaluation.time_step_s
+
+
+def _curve(evaluation: Evaluation, kind: str, region: str, key: str) -> np.ndarray:
+    """(K,) one per-step curve of an evaluation, NaN where no target counts."""
+    values = evaluation.steps[kind][region][key]
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def _ours_label(result: Evaluation | HorizonsEvaluation) -> str:
+    if isinstance(result, HorizonsEvaluation):
+        return f"AiGem, this run's {result.sources['ade_m']} model"
+    return "AiGem, this run"
+
+
+def _evaluation_figure(
+    width_in: float, result: Evaluation | HorizonsEvaluation, label: str
+) -> Figure:
+    """A figure whose bottom lines say where our curves come from (kept clear of the axes)."""
+    footer = textwrap.fill(
+        f"Lines: {result.split} split ({result.samples:,} samples) of {label}.",
+        width=int(width_in * FOOTER_CHARS_PER_IN),
+    )
+    footer_in = 0.1 + 0.16 * (footer.count("\n") + 1)
+    height_in = 4.5 + footer_in
+    engine = ConstrainedLayoutEngine(rect=(0, footer_in / height_in, 1, 1 - footer_in / height_in))
+    figure = Figure(figsize=(width_in, height_in), layout=engine)
+    figure.text(0.01, 0.02 / height_in, footer, fontsize=8, color="dimgray", va="bottom")
+    return figure
+
+
+def _paper_points(axes: Axes, key: str) -> None:
+    """The paper's table as markers: RMSE at 1..5 s (key "rmse_m"), or FDE at 5 s ("fde_m")."""
+    for name, row in PAPER_TABLE.items():
+        model = name.removesuffix(" (paper)")
+        marker, colour = PAPER_MARKERS[model]
+        values = row[key] if key == "rmse_m" else (row[key],)
+        if values[0] is None:
+            continue
+        times = np.arange(1, 6) if key == "rmse_m" else np.array([5.0])
+        what = "" if key == "rmse_m" else " FDE"
+        axes.plot(
+            times,
+            values,
+            ls="none",
+            marker=marker,
+            ms=7,
+            mfc="none",
+            mec=colour,
+            mew=1.5,
+            label=f"{model}{what} (paper, NGSIM)",
+        )
+
+
+def _protocol_points(axes: Axes, result: HorizonsEvaluation) -> None:
+    """RMSE at s s from the first model that reaches s s (the paper's protocol), as diamonds."""
+    seconds = [s for s in range(1, 6) if f"rmse_{s}s_m" in result.model["all"]]
+    values = [result.model["all"][f"rmse_{s}s_m"] for s in seconds]
+    axes.plot(
+        seconds,
+        [np.nan if v is None else v for v in values],
+        ls="none",
+        marker="D",
+        ms=6,
+        color=OURS,
+        label="AiGem at h s, model named (paper's protocol)",
+    )
+    for s, value in zip(seconds, values, strict=True):
+        if value is not None:  # up and left: clear of a rising curve and of the paper's points
+            axes.annotate(
+                result.sources[f"rmse_{s}s_m"],
+                (s, value),
+                xytext=(-5, 5),
+                textcoords="offset points",
+                ha="right",
+                fontsize=7,
+                color=OURS,
+            )
+
+
+def _headroom(axes: Axes, share: float = 0.4) -> None:
+    """Room above the drawn points for a legend in the upper left (errors rise to the right)."""
+    values = np.concatenate([np.asarray(line.get_ydata(), float) for line in axes.get_lines()])
+    top = np.nanmax(values) if np.isfinite(values).any() else 1.0
+    axes.set_ylim(0, top / (1 - share))
+
+
+def error_by_horizon(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
+    """RMSE and mean displacement error against the horizon at every future step."""
+    evaluation = longest(result)
+    times = _times_s(evaluation)
+    figure = _evaluation_figure(11, result, label)
+    rmse, mean = figure.subplots(1, 2)
+    for axes, key, title in (
+        (rmse, "rmse_m", "RMSE (pooled over targets at each step)"),
+        (mean, "mean_error_m", "mean displacement error"),
+    ):
+        axes.plot(
+            times,
+            _curve(evaluation, "model", "all", key),
+            color=OURS,
+            lw=2,
+            label=_ours_label(result),
+        )
+        axes.plot(
+            times,
+            _curve(evaluation, "constant_velocity", "all", key),
+            color=BASELINE,
+            lw=2,
+            label="constant velocity",
+        )
+        _paper_points(axes, "rmse_m" if key == "rmse_m" else "fde_m")
+        axes.set(xlabel="horizon (s)", ylabel=f"{title.split(' (')[0]} (m)", title=title)
+        axes.set_xlim(0, max(5.0, times[-1]) + 0.2)
+        axes.set_ylim(bottom=0)
+        axes.grid(alpha=0.3)
+    if isinstance(result, HorizonsEvaluation):
+        _protocol_points(rmse, result)
+    for axes in (rmse, mean):
+        _headroom(axes)
+        axes.legend(fontsize=8, loc="upper left")
+    figure.suptitle(f"Error by horizon, every {evaluation.time_step_s:g} s step")
+    return figure
+
+
+def error_by_region(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
+    """The per-step RMSE and mean displacement error of each region of the present position."""
+    evaluation = longest(result)
+    times = _times_s(evaluation)
+    figure = _evaluation_figure(12, result, label)
+    panels = figure.subplots(1, 3, sharey=True)
+    for axes, region in zip(panels, REGIONS[1:], strict=True):
+        for kind, colour, who in (
+            ("model", OURS, _ours_label(result)),
+            ("constant_velocity", BASELINE, "constant velocity"),
+        ):
+            axes.plot(
+                times,
+                _curve(evaluation, kind, region, "rmse_m"),
+                color=colour,
+                lw=2,
+                label=f"{who}: RMSE",
+            )
+            axes.plot(
+                times,
+                _curve(evaluation, kind, region, "mean_error_m"),
+                color=colour,
+                lw=1.5,
+                ls="--",
+                label=f"{who}: mean error",
+            )
+        count = evaluation.steps["model"][region]["n"]
+        axes.set(title=f"{REGION_TITLES[region]}: {count[0]:,} targets", xlabel="horizon (s)")
+        axes.set_xlim(0, times[-1] + 0.2)
+        axes.set_ylim(bottom=0)
+        axes.grid(alpha=0.3)
+    panels[0].set_ylabel("error (m)")
+    panels[0].legend(fontsize=8)
+    figure.suptitle("Error by region of the actor's present position (y along the road)")
+    return figure
+
+
+def final_error_distribution(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
+    """ECDF of the final displacement error of each target valid at the last predicted step."""
+    evaluation = longest(result)
+    final = evaluation.final
+    figure = _evaluation_figure(7.5, result, label)
+    axes = figure.add_subplot()
+    high = 1.0
+    for values, colour, who in (
+        (final.model_m, OURS, _ours_label(result)),
+        (final.constant_velocity_m, BASELINE, "constant velocity"),
+    ):
+        if not len(values):
+            continue
+        ordered = np.sort(values)
+        share = np.arange(1, len(ordered) + 1) / len(ordered)
+        median, p90 = np.percentile(ordered, [50, 90])
+        high = max(high, float(np.percentile(ordered, 99)))
+        axes.step(
+            ordered,
+            share,
+            where="post",
+            color=colour,
+            lw=2,
+            label=f"{who}: median {median:.2f} m, 90th pct {p90:.2f} m",
+        )
+    for level, name in ((0.5, "median"), (0.9, "90th percentile")):
+        axes.axhline(level, color="gray", lw=0.8, ls=":")
+        axes.text(0, level, f" {name}", color="gray", fontsize=8, va="bottom")
+    horizon_s = evaluation.horizon_steps * evaluation.time_step_s
+    axes.set(
+        xlim=(0, high * 1.05),
+        ylim=(0, 1.01),
+        xlabel=f"final displacement error at {horizon_s:g} s (m); axis to the 99th percentile",
+        ylabel="share of targets with a final error ≤ x",
+        title=f"Final displacement error: {len(final.model_m):,} targets valid at {horizon_s:g} s",
+    )
+    axes.grid(alpha=0.3)
+    axes.legend(fontsize=8, loc="lower right")
+    return figure

@@ -1,0 +1,144 @@
+"""The pictures: curves.png and `aigem evaluate --plots`. Every file is a PNG, and what is drawn
+is the data: the log's losses, the recorded baseline, one point per future step, one ECDF step
+per target, the paper's points labelled as the paper's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from aigem import runs
+from aigem.config import ModelConfig, TrainConfig
+from aigem.evaluation import evaluate, evaluate_horizons
+from aigem.pictures import FIGURES, SCENES, describe_build
+from aigem.plots import (
+    curves_figure,
+    curves_png,
+    error_by_horizon,
+    error_by_region,
+    final_error_distribution,
+)
+from aigem.training import fit_horizons
+from ngsim_cli.aigem import app
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+ROWS = [
+    {"epoch": 1, "train_loss_m2": 9.0, "val_loss_m2": 5.0, "best_epoch": 1},
+    {"epoch": 2, "train_loss_m2": 4.0, "val_loss_m2": 3.0, "best_epoch": 2},
+    {"epoch": 3, "train_loss_m2": 2.0, "val_loss_m2": 4.0, "best_epoch": 2},
+]
+
+
+@pytest.fixture(scope="module")
+def run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 1 s + 2 s run of one epoch; RUN/h2s alone is a single-horizon run."""
+    run = tmp_path_factory.mktemp("plots") / "run"
+    train = TrainConfig(epochs=1, batch_size=8, seed=3)
+    fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")
+    return run
+
+
+def _is_png(path: Path, min_bytes: int = 10_000) -> bool:
+    data = path.read_bytes()
+    return data.startswith(PNG_SIGNATURE) and len(data) > min_bytes
+
+
+def _line(axes, label: str):
+    (line,) = [line for line in axes.get_lines() if line.get_label() == label]
+    return line
+
+
+def test_curves_draw_the_log_the_best_epoch_and_the_baseline() -> None:
+    axes = curves_figure(ROWS, 3.5, 2.0).axes[0]
+    assert _line(axes, "validation").get_ydata().tolist() == [5.0, 3.0, 4.0]
+    assert _line(axes, "best: epoch 2, validation 3 m²").get_xydata().tolist() == [[2.0, 3.0]]
+    baseline = _line(axes, "constant velocity, validation (3.5 m²)")
+    assert set(baseline.get_ydata()) == {3.5}
+    assert all(tick == int(tick) for tick in axes.get_xticks())  # whole epochs
+    without = curves_figure(ROWS, None, 2.0).axes[0]
+    assert not [line for line in without.get_lines() if "constant" in line.get_label()]
+    assert curves_png(ROWS[:1], None, None).startswith(PNG_SIGNATURE)
+
+
+def test_fit_draws_each_members_curves_with_its_baseline(run: Path) -> None:
+    for member in ("h1s", "h2s"):
+        assert _is_png(run / member / runs.CURVES)
+        assert runs.read_baseline(run / member) is not None
+    assert runs.read_baseline(run / "h1s") < runs.read_baseline(run / "h2s")
+
+
+def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
+    single = evaluate(run / "h2s", None, "test", "cpu")
+    rmse, mean = error_by_horizon(single, "a label").axes
+    ours = _line(rmse, "AiGem, this run")
+    assert len(ours.get_xdata()) == single.horizon_steps == 10
+    np.testing.assert_allclose(ours.get_xdata(), np.arange(1, 11) * 0.2)
+    np.testing.assert_allclose(ours.get_ydata(), single.steps["model"]["all"]["rmse_m"])
+    cv = _line(mean, "constant velocity").get_ydata()
+    np.testing.assert_allclose(cv, single.steps["constant_velocity"]["all"]["mean_error_m"])
+    front = error_by_region(single, "a label").axes[0]
+    np.testing.assert_allclose(
+        _line(front, "AiGem, this run: mean error").get_ydata(),
+        np.array(single.steps["model"]["front"]["mean_error_m"], dtype=float),
+    )
+    ecdf = final_error_distribution(single, "a label").axes[0].get_lines()[0]
+    assert len(ecdf.get_xdata()) == len(single.final.model_m)
+    several = evaluate_horizons(run, None, "test", "cpu")
+    rmse = error_by_horizon(several, "a label").axes[0]
+    diamonds = _line(rmse, "AiGem at h s, model named (paper's protocol)")
+    assert diamonds.get_ydata().tolist() == [
+        several.model["all"]["rmse_1s_m"],
+        several.model["all"]["rmse_2s_m"],
+    ]
+    assert len(_line(rmse, "AiGem, this run's h2s model").get_xdata()) == 10
+    for draw in (error_by_horizon, error_by_region, final_error_distribution):
+        labels = [line.get_label() for axes in draw(several, "x").axes for line in axes.get_lines()]
+        assert all("paper" in label for label in labels if "NGSIM" in label), labels
+
+
+def test_describe_build_names_synthetic_data(tiny_build: Path) -> None:
+    label = describe_build(tiny_build)
+    assert label.startswith(f"build {tiny_build.name}: 1 recording of ") and "SYNTHETIC" in label
+
+
+def test_cli_plots_of_a_multi_horizon_and_a_single_run(run: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "pictures"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("mine")
+    result = CliRunner().invoke(
+        app, ["evaluate", str(run), "--device", "cpu", "--plots", str(folder)]
+    )
+    assert result.exit_code == 0, result.output
+    assert f"Plots in {folder}" in result.stdout.replace("\n", "")
+    first = {name: (folder / f"{name}.png").read_bytes() for name in FIGURES}
+    assert all(_is_png(folder / f"{name}.png", 20_000) for name in FIGURES)
+    assert _is_png(folder / SCENES, 50_000)
+    # A single-horizon run into the same folder: our pictures replaced, the rest left alone.
+    single = CliRunner().invoke(
+        app, ["evaluate", str(run / "h2s"), "--device", "cpu", "--json", "--plots", str(folder)]
+    )
+    assert single.exit_code == 0, single.output
+    assert single.stdout.startswith("{")  # --json: the document only
+    assert (folder / "error_by_horizon.png").read_bytes() != first["error_by_horizon"]
+    assert (folder / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        ["notes.txt", SCENES, *(f"{name}.png" for name in FIGURES)]
+    )
+
+
+def test_plots_into_a_file_is_one_error_line(run: Path, tmp_path: Path) -> None:
+    (tmp_path / "taken").write_text("")
+    result = CliRunner().invoke(
+        app, ["evaluate", str(run / "h1s"), "--device", "cpu", "--plots", str(tmp_path / "taken")]
+    )
+    assert result.exit_code == 1 and result.stderr.startswith(f"error: {tmp_path / 'taken'}: ")
+    assert result.stderr.count("\n") == 1
+
+
+def test_evaluate_help_names_plots_within_80_columns() -> None:
+    result = CliRunner(env={"COLUMNS": "80"}).invoke(app, ["evaluate", "--help"])
+    assert result.exit_code == 0 and "--plots DIR" in result.stdout
+    assert max(len(line) for line in result.stdout.splitlines()) <= 80
