@@ -148,9 +148,10 @@ def read_table(path: Path) -> pl.DataFrame:
         raise NgsimInputError(path, f"unreadable table (damaged?): {first}") from None
 
 
-def open_build(root: Path) -> OpenBuild:
+def open_build(root: Path | str) -> OpenBuild:
     """Open a finished build; a clear error for anything else (unfinished, other version, edited,
     damaged: see `integrity`)."""
+    root = Path(root)
     manifest = layout.read_manifest(root)  # typed: of a form that `Manifest` reads
     path = layout.manifest_path(root)
     try:

@@ -125,7 +125,7 @@ class RecordingEntry:
 
 @dataclass(frozen=True)
 class BuildCounts:
-    """Totals over the build's inputs and recordings (see README, "Trust"): rows_read =
+    """Totals over the build's inputs and recordings (see docs/trust.md): rows_read =
     rows_other_locations + rows_missing_values + the rows dropped before cleaning + rows."""
 
     rows_read: int

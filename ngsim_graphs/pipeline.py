@@ -4,7 +4,7 @@ A data source (`sources`) reads each input file and stages its rows per recordin
 then each recording's tracks table goes through the stages that know no dataset: frame arrays,
 ego windows, splits, and every sample's graph induced once, in small batches, to count its
 nodes, edges and targets and to fit the scaler on the train split. The graphs themselves are
-not stored per sample (see README: the dataset induces them from the frame arrays).
+not stored per sample (see docs/build-format.md: the dataset induces them from the frame arrays).
 
 Memory stays bounded by one input file plus one recording; only the small per-sample table of
 every recording is kept until the end.

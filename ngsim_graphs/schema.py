@@ -262,7 +262,7 @@ SAMPLE_SCHEMA: Final = pl.Schema(
 )
 # The explicit graph tables of `ngsim-graphs export` (sample-local node indices).
 NODE: Final = "node"  # sample-local node index
-K: Final = "k"  # history step of a node, 1..K_H
+K: Final = "k"  # history step of a node, 0..K_H-1 (K_H-1: the present)
 IS_EGO: Final = "is_ego"
 EDGE_SOURCE: Final = "source"  # sample-local node index an edge leaves
 EDGE_DESTINATION: Final = "destination"  # sample-local node index an edge enters
