@@ -207,19 +207,6 @@ def score_targets(
     return Scores(ours, baseline, final)
 
 
-def score(
-    model: AiGem,
-    dataset: GraphDataset,
-    steps: int,
-    device: torch.device,
-    batch_size: int = 64,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[ErrorTotals, ErrorTotals]:
-    """Error totals (metres) of the model and of constant velocity (score_targets)."""
-    scores = score_targets(model, dataset, steps, device, batch_size, progress)
-    return scores.model, scores.constant_velocity
-
-
 def _step_lists(totals: ErrorTotals) -> dict[str, dict[str, list]]:
     """metrics.step_errors as JSON-ready lists (None for NaN)."""
     return {

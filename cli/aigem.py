@@ -13,11 +13,11 @@ from rich.table import Table
 from aigem import __version__
 from ngsim_cli.console import (
     HELP_SETTINGS,
+    add_version_option,
     exit_on_error,
     print_table,
     stderr,
     stdout,
-    version_callback,
 )
 
 if TYPE_CHECKING:
@@ -32,19 +32,7 @@ app = typer.Typer(
 )
 
 
-@app.callback()
-def _program(
-    version: Annotated[
-        bool,
-        typer.Option(
-            "--version",
-            help="Print the program's version and exit.",
-            callback=version_callback("aigem", __version__),
-            is_eager=True,
-        ),
-    ] = False,
-) -> None:
-    """AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output)."""
+add_version_option(app, "aigem", __version__)
 
 
 def _fail(message: str, code: int = 1) -> typer.Exit:

@@ -52,15 +52,29 @@ def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
 HELP_SETTINGS = {"rich_markup_mode": None, "context_settings": {"max_content_width": 100}}
 
 
-def version_callback(program: str, version: str) -> Callable[[bool], None]:
-    """The callback of an eager `--version` option: prints `program version` and exits 0."""
+def add_version_option(app: typer.Typer, program: str, version: str) -> None:
+    """Give `app` an eager `--version` that prints `program version` and exits 0."""
 
     def show(value: bool) -> None:
         if value:
             stdout.print(f"{program} {version}", markup=False, highlight=False)
             raise typer.Exit(0)
 
-    return show
+    # A default, not an Annotated hint: the hint would name `show`, a local that typer cannot see
+    # when it evaluates the (postponed) annotations.
+    def options(
+        version: bool = typer.Option(
+            False,
+            "--version",
+            help="Print the program's version and exit.",
+            callback=show,
+            is_eager=True,
+        ),
+    ) -> None:
+        pass
+
+    options.__doc__ = app.info.help
+    app.callback()(options)
 
 
 def print_error(message: str) -> None:

@@ -15,12 +15,12 @@ from rich.table import Table
 
 from ngsim_cli.console import (
     HELP_SETTINGS,
+    add_version_option,
     exit_on_error,
     print_error,
     print_table,
     progress_bar,
     stderr,
-    version_callback,
 )
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
 from ngsim_graphs import __version__
@@ -42,19 +42,7 @@ app = typer.Typer(
 stdout = Console()
 
 
-@app.callback()
-def _program(
-    version: Annotated[
-        bool,
-        typer.Option(
-            "--version",
-            help="Print the program's version and exit.",
-            callback=version_callback("ngsim-graphs", __version__),
-            is_eager=True,
-        ),
-    ] = False,
-) -> None:
-    """NGSIM US-101 / I-80 (and highD) trajectories to spatial-temporal graph datasets."""
+add_version_option(app, "ngsim-graphs", __version__)
 
 
 def _usage_error(message: str) -> typer.Exit:

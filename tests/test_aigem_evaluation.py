@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
-from aigem.evaluation import as_dict, evaluate, scene_choice, score, score_targets
+from aigem.evaluation import as_dict, evaluate, scene_choice, score_targets
 from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
@@ -99,7 +99,7 @@ def test_another_build_is_scaled_with_the_runs_scaler(
     model, _ = runs.load_model(trained_run)
     dataset = GraphDataset(edited, "test", model.config.history_steps_read)
     assert dataset.scaler.to_dict() == manifest["scaler"]
-    totals, _ = score(model, dataset, own.horizon_steps, torch.device("cpu"))
+    totals = score_targets(model, dataset, own.horizon_steps, torch.device("cpu")).model
     edited_ade = totals.error_m[0].sum() / totals.count[0].sum()
     assert totals.count[0, 4] == own.model["all"]["n_1s"]  # the same targets
     assert abs(edited_ade - own.model["all"]["ade_m"]) > 0.01
