@@ -32,7 +32,7 @@ _EXPORTS = {
     "load_model": "aigem.runs",
     "evaluate": "aigem.evaluation",
     "evaluate_horizons": "aigem.evaluation",
-    "constant_velocity": "aigem.evaluation",
+    "constant_velocity": "aigem.baseline",
     "predict_samples": "aigem.prediction",
 }
 __all__ = [
@@ -58,9 +58,10 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
+    from aigem.baseline import constant_velocity
     from aigem.config import ModelConfig, TrainConfig
     from aigem.data import Collate, GraphDataset, xy_to_metres
-    from aigem.evaluation import constant_velocity, evaluate, evaluate_horizons
+    from aigem.evaluation import evaluate, evaluate_horizons
     from aigem.model import AiGem, count_parameters
     from aigem.prediction import predict_samples
     from aigem.pyg import GraphPygDataset, to_hetero_data, to_model_batch

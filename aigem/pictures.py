@@ -5,13 +5,21 @@
     DIR/final_error_distribution.png  ECDF of each target's final displacement error
     DIR/scenes.png                    the worst, median and best scenes by AiGem's error
 
-DIR is created; these files replace our own of an earlier call, nothing else in DIR is touched.
-Each is written under a temporary name and renamed, so a kill never leaves a torn picture.
+    DIR/plots.json                    which of these files the last call wrote
+
+DIR is created. `plots.json` says which files are ours: a file of these names that it does not
+list (a picture of someone else's) is never replaced, the call stops with an error naming it
+before anything is written. Every picture is drawn before the first is written, so a failure
+(a model that cannot be loaded, non-finite predictions) leaves DIR as it was; each is written
+under a temporary name and renamed; a picture of an earlier call that this call does not draw
+(scenes.png, with --other-build) is removed, so DIR never mixes two evaluations.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +43,8 @@ FIGURES = {
 }
 SCENES = "scenes.png"
 SCENE_GROUPS = ("worst", "median", "best")
+OWNED = "plots.json"  # the pictures the last `--plots` call wrote into the folder
+PICTURES = (*(f"{name}.png" for name in FIGURES), SCENES)
 
 
 def describe_build(build_dir: str | Path) -> str:
@@ -80,14 +90,13 @@ def _write(path: Path, data: bytes) -> Path:
     return path
 
 
-def write_scene_grid(
+def scene_grid(
     result: Evaluation | HorizonsEvaluation,
     run_dir: Path,
-    path: Path,
     device_choice: str = "cpu",
     per_group: int = 3,
-) -> Path | None:
-    """`path`: a row each of the worst, median and best `per_group` scenes of the evaluated split
+) -> bytes | None:
+    """A PNG: a row each of the worst, median and best `per_group` scenes of the evaluated split
     by scene error (the mean final displacement error of AiGem over a sample's targets valid at
     the last step; evaluation.scene_choice), with history, recorded future, and the predictions
     of AiGem (a multi-horizon run's longest model) and constant velocity. None, drawing nothing,
@@ -113,8 +122,42 @@ def write_scene_grid(
             places, names, [final.model_m[final.sample == i].mean() for i in ids], strict=True
         )
     ]
-    write_scenes(path, batch, titles, build.config.d_sense_m, predictions, columns=per_group)
-    return path
+    with tempfile.TemporaryDirectory() as scratch:
+        path = Path(scratch) / SCENES
+        write_scenes(path, batch, titles, build.config.d_sense_m, predictions, columns=per_group)
+        return path.read_bytes()
+
+
+def _owned(folder: Path) -> set[str]:
+    """The pictures an earlier call wrote into `folder` (plots.json), ours to replace."""
+    path = folder / OWNED
+    if not path.exists():
+        return set()
+    try:
+        listed = json.loads(path.read_text())["pictures"]
+        if not isinstance(listed, list) or not all(isinstance(n, str) for n in listed):
+            raise TypeError
+    except (OSError, ValueError, KeyError, TypeError):
+        raise NgsimOutputError(
+            path, "is not aigem's list of plots; move it or choose another --plots folder"
+        ) from None
+    return set(listed) & set(PICTURES)
+
+
+def _refuse_others(folder: Path, owned: set[str]) -> None:
+    """Stop before writing anything where a picture of our names is not ours."""
+    for name in PICTURES:
+        if (folder / name).exists() and name not in owned:
+            raise NgsimOutputError(
+                folder / name,
+                "exists and was not written by `aigem evaluate --plots`; "
+                "move it or choose another --plots folder",
+            )
+
+
+def _own(folder: Path, names: set[str]) -> None:
+    document = {"written_by": "aigem evaluate --plots", "pictures": sorted(names)}
+    _write(folder / OWNED, (json.dumps(document, indent=1) + "\n").encode())
 
 
 def write_evaluation_plots(
@@ -124,17 +167,22 @@ def write_evaluation_plots(
     device_choice: str = "cpu",
 ) -> list[Path]:
     """Write the FIGURES as `<name>.png` into `folder` (created), and, given the evaluated
-    `run_dir`, the scene grid (write_scene_grid); returns the paths written."""
+    `run_dir`, the scene grid (scene_grid); returns the paths written. See the module's
+    docstring for what is replaced and what is refused."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise NgsimOutputError(folder, f"cannot create: {err.strerror or err}") from None
+    owned = _owned(folder)
+    _refuse_others(folder, owned)
     label = describe_build(result.build_dir)
-    written = [
-        _write(folder / f"{name}.png", png_bytes(draw(result, label)))
-        for name, draw in FIGURES.items()
-    ]
-    if run_dir is not None:
-        scenes = write_scene_grid(result, run_dir, folder / SCENES, device_choice)
-        written += [scenes] if scenes is not None else []
+    pictures = {f"{name}.png": png_bytes(draw(result, label)) for name, draw in FIGURES.items()}
+    scenes = scene_grid(result, run_dir, device_choice) if run_dir is not None else None
+    if scenes is not None:
+        pictures[SCENES] = scenes
+    _own(folder, owned | set(pictures))  # first: a kill while writing leaves nothing unowned
+    written = [_write(folder / name, data) for name, data in pictures.items()]
+    for stale in sorted(owned - set(pictures)):
+        (folder / stale).unlink(missing_ok=True)
+    _own(folder, set(pictures))
     return written

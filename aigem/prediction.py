@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from aigem.baseline import constant_velocity
 from aigem.checkpoints import build_identity, identity_difference
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.evaluation import check_build, constant_velocity, resolve_build
+from aigem.evaluation import check_build, resolve_build
 from aigem.runs import BEST, load_model, member_dir, read_horizons
 from aigem.training import pick_device, to_device
 from ngsim_graphs.errors import NgsimInputError

@@ -60,6 +60,8 @@ def test_a_batch_is_induced_once_per_recording_grouped_by_recording(
     one_by_one = Collate(dataset.scaler)([dataset[i] for i in expected_order])
     for key in batch:
         assert same(batch[key], one_by_one[key]), key
+    # batch_order names the sample of each graph of the batch, as evaluation relies on
+    assert dataset.batch_order(ids).tolist() == expected_order
 
 
 def test_loader_with_two_workers_gives_the_same_batches(tiny_build: Path) -> None:

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.evaluation import evaluate, evaluate_horizons
-from aigem.pictures import FIGURES, SCENES, describe_build
+from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
 from aigem.plots import (
     curves_figure,
     curves_png,
@@ -23,6 +23,7 @@ from aigem.plots import (
 )
 from aigem.training import fit_horizons
 from ngsim_cli.aigem import app
+from ngsim_graphs.errors import NgsimOutputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 ROWS = [
@@ -125,7 +126,33 @@ def test_cli_plots_of_a_multi_horizon_and_a_single_run(run: Path, tmp_path: Path
     assert (folder / "error_by_horizon.png").read_bytes() != first["error_by_horizon"]
     assert (folder / "notes.txt").read_text() == "mine"
     assert sorted(p.name for p in folder.iterdir()) == sorted(
-        ["notes.txt", SCENES, *(f"{name}.png" for name in FIGURES)]
+        ["notes.txt", OWNED, SCENES, *(f"{name}.png" for name in FIGURES)]
+    )
+
+
+def test_plots_never_replace_a_picture_that_is_not_ours(run: Path, tmp_path: Path) -> None:
+    """A scenes.png of someone else's stops the call before anything is written."""
+    folder = tmp_path / "pictures"
+    folder.mkdir()
+    (folder / SCENES).write_bytes(b"mine")
+    result = evaluate(run / "h2s", split="val", device_choice="cpu")
+    with pytest.raises(NgsimOutputError, match="was not written by `aigem evaluate --plots`"):
+        write_evaluation_plots(result, folder, run / "h2s")
+    assert sorted(p.name for p in folder.iterdir()) == [SCENES]
+    assert (folder / SCENES).read_bytes() == b"mine"
+
+
+def test_plots_remove_their_own_stale_scenes(run: Path, tmp_path: Path) -> None:
+    """A call that draws no scenes (as with --other-build) removes the scenes of an earlier call:
+    the folder never mixes two evaluations."""
+    folder = tmp_path / "pictures"
+    result = evaluate(run / "h2s", split="val", device_choice="cpu")
+    write_evaluation_plots(result, folder, run / "h2s")
+    assert _is_png(folder / SCENES, 50_000)
+    written = write_evaluation_plots(result, folder, run_dir=None)
+    assert sorted(p.name for p in written) == sorted(f"{name}.png" for name in FIGURES)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        [OWNED, *(f"{name}.png" for name in FIGURES)]
     )
 
 
