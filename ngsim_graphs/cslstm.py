@@ -1,0 +1,179 @@
+"""CS-LSTM's dataset (`preprocess_data.m`): the rules of docs/cslstm.md on one recording's rows.
+
+Pure numpy over one recording's raw rows in the script's row order (by Vehicle_ID, then
+Frame_ID, stable), every value float32 as the script computes it, feet. Per row: the lateral and
+longitudinal maneuver classes and the 39-cell neighbour grid; per recording: the vehicle split
+and the edge filter. `tests/cslstm_reference.py` holds the same rules as plain loops, written
+from the script's text, and the tests hold the two against each other. Writing the .mat files
+and the command line are still to come (issue 13).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ngsim_graphs.graphs import concat_ranges
+
+GRID_CELLS = 39  # 13 cells of 15 ft along each of the left, own and right lanes
+TRAJ_COLUMNS = 8 + GRID_CELLS  # dataset, vehicle, frame, x, y, lane, lateral, longitudinal, grid
+US101_DATASETS = (1, 2, 3)  # their lanes 6, 7, 8 (auxiliary, on-ramp, off-ramp) fold into 6
+GRID_REACH_FT = 90.0
+GRID_CELL_FT = 15.0
+LATERAL_WINDOW_ROWS = 40
+HISTORY_WINDOW_ROWS, FUTURE_WINDOW_ROWS = 30, 50  # of the longitudinal maneuver
+BRAKING_RATIO = 0.8
+HISTORY_ROWS = 30  # the edge filter: a row needs 30 rows of its vehicle before it
+_LANE_BASE = {-1: 1, 0: 14, 1: 27}  # first cell (1-based) of the left, own and right lane
+
+
+@dataclass(frozen=True)
+class RecordingRows:
+    """One recording's raw rows in the script's row order; (n,) float32 each, feet."""
+
+    dataset_id: int  # 1..6, the script's order (docs/cslstm.md)
+    vehicle: np.ndarray
+    frame: np.ndarray
+    x_ft: np.ndarray
+    y_ft: np.ndarray
+    lane: np.ndarray  # as recorded; fold_lanes gives the script's
+
+
+def row_order(vehicle: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """Indices putting rows in the official text files' order: by vehicle, then frame, stable."""
+    return np.lexsort((frame, vehicle))
+
+
+def fold_lanes(lane: np.ndarray, dataset_id: int) -> np.ndarray:
+    """US-101's lanes 6 and above become 6; I-80's stay."""
+    lane = np.asarray(lane, dtype=np.float32)
+    return np.minimum(lane, np.float32(6)) if dataset_id in US101_DATASETS else lane
+
+
+def matlab_round(values: np.ndarray) -> np.ndarray:
+    """MATLAB's round (halves away from zero), exact in float32 for values >= 0."""
+    whole = np.floor(values)
+    return whole + (values - whole >= 0.5)
+
+
+def _vehicle_runs(vehicle: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per row: the first row of its vehicle, its vehicle's row count, and the index (within the
+    vehicle) of the first row of its frame (a repeated frame takes its first occurrence)."""
+    n = len(vehicle)
+    new_vehicle = np.r_[True, vehicle[1:] != vehicle[:-1]] if n else np.zeros(0, bool)
+    starts = np.flatnonzero(new_vehicle)
+    lengths = np.diff(np.r_[starts, n])
+    owner = np.repeat(np.arange(len(starts)), lengths)
+    first = starts[owner]
+    new_frame = new_vehicle | np.r_[True, frame[1:] != frame[:-1]] if n else new_vehicle
+    frame_first = np.maximum.accumulate(np.where(new_frame, np.arange(n), 0))
+    return first, lengths[owner], frame_first - first
+
+
+def maneuvers(rows: RecordingRows, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) lateral (1 keep, 2 lane number falls, 3 it grows) and longitudinal (1 keep,
+    2 braking) classes, float32, by the script's row-index windows."""
+    first, count, i = _vehicle_runs(rows.vehicle, rows.frame)
+    last = count - 1
+    lo = first + np.maximum(0, i - LATERAL_WINDOW_ROWS)
+    hi = first + np.minimum(last, i + LATERAL_WINDOW_ROWS)
+    now = lane[first + i]
+    grows = (lane[hi] > now) | (now > lane[lo])
+    falls = (lane[hi] < now) | (now < lane[lo])
+    lateral = np.where(grows, 3, np.where(falls, 2, 1)).astype(np.float32)
+
+    lo = np.maximum(0, i - HISTORY_WINDOW_ROWS)
+    hi = np.minimum(last, i + FUTURE_WINDOW_ROWS)
+    y = rows.y_ft
+    y_now = y[first + i]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v_hist = (y_now - y[first + lo]) / (i - lo).astype(np.float32)
+        v_fut = (y[first + hi] - y_now) / (hi - i).astype(np.float32)
+        braking = (v_fut / v_hist).astype(np.float64) < BRAKING_RATIO
+    edge = (hi == i) | (lo == i)
+    longitudinal = np.where(~edge & braking, 2, 1).astype(np.float32)
+    return lateral, longitudinal
+
+
+def _lane_pairs(rows: RecordingRows, lane: np.ndarray, offset: int) -> tuple[np.ndarray, ...]:
+    """(row, neighbour row, float32 dy) of every row and each row of the same frame in lane
+    `lane + offset` within the grid's reach (|dy| < 90 ft; dy != 0 in the own lane)."""
+    frame, y = rows.frame.astype(np.float64), rows.y_ft
+    group = frame * 64 + lane.astype(np.float64)  # lanes are small whole numbers
+    shift = 5e4  # keeps y (|y| < 5e4 ft) from reaching into the next group's keys
+    order = np.lexsort((y, group))
+    key = group[order] * 1e5 + (y[order].astype(np.float64) + shift)
+    wanted = (group + offset) * 1e5 + (y.astype(np.float64) + shift)
+    low = np.searchsorted(key, wanted - GRID_REACH_FT - 1, "left")
+    high = np.searchsorted(key, wanted + GRID_REACH_FT + 1, "right")
+    row, position = concat_ranges(low, high)
+    neighbour = order[position]
+    dy = y[neighbour] - y[row]  # float32, as the script subtracts
+    same_frame = rows.frame[neighbour] == rows.frame[row]
+    near = same_frame & (lane[neighbour] == lane[row] + np.float32(offset))
+    near &= np.abs(dy) < np.float32(GRID_REACH_FT)
+    if offset == 0:
+        near &= dy != 0
+    return row[near], neighbour[near], dy[near]
+
+
+def grid(rows: RecordingRows, lane: np.ndarray) -> np.ndarray:
+    """(n, 39) float32 neighbour Vehicle_IDs by cell, 0 where empty; of several rows in one cell
+    the last in row order."""
+    n = len(rows.vehicle)
+    cells = np.zeros((n, GRID_CELLS), dtype=np.float32)
+    parts = [_lane_pairs(rows, lane, offset) for offset in (-1, 0, 1)]
+    row = np.concatenate([p[0] for p in parts])
+    neighbour = np.concatenate([p[1] for p in parts])
+    quotient = [(p[2] + np.float32(GRID_REACH_FT)) / np.float32(GRID_CELL_FT) for p in parts]
+    base = np.concatenate(
+        [np.full(len(p[0]), _LANE_BASE[o]) for p, o in zip(parts, (-1, 0, 1), strict=True)]
+    )
+    cell = base + matlab_round(np.concatenate(quotient)).astype(np.int64) - 1  # 0-based
+    order = np.lexsort((neighbour, cell, row))  # the last neighbour (row order) of each cell
+    row, cell, neighbour = row[order], cell[order], neighbour[order]
+    last = np.r_[(row[1:] != row[:-1]) | (cell[1:] != cell[:-1]), True] if len(row) else []
+    cells[row[last], cell[last]] = rows.vehicle[neighbour[last]]
+    return cells
+
+
+def traj_rows(rows: RecordingRows) -> np.ndarray:
+    """(n, 47) float32: the script's columns of every row, before the split and edge filter."""
+    lane = fold_lanes(rows.lane, rows.dataset_id)
+    lateral, longitudinal = maneuvers(rows, lane)
+    head = np.stack(
+        [
+            np.full(len(rows.vehicle), rows.dataset_id, dtype=np.float32),
+            rows.vehicle,
+            rows.frame,
+            rows.x_ft,
+            rows.y_ft,
+            lane,
+            lateral,
+            longitudinal,
+        ],
+        axis=1,
+    ).astype(np.float32)
+    return np.concatenate([head, grid(rows, lane)], axis=1)
+
+
+def split_limits(max_vehicle_id: float) -> tuple[float, float]:
+    """(ul1, ul2): train `id <= ul1`, validation `ul1 < id <= ul2`, test above (float32)."""
+    largest = np.float32(max_vehicle_id)
+    return (
+        float(matlab_round(np.float32(0.7) * largest)),
+        float(matlab_round(np.float32(0.8) * largest)),
+    )
+
+
+def kept_by_edge_filter(rows: RecordingRows) -> tuple[np.ndarray, np.ndarray]:
+    """(kept, too_short), (n,) bool each: a row is kept when its vehicle's 31st row comes at or
+    before it and its vehicle's last frame more than one frame after it. `too_short`: rows of
+    vehicles with under 31 rows, which make the script stop; dropped here and counted."""
+    first, count, _ = _vehicle_runs(rows.vehicle, rows.frame)
+    too_short = count <= HISTORY_ROWS
+    history_frame = rows.frame[np.minimum(first + HISTORY_ROWS, len(rows.frame) - 1)]
+    last_frame = rows.frame[first + count - 1]
+    kept = ~too_short & (history_frame <= rows.frame) & (last_frame > rows.frame + 1)
+    return kept, too_short
