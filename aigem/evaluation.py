@@ -131,7 +131,12 @@ def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
 
 
 def check_build(
-    info: dict[str, Any], build_dir: Path, run_dir: Path, model: ModelConfig, other_build: bool
+    info: dict[str, Any],
+    build_dir: Path,
+    run_dir: Path,
+    model: ModelConfig,
+    other_build: bool,
+    refusal: str = "pass --other-build to evaluate on another build",
 ) -> bool:
     """Whether `build_dir` is the run's own build. Refuses another build unless `other_build`,
     and, even then, one whose time step or history and future lengths do not fit the run's model
@@ -141,8 +146,7 @@ def check_build(
     if why and not other_build:
         raise NgsimInputError(
             build_dir,
-            f"not the build that run {run_dir} was trained on ({why}); "
-            "pass --other-build to evaluate on another build",
+            f"not the build that run {run_dir} was trained on ({why}); {refusal}",
         )
     config = open_build(build_dir).config
     time_step_s = float(info["build_config"].get("time_step_s", math.nan))

@@ -18,8 +18,6 @@ under a temporary name and renamed; a picture of an earlier call that this call 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +30,7 @@ from aigem.plots import (
     longest,
     png_bytes,
 )
+from aigem.runs import write_atomic
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.synth.formats import MARKER_NAME
@@ -78,18 +77,6 @@ def _synthetic(path: Path) -> bool:
     return False
 
 
-def _write(path: Path, data: bytes) -> Path:
-    """Write through `path.partial` and a rename: a kill never leaves a torn picture."""
-    partial = path.with_name(path.name + ".partial")
-    try:
-        partial.write_bytes(data)
-        os.replace(partial, path)
-    except OSError as err:
-        partial.unlink(missing_ok=True)
-        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
-    return path
-
-
 def scene_grid(
     result: Evaluation | HorizonsEvaluation,
     run_dir: Path,
@@ -103,7 +90,8 @@ def scene_grid(
     where no target is valid at the last step or the evaluation was on another build than the
     run's (its predictions are drawn on its own build only)."""
     from aigem.prediction import predict_samples  # the model, imported only when drawing
-    from ngsim_graphs.scenes import scene_titles, write_scenes
+    from ngsim_graphs.scenes import DPI as SCENE_DPI
+    from ngsim_graphs.scenes import scene_figure, scene_titles
 
     final = longest(result).final
     if not result.same_build or final is None or not len(final.sample):
@@ -122,10 +110,8 @@ def scene_grid(
             places, names, [final.model_m[final.sample == i].mean() for i in ids], strict=True
         )
     ]
-    with tempfile.TemporaryDirectory() as scratch:
-        path = Path(scratch) / SCENES
-        write_scenes(path, batch, titles, build.config.d_sense_m, predictions, columns=per_group)
-        return path.read_bytes()
+    figure, _ = scene_figure(batch, titles, build.config.d_sense_m, predictions, per_group)
+    return png_bytes(figure, dpi=SCENE_DPI)
 
 
 def _owned(folder: Path) -> set[str]:
@@ -157,7 +143,7 @@ def _refuse_others(folder: Path, owned: set[str]) -> None:
 
 def _own(folder: Path, names: set[str]) -> None:
     document = {"written_by": "aigem evaluate --plots", "pictures": sorted(names)}
-    _write(folder / OWNED, (json.dumps(document, indent=1) + "\n").encode())
+    write_atomic(folder / OWNED, (json.dumps(document, indent=1) + "\n").encode())
 
 
 def write_evaluation_plots(
@@ -181,7 +167,10 @@ def write_evaluation_plots(
     if scenes is not None:
         pictures[SCENES] = scenes
     _own(folder, owned | set(pictures))  # first: a kill while writing leaves nothing unowned
-    written = [_write(folder / name, data) for name, data in pictures.items()]
+    written = []
+    for name, data in pictures.items():
+        write_atomic(folder / name, data)
+        written.append(folder / name)
     for stale in sorted(owned - set(pictures)):
         (folder / stale).unlink(missing_ok=True)
     _own(folder, set(pictures))

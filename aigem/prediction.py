@@ -15,7 +15,6 @@ import numpy as np
 import torch
 
 from aigem.baseline import constant_velocity
-from aigem.checkpoints import build_identity, identity_difference
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.evaluation import check_build, resolve_build
 from aigem.runs import BEST, load_model, member_dir, read_horizons
@@ -63,14 +62,8 @@ def predict_samples(
     device = pick_device(device_choice)
     model, info = load_model(run_dir, device)
     build_dir = resolve_build(info, build_dir)
-    why = identity_difference(info, build_identity(build_dir)[1])
-    if why:  # check_build would say so too, but name an option of `aigem evaluate`
-        raise NgsimInputError(
-            build_dir,
-            f"not the build that run {run_dir} was trained on ({why}); "
-            "its predictions are made on its own build only",
-        )
-    check_build(info, build_dir, run_dir, model.config, other_build=False)
+    refusal = "its predictions are made on its own build only"
+    check_build(info, build_dir, run_dir, model.config, other_build=False, refusal=refusal)
     scaler = run_scaler(info["scaler"], run_dir / BEST)
     dataset = GraphDataset(build_dir, split, model.config.history_steps_read, scaler)
     ids = np.asarray(sample_ids, dtype=np.int64)

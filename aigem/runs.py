@@ -142,7 +142,7 @@ def load_model(run_dir: Path, device: torch.device | str = "cpu") -> tuple[AiGem
 # Writing: atomically, and never a torn file.
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     """Write `data` to `path` through `path.partial` and a rename; a failure removes the partial."""
     partial = path.with_name(path.name + ".partial")
     try:
@@ -162,7 +162,7 @@ def _write_atomic(path: Path, data: bytes) -> None:
 def _save_checkpoint(payload: dict[str, Any], path: Path) -> None:
     buffer = io.BytesIO()  # serialised in memory, so that every disk error is Python's OSError
     torch.save(payload, buffer)
-    _write_atomic(path, buffer.getvalue())
+    write_atomic(path, buffer.getvalue())
 
 
 def _append_line(path: Path, text: str) -> None:
@@ -178,7 +178,7 @@ def _append_line(path: Path, text: str) -> None:
 
 
 def _write_info(run_dir: Path, info: dict[str, Any]) -> None:
-    _write_atomic(run_dir / RUN_INFO, (json.dumps(info, indent=2) + "\n").encode())
+    write_atomic(run_dir / RUN_INFO, (json.dumps(info, indent=2) + "\n").encode())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -265,7 +265,7 @@ def start_group(
         run_dir.mkdir(parents=True, exist_ok=True)
         names = [member.name for member in members]
         text = json.dumps({"horizons_s": list(horizons_s), "members": names}, indent=2) + "\n"
-        _write_atomic(run_dir / HORIZONS, text.encode())
+        write_atomic(run_dir / HORIZONS, text.encode())
     return members
 
 
@@ -446,7 +446,7 @@ def _drop_metrics_after(run_dir: Path, epochs_done: int) -> None:
     rows = read_metrics(run_dir)
     kept = [row for row in rows if row["epoch"] <= epochs_done]
     if len(kept) < len(rows):
-        _write_atomic(run_dir / METRICS, "".join(json.dumps(row) + "\n" for row in kept).encode())
+        write_atomic(run_dir / METRICS, "".join(json.dumps(row) + "\n" for row in kept).encode())
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, float]]:
@@ -471,7 +471,7 @@ def read_metrics(run_dir: Path) -> list[dict[str, float]]:
 def write_baseline(run_dir: Path, val_loss_m2: float, steps: int) -> None:
     """Record constant velocity's validation loss (metres^2) over `steps` future steps."""
     text = json.dumps({"constant_velocity_val_loss_m2": val_loss_m2, "steps": steps}) + "\n"
-    _write_atomic(run_dir / BASELINE, text.encode())
+    write_atomic(run_dir / BASELINE, text.encode())
 
 
 def read_baseline(run_dir: Path) -> float | None:
@@ -493,5 +493,5 @@ def plot_curves(run_dir: Path) -> Path | None:
     if not rows:
         return None
     horizon_s = read_run_info(run_dir)["train"].get("horizon_s")
-    _write_atomic(run_dir / CURVES, curves_png(rows, read_baseline(run_dir), horizon_s))
+    write_atomic(run_dir / CURVES, curves_png(rows, read_baseline(run_dir), horizon_s))
     return run_dir / CURVES

@@ -317,27 +317,19 @@ def add_legend(figure: Figure, labels: Sequence[str] = ()) -> int:
     return math.ceil(len(handles) / columns)
 
 
-def write_scenes(
-    path: Path,
+def scene_figure(
     batch: GraphBatch,
     titles: Sequence[str],
     d_sense_m: float,
     predictions: Mapping[str, np.ndarray] | None = None,
     columns: int = 4,
-    overwrite: bool = True,
-) -> tuple[DrawnScene, ...]:
-    """Draw every sample of `batch`, one panel each in rows of `columns`, titled `titles[b]`,
-    and write them as one PNG to `path`; returns what each panel drew (see `DrawnScene`).
-
-    The PNG is written to a hidden name in the same folder and renamed, so `path` is never a
-    half-written file; without `overwrite`, an existing `path` is left as it is (an error).
-    """
+) -> tuple[Figure, tuple[DrawnScene, ...]]:
+    """Every sample of `batch` drawn in one figure, a panel each in rows of `columns`, titled
+    `titles[b]`; and what each panel drew (see `DrawnScene`)."""
     if len(titles) != batch.n_samples:
         raise ValueError(f"{len(titles)} titles for {batch.n_samples} samples")
     if not 1 <= batch.n_samples <= MAX_PANELS:
         raise ValueError(f"{batch.n_samples} samples: draw 1 to {MAX_PANELS} at once")
-    if not overwrite and path.exists():
-        raise NgsimOutputError(path, "exists; not replaced")
     n_columns = min(columns, batch.n_samples)
     n_rows = math.ceil(batch.n_samples / n_columns)
     figure = Figure(layout=ConstrainedLayoutEngine(h_pad=0.1, w_pad=0.08))
@@ -355,6 +347,26 @@ def write_scenes(
     figure.set_size_inches(
         PANEL_WIDTH_IN * n_columns, panel_height_in * n_rows + 0.2 * legend_rows + 0.2
     )
+    return figure, scenes
+
+
+def write_scenes(
+    path: Path,
+    batch: GraphBatch,
+    titles: Sequence[str],
+    d_sense_m: float,
+    predictions: Mapping[str, np.ndarray] | None = None,
+    columns: int = 4,
+    overwrite: bool = True,
+) -> tuple[DrawnScene, ...]:
+    """`scene_figure` written as one PNG to `path`; returns what each panel drew.
+
+    The PNG is written to a hidden name in the same folder and renamed, so `path` is never a
+    half-written file; without `overwrite`, an existing `path` is left as it is (an error).
+    """
+    if not overwrite and path.exists():
+        raise NgsimOutputError(path, "exists; not replaced")
+    figure, scenes = scene_figure(batch, titles, d_sense_m, predictions, columns)
     _save(figure, path, overwrite)
     return scenes
 
