@@ -26,6 +26,16 @@ HISTORY_WINDOW_ROWS, FUTURE_WINDOW_ROWS = 30, 50  # of the longitudinal maneuver
 BRAKING_RATIO = 0.8
 HISTORY_ROWS = 30  # the edge filter: a row needs 30 rows of its vehicle before it
 _LANE_BASE = {-1: 1, 0: 14, 1: 27}  # first cell (1-based) of the left, own and right lane
+# The script's dataset ids, by our recording key (location, period).
+DATASET_IDS: dict[tuple[str, str], int] = {
+    ("us-101", "0750am-0805am"): 1,
+    ("us-101", "0805am-0820am"): 2,
+    ("us-101", "0820am-0835am"): 3,
+    ("i-80", "0400-0415"): 4,
+    ("i-80", "0500-0515"): 5,
+    ("i-80", "0515-0530"): 6,
+}
+SPLIT_NAMES = ("train", "val", "test")  # split codes 0, 1, 2 (split_codes)
 
 
 @dataclass(frozen=True)
@@ -43,6 +53,20 @@ class RecordingRows:
 def row_order(vehicle: np.ndarray, frame: np.ndarray) -> np.ndarray:
     """Indices putting rows in the official text files' order: by vehicle, then frame, stable."""
     return np.lexsort((frame, vehicle))
+
+
+def ordered_rows(
+    dataset_id: int,
+    vehicle: np.ndarray,
+    frame: np.ndarray,
+    x_ft: np.ndarray,
+    y_ft: np.ndarray,
+    lane: np.ndarray,
+) -> RecordingRows:
+    """One recording's raw rows (any order, NGSIM units) in the script's order, as float32."""
+    order = row_order(np.asarray(vehicle), np.asarray(frame))
+    columns = (np.asarray(c)[order].astype(np.float32) for c in (vehicle, frame, x_ft, y_ft, lane))
+    return RecordingRows(dataset_id, *columns)
 
 
 def fold_lanes(lane: np.ndarray, dataset_id: int) -> np.ndarray:
@@ -165,6 +189,15 @@ def split_limits(max_vehicle_id: float) -> tuple[float, float]:
         float(matlab_round(np.float32(0.7) * largest)),
         float(matlab_round(np.float32(0.8) * largest)),
     )
+
+
+def split_codes(rows: RecordingRows) -> np.ndarray:
+    """(n,) int8 per row: 0 train, 1 validation, 2 test, by the vehicle id and the recording's
+    largest one (split_limits)."""
+    if len(rows.vehicle) == 0:
+        return np.zeros(0, dtype=np.int8)
+    ul1, ul2 = split_limits(float(rows.vehicle.max()))
+    return ((rows.vehicle > ul1).astype(np.int8) + (rows.vehicle > ul2)).astype(np.int8)
 
 
 def kept_by_edge_filter(rows: RecordingRows) -> tuple[np.ndarray, np.ndarray]:

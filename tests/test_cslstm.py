@@ -8,13 +8,17 @@ import pytest
 from cslstm_reference import reference_kept, reference_traj
 
 from ngsim_graphs.cslstm import (
+    DATASET_IDS,
     RecordingRows,
     kept_by_edge_filter,
     matlab_round,
+    ordered_rows,
     row_order,
+    split_codes,
     split_limits,
     traj_rows,
 )
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 F = np.float32
 
@@ -112,3 +116,27 @@ def test_matlab_round_and_split_limits() -> None:
     )
     assert split_limits(15) == (11.0, 12.0)  # 10.5 -> 11 (numpy's round would give 10)
     assert split_limits(2169) == (1518.0, 1735.0)
+
+
+def test_dataset_ids_name_the_official_recordings_in_the_scripts_order() -> None:
+    official = {(r.location, r.period): r.start_epoch_ms for r in OFFICIAL_RECORDINGS}
+    assert set(DATASET_IDS) == set(official)
+    by_id = sorted(DATASET_IDS, key=DATASET_IDS.__getitem__)
+    assert [key[0] for key in by_id] == ["us-101"] * 3 + ["i-80"] * 3
+    for first, second in zip(by_id[:2], by_id[1:3], strict=True):  # each location by start
+        assert official[first] < official[second]
+    assert official[by_id[3]] < official[by_id[4]] < official[by_id[5]]
+
+
+def test_ordered_rows_and_split_codes() -> None:
+    """Rows come out by vehicle then frame, stable for a repeated frame; with 15 the largest id,
+    ul1 = round(10.5) = 11 and ul2 = 12: ids 11 train, 12 validation, 13 and 15 test."""
+    vehicle = np.array([15, 11, 12, 11, 13, 11])
+    frame = np.array([1, 7, 3, 5, 2, 5])
+    y = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0])
+    rows = ordered_rows(2, vehicle, frame, np.zeros(6), y, np.ones(6))
+    assert rows.dataset_id == 2 and rows.y_ft.dtype == np.float32
+    assert rows.vehicle.tolist() == [11, 11, 11, 12, 13, 15]
+    assert rows.frame.tolist() == [5, 5, 7, 3, 2, 1]
+    assert rows.y_ft.tolist() == [3, 5, 1, 2, 4, 0]  # the repeated frame 5 keeps its order
+    assert split_codes(rows).tolist() == [0, 0, 0, 1, 2, 2]
