@@ -22,6 +22,7 @@ from ngsim_cli.console import (
     progress_bar,
     stderr,
 )
+from ngsim_cli.cslstm import export_cslstm
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
 from ngsim_graphs import __version__
 from ngsim_graphs.build import open_build
@@ -513,6 +514,11 @@ def show(
         highlight=False,
         soft_wrap=True,
     )
+
+
+app.command("export-cslstm", short_help="Write CS-LSTM's TrainSet/ValSet/TestSet.mat files.")(
+    export_cslstm
+)
 
 
 def main() -> None:

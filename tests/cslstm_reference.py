@@ -63,3 +63,32 @@ def reference_kept(table: np.ndarray) -> list[bool]:
         frames = [r[1] for r in table if r[0] == vehicle]
         kept.append(len(frames) >= 31 and frames[30] <= time and frames[-1] > F(time) + 1)
     return kept
+
+
+def reference_files(tables: dict[int, np.ndarray]) -> dict[str, tuple[np.ndarray, dict]]:
+    """The script's split, tracks and edge filter over the datasets' (n, 5) tables in row order:
+    per split (train, val, test), `traj` (N, 47) float32 and `tracks` as {(dataset, vehicle):
+    (3, n) float32}. A vehicle under 31 rows (where the script stops) has no row in `traj`."""
+    all_rows = np.concatenate([reference_traj(k, tables[k]) for k in sorted(tables)])
+    parts: dict[str, list[np.ndarray]] = {"train": [], "val": [], "test": []}
+    for k in sorted(tables):
+        mine = all_rows[all_rows[:, 0] == k]
+        largest = F(mine[:, 1].max())
+        ul1, ul2 = _round(F(F(0.7) * largest)), _round(F(F(0.8) * largest))
+        parts["train"].append(mine[mine[:, 1] <= ul1])
+        parts["val"].append(mine[(mine[:, 1] > ul1) & (mine[:, 1] <= ul2)])
+        parts["test"].append(mine[mine[:, 1] > ul2])
+    out = {}
+    for name, pieces in parts.items():
+        traj = np.concatenate(pieces)
+        tracks = {}
+        for k, vehicle in sorted({(int(r[0]), int(r[1])) for r in traj}):
+            own = traj[(traj[:, 0] == k) & (traj[:, 1] == vehicle)]
+            tracks[(k, vehicle)] = own[:, 2:5].T.copy()
+        keep = []
+        for row in traj:
+            track = tracks[(int(row[0]), int(row[1]))]
+            t = row[2]
+            keep.append(track.shape[1] >= 31 and track[0, 30] <= t and track[0, -1] > t + 1)
+        out[name] = (traj[np.array(keep, dtype=bool)], tracks)
+    return out
