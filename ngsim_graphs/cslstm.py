@@ -25,6 +25,7 @@ LATERAL_WINDOW_ROWS = 40
 HISTORY_WINDOW_ROWS, FUTURE_WINDOW_ROWS = 30, 50  # of the longitudinal maneuver
 BRAKING_RATIO = 0.8
 HISTORY_ROWS = 30  # the edge filter: a row needs 30 rows of its vehicle before it
+GRID_CHUNK_ROWS = 200_000  # rows whose neighbours are found at once: about 200 MB of pairs
 _LANE_BASE = {-1: 1, 0: 14, 1: 27}  # first cell (1-based) of the left, own and right lane
 # The script's dataset ids, by our recording key (location, period).
 DATASET_IDS: dict[tuple[str, str], int] = {
@@ -120,19 +121,42 @@ def maneuvers(rows: RecordingRows, lane: np.ndarray) -> tuple[np.ndarray, np.nda
     return lateral, longitudinal
 
 
-def _lane_pairs(rows: RecordingRows, lane: np.ndarray, offset: int) -> tuple[np.ndarray, ...]:
-    """(row, neighbour row, float32 dy) of every row and each row of the same frame in lane
-    `lane + offset` within the grid's reach (|dy| < 90 ft; dy != 0 in the own lane)."""
-    frame, y = rows.frame.astype(np.float64), rows.y_ft
-    group = frame * 64 + lane.astype(np.float64)  # lanes are small whole numbers
-    shift = 5e4  # keeps y (|y| < 5e4 ft) from reaching into the next group's keys
-    order = np.lexsort((y, group))
-    key = group[order] * 1e5 + (y[order].astype(np.float64) + shift)
-    wanted = (group + offset) * 1e5 + (y.astype(np.float64) + shift)
-    low = np.searchsorted(key, wanted - GRID_REACH_FT - 1, "left")
-    high = np.searchsorted(key, wanted + GRID_REACH_FT + 1, "right")
-    row, position = concat_ranges(low, high)
-    neighbour = order[position]
+@dataclass(frozen=True)
+class _SortedRows:
+    """A recording's rows sorted by (frame, lane, y): `order` the row indices, `key` the keys."""
+
+    order: np.ndarray
+    key: np.ndarray
+
+
+def _group(rows: RecordingRows, lane: np.ndarray) -> np.ndarray:
+    return rows.frame.astype(np.float64) * 64 + lane.astype(np.float64)  # lanes: small numbers
+
+
+def _key(group: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(frame, lane) group and y in one float64, y shifted so that |y| < 5e4 ft stays inside."""
+    return group * 1e5 + (y.astype(np.float64) + 5e4)
+
+
+def _sorted_rows(rows: RecordingRows, lane: np.ndarray) -> _SortedRows:
+    group = _group(rows, lane)
+    order = np.lexsort((rows.y_ft, group))
+    return _SortedRows(order, _key(group[order], rows.y_ft[order]))
+
+
+def _lane_pairs(
+    rows: RecordingRows, lane: np.ndarray, ordered: _SortedRows, chunk: slice, offset: int
+) -> tuple[np.ndarray, ...]:
+    """(row, neighbour row, float32 dy) of every row of `chunk` and each row of the same frame
+    in lane `lane + offset` within the grid's reach (|dy| < 90 ft; dy != 0 in the own lane)."""
+    y = rows.y_ft
+    mine = np.arange(len(y))[chunk]
+    wanted = _key(_group(rows, lane)[chunk] + offset, y[chunk])
+    low = np.searchsorted(ordered.key, wanted - GRID_REACH_FT - 1, "left")
+    high = np.searchsorted(ordered.key, wanted + GRID_REACH_FT + 1, "right")
+    owner, position = concat_ranges(low, high)
+    row = mine[owner]
+    neighbour = ordered.order[position]
     dy = y[neighbour] - y[row]  # float32, as the script subtracts
     same_frame = rows.frame[neighbour] == rows.frame[row]
     near = same_frame & (lane[neighbour] == lane[row] + np.float32(offset))
@@ -142,23 +166,26 @@ def _lane_pairs(rows: RecordingRows, lane: np.ndarray, offset: int) -> tuple[np.
     return row[near], neighbour[near], dy[near]
 
 
-def grid(rows: RecordingRows, lane: np.ndarray) -> np.ndarray:
+def grid(rows: RecordingRows, lane: np.ndarray, chunk_rows: int = GRID_CHUNK_ROWS) -> np.ndarray:
     """(n, 39) float32 neighbour Vehicle_IDs by cell, 0 where empty; of several rows in one cell
-    the last in row order."""
+    the last in row order. Rows are taken `chunk_rows` at a time to bound the memory."""
     n = len(rows.vehicle)
     cells = np.zeros((n, GRID_CELLS), dtype=np.float32)
-    parts = [_lane_pairs(rows, lane, offset) for offset in (-1, 0, 1)]
-    row = np.concatenate([p[0] for p in parts])
-    neighbour = np.concatenate([p[1] for p in parts])
-    quotient = [(p[2] + np.float32(GRID_REACH_FT)) / np.float32(GRID_CELL_FT) for p in parts]
-    base = np.concatenate(
-        [np.full(len(p[0]), _LANE_BASE[o]) for p, o in zip(parts, (-1, 0, 1), strict=True)]
-    )
-    cell = base + matlab_round(np.concatenate(quotient)).astype(np.int64) - 1  # 0-based
-    order = np.lexsort((neighbour, cell, row))  # the last neighbour (row order) of each cell
-    row, cell, neighbour = row[order], cell[order], neighbour[order]
-    last = np.r_[(row[1:] != row[:-1]) | (cell[1:] != cell[:-1]), True] if len(row) else []
-    cells[row[last], cell[last]] = rows.vehicle[neighbour[last]]
+    ordered = _sorted_rows(rows, lane)
+    for start in range(0, n, chunk_rows):
+        chunk = slice(start, min(n, start + chunk_rows))
+        parts = [_lane_pairs(rows, lane, ordered, chunk, offset) for offset in (-1, 0, 1)]
+        row = np.concatenate([p[0] for p in parts])
+        neighbour = np.concatenate([p[1] for p in parts])
+        quotient = [(p[2] + np.float32(GRID_REACH_FT)) / np.float32(GRID_CELL_FT) for p in parts]
+        base = np.concatenate(
+            [np.full(len(p[0]), _LANE_BASE[o]) for p, o in zip(parts, (-1, 0, 1), strict=True)]
+        )
+        cell = base + matlab_round(np.concatenate(quotient)).astype(np.int64) - 1  # 0-based
+        order = np.lexsort((neighbour, cell, row))  # the last neighbour (row order) of each cell
+        row, cell, neighbour = row[order], cell[order], neighbour[order]
+        last = np.r_[(row[1:] != row[:-1]) | (cell[1:] != cell[:-1]), True] if len(row) else []
+        cells[row[last], cell[last]] = rows.vehicle[neighbour[last]]
     return cells
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import __version__
+from ngsim_graphs import __version__, matfile
 from ngsim_graphs import schema as s
 from ngsim_graphs.cslstm import (
     DATASET_IDS,
@@ -79,10 +79,16 @@ class DatasetCounts:
 
 @dataclass(frozen=True)
 class SplitTables:
-    """One split's `traj` (N, 47) float32 and `tracks` (6, largest id) object array."""
+    """One split: `traj` as blocks of rows, (n_i, 47) float32 each, one per dataset in order,
+    and `tracks` as {(dataset id - 1, vehicle id - 1): (3, n) float32} of a (6, width) array."""
 
-    traj: np.ndarray
-    tracks: np.ndarray
+    traj_blocks: list[np.ndarray]
+    cells: dict[tuple[int, int], np.ndarray]
+    width: int
+
+    @property
+    def traj_rows(self) -> int:
+        return sum(len(block) for block in self.traj_blocks)
 
 
 @dataclass(frozen=True)
@@ -200,8 +206,7 @@ def split_tables(
     recordings: dict[int, RecordingRows], progress: Progress
 ) -> tuple[dict[str, SplitTables], list[DatasetCounts]]:
     """Each split's `traj` and `tracks` from the recordings' rows, and what each dataset gave."""
-    traj_parts: dict[str, list[np.ndarray]] = {name: [] for name in SPLIT_NAMES}
-    cells: dict[str, list[tuple[int, int, np.ndarray]]] = {name: [] for name in SPLIT_NAMES}
+    tables = {name: SplitTables([], {}, 0) for name in SPLIT_NAMES}
     counts = []
     by_id = {v: k for k, v in DATASET_IDS.items()}
     for done, (dataset_id, rows) in enumerate(sorted(recordings.items())):
@@ -213,17 +218,15 @@ def split_tables(
         track = np.stack([rows.frame, rows.x_ft, rows.y_ft])  # (3, n) float32
         kept_rows, vehicles = {}, {}
         for number, name in enumerate(SPLIT_NAMES):
-            part = traj[kept & (code == number)]
-            traj_parts[name].append(part)
-            kept_rows[name] = len(part)
+            block = traj[kept & (code == number)]
+            tables[name].traj_blocks.append(block)
+            kept_rows[name] = len(block)
             mine = code[starts] == number
             vehicles[name] = int(mine.sum())
-            cells[name] += [
-                (dataset_id, int(rows.vehicle[a]), np.ascontiguousarray(track[:, a:b]))
-                for a, b in zip(starts[mine], ends[mine], strict=True)
-            ]
+            for a, b in zip(starts[mine], ends[mine], strict=True):
+                cell = (dataset_id - 1, int(rows.vehicle[a]) - 1)
+                tables[name].cells[cell] = np.ascontiguousarray(track[:, a:b])
         del traj
-        short = too_short[starts]
         counts.append(
             DatasetCounts(
                 dataset_id=dataset_id,
@@ -232,42 +235,22 @@ def split_tables(
                 vehicles=len(starts),
                 kept_rows=kept_rows,
                 vehicles_by_split=vehicles,
-                short_vehicles=int(short.sum()),
+                short_vehicles=int(too_short[starts].sum()),
                 short_vehicle_rows=int(too_short.sum()),
             )
         )
-    tables = {}
-    for name in SPLIT_NAMES:
-        parts = traj_parts.pop(name)
-        traj = np.concatenate(parts) if parts else np.zeros((0, TRAJ_COLUMNS), np.float32)
-        del parts
-        tables[name] = SplitTables(traj=traj, tracks=tracks_array(cells[name]))
+    for name, table in tables.items():
+        width = max((vehicle + 1 for _, vehicle in table.cells), default=0)
+        tables[name] = SplitTables(table.traj_blocks, table.cells, width)
     return tables, counts
 
 
-def tracks_array(cells: list[tuple[int, int, np.ndarray]]) -> np.ndarray:
-    """The (6, largest vehicle id) cell array of (dataset id, vehicle id, 3 x n track); an empty
-    cell is a 0 x 0 double, as MATLAB's `[]`."""
-    width = max((vehicle for _, vehicle, _ in cells), default=0)
-    tracks = np.empty((6, width), dtype=object)
-    empty = np.zeros((0, 0))
-    tracks.fill(empty)
-    for dataset_id, vehicle, track in cells:
-        tracks[dataset_id - 1, vehicle - 1] = track
-    return tracks
-
-
-def write_mat(path: Path, tables: SplitTables) -> None:
-    """`traj` and `tracks` as MAT v5, uncompressed (what `scipy.io.loadmat` and MATLAB read)."""
-    from scipy.io import savemat  # scipy loads only when writing
-
+def write_mat(path: Path, table: SplitTables, description: str) -> None:
+    """`traj` and `tracks` as one MAT v5 file (ngsim_graphs.matfile), synced to disk."""
     with path.open("wb") as handle:
-        savemat(
-            handle,
-            {"traj": tables.traj, "tracks": tables.tracks},
-            format="5",
-            do_compression=False,
-        )
+        handle.write(matfile.header(description))
+        matfile.write_single_matrix(handle, "traj", table.traj_blocks, TRAJ_COLUMNS)
+        matfile.write_cell_array(handle, "tracks", (6, table.width), table.cells)
         handle.flush()
         os.fsync(handle.fileno())
 
@@ -339,8 +322,8 @@ def export_cslstm(
         skipped_files=skipped,
         datasets=datasets,
         missing=missing,
-        rows={name: len(t.traj) for name, t in tables.items()},
-        tracks_width={name: t.tracks.shape[1] for name, t in tables.items()},
+        rows={name: t.traj_rows for name, t in tables.items()},
+        tracks_width={name: t.width for name, t in tables.items()},
     )
     out.mkdir(parents=True, exist_ok=True)
     partials = {}
@@ -348,11 +331,16 @@ def export_cslstm(
         for done, name in enumerate(SPLIT_NAMES):
             progress(f"writing {FILE_NAMES[name]}", done, len(SPLIT_NAMES))
             partials[name] = out / f".{FILE_NAMES[name]}.partial"
-            write_mat(partials[name], tables.pop(name))
-    except OSError as err:
+            description = (
+                f"MATLAB 5.0 MAT-file, written by ngsim-graphs {__version__} export-cslstm: "
+                f"CS-LSTM's {FILE_NAMES[name]}"
+            )
+            write_mat(partials[name], tables.pop(name), description)
+    except (OSError, ValueError) as err:
         for partial in partials.values():
             partial.unlink(missing_ok=True)
-        raise NgsimOutputError(out, f"cannot write the export: {err.strerror or err}") from None
+        why = err.strerror if isinstance(err, OSError) and err.strerror else err
+        raise NgsimOutputError(out, f"cannot write the export: {why}") from None
     _write_marker(out, result, complete=False)
     for name, partial in partials.items():
         partial.replace(out / FILE_NAMES[name])

@@ -10,6 +10,8 @@ from cslstm_reference import reference_kept, reference_traj
 from ngsim_graphs.cslstm import (
     DATASET_IDS,
     RecordingRows,
+    fold_lanes,
+    grid,
     kept_by_edge_filter,
     matlab_round,
     ordered_rows,
@@ -140,3 +142,11 @@ def test_ordered_rows_and_split_codes() -> None:
     assert rows.frame.tolist() == [5, 5, 7, 3, 2, 1]
     assert rows.y_ft.tolist() == [3, 5, 1, 2, 4, 0]  # the repeated frame 5 keeps its order
     assert split_codes(rows).tolist() == [0, 0, 0, 1, 2, 2]
+
+
+def test_grid_in_small_chunks_equals_grid_at_once() -> None:
+    rows = _rows(2, _recording(7))
+    lane = fold_lanes(rows.lane, rows.dataset_id)
+    at_once = grid(rows, lane, chunk_rows=len(rows.vehicle))
+    assert (at_once > 0).sum() > 100
+    np.testing.assert_array_equal(grid(rows, lane, chunk_rows=7), at_once)
