@@ -31,9 +31,10 @@ from aigem.model import AiGem, count_parameters
 from aigem.runs import BEST, load_model, member_dir, read_horizons
 from aigem.training import pick_device, to_device
 from ngsim_graphs.build import open_build
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import MANIFEST_NAME
-from ngsim_graphs.schema import Split
+from ngsim_graphs.schema import Protocol, Split
 
 # The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
 PAPER_TABLE = {
@@ -56,6 +57,20 @@ PAPER_TABLE = {
         "params_k": 49.8,
     },
 }
+
+
+def describe_protocol(config: BuildConfig) -> str:
+    """Which samples a build's protocol makes, in words (from the build's config)."""
+    if config.protocol is Protocol.CS_LSTM:
+        return (
+            f"the literature's samples: CS-LSTM's kept rows on the {config.time_step_s:g} s "
+            "grid, the sample's vehicle as the only target"
+        )
+    ego = "the ego and " if config.ego_is_target else ""
+    return (
+        f"AiGem's samples: ego windows every {config.stride_s:g} s, {ego}the actors within "
+        f"{config.d_sense_m:g} m of the ego at the present as targets"
+    )
 
 
 @dataclass(frozen=True)
@@ -88,6 +103,8 @@ class Evaluation:
     build_dir: str
     same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
     time_step_s: float
+    protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
+    protocol_description: str  # describe_protocol of the build
     # "model" / "constant_velocity" -> region -> rmse_m, mean_error_m, n: a list of K (None
     # where no target counts), at future steps 1..K (metrics.step_errors)
     steps: dict[str, dict[str, dict[str, list]]]
@@ -112,6 +129,8 @@ class HorizonsEvaluation:
     members: dict[str, Evaluation]
     build_dir: str
     same_build: bool
+    protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
+    protocol_description: str  # describe_protocol of the build
 
 
 class NonFinitePredictionError(ValueError):
@@ -279,6 +298,8 @@ def evaluate(
         build_dir=str(build_dir),
         same_build=same_build,
         time_step_s=dataset.config.time_step_s,
+        protocol=dataset.config.protocol.value,
+        protocol_description=describe_protocol(dataset.config),
         steps={
             "model": _step_lists(scores.model),
             "constant_velocity": _step_lists(scores.constant_velocity),
@@ -351,6 +372,8 @@ def evaluate_horizons(
         members=members,
         build_dir=longest.build_dir,
         same_build=longest.same_build,
+        protocol=longest.protocol,
+        protocol_description=longest.protocol_description,
     )
 
 

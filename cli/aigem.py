@@ -282,6 +282,12 @@ def evaluate(
         print_table(_metrics_table(f"{split} split, {region} actors (metres)", rows, seconds))
     counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
     stdout.print(f"{result.samples:,} samples; evaluated actors per horizon: {counts}")
+    stdout.print(
+        f"Protocol: {result.protocol} ({result.protocol_description})",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
     if several:
         rmse = ", ".join(
             f"{s} s from {result.sources[f'rmse_{s}s_m']}" for s in range(1, seconds + 1)

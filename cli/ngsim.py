@@ -29,7 +29,7 @@ from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.pipeline import BuildResult, run_build
-from ngsim_graphs.schema import DropReason, RawFormat, Split, SplitMode
+from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMode
 from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import DISPLAY_NAMES
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
@@ -246,6 +246,15 @@ def build(
             "holding both NGSIM and highD files need ngsim or highd."
         ),
     ] = DatasetChoice.AUTO,
+    protocol: Annotated[
+        Protocol,
+        typer.Option(
+            help="Which samples: aigem (ego windows at --stride-s, the actors around the ego as "
+            "targets) or cs-lstm (the literature's: a sample per row that CS-LSTM's "
+            "preprocess_data.m keeps, on the 0.2 s grid, split by its vehicle rule, the row's "
+            "vehicle the only target; the six US-101 and I-80 recordings only)."
+        ),
+    ] = Protocol.AIGEM,
 ) -> None:
     """Read raw NGSIM files (any of the three formats) or highD recordings and write the graph dataset.
 
@@ -265,6 +274,7 @@ def build(
         ego_is_target=ego_target,
         min_heading_speed_mps=min_heading_speed_mps,
         heading_smoothing_s=heading_smoothing_s,
+        protocol=protocol,
     )
     with exit_on_error(), progress_bar() as progress:
         chosen = None if dataset is DatasetChoice.AUTO else dataset.value
@@ -287,6 +297,19 @@ def build(
     )
     for line in _dropped_lines(result):
         stdout.print(line, markup=False, highlight=False, soft_wrap=True)
+    script = counts.cslstm_rows
+    if script is not None:
+        stdout.print(
+            f"cs-lstm protocol: CS-LSTM's script keeps {script.kept:,} rows, {script.on_grid:,} "
+            f"on the {config.time_step_s:g} s grid (one per vehicle and even frame); "
+            f"{script.unmatched:,} of those "
+            "have no track at their step (cleaning removed the row) and give no sample; "
+            f"{script.too_short:,} rows of vehicles under 31 rows left out (the script stops on "
+            "them).",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
     for warning in result.warnings:
         stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
     stdout.print(

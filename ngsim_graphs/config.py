@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
-from ngsim_graphs.schema import RawFormat, SplitMode
+from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
 from ngsim_graphs.sources.highd.recordings import is_highd_location
 from ngsim_graphs.sources.ngsim.recordings import KNOWN_LOCATION_NAMES
 
@@ -65,8 +65,10 @@ class BuildConfig:
     split: SplitMode = SplitMode.VEHICLE
     split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)  # train, validation, test
     seed: int = 0  # for the random split
-    ego_is_target: bool = False  # whether the ego is predicted too
+    ego_is_target: bool = False  # whether the ego is predicted too (the aigem protocol)
     limits: PhysicalLimits = PhysicalLimits()
+    # aigem: ego windows at a stride; cs-lstm: CS-LSTM's kept rows, the ego the only target
+    protocol: Protocol = Protocol.AIGEM
 
     def __post_init__(self) -> None:
         # A source's filter is the names of its own locations; none named: all of them (highD).
@@ -99,6 +101,31 @@ class BuildConfig:
         fractions = self.split_fractions
         if len(fractions) != 3 or min(fractions) < 0 or abs(sum(fractions) - 1) > 1e-9:
             raise ValueError("split_fractions must be three non-negative numbers summing to 1")
+        if self.protocol is Protocol.CS_LSTM:
+            self._check_cslstm()
+
+    def _check_cslstm(self) -> None:
+        """The settings that have no meaning under the cs-lstm protocol stay at their defaults:
+        its samples are the script's kept rows, split by the script's rule, the ego the target."""
+        default = BuildConfig()
+        unused = [
+            f"{name} {getattr(value, 'value', value)}"
+            for name in ("split", "stride_s", "split_fractions", "ego_is_target")
+            if (value := getattr(self, name)) != getattr(default, name)
+        ]
+        if unused:
+            verb = "has" if len(unused) == 1 else "have"
+            raise ValueError(
+                f"{', '.join(unused)}: {verb} no meaning under the cs-lstm protocol, whose "
+                "samples are CS-LSTM's kept rows, one per row, split by the script's vehicle rule "
+                "(70/10/20), the row's vehicle the only target"
+            )
+        others = sorted(set(self.locations) - {"us-101", "i-80"})
+        if others:
+            raise ValueError(
+                f"the cs-lstm protocol reads us-101 and i-80 only (CS-LSTM's six recordings), "
+                f"not {', '.join(others)}"
+            )
 
     @property
     def stride_steps(self) -> int:
@@ -137,6 +164,8 @@ class BuildConfig:
                 typed[name] = tuple(typed[name])
         if "split" in typed:
             typed["split"] = SplitMode(typed["split"])
+        if "protocol" in typed:
+            typed["protocol"] = Protocol(typed["protocol"])
         if "limits" in typed:
             typed["limits"] = PhysicalLimits(**typed["limits"])
         return cls(**typed)

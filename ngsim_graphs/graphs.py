@@ -10,6 +10,10 @@ starts at grid step s0:
 - targets: the actor nodes at the present step (and the ego, if asked), with their positions at
   the K_F future steps in the sample frame and a mask where the track has no row (it left).
 
+Under the cs-lstm protocol the ego is the only target, and the ego need only be present at the
+present step: at a history step where its track has no row the sample has no node at all (the
+nodes are the vehicles near the ego, and there is no ego to be near).
+
 A node is a track: a vehicle whose record was split at a frame gap is two tracks, never joined.
 Everything is computed for a batch of samples at once with flat numpy gathers: no Python loop
 over samples, steps or rows.
@@ -23,6 +27,7 @@ import numpy as np
 
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.grid import RecordingArrays, pair_search_key
+from ngsim_graphs.schema import Protocol
 
 SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding
 
@@ -87,17 +92,25 @@ def _history_nodes(
 ) -> tuple[np.ndarray, ...]:
     """Candidate rows of every (sample, kept step) "ss", which of them are nodes, and the egos.
 
-    Returns ss_step (B*n_kept,) grid step of each ss; ego_rows (B*n_kept,) the ego's row at it;
-    cand_ss, cand_row, cand_dist (C,) the ss, row and distance to the ego (metres) of every row
-    at the ss's step; is_node (C,) bool; and B.
+    Returns ss_step (B*n_kept,) grid step of each ss, 0 where the ego is absent (cs-lstm);
+    ego_rows (B*n_kept,) the ego's row at it, -1 where absent; cand_ss, cand_row, cand_dist (C,)
+    the ss, row and distance to the ego (metres) of every row at the step of an ss with the ego;
+    is_node (C,) bool; and B.
     """
     n_samples, n_kept = len(ego_track), config.history_steps - first_step
     kept = np.arange(first_step, config.history_steps)
     ss_step = (start_step[:, None] + kept).reshape(-1)  # sample-step -> grid step
     ego_rows = rec.row_at(np.repeat(ego_track, n_kept), ss_step)  # (B*n_kept,)
-    if (ego_rows < 0).any():
+    has_ego = ego_rows >= 0
+    if not has_ego.reshape(n_samples, n_kept)[:, -1].all():
+        raise ValueError("an ego track is not present at the present step of its window")
+    if config.protocol is Protocol.AIGEM and not has_ego.all():
         raise ValueError("an ego track is not present at every history step of its window")
-    cand_ss, cand_row = concat_ranges(rec.step_ptr[ss_step], rec.step_ptr[ss_step + 1])
+    ss_step = np.where(has_ego, ss_step, 0)  # a step of the recording, whose rows are skipped
+    first_row = rec.step_ptr[ss_step]
+    cand_ss, cand_row = concat_ranges(
+        first_row, np.where(has_ego, rec.step_ptr[ss_step + 1], first_row)
+    )
     xy = rec.node_state[:, :2]
     cand_dist = _distance(xy[cand_row], xy[ego_rows[cand_ss]])
     if not np.isfinite(cand_dist).all():  # NaN compares False: the vehicle would vanish silently
@@ -189,10 +202,13 @@ def _spatial_edges(
     Edges come by sample; within a sample grouped by kind (ego->actor, actor->ego,
     actor->actor both ways), each group in step order: deterministic, without a full sort.
     """
-    # Candidates of sample-step ss occupy a contiguous block, in row order from step_ptr[step].
+    # Candidates of sample-step ss occupy a contiguous block, in row order from step_ptr[step];
+    # an ss without the ego (cs-lstm) has none, and no pairs.
+    has_ego = ego_rows >= 0
     block_start = np.searchsorted(cand_ss, np.arange(len(ss_step)))
     actors = order[~cand_is_ego[order]]
-    ego_node = node_of_cand[block_start + (ego_rows - rec.step_ptr[ss_step])]
+    in_block = np.where(has_ego, ego_rows - rec.step_ptr[ss_step], 0)
+    ego_node = node_of_cand[np.minimum(block_start + in_block, len(node_of_cand) - 1)]
     ego_src = ego_node[cand_ss[actors]]
     ego_dst = node_of_cand[actors]
     # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes. The
@@ -202,6 +218,7 @@ def _spatial_edges(
     reach = d_sense_m + SEARCH_MARGIN_M
     lo = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y - reach), "left")
     hi = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y + reach), "right")
+    hi = np.where(has_ego, hi, lo)
     pair_ss, pair_index = concat_ranges(lo, hi)
     base = block_start - rec.step_ptr[ss_step]
     pair_rows = rec.pair_rows[pair_index]
@@ -242,7 +259,10 @@ def _temporal_edges(
 def _targets(rec, node_sample, node_step, node_track, node_is_ego, origin, start_step, config):
     """Present-step nodes to predict, their future positions in the sample frame, and masks."""
     present = node_step == config.history_steps - 1
-    chosen = present if config.ego_is_target else present & ~node_is_ego
+    if config.protocol is Protocol.CS_LSTM:
+        chosen = present & node_is_ego
+    else:
+        chosen = present if config.ego_is_target else present & ~node_is_ego
     target_node = np.flatnonzero(chosen).astype(np.int64)
     sample = node_sample[target_node]
     future = start_step[sample][:, None] + config.history_steps + np.arange(config.future_steps)

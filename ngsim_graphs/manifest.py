@@ -20,6 +20,7 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.integrity import CHECKSUM_KEY, FILES_KEY
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.sources.contract import FileReport, RecordingReport
+from ngsim_graphs.windows import ScriptRows
 
 DEFAULT_DATASET = "ngsim"  # what a manifest written before the "dataset" key was built from
 
@@ -34,6 +35,11 @@ def json_form(value: Any) -> Any:
     if isinstance(value, Enum):
         return value.value
     return value
+
+
+def _script_rows(values: Mapping[str, int] | None) -> ScriptRows | None:
+    """The cs-lstm protocol's row counts of a JSON object (null, or absent: aigem)."""
+    return None if values is None else ScriptRows(**values)
 
 
 def _report_from_json(cls: type, values: object) -> Any:
@@ -71,6 +77,7 @@ class RecordingEntry:
     proximity_edges: int  # vehicle pairs within d_min, once per grid step
     samples: Mapping[str, int]  # split -> samples
     first_outlier: SourceLine | None = None  # the first row dropped as a position outlier
+    cslstm_rows: ScriptRows | None = None  # what the cs-lstm protocol made of CS-LSTM's rows
 
     @property
     def location(self) -> str:
@@ -96,6 +103,7 @@ class RecordingEntry:
             "n_steps": self.n_steps,
             "proximity_edges": self.proximity_edges,
             "samples": dict(self.samples),
+            "cslstm_rows": None if self.cslstm_rows is None else asdict(self.cslstm_rows),
         }
 
     @classmethod
@@ -108,6 +116,7 @@ class RecordingEntry:
             "proximity_edges",
             "samples",
             "first_outlier",
+            "cslstm_rows",
         }
         report = {k: v for k, v in values.items() if k not in own}
         outlier = values["first_outlier"]
@@ -120,6 +129,7 @@ class RecordingEntry:
             proximity_edges=values["proximity_edges"],
             samples=dict(values["samples"]),
             first_outlier=None if outlier is None else SourceLine(outlier["file"], outlier["line"]),
+            cslstm_rows=_script_rows(values.get("cslstm_rows")),
         )
 
 
@@ -141,13 +151,20 @@ class BuildCounts:
     grid_rows: int  # rows of the tracks tables
     proximity_edges: int
     samples: int  # over every split
+    cslstm_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "rows_dropped": dict(self.rows_dropped)}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> BuildCounts:
-        return cls(**{**values, "rows_dropped": dict(values["rows_dropped"])})
+        return cls(
+            **{
+                **values,
+                "rows_dropped": dict(values["rows_dropped"]),
+                "cslstm_rows": _script_rows(values.get("cslstm_rows")),
+            }
+        )
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
+from functools import reduce
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ import polars as pl
 from ngsim_graphs import __version__, landing, layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.cslstm import DATASET_IDS
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, induce_graphs
 from ngsim_graphs.grid import (
@@ -33,11 +35,11 @@ from ngsim_graphs.grid import (
 )
 from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, SourceLine
 from ngsim_graphs.scaling import MinMaxScaler
-from ngsim_graphs.schema import DropReason, Split
+from ngsim_graphs.schema import DropReason, Protocol, Split
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, assign_splits, split_warnings
-from ngsim_graphs.windows import ego_windows
+from ngsim_graphs.windows import ScriptRows, ego_windows, script_windows
 
 INDUCE_BATCH = 64  # samples per induction: small batches stay in the CPU caches
 
@@ -50,6 +52,7 @@ class RecordingSamples:
     arrays: RecordingArrays
     windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
     scaler: MinMaxScaler  # widened by this recording's train samples
+    script_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
 
 
 def iter_graphs(
@@ -80,14 +83,29 @@ def graph_counts(batch: GraphBatch) -> np.ndarray:
 
 
 def recording_samples(
-    tracks: pl.DataFrame, recording_index: int, config: BuildConfig, scaler: MinMaxScaler
+    tracks: pl.DataFrame,
+    recording_index: int,
+    config: BuildConfig,
+    scaler: MinMaxScaler,
+    raw: pl.DataFrame | None = None,
+    dataset_id: int = 0,
 ) -> RecordingSamples:
-    """Frame arrays, proximity edges and split ego windows of one recording's tracks table."""
+    """Frame arrays, proximity edges and split ego windows of one recording's tracks table.
+
+    Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
+    rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS).
+    """
     nodes = grid_nodes(tracks, config.time_step_s)
     pairs = proximity_pairs(nodes, config.d_min_m)
     arrays = recording_arrays(nodes, pairs)
-    max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
-    windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
+    script = None
+    if config.protocol is Protocol.CS_LSTM:
+        if raw is None:
+            raise ValueError("the cs-lstm protocol needs the recording's raw rows")
+        windows, script = script_windows(raw, nodes, dataset_id, config)
+    else:
+        max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
+        windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
     train_flags = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
     counts, first = [], 0
     for batch in iter_graphs(arrays, windows, config):
@@ -104,7 +122,7 @@ def recording_samples(
     windows = windows.with_columns(
         pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
-    return RecordingSamples(pairs=pairs, arrays=arrays, windows=windows, scaler=scaler)
+    return RecordingSamples(pairs, arrays, windows, scaler, script)
 
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -135,6 +153,7 @@ class RecordingOutput:
     top_vehicle_ids: tuple[int, int]  # the largest and second largest Vehicle_ID
     proximity_edges: int
     windows: pl.DataFrame  # with location, period, s.SPLIT and counts
+    script_rows: ScriptRows | None  # the cs-lstm protocol's rows (None: aigem)
 
 
 def _stage_inputs(
@@ -184,7 +203,7 @@ def _build_recording(
     raw = pl.read_parquet(staged)
     tracks, report = source.recording_tracks(raw, key, config, first_track_id, files, strict)
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
-    samples = recording_samples(tracks, index, config, scaler)
+    samples = recording_samples(tracks, index, config, scaler, raw, DATASET_IDS.get(key, 0))
     layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
     arrays = samples.arrays
     layout.write_arrays(
@@ -196,7 +215,9 @@ def _build_recording(
         pl.lit(key[1]).alias(s.PERIOD),
         pl.lit(index).alias(s.RECORDING_INDEX),
     )
-    ids = tracks[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
+    # The vehicle split's largest ids: the script's are of the rows before cleaning.
+    split_by = raw if config.protocol is Protocol.CS_LSTM else tracks
+    ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
     output = RecordingOutput(
         report,
@@ -207,6 +228,7 @@ def _build_recording(
         (ids[0], ids[1]),
         samples.pairs.height,
         windows,
+        samples.script_rows,
     )
     return output, samples.scaler
 
@@ -241,6 +263,14 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
 def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
     """Why the chosen recordings gave no sample at all, as a user can act on it."""
     rows = sum(o.report.rows for o in outputs)
+    script = _script_total(outputs)
+    if script is not None:
+        return (
+            f"CS-LSTM's script keeps {script.kept:,} of the {rows:,} rows (and would stop on "
+            f"the {script.too_short:,} rows of vehicles under 31 rows), {script.on_grid:,} of "
+            f"them on the {config.time_step_s} s grid, {script.unmatched:,} of those with no "
+            "track at their step"
+        )
     if sum(o.report.grid_rows for o in outputs) == 0:
         return (
             f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
@@ -287,7 +317,32 @@ def _recording_entry(
         proximity_edges=o.proximity_edges,
         samples={split: samples[split].get(name, 0) for split in samples},
         first_outlier=None if first is None else SourceLine(files[first[0]].path, first[1]),
+        cslstm_rows=o.script_rows,
     )
+
+
+def _script_total(outputs: list[RecordingOutput]) -> ScriptRows | None:
+    """The cs-lstm protocol's rows over the recordings (None: the aigem protocol)."""
+    parts = [o.script_rows for o in outputs if o.script_rows is not None]
+    return reduce(ScriptRows.plus, parts) if parts else None
+
+
+def _check_script_recordings(
+    staged: dict[RecordingKey, list[Path]], files: list[FileReport], config: BuildConfig
+) -> None:
+    """Under the cs-lstm protocol every recording must be one of the script's six."""
+    if config.protocol is not Protocol.CS_LSTM:
+        return
+    for key in sorted(staged):
+        if key not in DATASET_IDS:
+            name = f"{key[0]}/{key[1]}"
+            path = next((f.path for f in files if name in f.recordings), files[0].path)
+            official = ", ".join(f"{loc} {period}" for loc, period in DATASET_IDS)
+            raise NgsimInputError(
+                path,
+                f"recording {name} is not one of the six that CS-LSTM's script reads "
+                f"({official}); the cs-lstm protocol takes those only",
+            )
 
 
 def _counts(
@@ -317,6 +372,7 @@ def _counts(
         grid_rows=total("grid_rows"),
         proximity_edges=sum(o.proximity_edges for o in outputs),
         samples=sum(sum(per.values()) for per in samples.values()),
+        cslstm_rows=_script_total(outputs),
     )
 
 
@@ -366,6 +422,7 @@ def run_build(
     source, files, skipped = choose_source(raw_paths, dataset)
     with landing.build_directory(out_dir, overwrite) as root:
         file_reports, staged = _stage_inputs(source, files, config, root, report_progress, strict)
+        _check_script_recordings(staged, file_reports, config)
         outputs, scaler, next_track_id = [], MinMaxScaler.empty(), 0
         for index, key in enumerate(sorted(staged)):
             report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))

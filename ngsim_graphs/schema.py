@@ -30,6 +30,13 @@ class SplitMode(str, Enum):
     RANDOM = "random"  # seeded, by ego track
 
 
+class Protocol(str, Enum):
+    """Which samples a build makes (docs/conventions.md, "Samples" and "The cs-lstm protocol")."""
+
+    AIGEM = "aigem"  # ego windows cut at a stride, the actors around the ego as targets
+    CS_LSTM = "cs-lstm"  # CS-LSTM's kept rows on the grid, the row's vehicle the only target
+
+
 class DropReason(str, Enum):
     """Why a raw row was dropped one by one (SPEC section 1); counted per reason in the manifest.
 

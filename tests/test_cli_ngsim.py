@@ -397,6 +397,7 @@ def test_stats_json(finished_build: Path) -> None:
         # 36 grid frames 10, 12, ..., 80
         "proximity_edges": 36,
         "samples": 2,
+        "cslstm_rows": None,  # the aigem protocol: no CS-LSTM rows
     }
     [recording] = document["recordings"]
     assert (recording["location"], recording["period"]) == ("us-101", "0750am-0805am")

@@ -118,6 +118,7 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
         "grid_rows": 29,  # 5 + 9 + 15
         "proximity_edges": 14,  # vehicle 1's 14 steps, each beside vehicle 2 within 25 m
         "samples": 3,  # one 3-step window per track (stride 8 s)
+        "cslstm_rows": None,  # the aigem protocol: no CS-LSTM rows
     }
     # Vehicle split: largest Vehicle_ID 2, cuts at round(1.4) = 1 and round(1.6) = 2.
     assert on_disk["splits"] == {"train": 2, "val": 1, "test": 0}
