@@ -325,3 +325,34 @@ def test_the_protocol_is_in_the_config_and_its_hash() -> None:
     assert layout.config_hash(CSLSTM.to_dict()) != layout.config_hash(BuildConfig().to_dict())
     with pytest.raises(ValueError, match="split time: has no meaning under the cs-lstm protocol"):
         BuildConfig(protocol=Protocol.CS_LSTM, split=SplitMode.TIME)
+
+
+def test_the_protocol_and_export_cslstm_take_the_same_rows(tmp_path: Path) -> None:
+    """Two implementations of the script's population side by side: on two synthetic text
+    recordings without faults, the build's samples are exactly the exported `traj` rows on the
+    even grid (one per vehicle and frame), recording by recording, split by split."""
+    from scipy.io import loadmat
+
+    from ngsim_graphs.cslstm import DATASET_IDS
+    from ngsim_graphs.cslstm_export import FILE_NAMES, export_cslstm
+
+    write_synthetic(
+        tmp_path / "raw",
+        SynthConfig(raw_format=RawFormat.TXT, recordings=2, minutes=0.2, seed=7),
+    )
+    export_cslstm([tmp_path / "raw"], tmp_path / "mat", allow_partial=True)
+    run_build([tmp_path / "raw"], tmp_path / "build", CSLSTM)
+    exported = set()
+    for split, name in FILE_NAMES.items():
+        traj = loadmat(tmp_path / "mat" / name)["traj"]
+        even = traj[traj[:, 2] % 2 == 0]
+        exported |= {(int(d), int(v), int(f), split) for d, v, f in even[:, :3]}
+    built = set()
+    for split in ("train", "val", "test"):
+        table = pl.read_parquet(layout.samples_path(tmp_path / "build", split))
+        for location, period, vehicle, step in table.select(
+            s.LOCATION, s.PERIOD, s.EGO_VEHICLE_ID, s.PRESENT_STEP
+        ).iter_rows():
+            built.add((DATASET_IDS[(location, period)], vehicle, 2 * step, split))
+    assert len(built) > 1000 and {d for d, *_ in built} == {1, 4}
+    assert built == exported
