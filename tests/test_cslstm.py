@@ -150,3 +150,21 @@ def test_grid_in_small_chunks_equals_grid_at_once() -> None:
     at_once = grid(rows, lane, chunk_rows=len(rows.vehicle))
     assert (at_once > 0).sum() > 100
     np.testing.assert_array_equal(grid(rows, lane, chunk_rows=7), at_once)
+
+
+def test_vehicles_at_exact_cell_boundaries_equal_the_reference() -> None:
+    """Vehicles in lockstep (4.5 ft a frame) in lanes 1-8, each at a whole multiple of 7.5 ft
+    from the others, so that every (dy + 90) / 15 is a whole number or exactly a half at every
+    frame, and some |dy| are exactly 90: the reference and the fast path agree cell by cell."""
+    rows = []
+    for vehicle in range(1, 25):
+        lane, offset = 1 + vehicle % 8, 7.5 * (vehicle * 5 % 25)
+        rows += [[vehicle, f, 6.0 * lane, offset + 4.5 * f, lane] for f in range(40)]
+    table = np.array(rows, dtype=np.float32)
+    table = table[row_order(table[:, 0], table[:, 1])]
+    for dataset_id in (2, 5):  # US-101 folds lanes 7 and 8 into 6; I-80 keeps them
+        fast = traj_rows(_rows(dataset_id, table))
+        np.testing.assert_array_equal(fast, reference_traj(dataset_id, table))
+        dy = np.abs(table[:, 3][:, None] - table[:, 3][None, :])
+        assert (dy == 90).any() and (dy == 82.5).any()  # the edge, and a half: 11.5 -> 12
+        assert (fast[:, 8:] > 0).sum() > 500
