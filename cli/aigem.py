@@ -276,10 +276,19 @@ def evaluate(
         typer.echo(json.dumps(as_dict(result), indent=2))
         return
     seconds = sum(key.startswith("rmse_") for key in result.model["all"])
+    empty = [
+        region
+        for region in ("front", "mid", "rear")
+        if not any(result.model[region][f"n_{s}s"] for s in range(1, seconds + 1))
+    ]
     for region in ("all", "front", "mid", "rear"):
+        if region in empty:
+            continue
         ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
         rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
         print_table(_metrics_table(f"{split} split, {region} actors (metres)", rows, seconds))
+    if empty:
+        stdout.print(f"No {' or '.join(empty)} actors among the targets: no table for them.")
     counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
     stdout.print(f"{result.samples:,} samples; evaluated actors per horizon: {counts}")
     stdout.print(

@@ -257,6 +257,9 @@ def test_fit_and_evaluate_say_the_protocol(
     # 58 test samples: vehicles 9 (frames 0..89) and 10 (8..97) at 29 even frames each from
     # their 31st; recorded 1 s later up to frame 78 and 86 (25 each), 2 s later up to 68 and 76
     assert "58 samples; evaluated actors per horizon: 1 s: 50, 2 s: 40" in shown.stdout
+    # The ego is the target, at y = 0: no front or rear tables, only all and mid.
+    assert "No front or rear actors among the targets: no table for them." in shown.stdout
+    assert "front actors (metres)" not in shown.stdout and "mid actors (metres)" in shown.stdout
     document = json.loads(runner.invoke(app, ["evaluate", str(run), "--json"]).stdout)
     assert document["protocol"] == "cs-lstm" and document["samples"] == 58
     assert document["protocol_description"].startswith("the literature's samples")
