@@ -36,6 +36,7 @@ DATASET_IDS: dict[tuple[str, str], int] = {
     ("i-80", "0500-0515"): 5,
     ("i-80", "0515-0530"): 6,
 }
+RECORDING_OF_DATASET = {dataset_id: key for key, dataset_id in DATASET_IDS.items()}
 SPLIT_NAMES = ("train", "val", "test")  # split codes 0, 1, 2 (split_codes)
 
 
@@ -82,13 +83,23 @@ def matlab_round(values: np.ndarray) -> np.ndarray:
     return whole + (values - whole >= 0.5)
 
 
+def vehicle_bounds(vehicle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) row of each vehicle's run of rows, rows in the script's order."""
+    n = len(vehicle)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    starts = np.flatnonzero(np.r_[True, vehicle[1:] != vehicle[:-1]])
+    return starts, np.r_[starts[1:], n]
+
+
 def _vehicle_runs(vehicle: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, ...]:
     """Per row: the first row of its vehicle, its vehicle's row count, and the index (within the
     vehicle) of the first row of its frame (a repeated frame takes its first occurrence)."""
     n = len(vehicle)
-    new_vehicle = np.r_[True, vehicle[1:] != vehicle[:-1]] if n else np.zeros(0, bool)
-    starts = np.flatnonzero(new_vehicle)
-    lengths = np.diff(np.r_[starts, n])
+    starts, ends = vehicle_bounds(vehicle)
+    new_vehicle = np.zeros(n, bool)
+    new_vehicle[starts] = True
+    lengths = ends - starts
     owner = np.repeat(np.arange(len(starts)), lengths)
     first = starts[owner]
     new_frame = new_vehicle | np.r_[True, frame[1:] != frame[:-1]] if n else new_vehicle

@@ -25,6 +25,7 @@ from ngsim_graphs import __version__, matfile
 from ngsim_graphs import schema as s
 from ngsim_graphs.cslstm import (
     DATASET_IDS,
+    RECORDING_OF_DATASET,
     SPLIT_NAMES,
     TRAJ_COLUMNS,
     RecordingRows,
@@ -32,6 +33,7 @@ from ngsim_graphs.cslstm import (
     ordered_rows,
     split_codes,
     traj_rows,
+    vehicle_bounds,
 )
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
@@ -84,11 +86,15 @@ class SplitTables:
 
     traj_blocks: list[np.ndarray]
     cells: dict[tuple[int, int], np.ndarray]
-    width: int
 
     @property
     def traj_rows(self) -> int:
         return sum(len(block) for block in self.traj_blocks)
+
+    @property
+    def width(self) -> int:
+        """The largest vehicle id of the split: the second dimension of `tracks`."""
+        return max((vehicle + 1 for _, vehicle in self.cells), default=0)
 
 
 @dataclass(frozen=True)
@@ -177,8 +183,9 @@ def read_recordings(
                     "holds too: give each recording once",
                 )
             found[dataset_id] = (path, table)
-    by_id = {v: k for k, v in DATASET_IDS.items()}
-    missing = [_recording_name(by_id[i]) for i in sorted(by_id) if i not in found]
+    missing = [
+        _recording_name(key) for i, key in sorted(RECORDING_OF_DATASET.items()) if i not in found
+    ]
     if missing and not allow_partial:
         raise NgsimInputError(
             None,
@@ -194,27 +201,18 @@ def read_recordings(
     return recordings, inputs, skipped, missing
 
 
-def _vehicle_bounds(vehicle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(start, end) row of each vehicle's run of rows (rows in the script's order)."""
-    if len(vehicle) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    starts = np.flatnonzero(np.r_[True, vehicle[1:] != vehicle[:-1]])
-    return starts, np.r_[starts[1:], len(vehicle)]
-
-
 def split_tables(
     recordings: dict[int, RecordingRows], progress: Progress
 ) -> tuple[dict[str, SplitTables], list[DatasetCounts]]:
     """Each split's `traj` and `tracks` from the recordings' rows, and what each dataset gave."""
-    tables = {name: SplitTables([], {}, 0) for name in SPLIT_NAMES}
+    tables = {name: SplitTables([], {}) for name in SPLIT_NAMES}
     counts = []
-    by_id = {v: k for k, v in DATASET_IDS.items()}
     for done, (dataset_id, rows) in enumerate(sorted(recordings.items())):
         progress(f"dataset {dataset_id}: maneuvers and grid", done, len(recordings))
         traj = traj_rows(rows)
         kept, too_short = kept_by_edge_filter(rows)
         code = split_codes(rows)
-        starts, ends = _vehicle_bounds(rows.vehicle)
+        starts, ends = vehicle_bounds(rows.vehicle)
         track = np.stack([rows.frame, rows.x_ft, rows.y_ft])  # (3, n) float32
         kept_rows, vehicles = {}, {}
         for number, name in enumerate(SPLIT_NAMES):
@@ -230,7 +228,7 @@ def split_tables(
         counts.append(
             DatasetCounts(
                 dataset_id=dataset_id,
-                recording=_recording_name(by_id[dataset_id]),
+                recording=_recording_name(RECORDING_OF_DATASET[dataset_id]),
                 rows=len(rows.vehicle),
                 vehicles=len(starts),
                 kept_rows=kept_rows,
@@ -239,9 +237,6 @@ def split_tables(
                 short_vehicle_rows=int(too_short.sum()),
             )
         )
-    for name, table in tables.items():
-        width = max((vehicle + 1 for _, vehicle in table.cells), default=0)
-        tables[name] = SplitTables(table.traj_blocks, table.cells, width)
     return tables, counts
 
 
