@@ -34,24 +34,34 @@ def header(description: str) -> bytes:
     return text + b"\0" * 8 + struct.pack("<H", 0x0100) + b"IM"
 
 
-def _matrix_head(class_id: int, rows: int, columns: int, name: str, data_bytes: int) -> bytes:
-    """An miMATRIX element up to its data: tag, array flags, dimensions, name and the data's
-    tag (`data_bytes` of single or double values follow, then padding to 8 bytes)."""
+def _array_head(class_id: int, rows: int, columns: int, name: str) -> bytes:
+    """What every miMATRIX element starts with after its tag: array flags, dimensions, name."""
     encoded = name.encode("ascii")
-    name_part = _tag(MI_INT8, len(encoded)) + encoded + _padding(len(encoded))
-    size = 16 + 16 + len(name_part) + 8 + data_bytes + len(_padding(data_bytes))
+    return (
+        _tag(MI_UINT32, 8)
+        + struct.pack("<II", class_id, 0)
+        + _tag(MI_INT32, 8)
+        + struct.pack("<ii", rows, columns)
+        + _tag(MI_INT8, len(encoded))
+        + encoded
+        + _padding(len(encoded))
+    )
+
+
+def _matrix_tag(name: str, size: int) -> bytes:
+    """The miMATRIX tag of an element of `size` bytes after it; over 4 GiB is refused."""
     if size > MAX_ELEMENT_BYTES:
         raise ValueError(f"{name or 'a cell'}: {size:,} bytes, over MAT v5's 4 GiB per variable")
+    return _tag(MI_MATRIX, size)
+
+
+def _matrix_head(class_id: int, rows: int, columns: int, name: str, data_bytes: int) -> bytes:
+    """A numeric miMATRIX element up to its data: tag, array head and the data's tag
+    (`data_bytes` of single or double values follow, then padding to 8 bytes)."""
+    head = _array_head(class_id, rows, columns, name)
+    tag = _matrix_tag(name, len(head) + 8 + data_bytes + len(_padding(data_bytes)))
     data_type = MI_SINGLE if class_id == MX_SINGLE else MI_DOUBLE
-    body = (
-        _tag(MI_UINT32, 8)  # array flags
-        + struct.pack("<II", class_id, 0)
-        + _tag(MI_INT32, 8)  # dimensions
-        + struct.pack("<ii", rows, columns)
-        + name_part
-        + _tag(data_type, data_bytes)
-    )
-    return _tag(MI_MATRIX, size) + body
+    return tag + head + _tag(data_type, data_bytes)
 
 
 def write_single_matrix(
@@ -85,19 +95,7 @@ def write_cell_array(
     parts = [
         _cell_element(cells.get((row, column))) for column in range(columns) for row in range(rows)
     ]
-    encoded = name.encode("ascii")
-    body_head = (
-        _tag(MI_UINT32, 8)
-        + struct.pack("<II", MX_CELL, 0)
-        + _tag(MI_INT32, 8)
-        + struct.pack("<ii", rows, columns)
-        + _tag(MI_INT8, len(encoded))
-        + encoded
-        + _padding(len(encoded))
-    )
-    size = len(body_head) + sum(len(part) for part in parts)
-    if size > MAX_ELEMENT_BYTES:
-        raise ValueError(f"{name}: {size:,} bytes, over MAT v5's 4 GiB per variable")
-    handle.write(_tag(MI_MATRIX, size) + body_head)
+    head = _array_head(MX_CELL, rows, columns, name)
+    handle.write(_matrix_tag(name, len(head) + sum(len(part) for part in parts)) + head)
     for part in parts:
         handle.write(part)
