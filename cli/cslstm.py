@@ -9,8 +9,7 @@ import typer
 from rich.table import Table
 
 from ngsim_cli.console import exit_on_error, print_table, progress_bar, stdout
-
-SPLITS = ("train", "val", "test")
+from ngsim_graphs.cslstm import SPLIT_NAMES as SPLITS
 
 
 def _summary(result) -> Table:  # type: ignore[no-untyped-def]

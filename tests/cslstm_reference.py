@@ -65,6 +65,13 @@ def reference_kept(table: np.ndarray) -> list[bool]:
     return kept
 
 
+def reference_split(vehicle: float, largest: float) -> str:
+    """The script's split of a vehicle id, by its recording's largest id: float32 products,
+    MATLAB's round."""
+    ul1, ul2 = _round(F(F(0.7) * F(largest))), _round(F(F(0.8) * F(largest)))
+    return "train" if vehicle <= ul1 else "val" if vehicle <= ul2 else "test"
+
+
 def reference_files(tables: dict[int, np.ndarray]) -> dict[str, tuple[np.ndarray, dict]]:
     """The script's split, tracks and edge filter over the datasets' (n, 5) tables in row order:
     per split (train, val, test), `traj` (N, 47) float32 and `tracks` as {(dataset, vehicle):
@@ -74,10 +81,9 @@ def reference_files(tables: dict[int, np.ndarray]) -> dict[str, tuple[np.ndarray
     for k in sorted(tables):
         mine = all_rows[all_rows[:, 0] == k]
         largest = F(mine[:, 1].max())
-        ul1, ul2 = _round(F(F(0.7) * largest)), _round(F(F(0.8) * largest))
-        parts["train"].append(mine[mine[:, 1] <= ul1])
-        parts["val"].append(mine[(mine[:, 1] > ul1) & (mine[:, 1] <= ul2)])
-        parts["test"].append(mine[mine[:, 1] > ul2])
+        split = np.array([reference_split(v, largest) for v in mine[:, 1]])
+        for name in parts:
+            parts[name].append(mine[split == name])
     out = {}
     for name, pieces in parts.items():
         traj = np.concatenate(pieces)

@@ -6,7 +6,6 @@ say under which protocol the numbers were made; options without meaning there ar
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,7 +13,7 @@ import numpy as np
 import polars as pl
 import pytest
 from conftest import US101_FIRST, make_row, write_txt
-from cslstm_reference import reference_kept
+from cslstm_reference import reference_kept, reference_split
 from test_cli_ngsim import assert_failed_cleanly, error_line, invoke
 from typer.testing import CliRunner
 
@@ -81,16 +80,13 @@ def reference_population(table: np.ndarray) -> tuple[set[tuple[int, int, str]], 
     order = sorted(range(len(table)), key=lambda i: (table[i, 0], table[i, 1]))
     table = table[order].astype(F)
     largest = table[:, 0].max()
-    ul1 = math.floor(float(F(0.7) * largest) + 0.5)
-    ul2 = math.floor(float(F(0.8) * largest) + 0.5)
     population, kept_rows = set(), 0
     for vehicle in np.unique(table[:, 0]):
         own = table[table[:, 0] == vehicle]
         for row, kept in zip(own, reference_kept(own), strict=True):
             kept_rows += kept
             if kept and int(row[1]) % 2 == 0:
-                split = "train" if vehicle <= ul1 else "val" if vehicle <= ul2 else "test"
-                population.add((int(vehicle), int(row[1]), split))
+                population.add((int(vehicle), int(row[1]), reference_split(vehicle, largest)))
     return population, kept_rows
 
 
