@@ -63,6 +63,12 @@ class MinMaxScaler:
                 high[name] = max(high[name], float(column.max()))
         return MinMaxScaler(low, high, self.target)
 
+    def joined(self, other: MinMaxScaler) -> MinMaxScaler:
+        """Widened by everything `other` observed (the target ranges stay this scaler's)."""
+        low = {name: min(self.low[name], other.low[name]) for name in SCALED}
+        high = {name: max(self.high[name], other.high[name]) for name in SCALED}
+        return MinMaxScaler(low, high, self.target)
+
     @property
     def is_fitted(self) -> bool:
         """Whether every quantity has a finite minimum, maximum and target range (it can be

@@ -1,0 +1,255 @@
+"""What every sample's graph holds, counted without inducing it (SPEC section 3).
+
+A sample's graph is, step by step, the neighbourhood of its ego's row: the rows within d_sense
+of it (the nodes), the proximity pairs among them (the actor-actor edges) and the tracks still
+near at the next step (the temporal edges). So each grid row that is some ego's history row is
+looked at once, and a sample's counts and its share of the scaler's ranges are sums, minima and
+maxima over its K_H ego rows. Under the cs-lstm protocol a row is in up to K_H samples'
+histories; `induce_graphs` would see it that many times.
+
+Every decision is `induce_graphs`' own: the same distance formula with the same arguments against
+the same thresholds, the same pair search along y. The counts and ranges are therefore exactly
+what the induced graphs give (tests/test_neighbourhoods.py compares them on random scenes).
+Minima and maxima of positions in the sample frame follow from those in the world frame because
+subtracting the ego's position rounds monotonically: min(x_i - o) == min(x_i) - o in float64.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.graphs import SEARCH_MARGIN_M, NonFiniteStateError, concat_ranges
+from ngsim_graphs.grid import RecordingArrays, pair_search_key
+from ngsim_graphs.scaling import FEATURES, SCALED, MinMaxScaler
+from ngsim_graphs.schema import Protocol
+
+ROWS_PER_CHUNK = 8_192  # ego rows looked at together: their pair candidates stay ~100 MB
+
+
+@dataclass(frozen=True)
+class Neighbourhoods:
+    """What the graph of each given ego row holds at its step (U ego rows, sorted).
+
+    low and high are the minima and maxima of SCALED: x, y (world frame), heading and speed over
+    the nodes, the ego included; distance over the spatial edges (inf and -inf without any).
+    """
+
+    rows: np.ndarray  # (U,) int64 ego rows, ascending
+    nodes: np.ndarray  # (U,) int64 rows within d_sense of the ego, the ego included
+    actor_pairs: np.ndarray  # (U,) int64 proximity pairs of two of those rows, neither the ego
+    kept: np.ndarray  # (U,) int64 tracks of those rows still within d_sense at the next step
+    full_future: np.ndarray  # (U,) int64 of those rows but the ego, tracks with all K_F steps after
+    ego_full_future: np.ndarray  # (U,) bool the ego's track has all K_F steps after
+    low: np.ndarray  # (U, 5) float64 in SCALED order
+    high: np.ndarray  # (U, 5) float64 in SCALED order
+
+
+def history_rows(
+    rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig
+) -> np.ndarray:
+    """(B, K_H) int64 row of each sample's ego at each history step; -1 where it has none.
+
+    The ego must be present at the present step, and under the aigem protocol at every step (the
+    same checks, and messages, as `induce_graphs`)."""
+    k_h = config.history_steps
+    steps = (start_step[:, None] + np.arange(k_h)).reshape(-1)
+    rows = rec.row_at(np.repeat(ego_track, k_h), steps).reshape(len(ego_track), k_h)
+    if not (rows[:, -1] >= 0).all():
+        raise ValueError("an ego track is not present at the present step of its window")
+    if config.protocol is Protocol.AIGEM and not (rows >= 0).all():
+        raise ValueError("an ego track is not present at every history step of its window")
+    return rows.astype(np.int64)
+
+
+def _distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """graphs._distance of rows a and b, in that order: sqrt(dx * dx + dy * dy), float64."""
+    dx, dy = xy[a, 0] - xy[b, 0], xy[a, 1] - xy[b, 1]
+    return np.sqrt(dx * dx + dy * dy)
+
+
+def _segments(owner: np.ndarray, n: int) -> np.ndarray:
+    """Start of each owner's run in `owner` (sorted, every owner 0..n-1 present at least once)."""
+    return np.searchsorted(owner, np.arange(n))
+
+
+def _reduce(ufunc: np.ufunc, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """ufunc over each run of `values` that starts at `starts` (ascending, no run empty)."""
+    return ufunc.reduceat(values, starts) if len(starts) else values[:0]
+
+
+def _runs(ufunc: np.ufunc, values: np.ndarray, lengths: np.ndarray, empty: float) -> np.ndarray:
+    """ufunc over consecutive runs of `values` of the given lengths; `empty` for an empty run."""
+    out = np.full(len(lengths), empty)
+    filled = lengths > 0
+    out[filled] = _reduce(ufunc, values, (np.cumsum(lengths) - lengths)[filled])
+    return out
+
+
+@dataclass(frozen=True)
+class _Near:
+    """The rows near each ego row of a chunk, the ego included (runs by ego, in row order)."""
+
+    owner: np.ndarray  # (C,) index of the ego row in the chunk
+    row: np.ndarray  # (C,) int64
+    distance: np.ndarray  # (C,) float64 to the ego
+
+
+def _near_rows(rec: RecordingArrays, by_y: tuple, egos: np.ndarray, step: np.ndarray, d_sense_m):
+    """The rows within d_sense of each ego row, found along y in the rows sorted by (step, y)."""
+    order, keys = by_y
+    ego_y = rec.node_state[egos, 1]
+    reach = d_sense_m + SEARCH_MARGIN_M
+    lo = np.searchsorted(keys, pair_search_key(step, ego_y - reach), "left")
+    hi = np.searchsorted(keys, pair_search_key(step, ego_y + reach), "right")
+    owner, index = concat_ranges(lo, hi)
+    rows = order[index]
+    distance = _distance(rec.node_state, rows, egos[owner])
+    if not np.isfinite(distance).all():  # NaN compares False: the vehicle would vanish silently
+        raise NonFiniteStateError("positions that are not finite")
+    near = distance <= d_sense_m
+    return _Near(owner[near], rows[near], distance[near])
+
+
+def _actor_pairs(
+    rec: RecordingArrays, near: _Near, egos: np.ndarray, step: np.ndarray, d_sense_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Count, minimum and maximum distance of the proximity pairs among each ego row's actors.
+
+    The pairs whose lower vehicle is within d_sense (and a margin) of the ego along y, as
+    `induce_graphs` searches them, kept where both are near rows and neither is the ego. Which
+    rows are actors is a small (ego, row of its step) table: a lookup, not a distance, per pair."""
+    base = rec.step_ptr[step]  # first row of each ego's step
+    width = int(np.diff(rec.step_ptr).max()) if rec.n_steps else 0
+    is_actor = np.zeros(len(egos) * width, bool)
+    actor = near.row != egos[near.owner]
+    is_actor[near.owner[actor] * width + near.row[actor] - base[near.owner[actor]]] = True
+    ego_y = rec.node_state[egos, 1]
+    reach = d_sense_m + SEARCH_MARGIN_M
+    lo = np.searchsorted(rec.pair_key, pair_search_key(step, ego_y - reach), "left")
+    hi = np.searchsorted(rec.pair_key, pair_search_key(step, ego_y + reach), "right")
+    owner, index = concat_ranges(lo, hi)
+    offset = owner * width - base[owner]
+    keep = is_actor[offset + rec.pair_rows[index, 0]] & is_actor[offset + rec.pair_rows[index, 1]]
+    distance = rec.pair_dist[index].astype(np.float64)
+    return (
+        _runs(np.add, keep.astype(np.int64), hi - lo, 0),
+        _runs(np.minimum, np.where(keep, distance, np.inf), hi - lo, np.inf),
+        _runs(np.maximum, np.where(keep, distance, -np.inf), hi - lo, -np.inf),
+    )
+
+
+def _chunk(
+    rec: RecordingArrays, by_y: tuple, egos: np.ndarray, row_step: np.ndarray, config: BuildConfig
+) -> tuple[np.ndarray, ...]:
+    """The Neighbourhoods fields (but rows) of one chunk of ego rows."""
+    d_sense = config.d_sense_m
+    near = _near_rows(rec, by_y, egos, row_step, d_sense)
+    starts = _segments(near.owner, len(egos))  # every ego is near itself: no empty run
+    nodes = np.diff(np.append(starts, len(near.owner)))
+    actor = near.row != egos[near.owner]
+
+    # Temporal edges: a near track's row at the next step, near the ego's row at the next step.
+    next_row = rec.row_at(rec.node_track[near.row], row_step[near.owner] + 1)
+    ego_next = rec.row_at(rec.node_track[egos], row_step + 1)
+    both = (next_row >= 0) & (ego_next[near.owner] >= 0)
+    still = np.zeros(len(near.row), bool)
+    still[both] = _distance(rec.node_state, next_row[both], ego_next[near.owner][both]) <= d_sense
+    kept = np.bincount(near.owner[still], minlength=len(egos))
+
+    first, count = rec.track_steps(rec.node_track[near.row])
+    full = first + count - 1 >= row_step[near.owner] + config.future_steps
+    full_future = np.bincount(near.owner[full & actor], minlength=len(egos))
+    ego_first, ego_count = rec.track_steps(rec.node_track[egos])
+    ego_full = ego_first + ego_count - 1 >= row_step + config.future_steps
+
+    state = rec.node_state[near.row]
+    low = np.empty((len(egos), len(SCALED)))
+    high = np.empty((len(egos), len(SCALED)))
+    low[:, : len(FEATURES)] = _reduce(np.minimum, state, starts)
+    high[:, : len(FEATURES)] = _reduce(np.maximum, state, starts)
+    ego_low = _reduce(np.minimum, np.where(actor, near.distance, np.inf), starts)
+    ego_high = _reduce(np.maximum, np.where(actor, near.distance, -np.inf), starts)
+    actor_pairs, pair_low, pair_high = _actor_pairs(rec, near, egos, row_step, d_sense)
+    low[:, -1] = np.minimum(ego_low, pair_low)
+    high[:, -1] = np.maximum(ego_high, pair_high)
+    return nodes, actor_pairs, kept, full_future, ego_full, low, high
+
+
+def neighbourhoods(rec: RecordingArrays, rows: np.ndarray, config: BuildConfig) -> Neighbourhoods:
+    """The neighbourhood of each of `rows` (grid rows of `rec`) as an ego, ROWS_PER_CHUNK at a time."""
+    rows = np.unique(rows.astype(np.int64))
+    row_step = np.searchsorted(rec.step_ptr, rows, "right") - 1
+    all_steps = np.repeat(np.arange(rec.n_steps), np.diff(rec.step_ptr))
+    keys = pair_search_key(all_steps, rec.node_state[:, 1])
+    order = np.argsort(keys, kind="stable")
+    by_y = (order, keys[order])
+    parts = [
+        _chunk(rec, by_y, rows[i : i + ROWS_PER_CHUNK], row_step[i : i + ROWS_PER_CHUNK], config)
+        for i in range(0, len(rows), ROWS_PER_CHUNK)
+    ]
+    if not parts:
+        empty = np.empty(0, np.int64)
+        return Neighbourhoods(
+            rows, empty, empty, empty, empty, np.empty(0, bool), np.empty((0, 5)), np.empty((0, 5))
+        )
+    fields = [np.concatenate(column) for column in zip(*parts, strict=True)]
+    nodes, actor_pairs, kept, full_future, ego_full, low, high = fields
+    return Neighbourhoods(
+        rows,
+        nodes.astype(np.int64),
+        actor_pairs.astype(np.int64),
+        kept.astype(np.int64),
+        full_future.astype(np.int64),
+        ego_full,
+        low,
+        high,
+    )
+
+
+def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
+    """(B, 5) int64 per sample, in schema.COUNT_COLUMNS order: nodes, spatial edges, temporal
+    edges, targets, targets with a full future, from its (B, K_H) `history_rows`."""
+    present = history >= 0
+    at = np.searchsorted(hood.rows, np.where(present, history, 0))  # hood.rows holds them all
+    pick = lambda values: np.where(present, values[at], 0)  # noqa: E731
+    nodes = pick(hood.nodes)
+    spatial = 2 * (nodes - present) + 2 * pick(hood.actor_pairs)
+    temporal = pick(hood.kept)[:, :-1]
+    now = at[:, -1]
+    if config.protocol is Protocol.CS_LSTM:
+        targets = np.ones(len(history), np.int64)
+        full = hood.ego_full_future[now].astype(np.int64)
+    else:
+        ego = int(config.ego_is_target)
+        targets = hood.nodes[now] - 1 + ego
+        full = hood.full_future[now] + ego * hood.ego_full_future[now]
+    return np.stack(
+        [nodes.sum(axis=1), spatial.sum(axis=1), temporal.sum(axis=1), targets, full], axis=1
+    ).astype(np.int64)
+
+
+def train_ranges(
+    rec: RecordingArrays, hood: Neighbourhoods, history: np.ndarray, is_train: np.ndarray
+) -> MinMaxScaler:
+    """The minima and maxima of SCALED over the graphs of the train samples (`is_train`, (B,)
+    bool) as a scaler: x and y in each sample's frame, with its present ego at (0, 0)."""
+    history = history[is_train]
+    present = history >= 0
+    at = np.searchsorted(hood.rows, np.where(present, history, 0))
+    origin = rec.node_state[history[:, -1], :2] if len(history) else np.empty((0, 2))
+    low, high = dict.fromkeys(SCALED, np.inf), dict.fromkeys(SCALED, -np.inf)
+    for i, name in enumerate(SCALED[:2]):
+        sample_low = np.where(present, hood.low[at, i], np.inf).min(axis=1, initial=np.inf)
+        sample_high = np.where(present, hood.high[at, i], -np.inf).max(axis=1, initial=-np.inf)
+        low[name] = (sample_low - origin[:, i]).min(initial=np.inf)
+        high[name] = (sample_high - origin[:, i]).max(initial=-np.inf)
+    used = np.unique(at[present])
+    for i, name in enumerate(SCALED[2:], start=2):
+        low[name] = hood.low[used, i].min(initial=np.inf)
+        high[name] = hood.high[used, i].max(initial=-np.inf)
+    return MinMaxScaler(
+        {n: float(v) for n, v in low.items()}, {n: float(v) for n, v in high.items()}
+    )

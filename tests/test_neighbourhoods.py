@@ -1,0 +1,138 @@
+"""Counts and scaler ranges from ego rows' neighbourhoods against those of the induced graphs.
+
+The build no longer induces every sample's graph; `neighbourhoods` must give exactly what the
+induced graphs hold (which tests/test_graphs.py checks against the brute force): the same counts
+and the same minima and maxima, bit for bit, on a scene computed by hand and on random scenes
+with vehicles at exactly the thresholds, under both protocols.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+import pytest
+from test_graphs import SCENE_CONFIGS, TINY, all_windows, random_scene, tiny_scene
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.graphs import GraphBatch, induce_graphs
+from ngsim_graphs.grid import RecordingArrays, grid_nodes, proximity_pairs, recording_arrays
+from ngsim_graphs.neighbourhoods import history_rows, neighbourhoods, sample_counts, train_ranges
+from ngsim_graphs.scaling import MinMaxScaler
+from ngsim_graphs.schema import Protocol
+
+
+def induced_counts(batch: GraphBatch) -> np.ndarray:
+    """(B, 5) nodes, spatial edges, temporal edges, targets, targets with a full future."""
+    per = lambda nodes: np.bincount(batch.node_sample[nodes], minlength=batch.n_samples)  # noqa: E731
+    full = batch.target_node[batch.target_mask.all(axis=1)]
+    return np.stack(
+        [
+            np.diff(batch.node_ptr),
+            per(batch.spatial_edges[0]),
+            per(batch.temporal_edges[0]),
+            per(batch.target_node),
+            per(full),
+        ],
+        axis=1,
+    )
+
+
+def induced_ranges(batch: GraphBatch, is_train: np.ndarray) -> MinMaxScaler:
+    """The scaler widened by the train samples' graphs, as the build once fitted it."""
+    node_train = is_train[batch.node_sample]
+    edge_train = node_train[batch.spatial_edges[0]]
+    return MinMaxScaler.empty().widened(
+        batch.node_features[node_train], batch.spatial_distance[edge_train]
+    )
+
+
+def arrays_of(table: pl.DataFrame, config: BuildConfig) -> RecordingArrays:
+    tracks = table.with_columns((pl.col(s.STEP) * config.time_step_s).alias(s.TIME_S))
+    nodes = grid_nodes(tracks.drop(s.STEP), config.time_step_s)
+    return recording_arrays(nodes, proximity_pairs(nodes, config.d_min_m))
+
+
+def counted(
+    rec: RecordingArrays, egos: np.ndarray, starts: np.ndarray, is_train: np.ndarray, config
+) -> tuple[np.ndarray, MinMaxScaler]:
+    history = history_rows(rec, egos, starts, config)
+    hood = neighbourhoods(rec, history[history >= 0], config)
+    return sample_counts(hood, history, config), train_ranges(rec, hood, history, is_train)
+
+
+@pytest.mark.parametrize("ego_is_target", [False, True])
+def test_tiny_scene_by_hand(ego_is_target: bool) -> None:
+    """test_graphs.expected_tiny's graph: 7 nodes, 12 spatial and 2 temporal edges; targets
+    tracks 1 (leaves after one step), 2 and 4, and the ego when asked."""
+    config = BuildConfig(history_steps=2, future_steps=2, stride_s=0.2, ego_is_target=ego_is_target)
+    rec = arrays_of(tiny_scene(), config)
+    counts, ranges = counted(rec, np.array([0]), np.array([0]), np.array([True]), config)
+    targets, full = (4, 3) if ego_is_target else (3, 2)
+    assert counts.tolist() == [[7, 12, 2, targets, full]]
+    # x 0..30 and y -40..40 with the ego at (0, 10) at the present; heading 0..0.4, speed 0..41;
+    # distances 20 (track 3 at k = 0) to 50 (track 1, on a 3-4-5 diagonal).
+    assert ranges.low == {
+        "x_m": 0.0, "y_m": -40.0, "heading_rad": 0.0, "speed_mps": 0.0, "distance_m": 20.0
+    }  # fmt: skip
+    assert ranges.high == {
+        "x_m": 30.0, "y_m": 40.0, "heading_rad": 0.4, "speed_mps": 41.0, "distance_m": 50.0
+    }  # fmt: skip
+    _, nothing = counted(rec, np.array([0]), np.array([0]), np.array([False]), config)
+    assert nothing.to_dict() == MinMaxScaler.empty().to_dict()
+
+
+def test_an_ego_missing_from_its_window_is_refused() -> None:
+    rec = arrays_of(tiny_scene(), TINY)
+    with pytest.raises(ValueError, match="ego track is not present at every history step"):
+        history_rows(rec, np.array([4]), np.array([0]), TINY)  # track 4 starts at step 1
+    cslstm = BuildConfig(history_steps=2, future_steps=2, protocol=Protocol.CS_LSTM)
+    assert history_rows(rec, np.array([4]), np.array([0]), cslstm)[0, 0] == -1
+    with pytest.raises(ValueError, match="not present at the present step"):
+        history_rows(rec, np.array([4]), np.array([-1]), cslstm)
+
+
+def cslstm_windows(table: pl.DataFrame, config: BuildConfig) -> tuple[list[int], list[int]]:
+    """A window at every present step of every track, its history reaching before the track."""
+    egos, starts = [], []
+    for track, step in table.select(s.TRACK_ID, s.STEP).sort(s.TRACK_ID, s.STEP).iter_rows():
+        egos.append(track)
+        starts.append(step - config.history_steps + 1)
+    return egos, starts
+
+
+CSLSTM_CONFIGS = (
+    BuildConfig(protocol=Protocol.CS_LSTM),
+    BuildConfig(protocol=Protocol.CS_LSTM, history_steps=5, future_steps=4, d_min_m=50.0),
+)
+
+
+@pytest.mark.parametrize("config", SCENE_CONFIGS + CSLSTM_CONFIGS)
+def test_random_scenes_match_the_induced_graphs(config: BuildConfig) -> None:
+    rng = np.random.default_rng(91)
+    checked = shared = 0
+    for _ in range(10):
+        table = random_scene(rng, config)
+        windows = cslstm_windows if config.protocol is Protocol.CS_LSTM else all_windows
+        egos, starts = (np.array(v, dtype=np.int64) for v in windows(table, config))
+        rec = arrays_of(table, config)
+        is_train = rng.random(len(egos)) < 0.6
+        batch = induce_graphs(rec, egos.astype(np.int32), starts, config)
+        counts, ranges = counted(rec, egos, starts, is_train, config)
+        assert np.array_equal(counts, induced_counts(batch))
+        expected = induced_ranges(batch, is_train)
+        assert ranges.low == expected.low and ranges.high == expected.high  # exactly
+        checked += len(egos)
+        history = history_rows(rec, egos, starts, config)
+        shared += len(history[history >= 0]) - len(np.unique(history[history >= 0]))
+    assert checked > 50 and counts[:, 2].sum() > 0 and counts[:, 4].sum() > 0
+    if config.stride_steps < config.history_steps or config.protocol is Protocol.CS_LSTM:
+        assert shared > 0, "rows in several samples' histories are looked at once"
+
+
+def test_no_windows_no_counts() -> None:
+    rec = arrays_of(tiny_scene(), TINY)
+    none = np.empty(0, np.int64)
+    counts, ranges = counted(rec, none, none, np.empty(0, bool), TINY)
+    assert counts.shape == (0, 5)
+    assert not ranges.is_fitted
