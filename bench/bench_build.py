@@ -2,15 +2,17 @@
 
 Generates (or reuses) the synthetic input with `ngsim-graphs synth` in a child process, then runs
 `run_build` here and prints wall seconds per stage, samples and edges per second, the output's
-size on disk and the peak resident memory. Synthetic data: these are not NGSIM results.
+size on disk and the peak resident memory of all the build's processes together (bench/memory.py).
+Synthetic data: these are not NGSIM results.
 
     python bench/bench_build.py --format txt            # six recordings of 15 minutes
     python bench/bench_build.py --format txt --recordings 2   # memory must not grow with this
+    taskset -c 0,1 python bench/bench_build.py --format txt   # two cores (two jobs by default)
+    python bench/bench_build.py --format txt --jobs 1   # one process
 """
 
 from __future__ import annotations
 
-import resource
 import sys
 import time
 from pathlib import Path
@@ -19,10 +21,12 @@ import polars as pl
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_ingest import ensure_input, parse_input_args  # noqa: E402
+from memory import TreeMemory, process_peaks_gb  # noqa: E402
 
 from ngsim_graphs import layout  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
 from ngsim_graphs.pipeline import run_build  # noqa: E402
+from ngsim_graphs.workers import available_cores  # noqa: E402
 
 
 def folder_bytes(folder: Path) -> dict[str, int]:
@@ -39,20 +43,23 @@ def main() -> None:
     args, tag, raw_dir = parse_input_args(__doc__, "txt")
     ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
 
-    marks: list[tuple[str, float]] = []
+    marks: list[tuple[str, int, float]] = []
+    jobs = args.jobs or available_cores()
     start = time.perf_counter()
-    result = run_build(
-        [raw_dir],
-        args.work_dir / f"graphs-{tag}",
-        BuildConfig(),
-        overwrite=True,
-        progress=lambda what, _done, _total: marks.append((what, time.perf_counter())),
-    )
+    with TreeMemory() as memory:
+        result = run_build(
+            [raw_dir],
+            args.work_dir / f"graphs-{tag}",
+            BuildConfig(),
+            overwrite=True,
+            progress=lambda what, done, _total: marks.append((what, done, time.perf_counter())),
+            jobs=jobs,
+        )
     end = time.perf_counter()
-    peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    own_gb, child_gb = process_peaks_gb()
 
     stages: dict[str, float] = {}
-    for (what, at), (_, until) in zip(marks, [*marks[1:], ("end", end)], strict=True):
+    for (what, _, at), (_, _, until) in zip(marks, [*marks[1:], ("end", 0, end)], strict=True):
         stage = "reading + staging" if what.startswith("reading") else what.split(" ")[0]
         stages[stage] = stages.get(stage, 0.0) + until - at
     samples = pl.concat(
@@ -69,6 +76,7 @@ def main() -> None:
     print(
         f"input              {tag}: {counts.rows_read:,} rows, {len(result.recordings)} recordings"
     )
+    print(f"jobs               {jobs} (of {available_cores()} usable cores)")
     for stage, seconds in stages.items():
         print(f"  {stage:<17}{seconds:7.1f} s")
     print(f"wall               {wall_s:.1f} s")
@@ -79,14 +87,17 @@ def main() -> None:
     print(f"samples per second {samples.height / wall_s:,.0f}")
     print(f"edges per second   {(n_spatial + n_temporal) / wall_s:,.0f}")
     print(
-        f"proximity edges    {counts['proximity_edges']:,} stored (pairs within d_min, once per step)"
+        f"proximity edges    {counts.proximity_edges:,} stored (pairs within d_min, once per step)"
     )
     print(
         "output on disk     "
         + ", ".join(f"{k} {v / 1e6:.0f} MB" for k, v in sorted(sizes.items()))
         + f"; total {sum(sizes.values()) / 1e9:.2f} GB"
     )
-    print(f"peak memory        {peak_gb:.2f} GB (max RSS of this process)")
+    print(
+        f"peak memory        {memory.peak_bytes / 1024**3:.2f} GB (all processes, summed; "
+        f"max RSS {own_gb:.2f} GB of this one, {child_gb:.2f} GB of the largest worker)"
+    )
 
 
 if __name__ == "__main__":

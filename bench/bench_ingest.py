@@ -56,6 +56,9 @@ def parse_input_args(description: str, default_format: str) -> tuple[argparse.Na
     parser.add_argument("--minutes", type=float, default=15.0)
     parser.add_argument("--quirks", action="store_true")
     parser.add_argument("--work-dir", type=Path, default=Path("bench/out"))
+    parser.add_argument(
+        "--jobs", type=int, default=None, help="build processes (default: one per usable core)"
+    )
     args = parser.parse_args()
     tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
     return args, tag, args.work_dir / f"raw-{tag}"

@@ -18,7 +18,12 @@ class NgsimError(ValueError):
             where += f", line {line}"
         super().__init__(f"{where}: {message}" if where else message)
         self.path = path
+        self.message = message
         self.line = line
+
+    def __reduce__(self) -> tuple:
+        """Pickled by its parts (a build's worker process sends it back whole)."""
+        return (type(self), (self.path, self.message, self.line))
 
 
 class NgsimInputError(NgsimError):

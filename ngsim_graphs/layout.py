@@ -125,6 +125,11 @@ def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> 
     return root / STAGING_DIR / recording_name(location, period) / f"{file_index:04d}.parquet"
 
 
+def staged_tracks_path(root: Path, location: str, period: str) -> Path:
+    """One recording's tracks table, numbered from 0, kept only while building."""
+    return root / STAGING_DIR / recording_name(location, period) / "tracks.parquet"
+
+
 def manifest_path(root: Path) -> Path:
     return root / MANIFEST_NAME
 

@@ -12,7 +12,7 @@ every recording is kept until the end.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import reduce
 from pathlib import Path
@@ -25,7 +25,6 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.cslstm import DATASET_IDS
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.graphs import GraphBatch, induce_graphs
 from ngsim_graphs.grid import (
     ARRAY_NAMES,
     RecordingArrays,
@@ -34,14 +33,19 @@ from ngsim_graphs.grid import (
     recording_arrays,
 )
 from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, SourceLine
+from ngsim_graphs.neighbourhoods import (
+    history_rows,
+    neighbourhoods,
+    sample_counts,
+    train_ranges,
+)
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import DropReason, Protocol, Split
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, assign_splits, split_warnings
 from ngsim_graphs.windows import ScriptRows, ego_windows, script_windows
-
-INDUCE_BATCH = 64  # samples per induction: small batches stay in the CPU caches
+from ngsim_graphs.workers import available_cores, map_in_order
 
 
 @dataclass(frozen=True)
@@ -51,42 +55,14 @@ class RecordingSamples:
     pairs: pl.DataFrame  # PROXIMITY_SCHEMA
     arrays: RecordingArrays
     windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
-    scaler: MinMaxScaler  # widened by this recording's train samples
+    train_ranges: MinMaxScaler  # what this recording's train samples observed
     script_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
-
-
-def iter_graphs(
-    rec: RecordingArrays, windows: pl.DataFrame, config: BuildConfig
-) -> Iterator[GraphBatch]:
-    """The graphs of `windows` (EGO_TRACK_ID, START_STEP) in order, INDUCE_BATCH at a time."""
-    egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
-    for first in range(0, len(egos), INDUCE_BATCH):
-        part = slice(first, first + INDUCE_BATCH)
-        yield induce_graphs(rec, egos[part], starts[part], config)
-
-
-def graph_counts(batch: GraphBatch) -> np.ndarray:
-    """(B, 5) int64: nodes, spatial edges, temporal edges, targets, targets with a full future."""
-    b = batch.n_samples
-    per = lambda nodes: np.bincount(batch.node_sample[nodes], minlength=b)  # noqa: E731
-    full = batch.target_node[batch.target_mask.all(axis=1)]
-    return np.stack(
-        [
-            np.diff(batch.node_ptr),
-            per(batch.spatial_edges[0]),
-            per(batch.temporal_edges[0]),
-            per(batch.target_node),
-            per(full),
-        ],
-        axis=1,
-    )
 
 
 def recording_samples(
     tracks: pl.DataFrame,
     recording_index: int,
     config: BuildConfig,
-    scaler: MinMaxScaler,
     raw: pl.DataFrame | None = None,
     dataset_id: int = 0,
 ) -> RecordingSamples:
@@ -106,23 +82,16 @@ def recording_samples(
     else:
         max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
         windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
-    train_flags = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
-    counts, first = [], 0
-    for batch in iter_graphs(arrays, windows, config):
-        is_train = train_flags[first : first + batch.n_samples]
-        first += batch.n_samples
-        counts.append(graph_counts(batch))
-        if is_train.any():
-            node_train = is_train[batch.node_sample]
-            edge_train = node_train[batch.spatial_edges[0]]
-            scaler = scaler.widened(
-                batch.node_features[node_train], batch.spatial_distance[edge_train]
-            )
-    table = np.concatenate(counts) if counts else np.zeros((0, len(s.COUNT_COLUMNS)), np.int64)
+    egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
+    history = history_rows(arrays, egos, starts, config)
+    hood = neighbourhoods(arrays, history[history >= 0], config)
+    table = sample_counts(hood, history, config)
+    is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
+    train = train_ranges(arrays, hood, history, is_train)
     windows = windows.with_columns(
         pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
-    return RecordingSamples(pairs, arrays, windows, scaler, script)
+    return RecordingSamples(pairs, arrays, windows, train, script)
 
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -154,6 +123,19 @@ class RecordingOutput:
     proximity_edges: int
     windows: pl.DataFrame  # with location, period, s.SPLIT and counts
     script_rows: ScriptRows | None  # the cs-lstm protocol's rows (None: aigem)
+    train_ranges: MinMaxScaler  # what its train samples observed
+
+
+def _read_file(
+    source: Source, path: Path, config: BuildConfig, file_index: int, root: Path, strict: bool
+) -> tuple[FileReport, dict[RecordingKey, Path]]:
+    """Read one input file and stage its rows per recording (a worker's task)."""
+    read = source.read_file(path, config, file_index, strict)
+    staged = {}
+    for key in sorted(read.recordings):
+        staged[key] = layout.staged_raw_path(root, *key, file_index)
+        layout.write_staged(read.recording_rows(key), staged[key])
+    return read.report, staged
 
 
 def _stage_inputs(
@@ -163,19 +145,20 @@ def _stage_inputs(
     root: Path,
     progress: BuildProgress,
     strict: bool,
+    jobs: int,
 ) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
-    """Read each file and stage its rows per recording, one recording in memory at a time."""
-    reports: list[FileReport] = []
+    """Read each file and stage its rows per recording, one file per job at a time."""
+    reading = lambda done: progress(  # noqa: E731
+        f"reading {files[min(done, len(files) - 1)].name}", done, len(files)
+    )
+    reading(0)
+    tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
+    read = map_in_order(_read_file, tasks, jobs, reading)
+    reports = [report for report, _ in read]
     staged: dict[RecordingKey, list[Path]] = {}
-    for file_index, path in enumerate(files):
-        progress(f"reading {path.name}", file_index, len(files))
-        read = source.read_file(path, config, file_index, strict)
-        for key in sorted(read.recordings):
-            target = layout.staged_raw_path(root, *key, file_index)
-            layout.write_staged(read.recording_rows(key), target)
-            staged.setdefault(key, []).append(target)
-        reports.append(read.report)
-        del read
+    for _, paths in read:
+        for key, path in paths.items():
+            staged.setdefault(key, []).append(path)
     if not staged:
         found = sorted({loc for r in reports for loc in r.locations_found})
         more = f" (and {len(files) - 1} more)" if len(files) > 1 else ""
@@ -187,23 +170,42 @@ def _stage_inputs(
     return reports, staged
 
 
-def _build_recording(
+def _clean_recording(
     source: Source,
     key: RecordingKey,
-    index: int,
     staged: list[Path],
     config: BuildConfig,
     root: Path,
-    first_track_id: int,
-    scaler: MinMaxScaler,
     files: list[FileReport],
     strict: bool,
-) -> tuple[RecordingOutput, MinMaxScaler]:
-    """Tracks, proximity edges, frame arrays and split windows of one recording, written."""
+) -> RecordingReport:
+    """One recording's tracks table, its tracks numbered from 0, staged (a worker's task).
+
+    The build numbers tracks over all recordings; a recording's first track id is known once
+    every recording before it is cleaned, so the numbers are shifted in `_build_recording`."""
     raw = pl.read_parquet(staged)
-    tracks, report = source.recording_tracks(raw, key, config, first_track_id, files, strict)
+    tracks, report = source.recording_tracks(raw, key, config, 0, files, strict)
+    layout.write_staged(tracks, layout.staged_tracks_path(root, *key))
+    return report
+
+
+def _build_recording(
+    key: RecordingKey,
+    index: int,
+    report: RecordingReport,
+    first_track_id: int,
+    staged: list[Path],
+    config: BuildConfig,
+    root: Path,
+) -> RecordingOutput:
+    """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
+    worker's task)."""
+    tracks = pl.read_parquet(layout.staged_tracks_path(root, *key)).with_columns(
+        (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
+    )
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
-    samples = recording_samples(tracks, index, config, scaler, raw, DATASET_IDS.get(key, 0))
+    raw = pl.read_parquet(staged) if config.protocol is Protocol.CS_LSTM else None
+    samples = recording_samples(tracks, index, config, raw, DATASET_IDS.get(key, 0))
     layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
     arrays = samples.arrays
     layout.write_arrays(
@@ -216,10 +218,10 @@ def _build_recording(
         pl.lit(index).alias(s.RECORDING_INDEX),
     )
     # The vehicle split's largest ids: the script's are of the rows before cleaning.
-    split_by = raw if config.protocol is Protocol.CS_LSTM else tracks
+    split_by = tracks if raw is None else raw
     ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
-    output = RecordingOutput(
+    return RecordingOutput(
         report,
         index,
         first_track_id,
@@ -229,8 +231,33 @@ def _build_recording(
         samples.pairs.height,
         windows,
         samples.script_rows,
+        samples.train_ranges,
     )
-    return output, samples.scaler
+
+
+def _build_recordings(
+    source: Source,
+    staged: dict[RecordingKey, list[Path]],
+    config: BuildConfig,
+    root: Path,
+    files: list[FileReport],
+    progress: BuildProgress,
+    strict: bool,
+    jobs: int,
+) -> list[RecordingOutput]:
+    """Every recording cleaned, then built, in key order, one recording per job at a time."""
+    keys = sorted(staged)
+    show = lambda what: lambda done: progress(what, done, len(keys))  # noqa: E731
+    show("cleaning recordings")(0)
+    cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
+    reports = map_in_order(_clean_recording, cleaning, jobs, show("cleaning recordings"))
+    first_ids = np.cumsum([0] + [report.tracks for report in reports])
+    show("building recordings")(0)
+    building = [
+        (key, i, reports[i], int(first_ids[i]), staged[key], config, root)
+        for i, key in enumerate(keys)
+    ]
+    return map_in_order(_build_recording, building, jobs, show("building recordings"))
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
@@ -409,37 +436,32 @@ def run_build(
     progress: BuildProgress | None = None,
     strict: bool = False,
     dataset: str | None = None,
+    jobs: int | None = None,
 ) -> BuildResult:
     """Read every raw file under `raw_paths` and write the finished build into `out_dir`.
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
+    `jobs` processes read the files and build the recordings (None: one per core this process
+    may use); the output is the same for any number.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.
     """
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
+    jobs = available_cores() if jobs is None else jobs
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
     report_progress = progress or (lambda _what, _done, _total: None)
     source, files, skipped = choose_source(raw_paths, dataset)
     with landing.build_directory(out_dir, overwrite) as root:
-        file_reports, staged = _stage_inputs(source, files, config, root, report_progress, strict)
+        file_reports, staged = _stage_inputs(
+            source, files, config, root, report_progress, strict, jobs
+        )
         _check_script_recordings(staged, file_reports, config)
-        outputs, scaler, next_track_id = [], MinMaxScaler.empty(), 0
-        for index, key in enumerate(sorted(staged)):
-            report_progress(f"recording {layout.recording_name(*key)}", index, len(staged))
-            output, scaler = _build_recording(
-                source,
-                key,
-                index,
-                staged[key],
-                config,
-                root,
-                next_track_id,
-                scaler,
-                file_reports,
-                strict,
-            )
-            outputs.append(output)
-            next_track_id += output.report.tracks
+        outputs = _build_recordings(
+            source, staged, config, root, file_reports, report_progress, strict, jobs
+        )
+        scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
         _check_some_samples(outputs, config, raw_paths)
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)

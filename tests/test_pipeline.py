@@ -193,7 +193,10 @@ def test_same_build_twice_gives_identical_parquet(tmp_path: Path, portal_rows: l
     assert parquet_bytes(tmp_path / "c") == a
 
 
-def test_failure_mid_build_leaves_previous_build(tmp_path: Path, portal_rows: list) -> None:
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_failure_mid_build_leaves_previous_build(
+    tmp_path: Path, portal_rows: list, jobs: int
+) -> None:
     good = _write(tmp_path / "a_good.csv", portal_rows)
     out = tmp_path / "out"
     run_build([good], out, SHORT)
@@ -204,8 +207,11 @@ def test_failure_mid_build_leaves_previous_build(tmp_path: Path, portal_rows: li
     bad.write_text(bad.read_text()[:-40])  # the last line cut off
     seen: list[str] = []
     with pytest.raises(NgsimInputError, match=r"b_bad\.txt, line 10: "):
-        run_build([good, bad], out, SHORT, overwrite=True, progress=lambda w, *_: seen.append(w))
-    assert seen[:2] == ["reading a_good.csv", "reading b_bad.txt"]  # the good file was staged first
+        run_build(
+            [good, bad], out, SHORT, True, lambda w, *_: seen.append(w), jobs=jobs
+        )  # the error of a worker process comes back whole
+    if jobs == 1:
+        assert seen == ["reading a_good.csv", "reading b_bad.txt"]  # the good file staged first
     assert snapshot(out) == before
     assert hidden_siblings(out) == []
 
