@@ -197,27 +197,33 @@ def _scan_txt_text(path: Path) -> pl.LazyFrame:
     return split.select(ROW, *columns, n_fields, CONTROL).with_columns(odd.alias(ODD))
 
 
-def _number_exprs(columns: tuple[str, ...]) -> tuple[list[pl.Expr], pl.Expr, pl.Expr]:
+def _number_exprs(
+    columns: tuple[str, ...],
+) -> tuple[list[pl.Expr], list[pl.Expr], pl.Expr, pl.Expr]:
     """Parse text columns to RAW_SCHEMA dtypes; also the count of non-empty fields per row, and
     whether an integer field of the row is written with a point or an exponent.
 
+    Returns (tidied, parsed, present, pointed): `tidied` strips each column's blanks and thousands
+    separators in place, once; the others read the tidied columns, in a later select.
     A row whose parsed non-null values are fewer than its non-empty fields holds a malformed
     number. Comparing two counts costs far less than testing every field for it. An integer
     column's value must be whole (`10.5` as a Frame_ID truncates to 10 when cast): the few rows
     written with a point ("2.0" is fine) are checked one by one afterwards (_first_fraction).
     """
+    tidied: list[pl.Expr] = []
     parsed: list[pl.Expr] = []
     present: list[pl.Expr] = []
     pointed: list[pl.Expr] = []
     for column in columns:
-        text = pl.col(column).str.strip_chars().str.replace_all(",", "", literal=True)
+        text = pl.col(column)
+        tidied.append(text.str.strip_chars().str.replace_all(",", "", literal=True))
         dtype = s.RAW_SCHEMA[column]
-        parsed.append(text.cast(pl.Float64, strict=False).cast(dtype, strict=False).alias(column))
+        parsed.append(text.cast(pl.Float64, strict=False).cast(dtype, strict=False))
         present.append((text != "").fill_null(False).cast(pl.Int8))
         if dtype != pl.Float64:
-            pointed.append(pl.col(column).str.contains(r"[.eE]").fill_null(False))
+            pointed.append(text.str.contains(r"[.eE]").fill_null(False))
     counts = pl.sum_horizontal(present).cast(pl.Int8).alias(PRESENT)
-    return parsed, counts, pl.any_horizontal(pointed).alias(_POINTED)
+    return tidied, parsed, counts, pl.any_horizontal(pointed).alias(_POINTED)
 
 
 def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
@@ -267,10 +273,12 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     )
     text = text.with_columns(location.alias(s.LOCATION))
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
-    parsed, present, pointed = _number_exprs(s.TXT_COLUMNS)
+    tidied, parsed, present, pointed = _number_exprs(s.TXT_COLUMNS)
     try:
-        frame = kept.select(ROW, *parsed, s.LOCATION, present, pointed, ODD).collect(
-            engine="streaming"
+        frame = (
+            kept.with_columns(tidied)
+            .select(ROW, *parsed, s.LOCATION, present, pointed, ODD)
+            .collect(engine="streaming")
         )
         # Rows of other locations are counted on their own; one collect_all sharing the scan
         # would hold all of its text in memory.
