@@ -111,8 +111,11 @@ def _history_nodes(
     cand_ss, cand_row = concat_ranges(
         first_row, np.where(has_ego, rec.step_ptr[ss_step + 1], first_row)
     )
-    xy = rec.node_state[:, :2]
-    cand_dist = _distance(xy[cand_row], xy[ego_rows[cand_ss]])
+    # np.take, not fancy indexing: a gather of whole rows that is several times faster.
+    cand_dist = _distance(
+        np.take(rec.node_state, cand_row, axis=0),
+        np.take(rec.node_state, ego_rows[cand_ss], axis=0),
+    )
     if not np.isfinite(cand_dist).all():  # NaN compares False: the vehicle would vanish silently
         raise NonFiniteStateError("positions that are not finite")
     is_node = cand_dist <= config.d_sense_m
@@ -147,7 +150,7 @@ def induce_graphs(
     node_ss, node_row = cand_ss[order], cand_row[order]
     node_sample = node_ss // n_kept
     origin = rec.node_state[ego_rows.reshape(n_samples, n_kept)[:, -1], :2]  # (B, 2) present ego
-    features = rec.node_state[node_row].copy()
+    features = np.take(rec.node_state, node_row, axis=0)
     features[:, :2] -= origin[node_sample]
 
     spatial, distance = _spatial_edges(
@@ -221,7 +224,7 @@ def _spatial_edges(
     hi = np.where(has_ego, hi, lo)
     pair_ss, pair_index = concat_ranges(lo, hi)
     base = block_start - rec.step_ptr[ss_step]
-    pair_rows = rec.pair_rows[pair_index]
+    pair_rows = np.take(rec.pair_rows, pair_index, axis=0)
     node_a = node_of_cand[base[pair_ss] + pair_rows[:, 0]]
     node_b = node_of_cand[base[pair_ss] + pair_rows[:, 1]]
     ego_row = ego_rows[pair_ss]
@@ -270,7 +273,9 @@ def _targets(rec, node_sample, node_step, node_track, node_is_ego, origin, start
     rows = rows.reshape(len(target_node), config.future_steps)
     mask = rows >= 0
     xy = np.where(
-        mask[..., None], rec.node_state[np.maximum(rows, 0), :2] - origin[sample][:, None], 0.0
+        mask[..., None],
+        np.take(rec.node_state, np.maximum(rows, 0), axis=0)[..., :2] - origin[sample][:, None],
+        0.0,
     )
     return target_node, xy, mask
 

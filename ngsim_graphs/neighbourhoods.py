@@ -80,9 +80,11 @@ def _reduce(ufunc: np.ufunc, values: np.ndarray, starts: np.ndarray) -> np.ndarr
     return ufunc.reduceat(values, starts) if len(starts) else values[:0]
 
 
-def _runs(ufunc: np.ufunc, values: np.ndarray, lengths: np.ndarray, empty: float) -> np.ndarray:
+def _runs(
+    ufunc: np.ufunc, values: np.ndarray, lengths: np.ndarray, empty: float, dtype=np.float64
+) -> np.ndarray:
     """ufunc over consecutive runs of `values` of the given lengths; `empty` for an empty run."""
-    out = np.full(len(lengths), empty)
+    out = np.full(len(lengths), empty, dtype=dtype)
     filled = lengths > 0
     out[filled] = _reduce(ufunc, values, (np.cumsum(lengths) - lengths)[filled])
     return out
@@ -121,23 +123,26 @@ def _actor_pairs(
     The pairs whose lower vehicle is within d_sense (and a margin) of the ego along y, as
     `induce_graphs` searches them, kept where both are near rows and neither is the ego. Which
     rows are actors is a small (ego, row of its step) table: a lookup, not a distance, per pair."""
-    base = rec.step_ptr[step]  # first row of each ego's step
     width = int(np.diff(rec.step_ptr).max()) if rec.n_steps else 0
+    # Row r of ego i's step is entry i * width + r - (first row of the step) of `is_actor`.
+    offset = np.arange(len(egos)) * width - rec.step_ptr[step]
     is_actor = np.zeros(len(egos) * width, bool)
     actor = near.row != egos[near.owner]
-    is_actor[near.owner[actor] * width + near.row[actor] - base[near.owner[actor]]] = True
+    is_actor[offset[near.owner[actor]] + near.row[actor]] = True
     ego_y = rec.node_state[egos, 1]
     reach = d_sense_m + SEARCH_MARGIN_M
     lo = np.searchsorted(rec.pair_key, pair_search_key(step, ego_y - reach), "left")
     hi = np.searchsorted(rec.pair_key, pair_search_key(step, ego_y + reach), "right")
-    owner, index = concat_ranges(lo, hi)
-    offset = owner * width - base[owner]
-    keep = is_actor[offset + rec.pair_rows[index, 0]] & is_actor[offset + rec.pair_rows[index, 1]]
-    distance = rec.pair_dist[index].astype(np.float64)
+    lengths = hi - lo
+    index = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths - lo, lengths)
+    pairs = np.take(rec.pair_rows, index, axis=0)  # (C, 2); faster than fancy indexing
+    pair_offset = np.repeat(offset, lengths)
+    keep = is_actor[pairs[:, 0] + pair_offset] & is_actor[pairs[:, 1] + pair_offset]
+    distance = rec.pair_dist[index]  # float32: its minimum and maximum are exact as float64
     return (
-        _runs(np.add, keep.astype(np.int64), hi - lo, 0),
-        _runs(np.minimum, np.where(keep, distance, np.inf), hi - lo, np.inf),
-        _runs(np.maximum, np.where(keep, distance, -np.inf), hi - lo, -np.inf),
+        _runs(np.add, keep.astype(np.int32), lengths, 0, np.int64),
+        _runs(np.minimum, np.where(keep, distance, np.inf), lengths, np.inf),
+        _runs(np.maximum, np.where(keep, distance, -np.inf), lengths, -np.inf),
     )
 
 
@@ -165,7 +170,7 @@ def _chunk(
     ego_first, ego_count = rec.track_steps(rec.node_track[egos])
     ego_full = ego_first + ego_count - 1 >= row_step + config.future_steps
 
-    state = rec.node_state[near.row]
+    state = np.take(rec.node_state, near.row, axis=0)
     low = np.empty((len(egos), len(SCALED)))
     high = np.empty((len(egos), len(SCALED)))
     low[:, : len(FEATURES)] = _reduce(np.minimum, state, starts)
