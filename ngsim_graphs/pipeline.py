@@ -45,7 +45,7 @@ from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingRep
 from ngsim_graphs.sources.registry import choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, assign_splits, split_warnings
 from ngsim_graphs.windows import ScriptRows, ego_windows, script_windows
-from ngsim_graphs.workers import available_cores, map_in_order
+from ngsim_graphs.workers import Workers, available_cores
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ def _stage_inputs(
     root: Path,
     progress: BuildProgress,
     strict: bool,
-    jobs: int,
+    workers: Workers,
 ) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
     """Read each file and stage its rows per recording, one file per job at a time."""
     reading = lambda done: progress(  # noqa: E731
@@ -153,7 +153,7 @@ def _stage_inputs(
     )
     reading(0)
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
-    read = map_in_order(_read_file, tasks, jobs, reading)
+    read = workers.map(_read_file, tasks, reading)
     reports = [report for report, _ in read]
     staged: dict[RecordingKey, list[Path]] = {}
     for _, paths in read:
@@ -243,21 +243,21 @@ def _build_recordings(
     files: list[FileReport],
     progress: BuildProgress,
     strict: bool,
-    jobs: int,
+    workers: Workers,
 ) -> list[RecordingOutput]:
     """Every recording cleaned, then built, in key order, one recording per job at a time."""
     keys = sorted(staged)
     show = lambda what: lambda done: progress(what, done, len(keys))  # noqa: E731
     show("cleaning recordings")(0)
     cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
-    reports = map_in_order(_clean_recording, cleaning, jobs, show("cleaning recordings"))
+    reports = workers.map(_clean_recording, cleaning, show("cleaning recordings"))
     first_ids = np.cumsum([0] + [report.tracks for report in reports])
     show("building recordings")(0)
     building = [
         (key, i, reports[i], int(first_ids[i]), staged[key], config, root)
         for i, key in enumerate(keys)
     ]
-    return map_in_order(_build_recording, building, jobs, show("building recordings"))
+    return workers.map(_build_recording, building, show("building recordings"))
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
@@ -448,18 +448,16 @@ def run_build(
     disk); `out_dir` is then left as it was.
     """
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
-    jobs = available_cores() if jobs is None else jobs
-    if jobs < 1:
-        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
     report_progress = progress or (lambda _what, _done, _total: None)
     source, files, skipped = choose_source(raw_paths, dataset)
-    with landing.build_directory(out_dir, overwrite) as root:
+    with landing.build_directory(out_dir, overwrite) as root, workers:
         file_reports, staged = _stage_inputs(
-            source, files, config, root, report_progress, strict, jobs
+            source, files, config, root, report_progress, strict, workers
         )
         _check_script_recordings(staged, file_reports, config)
         outputs = _build_recordings(
-            source, staged, config, root, file_reports, report_progress, strict, jobs
+            source, staged, config, root, file_reports, report_progress, strict, workers
         )
         scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
         _check_some_samples(outputs, config, raw_paths)

@@ -10,10 +10,9 @@ are shared out among the workers for Polars' own threads (unless POLARS_MAX_THRE
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager
 from multiprocessing import get_context
 from typing import Any, TypeVar
 
@@ -30,19 +29,6 @@ def available_cores() -> int:
     return os.cpu_count() or 1
 
 
-@contextmanager
-def _threads_per_worker(threads: int) -> Iterator[None]:
-    """POLARS_MAX_THREADS for the workers started inside (the user's own setting wins)."""
-    if POLARS_THREADS in os.environ:
-        yield
-        return
-    os.environ[POLARS_THREADS] = str(threads)
-    try:
-        yield
-    finally:
-        os.environ.pop(POLARS_THREADS, None)
-
-
 def _first_failure(futures: list[Future]) -> BaseException | None:
     """The exception of the earliest task, in task order, that failed (None: none did)."""
     for future in futures:
@@ -51,36 +37,72 @@ def _first_failure(futures: list[Future]) -> BaseException | None:
     return None
 
 
-def map_in_order(
-    function: Callable[..., Result],
-    tasks: Sequence[tuple[Any, ...]],
-    jobs: int,
-    finished: Callable[[int], None] = lambda _done: None,
-) -> list[Result]:
-    """[function(*task) for task in tasks], over up to `jobs` processes when jobs > 1.
+class Workers:
+    """Up to `jobs` worker processes, kept from one `map` to the next while as many are needed.
 
-    `finished(n)` is called in this process after each of the n tasks done so far. The first
-    failure stops the tasks not yet started and is raised here, as the task raised it.
+    Use as a context manager; the processes end with it. With jobs == 1, or a single task, the
+    tasks run in this process.
     """
-    if jobs <= 1 or len(tasks) <= 1:
-        results = []
-        for task in tasks:
-            results.append(function(*task))
-            finished(len(results))
-        return results
-    workers = min(jobs, len(tasks))
-    context = get_context("spawn")
-    with (
-        _threads_per_worker(max(1, available_cores() // workers)),
-        ProcessPoolExecutor(workers, mp_context=context) as pool,
-    ):
+
+    def __init__(self, jobs: int) -> None:
+        if jobs < 1:
+            raise ValueError(f"jobs must be at least 1, got {jobs}")
+        self.jobs = jobs
+        self._pool: ProcessPoolExecutor | None = None
+        self._size = 0
+        self._set_threads = False
+
+    def __enter__(self) -> Workers:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._close()
+
+    def _close(self, cancel: bool = False) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=cancel)
+            self._pool = None
+        if self._set_threads:
+            os.environ.pop(POLARS_THREADS, None)
+            self._set_threads = False
+
+    def _start(self, size: int) -> ProcessPoolExecutor:
+        """A pool of `size` processes, the cores shared out among them for Polars' threads (the
+        environment is read when each process starts; the user's own setting wins)."""
+        self._close()
+        if POLARS_THREADS not in os.environ:
+            os.environ[POLARS_THREADS] = str(max(1, available_cores() // size))
+            self._set_threads = True
+        self._pool = ProcessPoolExecutor(size, mp_context=get_context("spawn"))
+        self._size = size
+        return self._pool
+
+    def map(
+        self,
+        function: Callable[..., Result],
+        tasks: Sequence[tuple[Any, ...]],
+        finished: Callable[[int], None] = lambda _done: None,
+    ) -> list[Result]:
+        """[function(*task) for task in tasks], spread over the processes.
+
+        `finished(n)` is called in this process after each of the n tasks done so far. The first
+        failure stops the tasks not yet started and is raised here, as the task raised it.
+        """
+        size = min(self.jobs, len(tasks))
+        if size <= 1:
+            results = []
+            for task in tasks:
+                results.append(function(*task))
+                finished(len(results))
+            return results
+        pool = self._pool if self._pool is not None and self._size == size else self._start(size)
         futures = [pool.submit(function, *task) for task in tasks]
         remaining = set(futures)
         while remaining:
             _done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
             failure = _first_failure(futures)
             if failure is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
+                self._close(cancel=True)
                 if isinstance(failure, BrokenProcessPool):
                     raise NgsimError(
                         None,
