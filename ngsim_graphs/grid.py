@@ -119,16 +119,23 @@ def proximity_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
     step = by_y[s.STEP].to_numpy()
     track = by_y[s.TRACK_ID].to_numpy()
     i, j, dist = _pairs_by_sweep(step, by_y[s.X_M].to_numpy(), by_y[s.Y_M].to_numpy(), d_max_m)
+    columns = (step[i], np.minimum(track[i], track[j]), np.maximum(track[i], track[j]))
     pairs = pl.DataFrame(
-        {
-            s.STEP: step[i],
-            s.TRACK_A: np.minimum(track[i], track[j]),
-            s.TRACK_B: np.maximum(track[i], track[j]),
-            s.DISTANCE_M: dist,
-        },
+        dict(zip((s.STEP, s.TRACK_A, s.TRACK_B), columns, strict=True)) | {s.DISTANCE_M: dist},
         schema=s.PROXIMITY_SCHEMA,
     )
+    if len(step) and max(int(step.max()), int(track.max())) < 2**_KEY_BITS and track.min() >= 0:
+        # One integer key (step, track_a, track_b): a numpy sort of it is twice as fast.
+        key = (
+            (columns[0].astype(np.uint64) << 2 * _KEY_BITS)
+            | (columns[1].astype(np.uint64) << _KEY_BITS)
+            | columns[2].astype(np.uint64)
+        )
+        return pairs[np.argsort(key)]  # the keys are unique: any sort gives one order
     return pairs.sort(s.STEP, s.TRACK_A, s.TRACK_B)
+
+
+_KEY_BITS = 21  # steps and track ids below 2**21 fold into one 63-bit sort key
 
 
 def _csr_ptr(keys: np.ndarray, n_keys: int) -> np.ndarray:

@@ -153,7 +153,7 @@ def _stage_inputs(
     )
     reading(0)
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
-    read = workers.map(_read_file, tasks, reading)
+    read = workers.map(_read_file, tasks, reading, [path.stat().st_size for path in files])
     reports = [report for report, _ in read]
     staged: dict[RecordingKey, list[Path]] = {}
     for _, paths in read:
@@ -250,14 +250,15 @@ def _build_recordings(
     show = lambda what: lambda done: progress(what, done, len(keys))  # noqa: E731
     show("cleaning recordings")(0)
     cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
-    reports = workers.map(_clean_recording, cleaning, show("cleaning recordings"))
+    sizes = [sum(path.stat().st_size for path in staged[key]) for key in keys]
+    reports = workers.map(_clean_recording, cleaning, show("cleaning recordings"), sizes)
     first_ids = np.cumsum([0] + [report.tracks for report in reports])
     show("building recordings")(0)
     building = [
         (key, i, reports[i], int(first_ids[i]), staged[key], config, root)
         for i, key in enumerate(keys)
     ]
-    return workers.map(_build_recording, building, show("building recordings"))
+    return workers.map(_build_recording, building, show("building recordings"), sizes)
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:

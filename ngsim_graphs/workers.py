@@ -82,11 +82,14 @@ class Workers:
         function: Callable[..., Result],
         tasks: Sequence[tuple[Any, ...]],
         finished: Callable[[int], None] = lambda _done: None,
+        sizes: Sequence[float] | None = None,
     ) -> list[Result]:
         """[function(*task) for task in tasks], spread over the processes.
 
         `finished(n)` is called in this process after each of the n tasks done so far. The first
         failure stops the tasks not yet started and is raised here, as the task raised it.
+        `sizes`, a guess of each task's work, starts the largest first: no large task is left to
+        run alone at the end.
         """
         size = min(self.jobs, len(tasks))
         if size <= 1:
@@ -96,7 +99,13 @@ class Workers:
                 finished(len(results))
             return results
         pool = self._pool if self._pool is not None and self._size == size else self._start(size)
-        futures = [pool.submit(function, *task) for task in tasks]
+        order = (
+            range(len(tasks))
+            if sizes is None
+            else sorted(range(len(tasks)), key=sizes.__getitem__, reverse=True)
+        )
+        submitted = {i: pool.submit(function, *tasks[i]) for i in order}
+        futures = [submitted[i] for i in range(len(tasks))]
         remaining = set(futures)
         while remaining:
             _done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
