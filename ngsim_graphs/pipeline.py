@@ -437,13 +437,15 @@ def run_build(
     progress: BuildProgress | None = None,
     strict: bool = False,
     dataset: str | None = None,
-    jobs: int | None = None,
+    jobs: int | None = 1,
 ) -> BuildResult:
     """Read every raw file under `raw_paths` and write the finished build into `out_dir`.
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
-    `jobs` processes read the files and build the recordings (None: one per core this process
-    may use); the output is the same for any number.
+    `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
+    one per core this process may use); the output is the same for any number. The workers are
+    started with multiprocessing's "spawn": a script that builds with jobs > 1 must do so under
+    `if __name__ == "__main__":`.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.

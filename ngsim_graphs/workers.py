@@ -115,8 +115,8 @@ class Workers:
                 if isinstance(failure, BrokenProcessPool):
                     raise NgsimError(
                         None,
-                        "a worker process of the build stopped (killed, perhaps for want of "
-                        "memory): build again with a lower --jobs",
+                        "a worker process of the build stopped unexpectedly (killed, perhaps "
+                        "for want of memory): build again with a lower --jobs",
                     ) from None
                 raise failure
             finished(len(futures) - len(remaining))

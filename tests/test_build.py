@@ -198,16 +198,20 @@ def build_files(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in files}
 
 
+@pytest.mark.parametrize("jobs", [1, 3])
 def test_the_same_build_twice_is_byte_identical(
-    tmp_path_factory: pytest.TempPathFactory, tmp_path: Path
+    tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, jobs: int
 ) -> None:
+    """Also with three worker processes (the first build had one): files and manifest alike."""
     raw, first = synthetic_build(tmp_path_factory)
-    run_build([raw], tmp_path / "again", BuildConfig())
+    run_build([raw], tmp_path / "again", BuildConfig(), jobs=jobs)
     before, after = build_files(first), build_files(tmp_path / "again")
     assert sum(name.endswith(".npy") for name in before) == 2 * 10 + 3 * 3
     assert sum(name.endswith(".parquet") for name in before) == 2 + 2 + 3
     assert before.keys() == after.keys()
     assert [name for name in before if before[name] != after[name]] == []
+    manifest = (tmp_path / "again" / "manifest.json").read_bytes()
+    assert manifest == (first / "manifest.json").read_bytes()
 
 
 def test_open_build_without_manifest(tmp_path: Path) -> None:
