@@ -100,12 +100,12 @@ def _pairs_by_sweep(step: np.ndarray, x: np.ndarray, y: np.ndarray, d_max_m: flo
         dx, dy = x[i + offset] - x[i], y[i + offset] - y[i]
         d = np.sqrt(dx * dx + dy * dy)
         keep = d <= d_max_m
-        first.append(i[keep])
-        second.append(i[keep] + offset)
+        first.append(i[keep].astype(np.int32))  # int32 rows: a third less memory
+        second.append(first[-1] + np.int32(offset))
         dist.append(d[keep])
         offset += 1
     if not first:
-        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
+        return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0)
     return np.concatenate(first), np.concatenate(second), np.concatenate(dist)
 
 
@@ -119,19 +119,25 @@ def proximity_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
     step = by_y[s.STEP].to_numpy()
     track = by_y[s.TRACK_ID].to_numpy()
     i, j, dist = _pairs_by_sweep(step, by_y[s.X_M].to_numpy(), by_y[s.Y_M].to_numpy(), d_max_m)
-    columns = (step[i], np.minimum(track[i], track[j]), np.maximum(track[i], track[j]))
     pairs = pl.DataFrame(
-        dict(zip((s.STEP, s.TRACK_A, s.TRACK_B), columns, strict=True)) | {s.DISTANCE_M: dist},
+        {
+            s.STEP: step[i],
+            s.TRACK_A: np.minimum(track[i], track[j]),
+            s.TRACK_B: np.maximum(track[i], track[j]),
+            s.DISTANCE_M: dist,
+        },
         schema=s.PROXIMITY_SCHEMA,
     )
+    del i, j, dist  # a dense recording has ten million pairs: hold one copy at a time
     if len(step) and max(int(step.max()), int(track.max())) < 2**_KEY_BITS and track.min() >= 0:
         # One integer key (step, track_a, track_b): a numpy sort of it is twice as fast.
-        key = (
-            (columns[0].astype(np.uint64) << 2 * _KEY_BITS)
-            | (columns[1].astype(np.uint64) << _KEY_BITS)
-            | columns[2].astype(np.uint64)
-        )
-        return pairs[np.argsort(key)]  # the keys are unique: any sort gives one order
+        key = pairs[s.STEP].to_numpy().astype(np.uint64)
+        for column in (s.TRACK_A, s.TRACK_B):
+            key <<= np.uint64(_KEY_BITS)
+            key |= pairs[column].to_numpy().astype(np.uint64)
+        order = np.argsort(key)  # the keys are unique: any sort gives the one order
+        del key
+        return pairs[order]
     return pairs.sort(s.STEP, s.TRACK_A, s.TRACK_B)
 
 
@@ -164,8 +170,11 @@ def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArray
     y = nodes[s.Y_M].to_numpy()
     a_lower = y[rows_a] <= y[rows_b]
     low, high = np.where(a_lower, rows_a, rows_b), np.where(a_lower, rows_b, rows_a)
+    del rows_a, rows_b, a_lower  # ten million pairs in a dense recording: free as we go
     pair_key = pair_search_key(pair_step, y[low])
     by_key = np.argsort(pair_key, kind="stable")
+    pair_rows = np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32)
+    del low, high
     state = nodes.select(s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS).to_numpy().astype(np.float64)
     return RecordingArrays(
         step_ptr=_csr_ptr(step, n_steps),
@@ -175,8 +184,8 @@ def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArray
         track_ptr=track_ptr,
         track_rows=by_track,
         pair_ptr=_csr_ptr(pair_step[by_key], n_steps),
-        pair_rows=np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32).reshape(-1, 2),
-        pair_dist=pairs[s.DISTANCE_M].to_numpy()[by_key].astype(np.float32),
+        pair_rows=pair_rows.reshape(-1, 2),
+        pair_dist=pairs[s.DISTANCE_M].to_numpy().astype(np.float32)[by_key],
         pair_key=pair_key[by_key],
         first_track_id=first_track,
     )
