@@ -9,6 +9,7 @@ Synthetic data: these are not NGSIM results.
     python bench/bench_build.py --format txt --recordings 2   # memory must not grow with this
     taskset -c 0,1 python bench/bench_build.py --format txt   # two cores (two jobs by default)
     python bench/bench_build.py --format txt --jobs 1   # one process
+    python bench/bench_build.py --format txt --protocol cs-lstm   # a sample per CS-LSTM row
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from memory import TreeMemory, process_peaks_gb  # noqa: E402
 from ngsim_graphs import layout  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
 from ngsim_graphs.pipeline import run_build  # noqa: E402
+from ngsim_graphs.schema import Protocol  # noqa: E402
 from ngsim_graphs.workers import available_cores  # noqa: E402
 
 
@@ -49,8 +51,9 @@ def main() -> None:
     with TreeMemory() as memory:
         result = run_build(
             [raw_dir],
-            args.work_dir / f"graphs-{tag}",
-            BuildConfig(),
+            args.work_dir
+            / f"graphs-{tag}{'' if args.protocol == 'aigem' else '-' + args.protocol}",
+            BuildConfig(protocol=Protocol(args.protocol)),
             overwrite=True,
             progress=lambda what, done, _total: marks.append((what, done, time.perf_counter())),
             jobs=jobs,
@@ -69,20 +72,22 @@ def main() -> None:
         ]
     )
     wall_s = end - start
-    n_spatial = int(samples["n_spatial_edges"].sum())
-    n_temporal = int(samples["n_temporal_edges"].sum())
+    n_spatial = int(samples["n_spatial_edges"].cast(pl.Int64).sum())
+    n_temporal = int(samples["n_temporal_edges"].cast(pl.Int64).sum())
     sizes = folder_bytes(result.out_dir)
     counts = result.manifest.counts
     print(
         f"input              {tag}: {counts.rows_read:,} rows, {len(result.recordings)} recordings"
     )
-    print(f"jobs               {jobs} (of {available_cores()} usable cores)")
+    print(
+        f"jobs               {jobs} (of {available_cores()} usable cores), {args.protocol} protocol"
+    )
     for stage, seconds in stages.items():
         print(f"  {stage:<17}{seconds:7.1f} s")
     print(f"wall               {wall_s:.1f} s")
     print(f"samples            {samples.height:,} ({dict(result.manifest.splits)})")
     print(
-        f"graph edges        {n_spatial:,} spatial, {n_temporal:,} temporal (induced, not stored per sample)"
+        f"graph edges        {n_spatial:,} spatial, {n_temporal:,} temporal (counted, not stored)"
     )
     print(f"samples per second {samples.height / wall_s:,.0f}")
     print(f"edges per second   {(n_spatial + n_temporal) / wall_s:,.0f}")

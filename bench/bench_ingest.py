@@ -59,6 +59,7 @@ def parse_input_args(description: str, default_format: str) -> tuple[argparse.Na
     parser.add_argument(
         "--jobs", type=int, default=None, help="build processes (default: one per usable core)"
     )
+    parser.add_argument("--protocol", default="aigem", choices=["aigem", "cs-lstm"])
     args = parser.parse_args()
     tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
     return args, tag, args.work_dir / f"raw-{tag}"

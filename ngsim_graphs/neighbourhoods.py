@@ -27,6 +27,7 @@ from ngsim_graphs.scaling import FEATURES, SCALED, MinMaxScaler
 from ngsim_graphs.schema import Protocol
 
 ROWS_PER_CHUNK = 4_096  # ego rows looked at together: their pair candidates stay ~100 MB
+SAMPLES_PER_CHUNK = 65_536  # samples summed up together (cs-lstm: a million in a recording)
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,7 @@ class Neighbourhoods:
     the nodes, the ego included; distance over the spatial edges (inf and -inf without any).
     """
 
-    rows: np.ndarray  # (U,) int64 ego rows, ascending
+    rows: np.ndarray  # (U,) int64 every ego row of the samples, ascending
     nodes: np.ndarray  # (U,) int64 rows within d_sense of the ego, the ego included
     actor_pairs: np.ndarray  # (U,) int64 proximity pairs of two of those rows, neither the ego
     kept: np.ndarray  # (U,) int64 tracks of those rows still within d_sense at the next step
@@ -50,18 +51,25 @@ class Neighbourhoods:
 def history_rows(
     rec: RecordingArrays, ego_track: np.ndarray, start_step: np.ndarray, config: BuildConfig
 ) -> np.ndarray:
-    """(B, K_H) int64 row of each sample's ego at each history step; -1 where it has none.
+    """(B, K_H) int32 row of each sample's ego at each history step; -1 where it has none.
 
     The ego must be present at the present step, and under the aigem protocol at every step (the
     same checks, and messages, as `induce_graphs`)."""
     k_h = config.history_steps
-    steps = (start_step[:, None] + np.arange(k_h)).reshape(-1)
-    rows = rec.row_at(np.repeat(ego_track, k_h), steps).reshape(len(ego_track), k_h)
+    rows = np.empty((len(ego_track), k_h), np.int32)
+    for part in _sample_chunks(len(ego_track)):
+        steps = (start_step[part, None] + np.arange(k_h)).reshape(-1)
+        rows[part] = rec.row_at(np.repeat(ego_track[part], k_h), steps).reshape(-1, k_h)
     if not (rows[:, -1] >= 0).all():
         raise ValueError("an ego track is not present at the present step of its window")
     if config.protocol is Protocol.AIGEM and not (rows >= 0).all():
         raise ValueError("an ego track is not present at every history step of its window")
-    return rows.astype(np.int64)
+    return rows
+
+
+def _sample_chunks(n_samples: int) -> list[slice]:
+    """Samples SAMPLES_PER_CHUNK at a time: (chunk, K_H) temporaries stay small."""
+    return [slice(i, i + SAMPLES_PER_CHUNK) for i in range(0, n_samples, SAMPLES_PER_CHUNK)]
 
 
 def _distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -183,49 +191,67 @@ def _chunk(
     return nodes, actor_pairs, kept, full_future, ego_full, low, high
 
 
-def neighbourhoods(rec: RecordingArrays, rows: np.ndarray, config: BuildConfig) -> Neighbourhoods:
-    """The neighbourhood of each of `rows` (grid rows of `rec`) as an ego, ROWS_PER_CHUNK at a time."""
-    rows = np.unique(rows.astype(np.int64))
+def neighbourhoods(
+    rec: RecordingArrays, history: np.ndarray, config: BuildConfig
+) -> Neighbourhoods:
+    """The neighbourhood of every ego row of (B, K_H) `history_rows`, each looked at once,
+    ROWS_PER_CHUNK at a time."""
+    used = np.zeros(len(rec.node_track), bool)
+    for part in _sample_chunks(len(history)):
+        rows = history[part]
+        used[rows[rows >= 0]] = True
+    rows = np.flatnonzero(used)
     row_step = np.searchsorted(rec.step_ptr, rows, "right") - 1
     all_steps = np.repeat(np.arange(rec.n_steps), np.diff(rec.step_ptr))
     keys = pair_search_key(all_steps, rec.node_state[:, 1])
     order = np.argsort(keys, kind="stable")
     by_y = (order, keys[order])
-    parts = [
-        _chunk(rec, by_y, rows[i : i + ROWS_PER_CHUNK], row_step[i : i + ROWS_PER_CHUNK], config)
-        for i in range(0, len(rows), ROWS_PER_CHUNK)
-    ]
-    if not parts:
-        empty = np.empty(0, np.int64)
-        return Neighbourhoods(
-            rows, empty, empty, empty, empty, np.empty(0, bool), np.empty((0, 5)), np.empty((0, 5))
-        )
-    fields = [np.concatenate(column) for column in zip(*parts, strict=True)]
-    nodes, actor_pairs, kept, full_future, ego_full, low, high = fields
-    return Neighbourhoods(
-        rows,
-        nodes.astype(np.int64),
-        actor_pairs.astype(np.int64),
-        kept.astype(np.int64),
-        full_future.astype(np.int64),
-        ego_full,
-        low,
-        high,
+    n = len(rows)
+    hood = Neighbourhoods(
+        rows=rows,
+        nodes=np.empty(n, np.int64),
+        actor_pairs=np.empty(n, np.int64),
+        kept=np.empty(n, np.int64),
+        full_future=np.empty(n, np.int64),
+        ego_full_future=np.empty(n, bool),
+        low=np.empty((n, len(SCALED))),
+        high=np.empty((n, len(SCALED))),
     )
+    for first in range(0, n, ROWS_PER_CHUNK):
+        part = slice(first, first + ROWS_PER_CHUNK)
+        values = _chunk(rec, by_y, rows[part], row_step[part], config)
+        for name, value in zip(_FIELDS, values, strict=True):
+            getattr(hood, name)[part] = value
+    return hood
+
+
+_FIELDS = ("nodes", "actor_pairs", "kept", "full_future", "ego_full_future", "low", "high")
+
+
+def _positions(hood: Neighbourhoods, history: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(present, at): where each history row is present, and its index in hood.rows (0 where
+    absent; hood.rows holds every present row)."""
+    present = history >= 0
+    return present, np.searchsorted(hood.rows, np.where(present, history, 0))
 
 
 def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
     """(B, 5) int64 per sample, in schema.COUNT_COLUMNS order: nodes, spatial edges, temporal
     edges, targets, targets with a full future, from its (B, K_H) `history_rows`."""
-    present = history >= 0
-    at = np.searchsorted(hood.rows, np.where(present, history, 0))  # hood.rows holds them all
-    pick = lambda values: np.where(present, values[at], 0)  # noqa: E731
-    nodes = pick(hood.nodes)
-    spatial = 2 * (nodes - present) + 2 * pick(hood.actor_pairs)
-    temporal = pick(hood.kept)[:, :-1]
+    counts = np.empty((len(history), 5), np.int64)
+    for part in _sample_chunks(len(history)):
+        counts[part] = _counts(hood, history[part], config)
+    return counts
+
+
+def _counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
+    present, at = _positions(hood, history)
+    nodes = np.where(present, hood.nodes[at], 0)
+    spatial = 2 * (nodes - present) + 2 * np.where(present, hood.actor_pairs[at], 0)
+    temporal = np.where(present, hood.kept[at], 0)[:, :-1]  # from each step to the next
     now = at[:, -1]
     if config.protocol is Protocol.CS_LSTM:
-        targets = np.ones(len(history), np.int64)
+        targets = np.ones(len(now), np.int64)
         full = hood.ego_full_future[now].astype(np.int64)
     else:
         ego = int(config.ego_is_target)
@@ -233,7 +259,7 @@ def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig
         full = hood.full_future[now] + ego * hood.ego_full_future[now]
     return np.stack(
         [nodes.sum(axis=1), spatial.sum(axis=1), temporal.sum(axis=1), targets, full], axis=1
-    ).astype(np.int64)
+    )
 
 
 def train_ranges(
@@ -241,17 +267,19 @@ def train_ranges(
 ) -> MinMaxScaler:
     """The minima and maxima of SCALED over the graphs of the train samples (`is_train`, (B,)
     bool) as a scaler: x and y in each sample's frame, with its present ego at (0, 0)."""
-    history = history[is_train]
-    present = history >= 0
-    at = np.searchsorted(hood.rows, np.where(present, history, 0))
-    origin = rec.node_state[history[:, -1], :2] if len(history) else np.empty((0, 2))
     low, high = dict.fromkeys(SCALED, np.inf), dict.fromkeys(SCALED, -np.inf)
-    for i, name in enumerate(SCALED[:2]):
-        sample_low = np.where(present, hood.low[at, i], np.inf).min(axis=1, initial=np.inf)
-        sample_high = np.where(present, hood.high[at, i], -np.inf).max(axis=1, initial=-np.inf)
-        low[name] = (sample_low - origin[:, i]).min(initial=np.inf)
-        high[name] = (sample_high - origin[:, i]).max(initial=-np.inf)
-    used = np.unique(at[present])
+    used = np.zeros(len(hood.rows), bool)
+    train = np.flatnonzero(is_train)
+    for part in _sample_chunks(len(train)):
+        rows = history[train[part]]
+        present, at = _positions(hood, rows)
+        origin = np.take(rec.node_state, rows[:, -1], axis=0)
+        for i, name in enumerate(SCALED[:2]):
+            sample_low = np.where(present, hood.low[at, i], np.inf).min(axis=1)
+            sample_high = np.where(present, hood.high[at, i], -np.inf).max(axis=1)
+            low[name] = min(low[name], (sample_low - origin[:, i]).min())
+            high[name] = max(high[name], (sample_high - origin[:, i]).max())
+        used[at[present]] = True
     for i, name in enumerate(SCALED[2:], start=2):
         low[name] = hood.low[used, i].min(initial=np.inf)
         high[name] = hood.high[used, i].max(initial=-np.inf)

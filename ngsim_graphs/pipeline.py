@@ -84,7 +84,7 @@ def recording_samples(
         windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     history = history_rows(arrays, egos, starts, config)
-    hood = neighbourhoods(arrays, history[history >= 0], config)
+    hood = neighbourhoods(arrays, history, config)
     table = sample_counts(hood, history, config)
     is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
     train = train_ranges(arrays, hood, history, is_train)

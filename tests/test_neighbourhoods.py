@@ -57,7 +57,7 @@ def counted(
     rec: RecordingArrays, egos: np.ndarray, starts: np.ndarray, is_train: np.ndarray, config
 ) -> tuple[np.ndarray, MinMaxScaler]:
     history = history_rows(rec, egos, starts, config)
-    hood = neighbourhoods(rec, history[history >= 0], config)
+    hood = neighbourhoods(rec, history, config)
     return sample_counts(hood, history, config), train_ranges(rec, hood, history, is_train)
 
 
