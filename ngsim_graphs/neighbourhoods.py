@@ -16,9 +16,11 @@ subtracting the ego's position rounds monotonically: min(x_i - o) == min(x_i) - 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+import polars as pl
 
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import SEARCH_MARGIN_M, NonFiniteStateError, concat_ranges
@@ -217,11 +219,17 @@ def neighbourhoods(
         low=np.empty((n, len(SCALED))),
         high=np.empty((n, len(SCALED))),
     )
-    for first in range(0, n, ROWS_PER_CHUNK):
-        part = slice(first, first + ROWS_PER_CHUNK)
+
+    def fill(part: slice) -> None:
         values = _chunk(rec, by_y, rows[part], row_step[part], config)
         for name, value in zip(_FIELDS, values, strict=True):
             getattr(hood, name)[part] = value
+
+    # numpy lets go of the GIL in its loops over large arrays: chunks run in parallel on as many
+    # threads as Polars may use in this process (a build worker's share of the cores).
+    parts = [slice(i, i + ROWS_PER_CHUNK) for i in range(0, n, ROWS_PER_CHUNK)]
+    with ThreadPoolExecutor(max(1, min(pl.thread_pool_size(), len(parts)))) as threads:
+        list(threads.map(fill, parts))
     return hood
 
 
