@@ -14,12 +14,14 @@ import hashlib
 import json
 import re
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
 
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.workers import available_cores
 
 CHECKSUM_KEY = "manifest_sha256"  # sha256 of the manifest's canonical JSON without this key
 FILES_KEY = "files"  # relative path -> {"bytes", "sha256"[, "dtype", "shape"]}
@@ -58,11 +60,17 @@ def file_records(root: Path, skip: tuple[str, ...]) -> dict[str, dict[str, Any]]
     """Every file under `root` but those under the top-level names in `skip`: its path relative
     to `root` (POSIX), size, sha256, and for a .npy array its dtype and shape."""
     records: dict[str, dict[str, Any]] = {}
-    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+    paths = [
+        p
+        for p in sorted(root.rglob("*"))
+        if p.is_file() and p.relative_to(root).parts[0] not in skip
+    ]
+    # hashlib lets go of the GIL while it hashes: the files are read and hashed on every core.
+    with ThreadPoolExecutor(available_cores()) as threads:
+        digests = list(threads.map(file_sha256, paths))
+    for path, digest in zip(paths, digests, strict=True):
         relative = path.relative_to(root)
-        if relative.parts[0] in skip:
-            continue
-        record: dict[str, Any] = {"bytes": path.stat().st_size, "sha256": file_sha256(path)}
+        record: dict[str, Any] = {"bytes": path.stat().st_size, "sha256": digest}
         if path.suffix == ".npy":
             dtype, shape = npy_header(path)
             record |= {"dtype": dtype, "shape": list(shape)}
