@@ -119,9 +119,7 @@ def _near_rows(rec: RecordingArrays, by_y: tuple, egos: np.ndarray, step: np.nda
     owner, index = concat_ranges(lo, hi)
     rows = order[index]
     distance = _distance(rec.node_state, rows, egos[owner])
-    if not np.isfinite(distance).all():  # NaN compares False: the vehicle would vanish silently
-        raise NonFiniteStateError("positions that are not finite")
-    near = distance <= d_sense_m
+    near = distance <= d_sense_m  # finite: `neighbourhoods` checked every position
     return _Near(owner[near], rows[near], distance[near])
 
 
@@ -198,6 +196,8 @@ def neighbourhoods(
 ) -> Neighbourhoods:
     """The neighbourhood of every ego row of (B, K_H) `history_rows`, each looked at once,
     ROWS_PER_CHUNK at a time."""
+    if not np.isfinite(rec.node_state[:, :2]).all():  # such a row would fall out of every search
+        raise NonFiniteStateError("positions that are not finite")
     used = np.zeros(len(rec.node_track), bool)
     for part in _sample_chunks(len(history)):
         rows = history[part]

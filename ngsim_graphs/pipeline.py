@@ -148,9 +148,11 @@ def _stage_inputs(
     workers: Workers,
 ) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
     """Read each file and stage its rows per recording, one file per job at a time."""
-    reading = lambda done: progress(  # noqa: E731
-        f"reading {files[min(done, len(files) - 1)].name}", done, len(files)
-    )
+
+    def reading(done: int) -> None:  # one job reads the files in order, several at once
+        what = files[min(done, len(files) - 1)].name if workers.jobs == 1 else "input files"
+        progress(f"reading {what}", done, len(files))
+
     reading(0)
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
     read = workers.map(_read_file, tasks, reading, [path.stat().st_size for path in files])

@@ -29,12 +29,8 @@ def available_cores() -> int:
     return os.cpu_count() or 1
 
 
-def _first_failure(futures: list[Future]) -> BaseException | None:
-    """The exception of the earliest task, in task order, that failed (None: none did)."""
-    for future in futures:
-        if future.done() and not future.cancelled() and future.exception() is not None:
-            return future.exception()
-    return None
+def _failed(future: Future) -> bool:
+    return future.done() and not future.cancelled() and future.exception() is not None
 
 
 class Workers:
@@ -55,8 +51,8 @@ class Workers:
     def __enter__(self) -> Workers:
         return self
 
-    def __exit__(self, *_exc: object) -> None:
-        self._close()
+    def __exit__(self, exc_type: type[BaseException] | None, *_exc: object) -> None:
+        self._close(cancel=exc_type is not None)  # after an error or Ctrl-C, start nothing more
 
     def _close(self, cancel: bool = False) -> None:
         if self._pool is not None:
@@ -86,10 +82,10 @@ class Workers:
     ) -> list[Result]:
         """[function(*task) for task in tasks], spread over the processes.
 
-        `finished(n)` is called in this process after each of the n tasks done so far. The first
-        failure stops the tasks not yet started and is raised here, as the task raised it.
-        `sizes`, a guess of each task's work, starts the largest first: no large task is left to
-        run alone at the end.
+        `finished(n)` is called in this process after each of the n tasks done so far. A failure
+        stops the tasks after it; the earliest failure in task order is raised here, as the task
+        raised it, the one a single job would have met. `sizes`, a guess of each task's work,
+        starts the largest first: no large task is left to run alone at the end.
         """
         size = min(self.jobs, len(tasks))
         if size <= 1:
@@ -107,11 +103,16 @@ class Workers:
         submitted = {i: pool.submit(function, *tasks[i]) for i in order}
         futures = [submitted[i] for i in range(len(tasks))]
         remaining = set(futures)
+        n_done = 0
         while remaining:
-            _done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
-            failure = _first_failure(futures)
-            if failure is not None:
+            done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+            failed = next((i for i, future in enumerate(futures) if _failed(future)), None)
+            if failed is not None:
+                for future in futures[failed + 1 :]:
+                    future.cancel()
+                wait(futures[:failed])  # an earlier task may fail too: its error comes first
                 self._close(cancel=True)
+                failure = next(f.exception() for f in futures if _failed(f))
                 if isinstance(failure, BrokenProcessPool):
                     raise NgsimError(
                         None,
@@ -119,5 +120,7 @@ class Workers:
                         "for want of memory): build again with a lower --jobs",
                     ) from None
                 raise failure
-            finished(len(futures) - len(remaining))
+            for _ in done:
+                n_done += 1
+                finished(n_done)
         return [future.result() for future in futures]

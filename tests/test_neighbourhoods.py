@@ -13,9 +13,10 @@ import polars as pl
 import pytest
 from test_graphs import SCENE_CONFIGS, TINY, all_windows, random_scene, tiny_scene
 
+from ngsim_graphs import neighbourhoods as neighbourhoods_module
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.graphs import GraphBatch, induce_graphs
+from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, induce_graphs
 from ngsim_graphs.grid import RecordingArrays, grid_nodes, proximity_pairs, recording_arrays
 from ngsim_graphs.neighbourhoods import history_rows, neighbourhoods, sample_counts, train_ranges
 from ngsim_graphs.scaling import MinMaxScaler
@@ -108,7 +109,13 @@ CSLSTM_CONFIGS = (
 
 
 @pytest.mark.parametrize("config", SCENE_CONFIGS + CSLSTM_CONFIGS)
-def test_random_scenes_match_the_induced_graphs(config: BuildConfig) -> None:
+def test_random_scenes_match_the_induced_graphs(
+    config: BuildConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Tiny chunks, filled by two threads: every chunk boundary of a scene is crossed.
+    monkeypatch.setattr(neighbourhoods_module, "ROWS_PER_CHUNK", 7)
+    monkeypatch.setattr(neighbourhoods_module, "SAMPLES_PER_CHUNK", 5)
+    monkeypatch.setattr(pl, "thread_pool_size", lambda: 2)
     rng = np.random.default_rng(91)
     checked = shared = 0
     for _ in range(10):
@@ -128,6 +135,15 @@ def test_random_scenes_match_the_induced_graphs(config: BuildConfig) -> None:
     assert checked > 50 and counts[:, 2].sum() > 0 and counts[:, 4].sum() > 0
     if config.stride_steps < config.history_steps or config.protocol is Protocol.CS_LSTM:
         assert shared > 0, "rows in several samples' histories are looked at once"
+
+
+def test_a_position_that_is_not_finite_is_refused() -> None:
+    table = tiny_scene().with_columns(
+        pl.when(pl.col(s.TRACK_ID) == 5).then(float("nan")).otherwise(pl.col(s.Y_M)).alias(s.Y_M)
+    )  # track 5 is never near the ego: only a check of every position finds it
+    rec = arrays_of(table, TINY)
+    with pytest.raises(NonFiniteStateError, match="not finite"):
+        neighbourhoods(rec, history_rows(rec, np.array([0]), np.array([0]), TINY), TINY)
 
 
 def test_no_windows_no_counts() -> None:

@@ -6,6 +6,7 @@ The tasks are module-level functions of this file: a spawned worker imports them
 from __future__ import annotations
 
 import os
+import time
 
 import pytest
 
@@ -58,6 +59,23 @@ def test_a_worker_error_comes_back_whole() -> None:
         workers.map(fail_on, [(v, 3) for v in range(6)])
     assert str(raised.value) == "input.txt, line 3: value 3 is bad"
     assert raised.value.path == "input.txt" and raised.value.line == 3
+
+
+def fail_first_and_last(value: int) -> int:
+    """Tasks 0 and 5 fail at once, the others succeed after a while."""
+    if value in (0, 5):
+        raise NgsimInputError(f"file{value}.txt", "bad")
+    time.sleep(0.3)
+    return value
+
+
+def test_the_earliest_failure_in_task_order_is_raised_as_with_one_job() -> None:
+    """Largest first runs task 5 first and task 0 last: task 0 still runs, and its error wins."""
+    tasks = [(v,) for v in range(6)]
+    for jobs in (1, 2):
+        with Workers(jobs) as workers, pytest.raises(NgsimInputError) as raised:
+            workers.map(fail_first_and_last, tasks, sizes=[0, 1, 2, 3, 4, 5])
+        assert str(raised.value) == "file0.txt: bad"
 
 
 def test_jobs_must_be_positive() -> None:
