@@ -1,13 +1,14 @@
 """`ngsim-graphs build`: raw files to a finished, self-describing dataset directory.
 
 A data source (`sources`) reads each input file and stages its rows per recording as Parquet;
-then each recording's tracks table goes through the stages that know no dataset: frame arrays,
-ego windows, splits, and every sample's graph induced once, in small batches, to count its
-nodes, edges and targets and to fit the scaler on the train split. The graphs themselves are
-not stored per sample (see docs/build-format.md: the dataset induces them from the frame arrays).
+each recording is then cleaned into its tracks table and built: frame arrays, ego windows,
+splits, and every sample's counts and its share of the scaler's ranges (`tasks`). The files and
+then the recordings go to `--jobs` worker processes (`workers`); what depends on the order of
+the recordings (track numbers, the samples tables, the manifest) is decided here, between the
+stages, so that any number of jobs gives the same build.
 
-Memory stays bounded by one input file plus one recording; only the small per-sample table of
-every recording is kept until the end.
+Memory stays bounded by one input file or one recording per job; only the small per-sample
+table of every recording is kept until the end.
 """
 
 from __future__ import annotations
@@ -25,74 +26,15 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.cslstm import DATASET_IDS
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.grid import (
-    ARRAY_NAMES,
-    RecordingArrays,
-    grid_nodes,
-    proximity_pairs,
-    recording_arrays,
-)
 from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, SourceLine
-from ngsim_graphs.neighbourhoods import (
-    history_rows,
-    neighbourhoods,
-    sample_counts,
-    train_ranges,
-)
 from ngsim_graphs.scaling import MinMaxScaler
-from ngsim_graphs.schema import DropReason, Protocol, Split
+from ngsim_graphs.schema import DropReason, Protocol
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import choose_source
-from ngsim_graphs.splits import SPLIT_ORDER, assign_splits, split_warnings
-from ngsim_graphs.windows import ScriptRows, ego_windows, script_windows
+from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
+from ngsim_graphs.tasks import RecordingOutput, build_recording, clean_recording, read_file
+from ngsim_graphs.windows import ScriptRows
 from ngsim_graphs.workers import Workers, available_cores
-
-
-@dataclass(frozen=True)
-class RecordingSamples:
-    """What one recording contributes to a build."""
-
-    pairs: pl.DataFrame  # PROXIMITY_SCHEMA
-    arrays: RecordingArrays
-    windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
-    train_ranges: MinMaxScaler  # what this recording's train samples observed
-    script_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
-
-
-def recording_samples(
-    tracks: pl.DataFrame,
-    recording_index: int,
-    config: BuildConfig,
-    raw: pl.DataFrame | None = None,
-    dataset_id: int = 0,
-) -> RecordingSamples:
-    """Frame arrays, proximity edges and split ego windows of one recording's tracks table.
-
-    Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
-    rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS).
-    """
-    nodes = grid_nodes(tracks, config.time_step_s)
-    pairs = proximity_pairs(nodes, config.d_min_m)
-    arrays = recording_arrays(nodes, pairs)
-    script = None
-    if config.protocol is Protocol.CS_LSTM:
-        if raw is None:
-            raise ValueError("the cs-lstm protocol needs the recording's raw rows")
-        windows, script = script_windows(raw, nodes, dataset_id, config)
-    else:
-        max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
-        windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
-    egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
-    history = history_rows(arrays, egos, starts, config)
-    hood = neighbourhoods(arrays, history, config)
-    table = sample_counts(hood, history, config)
-    is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
-    train = train_ranges(arrays, hood, history, is_train)
-    windows = windows.with_columns(
-        pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
-    )
-    return RecordingSamples(pairs, arrays, windows, train, script)
-
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 BuildProgress = Callable[[str, int, int], None]
@@ -108,34 +50,6 @@ class BuildResult:
     recordings: tuple[RecordingReport, ...]
     manifest: Manifest
     warnings: tuple[str, ...] = ()  # also in the manifest: splits that are empty or tiny
-
-
-@dataclass(frozen=True)
-class RecordingOutput:
-    """What one recording adds to the manifest and to the samples tables."""
-
-    report: RecordingReport
-    index: int
-    first_track_id: int
-    n_steps: int
-    longest_track_steps: int
-    top_vehicle_ids: tuple[int, int]  # the largest and second largest Vehicle_ID
-    proximity_edges: int
-    windows: pl.DataFrame  # with location, period, s.SPLIT and counts
-    script_rows: ScriptRows | None  # the cs-lstm protocol's rows (None: aigem)
-    train_ranges: MinMaxScaler  # what its train samples observed
-
-
-def _read_file(
-    source: Source, path: Path, config: BuildConfig, file_index: int, root: Path, strict: bool
-) -> tuple[FileReport, dict[RecordingKey, Path]]:
-    """Read one input file and stage its rows per recording (a worker's task)."""
-    read = source.read_file(path, config, file_index, strict)
-    staged = {}
-    for key in sorted(read.recordings):
-        staged[key] = layout.staged_raw_path(root, *key, file_index)
-        layout.write_staged(read.recording_rows(key), staged[key])
-    return read.report, staged
 
 
 def _stage_inputs(
@@ -155,7 +69,7 @@ def _stage_inputs(
 
     reading(0)
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
-    read = workers.map(_read_file, tasks, reading, [path.stat().st_size for path in files])
+    read = workers.map(read_file, tasks, reading, [path.stat().st_size for path in files])
     reports = [report for report, _ in read]
     staged: dict[RecordingKey, list[Path]] = {}
     for _, paths in read:
@@ -170,71 +84,6 @@ def _stage_inputs(
             f"found: {', '.join(found) or 'none'}",
         )
     return reports, staged
-
-
-def _clean_recording(
-    source: Source,
-    key: RecordingKey,
-    staged: list[Path],
-    config: BuildConfig,
-    root: Path,
-    files: list[FileReport],
-    strict: bool,
-) -> RecordingReport:
-    """One recording's tracks table, its tracks numbered from 0, staged (a worker's task).
-
-    The build numbers tracks over all recordings; a recording's first track id is known once
-    every recording before it is cleaned, so the numbers are shifted in `_build_recording`."""
-    raw = pl.read_parquet(staged)
-    tracks, report = source.recording_tracks(raw, key, config, 0, files, strict)
-    layout.write_staged(tracks, layout.staged_tracks_path(root, *key))
-    return report
-
-
-def _build_recording(
-    key: RecordingKey,
-    index: int,
-    report: RecordingReport,
-    first_track_id: int,
-    staged: list[Path],
-    config: BuildConfig,
-    root: Path,
-) -> RecordingOutput:
-    """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
-    worker's task)."""
-    tracks = pl.read_parquet(layout.staged_tracks_path(root, *key)).with_columns(
-        (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
-    )
-    layout.write_parquet(tracks, layout.tracks_path(root, *key))
-    raw = pl.read_parquet(staged) if config.protocol is Protocol.CS_LSTM else None
-    samples = recording_samples(tracks, index, config, raw, DATASET_IDS.get(key, 0))
-    layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
-    arrays = samples.arrays
-    layout.write_arrays(
-        layout.recording_arrays_dir(root, *key),
-        {name: getattr(arrays, name) for name in ARRAY_NAMES},
-    )
-    windows = samples.windows.with_columns(
-        pl.lit(key[0]).alias(s.LOCATION),
-        pl.lit(key[1]).alias(s.PERIOD),
-        pl.lit(index).alias(s.RECORDING_INDEX),
-    )
-    # The vehicle split's largest ids: the script's are of the rows before cleaning.
-    split_by = tracks if raw is None else raw
-    ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
-    longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
-    return RecordingOutput(
-        report,
-        index,
-        first_track_id,
-        arrays.n_steps,
-        longest,
-        (ids[0], ids[1]),
-        samples.pairs.height,
-        windows,
-        samples.script_rows,
-        samples.train_ranges,
-    )
 
 
 def _build_recordings(
@@ -253,14 +102,14 @@ def _build_recordings(
     show("cleaning recordings")(0)
     cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
     sizes = [sum(path.stat().st_size for path in staged[key]) for key in keys]
-    reports = workers.map(_clean_recording, cleaning, show("cleaning recordings"), sizes)
+    reports = workers.map(clean_recording, cleaning, show("cleaning recordings"), sizes)
     first_ids = np.cumsum([0] + [report.tracks for report in reports])
     show("building recordings")(0)
     building = [
         (key, i, reports[i], int(first_ids[i]), staged[key], config, root)
         for i, key in enumerate(keys)
     ]
-    return workers.map(_build_recording, building, show("building recordings"), sizes)
+    return workers.map(build_recording, building, show("building recordings"), sizes)
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
