@@ -80,9 +80,16 @@ def _distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(dx * dx + dy * dy)
 
 
-def _segments(owner: np.ndarray, n: int) -> np.ndarray:
-    """Start of each owner's run in `owner` (sorted, every owner 0..n-1 present at least once)."""
-    return np.searchsorted(owner, np.arange(n))
+def _window(
+    keys: np.ndarray, rec: RecordingArrays, egos: np.ndarray, step: np.ndarray, d_sense_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, index): the entries of `keys` (pair_search_key order) within d_sense and a margin
+    of each ego along y, at its step, as `induce_graphs` searches them."""
+    ego_y = rec.node_state[egos, 1]
+    reach = d_sense_m + SEARCH_MARGIN_M
+    lo = np.searchsorted(keys, pair_search_key(step, ego_y - reach), "left")
+    hi = np.searchsorted(keys, pair_search_key(step, ego_y + reach), "right")
+    return concat_ranges(lo, hi)
 
 
 def _reduce(ufunc: np.ufunc, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -112,11 +119,7 @@ class _Near:
 def _near_rows(rec: RecordingArrays, by_y: tuple, egos: np.ndarray, step: np.ndarray, d_sense_m):
     """The rows within d_sense of each ego row, found along y in the rows sorted by (step, y)."""
     order, keys = by_y
-    ego_y = rec.node_state[egos, 1]
-    reach = d_sense_m + SEARCH_MARGIN_M
-    lo = np.searchsorted(keys, pair_search_key(step, ego_y - reach), "left")
-    hi = np.searchsorted(keys, pair_search_key(step, ego_y + reach), "right")
-    owner, index = concat_ranges(lo, hi)
+    owner, index = _window(keys, rec, egos, step, d_sense_m)
     rows = order[index]
     distance = _distance(rec.node_state, rows, egos[owner])
     near = distance <= d_sense_m  # finite: `neighbourhoods` checked every position
@@ -124,29 +127,29 @@ def _near_rows(rec: RecordingArrays, by_y: tuple, egos: np.ndarray, step: np.nda
 
 
 def _actor_pairs(
-    rec: RecordingArrays, near: _Near, egos: np.ndarray, step: np.ndarray, d_sense_m: float
+    rec: RecordingArrays,
+    near: _Near,
+    actor: np.ndarray,
+    egos: np.ndarray,
+    step: np.ndarray,
+    d_sense_m: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Count, minimum and maximum distance of the proximity pairs among each ego row's actors.
+    """Count, minimum and maximum distance of the proximity pairs among each ego row's actors
+    (`actor`: which near rows are not the ego).
 
-    The pairs whose lower vehicle is within d_sense (and a margin) of the ego along y, as
-    `induce_graphs` searches them, kept where both are near rows and neither is the ego. Which
-    rows are actors is a small (ego, row of its step) table: a lookup, not a distance, per pair."""
+    The pairs searched as `induce_graphs` searches them, kept where both are actors. Which rows
+    are actors is a small (ego, row of its step) table: a lookup, not a distance, per pair."""
     width = int(np.diff(rec.step_ptr).max()) if rec.n_steps else 0
     # Row r of ego i's step is entry i * width + r - (first row of the step) of `is_actor`.
     offset = np.arange(len(egos)) * width - rec.step_ptr[step]
     is_actor = np.zeros(len(egos) * width, bool)
-    actor = near.row != egos[near.owner]
     is_actor[offset[near.owner[actor]] + near.row[actor]] = True
-    ego_y = rec.node_state[egos, 1]
-    reach = d_sense_m + SEARCH_MARGIN_M
-    lo = np.searchsorted(rec.pair_key, pair_search_key(step, ego_y - reach), "left")
-    hi = np.searchsorted(rec.pair_key, pair_search_key(step, ego_y + reach), "right")
-    lengths = hi - lo
-    index = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths - lo, lengths)
+    owner, index = _window(rec.pair_key, rec, egos, step, d_sense_m)
     pairs = np.take(rec.pair_rows, index, axis=0)  # (C, 2); faster than fancy indexing
-    pair_offset = np.repeat(offset, lengths)
+    pair_offset = offset[owner]
     keep = is_actor[pairs[:, 0] + pair_offset] & is_actor[pairs[:, 1] + pair_offset]
     distance = rec.pair_dist[index]  # float32: its minimum and maximum are exact as float64
+    lengths = np.bincount(owner, minlength=len(egos))  # pairs searched per ego, in runs
     return (
         _runs(np.add, keep.astype(np.int32), lengths, 0, np.int64),
         _runs(np.minimum, np.where(keep, distance, np.inf), lengths, np.inf),
@@ -160,8 +163,8 @@ def _chunk(
     """The Neighbourhoods fields (but rows) of one chunk of ego rows."""
     d_sense = config.d_sense_m
     near = _near_rows(rec, by_y, egos, row_step, d_sense)
-    starts = _segments(near.owner, len(egos))  # every ego is near itself: no empty run
-    nodes = np.diff(np.append(starts, len(near.owner)))
+    nodes = np.bincount(near.owner, minlength=len(egos))  # every ego is near itself: no 0
+    starts = np.cumsum(nodes) - nodes
     actor = near.row != egos[near.owner]
 
     # Temporal edges: a near track's row at the next step, near the ego's row at the next step.
@@ -185,7 +188,7 @@ def _chunk(
     high[:, : len(FEATURES)] = _reduce(np.maximum, state, starts)
     ego_low = _reduce(np.minimum, np.where(actor, near.distance, np.inf), starts)
     ego_high = _reduce(np.maximum, np.where(actor, near.distance, -np.inf), starts)
-    actor_pairs, pair_low, pair_high = _actor_pairs(rec, near, egos, row_step, d_sense)
+    actor_pairs, pair_low, pair_high = _actor_pairs(rec, near, actor, egos, row_step, d_sense)
     low[:, -1] = np.minimum(ego_low, pair_low)
     high[:, -1] = np.maximum(ego_high, pair_high)
     return nodes, actor_pairs, kept, full_future, ego_full, low, high

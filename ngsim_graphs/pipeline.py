@@ -16,9 +16,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import reduce
+from itertools import accumulate
 from pathlib import Path
 
-import numpy as np
 import polars as pl
 
 from ngsim_graphs import __version__, landing, layout
@@ -98,18 +98,19 @@ def _build_recordings(
 ) -> list[RecordingOutput]:
     """Every recording cleaned, then built, in key order, one recording per job at a time."""
     keys = sorted(staged)
-    show = lambda what: lambda done: progress(what, done, len(keys))  # noqa: E731
-    show("cleaning recordings")(0)
+
+    def stage(what: str) -> Callable[[int], None]:
+        progress(what, 0, len(keys))
+        return lambda done: progress(what, done, len(keys))
+
     cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
     sizes = [sum(path.stat().st_size for path in staged[key]) for key in keys]
-    reports = workers.map(clean_recording, cleaning, show("cleaning recordings"), sizes)
-    first_ids = np.cumsum([0] + [report.tracks for report in reports])
-    show("building recordings")(0)
+    reports = workers.map(clean_recording, cleaning, stage("cleaning recordings"), sizes)
+    first_ids = [0, *accumulate(report.tracks for report in reports)]
     building = [
-        (key, i, reports[i], int(first_ids[i]), staged[key], config, root)
-        for i, key in enumerate(keys)
+        (key, i, reports[i], first_ids[i], staged[key], config, root) for i, key in enumerate(keys)
     ]
-    return workers.map(build_recording, building, show("building recordings"), sizes)
+    return workers.map(build_recording, building, stage("building recordings"), sizes)
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
