@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 MAX_HORIZON_S = 5.0  # the builds' 25 future steps at 0.2 s
+LR_SCHEDULES = ("constant", "cosine")  # aigem.schedule
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,10 @@ class TrainConfig:
     horizon_s: float = 5.0  # the paper trains one model per horizon, 1..5 s
     epochs: int = 100
     batch_size: int = 32  # samples (graphs) per batch
-    learning_rate: float = 1e-3
+    learning_rate: float = 1e-3  # Adam's, after the warm-up (aigem.schedule)
+    lr_schedule: str = "constant"  # or "cosine": decay to 0 by the end of `epochs`
+    warmup_epochs: float = 0.0  # linear warm-up of the learning rate
+    clip_grad_norm: float | None = None  # clip the gradients' total L2 norm to this
     max_minutes: float | None = None  # stop after this much training time
     patience_epochs: int | None = None  # early stop without a better validation loss
     seed: int = 0
@@ -53,6 +57,16 @@ class TrainConfig:
             raise ValueError("horizon_s must be in (0, 5]")
         if self.epochs < 1 or self.batch_size < 1:
             raise ValueError("epochs and batch_size must be >= 1")
+        if not (math.isfinite(self.learning_rate) and self.learning_rate > 0):
+            raise ValueError("learning_rate must be > 0")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}")
+        if not 0 <= self.warmup_epochs < self.epochs:
+            raise ValueError("warmup_epochs must be >= 0 and fewer than epochs")
+        if self.clip_grad_norm is not None and not (
+            math.isfinite(self.clip_grad_norm) and self.clip_grad_norm > 0
+        ):
+            raise ValueError("clip_grad_norm must be > 0")
         if self.workers is not None and self.workers < 0:
             raise ValueError("workers must be >= 0")
         if self.threads is not None and self.threads < 1:

@@ -117,6 +117,13 @@ def curves_figure(
     axes.yaxis.set_major_formatter(_PlainLog(labelOnlyBase=False))
     axes.yaxis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
     axes.legend(loc="upper right")  # where falling losses leave room
+    rates = [r.get("learning_rate") for r in rows]
+    if None not in rates and len(set(rates)) > 1:  # a schedule: its rate on a second axis
+        rate_axes = axes.twinx()
+        rate_axes.plot(epochs, rates, color="tab:gray", lw=1, alpha=0.6)
+        rate_axes.set_ylabel("learning rate at the epoch's end (grey)", color="tab:gray")
+        rate_axes.set_ylim(bottom=0)
+        rate_axes.tick_params(axis="y", colors="tab:gray")
     return figure
 
 

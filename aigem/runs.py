@@ -60,9 +60,19 @@ RUN_INFO, METRICS, LAST, BEST, CURVES = (
 )
 HORIZONS = "horizons.json"  # a multi-horizon run's members
 BASELINE = "baseline.json"  # constant velocity's validation loss
-# Train settings that a resumed run must keep: they change what it learns. Epochs, time limit,
-# patience and workers may change.
-RESUME_FIXED = ("horizon_s", "batch_size", "learning_rate", "seed")
+# Train settings that a resumed run must keep: they change what it learns. Epochs (unless the
+# schedule decays over them), time limit, patience, workers and threads may change.
+RESUME_FIXED = (
+    "horizon_s",
+    "batch_size",
+    "learning_rate",
+    "lr_schedule",
+    "warmup_epochs",
+    "clip_grad_norm",
+    "seed",
+)
+# How runs of aigem before these options trained: their checkpoints do not name them.
+BEFORE_SCHEDULES = {"lr_schedule": "constant", "warmup_epochs": 0.0, "clip_grad_norm": None}
 
 
 @dataclass(frozen=True)
@@ -340,10 +350,12 @@ def _resume(
             run_dir,
             f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
         )
+    fixed = RESUME_FIXED + (("epochs",) if info["train"]["lr_schedule"] != "constant" else ())
+    before = BEFORE_SCHEDULES | saved["train"]
     changed = [
-        f"{k} {saved['train'].get(k)} -> {info['train'][k]}"
-        for k in RESUME_FIXED
-        if saved["train"].get(k) != info["train"][k]
+        f"{k} {before.get(k)} -> {info['train'][k]}"
+        for k in fixed
+        if before.get(k) != info["train"][k]
     ]
     if changed:
         raise NgsimInputError(

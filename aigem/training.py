@@ -33,6 +33,7 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.model import AiGem, count_parameters
+from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scaling import MinMaxScaler
@@ -339,13 +340,19 @@ def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
 
 
 def _step(
-    member: _Member, batch: dict[str, Any], scaler: MinMaxScaler, device: torch.device
+    member: _Member,
+    batch: dict[str, Any],
+    scaler: MinMaxScaler,
+    device: torch.device,
+    learning_rate: float,
 ) -> None:
     """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
     _set_rng_state(member.rng, device)
     loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
     member.optimizer.zero_grad(set_to_none=True)
     loss.backward()
+    clip_gradients(member.model.parameters(), member.train.clip_grad_norm)
+    set_learning_rate(member.optimizer, learning_rate)
     member.optimizer.step()
     member.running += loss.detach()
     member.rng = _rng_state(device)
@@ -368,7 +375,8 @@ def _train_epoch(
     for index, batch in enumerate(loop.train_loader):
         batch = to_device(batch, loop.device)
         for member in active:
-            _step(member, batch, loop.scaler, loop.device)
+            rate = learning_rate_at(member.train, epoch, index, total)
+            _step(member, batch, loop.scaler, loop.device, rate)
         batches, graphs = batches + 1, graphs + batch["graphs"]
         if index + 1 == total or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
             for member in active:
@@ -460,7 +468,8 @@ def _train(
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
         }
         for member, val_loss in zip(active, val_losses, strict=True):
-            row = _end_epoch(member, epoch, val_loss, timing, loop.rank)
+            rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
+            row = _end_epoch(member, epoch, val_loss, timing | rate, loop.rank)
             if on_epoch is not None and loop.rank == 0:
                 on_epoch(member.train.horizon_s, row)
         if timed_out:

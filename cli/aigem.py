@@ -58,6 +58,27 @@ def fit(
     ] = "5",
     epochs: Annotated[int, typer.Option(help="Epochs over the train split.")] = 100,
     batch_size: Annotated[int, typer.Option(help="Graphs (samples) per batch.")] = 32,
+    learning_rate: Annotated[
+        float, typer.Option(help="Adam's learning rate (the paper's: 1e-3), after any warm-up.")
+    ] = 1e-3,
+    lr_schedule: Annotated[
+        str,
+        typer.Option(
+            help="constant (the paper's), or cosine: the learning rate falls to 0 along half a "
+            "cosine by the end of --epochs."
+        ),
+    ] = "constant",
+    warmup_epochs: Annotated[
+        float,
+        typer.Option(
+            help="Raise the learning rate linearly from near 0 over this many epochs (fractions "
+            "allowed) before the schedule."
+        ),
+    ] = 0.0,
+    clip_grad_norm: Annotated[
+        float | None,
+        typer.Option(help="Scale the gradients down to this total L2 norm where it is larger."),
+    ] = None,
     max_minutes: Annotated[
         float | None, typer.Option(help="Stop training after this many minutes.")
     ] = None,
@@ -118,6 +139,10 @@ def fit(
             horizon_s=horizons_s[0],
             epochs=epochs,
             batch_size=batch_size,
+            learning_rate=learning_rate,
+            lr_schedule=lr_schedule,
+            warmup_epochs=warmup_epochs,
+            clip_grad_norm=clip_grad_norm,
             max_minutes=max_minutes,
             patience_epochs=patience,
             seed=seed,

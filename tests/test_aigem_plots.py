@@ -64,6 +64,18 @@ def test_curves_draw_the_log_the_best_epoch_and_the_baseline() -> None:
     assert curves_png(ROWS[:1], None, None).startswith(PNG_SIGNATURE)
 
 
+def test_curves_draw_a_scheduled_learning_rate_on_a_second_axis() -> None:
+    rates = [0.5e-3, 1e-3, 0.25e-3]
+    figure = curves_figure(
+        [r | {"learning_rate": v} for r, v in zip(ROWS, rates, strict=True)], None, 2.0
+    )
+    assert len(figure.axes) == 2
+    assert figure.axes[1].get_lines()[0].get_ydata().tolist() == rates
+    constant = [r | {"learning_rate": 1e-3} for r in ROWS]
+    assert len(curves_figure(constant, None, 2.0).axes) == 1  # nothing to show
+    assert len(curves_figure(ROWS, None, 2.0).axes) == 1  # a run of an older aigem
+
+
 def test_fit_draws_each_members_curves_with_its_baseline(run: Path) -> None:
     for member in ("h1s", "h2s"):
         assert _is_png(run / member / runs.CURVES)

@@ -1,0 +1,145 @@
+"""The learning rate of each step (hand-computed), gradient clipping, and fit with a schedule:
+the rates logged, a resume that matches an uninterrupted run, and what a resume may not change."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from aigem import runs
+from aigem.config import ModelConfig, TrainConfig
+from aigem.schedule import clip_gradients, learning_rate_at
+from aigem.training import fit
+from ngsim_graphs.build import open_build
+from ngsim_graphs.errors import NgsimInputError
+
+
+def _rates(train: TrainConfig, batches: int) -> list[float]:
+    return [
+        learning_rate_at(train, epoch, batch, batches)
+        for epoch in range(train.epochs)
+        for batch in range(batches)
+    ]
+
+
+def test_constant_is_the_paper_rate_at_every_step() -> None:
+    assert _rates(TrainConfig(epochs=3, learning_rate=2e-3), 4) == [2e-3] * 12
+
+
+def test_warmup_rises_linearly_then_holds() -> None:
+    rates = _rates(TrainConfig(epochs=3, learning_rate=1.0, warmup_epochs=1.5), 2)
+    assert rates == [1 / 3, 2 / 3, 1.0, 1.0, 1.0, 1.0]
+
+
+def test_cosine_falls_along_half_a_cosine_to_zero() -> None:
+    rates = _rates(TrainConfig(epochs=2, learning_rate=1.0, lr_schedule="cosine"), 2)
+    # 0.5 (1 + cos(pi s / 4)) for steps s = 0..3: the last step's rate is the last above 0
+    assert rates == pytest.approx([1.0, 0.8535534, 0.5, 0.1464466])
+
+
+def test_cosine_starts_after_the_warmup() -> None:
+    train = TrainConfig(epochs=3, learning_rate=1.0, lr_schedule="cosine", warmup_epochs=1)
+    assert _rates(train, 2) == pytest.approx([0.5, 1.0, 1.0, 0.8535534, 0.5, 0.1464466])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("learning_rate", 0.0, "learning_rate must be > 0"),
+        ("learning_rate", math.nan, "learning_rate must be > 0"),
+        ("lr_schedule", "linear", "lr_schedule must be one of constant, cosine"),
+        ("warmup_epochs", 2.0, "warmup_epochs must be >= 0 and fewer than epochs"),
+        ("warmup_epochs", -0.5, "warmup_epochs must be >= 0 and fewer than epochs"),
+        ("clip_grad_norm", 0.0, "clip_grad_norm must be > 0"),
+        ("clip_grad_norm", math.inf, "clip_grad_norm must be > 0"),
+    ],
+)
+def test_bad_settings_are_refused(field: str, value: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(epochs=2, **{field: value})
+
+
+def test_clipping_scales_a_long_gradient_down_and_leaves_a_short_one() -> None:
+    long, short = torch.zeros(2, requires_grad=True), torch.zeros(1, requires_grad=True)
+    long.grad, short.grad = torch.tensor([3.0, 0.0]), torch.tensor([4.0])  # total norm 5
+    clip_gradients([long, short], 1.0)
+    assert long.grad.tolist() == pytest.approx([0.6, 0.0]) and short.grad.tolist() == [
+        pytest.approx(0.8)
+    ]
+    clip_gradients([long, short], 2.0)  # norm 1 now: unchanged
+    assert long.grad.tolist() == pytest.approx([0.6, 0.0])
+    clip_gradients([long, short], None)
+    assert short.grad.tolist() == [pytest.approx(0.8)]
+
+
+class _Stop(Exception):
+    """Ends a fit after its first epoch's checkpoint, as a kill would."""
+
+
+def _stop_after_first_epoch(horizon_s: float, row: dict[str, float]) -> None:
+    raise _Stop
+
+
+SCHEDULED = TrainConfig(
+    epochs=2,
+    batch_size=8,
+    horizon_s=1.0,
+    seed=3,
+    learning_rate=2e-3,
+    lr_schedule="cosine",
+    warmup_epochs=0.5,
+    clip_grad_norm=5.0,
+)
+
+
+def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    straight = fit(tiny_build, tmp_path / "straight", ModelConfig(), SCHEDULED, "cpu")
+    rows = runs.read_metrics(tmp_path / "straight")
+    batches = math.ceil(int(open_build(tiny_build).manifest.splits["train"]) / SCHEDULED.batch_size)
+    assert [r["learning_rate"] for r in rows] == pytest.approx(
+        [learning_rate_at(SCHEDULED, e, batches - 1, batches) for e in (0, 1)]
+    )
+    assert rows[1]["learning_rate"] < rows[0]["learning_rate"] < SCHEDULED.learning_rate
+    with pytest.raises(_Stop):
+        fit(
+            tiny_build,
+            tmp_path / "resumed",
+            ModelConfig(),
+            SCHEDULED,
+            "cpu",
+            on_epoch=_stop_after_first_epoch,
+        )
+    with pytest.raises(NgsimInputError, match="cannot resume with another epochs 2 -> 3"):
+        longer = TrainConfig(**{**SCHEDULED.to_dict(), "epochs": 3})
+        fit(tiny_build, tmp_path / "resumed", ModelConfig(), longer, "cpu", resume=True)
+    unclipped = TrainConfig(**{**SCHEDULED.to_dict(), "clip_grad_norm": None})
+    with pytest.raises(NgsimInputError, match="another clip_grad_norm 5.0 -> None"):
+        fit(tiny_build, tmp_path / "resumed", ModelConfig(), unclipped, "cpu", resume=True)
+    resumed = fit(tiny_build, tmp_path / "resumed", ModelConfig(), SCHEDULED, "cpu", resume=True)
+    assert resumed.epochs_done == straight.epochs_done == 2
+    again = runs.read_metrics(tmp_path / "resumed")
+    assert [r["val_loss_m2"] for r in again] == pytest.approx(
+        [r["val_loss_m2"] for r in rows], rel=1e-5
+    )
+
+
+def test_a_run_of_an_older_aigem_resumes_as_the_constant_rate_it_trained_with(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    run = tmp_path / "run"
+    config = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
+    fit(tiny_build, run, ModelConfig(), config, "cpu")
+    checkpoint = torch.load(run / runs.LAST, weights_only=True)
+    for key in runs.BEFORE_SCHEDULES:  # as an aigem without schedules wrote it
+        del checkpoint["info"]["train"][key]
+    torch.save(checkpoint, run / runs.LAST)
+    longer = TrainConfig(**{**config.to_dict(), "epochs": 2})
+    assert fit(tiny_build, run, ModelConfig(), longer, "cpu", resume=True).epochs_done == 2
+    warmed = TrainConfig(**{**longer.to_dict(), "warmup_epochs": 1.0})
+    with pytest.raises(NgsimInputError, match="another warmup_epochs 0.0 -> 1.0"):
+        fit(tiny_build, run, ModelConfig(), warmed, "cpu", resume=True)
