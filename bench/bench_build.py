@@ -10,6 +10,7 @@ Synthetic data: these are not NGSIM results.
     taskset -c 0,1 python bench/bench_build.py --format txt   # two cores (two jobs by default)
     python bench/bench_build.py --format txt --jobs 1   # one process
     python bench/bench_build.py --format txt --protocol cs-lstm   # a sample per CS-LSTM row
+    python bench/bench_build.py --format txt --largest 2   # the 2 largest of the 6 recordings
 """
 
 from __future__ import annotations
@@ -41,18 +42,36 @@ def folder_bytes(folder: Path) -> dict[str, int]:
     return sizes
 
 
+def largest_files(raw_dir: Path, count: int, fmt: str) -> list[Path]:
+    """The `count` largest recording files of a synthetic txt or csv input (one per recording)."""
+    if fmt == "portal":
+        raise SystemExit("--largest: the portal format holds every recording in one file")
+    files = sorted(raw_dir.rglob(f"*.{fmt}"), key=lambda path: path.stat().st_size, reverse=True)
+    if not 1 <= count <= len(files):
+        raise SystemExit(f"--largest {count}: {raw_dir} has {len(files)} recording files")
+    return files[:count]
+
+
 def main() -> None:
     args, tag, raw_dir = parse_input_args(__doc__, "txt")
     ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
+
+    inputs, name = [raw_dir], f"graphs-{tag}"
+    if args.largest is not None:
+        inputs, name = (
+            largest_files(raw_dir, args.largest, args.format),
+            f"{name}-largest{args.largest}",
+        )
+    if args.protocol != "aigem":
+        name += f"-{args.protocol}"
 
     marks: list[tuple[str, int, float]] = []
     jobs = args.jobs or available_cores()
     start = time.perf_counter()
     with TreeMemory() as memory:
         result = run_build(
-            [raw_dir],
-            args.work_dir
-            / f"graphs-{tag}{'' if args.protocol == 'aigem' else '-' + args.protocol}",
+            inputs,
+            args.work_dir / name,
             BuildConfig(protocol=Protocol(args.protocol)),
             overwrite=True,
             progress=lambda what, done, _total: marks.append((what, done, time.perf_counter())),

@@ -60,6 +60,13 @@ def parse_input_args(description: str, default_format: str) -> tuple[argparse.Na
         "--jobs", type=int, default=None, help="build processes (default: one per usable core)"
     )
     parser.add_argument("--protocol", default="aigem", choices=["aigem", "cs-lstm"])
+    parser.add_argument(
+        "--largest",
+        type=int,
+        default=None,
+        help="build only the N largest recordings' files (txt or csv): peak memory is set by the "
+        "largest recordings and the jobs, not by how many recordings there are",
+    )
     args = parser.parse_args()
     tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
     return args, tag, args.work_dir / f"raw-{tag}"
