@@ -463,6 +463,7 @@ def _train(
         models = [(m.model, m.steps) for m in active]
         val_losses = evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
         timing = {
+            "train_graphs": epoch_graphs * loop.world,  # fewer than the split's if the time ran out
             "train_seconds": round(epoch_seconds, 1),
             "train_graphs_per_s": round(epoch_graphs * loop.world / epoch_seconds, 1),
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),

@@ -101,11 +101,12 @@ class Outcome:
 def outcome(setting: str, run_dir: Path, train_graphs: int, target_m2: float) -> Outcome:
     rows = runs.read_metrics(run_dir)
     val = [row["val_loss_m2"] for row in rows]
-    seconds, graphs, total_s = [], [], 0.0
-    for index, row in enumerate(rows, start=1):
+    seconds, graphs, total_s, total_graphs = [], [], 0.0, 0
+    for row in rows:
         total_s += row["train_seconds"] + row["val_seconds"]
+        total_graphs += row.get("train_graphs", train_graphs)  # a time limit may cut an epoch
         seconds.append(round(total_s, 1))
-        graphs.append(index * train_graphs)
+        graphs.append(total_graphs)
     reached = next((i for i, v in enumerate(val, start=1) if v <= target_m2), None)
     return Outcome(setting, len(rows), val, seconds, graphs, reached)
 

@@ -100,7 +100,9 @@ def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
 ) -> None:
     straight = fit(tiny_build, tmp_path / "straight", ModelConfig(), SCHEDULED, "cpu")
     rows = runs.read_metrics(tmp_path / "straight")
-    batches = math.ceil(int(open_build(tiny_build).manifest.splits["train"]) / SCHEDULED.batch_size)
+    train_graphs = int(open_build(tiny_build).manifest.splits["train"])
+    assert [r["train_graphs"] for r in rows] == [train_graphs, train_graphs]
+    batches = math.ceil(train_graphs / SCHEDULED.batch_size)
     assert [r["learning_rate"] for r in rows] == pytest.approx(
         [learning_rate_at(SCHEDULED, e, batches - 1, batches) for e in (0, 1)]
     )
