@@ -350,17 +350,23 @@ def _resume(
             run_dir,
             f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
         )
-    fixed = RESUME_FIXED + (("epochs",) if info["train"]["lr_schedule"] != "constant" else ())
     before = BEFORE_SCHEDULES | saved["train"]
     changed = [
         f"{k} {before.get(k)} -> {info['train'][k]}"
-        for k in fixed
+        for k in RESUME_FIXED
         if before.get(k) != info["train"][k]
     ]
     if changed:
         raise NgsimInputError(
             run_dir,
             f"cannot resume with another {', '.join(changed)}: it changes what the run learns",
+        )
+    schedule, epochs = info["train"]["lr_schedule"], before.get("epochs")
+    if schedule != "constant" and epochs != info["train"]["epochs"]:
+        raise NgsimInputError(
+            run_dir,
+            f"cannot resume with another epochs {epochs} -> {info['train']['epochs']}: the "
+            f"{schedule} schedule decays over the run's epochs; resume with --epochs {epochs}",
         )
     check_weights(model.state_dict(), checkpoint["model"], last)
     model.load_state_dict(checkpoint["model"])

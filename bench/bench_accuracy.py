@@ -139,7 +139,9 @@ def draw(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, (by_time, by_graphs) = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    figure, (by_time, by_graphs) = plt.subplots(
+        1, 2, figsize=(12, 4.8), sharey=True, layout="constrained"
+    )
     for item in outcomes:
         by_time.plot([s / 60 for s in item.seconds], item.val_m2, marker=".", label=item.setting)
         by_graphs.plot([g / 1e6 for g in item.graphs], item.val_m2, marker=".")
@@ -149,12 +151,13 @@ def draw(
             axes.axhline(baseline_m2, color="grey", linestyle="--", linewidth=0.8,
                          label="constant velocity")  # fmt: skip
         axes.set_xlabel(label)
-        axes.set_yscale("log")
+        axes.set_xlim(left=0)
         axes.grid(alpha=0.3)
+    # Linear, from 0: the first epochs' losses, far above, are left out of the picture.
+    by_time.set_ylim(0, 2.5 * max(target_m2, baseline_m2 or 0.0))
     by_time.set_ylabel("validation MSE, m²")
     by_time.legend(fontsize=7)
     figure.suptitle(title, fontsize=9)
-    figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
 

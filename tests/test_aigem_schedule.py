@@ -116,7 +116,10 @@ def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
             "cpu",
             on_epoch=_stop_after_first_epoch,
         )
-    with pytest.raises(NgsimInputError, match="cannot resume with another epochs 2 -> 3"):
+    with pytest.raises(
+        NgsimInputError,
+        match="another epochs 2 -> 3: the cosine schedule decays over the run's epochs; resume with --epochs 2",
+    ):
         longer = TrainConfig(**{**SCHEDULED.to_dict(), "epochs": 3})
         fit(tiny_build, tmp_path / "resumed", ModelConfig(), longer, "cpu", resume=True)
     unclipped = TrainConfig(**{**SCHEDULED.to_dict(), "clip_grad_norm": None})
