@@ -78,6 +78,14 @@ def _rows_table(st: BuildStatistics) -> Table:
         ("exact duplicates", c["exact_duplicates"]),
         ("conflicting duplicates", c["conflicting_duplicates"]),
     ]
+    script = c.get("cslstm_rows")
+    if script is not None:  # the cs-lstm protocol: what became of the rows CS-LSTM's script keeps
+        lines += [
+            ("kept by CS-LSTM's script (cs-lstm protocol)", script["kept"]),
+            ("  of them on the grid (even frames)", script["on_grid"]),
+            ("    without a track at their step: no sample", script["unmatched"]),
+            ("of vehicles under 31 rows: left out", script["too_short"]),
+        ]
     for label, n in lines:
         table.add_row(label, f"{n:,}", _share(n, c["rows_read"]))
     return table

@@ -280,6 +280,17 @@ def test_the_build_prints_the_scripts_rows(tmp_path: Path) -> None:
     assert "samples: 166 train, 29 val, 58 test (253 in all)." in result.stdout
     config = json.loads((tmp_path / "out" / "manifest.json").read_text())["config"]
     assert config["protocol"] == "cs-lstm"
+    stats = invoke("stats", tmp_path / "out")  # the same counts, in the rows' table
+    assert stats.exit_code == 0, stats.output
+    rows = {}
+    for line in stats.stdout.splitlines():
+        cells = [cell.strip() for cell in line.strip("│ ").split("│")]
+        if len(cells) == 3:
+            rows[cells[0]] = cells[1]
+    assert rows["kept by CS-LSTM's script (cs-lstm protocol)"] == "510"
+    assert rows["of them on the grid (even frames)"] == "254"
+    assert rows["without a track at their step: no sample"] == "1"
+    assert rows["of vehicles under 31 rows: left out"] == "20"
 
 
 @pytest.mark.parametrize(
