@@ -23,8 +23,8 @@ def learning_rate_at(train: TrainConfig, epoch: int, batch: int, batches_per_epo
     """The rate of the step on batch `batch` (0-based) of epoch `epoch` (0-based)."""
     step = epoch * batches_per_epoch + batch  # steps before this one
     warmup_steps = train.warmup_epochs * batches_per_epoch
-    if step < warmup_steps:
-        return train.learning_rate * (step + 1) / warmup_steps
+    if step < warmup_steps:  # a warm-up ending within a step reaches the full rate at that step
+        return train.learning_rate * min((step + 1) / warmup_steps, 1.0)
     if train.lr_schedule == "cosine":
         decay_steps = train.epochs * batches_per_epoch - warmup_steps
         done = min((step - warmup_steps) / decay_steps, 1.0)
@@ -41,4 +41,4 @@ def clip_gradients(parameters: Iterable[torch.Tensor], max_norm: float | None) -
     """Scale the gradients down to a total L2 norm of `max_norm` where it is larger (None: leave
     them). On the device, without reading the norm back: the step does not wait for the GPU."""
     if max_norm is not None:
-        torch.nn.utils.clip_grad_norm_(parameters, max_norm, foreach=True)
+        torch.nn.utils.clip_grad_norm_(parameters, max_norm)

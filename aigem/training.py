@@ -463,7 +463,8 @@ def _train(
         models = [(m.model, m.steps) for m in active]
         val_losses = evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
         timing = {
-            "train_graphs": epoch_graphs * loop.world,  # fewer than the split's if the time ran out
+            # fewer than the split's if the time ran out (under DDP each rank's share is padded)
+            "train_graphs": epoch_graphs * loop.world,
             "train_seconds": round(epoch_seconds, 1),
             "train_graphs_per_s": round(epoch_graphs * loop.world / epoch_seconds, 1),
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),

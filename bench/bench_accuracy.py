@@ -2,13 +2,15 @@
 warm-up, clipping), the figure that chooses each device's defaults (SPEC section 5).
 
     python bench/bench_accuracy.py bench/out/graphs-txt-r6-m15 --out bench/out/accuracy-r6 \\
-        --target-m2 3.0 --max-minutes 10
+        --target-m2 3.0 --epochs 20
     python bench/bench_accuracy.py BUILD --out DIR --epochs 12 --threads 1 \\
         --setting batch=32 --setting batch=256,lr=3e-3,schedule=cosine,warmup=1,clip=1000
 
 Each --setting (default: SETTINGS) is trained from scratch by `aigem.training.fit` itself, one
 after the other, into DIR/<setting> (the 5 s model unless --horizon-s; the same seed; --epochs, or
-fewer under --max-minutes). A setting whose run in DIR has finished is not trained again, so an
+fewer under --max-minutes). A cosine schedule decays over --epochs: give the epochs that fit the
+time rather than a time limit, or the rate is still high when the time runs out. A setting whose
+run in DIR has finished (its epochs done, or cut by --max-minutes) is not trained again, so an
 interrupted benchmark goes on where it stopped and new settings can be added to a table.
 
 For each setting it prints: the epochs run, the validation MSE (m²) after each, the best, and the
@@ -67,7 +69,10 @@ def parse_setting(text: str, base: TrainConfig) -> TrainConfig:
                 f"--setting {text}: {part!r} is not KEY=VALUE, KEY one of {', '.join(KEYS)}"
             )
         name, kind = KEYS[key]
-        fields[name] = kind(value)
+        try:
+            fields[name] = kind(value)
+        except ValueError:
+            raise SystemExit(f"--setting {text}: {value!r} is not a {kind.__name__}") from None
     try:
         return replace(base, **fields)
     except ValueError as err:
@@ -111,21 +116,23 @@ def outcome(setting: str, run_dir: Path, train_graphs: int, target_m2: float) ->
     return Outcome(setting, len(rows), val, seconds, graphs, reached)
 
 
-def _finished(run_dir: Path, train: TrainConfig) -> bool:
+def _finished(run_dir: Path, train: TrainConfig, train_graphs: int) -> bool:
+    """Whether the setting's run has all its epochs, or was stopped by the time limit (its last
+    epoch cut short, or the logged time over the limit)."""
     rows = runs.read_metrics(run_dir)
+    if not rows or not (run_dir / runs.LAST).is_file():
+        return False
+    cut = rows[-1].get("train_graphs", train_graphs) < train_graphs
+    logged_s = sum(r["train_seconds"] + r["val_seconds"] for r in rows)
     return (
-        bool(rows)
-        and (run_dir / runs.LAST).is_file()
-        and (
-            rows[-1]["epoch"] >= train.epochs
-            or sum(r["train_seconds"] + r["val_seconds"] for r in rows)
-            >= 60 * (train.max_minutes or math.inf)
-        )
+        rows[-1]["epoch"] >= train.epochs or cut or logged_s >= 60 * (train.max_minutes or math.inf)
     )
 
 
-def train_setting(build: Path, run_dir: Path, train: TrainConfig, device: str) -> None:
-    if _finished(run_dir, train):
+def train_setting(
+    build: Path, run_dir: Path, train: TrainConfig, train_graphs: int, device: str
+) -> None:
+    if _finished(run_dir, train, train_graphs):
         return
     resume = (run_dir / runs.LAST).is_file()
     fit(build, run_dir, ModelConfig(), train, device, resume=resume)
@@ -196,7 +203,7 @@ def main() -> None:
     outcomes = []
     for text, train in zip(settings, trains, strict=True):
         run_dir = args.out / text.replace(",", "_").replace("=", "")
-        train_setting(args.build, run_dir, train, str(device))
+        train_setting(args.build, run_dir, train, train_graphs, str(device))
         outcomes.append(outcome(text, run_dir, train_graphs, args.target_m2))
         item = outcomes[-1].to_dict()
         reached = (

@@ -53,7 +53,7 @@ def largest_files(raw_dir: Path, count: int, fmt: str) -> list[Path]:
 
 
 def main() -> None:
-    args, tag, raw_dir = parse_input_args(__doc__, "txt")
+    args, tag, raw_dir = parse_input_args(__doc__, "txt", largest=True)
     ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
 
     inputs, name = [raw_dir], f"graphs-{tag}"

@@ -46,8 +46,11 @@ def ensure_input(
     return time.perf_counter() - start
 
 
-def parse_input_args(description: str, default_format: str) -> tuple[argparse.Namespace, str, Path]:
-    """The options that choose the synthetic input; returns (args, tag, raw folder)."""
+def parse_input_args(
+    description: str, default_format: str, largest: bool = False
+) -> tuple[argparse.Namespace, str, Path]:
+    """The options that choose the synthetic input (and `--largest`, where asked); returns (args,
+    tag, raw folder)."""
     parser = argparse.ArgumentParser(
         description=description, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -60,13 +63,14 @@ def parse_input_args(description: str, default_format: str) -> tuple[argparse.Na
         "--jobs", type=int, default=None, help="build processes (default: one per usable core)"
     )
     parser.add_argument("--protocol", default="aigem", choices=["aigem", "cs-lstm"])
-    parser.add_argument(
-        "--largest",
-        type=int,
-        default=None,
-        help="build only the N largest recordings' files (txt or csv): peak memory is set by the "
-        "largest recordings and the jobs, not by how many recordings there are",
-    )
+    if largest:
+        parser.add_argument(
+            "--largest",
+            type=int,
+            default=None,
+            help="build only the N largest recordings' files (txt or csv): peak memory is set by "
+            "the largest recordings and the jobs, not by how many recordings there are",
+        )
     args = parser.parse_args()
     tag = f"{args.format}-r{args.recordings}-m{args.minutes:g}{'-quirks' if args.quirks else ''}"
     return args, tag, args.work_dir / f"raw-{tag}"

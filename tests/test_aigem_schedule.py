@@ -3,16 +3,20 @@ the rates logged, a resume that matches an uninterrupted run, and what a resume 
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import pytest
 import torch
+from typer.testing import CliRunner
 
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
+from aigem.model import AiGem
 from aigem.schedule import clip_gradients, learning_rate_at
 from aigem.training import fit
+from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
 
@@ -32,6 +36,13 @@ def test_constant_is_the_paper_rate_at_every_step() -> None:
 def test_warmup_rises_linearly_then_holds() -> None:
     rates = _rates(TrainConfig(epochs=3, learning_rate=1.0, warmup_epochs=1.5), 2)
     assert rates == [1 / 3, 2 / 3, 1.0, 1.0, 1.0, 1.0]
+
+
+def test_a_warmup_ending_within_a_step_never_passes_the_rate() -> None:
+    rates = _rates(TrainConfig(epochs=2, learning_rate=1.0, warmup_epochs=0.5), 3)  # 1.5 steps
+    assert rates == pytest.approx([2 / 3, 1.0, 1.0, 1.0, 1.0, 1.0])
+    tiny = _rates(TrainConfig(epochs=2, learning_rate=1.0, warmup_epochs=0.01), 50)  # 0.5 steps
+    assert max(tiny) == 1.0
 
 
 def test_cosine_falls_along_half_a_cosine_to_zero() -> None:
@@ -131,6 +142,52 @@ def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
     assert [r["val_loss_m2"] for r in again] == pytest.approx(
         [r["val_loss_m2"] for r in rows], rel=1e-5
     )
+
+
+def test_each_step_runs_at_its_scheduled_rate(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seen = []  # Adam's rate when it steps
+    adam_step = torch.optim.Adam.step
+
+    def step(self, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        seen.append(self.param_groups[0]["lr"])
+        return adam_step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    fit(tiny_build, tmp_path / "run", ModelConfig(), SCHEDULED, "cpu")
+    batches = math.ceil(int(open_build(tiny_build).manifest.splits["train"]) / 8)
+    assert seen == _rates(SCHEDULED, batches)
+
+
+def test_clipping_reaches_the_optimizer(tiny_build: Path, tmp_path: Path) -> None:
+    """Gradients clipped to a norm of 1e-12 are far below Adam's eps: the weights stay put."""
+    torch.manual_seed(SCHEDULED.seed)  # fit initialises the model from the same seed
+    start = AiGem(ModelConfig()).state_dict()
+    moved = {}
+    for clip in (None, 1e-12):
+        train = TrainConfig(**{**SCHEDULED.to_dict(), "clip_grad_norm": clip, "epochs": 1})
+        train = TrainConfig(**{**train.to_dict(), "warmup_epochs": 0.0})
+        fit(tiny_build, tmp_path / str(clip), ModelConfig(), train, "cpu")
+        end = torch.load(tmp_path / str(clip) / runs.LAST, weights_only=True)["model"]
+        moved[clip] = max(float((end[k] - start[k]).abs().max()) for k in start)
+    assert moved[None] > 1e-3 and moved[1e-12] < 1e-5
+
+
+def test_the_cli_passes_the_settings_and_refuses_bad_ones(tiny_build: Path, tmp_path: Path) -> None:
+    runner = CliRunner()
+    args = ["fit", str(tiny_build), "--epochs", "2", "--batch-size", "8", "--horizon-s", "1",
+            "--device", "cpu"]  # fmt: skip
+    bad = runner.invoke(app, [*args, "--out", str(tmp_path / "bad"), "--lr-schedule", "linear"])
+    assert bad.exit_code == 2 and "lr_schedule must be one of constant, cosine" in bad.stderr
+    assert not (tmp_path / "bad").exists()
+    settings = ["--learning-rate", "2e-3", "--lr-schedule", "cosine", "--warmup-epochs", "0.5",
+                "--clip-grad-norm", "5"]  # fmt: skip
+    good = runner.invoke(app, [*args, "--out", str(tmp_path / "run"), *settings])
+    assert good.exit_code == 0, good.output
+    train = json.loads((tmp_path / "run" / runs.RUN_INFO).read_text())["train"]
+    assert (train["learning_rate"], train["lr_schedule"]) == (2e-3, "cosine")
+    assert (train["warmup_epochs"], train["clip_grad_norm"]) == (0.5, 5.0)
 
 
 def test_a_run_of_an_older_aigem_resumes_as_the_constant_rate_it_trained_with(
