@@ -82,8 +82,7 @@ def parse_setting(text: str, base: TrainConfig) -> TrainConfig:
 @dataclass(frozen=True)
 class Outcome:
     setting: str
-    epochs: int
-    val_m2: list[float]
+    val_m2: list[float]  # after each epoch
     seconds: list[float]  # cumulative train + validation seconds after each epoch
     graphs: list[int]  # cumulative graphs seen after each epoch
     target_epoch: int | None  # first epoch (1-based) at or below the target
@@ -92,7 +91,7 @@ class Outcome:
         at = self.target_epoch
         return {
             "setting": self.setting,
-            "epochs": self.epochs,
+            "epochs": len(self.val_m2),
             "best_val_m2": min(self.val_m2),
             "last_val_m2": self.val_m2[-1],
             "target_epoch": at,
@@ -113,7 +112,7 @@ def outcome(setting: str, run_dir: Path, train_graphs: int, target_m2: float) ->
         seconds.append(round(total_s, 1))
         graphs.append(total_graphs)
     reached = next((i for i, v in enumerate(val, start=1) if v <= target_m2), None)
-    return Outcome(setting, len(rows), val, seconds, graphs, reached)
+    return Outcome(setting, val, seconds, graphs, reached)
 
 
 def _finished(run_dir: Path, train: TrainConfig, train_graphs: int) -> bool:
@@ -127,6 +126,11 @@ def _finished(run_dir: Path, train: TrainConfig, train_graphs: int) -> bool:
     return (
         rows[-1]["epoch"] >= train.epochs or cut or logged_s >= 60 * (train.max_minutes or math.inf)
     )
+
+
+def run_dir_of(out: Path, setting: str) -> Path:
+    """DIR/<setting>: 'batch=256,lr=3e-3' -> DIR/batch256_lr3e-3."""
+    return out / setting.replace(",", "_").replace("=", "")
 
 
 def train_setting(
@@ -202,7 +206,7 @@ def main() -> None:
     train_graphs = int(json.loads((args.build / "manifest.json").read_text())["splits"]["train"])
     outcomes = []
     for text, train in zip(settings, trains, strict=True):
-        run_dir = args.out / text.replace(",", "_").replace("=", "")
+        run_dir = run_dir_of(args.out, text)
         train_setting(args.build, run_dir, train, train_graphs, str(device))
         outcomes.append(outcome(text, run_dir, train_graphs, args.target_m2))
         item = outcomes[-1].to_dict()
@@ -218,7 +222,7 @@ def main() -> None:
             f"last {item['last_val_m2']:.3f}  target: {reached}\n    val MSE by epoch: {curve}",
             flush=True,
         )
-    baseline = runs.read_baseline(args.out / settings[0].replace(",", "_").replace("=", ""))
+    baseline = runs.read_baseline(run_dir_of(args.out, settings[0]))
     model = f"the {args.horizon_s:g} s model"
     title = f"validation MSE of {model} on {device}; {describe_build(args.build)}"
     draw(outcomes, args.target_m2, baseline, title, args.out / "accuracy.png")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -166,8 +167,7 @@ def test_clipping_reaches_the_optimizer(tiny_build: Path, tmp_path: Path) -> Non
     start = AiGem(ModelConfig()).state_dict()
     moved = {}
     for clip in (None, 1e-12):
-        train = TrainConfig(**{**SCHEDULED.to_dict(), "clip_grad_norm": clip, "epochs": 1})
-        train = TrainConfig(**{**train.to_dict(), "warmup_epochs": 0.0})
+        train = replace(SCHEDULED, clip_grad_norm=clip, epochs=1, warmup_epochs=0.0)
         fit(tiny_build, tmp_path / str(clip), ModelConfig(), train, "cpu")
         end = torch.load(tmp_path / str(clip) / runs.LAST, weights_only=True)["model"]
         moved[clip] = max(float((end[k] - start[k]).abs().max()) for k in start)
