@@ -13,7 +13,7 @@ at a threshold is decided alike.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import polars as pl
@@ -149,8 +149,8 @@ def _csr_ptr(keys: np.ndarray, n_keys: int) -> np.ndarray:
     return np.searchsorted(keys, np.arange(n_keys + 1)).astype(np.int64)
 
 
-def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:
-    """Index the grid nodes by step and by track, and the pairs by step, as flat arrays."""
+def node_arrays(nodes: pl.DataFrame) -> RecordingArrays:
+    """Index the grid nodes by step and by track; the pair arrays are left empty (`with_pairs`)."""
     step = nodes[s.STEP].to_numpy()
     track = nodes[s.TRACK_ID].to_numpy()
     n_steps = int(step.max()) + 1 if len(step) else 0
@@ -160,21 +160,6 @@ def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArray
     by_track = np.lexsort((step, local_track)).astype(np.int32)
     track_ptr = _csr_ptr(local_track[by_track], n_tracks)
     track_first_step = step[by_track[track_ptr[:-1]]] if n_tracks else np.empty(0, np.int32)
-    # Pair endpoints as rows (through the track index), lower y first, by (step, lower y).
-    rows_of = lambda t, st: by_track[
-        track_ptr[t - first_track] + (st - track_first_step[t - first_track])
-    ]  # noqa: E731
-    pair_step = pairs[s.STEP].to_numpy()
-    rows_a = rows_of(pairs[s.TRACK_A].to_numpy(), pair_step)
-    rows_b = rows_of(pairs[s.TRACK_B].to_numpy(), pair_step)
-    y = nodes[s.Y_M].to_numpy()
-    a_lower = y[rows_a] <= y[rows_b]
-    low, high = np.where(a_lower, rows_a, rows_b), np.where(a_lower, rows_b, rows_a)
-    del rows_a, rows_b, a_lower  # ten million pairs in a dense recording: free as we go
-    pair_key = pair_search_key(pair_step, y[low])
-    by_key = np.argsort(pair_key, kind="stable")
-    pair_rows = np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32)
-    del low, high
     state = nodes.select(s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS).to_numpy().astype(np.float64)
     return RecordingArrays(
         step_ptr=_csr_ptr(step, n_steps),
@@ -183,9 +168,59 @@ def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArray
         track_first_step=track_first_step.astype(np.int32),
         track_ptr=track_ptr,
         track_rows=by_track,
-        pair_ptr=_csr_ptr(pair_step[by_key], n_steps),
+        pair_ptr=np.zeros(n_steps + 1, np.int64),
+        pair_rows=np.empty((0, 2), np.int32),
+        pair_dist=np.empty(0, np.float32),
+        pair_key=np.empty(0, np.float64),
+        first_track_id=first_track,
+    )
+
+
+def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
+    """`rec` with the pair arrays of `pairs` (PROXIMITY_SCHEMA, sorted by step, track_a,
+    track_b): endpoints as rows, lower y first, sorted by (step, lower y).
+
+    `pairs` may be those of a range of steps only (`step_pieces`): the pair arrays of
+    consecutive ranges, concatenated, are those of all their pairs at once."""
+    first_track = rec.first_track_id
+    # Pair endpoints as rows (through the track index).
+    rows_of = lambda t, st: rec.track_rows[
+        rec.track_ptr[t - first_track] + (st - rec.track_first_step[t - first_track])
+    ]  # noqa: E731
+    pair_step = pairs[s.STEP].to_numpy()
+    rows_a = rows_of(pairs[s.TRACK_A].to_numpy(), pair_step)
+    rows_b = rows_of(pairs[s.TRACK_B].to_numpy(), pair_step)
+    y = rec.node_state[:, 1]
+    a_lower = y[rows_a] <= y[rows_b]
+    low, high = np.where(a_lower, rows_a, rows_b), np.where(a_lower, rows_b, rows_a)
+    del rows_a, rows_b, a_lower  # ten million pairs in a dense recording: free as we go
+    pair_key = pair_search_key(pair_step, y[low])
+    by_key = np.argsort(pair_key, kind="stable")
+    pair_rows = np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32)
+    del low, high
+    return replace(
+        rec,
+        pair_ptr=_csr_ptr(pair_step[by_key], rec.n_steps),
         pair_rows=pair_rows.reshape(-1, 2),
         pair_dist=pairs[s.DISTANCE_M].to_numpy().astype(np.float32)[by_key],
         pair_key=pair_key[by_key],
-        first_track_id=first_track,
     )
+
+
+def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:
+    """Index the grid nodes by step and by track, and the pairs by step, as flat arrays."""
+    return with_pairs(node_arrays(nodes), pairs)
+
+
+def step_pieces(step_ptr: np.ndarray, rows_per_piece: int) -> list[tuple[int, int]]:
+    """Consecutive ranges of steps [first, end) that cover every step, each of about
+    `rows_per_piece` grid rows (at least one step): a recording's pairs a piece at a time."""
+    n_steps = len(step_ptr) - 1
+    pieces, first = [], 0
+    while first < n_steps:
+        target = step_ptr[first] + max(1, rows_per_piece)
+        end = int(np.searchsorted(step_ptr, target, "right")) - 1
+        end = min(max(end, first + 1), n_steps)
+        pieces.append((first, end))
+        first = end
+    return pieces

@@ -194,23 +194,42 @@ def _chunk(
     return nodes, actor_pairs, kept, full_future, ego_full, low, high
 
 
-def neighbourhoods(
-    rec: RecordingArrays, history: np.ndarray, config: BuildConfig
-) -> Neighbourhoods:
-    """The neighbourhood of every ego row of (B, K_H) `history_rows`, each looked at once,
-    ROWS_PER_CHUNK at a time."""
-    if not np.isfinite(rec.node_state[:, :2]).all():  # such a row would fall out of every search
-        raise NonFiniteStateError("positions that are not finite")
-    used = np.zeros(len(rec.node_track), bool)
+def ego_rows(history: np.ndarray, n_rows: int) -> np.ndarray:
+    """Every row of (B, K_H) `history_rows` once, ascending (int64)."""
+    used = np.zeros(n_rows, bool)
     for part in _sample_chunks(len(history)):
         rows = history[part]
         used[rows[rows >= 0]] = True
-    rows = np.flatnonzero(used)
-    row_step = np.searchsorted(rec.step_ptr, rows, "right") - 1
+    return np.flatnonzero(used)
+
+
+def rows_by_y(rec: RecordingArrays) -> tuple[np.ndarray, np.ndarray]:
+    """(order, keys): the grid rows sorted by (step, y), and their pair_search_key: the search
+    along y of each ego's neighbours."""
+    if not np.isfinite(rec.node_state[:, :2]).all():  # such a row would fall out of every search
+        raise NonFiniteStateError("positions that are not finite")
     all_steps = np.repeat(np.arange(rec.n_steps), np.diff(rec.step_ptr))
     keys = pair_search_key(all_steps, rec.node_state[:, 1])
     order = np.argsort(keys, kind="stable")
-    by_y = (order, keys[order])
+    return order, keys[order]
+
+
+def neighbourhoods(
+    rec: RecordingArrays, history: np.ndarray, config: BuildConfig
+) -> Neighbourhoods:
+    """The neighbourhood of every ego row of (B, K_H) `history_rows`, each looked at once."""
+    by_y = rows_by_y(rec)
+    return neighbourhoods_of_rows(rec, ego_rows(history, len(rec.node_track)), by_y, config)
+
+
+def neighbourhoods_of_rows(
+    rec: RecordingArrays, rows: np.ndarray, by_y: tuple[np.ndarray, np.ndarray], config: BuildConfig
+) -> Neighbourhoods:
+    """The neighbourhoods of the given ego `rows` (ascending), ROWS_PER_CHUNK at a time.
+
+    `rec` needs the pairs of the rows' steps only (`grid.with_pairs` of a range of steps);
+    `by_y` is `rows_by_y(rec)`."""
+    row_step = np.searchsorted(rec.step_ptr, rows, "right") - 1
     n = len(rows)
     hood = Neighbourhoods(
         rows=rows,
@@ -234,6 +253,12 @@ def neighbourhoods(
     with ThreadPoolExecutor(max(1, min(pl.thread_pool_size(), len(parts)))) as threads:
         list(threads.map(fill, parts))
     return hood
+
+
+def joined(parts: list[Neighbourhoods]) -> Neighbourhoods:
+    """The neighbourhoods of consecutive ranges of ego rows as one."""
+    fields = ("rows", *_FIELDS)
+    return Neighbourhoods(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
 
 
 _FIELDS = ("nodes", "actor_pairs", "kept", "full_future", "ego_full_future", "low", "high")

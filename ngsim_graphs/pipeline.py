@@ -34,7 +34,7 @@ from ngsim_graphs.sources.registry import choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
 from ngsim_graphs.tasks import RecordingOutput, build_recording, clean_recording, read_file
 from ngsim_graphs.windows import ScriptRows
-from ngsim_graphs.workers import Workers, available_cores
+from ngsim_graphs.workers import Workers, available_cores, one_malloc_arena
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 BuildProgress = Callable[[str, int, int], None]
@@ -295,7 +295,8 @@ def run_build(
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
     `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
-    one per core this process may use); the output is the same for any number. The workers are
+    one per core this process may use); the output is the same for any number. This process and
+    the workers keep to one malloc arena (`workers.one_malloc_arena`). The workers are
     started with multiprocessing's "spawn": a script that builds with jobs > 1 must do so under
     `if __name__ == "__main__":`.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
@@ -303,6 +304,7 @@ def run_build(
     disk); `out_dir` is then left as it was.
     """
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
+    one_malloc_arena()
     workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
     report_progress = progress or (lambda _what, _done, _total: None)
     source, files, skipped = choose_source(raw_paths, dataset)

@@ -10,7 +10,8 @@ docs/build-format.md: the dataset induces them from the frame arrays).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,12 +25,17 @@ from ngsim_graphs.grid import (
     ARRAY_NAMES,
     RecordingArrays,
     grid_nodes,
+    node_arrays,
     proximity_pairs,
-    recording_arrays,
+    step_pieces,
+    with_pairs,
 )
 from ngsim_graphs.neighbourhoods import (
+    ego_rows,
     history_rows,
-    neighbourhoods,
+    joined,
+    neighbourhoods_of_rows,
+    rows_by_y,
     sample_counts,
     train_ranges,
 )
@@ -39,13 +45,21 @@ from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingRep
 from ngsim_graphs.splits import assign_splits
 from ngsim_graphs.windows import ScriptRows, ego_windows, script_windows
 
+# A recording's proximity pairs are found, written and used a range of steps at a time, about
+# this many grid rows each: the pairs, ten a row in a dense recording, then take memory by this
+# number, not by the size of the recording (its grid rows are still held whole).
+PIECE_ROWS = 131_072
+PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
+# Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
+PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
+
 
 @dataclass(frozen=True)
 class RecordingSamples:
-    """What one recording contributes to a build."""
+    """What one recording contributes to a build, but its pairs (given to a PairSink)."""
 
-    pairs: pl.DataFrame  # PROXIMITY_SCHEMA
-    arrays: RecordingArrays
+    arrays: RecordingArrays  # pair_rows, pair_dist and pair_key empty: they went to the sink
+    proximity_edges: int
     windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
     train_ranges: MinMaxScaler  # what this recording's train samples observed
     script_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
@@ -55,17 +69,19 @@ def recording_samples(
     tracks: pl.DataFrame,
     recording_index: int,
     config: BuildConfig,
+    write_pairs: PairSink,
     raw: pl.DataFrame | None = None,
     dataset_id: int = 0,
 ) -> RecordingSamples:
     """Frame arrays, proximity edges and split ego windows of one recording's tracks table.
 
-    Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
-    rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS).
+    The pairs go to `write_pairs` a range of steps at a time (PIECE_ROWS), each range's used
+    for the neighbourhoods of the ego rows of its steps and then let go. Under the cs-lstm
+    protocol the windows are CS-LSTM's kept rows of `raw` (the recording's rows before
+    cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS).
     """
     nodes = grid_nodes(tracks, config.time_step_s)
-    pairs = proximity_pairs(nodes, config.d_min_m)
-    arrays = recording_arrays(nodes, pairs)
+    arrays = node_arrays(nodes)
     script = None
     if config.protocol is Protocol.CS_LSTM:
         if raw is None:
@@ -76,14 +92,27 @@ def recording_samples(
         windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     history = history_rows(arrays, egos, starts, config)
-    hood = neighbourhoods(arrays, history, config)
+    rows = ego_rows(history, len(arrays.node_track))
+    by_y = rows_by_y(arrays)
+    pair_ptr, n_pairs, hoods = np.zeros_like(arrays.pair_ptr), 0, []
+    for first, end in step_pieces(arrays.step_ptr, PIECE_ROWS) or [(0, 0)]:
+        lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
+        pairs = proximity_pairs(nodes.slice(lo, hi - lo), config.d_min_m)
+        piece = with_pairs(arrays, pairs)
+        write_pairs(pairs, piece)
+        pair_ptr += piece.pair_ptr
+        n_pairs += pairs.height
+        mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
+        hoods.append(neighbourhoods_of_rows(piece, mine, by_y, config))
+    hood = joined(hoods)
     table = sample_counts(hood, history, config)
     is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
     train = train_ranges(arrays, hood, history, is_train)
     windows = windows.with_columns(
         pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
-    return RecordingSamples(pairs, arrays, windows, train, script)
+    arrays = replace(arrays, pair_ptr=pair_ptr)
+    return RecordingSamples(arrays, n_pairs, windows, train, script)
 
 
 @dataclass(frozen=True)
@@ -149,12 +178,22 @@ def build_recording(
     )
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
     raw = pl.read_parquet(staged) if config.protocol is Protocol.CS_LSTM else None
-    samples = recording_samples(tracks, index, config, raw, DATASET_IDS.get(key, 0))
-    layout.write_parquet(samples.pairs, layout.proximity_path(root, *key))
+    folder = layout.recording_arrays_dir(root, *key)
+    with (
+        layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
+        layout.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,
+    ):
+
+        def write_pairs(pairs: pl.DataFrame, piece: RecordingArrays) -> None:
+            table.append(pairs)
+            pair_files.append({name: getattr(piece, name) for name in PAIR_ARRAYS})
+
+        samples = recording_samples(
+            tracks, index, config, write_pairs, raw, DATASET_IDS.get(key, 0)
+        )
     arrays = samples.arrays
     layout.write_arrays(
-        layout.recording_arrays_dir(root, *key),
-        {name: getattr(arrays, name) for name in ARRAY_NAMES},
+        folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in PAIR_ARRAYS}
     )
     windows = samples.windows.with_columns(
         pl.lit(key[0]).alias(s.LOCATION),
@@ -172,7 +211,7 @@ def build_recording(
         arrays.n_steps,
         longest,
         (ids[0], ids[1]),
-        samples.pairs.height,
+        samples.proximity_edges,
         windows,
         samples.script_rows,
         samples.train_ranges,

@@ -9,7 +9,10 @@ are shared out among the workers for Polars' own threads (unless POLARS_MAX_THRE
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
+import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -20,6 +23,20 @@ from ngsim_graphs.errors import NgsimError
 
 Result = TypeVar("Result")
 POLARS_THREADS = "POLARS_MAX_THREADS"
+_M_ARENA_MAX = -8  # glibc's mallopt parameter
+
+
+def one_malloc_arena() -> None:
+    """Have glibc's malloc serve every thread of this process from one arena.
+
+    A task frees what it allocated, piece by piece; with an arena per thread (numpy's work in
+    the neighbourhoods' threads, Polars' own) each arena keeps the memory freed into it, and a
+    worker's resident memory grew with every piece of a recording (1.10 GB against 0.65 GB for
+    the densest one, and no slower). Elsewhere than glibc this does nothing.
+    """
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):  # not glibc: musl has no mallopt
+            ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1)
 
 
 def available_cores() -> int:
@@ -69,7 +86,9 @@ class Workers:
         if POLARS_THREADS not in os.environ:
             os.environ[POLARS_THREADS] = str(max(1, available_cores() // size))
             self._set_threads = True
-        self._pool = ProcessPoolExecutor(size, mp_context=get_context("spawn"))
+        self._pool = ProcessPoolExecutor(
+            size, mp_context=get_context("spawn"), initializer=one_malloc_arena
+        )
         self._size = size
         return self._pool
 

@@ -13,10 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
+import pyarrow.parquet as pq
 import pytest
+from polars.testing import assert_frame_equal
 from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
 
-from ngsim_graphs import layout
+from ngsim_graphs import layout, tasks
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -212,6 +214,27 @@ def test_the_same_build_twice_is_byte_identical(
     assert [name for name in before if before[name] != after[name]] == []
     manifest = (tmp_path / "again" / "manifest.json").read_bytes()
     assert manifest == (first / "manifest.json").read_bytes()
+
+
+def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
+    tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The pairs found, written and used 2,000 grid rows at a time (about 20 pieces a recording
+    here; the default is one): every array, table and count of the build is the same, the
+    proximity tables hold the same rows in more row groups."""
+    raw, first = synthetic_build(tmp_path_factory)
+    monkeypatch.setattr(tasks, "PIECE_ROWS", 2_000)
+    run_build([raw], tmp_path / "pieces", BuildConfig(), jobs=1)
+    before, after = build_files(first), build_files(tmp_path / "pieces")
+    proximity = [name for name in before if name.startswith(layout.PROXIMITY_DIR)]
+    assert [name for name in before if before[name] != after[name]] == proximity
+    for name in proximity:
+        whole, pieces = pl.read_parquet(first / name), pl.read_parquet(tmp_path / "pieces" / name)
+        assert whole.height > 10_000
+        assert_frame_equal(whole, pieces)
+        assert pq.ParquetFile(tmp_path / "pieces" / name).metadata.num_row_groups >= 10
+    old, new = open_build(first).manifest, open_build(tmp_path / "pieces").manifest
+    assert (old.counts, old.scaler, old.recordings) == (new.counts, new.scaler, new.recordings)
 
 
 def test_open_build_without_manifest(tmp_path: Path) -> None:

@@ -14,8 +14,11 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.grid import (
     PAIR_KEY_STEP,
     grid_nodes,
+    node_arrays,
     proximity_pairs,
     recording_arrays,
+    step_pieces,
+    with_pairs,
 )
 
 
@@ -176,3 +179,43 @@ def test_recording_arrays_pairs_with_the_higher_track_lower_in_y() -> None:
     assert rec.pair_rows.tolist() == [[1, 0]]
     assert rec.pair_key.tolist() == [3 * PAIR_KEY_STEP + 30.0]
     assert rec.pair_ptr.tolist() == [0, 0, 0, 0, 1]
+
+
+def test_step_pieces_by_hand() -> None:
+    """Steps of 3, 0, 7, 2 and 8 rows in pieces of about 5 rows: a piece ends at the last step
+    boundary within 5 rows of its start, and takes at least one step."""
+    step_ptr = np.array([0, 3, 3, 10, 12, 20])
+    assert step_pieces(step_ptr, 5) == [(0, 2), (2, 3), (3, 4), (4, 5)]
+    assert step_pieces(step_ptr, 100) == [(0, 5)]
+    assert step_pieces(np.array([0]), 5) == []
+
+
+def contiguous_nodes(rng: np.random.Generator) -> pl.DataFrame:
+    """60 tracks, each present over a run of consecutive steps of 40, on 300 m of road."""
+    rows = []
+    for track in range(60):
+        first = int(rng.integers(0, 35))
+        for step in range(first, first + int(rng.integers(1, 41 - first))):
+            x, y = float(rng.uniform(0, 15)), float(rng.uniform(0, 300))
+            rows.append((step, track, track + 1, x, y, 0.0, 10.0))
+    return grid_table(rows)
+
+
+@pytest.mark.parametrize("rows_per_piece", [1, 37, 400])
+def test_pairs_a_piece_of_steps_at_a_time_are_the_pairs_of_all_steps(rows_per_piece: int) -> None:
+    nodes = contiguous_nodes(np.random.default_rng(rows_per_piece))
+    whole = recording_arrays(nodes, proximity_pairs(nodes, 25.0))
+    indexed = node_arrays(nodes)
+    pieces, tables = [], []
+    for first, end in step_pieces(indexed.step_ptr, rows_per_piece):
+        lo, hi = int(indexed.step_ptr[first]), int(indexed.step_ptr[end])
+        tables.append(proximity_pairs(nodes.slice(lo, hi - lo), 25.0))
+        pieces.append(with_pairs(indexed, tables[-1]))
+    assert len(pieces) > 1 or rows_per_piece == 400
+    assert_frame_equal(pl.concat(tables), proximity_pairs(nodes, 25.0))
+    assert whole.pair_rows.shape[0] > 100
+    for name in ("pair_rows", "pair_dist", "pair_key"):
+        np.testing.assert_array_equal(
+            np.concatenate([getattr(p, name) for p in pieces]), getattr(whole, name)
+        )
+    np.testing.assert_array_equal(sum(p.pair_ptr for p in pieces), whole.pair_ptr)

@@ -50,3 +50,61 @@ def test_other_polars_errors_are_not_disk_errors(
     monkeypatch.setattr(pl.DataFrame, "write_parquet", bug)
     with pytest.raises(pl.exceptions.SchemaError):
         layout.write_parquet(pl.DataFrame({"a": [1]}), tmp_path / "x.parquet")
+
+
+PARTS = [
+    np.arange(6, dtype=np.int32).reshape(3, 2),
+    np.empty((0, 2), np.int32),
+    np.arange(8, 12, dtype=np.int32).reshape(2, 2),
+]
+
+
+def test_arrays_appended_part_by_part_are_what_np_save_writes_of_them_at_once(
+    tmp_path: Path,
+) -> None:
+    with layout.ArrayAppender(tmp_path / "parts", ("rows", "key")) as appender:
+        for part in PARTS:
+            appender.append({"rows": part, "key": part[:, 0] * 0.5})
+    whole = np.concatenate(PARTS)
+    np.save(tmp_path / "rows.npy", whole)
+    np.save(tmp_path / "key.npy", whole[:, 0] * 0.5)
+    for name in ("rows", "key"):
+        assert (tmp_path / "parts" / f"{name}.npy").read_bytes() == (
+            tmp_path / f"{name}.npy"
+        ).read_bytes()
+    opened = layout.open_arrays(tmp_path / "parts", ("rows", "key"))
+    assert opened["rows"].tolist() == [[0, 1], [2, 3], [4, 5], [8, 9], [10, 11]]
+    assert opened["key"].tolist() == [0.0, 1.0, 2.0, 4.0, 5.0]
+
+
+def test_a_part_of_another_dtype_or_shape_fails_and_leaves_no_file(tmp_path: Path) -> None:
+    for wrong in (PARTS[0].astype(np.int64), np.zeros((2, 3), np.int32)):
+        with (
+            pytest.raises(ValueError, match="a part"),
+            layout.ArrayAppender(tmp_path, ("rows",)) as appender,
+        ):
+            appender.append({"rows": PARTS[0]})
+            appender.append({"rows": wrong})
+        assert not (tmp_path / "rows.npy").exists()
+
+
+def test_a_table_appended_part_by_part_is_one_row_group_a_part(tmp_path: Path) -> None:
+    import pyarrow.parquet as pq
+
+    schema = pl.Schema({"step": pl.Int32, "distance_m": pl.Float64})
+    parts = [
+        pl.DataFrame({"step": [0, 0, 1], "distance_m": [1.5, 2.0, 0.25]}, schema=schema),
+        pl.DataFrame({"step": [4], "distance_m": [9.0]}, schema=schema),
+    ]
+    path = tmp_path / "table.parquet"
+    with layout.TableAppender(path, schema) as table:
+        for part in parts:
+            table.append(part)
+    read = pl.read_parquet(path)
+    assert read.schema == schema
+    assert read.rows() == [(0, 1.5), (0, 2.0), (1, 0.25), (4, 9.0)]
+    assert pq.ParquetFile(path).metadata.num_row_groups == 2
+    with pytest.raises(RuntimeError), layout.TableAppender(path, schema) as table:
+        table.append(parts[0])
+        raise RuntimeError("a failure while building")
+    assert not path.exists()
