@@ -209,14 +209,17 @@ def _map_array(path: Path) -> np.ndarray:
         raise NgsimInputError(path, f"unreadable array: {err}") from None
 
 
-def staged_raw_path(root: Path, location: str, period: str, file_index: int) -> Path:
-    """Parsed raw rows of one recording from one input file, kept only while building."""
-    return root / STAGING_DIR / recording_name(location, period) / f"{file_index:04d}.parquet"
+def staged_raw_path(root: Path, location: str, period: str, part: int, file_index: int) -> Path:
+    """Parsed raw rows of one part of a recording's vehicles from one input file, kept only
+    while building."""
+    name = f"raw-{part:05d}-{file_index:04d}.parquet"
+    return root / STAGING_DIR / recording_name(location, period) / name
 
 
-def staged_tracks_path(root: Path, location: str, period: str) -> Path:
-    """One recording's tracks table, numbered from 0, kept only while building."""
-    return root / STAGING_DIR / recording_name(location, period) / "tracks.parquet"
+def staged_tracks_path(root: Path, location: str, period: str, part: int) -> Path:
+    """The tracks of one part of a recording's vehicles, numbered from 0 in the recording,
+    kept only while building."""
+    return root / STAGING_DIR / recording_name(location, period) / f"tracks-{part:05d}.parquet"
 
 
 def manifest_path(root: Path) -> Path:

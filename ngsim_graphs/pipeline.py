@@ -1,14 +1,16 @@
 """`ngsim-graphs build`: raw files to a finished, self-describing dataset directory.
 
-A data source (`sources`) reads each input file and stages its rows per recording as Parquet;
-each recording is then cleaned into its tracks table and built: frame arrays, ego windows,
-splits, and every sample's counts and its share of the scaler's ranges (`tasks`). The files and
+A data source (`sources`) reads each input file and stages its rows per recording and part of
+its vehicles as Parquet; each recording is then cleaned into its tracks table, a part at a time,
+and built: frame arrays, ego windows, splits, and every sample's counts and its share of the
+scaler's ranges (`tasks`). The files and
 then the recordings go to `--jobs` worker processes (`workers`); what depends on the order of
 the recordings (track numbers, the samples tables, the manifest) is decided here, between the
 stages, so that any number of jobs gives the same build.
 
-Memory stays bounded by one input file or one recording per job; only the small per-sample
-table of every recording is kept until the end.
+Memory stays bounded per job by one input file, by a part of a recording's vehicles, or by a
+recording's grid rows and a range of its proximity pairs (`tasks.PIECE_ROWS`); only the small
+per-sample table of every recording is kept until the end.
 """
 
 from __future__ import annotations
@@ -32,7 +34,13 @@ from ngsim_graphs.schema import DropReason, Protocol
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
-from ngsim_graphs.tasks import RecordingOutput, build_recording, clean_recording, read_file
+from ngsim_graphs.tasks import (
+    RecordingOutput,
+    StagedParts,
+    build_recording,
+    clean_recording,
+    read_file,
+)
 from ngsim_graphs.windows import ScriptRows
 from ngsim_graphs.workers import Workers, available_cores, one_malloc_arena
 
@@ -60,7 +68,7 @@ def _stage_inputs(
     progress: BuildProgress,
     strict: bool,
     workers: Workers,
-) -> tuple[list[FileReport], dict[RecordingKey, list[Path]]]:
+) -> tuple[list[FileReport], dict[RecordingKey, StagedParts]]:
     """Read each file and stage its rows per recording, one file per job at a time."""
 
     def reading(done: int) -> None:  # one job reads the files in order, several at once
@@ -71,10 +79,11 @@ def _stage_inputs(
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
     read = workers.map(read_file, tasks, reading, [path.stat().st_size for path in files])
     reports = [report for report, _ in read]
-    staged: dict[RecordingKey, list[Path]] = {}
-    for _, paths in read:
-        for key, path in paths.items():
-            staged.setdefault(key, []).append(path)
+    staged: dict[RecordingKey, StagedParts] = {}
+    for _, paths in read:  # in file order: a part's files in the order they were read
+        for key, parts in paths.items():
+            for part, path in parts.items():
+                staged.setdefault(key, {}).setdefault(part, []).append(path)
     if not staged:
         found = sorted({loc for r in reports for loc in r.locations_found})
         more = f" (and {len(files) - 1} more)" if len(files) > 1 else ""
@@ -88,7 +97,7 @@ def _stage_inputs(
 
 def _build_recordings(
     source: Source,
-    staged: dict[RecordingKey, list[Path]],
+    staged: dict[RecordingKey, StagedParts],
     config: BuildConfig,
     root: Path,
     files: list[FileReport],
@@ -104,7 +113,9 @@ def _build_recordings(
         return lambda done: progress(what, done, len(keys))
 
     cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
-    sizes = [sum(path.stat().st_size for path in staged[key]) for key in keys]
+    sizes = [
+        sum(path.stat().st_size for paths in staged[key].values() for path in paths) for key in keys
+    ]
     reports = workers.map(clean_recording, cleaning, stage("cleaning recordings"), sizes)
     first_ids = [0, *accumulate(report.tracks for report in reports)]
     building = [
@@ -208,7 +219,7 @@ def _script_total(outputs: list[RecordingOutput]) -> ScriptRows | None:
 
 
 def _check_script_recordings(
-    staged: dict[RecordingKey, list[Path]], files: list[FileReport], config: BuildConfig
+    staged: dict[RecordingKey, StagedParts], files: list[FileReport], config: BuildConfig
 ) -> None:
     """Under the cs-lstm protocol every recording must be one of the script's six."""
     if config.protocol is not Protocol.CS_LSTM:

@@ -6,6 +6,10 @@ same whichever worker runs it and in whatever order they finish. Per recording: 
 proximity edges, split ego windows, and every sample's counts and its share of the scaler's
 ranges (`neighbourhoods`). The graphs themselves are not stored per sample (see
 docs/build-format.md: the dataset induces them from the frame arrays).
+
+A task's memory follows its pieces, not its recording: a recording is cleaned a part of its
+vehicles at a time (VEHICLES_PER_PART), and its proximity pairs are found, written and used a
+range of steps at a time (PIECE_ROWS).
 """
 
 from __future__ import annotations
@@ -131,35 +135,54 @@ class RecordingOutput:
     train_ranges: MinMaxScaler  # what its train samples observed
 
 
+# A recording is cleaned a part of its vehicles at a time: those whose Vehicle_ID // this is the
+# same (NGSIM: a few hundred rows a vehicle, some 150,000 rows a part). Each input file's rows
+# are staged by part, so that a part is read whole from its own files.
+VEHICLES_PER_PART = 256
+StagedParts = dict[int, list[Path]]  # a recording's staged raw files, by part
+
+
 def read_file(
     source: Source, path: Path, config: BuildConfig, file_index: int, root: Path, strict: bool
-) -> tuple[FileReport, dict[RecordingKey, Path]]:
-    """Read one input file and stage its rows per recording (a worker's task)."""
+) -> tuple[FileReport, dict[RecordingKey, dict[int, Path]]]:
+    """Read one input file and stage its rows per recording and part (a worker's task)."""
     read = source.read_file(path, config, file_index, strict)
-    staged = {}
+    staged: dict[RecordingKey, dict[int, Path]] = {}
     for key in sorted(read.recordings):
-        staged[key] = layout.staged_raw_path(root, *key, file_index)
-        layout.write_staged(read.recording_rows(key), staged[key])
+        rows = read.recording_rows(key)
+        part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
+        parts = rows.select(part_of.unique().sort())[_PART].to_list()
+        staged[key] = {}
+        for part in parts:
+            staged[key][part] = layout.staged_raw_path(root, *key, part, file_index)
+            layout.write_staged(rows.filter(part_of == part), staged[key][part])
     return read.report, staged
+
+
+_PART = "__part"
 
 
 def clean_recording(
     source: Source,
     key: RecordingKey,
-    staged: list[Path],
+    staged: StagedParts,
     config: BuildConfig,
     root: Path,
     files: list[FileReport],
     strict: bool,
 ) -> RecordingReport:
-    """One recording's tracks table, its tracks numbered from 0, staged (a worker's task).
+    """One recording's tracks, numbered from 0, staged a part of its vehicles at a time (a
+    worker's task); its report, after the recording's checks.
 
     The build numbers tracks over all recordings; a recording's first track id is known once
     every recording before it is cleaned, so the numbers are shifted in `build_recording`."""
-    raw = pl.read_parquet(staged)
-    tracks, report = source.recording_tracks(raw, key, config, 0, files, strict)
-    layout.write_staged(tracks, layout.staged_tracks_path(root, *key))
-    return report
+    parts, first_track_id = [], 0
+    for part in sorted(staged):
+        cleaned = source.vehicle_tracks(pl.read_parquet(staged[part]), key, config, first_track_id)
+        layout.write_staged(cleaned.tracks, layout.staged_tracks_path(root, *key, part))
+        first_track_id += cleaned.report.tracks
+        parts.append(replace(cleaned, tracks=cleaned.tracks.clear()))
+    return source.recording_report(parts, key, config, files, strict)
 
 
 def build_recording(
@@ -167,17 +190,21 @@ def build_recording(
     index: int,
     report: RecordingReport,
     first_track_id: int,
-    staged: list[Path],
+    staged: StagedParts,
     config: BuildConfig,
     root: Path,
 ) -> RecordingOutput:
     """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
     worker's task)."""
-    tracks = pl.read_parquet(layout.staged_tracks_path(root, *key)).with_columns(
+    parts = [layout.staged_tracks_path(root, *key, part) for part in sorted(staged)]
+    tracks = pl.read_parquet(parts).with_columns(
         (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
     )
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
-    raw = pl.read_parquet(staged) if config.protocol is Protocol.CS_LSTM else None
+    raw = None
+    if config.protocol is Protocol.CS_LSTM:  # the recording's rows in the order they were read
+        files = [path for part in sorted(staged) for path in staged[part]]
+        raw = pl.read_parquet(files).sort(s.SOURCE_FILE, s.SOURCE_LINE)
     folder = layout.recording_arrays_dir(root, *key)
     with (
         layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,

@@ -237,6 +237,27 @@ def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
     assert (old.counts, old.scaler, old.recordings) == (new.counts, new.scaler, new.recordings)
 
 
+def test_recordings_cleaned_a_few_vehicles_at_a_time_are_the_recordings_cleaned_at_once(
+    tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Parts of 8 vehicle ids (a dozen and more a recording here; the default is one): the
+    same build, byte for byte, manifest included; its duplicates, outliers, jumps and gaps are
+    counted over parts, the speed column's medians taken over all of them."""
+    raw, first = synthetic_build(tmp_path_factory)
+    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 8)
+    run_build([raw], tmp_path / "parts", BuildConfig(), jobs=1)
+    before, after = build_files(first), build_files(tmp_path / "parts")
+    assert before.keys() == after.keys()
+    assert [name for name in before if before[name] != after[name]] == []
+    manifest = (tmp_path / "parts" / "manifest.json").read_bytes()
+    assert manifest == (first / "manifest.json").read_bytes()
+    counts = open_build(first).manifest.counts
+    assert min(counts.gaps, counts.tracks) > 0
+    for entry in open_build(first).manifest.recordings:
+        assert entry.report.vehicles > 12 * 8
+        assert entry.report.speed_rows_compared > 1_000
+
+
 def test_open_build_without_manifest(tmp_path: Path) -> None:
     (tmp_path / "tracks").mkdir()
     with pytest.raises(NgsimInputError, match="not a finished build: no manifest.json"):

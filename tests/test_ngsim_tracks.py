@@ -8,10 +8,16 @@ from pathlib import Path
 import polars as pl
 import pytest
 from conftest import US101_FIRST, US101_SECOND, make_row, straight_track, write_portal
+from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.sources.ngsim.tracks import build_tracks, read_file_recordings
+from ngsim_graphs.sources.ngsim.tracks import (
+    build_tracks,
+    joined_report,
+    read_file_recordings,
+    vehicle_tracks,
+)
 
 KEY = ("us-101", "0750am-0805am")
 
@@ -62,3 +68,34 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     assert read.recording_rows(("us-101", "0805am-0820am")).height == 2
     assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")
     assert report.recordings == ("us-101/0750am-0805am", "us-101/0805am-0820am")
+
+
+def test_a_recording_cleaned_a_part_of_its_vehicles_at_a_time_is_cleaned_alike() -> None:
+    """Vehicle 1: an outlier (frame 8, whose drop leaves a gap) and a jump (from frame 20);
+    vehicle 2: an exact and a conflicting duplicate and a gap; vehicle 3 at another speed, so
+    that the rows compared for speed are an even number: a median between two rows. In parts
+    {1, 2}, {3} (numbered on from the first part's tracks) the tracks and every count of the
+    report are those of all three at once, the medians too."""
+    v1 = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if f >= 20 else 0.0)) for f in range(30)]
+    v1[8] = {**v1[8], s.LOCAL_Y: 9_999.0}
+    v2 = [make_row(2, f, local_x_ft=30.0, local_y_ft=2.5 * f) for f in (*range(12), *range(15, 27))]
+    v2 += [v2[3], {**v2[5], s.V_VEL: 31.0}]
+    v3 = [make_row(3, f, local_y_ft=4.0 * f, v_vel_fps=39.0 + f % 3) for f in range(23)]
+    rows = raw(v1 + v2 + v3).with_columns(
+        pl.lit(0, pl.UInt16).alias(s.SOURCE_FILE),
+        (pl.int_range(pl.len(), dtype=pl.Int64) + 2)
+        .cast(s.PROVENANCE_SCHEMA[s.SOURCE_LINE])
+        .alias(s.SOURCE_LINE),
+    )
+    config = BuildConfig()
+    whole, report = build_tracks(rows, KEY, config, first_track_id=0)
+    assert report.position_outliers == 1 and report.position_jumps == 1
+    assert (report.exact_duplicates, report.conflicting_duplicates, report.gaps) == (1, 1, 2)
+    assert report.speed_rows_compared % 2 == 0 and report.first_outlier == (0, 10)
+
+    by_vehicle = rows.partition_by(s.VEHICLE_ID, as_dict=True)
+    first = vehicle_tracks(pl.concat([by_vehicle[(2,)], by_vehicle[(1,)]]), KEY, config, 0)
+    second = vehicle_tracks(by_vehicle[(3,)], KEY, config, first.report.tracks)
+    assert (first.report.tracks, second.report.tracks) == (5, 1)
+    assert joined_report([first, second], KEY) == report
+    assert_frame_equal(pl.concat([first.tracks, second.tracks]), whole)

@@ -27,6 +27,10 @@ scaling, the build directory) reads that table alone and knows no dataset. The c
 
 A source also reports what it read and dropped (`FileReport` per input file, `RecordingReport`
 per recording): every dropped row is counted per reason, with the first line it was on.
+
+A recording is cleaned a part of its vehicles at a time (`TracksPart`: all the rows of each of
+its vehicles), so that a source's cleaning must look at one vehicle's rows at a time; what it
+judges over a whole recording (NGSIM: the median speed error) it takes from the parts' evidence.
 """
 
 from __future__ import annotations
@@ -110,23 +114,61 @@ class FileRows:
 
 
 @dataclass(frozen=True)
+class TracksPart:
+    """The tracks of some of a recording's vehicles (each vehicle with all its rows), and what
+    cleaning them counted: a recording is cleaned a part at a time."""
+
+    tracks: pl.DataFrame  # TRACKS_SCHEMA
+    report: RecordingReport  # the counts of these vehicles' rows; its speed_* fields unset
+    evidence: pl.DataFrame  # what the source's recording checks need of these rows, or empty
+
+
+@dataclass(frozen=True)
 class Source:
-    """A dataset behind the contract: three functions, and the name the manifest records.
+    """A dataset behind the contract: four functions, and the name the manifest records.
 
     find_files(paths) -> (files to read, files skipped in the directories searched)
     read_file(path, config, file_index, strict) -> FileRows, after the file's own checks
-    recording_tracks(rows, key, config, first_track_id, files, strict) -> (tracks, report):
-        the tracks table of one recording from all its rows (any order, from any of `files`),
-        tracks numbered from `first_track_id`
+    vehicle_tracks(rows, key, config, first_track_id) -> TracksPart: the tracks of the
+        vehicles of `rows` (all the rows of each, in any order, from any input file), numbered
+        from `first_track_id`; the same tracks whichever other vehicles are in the part
+    recording_report(parts, key, config, files, strict) -> RecordingReport: the report of the
+        recording whose vehicles are those of `parts` (TracksParts, their tracks let go), after
+        the recording's checks
     """
 
     name: str
     find_files: Callable[[list[Path]], tuple[list[Path], list[Path]]]
     read_file: Callable[[Path, BuildConfig, int, bool], FileRows]
-    recording_tracks: Callable[
-        [pl.DataFrame, RecordingKey, BuildConfig, int, list[FileReport], bool],
-        tuple[pl.DataFrame, RecordingReport],
+    vehicle_tracks: Callable[[pl.DataFrame, RecordingKey, BuildConfig, int], TracksPart]
+    recording_report: Callable[
+        [list[TracksPart], RecordingKey, BuildConfig, list[FileReport], bool], RecordingReport
     ]
+
+
+_SUMMED = (
+    "rows",
+    "exact_duplicates",
+    "conflicting_duplicates",
+    "position_outliers",
+    "position_jumps",
+    "gaps",
+    "vehicles",
+    "tracks",
+    "grid_rows",
+)
+
+
+def joined_counts(parts: list[TracksPart], key: RecordingKey) -> RecordingReport:
+    """The counts of a recording from those of its parts (disjoint sets of vehicles): sums, and
+    the first outlier of all; the speed_* fields are the source's to join."""
+    outliers = [p.report.first_outlier for p in parts if p.report.first_outlier is not None]
+    return RecordingReport(
+        location=key[0],
+        period=key[1],
+        **{name: sum(getattr(p.report, name) for p in parts) for name in _SUMMED},
+        first_outlier=min(outliers) if outliers else None,
+    )
 
 
 def finish_tracks(grid: pl.DataFrame, first_track_id: int, config: BuildConfig) -> pl.DataFrame:

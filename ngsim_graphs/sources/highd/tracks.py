@@ -29,7 +29,9 @@ from ngsim_graphs.sources.contract import (
     RecordingKey,
     RecordingReport,
     Source,
+    TracksPart,
     finish_tracks,
+    joined_counts,
 )
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
@@ -207,10 +209,11 @@ def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     return cleaned, multi.height - unique.height, unique.height - kept.height
 
 
-def build_tracks(
+def vehicle_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
-) -> tuple[pl.DataFrame, RecordingReport]:
-    """The tracks table of recording `key` from its staged rows (any order, duplicates allowed).
+) -> TracksPart:
+    """The tracks of the vehicles of `raw` in recording `key` (all the rows of each, from its
+    staged rows: any order, duplicates allowed), and what cleaning them counted.
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
     by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
@@ -242,24 +245,33 @@ def build_tracks(
         tracks=tracks[s.TRACK_ID].n_unique(),
         grid_rows=tracks.height,
     )
-    return tracks, report
+    return TracksPart(tracks, report, pl.DataFrame())
 
 
-def recording_tracks(
-    raw: pl.DataFrame,
+def build_tracks(
+    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
+) -> tuple[pl.DataFrame, RecordingReport]:
+    """The tracks table and report of recording `key` from all its staged rows at once."""
+    part = vehicle_tracks(raw, key, config, first_track_id)
+    return part.tracks, part.report
+
+
+def recording_report(
+    parts: list[TracksPart],
     key: RecordingKey,
     config: BuildConfig,
-    first_track_id: int,
     files: list[FileReport],
     strict: bool,
-) -> tuple[pl.DataFrame, RecordingReport]:
-    """build_tracks. highD has no per-recording checks: its rows were checked as read (read_file)."""
-    return build_tracks(raw, key, config, first_track_id)
+) -> RecordingReport:
+    """The parts' counts summed. highD has no per-recording checks: its rows were checked as
+    read (read_file)."""
+    return joined_counts(parts, key)
 
 
 SOURCE = Source(
     name="highd",
     find_files=find_highd_files,
     read_file=read_file,
-    recording_tracks=recording_tracks,
+    vehicle_tracks=vehicle_tracks,
+    recording_report=recording_report,
 )

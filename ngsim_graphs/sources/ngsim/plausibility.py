@@ -144,13 +144,24 @@ def speed_mismatch_mps(frame: pl.DataFrame) -> tuple[float, float, int]:
     Returns (median |v_Vel - shown speed|, median shown speed, rows compared), in m/s; NaN
     medians when no row has a whole window.
     """
+    return speed_medians(speed_comparison(frame))
+
+
+def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
+    """The rows speed_mismatch_mps compares, as "vel" and "shown" (feet per second). Each
+    vehicle's rows are compared among themselves: those of a set of whole vehicles at a time,
+    concatenated, are those of all of them at once."""
     h = SPEED_WINDOW_FRAMES
     whole = _same_vehicle(-h, h) & _same_vehicle(h, h)
     shown = _distance_ft(-h, h) / (2 * h * FRAME_STEP_S)
     compared = frame.select(
         shown.alias("shown"), pl.col(s.V_VEL).alias("vel"), whole.alias("whole")
     )
-    compared = compared.filter(pl.col("whole").fill_null(False))
+    return compared.filter(pl.col("whole").fill_null(False)).drop("whole")
+
+
+def speed_medians(compared: pl.DataFrame) -> tuple[float, float, int]:
+    """speed_mismatch_mps of the rows of `speed_comparison`."""
     if compared.height == 0:
         return math.nan, math.nan, 0
     medians = compared.select(

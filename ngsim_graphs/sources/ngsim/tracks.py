@@ -9,6 +9,7 @@ and derive the heading. Every dropped row is counted per reason, with the first 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import polars as pl
@@ -24,7 +25,9 @@ from ngsim_graphs.sources.contract import (
     RecordingKey,
     RecordingReport,
     Source,
+    TracksPart,
     finish_tracks,
+    joined_counts,
 )
 from ngsim_graphs.sources.ngsim.cleaning import (
     drop_duplicate_rows,
@@ -39,7 +42,8 @@ from ngsim_graphs.sources.ngsim.plausibility import (
     jump_rows,
     outlier_rows,
     row_drop_reason,
-    speed_mismatch_mps,
+    speed_comparison,
+    speed_medians,
 )
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
 from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
@@ -131,19 +135,21 @@ def _first_source(rows: pl.DataFrame) -> tuple[int, int] | None:
     return int(first[0]), int(first[1])
 
 
-def build_tracks(
+def vehicle_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
-) -> tuple[pl.DataFrame, RecordingReport]:
-    """The tracks table of recording `key` from its raw rows (any order, duplicates allowed).
+) -> TracksPart:
+    """The tracks of the vehicles of `raw` (all the rows of each, any order, duplicates allowed)
+    in recording `key`, and what cleaning them counted (the Source contract's part).
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
-    by track and frame, columns as TRACKS_SCHEMA.
+    by track and frame, columns as TRACKS_SCHEMA. Every step looks at one vehicle's rows at a
+    time; the evidence is the rows `speed_comparison` compares, for the recording's median.
     """
     unique, exact, conflicting = drop_duplicate_rows(raw)
     outlier = outlier_rows(unique, config.limits)
     cleaned = unique.filter(~outlier)
     jumps = jump_rows(cleaned, config.limits)
-    mismatch, shown, compared = speed_mismatch_mps(cleaned)
+    compared = speed_comparison(cleaned)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
     on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
@@ -163,12 +169,30 @@ def build_tracks(
         vehicles=unique[s.VEHICLE_ID].n_unique(),
         tracks=tracks[s.TRACK_ID].n_unique(),
         grid_rows=tracks.height,
+        first_outlier=_first_source(unique.filter(outlier)),
+    )
+    return TracksPart(tracks, report, compared)
+
+
+def joined_report(parts: list[TracksPart], key: RecordingKey) -> RecordingReport:
+    """The report of the recording made of `parts`, before its checks: summed counts, and the
+    medians of the speed comparison over all its rows."""
+    mismatch, shown, compared = speed_medians(pl.concat([p.evidence for p in parts]))
+    return replace(
+        joined_counts(parts, key),
         speed_mismatch_mps=mismatch,
         shown_speed_mps=shown,
         speed_rows_compared=compared,
-        first_outlier=_first_source(unique.filter(outlier)),
     )
-    return tracks, report
+
+
+def build_tracks(
+    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
+) -> tuple[pl.DataFrame, RecordingReport]:
+    """The tracks table and report of recording `key` from all its raw rows at once, without
+    the recording's checks (see vehicle_tracks)."""
+    part = vehicle_tracks(raw, key, config, first_track_id)
+    return part.tracks, joined_report([part], key)
 
 
 def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) -> FileRows:
@@ -186,17 +210,16 @@ def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) ->
     return read
 
 
-def recording_tracks(
-    raw: pl.DataFrame,
+def recording_report(
+    parts: list[TracksPart],
     key: RecordingKey,
     config: BuildConfig,
-    first_track_id: int,
     files: list[FileReport],
     strict: bool,
-) -> tuple[pl.DataFrame, RecordingReport]:
-    """build_tracks, then the recording's checks: the speed column must be a speed; position
+) -> RecordingReport:
+    """joined_report, then the recording's checks: the speed column must be a speed; position
     outliers follow the rule of every dropped row (see plausibility)."""
-    tracks, report = build_tracks(raw, key, config, first_track_id)
+    report = joined_report(parts, key)
     name = f"{report.location}/{report.period}"
     sources = ", ".join(f.path for f in files if name in f.recordings)
     check_speed_column(
@@ -217,9 +240,13 @@ def recording_tracks(
             config.limits,
             strict,
         )
-    return tracks, report
+    return report
 
 
 SOURCE = Source(
-    name="ngsim", find_files=find_raw_files, read_file=read_file, recording_tracks=recording_tracks
+    name="ngsim",
+    find_files=find_raw_files,
+    read_file=read_file,
+    vehicle_tracks=vehicle_tracks,
+    recording_report=recording_report,
 )
