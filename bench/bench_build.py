@@ -81,9 +81,11 @@ def main() -> None:
     own_gb, child_gb = process_peaks_gb()
 
     stages: dict[str, float] = {}
+    stage_peaks: dict[str, int] = {}
     for (what, _, at), (_, _, until) in zip(marks, [*marks[1:], ("end", 0, end)], strict=True):
         stage = "reading + staging" if what.startswith("reading") else what.split(" ")[0]
         stages[stage] = stages.get(stage, 0.0) + until - at
+        stage_peaks[stage] = max(stage_peaks.get(stage, 0), memory.peak_between(at, until))
     samples = pl.concat(
         [
             pl.read_parquet(layout.samples_path(result.out_dir, split))
@@ -102,7 +104,7 @@ def main() -> None:
         f"jobs               {jobs} (of {available_cores()} usable cores), {args.protocol} protocol"
     )
     for stage, seconds in stages.items():
-        print(f"  {stage:<17}{seconds:7.1f} s")
+        print(f"  {stage:<17}{seconds:7.1f} s   peak {stage_peaks[stage] / 1024**3:.2f} GB")
     print(f"wall               {wall_s:.1f} s")
     print(f"samples            {samples.height:,} ({dict(result.manifest.splits)})")
     print(

@@ -12,6 +12,7 @@ import contextlib
 import os
 import resource
 import threading
+import time
 from pathlib import Path
 
 SAMPLE_S = 0.05
@@ -39,16 +40,24 @@ def _tree_rss_bytes(pid: int) -> int:
 
 
 class TreeMemory:
-    """`with TreeMemory() as memory: ...`, then memory.peak_bytes: the largest sum seen."""
+    """`with TreeMemory() as memory: ...`, then memory.peak_bytes: the largest sum seen, and
+    memory.samples: (time.perf_counter(), bytes) of every sample, to tell the peak of a stage."""
 
     def __init__(self) -> None:
         self.peak_bytes = 0
+        self.samples: list[tuple[float, int]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
 
     def _sample(self) -> None:
         while not self._stop.wait(SAMPLE_S):
-            self.peak_bytes = max(self.peak_bytes, _tree_rss_bytes(os.getpid()))
+            size = _tree_rss_bytes(os.getpid())
+            self.samples.append((time.perf_counter(), size))
+            self.peak_bytes = max(self.peak_bytes, size)
+
+    def peak_between(self, start: float, end: float) -> int:
+        """The largest sum sampled between two time.perf_counter() readings (0: none)."""
+        return max((size for at, size in self.samples if start <= at <= end), default=0)
 
     def __enter__(self) -> TreeMemory:
         self._thread.start()

@@ -197,8 +197,11 @@ def build_recording(
     """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
     worker's task)."""
     parts = [layout.staged_tracks_path(root, *key, part) for part in sorted(staged)]
-    tracks = pl.read_parquet(parts).with_columns(
-        (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
+    # In one chunk: the bytes written do not depend on the parts it was cleaned in.
+    tracks = (
+        pl.read_parquet(parts)
+        .with_columns((pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID]))
+        .rechunk()
     )
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
     raw = None
