@@ -104,7 +104,9 @@ def main() -> None:
         f"jobs               {jobs} (of {available_cores()} usable cores), {args.protocol} protocol"
     )
     for stage, seconds in stages.items():
-        print(f"  {stage:<17}{seconds:7.1f} s   peak {stage_peaks[stage] / 1024**3:.2f} GB")
+        peak = stage_peaks[stage]  # 0: shorter than one sample
+        shown = f"{peak / 1024**3:.2f} GB" if peak else "-"
+        print(f"  {stage:<17}{seconds:7.1f} s   peak {shown}")
     print(f"wall               {wall_s:.1f} s")
     print(f"samples            {samples.height:,} ({dict(result.manifest.splits)})")
     print(

@@ -180,8 +180,9 @@ def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
     """`rec` with the pair arrays of `pairs` (PROXIMITY_SCHEMA, sorted by step, track_a,
     track_b): endpoints as rows, lower y first, sorted by (step, lower y).
 
-    `pairs` may be those of a range of steps only (`step_pieces`): the pair arrays of
-    consecutive ranges, concatenated, are those of all their pairs at once."""
+    `pairs` may be those of a range of steps only (`step_pieces`): the pair rows, distances and
+    keys of consecutive ranges, concatenated, and their pair_ptr summed, are those of all their
+    pairs at once."""
     first_track = rec.first_track_id
     # Pair endpoints as rows (through the track index).
     rows_of = lambda t, st: rec.track_rows[
@@ -208,7 +209,8 @@ def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
 
 
 def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:
-    """Index the grid nodes by step and by track, and the pairs by step, as flat arrays."""
+    """Index the grid nodes by step and by track, and the pairs by step, as flat arrays (all
+    pairs at once: a build takes them a range of steps at a time, see tasks)."""
     return with_pairs(node_arrays(nodes), pairs)
 
 

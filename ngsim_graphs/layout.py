@@ -10,6 +10,7 @@ How the directory lands (lock, checks, the swap) is `landing`'s.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -133,12 +134,25 @@ class ArrayAppender:
 
     def close(self) -> None:
         """Finish every file with its final header (a name never appended to is not written)."""
+        try:
+            for name, handle in self._files.items():
+                with writing(self._paths[name]):
+                    handle.seek(0)
+                    np.lib.format.write_array_header_1_0(handle, self._headers[name])
+                    if handle.tell() != self._data_at[name]:  # numpy's header format changed
+                        raise ValueError(f"{self._paths[name]}: the .npy header changed length")
+                    handle.close()
+        except BaseException:
+            self._abandon()
+            raise
+        self._files = {}
+
+    def _abandon(self) -> None:
+        """Close and delete every file: none is left whose header is not its content."""
         for name, handle in self._files.items():
-            with writing(self._paths[name]), handle:
-                handle.seek(0)
-                np.lib.format.write_array_header_1_0(handle, self._headers[name])
-                if handle.tell() != self._data_at[name]:  # numpy's header format changed
-                    raise ValueError(f"{self._paths[name]}: the .npy header changed length")
+            with contextlib.suppress(OSError):
+                handle.close()
+            self._paths[name].unlink(missing_ok=True)
         self._files = {}
 
     def __enter__(self) -> ArrayAppender:
@@ -147,11 +161,8 @@ class ArrayAppender:
     def __exit__(self, exc_type: type[BaseException] | None, *_exc: object) -> None:
         if exc_type is None:
             self.close()
-            return
-        for name, handle in self._files.items():  # no file whose header is not its content
-            handle.close()
-            self._paths[name].unlink(missing_ok=True)
-        self._files = {}
+        else:
+            self._abandon()
 
 
 class TableAppender:
@@ -178,15 +189,20 @@ class TableAppender:
 
     def append(self, frame: pl.DataFrame) -> None:
         with writing(self._path):
-            self._writer.write_table(frame.to_arrow())
+            self._writer.write_table(frame.to_arrow(), row_group_size=max(1, frame.height))
 
     def __enter__(self) -> TableAppender:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *_exc: object) -> None:
-        with writing(self._path):
-            self._writer.close()
-        if exc_type is not None:
+        try:
+            with writing(self._path):
+                self._writer.close()
+        except BaseException:
+            self._path.unlink(missing_ok=True)
+            if exc_type is None:
+                raise
+        if exc_type is not None:  # the error that stopped the writing is the one raised
             self._path.unlink(missing_ok=True)
 
 

@@ -122,7 +122,7 @@ def _near_rows(rec: RecordingArrays, by_y: tuple, egos: np.ndarray, step: np.nda
     owner, index = _window(keys, rec, egos, step, d_sense_m)
     rows = order[index]
     distance = _distance(rec.node_state, rows, egos[owner])
-    near = distance <= d_sense_m  # finite: `neighbourhoods` checked every position
+    near = distance <= d_sense_m  # finite: `rows_by_y` checked every position
     return _Near(owner[near], rows[near], distance[near])
 
 
@@ -217,7 +217,8 @@ def rows_by_y(rec: RecordingArrays) -> tuple[np.ndarray, np.ndarray]:
 def neighbourhoods(
     rec: RecordingArrays, history: np.ndarray, config: BuildConfig
 ) -> Neighbourhoods:
-    """The neighbourhood of every ego row of (B, K_H) `history_rows`, each looked at once."""
+    """The neighbourhood of every ego row of (B, K_H) `history_rows`, each looked at once, with
+    all of the recording's pairs in `rec` (a build takes a range of steps at a time: tasks)."""
     by_y = rows_by_y(rec)
     return neighbourhoods_of_rows(rec, ego_rows(history, len(rec.node_track)), by_y, config)
 

@@ -3,14 +3,14 @@
 A data source (`sources`) reads each input file and stages its rows per recording and part of
 its vehicles as Parquet; each recording is then cleaned into its tracks table, a part at a time,
 and built: frame arrays, ego windows, splits, and every sample's counts and its share of the
-scaler's ranges (`tasks`). The files and
-then the recordings go to `--jobs` worker processes (`workers`); what depends on the order of
-the recordings (track numbers, the samples tables, the manifest) is decided here, between the
-stages, so that any number of jobs gives the same build.
+scaler's ranges (`tasks`). The files and then the recordings go to `--jobs` worker processes
+(`workers`); what depends on the order of the recordings (track numbers, the samples tables,
+the manifest) is decided here, between the stages, so that any number of jobs gives the same
+build.
 
 Memory stays bounded per job by one input file, by a part of a recording's vehicles, or by a
-recording's grid rows and a range of its proximity pairs (`tasks.PIECE_ROWS`); only the small
-per-sample table of every recording is kept until the end.
+recording's grid rows (cs-lstm: and raw rows) and a range of its proximity pairs (`tasks`); only
+the small per-sample table of every recording is kept until the end.
 """
 
 from __future__ import annotations
@@ -306,8 +306,9 @@ def run_build(
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
     `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
-    one per core this process may use); the output is the same for any number. This process and
-    the workers keep to one malloc arena (`workers.one_malloc_arena`). The workers are
+    one per core this process may use); the output is the same for any number. The processes
+    that run the tasks keep to one malloc arena (`workers.one_malloc_arena`): with one job, this
+    process, for the rest of its life. The workers are
     started with multiprocessing's "spawn": a script that builds with jobs > 1 must do so under
     `if __name__ == "__main__":`.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
@@ -315,8 +316,9 @@ def run_build(
     disk); `out_dir` is then left as it was.
     """
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
-    one_malloc_arena()
     workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
+    if workers.jobs == 1:  # the tasks run in this process
+        one_malloc_arena()
     report_progress = progress or (lambda _what, _done, _total: None)
     source, files, skipped = choose_source(raw_paths, dataset)
     with landing.build_directory(out_dir, overwrite) as root, workers:

@@ -7,9 +7,10 @@ proximity edges, split ego windows, and every sample's counts and its share of t
 ranges (`neighbourhoods`). The graphs themselves are not stored per sample (see
 docs/build-format.md: the dataset induces them from the frame arrays).
 
-A task's memory follows its pieces, not its recording: a recording is cleaned a part of its
-vehicles at a time (VEHICLES_PER_PART), and its proximity pairs are found, written and used a
-range of steps at a time (PIECE_ROWS).
+A recording is cleaned a part of its vehicles at a time (VEHICLES_PER_PART), and its proximity
+pairs, ten a grid row in a dense recording, are found, written and used a range of steps at a
+time (PIECE_ROWS): a build task holds a part of the raw rows, or a recording's grid rows (its
+tracks table, grid nodes and node arrays; under cs-lstm also its raw rows) and a range of pairs.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Protocol, Split
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.splits import assign_splits
-from ngsim_graphs.windows import ScriptRows, ego_windows, script_windows
+from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script_windows
 
 # A recording's proximity pairs are found, written and used a range of steps at a time, about
 # this many grid rows each: the pairs, ten a row in a dense recording, then take memory by this
@@ -99,6 +100,7 @@ def recording_samples(
     rows = ego_rows(history, len(arrays.node_track))
     by_y = rows_by_y(arrays)
     pair_ptr, n_pairs, hoods = np.zeros_like(arrays.pair_ptr), 0, []
+    # A recording without grid rows is one empty piece: its pair files are still written.
     for first, end in step_pieces(arrays.step_ptr, PIECE_ROWS) or [(0, 0)]:
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
         pairs = proximity_pairs(nodes.slice(lo, hi - lo), config.d_min_m)
@@ -108,7 +110,9 @@ def recording_samples(
         n_pairs += pairs.height
         mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
         hoods.append(neighbourhoods_of_rows(piece, mine, by_y, config))
+        del pairs, piece  # before the next piece is made
     hood = joined(hoods)
+    del hoods
     table = sample_counts(hood, history, config)
     is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
     train = train_ranges(arrays, hood, history, is_train)
@@ -140,6 +144,7 @@ class RecordingOutput:
 # are staged by part, so that a part is read whole from its own files.
 VEHICLES_PER_PART = 256
 StagedParts = dict[int, list[Path]]  # a recording's staged raw files, by part
+_PART = "__part"
 
 
 def read_file(
@@ -148,18 +153,18 @@ def read_file(
     """Read one input file and stage its rows per recording and part (a worker's task)."""
     read = source.read_file(path, config, file_index, strict)
     staged: dict[RecordingKey, dict[int, Path]] = {}
+    part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
     for key in sorted(read.recordings):
         rows = read.recording_rows(key)
-        part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
-        parts = rows.select(part_of.unique().sort())[_PART].to_list()
+        if rows[s.VEHICLE_ID].null_count():  # the contract says every row has one
+            raise ValueError(f"{path}: rows of {key} without a vehicle id")
+        # A recording without rows is still staged (part 0, empty): it is built, with no sample.
+        parts = rows.select(part_of.unique().sort())[_PART].to_list() or [0]
         staged[key] = {}
-        for part in parts:
+        for part in parts:  # a part's rows copied one part at a time
             staged[key][part] = layout.staged_raw_path(root, *key, part, file_index)
             layout.write_staged(rows.filter(part_of == part), staged[key][part])
     return read.report, staged
-
-
-_PART = "__part"
 
 
 def clean_recording(
@@ -205,9 +210,11 @@ def build_recording(
     )
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
     raw = None
-    if config.protocol is Protocol.CS_LSTM:  # the recording's rows in the order they were read
+    if config.protocol is Protocol.CS_LSTM:
+        # In any order but that of a vehicle's rows of one frame (cslstm.ordered_rows sorts
+        # stably): those are in one part, read from its files in the order they were read.
         files = [path for part in sorted(staged) for path in staged[part]]
-        raw = pl.read_parquet(files).sort(s.SOURCE_FILE, s.SOURCE_LINE)
+        raw = pl.read_parquet(files, columns=list(SCRIPT_COLUMNS))
     folder = layout.recording_arrays_dir(root, *key)
     with (
         layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,

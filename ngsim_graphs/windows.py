@@ -15,6 +15,9 @@ from ngsim_graphs import cslstm
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 
+# The raw columns CS-LSTM's script reads (script_rows).
+SCRIPT_COLUMNS = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
+
 
 def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
     """Every window of every track of one recording's grid nodes (GRID_NODE_SCHEMA).
@@ -85,9 +88,8 @@ def script_rows(
     all). A kept row is on the grid when its Frame_ID is a multiple of `frames_per_step`; its
     step is Frame_ID / frames_per_step; the rows of one vehicle and frame make one row.
     """
-    columns = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
     ordered = cslstm.ordered_rows(
-        dataset_id, *(raw[c].cast(pl.Float64).to_numpy() for c in columns)
+        dataset_id, *(raw[c].cast(pl.Float64).to_numpy() for c in SCRIPT_COLUMNS)
     )
     kept, too_short = cslstm.kept_by_edge_filter(ordered)
     split = cslstm.split_codes(ordered)[kept]

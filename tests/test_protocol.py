@@ -17,7 +17,7 @@ from cslstm_reference import reference_kept, reference_split
 from test_cli_ngsim import assert_failed_cleanly, error_line, invoke
 from typer.testing import CliRunner
 
-from ngsim_graphs import layout
+from ngsim_graphs import layout, tasks
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -228,6 +228,27 @@ def test_a_quirky_synthetic_recording_gives_the_reference_population(tmp_path: P
     assert (script.kept, script.on_grid, script.samples) == (kept, len(population), len(samples))
     counts = result.manifest.counts
     assert counts.conflicting_duplicates > 0 and counts.gaps > 0 and script.kept > 2 * len(samples)
+
+
+def test_a_cs_lstm_build_cleaned_in_parts_is_the_build_cleaned_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The quirky portal file in parts of 4 vehicle ids (the default: one part): the same files
+    and manifest, byte for byte; the script's rows are read back from all the parts."""
+    write_synthetic(
+        tmp_path / "raw",
+        SynthConfig(raw_format=RawFormat.PORTAL, recordings=1, minutes=0.2, seed=4, quirks=True),
+    )
+    run_build([tmp_path / "raw"], tmp_path / "whole", CSLSTM)
+    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    run_build([tmp_path / "raw"], tmp_path / "parts", CSLSTM)
+    files = sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole").rglob("*.*"))
+    assert len(files) > 10 and (tmp_path / "whole" / "manifest.json").exists()
+    for name in files:
+        assert (tmp_path / "parts" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+    manifest = open_build(tmp_path / "whole").manifest
+    assert manifest.counts.cslstm_rows.samples > 100
+    assert manifest.recordings[0].report.vehicles > 10 * 4
 
 
 def test_fit_and_evaluate_say_the_protocol(

@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
+from ngsim_graphs import tasks
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.graphs import GraphBatch
@@ -225,3 +226,21 @@ def test_cli_synth_highd_then_build_tells_the_dataset(tmp_path: Path) -> None:
         "01_recordingMeta.csv", "01_tracks.csv", "01_tracksMeta.csv",
     ]  # fmt: skip
     assert "highd-1" in built.stdout and "skipped" not in built.stdout
+
+
+def test_a_highd_build_cleaned_in_parts_is_the_build_cleaned_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """highD's cleaning in parts of 4 vehicle ids (the default: one part): the same files and
+    manifest, byte for byte."""
+    raw = tmp_path / "raw"
+    write_synthetic(raw, SynthConfig(raw_format=RawFormat.HIGHD, recordings=1, minutes=0.5, seed=5))
+    run_build([raw], tmp_path / "whole", BuildConfig())
+    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    run_build([raw], tmp_path / "parts", BuildConfig())
+    files = sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole").rglob("*.*"))
+    assert len(files) > 10 and (tmp_path / "whole" / "manifest.json").exists()
+    for name in files:
+        assert (tmp_path / "parts" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+    [recording] = open_build(tmp_path / "whole").manifest.recordings
+    assert recording.report.vehicles > 10 * 4 and recording.report.grid_rows > 1_000

@@ -29,7 +29,7 @@ A source also reports what it read and dropped (`FileReport` per input file, `Re
 per recording): every dropped row is counted per reason, with the first line it was on.
 
 A recording is cleaned a part of its vehicles at a time (`TracksPart`: all the rows of each of
-its vehicles), so that a source's cleaning must look at one vehicle's rows at a time; what it
+its vehicles), so a source's cleaning may look at one vehicle's rows only at a time; what it
 judges over a whole recording (NGSIM: the median speed error) it takes from the parts' evidence.
 """
 
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import polars as pl
@@ -146,16 +146,9 @@ class Source:
     ]
 
 
-_SUMMED = (
-    "rows",
-    "exact_duplicates",
-    "conflicting_duplicates",
-    "position_outliers",
-    "position_jumps",
-    "gaps",
-    "vehicles",
-    "tracks",
-    "grid_rows",
+# Every count of a RecordingReport: a new one is summed over the parts too.
+_SUMMED = tuple(
+    f.name for f in fields(RecordingReport) if f.type == "int" and f.name[:6] != "speed_"
 )
 
 

@@ -251,7 +251,8 @@ def vehicle_tracks(
 def build_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
 ) -> tuple[pl.DataFrame, RecordingReport]:
-    """The tracks table and report of recording `key` from all its staged rows at once."""
+    """The tracks table and report of recording `key` from all its staged rows at once: the
+    tests' reference; a build cleans parts (vehicle_tracks)."""
     part = vehicle_tracks(raw, key, config, first_track_id)
     return part.tracks, part.report
 

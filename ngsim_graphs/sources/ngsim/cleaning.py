@@ -25,7 +25,7 @@ def is_complete() -> pl.Expr:
 def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     """Drop exact duplicates, then keep one row per (vehicle, frame) by CONFLICT_ORDER.
 
-    `frame` holds one recording. Returns (rows sorted by vehicle and frame, exact duplicates
+    `frame` holds whole vehicles of one recording. Returns (rows sorted by vehicle and frame, exact duplicates
     dropped, conflicting duplicates dropped). Only the few rows whose (vehicle, frame) occurs
     more than once go through the full-row comparison.
     """

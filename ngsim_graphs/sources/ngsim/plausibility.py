@@ -135,22 +135,15 @@ SPEED_WINDOW_FRAMES = 5  # each side: the motion a speed is compared with spans 
 MIN_SPEED_ROWS = 100  # fewer rows with a whole window say too little to judge the column
 
 
-def speed_mismatch_mps(frame: pl.DataFrame) -> tuple[float, float, int]:
-    """How well v_Vel agrees with the motion the positions show; `frame` sorted by vehicle, frame.
+def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
+    """How well v_Vel agrees with the motion the positions show, row by row; `frame` sorted by
+    vehicle and frame.
 
     For every row with the same vehicle recorded SPEED_WINDOW_FRAMES frames before and after
     it, the shown speed is the distance between those two positions over their time apart (a
     centred difference: position jitter averages out, steady acceleration does not bias it).
-    Returns (median |v_Vel - shown speed|, median shown speed, rows compared), in m/s; NaN
-    medians when no row has a whole window.
-    """
-    return speed_medians(speed_comparison(frame))
-
-
-def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
-    """The rows speed_mismatch_mps compares, as "vel" and "shown" (feet per second). Each
-    vehicle's rows are compared among themselves: those of a set of whole vehicles at a time,
-    concatenated, are those of all of them at once."""
+    Returns those rows' "vel" and "shown" (feet per second). A vehicle's rows are compared among
+    themselves: the rows of sets of whole vehicles, concatenated, are those of all at once."""
     h = SPEED_WINDOW_FRAMES
     whole = _same_vehicle(-h, h) & _same_vehicle(h, h)
     shown = _distance_ft(-h, h) / (2 * h * FRAME_STEP_S)
@@ -161,7 +154,8 @@ def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
 
 
 def speed_medians(compared: pl.DataFrame) -> tuple[float, float, int]:
-    """speed_mismatch_mps of the rows of `speed_comparison`."""
+    """(median |v_Vel - shown speed|, median shown speed, rows compared) in m/s of the rows of
+    `speed_comparison`; NaN medians when no row has a whole window."""
     if compared.height == 0:
         return math.nan, math.nan, 0
     medians = compared.select(
@@ -174,7 +168,7 @@ def speed_medians(compared: pl.DataFrame) -> tuple[float, float, int]:
 def check_speed_column(
     path: str, mismatch_mps: float, speed_mps: float, rows: int, limits: PhysicalLimits
 ) -> None:
-    """Raise when v_Vel is not the speed the positions show (see speed_mismatch_mps)."""
+    """Raise when v_Vel is not the speed the positions show (see speed_comparison)."""
     allowed = limits.max_speed_mismatch_mps + limits.max_speed_mismatch_share * speed_mps
     if rows >= MIN_SPEED_ROWS and mismatch_mps > allowed:
         raise NgsimInputError(

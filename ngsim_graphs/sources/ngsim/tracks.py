@@ -1,10 +1,11 @@
-"""Raw files to the tracks table: one recording at a time, each stage a pure function.
+"""Raw files to the tracks table, each stage a pure function.
 
 Per input file: parse, drop incomplete and implausible rows, label recordings (dropping stray
 rows whose Global_Time disagrees with their recording), and stage each recording's rows (a
-recording may come from several files). Per recording: drop duplicates and position outliers,
-split at frame gaps and position jumps, downsample to the grid, convert to SI, number the tracks
-and derive the heading. Every dropped row is counted per reason, with the first line it was on.
+recording may come from several files). Per part of a recording's vehicles: drop duplicates and
+position outliers, split at frame gaps and position jumps, downsample to the grid, convert to
+SI, number the tracks and derive the heading; per recording, join the parts' reports and check
+the speed column. Every dropped row is counted per reason, with the first line it was on.
 """
 
 from __future__ import annotations
@@ -190,7 +191,7 @@ def build_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
 ) -> tuple[pl.DataFrame, RecordingReport]:
     """The tracks table and report of recording `key` from all its raw rows at once, without
-    the recording's checks (see vehicle_tracks)."""
+    the recording's checks (see vehicle_tracks): the tests' reference; a build cleans parts."""
     part = vehicle_tracks(raw, key, config, first_track_id)
     return part.tracks, joined_report([part], key)
 

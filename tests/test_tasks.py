@@ -1,0 +1,49 @@
+"""A worker's tasks: an input file's rows staged per recording and part of its vehicles."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from ngsim_graphs import layout, tasks
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.sources.contract import FileRows, Source
+
+KEY = ("us-101", "0750am-0805am")
+OTHER = ("us-101", "0805am-0820am")
+
+
+def source_of(vehicle_ids: list[int | None], recording: list[int]) -> Source:
+    """A source whose one file holds rows of the given vehicles, of recordings 0 (KEY) and 1."""
+    rows = pl.DataFrame(
+        {s.VEHICLE_ID: vehicle_ids, s.RECORDING_INDEX: recording},
+        schema={s.VEHICLE_ID: pl.Int32, s.RECORDING_INDEX: pl.Int32},
+    )
+    read = FileRows(rows, {KEY: 0, OTHER: 1}, report=None)  # the report is passed on as is
+    return Source("fake", lambda paths: (paths, []), lambda *_: read, None, None)
+
+
+def staged_ids(staged: dict[int, Path]) -> dict[int, list[int]]:
+    return {part: pl.read_parquet(path)[s.VEHICLE_ID].to_list() for part, path in staged.items()}
+
+
+def test_rows_are_staged_by_recording_and_part_of_their_vehicle_ids(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Parts of 4 ids: 3 -> 0, 4 and 7 -> 1, 9 -> 2; the other recording has no rows, and is
+    staged all the same (one empty part), to be built with no sample."""
+    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    source = source_of([7, 3, 9, 4, 3], [0, 0, 0, 0, 0])
+    _, staged = tasks.read_file(source, Path("f.txt"), BuildConfig(), 5, tmp_path, False)
+    assert staged_ids(staged[KEY]) == {0: [3, 3], 1: [7, 4], 2: [9]}
+    assert staged[KEY][1] == layout.staged_raw_path(tmp_path, *KEY, 1, 5)
+    assert staged_ids(staged[OTHER]) == {0: []}
+
+
+def test_a_row_without_a_vehicle_id_is_an_error_not_a_row_lost(tmp_path: Path) -> None:
+    source = source_of([7, None], [0, 0])
+    with pytest.raises(ValueError, match="without a vehicle id"):
+        tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
