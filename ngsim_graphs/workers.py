@@ -4,13 +4,14 @@ Tasks run in a pool of spawned processes (a forked child would inherit Polars' r
 pool, which Polars warns against) and their results come back in task order, so that a build
 made with N jobs is the build made with one, byte for byte. Each worker holds one task's data at
 a time, so peak memory grows with the number of jobs, never with the number of tasks; the cores
-are shared out among the workers for Polars' own threads (unless POLARS_MAX_THREADS says).
+are shared out among the workers for Polars' own threads (unless POLARS_MAX_THREADS says). A
+worker keeps to one malloc arena and gives back what a task freed when it ends (glibc).
 """
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
+import functools
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -26,6 +27,15 @@ POLARS_THREADS = "POLARS_MAX_THREADS"
 _M_ARENA_MAX = -8  # glibc's mallopt parameter
 
 
+@functools.cache
+def _glibc() -> ctypes.CDLL | None:
+    """The C library, where it is glibc (on Linux; musl has neither mallopt nor malloc_trim)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    libc = ctypes.CDLL(None)
+    return libc if hasattr(libc, "malloc_trim") else None
+
+
 def one_malloc_arena() -> None:
     """Have glibc's malloc serve every thread of this process from one arena.
 
@@ -35,9 +45,9 @@ def one_malloc_arena() -> None:
     the densest one, and no slower on 2 cores). Arenas that exist already are kept: call it
     before threads allocate. Elsewhere than glibc this does nothing.
     """
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(OSError, AttributeError):  # not glibc: musl has no mallopt
-            ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1)
+    libc = _glibc()
+    if libc is not None:
+        libc.mallopt(_M_ARENA_MAX, 1)
 
 
 def available_cores() -> int:
@@ -45,6 +55,17 @@ def available_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return max(1, len(os.sched_getaffinity(0)))
     return os.cpu_count() or 1
+
+
+def _releasing(function: Callable[..., Result], *args: Any) -> Result:
+    """function(*args), then what malloc keeps of the memory the task freed given back to the
+    system: the next task starts from what it needs (0.1-0.3 GB less in a build's workers)."""
+    try:
+        return function(*args)
+    finally:
+        libc = _glibc()
+        if libc is not None:
+            libc.malloc_trim(0)
 
 
 def _failed(future: Future) -> bool:
@@ -111,7 +132,7 @@ class Workers:
         if size <= 1:
             results = []
             for task in tasks:
-                results.append(function(*task))
+                results.append(_releasing(function, *task))
                 finished(len(results))
             return results
         pool = self._pool if self._pool is not None and self._size == size else self._start(size)
@@ -120,7 +141,7 @@ class Workers:
             if sizes is None
             else sorted(range(len(tasks)), key=sizes.__getitem__, reverse=True)
         )
-        submitted = {i: pool.submit(function, *tasks[i]) for i in order}
+        submitted = {i: pool.submit(_releasing, function, *tasks[i]) for i in order}
         futures = [submitted[i] for i in range(len(tasks))]
         remaining = set(futures)
         n_done = 0
