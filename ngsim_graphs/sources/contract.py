@@ -146,9 +146,11 @@ class Source:
     ]
 
 
-# Every count of a RecordingReport: a new one is summed over the parts too.
+# Every count of a RecordingReport: a new one is summed over the parts too. (A field's type is
+# its annotation's text under `from __future__ import annotations`, the class without it;
+# test_ngsim_tracks compares the joined counts with those of a whole recording.)
 _SUMMED = tuple(
-    f.name for f in fields(RecordingReport) if f.type == "int" and f.name[:6] != "speed_"
+    f.name for f in fields(RecordingReport) if f.type in (int, "int") and f.name[:6] != "speed_"
 )
 
 

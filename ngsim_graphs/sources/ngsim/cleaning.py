@@ -25,9 +25,9 @@ def is_complete() -> pl.Expr:
 def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     """Drop exact duplicates, then keep one row per (vehicle, frame) by CONFLICT_ORDER.
 
-    `frame` holds whole vehicles of one recording. Returns (rows sorted by vehicle and frame, exact duplicates
-    dropped, conflicting duplicates dropped). Only the few rows whose (vehicle, frame) occurs
-    more than once go through the full-row comparison.
+    `frame` holds whole vehicles of one recording. Returns (rows sorted by vehicle and frame,
+    exact duplicates dropped, conflicting duplicates dropped). Only the few rows whose (vehicle,
+    frame) occurs more than once go through the full-row comparison.
     """
     keys = [s.VEHICLE_ID, s.FRAME_ID]
     repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
