@@ -144,7 +144,6 @@ class RecordingOutput:
 # are staged by part, so that a part is read whole from its own files.
 VEHICLES_PER_PART = 256
 StagedParts = dict[int, list[Path]]  # a recording's staged raw files, by part
-_PART = "__part"
 
 
 def read_file(
@@ -153,17 +152,18 @@ def read_file(
     """Read one input file and stage its rows per recording and part (a worker's task)."""
     read = source.read_file(path, config, file_index, strict)
     staged: dict[RecordingKey, dict[int, Path]] = {}
-    part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
+    part_of = pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART
     for key in sorted(read.recordings):
-        rows = read.recording_rows(key)
-        if rows[s.VEHICLE_ID].null_count():  # the contract says every row has one
+        ids = read.recording_rows(key).select(s.VEHICLE_ID).collect()[s.VEHICLE_ID]
+        if ids.null_count():  # the contract says every row has one
             raise ValueError(f"{path}: rows of {key} without a vehicle id")
         # A recording without rows is still staged (part 0, empty): it is built, with no sample.
-        parts = rows.select(part_of.unique().sort())[_PART].to_list() or [0]
+        parts = (ids // VEHICLES_PER_PART).unique().sort().to_list() or [0]
         staged[key] = {}
-        for part in parts:  # a part's rows copied one part at a time
+        for part in parts:  # copied a part at a time: never a whole recording's rows at once
             staged[key][part] = layout.staged_raw_path(root, *key, part, file_index)
-            layout.write_staged(rows.filter(part_of == part), staged[key][part])
+            rows = read.recording_rows(key, part_of == part).collect()
+            layout.write_staged(rows, staged[key][part])
     return read.report, staged
 
 

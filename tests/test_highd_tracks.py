@@ -26,7 +26,7 @@ DEFAULT = BuildConfig()
 
 def tracks_of(tracks_file: Path, config: BuildConfig = DEFAULT) -> tuple[pl.DataFrame, object]:
     read = read_file(tracks_file, config, 0, False)
-    return build_tracks(read.recording_rows(KEY), KEY, config, 0)
+    return build_tracks(read.recording_rows(KEY).collect(), KEY, config, 0)
 
 
 def test_front_centre_in_both_directions(tmp_path: Path) -> None:

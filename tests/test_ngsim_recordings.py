@@ -151,3 +151,26 @@ def test_only_usable_rows_form_recordings_but_all_are_placed() -> None:
     )  # the i-80 rows failed a check: no recording of their own
     index, names = identify_recordings(frame_of(rows, [None] * 203), Path("t.txt"), usable)
     assert names == [("us-101", "0750am-0805am")] and index.to_list() == [0] * 200 + [None] * 3
+
+
+def test_no_usable_row_places_every_row_in_no_recording() -> None:
+    rows = [make_row(1, f) for f in range(3)]
+    usable = pl.Series([False] * 3)
+    index, names = identify_recordings(frame_of(rows, [None] * 3), Path("t.txt"), usable)
+    assert names == [] and index.dtype == pl.UInt16 and index.to_list() == [None] * 3
+
+
+def test_a_portal_row_is_placed_by_location_and_time_together() -> None:
+    # The same frame-0 time at two locations: each row takes its own location's recording;
+    # a row of a location that formed no recording takes none.
+    us, i80 = US101_FIRST.start_epoch_ms, I80_FIRST.start_epoch_ms
+    rows = (
+        [make_row(1, f, start_ms=us) for f in range(100)]
+        + [make_row(2, f, start_ms=i80) for f in range(100)]
+        + [make_row(3, 0, start_ms=us), make_row(4, 0, start_ms=i80)]
+    )
+    locations = ["us-101"] * 100 + ["i-80"] * 100 + ["i-80", None]
+    usable = pl.Series([True] * 200 + [False] * 2)
+    index, names = identify_recordings(frame_of(rows, locations), Path("p.csv"), usable)
+    assert names == [("i-80", I80_FIRST.period), ("us-101", US101_FIRST.period)]
+    assert index.to_list() == [1] * 100 + [0] * 100 + [None, None]

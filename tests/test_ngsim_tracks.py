@@ -62,10 +62,10 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     read = read_file_recordings(path, BuildConfig())
     report = read.report
     assert sorted(read.recordings) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
-    first = read.recording_rows(("us-101", "0750am-0805am"))
+    first = read.recording_rows(("us-101", "0750am-0805am")).collect()
     assert first.columns == [*s.RAW_SCHEMA.names(), *s.PROVENANCE_SCHEMA.names()]
     assert first.height == 4
-    assert read.recording_rows(("us-101", "0805am-0820am")).height == 2
+    assert read.recording_rows(("us-101", "0805am-0820am")).collect().height == 2
     assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")
     assert report.recordings == ("us-101/0750am-0805am", "us-101/0805am-0820am")
 

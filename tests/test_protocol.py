@@ -218,7 +218,7 @@ def test_a_quirky_synthetic_recording_gives_the_reference_population(tmp_path: P
     result = run_build([tmp_path / "raw"], tmp_path / "build", CSLSTM)
     [path] = sorted((tmp_path / "raw").glob("*.csv"))
     read = read_file_recordings(path, CSLSTM)
-    rows = read.recording_rows((US101_FIRST.location, US101_FIRST.period))
+    rows = read.recording_rows((US101_FIRST.location, US101_FIRST.period)).collect()
     columns = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
     population, kept = reference_population(rows.select(columns).to_numpy().astype(np.float64))
     tracked = track_frames(tmp_path / "build")

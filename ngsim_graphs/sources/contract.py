@@ -100,17 +100,20 @@ class FileRows:
 
     `rows` carry a RECORDING_INDEX column (null for rows no chosen recording keeps) and the
     provenance columns SOURCE_FILE and SOURCE_LINE; `recordings` maps each chosen recording's
-    key to its index. Nothing is copied per recording until `recording_rows` is asked.
+    key to its index. Nothing is copied per recording: `recording_rows` is lazy.
     """
 
     rows: pl.DataFrame
     recordings: dict[RecordingKey, int]
     report: FileReport
 
-    def recording_rows(self, key: RecordingKey) -> pl.DataFrame:
-        """The rows of one recording, without the RECORDING_INDEX column."""
-        index = self.recordings[key]
-        return self.rows.filter(pl.col(s.RECORDING_INDEX) == index).drop(s.RECORDING_INDEX)
+    def recording_rows(self, key: RecordingKey, where: pl.Expr | None = None) -> pl.LazyFrame:
+        """The rows of one recording (those of them `where` holds), without RECORDING_INDEX;
+        lazy, so that only what is collected of them is copied."""
+        kept = pl.col(s.RECORDING_INDEX) == self.recordings[key]
+        if where is not None:
+            kept &= where
+        return self.rows.lazy().filter(kept).drop(s.RECORDING_INDEX)
 
 
 @dataclass(frozen=True)

@@ -109,7 +109,7 @@ def _names_an_unclaimed_period(
     return official is not None and (official.location, official.period) not in keys
 
 
-def _frame0_groups(frame: pl.DataFrame) -> pl.DataFrame:
+def _frame0_groups(frame: pl.LazyFrame) -> pl.DataFrame:
     """(location, frame-0 time) groups of rows with their row count and last frame, the largest
     of each location first, and whether each is too small to be a recording of its own."""
     frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
@@ -119,6 +119,7 @@ def _frame0_groups(frame: pl.DataFrame) -> pl.DataFrame:
         .group_by(s.LOCATION, FRAME0_MS)
         .agg(pl.len().alias("rows"), pl.col(s.FRAME_ID).max().alias("last_frame"))
         .sort(s.LOCATION, "rows", FRAME0_MS, descending=[False, True, False], nulls_last=True)
+        .collect(engine="streaming")  # morsel by morsel: no copy of a large file's keys
     )
     small = pl.col("rows") < STRAY_GROUP_SHARE * pl.col("rows").max().over(s.LOCATION)
     return groups.with_columns(small.alias("small"))
@@ -142,7 +143,7 @@ def identify_recordings(
     """
     accepted: list[tuple[str | None, int, int]] = []  # location, frame-0 time, group position
     keys: list[tuple[str, str]] = []
-    groups = _frame0_groups(frame if usable is None else frame.filter(usable))
+    groups = _frame0_groups(frame.lazy() if usable is None else frame.lazy().filter(usable))
     for position, (location, frame0_ms, _rows, last_frame, small) in enumerate(groups.iter_rows()):
         near = any(
             loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted
@@ -164,17 +165,16 @@ def identify_recordings(
         range(len(keys)),
         key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]),
     )
-    index_of_group = {accepted[i][2]: new for new, i in enumerate(order)}
-    lookup = groups.with_columns(
-        pl.Series(
-            s.RECORDING_INDEX,
-            [index_of_group.get(i) for i in range(groups.height)],
-            dtype=pl.UInt16,
-        )
-    ).select(s.LOCATION, FRAME0_MS, s.RECORDING_INDEX)
+    # A row takes the index of the accepted group it shares (location, frame-0 time) with;
+    # one test per recording, a handful, rather than a join that copies every row's keys.
     frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
-    keyed = frame.select(s.LOCATION, frame0.alias(FRAME0_MS))
-    index = keyed.join(
-        lookup, on=[s.LOCATION, FRAME0_MS], how="left", nulls_equal=True, maintain_order="left"
-    )
-    return index[s.RECORDING_INDEX], [keys[i] for i in order]
+    index = pl.lit(None, dtype=pl.UInt16)
+    for new, i in enumerate(order):
+        location, frame0_ms, _ = accepted[i]
+        same = pl.col(s.LOCATION).eq_missing(pl.lit(location, dtype=pl.String)) & (
+            frame0 == frame0_ms
+        )
+        index = pl.when(same).then(pl.lit(new, dtype=pl.UInt16)).otherwise(index)
+    if not order:  # no recording: a lone literal would make one row, not the frame's
+        return pl.Series(s.RECORDING_INDEX, [None] * frame.height, dtype=pl.UInt16), []
+    return frame.select(index.alias(s.RECORDING_INDEX)).to_series(), [keys[i] for i in order]
