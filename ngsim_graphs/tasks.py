@@ -9,8 +9,10 @@ docs/build-format.md: the dataset induces them from the frame arrays).
 
 A recording is cleaned a part of its vehicles at a time (VEHICLES_PER_PART), and its proximity
 pairs, ten a grid row in a dense recording, are found, written and used a range of steps at a
-time (PIECE_ROWS): a build task holds a part of the raw rows, or a recording's grid rows (its
-tracks table, grid nodes and node arrays; under cs-lstm also its raw rows) and a range of pairs.
+time (PIECE_ROWS): a reading task holds its file's parsed rows and one part of them at a time,
+a cleaning task a part of the raw rows, a build task a recording's grid rows (its grid nodes and
+node arrays; its tracks table only while writing it; under cs-lstm also its raw rows' five
+columns) and a range of pairs.
 """
 
 from __future__ import annotations
@@ -71,21 +73,21 @@ class RecordingSamples:
 
 
 def recording_samples(
-    tracks: pl.DataFrame,
+    nodes: pl.DataFrame,
     recording_index: int,
     config: BuildConfig,
     write_pairs: PairSink,
     raw: pl.DataFrame | None = None,
     dataset_id: int = 0,
 ) -> RecordingSamples:
-    """Frame arrays, proximity edges and split ego windows of one recording's tracks table.
+    """Frame arrays, proximity edges and split ego windows of one recording's grid nodes
+    (`grid_nodes`).
 
     The pairs go to `write_pairs` a range of steps at a time (PIECE_ROWS), each range's used
     for the neighbourhoods of the ego rows of its steps and then let go. Under the cs-lstm
     protocol the windows are CS-LSTM's kept rows of `raw` (the recording's rows before
     cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS).
     """
-    nodes = grid_nodes(tracks, config.time_step_s)
     arrays = node_arrays(nodes)
     script = None
     if config.protocol is Protocol.CS_LSTM:
@@ -93,7 +95,7 @@ def recording_samples(
             raise ValueError("the cs-lstm protocol needs the recording's raw rows")
         windows, script = script_windows(raw, nodes, dataset_id, config)
     else:
-        max_vehicle_id = int(tracks[s.VEHICLE_ID].max()) if tracks.height else 0
+        max_vehicle_id = int(nodes[s.VEHICLE_ID].max()) if nodes.height else 0
         windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     history = history_rows(arrays, egos, starts, config)
@@ -209,12 +211,17 @@ def build_recording(
         .rechunk()
     )
     layout.write_parquet(tracks, layout.tracks_path(root, *key))
+    nodes = grid_nodes(tracks, config.time_step_s)
+    del tracks  # written: the grid nodes are all the rest needs of it
     raw = None
     if config.protocol is Protocol.CS_LSTM:
         # In any order but that of a vehicle's rows of one frame (cslstm.ordered_rows sorts
         # stably): those are in one part, read from its files in the order they were read.
         files = [path for part in sorted(staged) for path in staged[part]]
         raw = pl.read_parquet(files, columns=list(SCRIPT_COLUMNS))
+    # The vehicle split's largest ids: the script's are of the rows before cleaning.
+    split_by = nodes if raw is None else raw
+    ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
     folder = layout.recording_arrays_dir(root, *key)
     with (
         layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
@@ -225,9 +232,7 @@ def build_recording(
             table.append(pairs)
             pair_files.append({name: getattr(piece, name) for name in PAIR_ARRAYS})
 
-        samples = recording_samples(
-            tracks, index, config, write_pairs, raw, DATASET_IDS.get(key, 0)
-        )
+        samples = recording_samples(nodes, index, config, write_pairs, raw, DATASET_IDS.get(key, 0))
     arrays = samples.arrays
     layout.write_arrays(
         folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in PAIR_ARRAYS}
@@ -237,9 +242,6 @@ def build_recording(
         pl.lit(key[1]).alias(s.PERIOD),
         pl.lit(index).alias(s.RECORDING_INDEX),
     )
-    # The vehicle split's largest ids: the script's are of the rows before cleaning.
-    split_by = tracks if raw is None else raw
-    ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
     return RecordingOutput(
         report,
