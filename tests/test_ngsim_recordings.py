@@ -161,8 +161,8 @@ def test_no_usable_row_places_every_row_in_no_recording() -> None:
 
 
 def test_a_portal_row_is_placed_by_location_and_time_together() -> None:
-    # The same frame-0 time at two locations: each row takes its own location's recording;
-    # a row of a location that formed no recording takes none.
+    # Two locations, a recording each: a row takes the recording of its location and its time
+    # together, none for an i-80 row at us-101's time or a row without location at i-80's.
     us, i80 = US101_FIRST.start_epoch_ms, I80_FIRST.start_epoch_ms
     rows = (
         [make_row(1, f, start_ms=us) for f in range(100)]

@@ -16,7 +16,7 @@ KEY = ("us-101", "0750am-0805am")
 OTHER = ("us-101", "0805am-0820am")
 
 
-def source_of(vehicle_ids: list[int | None], recording: list[int]) -> Source:
+def source_of(vehicle_ids: list[int | None], recording: list[int | None]) -> Source:
     """A source whose one file holds rows of the given vehicles, of recordings 0 (KEY) and 1."""
     rows = pl.DataFrame(
         {s.VEHICLE_ID: vehicle_ids, s.RECORDING_INDEX: recording},
@@ -41,6 +41,18 @@ def test_rows_are_staged_by_recording_and_part_of_their_vehicle_ids(
     assert staged_ids(staged[KEY]) == {0: [3, 3], 1: [7, 4], 2: [9]}
     assert staged[KEY][1] == layout.staged_raw_path(tmp_path, *KEY, 1, 5)
     assert staged_ids(staged[OTHER]) == {0: []}
+
+
+def test_a_part_holds_only_its_own_recording_rows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both recordings have vehicle 3 in part 0: each part file holds its recording's rows only,
+    and rows of no recording (null index) are staged nowhere."""
+    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    source = source_of([3, 3, 9, 2, 5], [0, 1, 0, None, 1])
+    _, staged = tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
+    assert staged_ids(staged[KEY]) == {0: [3], 2: [9]}
+    assert staged_ids(staged[OTHER]) == {0: [3], 1: [5]}
 
 
 def test_a_row_without_a_vehicle_id_is_an_error_not_a_row_lost(tmp_path: Path) -> None:
