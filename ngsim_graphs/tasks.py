@@ -160,7 +160,7 @@ def read_file(
         if ids.null_count():  # the contract says every row has one
             raise ValueError(f"{path}: rows of {key} without a vehicle id")
         # A recording without rows is still staged (part 0, empty): it is built, with no sample.
-        parts = (ids // VEHICLES_PER_PART).unique().sort().to_list() or [0]
+        parts = ids.to_frame().select(part_of.unique().sort()).to_series().to_list() or [0]
         staged[key] = {}
         for part in parts:  # copied a part at a time: never a whole recording's rows at once
             staged[key][part] = layout.staged_raw_path(root, *key, part, file_index)

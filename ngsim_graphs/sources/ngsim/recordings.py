@@ -21,6 +21,7 @@ PACIFIC_DAYLIGHT = timezone(timedelta(hours=-7), "PDT")
 MATCH_TOLERANCE_MS = 10 * 60 * 1000
 KNOWN_LOCATION_NAMES: tuple[str, ...] = ("us-101", "i-80", "lankershim", "peachtree")
 FRAME0_MS = "frame0_epoch_ms"  # Global_Time - 100 * Frame_ID: constant within a recording
+_FRAME0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
 # A frame-0 time shared by fewer rows than this share of the largest group of its location is
 # not a recording but stray rows (a damaged Global_Time); so is one near a larger group's.
 STRAY_GROUP_SHARE = 0.01
@@ -112,9 +113,8 @@ def _names_an_unclaimed_period(
 def _frame0_groups(frame: pl.LazyFrame) -> pl.DataFrame:
     """(location, frame-0 time) groups of rows with their row count and last frame, the largest
     of each location first, and whether each is too small to be a recording of its own."""
-    frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
     groups = (
-        frame.select(s.LOCATION, frame0.alias(FRAME0_MS), s.FRAME_ID)
+        frame.select(s.LOCATION, _FRAME0.alias(FRAME0_MS), s.FRAME_ID)
         .drop_nulls(FRAME0_MS)
         .group_by(s.LOCATION, FRAME0_MS)
         .agg(pl.len().alias("rows"), pl.col(s.FRAME_ID).max().alias("last_frame"))
@@ -167,12 +167,11 @@ def identify_recordings(
     )
     # A row takes the index of the accepted group it shares (location, frame-0 time) with;
     # one test per recording, a handful, rather than a join that copies every row's keys.
-    frame0 = pl.col(s.GLOBAL_TIME) - 100 * pl.col(s.FRAME_ID).cast(pl.Int64)
     index = pl.lit(None, dtype=pl.UInt16)
     for new, i in enumerate(order):
         location, frame0_ms, _ = accepted[i]
         same = pl.col(s.LOCATION).eq_missing(pl.lit(location, dtype=pl.String)) & (
-            frame0 == frame0_ms
+            _FRAME0.eq(frame0_ms)
         )
         index = pl.when(same).then(pl.lit(new, dtype=pl.UInt16)).otherwise(index)
     if not order:  # no recording: a lone literal would make one row, not the frame's
