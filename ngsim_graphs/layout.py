@@ -238,6 +238,12 @@ def staged_tracks_path(root: Path, location: str, period: str, part: int) -> Pat
     return root / STAGING_DIR / recording_name(location, period) / f"tracks-{part:05d}.parquet"
 
 
+def staged_windows_path(root: Path, location: str, period: str) -> Path:
+    """The samples (ego windows, split and counts) of one recording, kept only while building:
+    the samples tables are streamed from them."""
+    return root / STAGING_DIR / recording_name(location, period) / "windows.parquet"
+
+
 def manifest_path(root: Path) -> Path:
     return root / MANIFEST_NAME
 
@@ -252,6 +258,26 @@ def write_parquet(frame: pl.DataFrame, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with writing(path):
         frame.write_parquet(path, compression=PARQUET_COMPRESSION, statistics=True)
+
+
+# Rows per row group of a table streamed by `sink_parquet`: fixed, so that the bytes written do
+# not depend on how Polars' threads cut the stream (the chunks of `write_parquet`'s frames, about
+# this size).
+SINK_ROW_GROUP_ROWS = 131_072
+
+
+def sink_parquet(table: pl.LazyFrame, path: Path) -> None:
+    """Write a lazy table as it streams through, with `write_parquet`'s options: never held
+    whole, and the same bytes for the same rows whatever the number of threads."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with writing(path):
+        table.sink_parquet(
+            path,
+            compression=PARQUET_COMPRESSION,
+            statistics=True,
+            row_group_size=SINK_ROW_GROUP_ROWS,
+            maintain_order=True,
+        )
 
 
 def write_staged(frame: pl.DataFrame, path: Path) -> None:

@@ -9,8 +9,9 @@ the manifest) is decided here, between the stages, so that any number of jobs gi
 build.
 
 Memory stays bounded per job by one input file, by a part of a recording's vehicles, or by a
-recording's grid rows (cs-lstm: and raw rows) and a range of its proximity pairs (`tasks`); only
-the small per-sample table of every recording is kept until the end.
+recording's grid rows (cs-lstm: and raw rows) and a range of its proximity pairs (`tasks`). A
+recording's samples are staged by its task; this process writes the samples tables from them a
+recording at a time, and keeps of each recording only its counts and scaler ranges.
 """
 
 from __future__ import annotations
@@ -125,29 +126,39 @@ def _build_recordings(
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
-    """Samples tables and arrays of each split; returns the sample count per split and recording."""
-    windows = pl.concat([o.windows for o in outputs])
-    counts: dict[str, dict[str, int]] = {}
-    for split in SPLIT_ORDER:
-        part = (
-            windows.filter(pl.col(s.SPLIT) == split.value)
-            .sort(s.LOCATION, s.PERIOD, s.EGO_TRACK_ID, s.START_STEP)
-            .with_row_index(s.SAMPLE_ID)
-        )
-        table = part.select(*s.SAMPLE_SCHEMA.names(), *s.COUNT_COLUMNS).cast(dict(s.SAMPLE_SCHEMA))
-        layout.write_parquet(table, layout.samples_path(root, split.value))
-        layout.write_arrays(
-            layout.sample_arrays_dir(root, split.value),
-            {
-                "recording_index": part[s.RECORDING_INDEX].cast(pl.Int16).to_numpy(),
-                "ego_track_id": part[s.EGO_TRACK_ID].to_numpy(),
-                "start_step": part[s.START_STEP].to_numpy(),
-            },
-        )
-        by_recording = part.group_by(s.LOCATION, s.PERIOD).len().sort(s.LOCATION, s.PERIOD)
-        counts[split.value] = {
-            layout.recording_name(loc, period): n for loc, period, n in by_recording.iter_rows()
+    """Samples tables and arrays of each split; returns the sample count per split and recording.
+
+    A split's samples are numbered in (location, period, ego track, start step) order. The
+    recordings come in key order, which is (location, period)'s, and each staged its samples
+    sorted by (ego track, start step): the tables are streamed from the staged files, and this
+    process never holds a whole table (under cs-lstm, five million samples)."""
+    counts = {
+        split.value: {
+            layout.recording_name(o.report.location, o.report.period): o.samples[split.value]
+            for o in outputs
+            if o.samples[split.value]
         }
+        for split in SPLIT_ORDER
+    }
+    for split in SPLIT_ORDER:
+        in_split = pl.col(s.SPLIT) == split.value
+        windows = pl.concat([pl.scan_parquet(o.windows).filter(in_split) for o in outputs])
+        table = windows.with_row_index(s.SAMPLE_ID).select(s.SAMPLES_TABLE_SCHEMA.names())
+        layout.sink_parquet(
+            table.cast(dict(s.SAMPLES_TABLE_SCHEMA)), layout.samples_path(root, split.value)
+        )
+        folder = layout.sample_arrays_dir(root, split.value)
+        with layout.ArrayAppender(folder, layout.SAMPLE_ARRAYS) as arrays:
+            for output in outputs:  # every one, even without samples: the files are written
+                columns = (s.RECORDING_INDEX, s.EGO_TRACK_ID, s.START_STEP)
+                part = pl.scan_parquet(output.windows).filter(in_split).select(columns).collect()
+                arrays.append(
+                    {
+                        "recording_index": part[s.RECORDING_INDEX].cast(pl.Int16).to_numpy(),
+                        "ego_track_id": part[s.EGO_TRACK_ID].to_numpy(),
+                        "start_step": part[s.START_STEP].to_numpy(),
+                    }
+                )
     return counts
 
 
@@ -180,7 +191,7 @@ def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
 def _check_some_samples(
     outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]
 ) -> None:
-    if sum(o.windows.height for o in outputs) == 0:
+    if sum(sum(o.samples.values()) for o in outputs) == 0:
         more = f" (and {len(raw_paths) - 1} more)" if len(raw_paths) > 1 else ""
         raise NgsimInputError(
             f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}"
@@ -188,9 +199,9 @@ def _check_some_samples(
 
 
 def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
-    windows = pl.concat([o.windows for o in outputs])
+    samples = {f"{o.report.location}/{o.report.period}": o.samples for o in outputs}
     top = {f"{o.report.location}/{o.report.period}": o.top_vehicle_ids for o in outputs}
-    return split_warnings(windows, top, config)
+    return split_warnings(samples, top, config)
 
 
 def _recording_entry(
@@ -321,14 +332,15 @@ def run_build(
         one_malloc_arena()
     report_progress = progress or (lambda _what, _done, _total: None)
     source, files, skipped = choose_source(raw_paths, dataset)
-    with landing.build_directory(out_dir, overwrite) as root, workers:
-        file_reports, staged = _stage_inputs(
-            source, files, config, root, report_progress, strict, workers
-        )
-        _check_script_recordings(staged, file_reports, config)
-        outputs = _build_recordings(
-            source, staged, config, root, file_reports, report_progress, strict, workers
-        )
+    with landing.build_directory(out_dir, overwrite) as root:
+        with workers:  # the workers end here: what they held goes back before the writing
+            file_reports, staged = _stage_inputs(
+                source, files, config, root, report_progress, strict, workers
+            )
+            _check_script_recordings(staged, file_reports, config)
+            outputs = _build_recordings(
+                source, staged, config, root, file_reports, report_progress, strict, workers
+            )
         scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
         _check_some_samples(outputs, config, raw_paths)
         report_progress("writing samples", len(staged), len(staged))

@@ -284,6 +284,8 @@ N_TEMPORAL: Final = "n_temporal_edges"
 N_TARGETS: Final = "n_targets"
 N_FULL_TARGETS: Final = "n_targets_full_future"  # targets recorded at every future step
 COUNT_COLUMNS: Final[tuple[str, ...]] = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS, N_FULL_TARGETS)
+# A split's samples table: its samples and the counts of their graphs.
+SAMPLES_TABLE_SCHEMA: Final = pl.Schema({**SAMPLE_SCHEMA, **dict.fromkeys(COUNT_COLUMNS, pl.Int32)})
 
 
 # ---------------------------------------------------------------------------------------------

@@ -110,22 +110,17 @@ def _matlab_round(x: float) -> int:
 
 
 def _why_vehicle_split_is_small(
-    windows: pl.DataFrame,
+    samples: dict[str, dict[str, int]],
     split: Split,
     top_vehicle_ids: dict[str, tuple[int, int]],
     config: BuildConfig,
 ) -> str:
     """The rule, and the recordings that give `split` (almost) nothing, with their cuts."""
-    per_recording = (
-        windows.group_by(s.LOCATION, s.PERIOD)
-        .agg(pl.len().alias("all"), (pl.col(s.SPLIT) == split.value).sum().alias("split"))
-        .sort(s.LOCATION, s.PERIOD)
-    )
     reasons = []
-    for location, period, n_all, n_split in per_recording.iter_rows():
+    for name, per_split in samples.items():
+        n_all, n_split = sum(per_split.values()), per_split.get(split.value, 0)
         if n_split >= MIN_SPLIT_SHARE * n_all:
             continue
-        name = f"{location}/{period}"
         largest, second = top_vehicle_ids[name]
         first_cut, second_cut = _vehicle_cuts(largest, config)
         outlier = f", far above the next largest ({second:,})" if largest > 1.5 * second else ""
@@ -142,23 +137,29 @@ def _why_vehicle_split_is_small(
 
 
 def split_warnings(
-    windows: pl.DataFrame, top_vehicle_ids: dict[str, tuple[int, int]], config: BuildConfig
+    samples: dict[str, dict[str, int]],
+    top_vehicle_ids: dict[str, tuple[int, int]],
+    config: BuildConfig,
 ) -> list[str]:
     """One line for each split that is empty or holds under MIN_SPLIT_SHARE of the samples, with
-    the likely reason. `windows`: every sample, with location, period and s.SPLIT;
-    `top_vehicle_ids`: the largest and second largest Vehicle_ID of each recording, by
-    "location/period"."""
-    total = windows.height
+    the likely reason. `samples`: each recording's number of samples per split (a split left
+    out: none), by "location/period", in the recordings' order; `top_vehicle_ids`: the largest
+    and second largest Vehicle_ID of each recording, by the same names."""
+    in_split = {
+        split: sum(per_split.get(split.value, 0) for per_split in samples.values())
+        for split in SPLIT_ORDER
+    }
+    total = sum(sum(per_split.values()) for per_split in samples.values())
     warnings = []
     for split in SPLIT_ORDER:
-        n = int((windows[s.SPLIT] == split.value).sum()) if total else 0
+        n = in_split[split]
         if total == 0 or n >= MIN_SPLIT_SHARE * total:
             continue
         what = "is empty" if n == 0 else f"holds {n:,} of {total:,} samples ({n / total:.1%})"
         if config.split_fractions[SPLIT_ORDER.index(split)] == 0:
             why = ": its fraction is 0"
         elif config.split is SplitMode.VEHICLE:
-            why = _why_vehicle_split_is_small(windows, split, top_vehicle_ids, config)
+            why = _why_vehicle_split_is_small(samples, split, top_vehicle_ids, config)
         else:
             why = f": {total:,} samples are too few for a {config.split.value} split"
         warnings.append(f"the {split.value} split {what}{why}")

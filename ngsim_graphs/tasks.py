@@ -136,7 +136,8 @@ class RecordingOutput:
     longest_track_steps: int
     top_vehicle_ids: tuple[int, int]  # the largest and second largest Vehicle_ID
     proximity_edges: int
-    windows: pl.DataFrame  # with location, period, s.SPLIT and counts
+    windows: Path  # staged: its samples, with location, period, s.SPLIT and counts
+    samples: dict[str, int]  # its number of samples per split (every split, 0 included)
     script_rows: ScriptRows | None  # the cs-lstm protocol's rows (None: aigem)
     train_ranges: MinMaxScaler  # what its train samples observed
 
@@ -237,11 +238,16 @@ def build_recording(
     layout.write_arrays(
         folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in PAIR_ARRAYS}
     )
-    windows = samples.windows.with_columns(
+    # Staged in the samples tables' order, not returned: the build streams the tables from them.
+    windows = samples.windows.sort(s.EGO_TRACK_ID, s.START_STEP, maintain_order=True).with_columns(
         pl.lit(key[0]).alias(s.LOCATION),
         pl.lit(key[1]).alias(s.PERIOD),
         pl.lit(index).alias(s.RECORDING_INDEX),
     )
+    windows_path = layout.staged_windows_path(root, *key)
+    layout.write_staged(windows, windows_path)
+    split_of = windows[s.SPLIT]
+    per_split = {split.value: int((split_of == split.value).sum()) for split in Split}
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0
     return RecordingOutput(
         report,
@@ -251,7 +257,8 @@ def build_recording(
         longest,
         (ids[0], ids[1]),
         samples.proximity_edges,
-        windows,
+        windows_path,
+        per_split,
         samples.script_rows,
         samples.train_ranges,
     )

@@ -168,23 +168,24 @@ def _enospc(filename: object = None) -> OSError:
 def _fail_parquet(
     monkeypatch: pytest.MonkeyPatch, stem: str, error: Callable[[Path], Exception]
 ) -> None:
-    real = layout.write_parquet
+    """Tables written whole (`write_parquet`) and streamed (`sink_parquet`: the samples)."""
+    for name in ("write_parquet", "sink_parquet"):
+        real = getattr(layout, name)
 
-    def write_parquet(frame: pl.DataFrame, path: Path) -> None:
-        if stem in str(path):
-            real(frame, path)  # half the file, as a full disk leaves it
-            path.write_bytes(path.read_bytes()[:20])
-            raise error(path)
-        real(frame, path)
+        def write(table: pl.DataFrame | pl.LazyFrame, path: Path, real: Callable = real) -> None:
+            real(table, path)
+            if stem in str(path):  # half the file, as a full disk leaves it
+                path.write_bytes(path.read_bytes()[:20])
+                raise error(path)
 
-    monkeypatch.setattr(layout, "write_parquet", write_parquet)
+        monkeypatch.setattr(layout, name, write)
 
 
 def _save_fails(monkeypatch: pytest.MonkeyPatch) -> None:
     real = np.save
 
     def save(file: object, array: np.ndarray, allow_pickle: bool = True) -> None:
-        if "samples-val" in str(file):
+        if "node_state" in str(file):
             raise OSError("100000 requested and 32752 written")  # what np.save says
         real(file, array, allow_pickle=allow_pickle)
 
@@ -212,7 +213,7 @@ def _manifest_fails(monkeypatch: pytest.MonkeyPatch) -> None:
             "parquet: underlying IO error: No space left on device (os error 28)")), "",
          "cannot write: No space left on device"),
         # layout's writers name the file numpy's short write was in
-        (_save_fails, "arrays/samples-val/recording_index.npy", "cannot write: No space left on device"),
+        (_save_fails, "arrays/us-101_0750am-0805am/node_state.npy", "cannot write: No space left on device"),
         (_manifest_fails, "manifest.json", "cannot write: No space left on device"),
     ],
 )  # fmt: skip

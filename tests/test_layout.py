@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import os
 from pathlib import Path
 
 import numpy as np
@@ -108,3 +109,50 @@ def test_a_table_appended_part_by_part_is_one_row_group_a_part(tmp_path: Path) -
         table.append(parts[0])
         raise RuntimeError("a failure while building")
     assert not path.exists()
+
+
+_SINK_SCRIPT = """
+import sys
+from pathlib import Path
+import polars as pl
+from ngsim_graphs import layout
+layout.SINK_ROW_GROUP_ROWS = 1_000
+root = Path(sys.argv[1])
+parts = [pl.scan_parquet(root / f"part-{i}.parquet") for i in range(3)]
+layout.sink_parquet(pl.concat(parts).with_row_index("sample_id"), root / sys.argv[2])
+"""
+
+
+def test_a_sunk_table_is_the_same_bytes_whatever_the_threads(tmp_path: Path) -> None:
+    """Three staged parts streamed into one table by Polars with 1 and with 4 threads (a
+    process each: Polars reads its number of threads once): row groups of SINK_ROW_GROUP_ROWS
+    rows, not of the stream's chunks, so the same bytes; the rows are the parts' in order."""
+    import subprocess
+    import sys
+
+    import pyarrow.parquet as pq
+
+    rng = np.random.default_rng(3)
+    parts = [
+        pl.DataFrame({"track": rng.integers(0, 50, n, dtype=np.int32), "y_m": rng.random(n)})
+        for n in (1_700, 0, 2_600)
+    ]
+    for i, part in enumerate(parts):
+        layout.write_staged(part, tmp_path / f"part-{i}.parquet")
+    for threads in (1, 4):
+        env = {**os.environ, "POLARS_MAX_THREADS": str(threads)}
+        subprocess.run(
+            [sys.executable, "-c", _SINK_SCRIPT, str(tmp_path), f"sunk-{threads}.parquet"],
+            env=env,
+            check=True,
+        )
+    one, four = (
+        (tmp_path / "sunk-1.parquet").read_bytes(),
+        (tmp_path / "sunk-4.parquet").read_bytes(),
+    )
+    assert one == four
+    metadata = pq.ParquetFile(tmp_path / "sunk-1.parquet").metadata
+    groups = [metadata.row_group(i).num_rows for i in range(metadata.num_row_groups)]
+    assert groups == [1_000, 1_000, 1_000, 1_000, 300]
+    expected = pl.concat(parts).with_row_index("sample_id")
+    assert pl.read_parquet(tmp_path / "sunk-1.parquet").equals(expected)

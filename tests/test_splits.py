@@ -168,7 +168,7 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
     config = BuildConfig(split_fractions=(0.5, 0.25, 0.25))
     windows = windows.with_columns(split_by_vehicle(windows, 1_000, config).alias(s.SPLIT))
     assert windows[s.SPLIT].to_list() == ["train"] * 10  # cuts at 500 and 750
-    warnings = split_warnings(windows, {"us-101/r": (1_000, 10)}, config)
+    warnings = split_warnings({"us-101/r": {"train": 10}}, {"us-101/r": (1_000, 10)}, config)
     assert [w.split(":")[0] for w in warnings] == [
         "the val split is empty",
         "the test split is empty",
@@ -182,6 +182,6 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
         "(10), so the cuts lie at 500 and 750" in warnings[0]
     )
     only_val = BuildConfig(split_fractions=(0.0, 1.0, 0.0))
-    assert split_warnings(windows.with_columns(pl.lit("val").alias(s.SPLIT)), {}, only_val) == [
+    assert split_warnings({"us-101/r": {"val": 10}}, {}, only_val) == [
         "the train split is empty: its fraction is 0", "the test split is empty: its fraction is 0",
     ]  # fmt: skip
