@@ -261,8 +261,7 @@ def write_parquet(frame: pl.DataFrame, path: Path) -> None:
 
 
 # Rows per row group of a table streamed by `sink_parquet`: fixed, so that the bytes written do
-# not depend on how Polars' threads cut the stream (the chunks of `write_parquet`'s frames, about
-# this size).
+# not depend on how Polars' threads cut the stream.
 SINK_ROW_GROUP_ROWS = 131_072
 
 

@@ -42,6 +42,44 @@ def test_a_numpy_short_write_names_the_file(
     assert (caught.value.errno, caught.value.filename) == (errno.ENOSPC, str(tmp_path / "a.npy"))
 
 
+def test_a_full_disk_while_streaming_a_table_names_the_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def full(*_args: object, **_kwargs: object) -> None:
+        raise pl.exceptions.ComputeError(
+            "parquet: underlying IO error: No space left on device (os error 28)"
+        )
+
+    monkeypatch.setattr(pl.LazyFrame, "sink_parquet", full)
+    path = tmp_path / "samples" / "val.parquet"
+    with pytest.raises(OSError) as caught:
+        layout.sink_parquet(pl.LazyFrame({"a": [1]}), path)
+    assert (caught.value.errno, caught.value.filename) == (errno.ENOSPC, str(path))
+
+
+def test_a_short_write_of_an_appended_array_names_the_file_and_leaves_none(
+    tmp_path: Path,
+) -> None:
+    class FullDisk:  # the file after its first part: the disk is full
+        def __init__(self, real: object) -> None:
+            self.real = real
+
+        def write(self, data: object) -> int:
+            raise OSError("100000 requested and 32752 written")
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self.real, name)
+
+    appender = layout.ArrayAppender(tmp_path, ("start_step",))
+    appender.append({"start_step": np.arange(3, dtype=np.int32)})
+    appender._files["start_step"] = FullDisk(appender._files["start_step"])
+    with pytest.raises(OSError) as caught, appender:
+        appender.append({"start_step": np.arange(5, dtype=np.int32)})
+    path = tmp_path / "start_step.npy"
+    assert (caught.value.errno, caught.value.filename) == (errno.ENOSPC, str(path))
+    assert not path.exists()
+
+
 def test_other_polars_errors_are_not_disk_errors(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -185,3 +185,22 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
     assert split_warnings({"us-101/r": {"val": 10}}, {}, only_val) == [
         "the train split is empty: its fraction is 0", "the test split is empty: its fraction is 0",
     ]  # fmt: skip
+
+
+def test_split_warnings_name_the_recordings_that_give_a_split_too_little_in_their_order() -> None:
+    # a: 100 samples, 1 in test (1 % < 2 %); b: none at all (skipped); c: 50, none in test.
+    samples = {
+        "us-101/a": {"train": 80, "val": 19, "test": 1},
+        "us-101/b": {"train": 0, "val": 0, "test": 0},
+        "i-80/c": {"train": 40, "val": 10},
+    }
+    top = {"us-101/a": (1_000, 990), "us-101/b": (5, 4), "i-80/c": (3_000, 1_000)}
+    config = BuildConfig(split_fractions=(0.5, 0.25, 0.25))
+    warnings = split_warnings(samples, top, config)
+    assert len(warnings) == 1
+    assert warnings[0].startswith("the test split holds 1 of 150 samples (0.7%): the vehicle split")
+    assert warnings[0].endswith(
+        "us-101/a gives it 1 of 100: its largest Vehicle_ID is 1,000, so the cuts lie at 500 and "
+        "750; i-80/c gives it 0 of 50: its largest Vehicle_ID is 3,000, far above the next "
+        "largest (1,000), so the cuts lie at 1,500 and 2,250"
+    )
