@@ -13,15 +13,17 @@ import pytest
 from ngsim_graphs import layout
 
 
+def _full_disk(*_args: object, **_kwargs: object) -> None:
+    """What Polars raises when the disk fills while it writes a Parquet file."""
+    raise pl.exceptions.ComputeError(
+        "parquet: underlying IO error: No space left on device (os error 28)"
+    )
+
+
 def test_a_polars_disk_error_names_the_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def full(*_args: object, **_kwargs: object) -> None:
-        raise pl.exceptions.ComputeError(
-            "parquet: underlying IO error: No space left on device (os error 28)"
-        )
-
-    monkeypatch.setattr(pl.DataFrame, "write_parquet", full)
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", _full_disk)
     with pytest.raises(OSError) as caught:
         layout.write_parquet(pl.DataFrame({"a": [1]}), tmp_path / "t" / "x.parquet")
     assert (caught.value.errno, caught.value.filename) == (
@@ -45,12 +47,7 @@ def test_a_numpy_short_write_names_the_file(
 def test_a_full_disk_while_streaming_a_table_names_the_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def full(*_args: object, **_kwargs: object) -> None:
-        raise pl.exceptions.ComputeError(
-            "parquet: underlying IO error: No space left on device (os error 28)"
-        )
-
-    monkeypatch.setattr(pl.LazyFrame, "sink_parquet", full)
+    monkeypatch.setattr(pl.LazyFrame, "sink_parquet", _full_disk)
     path = tmp_path / "samples" / "val.parquet"
     with pytest.raises(OSError) as caught:
         layout.sink_parquet(pl.LazyFrame({"a": [1]}), path)
