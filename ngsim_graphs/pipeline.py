@@ -17,6 +17,7 @@ recording at a time, and keeps of each recording only its counts and scaler rang
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from functools import reduce
 from itertools import accumulate
@@ -147,12 +148,22 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
         layout.sink_parquet(
             table.cast(dict(s.SAMPLES_TABLE_SCHEMA)), layout.samples_path(root, split.value)
         )
-        folder = layout.sample_arrays_dir(root, split.value)
-        with layout.ArrayAppender(folder, layout.SAMPLE_ARRAYS) as arrays:
-            for output in outputs:  # every one, even without samples: the files are written
-                columns = (s.RECORDING_INDEX, s.EGO_TRACK_ID, s.START_STEP)
-                part = pl.scan_parquet(output.windows).filter(in_split).select(columns).collect()
-                arrays.append(
+    with ExitStack() as stack:
+        arrays = {
+            split: stack.enter_context(
+                layout.ArrayAppender(
+                    layout.sample_arrays_dir(root, split.value), layout.SAMPLE_ARRAYS
+                )
+            )
+            for split in SPLIT_ORDER
+        }
+        for output in outputs:  # each read once; every split's files written, even empty
+            windows = pl.read_parquet(
+                output.windows, columns=[s.SPLIT, s.RECORDING_INDEX, s.EGO_TRACK_ID, s.START_STEP]
+            )
+            for split, appender in arrays.items():
+                part = windows.filter(pl.col(s.SPLIT) == split.value)
+                appender.append(
                     {
                         "recording_index": part[s.RECORDING_INDEX].cast(pl.Int16).to_numpy(),
                         "ego_track_id": part[s.EGO_TRACK_ID].to_numpy(),

@@ -145,14 +145,10 @@ def split_warnings(
     the likely reason. `samples`: each recording's number of samples per split (a split left
     out: none), by "location/period", in the recordings' order; `top_vehicle_ids`: the largest
     and second largest Vehicle_ID of each recording, by the same names."""
-    in_split = {
-        split: sum(per_split.get(split.value, 0) for per_split in samples.values())
-        for split in SPLIT_ORDER
-    }
     total = sum(sum(per_split.values()) for per_split in samples.values())
     warnings = []
     for split in SPLIT_ORDER:
-        n = in_split[split]
+        n = sum(per_split.get(split.value, 0) for per_split in samples.values())
         if total == 0 or n >= MIN_SPLIT_SHARE * total:
             continue
         what = "is empty" if n == 0 else f"holds {n:,} of {total:,} samples ({n / total:.1%})"
