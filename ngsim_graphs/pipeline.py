@@ -123,7 +123,8 @@ def _build_recordings(
     building = [
         (key, i, reports[i], first_ids[i], staged[key], config, root) for i, key in enumerate(keys)
     ]
-    return workers.map(build_recording, building, stage("building recordings"), sizes)
+    # Frugal: the build's peak is here, two tasks at once, and returning memory costs no time.
+    return workers.map(build_recording, building, stage("building recordings"), sizes, frugal=True)
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
@@ -330,9 +331,9 @@ def run_build(
     `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
     one per core this process may use); the output is the same for any number. The processes
     that run the tasks keep to one malloc arena (`workers.one_malloc_arena`): with one job, this
-    process, for the rest of its life. The workers are
-    started with multiprocessing's "spawn": a script that builds with jobs > 1 must do so under
-    `if __name__ == "__main__":`.
+    process, for the rest of its life (the workers' allocators: `workers.worker_environment`).
+    The workers are started with multiprocessing's "spawn": a script that builds with jobs > 1
+    must do so under `if __name__ == "__main__":`.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.

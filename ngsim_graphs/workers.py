@@ -5,7 +5,8 @@ pool, which Polars warns against) and their results come back in task order, so 
 made with N jobs is the build made with one, byte for byte. Each worker holds one task's data at
 a time, so peak memory grows with the number of jobs, never with the number of tasks; the cores
 are shared out among the workers for Polars' own threads (unless POLARS_MAX_THREADS says). A
-worker keeps to one malloc arena and gives back what a task freed when it ends (glibc).
+worker keeps to one malloc arena and gives back what a task freed when it ends (glibc); where
+peak memory counts more than speed, its Polars allocator gives freed memory back at once.
 """
 
 from __future__ import annotations
@@ -24,7 +25,19 @@ from ngsim_graphs.errors import NgsimError
 
 Result = TypeVar("Result")
 POLARS_THREADS = "POLARS_MAX_THREADS"
-_M_ARENA_MAX = -8  # glibc's mallopt parameter
+# Polars' allocator (jemalloc) reads its options from this variable when Polars is imported;
+# Polars puts its own first (POLARS_JEMALLOC_DEFAULTS, then the user's, if any), and the last
+# setting of an option wins. Its defaults keep freed pages resident for a second and more (dirty,
+# then "muzzy"), so that the tables a build task had freed stayed in its worker's resident memory
+# through the rest of the task and into its next. Given back at once (FRUGAL_JEMALLOC_CONF), a
+# task's pages must be faulted in anew each time it allocates: reading and cleaning, which
+# allocate and free much, took twice as long, building no longer.
+JEMALLOC_CONF = "_RJEM_MALLOC_CONF"
+POLARS_JEMALLOC_DEFAULTS = "dirty_decay_ms:500,muzzy_decay_ms:1000"
+FRUGAL_JEMALLOC_CONF = "dirty_decay_ms:0,muzzy_decay_ms:0"
+# glibc's malloc (numpy's) reads this when a process starts: see `one_malloc_arena`.
+MALLOC_ARENAS = "MALLOC_ARENA_MAX"
+_M_ARENA_MAX = -8  # glibc's mallopt parameter of the same
 
 
 @functools.cache
@@ -43,7 +56,9 @@ def one_malloc_arena() -> None:
     the neighbourhoods' threads, Polars' own) each arena keeps the memory freed into it, and a
     worker's resident memory grew with every piece of a recording (1.10 GB against 0.65 GB for
     the densest one, and no slower on 2 cores). Arenas that exist already are kept: call it
-    before threads allocate. Elsewhere than glibc this does nothing.
+    before threads allocate (a worker has MALLOC_ARENAS set instead, from its start: by the time
+    a pool's initializer ran, importing the caller's main module had started threads, and its
+    build tasks peaked 0.2 GB higher). Elsewhere than glibc this does nothing.
     """
     libc = _glibc()
     if libc is not None:
@@ -55,6 +70,21 @@ def available_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return max(1, len(os.sched_getaffinity(0)))
     return os.cpu_count() or 1
+
+
+def worker_environment(environment: dict[str, str], size: int, frugal: bool) -> dict[str, str]:
+    """What a pool of `size` workers adds to `environment` for its processes: the cores shared
+    out among them for Polars' threads, one malloc arena each, and if `frugal`, Polars'
+    allocator giving freed pages back at once (the user's own settings win)."""
+    settings = {}
+    if POLARS_THREADS not in environment:
+        settings[POLARS_THREADS] = str(max(1, available_cores() // size))
+    if MALLOC_ARENAS not in environment:
+        settings[MALLOC_ARENAS] = "1"
+    allocator = environment.get(JEMALLOC_CONF, "")
+    if frugal and "decay_ms" not in allocator.removeprefix(POLARS_JEMALLOC_DEFAULTS):
+        settings[JEMALLOC_CONF] = ",".join(filter(None, [allocator, FRUGAL_JEMALLOC_CONF]))
+    return settings
 
 
 def _releasing(function: Callable[..., Result], *args: Any) -> Result:
@@ -73,7 +103,8 @@ def _failed(future: Future) -> bool:
 
 
 class Workers:
-    """Up to `jobs` worker processes, kept from one `map` to the next while as many are needed.
+    """Up to `jobs` worker processes, kept from one `map` to the next while as many are needed
+    (and as frugal).
 
     Use as a context manager; the processes end with it. With jobs == 1, or a single task, the
     tasks run in this process.
@@ -84,8 +115,8 @@ class Workers:
             raise ValueError(f"jobs must be at least 1, got {jobs}")
         self.jobs = jobs
         self._pool: ProcessPoolExecutor | None = None
-        self._size = 0
-        self._set_threads = False
+        self._shape = (0, False)  # the running pool's size and frugality
+        self._saved_environment: dict[str, str | None] = {}
 
     def __enter__(self) -> Workers:
         return self
@@ -97,21 +128,22 @@ class Workers:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=cancel)
             self._pool = None
-        if self._set_threads:
-            os.environ.pop(POLARS_THREADS, None)
-            self._set_threads = False
+        for name, value in self._saved_environment.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        self._saved_environment = {}
 
-    def _start(self, size: int) -> ProcessPoolExecutor:
+    def _start(self, size: int, frugal: bool) -> ProcessPoolExecutor:
         """A pool of `size` processes, the cores shared out among them for Polars' threads (the
-        environment is read when each process starts; the user's own setting wins)."""
+        environment is read when each process starts; see `worker_environment`)."""
         self._close()
-        if POLARS_THREADS not in os.environ:
-            os.environ[POLARS_THREADS] = str(max(1, available_cores() // size))
-            self._set_threads = True
-        self._pool = ProcessPoolExecutor(
-            size, mp_context=get_context("spawn"), initializer=one_malloc_arena
-        )
-        self._size = size
+        settings = worker_environment(dict(os.environ), size, frugal)
+        self._saved_environment = {name: os.environ.get(name) for name in settings}
+        os.environ.update(settings)
+        self._pool = ProcessPoolExecutor(size, mp_context=get_context("spawn"))
+        self._shape = (size, frugal)
         return self._pool
 
     def map(
@@ -120,13 +152,16 @@ class Workers:
         tasks: Sequence[tuple[Any, ...]],
         finished: Callable[[int], None] = lambda _done: None,
         sizes: Sequence[float] | None = None,
+        frugal: bool = False,
     ) -> list[Result]:
         """[function(*task) for task in tasks], spread over the processes.
 
         `finished(n)` is called in this process after each of the n tasks done so far. A failure
         stops the tasks after it; the earliest failure in task order is raised here, as the task
         raised it, the one a single job would have met. `sizes`, a guess of each task's work,
-        starts the largest first: no large task is left to run alone at the end.
+        starts the largest first: no large task is left to run alone at the end. `frugal` runs
+        them in processes whose Polars allocator gives freed memory back at once (new ones, if
+        the running ones are not): for tasks whose peak memory counts more than their speed.
         """
         size = min(self.jobs, len(tasks))
         if size <= 1:
@@ -135,7 +170,8 @@ class Workers:
                 results.append(_releasing(function, *task))
                 finished(len(results))
             return results
-        pool = self._pool if self._pool is not None and self._size == size else self._start(size)
+        same = self._pool is not None and self._shape == (size, frugal)
+        pool = self._pool if same else self._start(size, frugal)
         order = (
             range(len(tasks))
             if sizes is None

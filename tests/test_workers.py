@@ -6,20 +6,54 @@ The tasks are module-level functions of this file: a spawned worker imports them
 from __future__ import annotations
 
 import os
+import sys
 import time
 
+import polars as pl
 import pytest
 
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.workers import POLARS_THREADS, Workers, available_cores
+from ngsim_graphs.workers import (
+    FRUGAL_JEMALLOC_CONF,
+    JEMALLOC_CONF,
+    MALLOC_ARENAS,
+    POLARS_JEMALLOC_DEFAULTS,
+    POLARS_THREADS,
+    Workers,
+    available_cores,
+    worker_environment,
+)
 
 
 def square_with_pid(value: int) -> tuple[int, int]:
     return value * value, os.getpid()
 
 
+def pid_after(seconds: float) -> int:
+    time.sleep(seconds)
+    return os.getpid()
+
+
 def polars_threads(_: int) -> str | None:
     return os.environ.get(POLARS_THREADS)
+
+
+def allocator_settings(_: int) -> tuple[str | None, str | None]:
+    return os.environ.get(JEMALLOC_CONF), os.environ.get(MALLOC_ARENAS)
+
+
+def resident_bytes() -> int:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def resident_after_a_freed_table(_: int) -> tuple[int, int, int]:
+    """Resident bytes before, with and after an 80 MB Polars table."""
+    before = resident_bytes()
+    table = pl.DataFrame({"x": pl.int_range(0, 10_000_000, eager=True)})
+    held = resident_bytes()
+    del table
+    return before, held, resident_bytes()
 
 
 def fail_on(value: int, bad: int) -> int:
@@ -48,10 +82,65 @@ def test_one_job_runs_in_this_process() -> None:
 
 @pytest.mark.skipif(POLARS_THREADS in os.environ, reason="the user's own setting is kept")
 def test_workers_share_the_cores_and_leave_the_environment_as_it_was() -> None:
+    before = dict(os.environ)
     with Workers(2) as workers:
         threads = workers.map(polars_threads, [(0,), (1,)])
+        workers.map(polars_threads, [(0,), (1,)], frugal=True)
     assert threads == [str(max(1, available_cores() // 2))] * 2
-    assert POLARS_THREADS not in os.environ
+    assert dict(os.environ) == before
+
+
+def test_worker_environment_shares_cores_and_lets_the_users_settings_win() -> None:
+    cores = str(max(1, available_cores() // 2))
+    polars = POLARS_JEMALLOC_DEFAULTS  # what importing Polars leaves in the environment
+    assert worker_environment({}, 2, frugal=False) == {POLARS_THREADS: cores, MALLOC_ARENAS: "1"}
+    assert worker_environment({JEMALLOC_CONF: polars}, 2, frugal=True) == {
+        POLARS_THREADS: cores,
+        MALLOC_ARENAS: "1",
+        JEMALLOC_CONF: f"{polars},{FRUGAL_JEMALLOC_CONF}",  # later options win
+    }
+    users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", JEMALLOC_CONF: f"{polars},narenas:2"}
+    assert worker_environment(users, 2, frugal=True) == {
+        JEMALLOC_CONF: f"{polars},narenas:2,{FRUGAL_JEMALLOC_CONF}"
+    }
+    # The user's own decay wins, and so does the user's environment wholly.
+    users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", JEMALLOC_CONF: f"{polars},dirty_decay_ms:9"}
+    assert worker_environment(users, 2, frugal=True) == {}
+    assert worker_environment({}, 2, frugal=True) == {
+        POLARS_THREADS: cores,
+        MALLOC_ARENAS: "1",
+        JEMALLOC_CONF: FRUGAL_JEMALLOC_CONF,
+    }
+
+
+@pytest.mark.skipif(
+    MALLOC_ARENAS in os.environ or os.environ.get(JEMALLOC_CONF) != POLARS_JEMALLOC_DEFAULTS,
+    reason="the user's own allocator settings are kept",
+)
+def test_frugal_tasks_run_in_their_own_processes_with_the_allocators_settings() -> None:
+    tasks = [(0.2,)] * 4  # two each: both processes are started
+    with Workers(2) as workers:
+        plain = workers.map(allocator_settings, [(0,), (1,)])
+        pids = set(workers.map(pid_after, tasks))
+        frugal = workers.map(allocator_settings, [(0,), (1,)], frugal=True)
+        frugal_pids = set(workers.map(pid_after, tasks, frugal=True))
+        again = set(workers.map(pid_after, tasks, frugal=True))
+    # Polars puts its defaults first in each process, before what it was given.
+    assert plain == [(f"{POLARS_JEMALLOC_DEFAULTS},{POLARS_JEMALLOC_DEFAULTS}", "1")] * 2
+    given = f"{POLARS_JEMALLOC_DEFAULTS},{POLARS_JEMALLOC_DEFAULTS},{FRUGAL_JEMALLOC_CONF}"
+    assert frugal == [(given, "1")] * 2
+    assert not pids & frugal_pids, "new processes for frugal tasks"
+    assert frugal_pids == again, "kept while the tasks are as frugal"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_frugal_worker_gives_a_freed_table_back_at_once() -> None:
+    with Workers(2) as workers:
+        (before, held, after), _ = workers.map(
+            resident_after_a_freed_table, [(0,), (1,)], frugal=True
+        )
+    assert held - before > 60e6, "the table was resident"
+    assert after - before < 20e6, "and went back when freed"
 
 
 def test_a_worker_error_comes_back_whole() -> None:
