@@ -18,6 +18,7 @@ import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from enum import Enum
 from multiprocessing import get_context
 from typing import Any, TypeVar
 
@@ -87,6 +88,14 @@ def worker_environment(environment: dict[str, str], size: int, frugal: bool) -> 
     return settings
 
 
+class Processes(Enum):
+    """What the processes of a `Workers.map` keep of the memory a task freed."""
+
+    KEPT = "kept"  # processes kept from task to task, Polars' allocator as it comes: fastest
+    FRUGAL = "frugal"  # kept, their Polars allocator giving freed pages back at once
+    FRESH = "fresh"  # a new process for each task: nothing a task held outlives it
+
+
 def _releasing(function: Callable[..., Result], *args: Any) -> Result:
     """function(*args), then what malloc keeps of the memory the task freed given back to the
     system: the next task starts from what it needs (0.1-0.3 GB less in a build's workers)."""
@@ -103,8 +112,8 @@ def _failed(future: Future) -> bool:
 
 
 class Workers:
-    """Up to `jobs` worker processes, kept from one `map` to the next while as many are needed
-    (and as frugal).
+    """Up to `jobs` worker processes, kept from one `map` to the next while as many of the same
+    kind (`Processes`) are needed.
 
     Use as a context manager; the processes end with it. With jobs == 1, or a single task, the
     tasks run in this process.
@@ -115,7 +124,7 @@ class Workers:
             raise ValueError(f"jobs must be at least 1, got {jobs}")
         self.jobs = jobs
         self._pool: ProcessPoolExecutor | None = None
-        self._shape = (0, False)  # the running pool's size and frugality
+        self._shape = (0, Processes.KEPT)  # the running pool's size and kind
         self._saved_environment: dict[str, str | None] = {}
 
     def __enter__(self) -> Workers:
@@ -135,15 +144,19 @@ class Workers:
                 os.environ[name] = value
         self._saved_environment = {}
 
-    def _start(self, size: int, frugal: bool) -> ProcessPoolExecutor:
+    def _start(self, size: int, processes: Processes) -> ProcessPoolExecutor:
         """A pool of `size` processes, the cores shared out among them for Polars' threads (the
         environment is read when each process starts; see `worker_environment`)."""
         self._close()
-        settings = worker_environment(dict(os.environ), size, frugal)
+        settings = worker_environment(dict(os.environ), size, processes is Processes.FRUGAL)
         self._saved_environment = {name: os.environ.get(name) for name in settings}
         os.environ.update(settings)
-        self._pool = ProcessPoolExecutor(size, mp_context=get_context("spawn"))
-        self._shape = (size, frugal)
+        self._pool = ProcessPoolExecutor(
+            size,
+            mp_context=get_context("spawn"),
+            max_tasks_per_child=1 if processes is Processes.FRESH else None,
+        )
+        self._shape = (size, processes)
         return self._pool
 
     def map(
@@ -152,16 +165,18 @@ class Workers:
         tasks: Sequence[tuple[Any, ...]],
         finished: Callable[[int], None] = lambda _done: None,
         sizes: Sequence[float] | None = None,
-        frugal: bool = False,
+        *,
+        processes: Processes = Processes.KEPT,
     ) -> list[Result]:
         """[function(*task) for task in tasks], spread over the processes.
 
         `finished(n)` is called in this process after each of the n tasks done so far. A failure
         stops the tasks after it; the earliest failure in task order is raised here, as the task
         raised it, the one a single job would have met. `sizes`, a guess of each task's work,
-        starts the largest first: no large task is left to run alone at the end. `frugal` runs
-        them in processes whose Polars allocator gives freed memory back at once (new ones, if
-        the running ones are not): for tasks whose peak memory counts more than their speed.
+        starts the largest first: no large task is left to run alone at the end. `processes`:
+        what the processes keep of a task's freed memory (`Processes`; new ones are started
+        where the running ones are of another kind): for tasks whose peak memory counts more
+        than their speed, FRUGAL or FRESH, whichever costs less time.
         """
         size = min(self.jobs, len(tasks))
         if size <= 1:
@@ -170,8 +185,8 @@ class Workers:
                 results.append(_releasing(function, *task))
                 finished(len(results))
             return results
-        same = self._pool is not None and self._shape == (size, frugal)
-        pool = self._pool if same else self._start(size, frugal)
+        same = self._pool is not None and self._shape == (size, processes)
+        pool = self._pool if same else self._start(size, processes)
         order = (
             range(len(tasks))
             if sizes is None

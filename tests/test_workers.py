@@ -19,6 +19,7 @@ from ngsim_graphs.workers import (
     MALLOC_ARENAS,
     POLARS_JEMALLOC_DEFAULTS,
     POLARS_THREADS,
+    Processes,
     Workers,
     available_cores,
     worker_environment,
@@ -85,7 +86,7 @@ def test_workers_share_the_cores_and_leave_the_environment_as_it_was() -> None:
     before = dict(os.environ)
     with Workers(2) as workers:
         threads = workers.map(polars_threads, [(0,), (1,)])
-        workers.map(polars_threads, [(0,), (1,)], frugal=True)
+        workers.map(polars_threads, [(0,), (1,)], processes=Processes.FRUGAL)
     assert threads == [str(max(1, available_cores() // 2))] * 2
     assert dict(os.environ) == before
 
@@ -122,9 +123,9 @@ def test_frugal_tasks_run_in_their_own_processes_with_the_allocators_settings() 
     with Workers(2) as workers:
         plain = workers.map(allocator_settings, [(0,), (1,)])
         pids = set(workers.map(pid_after, tasks))
-        frugal = workers.map(allocator_settings, [(0,), (1,)], frugal=True)
-        frugal_pids = set(workers.map(pid_after, tasks, frugal=True))
-        again = set(workers.map(pid_after, tasks, frugal=True))
+        frugal = workers.map(allocator_settings, [(0,), (1,)], processes=Processes.FRUGAL)
+        frugal_pids = set(workers.map(pid_after, tasks, processes=Processes.FRUGAL))
+        again = set(workers.map(pid_after, tasks, processes=Processes.FRUGAL))
     # Polars puts its defaults first in each process, before what it was given.
     assert plain == [(f"{POLARS_JEMALLOC_DEFAULTS},{POLARS_JEMALLOC_DEFAULTS}", "1")] * 2
     given = f"{POLARS_JEMALLOC_DEFAULTS},{POLARS_JEMALLOC_DEFAULTS},{FRUGAL_JEMALLOC_CONF}"
@@ -133,11 +134,20 @@ def test_frugal_tasks_run_in_their_own_processes_with_the_allocators_settings() 
     assert frugal_pids == again, "kept while the tasks are as frugal"
 
 
+def test_fresh_processes_run_one_task_each() -> None:
+    with Workers(2) as workers:
+        kept = workers.map(pid_after, [(0.2,)] * 4)
+        fresh = workers.map(pid_after, [(0.2,)] * 4, processes=Processes.FRESH)
+    assert len(set(kept)) == 2
+    assert len(set(fresh)) == 4 and not set(fresh) & set(kept)
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_a_frugal_worker_gives_a_freed_table_back_at_once() -> None:
     with Workers(2) as workers:
+        tasks = [(0,), (1,)]
         (before, held, after), _ = workers.map(
-            resident_after_a_freed_table, [(0,), (1,)], frugal=True
+            resident_after_a_freed_table, tasks, processes=Processes.FRUGAL
         )
     assert held - before > 60e6, "the table was resident"
     assert after - before < 20e6, "and went back when freed"
