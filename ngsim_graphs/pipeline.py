@@ -79,8 +79,8 @@ def _stage_inputs(
 
     reading(0)
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
-    # A new process for each file: reading in one kept from an earlier file, or in one whose
-    # allocator gives memory back at once (twice as slow), peaked higher.
+    # A new process for each file: reading in one kept from an earlier file peaked higher, and
+    # in one whose allocator gives memory back at once (FRUGAL) took half as long again.
     sizes = [path.stat().st_size for path in files]
     read = workers.map(read_file, tasks, reading, sizes, processes=Processes.FRESH)
     reports = [report for report, _ in read]
@@ -334,10 +334,11 @@ def run_build(
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
     `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
     one per core this process may use); the output is the same for any number. The processes
-    that run the tasks keep to one malloc arena (`workers.one_malloc_arena`): with one job, this
-    process, for the rest of its life (the workers' allocators: `workers.worker_environment`).
-    The workers are started with multiprocessing's "spawn": a script that builds with jobs > 1
-    must do so under `if __name__ == "__main__":`.
+    that run the tasks keep to one malloc arena (`workers.worker_environment`). With one job,
+    and for a stage of a single task, the tasks run in this process; with one job it asks for
+    one arena for the rest of its life (`workers.one_malloc_arena`: only threads started after
+    keep to it). The workers are started with multiprocessing's "spawn": a script that builds
+    with jobs > 1 must do so under `if __name__ == "__main__":`.
     Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.

@@ -32,7 +32,7 @@ POLARS_THREADS = "POLARS_MAX_THREADS"
 # then "muzzy"), so that the tables a build task had freed stayed in its worker's resident memory
 # through the rest of the task and into its next. Given back at once (FRUGAL_JEMALLOC_CONF), a
 # task's pages must be faulted in anew each time it allocates: reading and cleaning, which
-# allocate and free much, took twice as long, building no longer.
+# allocate and free much, took half as long again and twice as long, building no longer.
 JEMALLOC_CONF = "_RJEM_MALLOC_CONF"
 POLARS_JEMALLOC_DEFAULTS = "dirty_decay_ms:500,muzzy_decay_ms:1000"
 FRUGAL_JEMALLOC_CONF = "dirty_decay_ms:0,muzzy_decay_ms:0"
@@ -134,15 +134,17 @@ class Workers:
         self._close(cancel=exc_type is not None)  # after an error or Ctrl-C, start nothing more
 
     def _close(self, cancel: bool = False) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=cancel)
-            self._pool = None
-        for name, value in self._saved_environment.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-        self._saved_environment = {}
+        pool, self._pool = self._pool, None
+        try:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=cancel)
+        finally:  # a second Ctrl-C while waiting: the environment is still given back
+            for name, value in self._saved_environment.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+            self._saved_environment = {}
 
     def _start(self, size: int, processes: Processes) -> ProcessPoolExecutor:
         """A pool of `size` processes, the cores shared out among them for Polars' threads (the
@@ -154,6 +156,7 @@ class Workers:
         self._pool = ProcessPoolExecutor(
             size,
             mp_context=get_context("spawn"),
+            # 1 or None only: CPython 3.11-3.13 can hang with more (gh-115634).
             max_tasks_per_child=1 if processes is Processes.FRESH else None,
         )
         self._shape = (size, processes)
