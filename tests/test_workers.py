@@ -6,6 +6,7 @@ The tasks are module-level functions of this file: a spawned worker imports them
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
 
@@ -112,6 +113,17 @@ def test_worker_environment_shares_cores_and_lets_the_users_settings_win() -> No
         MALLOC_ARENAS: "1",
         JEMALLOC_CONF: FRUGAL_JEMALLOC_CONF,
     }
+
+
+def test_polars_puts_the_allocator_defaults_that_frugal_processes_expect() -> None:
+    """worker_environment tells a user's own decay from Polars' defaults by their text: a Polars
+    whose defaults differ would leave frugal processes as they are, and fail here."""
+    environment = {k: v for k, v in os.environ.items() if k not in (JEMALLOC_CONF, "POLARS_THP")}
+    code = "import os, polars; print(os.environ['_RJEM_MALLOC_CONF'])"
+    shown = subprocess.run(
+        [sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=True
+    )
+    assert shown.stdout.strip() == POLARS_JEMALLOC_DEFAULTS
 
 
 USERS_ALLOCATOR = pytest.mark.skipif(
