@@ -176,6 +176,20 @@ def node_arrays(nodes: pl.DataFrame) -> RecordingArrays:
     )
 
 
+def nodes_of_steps(rec: RecordingArrays, first: int, end: int) -> pl.DataFrame:
+    """The grid nodes of steps [first, end) as far as `proximity_pairs` needs them: step, track
+    id, x and y, as GRID_NODE_SCHEMA types them (`grid_nodes`' rows, from the arrays)."""
+    lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[end])
+    step = np.repeat(np.arange(first, end, dtype=np.int32), np.diff(rec.step_ptr[first : end + 1]))
+    columns = {
+        s.STEP: step,
+        s.TRACK_ID: rec.node_track[lo:hi],
+        s.X_M: rec.node_state[lo:hi, 0],
+        s.Y_M: rec.node_state[lo:hi, 1],
+    }
+    return pl.DataFrame(columns, schema={name: s.GRID_NODE_SCHEMA[name] for name in columns})
+
+
 def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
     """`rec` with the pair arrays of `pairs` (PROXIMITY_SCHEMA, sorted by step, track_a,
     track_b): endpoints as rows, lower y first, sorted by (step, lower y).

@@ -256,25 +256,35 @@ def neighbourhoods_of_rows(
     return hood
 
 
-def joined(parts: list[Neighbourhoods]) -> Neighbourhoods:
-    """The neighbourhoods of consecutive ranges of ego rows as one."""
-    fields = ("rows", *_FIELDS)
-    return Neighbourhoods(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
-
-
 _FIELDS = ("nodes", "actor_pairs", "kept", "full_future", "ego_full_future", "low", "high")
 
 
 def _positions(hood: Neighbourhoods, history: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(present, at): where each history row is present, and its index in hood.rows (0 where
-    absent; hood.rows holds every present row)."""
-    present = history >= 0
-    return present, np.searchsorted(hood.rows, np.where(present, history, 0))
+    """(held, at): which history rows `hood` holds (present rows of its range of steps), and
+    their index in hood.rows (0 where not held)."""
+    if len(hood.rows) == 0:
+        return np.zeros(history.shape, bool), np.zeros(history.shape, np.int64)
+    at = np.minimum(np.searchsorted(hood.rows, history), len(hood.rows) - 1)
+    held = (history >= 0) & (hood.rows[at] == history)
+    return held, np.where(held, at, 0)
+
+
+def row_bounds(history: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last): each sample's lowest and highest present row of (B, K_H) `history_rows`
+    (its present row is the last): the ranges of steps whose neighbourhoods it needs."""
+    first = np.empty(len(history), history.dtype)
+    for part in _sample_chunks(len(history)):
+        rows = history[part]
+        first[part] = np.where(rows >= 0, rows, np.iinfo(history.dtype).max).min(axis=1)
+    return first, history[:, -1].copy()
 
 
 def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
     """(B, 5) int64 per sample, in schema.COUNT_COLUMNS order: nodes, spatial edges, temporal
-    edges, targets, targets with a full future, from its (B, K_H) `history_rows`."""
+    edges, targets, targets with a full future, from its (B, K_H) `history_rows`.
+
+    Only the rows `hood` holds count (the targets: if it holds the present row): the counts of
+    the neighbourhoods of consecutive ranges of steps add up to those of all at once."""
     counts = np.empty((len(history), 5), np.int64)
     for part in _sample_chunks(len(history)):
         counts[part] = _counts(hood, history[part], config)
@@ -283,17 +293,19 @@ def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig
 
 def _counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
     present, at = _positions(hood, history)
+    if len(hood.rows) == 0:
+        return np.zeros((len(history), 5), np.int64)
     nodes = np.where(present, hood.nodes[at], 0)
     spatial = 2 * (nodes - present) + 2 * np.where(present, hood.actor_pairs[at], 0)
     temporal = np.where(present, hood.kept[at], 0)[:, :-1]  # from each step to the next
-    now = at[:, -1]
+    now, held = at[:, -1], present[:, -1]
     if config.protocol is Protocol.CS_LSTM:
-        targets = np.ones(len(now), np.int64)
-        full = hood.ego_full_future[now].astype(np.int64)
+        targets = held.astype(np.int64)
+        full = (hood.ego_full_future[now] & held).astype(np.int64)
     else:
         ego = int(config.ego_is_target)
-        targets = hood.nodes[now] - 1 + ego
-        full = hood.full_future[now] + ego * hood.ego_full_future[now]
+        targets = np.where(held, hood.nodes[now] - 1 + ego, 0)
+        full = np.where(held, hood.full_future[now] + ego * hood.ego_full_future[now], 0)
     return np.stack(
         [nodes.sum(axis=1), spatial.sum(axis=1), temporal.sum(axis=1), targets, full], axis=1
     )
@@ -303,7 +315,13 @@ def train_ranges(
     rec: RecordingArrays, hood: Neighbourhoods, history: np.ndarray, is_train: np.ndarray
 ) -> MinMaxScaler:
     """The minima and maxima of SCALED over the graphs of the train samples (`is_train`, (B,)
-    bool) as a scaler: x and y in each sample's frame, with its present ego at (0, 0)."""
+    bool) as a scaler: x and y in each sample's frame, with its present ego at (0, 0).
+
+    Only the rows `hood` holds count: the scalers of the neighbourhoods of consecutive ranges of
+    steps, joined, are that of all at once (a minimum of minima; the ego's frame is a
+    subtraction, which rounds monotonically)."""
+    if len(hood.rows) == 0:
+        return MinMaxScaler.empty()
     low, high = dict.fromkeys(SCALED, np.inf), dict.fromkeys(SCALED, -np.inf)
     used = np.zeros(len(hood.rows), bool)
     train = np.flatnonzero(is_train)

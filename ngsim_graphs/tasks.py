@@ -10,9 +10,10 @@ docs/build-format.md: the dataset induces them from the frame arrays).
 A recording is cleaned a part of its vehicles at a time (VEHICLES_PER_PART), and its proximity
 pairs, ten a grid row in a dense recording, are found, written and used a range of steps at a
 time (PIECE_ROWS): a reading task holds its file's parsed rows and one part of them at a time,
-a cleaning task a part of the raw rows, a build task a recording's grid rows (its grid nodes and
-node arrays; its tracks table only while writing it; under cs-lstm also its raw rows' five
-columns) and a range of pairs.
+a cleaning task a part of the raw rows, a build task a recording's grid rows (its node arrays;
+its grid nodes until the arrays and windows are made of them; its tracks table streamed, never
+whole; under cs-lstm also its raw rows' five columns until then), its samples' windows and
+counts, and a range of pairs and their neighbourhoods.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from ngsim_graphs.grid import (
     RecordingArrays,
     grid_nodes,
     node_arrays,
+    nodes_of_steps,
     proximity_pairs,
     step_pieces,
     with_pairs,
@@ -40,8 +42,8 @@ from ngsim_graphs.grid import (
 from ngsim_graphs.neighbourhoods import (
     ego_rows,
     history_rows,
-    joined,
     neighbourhoods_of_rows,
+    row_bounds,
     rows_by_y,
     sample_counts,
     train_ranges,
@@ -57,72 +59,81 @@ from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script
 # number, not by the size of the recording (its grid rows are still held whole).
 PIECE_ROWS = 131_072
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
+# The columns of the tracks table that `grid_nodes` reads.
+GRID_NODE_INPUTS = (s.TIME_S, *(c for c in s.GRID_NODE_SCHEMA.names() if c != s.STEP))
 # Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
 PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
 
 
 @dataclass(frozen=True)
 class RecordingSamples:
-    """What one recording contributes to a build, but its pairs (given to a PairSink)."""
+    """What one recording's samples contribute to a build, but its pairs (given to a PairSink)."""
 
     arrays: RecordingArrays  # pair_rows, pair_dist and pair_key empty: they went to the sink
     proximity_edges: int
     windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
     train_ranges: MinMaxScaler  # what this recording's train samples observed
-    script_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
 
 
-def recording_samples(
+def recording_windows(
     nodes: pl.DataFrame,
     recording_index: int,
     config: BuildConfig,
-    write_pairs: PairSink,
     raw: pl.DataFrame | None = None,
     dataset_id: int = 0,
-) -> RecordingSamples:
-    """Frame arrays, proximity edges and split ego windows of one recording's grid nodes
-    (`grid_nodes`).
+) -> tuple[pl.DataFrame, ScriptRows | None]:
+    """The split ego windows of one recording's grid nodes (`grid_nodes`), and under the cs-lstm
+    protocol what it made of CS-LSTM's rows (None under aigem).
 
-    The pairs go to `write_pairs` a range of steps at a time (PIECE_ROWS), each range's used
-    for the neighbourhoods of the ego rows of its steps and then let go. Under the cs-lstm
-    protocol the windows are CS-LSTM's kept rows of `raw` (the recording's rows before
-    cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS).
-    """
-    arrays = node_arrays(nodes)
-    script = None
+    Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
+    rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS)."""
     if config.protocol is Protocol.CS_LSTM:
         if raw is None:
             raise ValueError("the cs-lstm protocol needs the recording's raw rows")
-        windows, script = script_windows(raw, nodes, dataset_id, config)
-    else:
-        max_vehicle_id = int(nodes[s.VEHICLE_ID].max()) if nodes.height else 0
-        windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
+        return script_windows(raw, nodes, dataset_id, config)
+    max_vehicle_id = int(nodes[s.VEHICLE_ID].max()) if nodes.height else 0
+    windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
+    return windows, None
+
+
+def recording_samples(
+    arrays: RecordingArrays, windows: pl.DataFrame, config: BuildConfig, write_pairs: PairSink
+) -> RecordingSamples:
+    """Proximity edges, and the counts and the scaler's ranges of the split ego `windows`
+    (`recording_windows`), of one recording's frame arrays (`node_arrays`).
+
+    A range of steps at a time (PIECE_ROWS): its pairs go to `write_pairs`, the neighbourhoods
+    of its ego rows are found with them, and what those add to each sample that has history rows
+    in the range is summed up; then the range's pairs and neighbourhoods are let go.
+    """
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     history = history_rows(arrays, egos, starts, config)
     rows = ego_rows(history, len(arrays.node_track))
+    first_row, last_row = row_bounds(history)
+    is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
     by_y = rows_by_y(arrays)
-    pair_ptr, n_pairs, hoods = np.zeros_like(arrays.pair_ptr), 0, []
+    counts = np.zeros((len(history), len(s.COUNT_COLUMNS)), np.int64)
+    train = MinMaxScaler.empty()
+    pair_ptr, n_pairs = np.zeros_like(arrays.pair_ptr), 0
     # A recording without grid rows is one empty piece: its pair files are still written.
     for first, end in step_pieces(arrays.step_ptr, PIECE_ROWS) or [(0, 0)]:
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
-        pairs = proximity_pairs(nodes.slice(lo, hi - lo), config.d_min_m)
+        pairs = proximity_pairs(nodes_of_steps(arrays, first, end), config.d_min_m)
         piece = with_pairs(arrays, pairs)
         write_pairs(pairs, piece)
         pair_ptr += piece.pair_ptr
         n_pairs += pairs.height
         mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
-        hoods.append(neighbourhoods_of_rows(piece, mine, by_y, config))
-        del pairs, piece  # before the next piece is made
-    hood = joined(hoods)
-    del hoods
-    table = sample_counts(hood, history, config)
-    is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
-    train = train_ranges(arrays, hood, history, is_train)
+        hood = neighbourhoods_of_rows(piece, mine, by_y, config)
+        touched = np.flatnonzero((last_row >= lo) & (first_row < hi))
+        counts[touched] += sample_counts(hood, history[touched], config)
+        train = train.joined(train_ranges(piece, hood, history[touched], is_train[touched]))
+        del pairs, piece, hood  # before the next piece is made
     windows = windows.with_columns(
-        pl.Series(name, table[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
+        pl.Series(name, counts[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
     arrays = replace(arrays, pair_ptr=pair_ptr)
-    return RecordingSamples(arrays, n_pairs, windows, train, script)
+    return RecordingSamples(arrays, n_pairs, windows, train)
 
 
 @dataclass(frozen=True)
@@ -205,15 +216,16 @@ def build_recording(
     """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
     worker's task)."""
     parts = [layout.staged_tracks_path(root, *key, part) for part in sorted(staged)]
-    # In one chunk: the bytes written do not depend on the parts it was cleaned in.
-    tracks = (
-        pl.read_parquet(parts)
-        .with_columns((pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID]))
-        .rechunk()
+    # Streamed, never held whole, in row groups of a fixed size: the bytes written do not
+    # depend on the parts it was cleaned in. The grid nodes read back what they need of it.
+    tracks = pl.scan_parquet(parts).with_columns(
+        (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
     )
-    layout.write_parquet(tracks, layout.tracks_path(root, *key))
-    nodes = grid_nodes(tracks, config.time_step_s)
-    del tracks  # written: the grid nodes are all the rest needs of it
+    layout.sink_parquet(tracks, layout.tracks_path(root, *key))
+    nodes = grid_nodes(
+        pl.read_parquet(layout.tracks_path(root, *key), columns=list(GRID_NODE_INPUTS)),
+        config.time_step_s,
+    )
     raw = None
     if config.protocol is Protocol.CS_LSTM:
         # In any order but that of a vehicle's rows of one frame (cslstm.ordered_rows sorts
@@ -223,6 +235,9 @@ def build_recording(
     # The vehicle split's largest ids: the script's are of the rows before cleaning.
     split_by = nodes if raw is None else raw
     ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
+    windows, script = recording_windows(nodes, index, config, raw, DATASET_IDS.get(key, 0))
+    arrays = node_arrays(nodes)
+    del nodes, split_by, raw  # the arrays and windows are all the rest needs of them
     folder = layout.recording_arrays_dir(root, *key)
     with (
         layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
@@ -233,7 +248,8 @@ def build_recording(
             table.append(pairs)
             pair_files.append({name: getattr(piece, name) for name in PAIR_ARRAYS})
 
-        samples = recording_samples(nodes, index, config, write_pairs, raw, DATASET_IDS.get(key, 0))
+        samples = recording_samples(arrays, windows, config, write_pairs)
+    del arrays, windows  # the samples' own, with the pairs' index and the counts, follow
     arrays = samples.arrays
     layout.write_arrays(
         folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in PAIR_ARRAYS}
@@ -259,6 +275,6 @@ def build_recording(
         samples.proximity_edges,
         windows_path,
         per_split,
-        samples.script_rows,
+        script,
         samples.train_ranges,
     )

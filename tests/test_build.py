@@ -237,25 +237,28 @@ def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
     assert (old.counts, old.scaler, old.recordings) == (new.counts, new.scaler, new.recordings)
 
 
-def test_samples_tables_streamed_in_small_row_groups_hold_the_same_samples(
+def test_tables_streamed_in_small_row_groups_hold_the_same_rows(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The samples tables streamed from the recordings' staged samples 100 rows a row group (the
-    default holds a split here in one): the same rows, numbered over both recordings; every
-    other file of the build is the same, byte for byte."""
+    """The samples tables streamed from the recordings' staged samples, and the tracks tables
+    from their staged parts, 100 rows a row group (the default holds each here in one): the
+    same rows, the samples numbered over both recordings; every other file of the build is the
+    same, byte for byte."""
     raw, first = synthetic_build(tmp_path_factory)
     monkeypatch.setattr(layout, "SINK_ROW_GROUP_ROWS", 100)
     run_build([raw], tmp_path / "streamed", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "streamed")
-    tables = [name for name in before if name.startswith(layout.SAMPLES_DIR)]
-    assert len(tables) == 3
-    assert [name for name in before if before[name] != after[name]] == tables
-    for name in tables:
+    samples = [name for name in before if name.startswith(layout.SAMPLES_DIR)]
+    tracks = [name for name in before if name.startswith(layout.TRACKS_DIR)]
+    assert (len(samples), len(tracks)) == (3, 2)
+    assert [name for name in before if before[name] != after[name]] == sorted(tracks + samples)
+    for name in samples + tracks:
         whole, streamed = (
             pl.read_parquet(first / name),
             pl.read_parquet(tmp_path / "streamed" / name),
         )
-        assert streamed[s.LOCATION].n_unique() == 2 or streamed[s.PERIOD].n_unique() == 2
+        if name in samples:
+            assert streamed[s.LOCATION].n_unique() == 2 or streamed[s.PERIOD].n_unique() == 2
         assert_frame_equal(whole, streamed)
         groups = pq.ParquetFile(tmp_path / "streamed" / name).metadata.num_row_groups
         assert groups == -(-whole.height // 100) > 1

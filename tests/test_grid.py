@@ -15,6 +15,7 @@ from ngsim_graphs.grid import (
     PAIR_KEY_STEP,
     grid_nodes,
     node_arrays,
+    nodes_of_steps,
     proximity_pairs,
     recording_arrays,
     step_pieces,
@@ -209,7 +210,9 @@ def test_pairs_a_piece_of_steps_at_a_time_are_the_pairs_of_all_steps(rows_per_pi
     pieces, tables = [], []
     for first, end in step_pieces(indexed.step_ptr, rows_per_piece):
         lo, hi = int(indexed.step_ptr[first]), int(indexed.step_ptr[end])
-        tables.append(proximity_pairs(nodes.slice(lo, hi - lo), 25.0))
+        piece_nodes = nodes_of_steps(indexed, first, end)
+        assert_frame_equal(piece_nodes, nodes.slice(lo, hi - lo).select(piece_nodes.columns))
+        tables.append(proximity_pairs(piece_nodes, 25.0))
         pieces.append(with_pairs(indexed, tables[-1]))
     assert len(pieces) > 1 or rows_per_piece == 400
     assert_frame_equal(pl.concat(tables), proximity_pairs(nodes, 25.0))

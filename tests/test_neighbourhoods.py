@@ -17,8 +17,26 @@ from ngsim_graphs import neighbourhoods as neighbourhoods_module
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, induce_graphs
-from ngsim_graphs.grid import RecordingArrays, grid_nodes, proximity_pairs, recording_arrays
-from ngsim_graphs.neighbourhoods import history_rows, neighbourhoods, sample_counts, train_ranges
+from ngsim_graphs.grid import (
+    RecordingArrays,
+    grid_nodes,
+    node_arrays,
+    nodes_of_steps,
+    proximity_pairs,
+    recording_arrays,
+    step_pieces,
+    with_pairs,
+)
+from ngsim_graphs.neighbourhoods import (
+    ego_rows,
+    history_rows,
+    neighbourhoods,
+    neighbourhoods_of_rows,
+    row_bounds,
+    rows_by_y,
+    sample_counts,
+    train_ranges,
+)
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Protocol
 
@@ -135,6 +153,51 @@ def test_random_scenes_match_the_induced_graphs(
     assert checked > 50 and counts[:, 2].sum() > 0 and counts[:, 4].sum() > 0
     if config.stride_steps < config.history_steps or config.protocol is Protocol.CS_LSTM:
         assert shared > 0, "rows in several samples' histories are looked at once"
+
+
+@pytest.mark.parametrize("config", SCENE_CONFIGS[:2] + CSLSTM_CONFIGS)
+def test_counts_and_ranges_of_ranges_of_steps_add_up_to_those_of_all_steps(
+    config: BuildConfig,
+) -> None:
+    """As a build finds them: the pairs and neighbourhoods of one range of steps at a time,
+    each range's counts added to every sample and its scaler joined; a sample's history often
+    spans two ranges, and a range of one step holds a part of many samples."""
+    rng = np.random.default_rng(23)
+    spanned = 0
+    for rows_per_piece in (1, 9, 60, 10_000):
+        table = random_scene(rng, config)
+        windows = cslstm_windows if config.protocol is Protocol.CS_LSTM else all_windows
+        egos, starts = (np.array(v, dtype=np.int64) for v in windows(table, config))
+        rec = arrays_of(table, config)
+        is_train = rng.random(len(egos)) < 0.6
+        expected_counts, expected = counted(rec, egos, starts, is_train, config)
+        history = history_rows(rec, egos, starts, config)
+        bare = node_arrays(
+            grid_nodes(
+                table.with_columns((pl.col(s.STEP) * config.time_step_s).alias(s.TIME_S)).drop(
+                    s.STEP
+                ),
+                config.time_step_s,
+            )
+        )
+        rows, by_y = ego_rows(history, len(bare.node_track)), rows_by_y(bare)
+        first_row, last_row = row_bounds(history)
+        counts, ranges = np.zeros_like(expected_counts), MinMaxScaler.empty()
+        for first, end in step_pieces(bare.step_ptr, rows_per_piece):
+            lo, hi = int(bare.step_ptr[first]), int(bare.step_ptr[end])
+            pairs = proximity_pairs(nodes_of_steps(bare, first, end), config.d_min_m)
+            piece = with_pairs(bare, pairs)
+            hood = neighbourhoods_of_rows(piece, rows[(rows >= lo) & (rows < hi)], by_y, config)
+            # Every sample, touched or not, as row_bounds tells the build which to take.
+            added = sample_counts(hood, history, config)
+            untouched = (last_row < lo) | (first_row >= hi)
+            assert not added[untouched].any()
+            counts += added
+            ranges = ranges.joined(train_ranges(piece, hood, history, is_train))
+            spanned += int(((first_row < lo) & (last_row >= lo)).sum())
+        assert np.array_equal(counts, expected_counts)
+        assert ranges.low == expected.low and ranges.high == expected.high  # exactly
+    assert spanned > 10 and expected_counts[:, 1].sum() > 0
 
 
 def test_a_position_that_is_not_finite_is_refused() -> None:
