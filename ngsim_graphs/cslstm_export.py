@@ -125,7 +125,7 @@ def read_file_rows(path: Path) -> tuple[dict[tuple[str, str], pl.DataFrame], Inp
     fits none of them is a stray, counted and dropped.
     """
     raw = read_raw_file(path, LOCATIONS)
-    frame = raw.frame.with_row_index("row")
+    frame = raw.frame.collect().with_row_index("row")
     complete = frame.select(pl.all_horizontal(pl.col(_NEEDED).is_not_null())).to_series()
     if not complete.any():
         raise NgsimInputError(

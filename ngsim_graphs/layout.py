@@ -172,7 +172,9 @@ class TableAppender:
     Without dictionary pages: for the numeric tables written so (the proximity pairs) that is
     smaller and faster, within 2 % of what `write_parquet` writes of the whole table."""
 
-    def __init__(self, path: Path, schema: pl.Schema) -> None:
+    def __init__(
+        self, path: Path, schema: pl.Schema, compression: str = PARQUET_COMPRESSION
+    ) -> None:
         import pyarrow.parquet as pq  # 0.3 s to import: only a build needs it
 
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -182,7 +184,7 @@ class TableAppender:
             self._writer = pq.ParquetWriter(
                 path,
                 arrow_schema,
-                compression=PARQUET_COMPRESSION,
+                compression=compression,
                 use_dictionary=False,
                 write_statistics=True,
             )
@@ -230,6 +232,12 @@ def staged_raw_path(root: Path, location: str, period: str, part: int, file_inde
     while building."""
     name = f"raw-{part:05d}-{file_index:04d}.parquet"
     return root / STAGING_DIR / recording_name(location, period) / name
+
+
+def staged_scratch_dir(root: Path, file_index: int) -> Path:
+    """A folder for what a source writes while reading one input file (its parsed rows), kept
+    only until the file's rows are staged."""
+    return root / STAGING_DIR / f"_read-{file_index:04d}"
 
 
 def staged_tracks_path(root: Path, location: str, period: str, part: int) -> Path:

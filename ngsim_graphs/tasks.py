@@ -9,7 +9,8 @@ docs/build-format.md: the dataset induces them from the frame arrays).
 
 A recording is cleaned a part of its vehicles at a time (VEHICLES_PER_PART), and its proximity
 pairs, ten a grid row in a dense recording, are found, written and used a range of steps at a
-time (PIECE_ROWS): a reading task holds its file's parsed rows and one part of them at a time,
+time (PIECE_ROWS): a reading task streams its file's parsed rows into a scratch file and
+stages them a batch at a time (BATCH_ROWS),
 a cleaning task a part of the raw rows, a build task a recording's grid rows (its node arrays;
 its grid nodes until the arrays and windows are made of them; its tracks table streamed, never
 whole; under cs-lstm also its raw rows' five columns until then), its samples' windows and
@@ -18,6 +19,9 @@ counts, and a range of pairs and their neighbourhoods.
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -50,7 +54,13 @@ from ngsim_graphs.neighbourhoods import (
 )
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Protocol, Split
-from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
+from ngsim_graphs.sources.contract import (
+    FileReport,
+    FileRows,
+    RecordingKey,
+    RecordingReport,
+    Source,
+)
 from ngsim_graphs.splits import assign_splits
 from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script_windows
 
@@ -164,21 +174,58 @@ def read_file(
     source: Source, path: Path, config: BuildConfig, file_index: int, root: Path, strict: bool
 ) -> tuple[FileReport, dict[RecordingKey, dict[int, Path]]]:
     """Read one input file and stage its rows per recording and part (a worker's task)."""
-    read = source.read_file(path, config, file_index, strict)
-    staged: dict[RecordingKey, dict[int, Path]] = {}
-    part_of = pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART
-    for key in sorted(read.recordings):
-        ids = read.recording_rows(key).select(s.VEHICLE_ID).collect()[s.VEHICLE_ID]
-        if ids.null_count():  # the contract says every row has one
-            raise ValueError(f"{path}: rows of {key} without a vehicle id")
-        # A recording without rows is still staged (part 0, empty): it is built, with no sample.
-        parts = ids.to_frame().select(part_of.unique().sort()).to_series().to_list() or [0]
-        staged[key] = {}
-        for part in parts:  # copied a part at a time: never a whole recording's rows at once
-            staged[key][part] = layout.staged_raw_path(root, *key, part, file_index)
-            rows = read.recording_rows(key, part_of == part).collect()
-            layout.write_staged(rows, staged[key][part])
-    return read.report, staged
+    scratch = layout.staged_scratch_dir(root, file_index)
+    try:
+        read = source.read_file(path, config, file_index, strict, scratch)
+        return read.report, stage_rows(read, path, root, file_index)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+# A file's rows are staged this many at a time, each batch's rows appended to the files of their
+# recordings' parts: never a whole file's or recording's rows at once.
+BATCH_ROWS = 262_144
+_PART = "__part"
+
+
+def stage_rows(
+    read: FileRows, path: Path, root: Path, file_index: int
+) -> dict[RecordingKey, dict[int, Path]]:
+    """Each chosen recording's rows of one file, staged per part of its vehicles; the rows of
+    a part in the order they were read. A recording without rows is still staged (part 0,
+    empty): it is built, with no sample."""
+    keys = {index: key for key, index in read.recordings.items()}
+    columns = [c for c in read.rows.collect_schema().names() if c != s.RECORDING_INDEX]
+    part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
+    staged: dict[RecordingKey, dict[int, Path]] = {key: {} for key in keys.values()}
+    with contextlib.ExitStack() as files:
+        writers: dict[tuple[int, int], layout.TableAppender] = {}
+        for offset in itertools.count(0, BATCH_ROWS):
+            batch = read.rows.slice(offset, BATCH_ROWS).collect(engine="streaming")
+            mine = batch.filter(pl.col(s.RECORDING_INDEX).is_in(list(keys)))
+            if mine[s.VEHICLE_ID].null_count():  # the contract says every row has one
+                index = mine.filter(pl.col(s.VEHICLE_ID).is_null())[s.RECORDING_INDEX][0]
+                raise ValueError(f"{path}: rows of {keys[index]} without a vehicle id")
+            groups = mine.with_columns(part_of).partition_by(
+                s.RECORDING_INDEX, _PART, as_dict=True, maintain_order=True
+            )
+            for (index, part), rows in groups.items():
+                if (index, part) not in writers:
+                    target = layout.staged_raw_path(root, *keys[index], part, file_index)
+                    staged[keys[index]][part] = target
+                    rows_schema = rows.select(columns).schema
+                    writers[index, part] = files.enter_context(
+                        layout.TableAppender(target, rows_schema, compression="lz4")
+                    )
+                writers[index, part].append(rows.select(columns))
+            if batch.height < BATCH_ROWS:
+                break
+    schema = read.rows.select(columns).collect_schema()
+    for key, parts in staged.items():
+        if not parts:
+            parts[0] = layout.staged_raw_path(root, *key, 0, file_index)
+            layout.write_staged(pl.DataFrame(schema=schema), parts[0])
+    return {key: dict(sorted(staged[key].items())) for key in sorted(staged)}
 
 
 def clean_recording(

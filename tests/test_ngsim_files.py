@@ -16,7 +16,7 @@ US = ("us-101", "i-80")
 
 
 def values(path: Path) -> list[tuple]:
-    return read_raw_file(path, US).frame.drop(ROW, s.LOCATION).rows()
+    return read_raw_file(path, US).frame.drop(ROW, s.LOCATION).collect().rows()
 
 
 def test_each_format_is_detected_from_content_not_name(tmp_path: Path) -> None:
@@ -44,7 +44,7 @@ def test_portal_quirks_bom_crlf_and_quoted_thousands(tmp_path: Path) -> None:
     path = write_portal(tmp_path / "p.csv", [make_row(1, 5, local_y_ft=1156.0, v_vel_fps=9.5)])
     raw = path.read_bytes()
     assert raw.startswith(b"\xef\xbb\xbf") and b"\r\n" in raw and b'"1,156"' in raw
-    frame = read_raw_file(path, US).frame
+    frame = read_raw_file(path, US).frame.collect()
     assert frame[s.LOCAL_Y].to_list() == [1156.0]
     assert frame[s.TIME_HEADWAY].to_list() == [9999.99]  # was "9,999.99"
     assert frame[s.GLOBAL_TIME].dtype == s.RAW_SCHEMA[s.GLOBAL_TIME]
@@ -59,7 +59,7 @@ def test_header_spelling_and_case_variants(tmp_path: Path) -> None:
     path = write_period_csv(
         tmp_path / "c.csv", straight_track(3, range(2)), header=header, crlf=True
     )
-    frame = read_raw_file(path, US).frame
+    frame = read_raw_file(path, US).frame.collect()
     assert frame[s.VEHICLE_ID].to_list() == [3, 3]
     assert frame[s.V_LENGTH].to_list() == [15.0, 15.0]
 
@@ -71,13 +71,13 @@ def test_text_with_padding_blank_lines_and_no_final_newline(tmp_path: Path) -> N
     assert not path.read_bytes().endswith(b"\n")
     raw = read_raw_file(path, US)
     assert raw.rows_read == 3
-    assert raw.frame[s.FRAME_ID].to_list() == [0, 1, 2]
-    assert raw.frame[ROW].to_list() == [0, 3, 4]  # line numbers stay true to the file
+    assert raw.frame.collect()[s.FRAME_ID].to_list() == [0, 1, 2]
+    assert raw.frame.collect()[ROW].to_list() == [0, 3, 4]  # line numbers stay true to the file
 
 
 def test_empty_fields_become_null(tmp_path: Path) -> None:
     rows = [make_row(1, 0), make_row(1, 1, v_acc=None, local_x=None)]
-    frame = read_raw_file(write_portal(tmp_path / "p.csv", rows), US).frame
+    frame = read_raw_file(write_portal(tmp_path / "p.csv", rows), US).frame.collect()
     assert frame[s.V_ACC].to_list() == [0.0, None]
     assert frame[s.LOCAL_X].to_list() == [18.0, None]
 
@@ -88,7 +88,7 @@ def test_location_filter_counts_and_keeps_chosen(tmp_path: Path) -> None:
     raw = read_raw_file(path, ("us-101",))
     assert raw.rows_read == 3 and raw.rows_other_locations == 2
     assert raw.locations_found == ("i-80", "lankershim", "us-101")
-    assert raw.frame[s.LOCATION].to_list() == ["us-101"]
+    assert raw.frame.collect()[s.LOCATION].to_list() == ["us-101"]
 
 
 def test_file_without_chosen_locations_names_those_it_holds(tmp_path: Path) -> None:

@@ -22,7 +22,7 @@ def source_of(vehicle_ids: list[int | None], recording: list[int | None]) -> Sou
         {s.VEHICLE_ID: vehicle_ids, s.RECORDING_INDEX: recording},
         schema={s.VEHICLE_ID: pl.Int32, s.RECORDING_INDEX: pl.Int32},
     )
-    read = FileRows(rows, {KEY: 0, OTHER: 1}, report=None)  # the report is passed on as is
+    read = FileRows(rows.lazy(), {KEY: 0, OTHER: 1}, report=None)  # the report is passed on as is
     return Source("fake", lambda paths: (paths, []), lambda *_: read, None, None)
 
 
@@ -53,6 +53,54 @@ def test_a_part_holds_only_its_own_recording_rows(
     _, staged = tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
     assert staged_ids(staged[KEY]) == {0: [3], 2: [9]}
     assert staged_ids(staged[OTHER]) == {0: [3], 1: [5]}
+
+
+@pytest.mark.parametrize("batch_rows", [1, 3])
+def test_rows_staged_a_batch_at_a_time_are_staged_in_the_order_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, batch_rows: int
+) -> None:
+    """Batches of 1 and 3 rows: each part's file holds its rows of every batch, in the order
+    they were read, as one batch of all of them stages them (and nothing else is left)."""
+    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    ids, recording = [7, 3, 9, 4, 3, 5, 7, 1], [0, 0, 1, 0, None, 1, 0, 0]
+    _, whole = tasks.read_file(
+        source_of(ids, recording), Path("f.txt"), BuildConfig(), 1, tmp_path / "a", False
+    )
+    monkeypatch.setattr(tasks, "BATCH_ROWS", batch_rows)
+    _, batched = tasks.read_file(
+        source_of(ids, recording), Path("f.txt"), BuildConfig(), 1, tmp_path / "b", False
+    )
+    assert staged_ids(whole[KEY]) == {0: [3, 1], 1: [7, 4, 7]}
+    assert staged_ids(whole[OTHER]) == {1: [5], 2: [9]}
+    assert {k: staged_ids(v) for k, v in batched.items()} == {
+        k: staged_ids(v) for k, v in whole.items()
+    }
+    staging = tmp_path / "b" / layout.STAGING_DIR
+    assert sorted(p.name for p in staging.iterdir()) == [
+        layout.recording_name(*k) for k in (KEY, OTHER)
+    ]
+
+
+def test_a_source_scratch_folder_is_removed_after_staging_and_after_an_error(
+    tmp_path: Path,
+) -> None:
+    """The source is given a folder of its own per file, which is gone once the task ends."""
+    seen = []
+
+    def read_file(path, config, file_index, strict, scratch):
+        seen.append(scratch)
+        scratch.mkdir(parents=True)
+        (scratch / "parsed.parquet").write_bytes(b"x")
+        if file_index == 1:
+            raise ValueError("a bad file")
+        return FileRows(pl.LazyFrame({s.VEHICLE_ID: [3], s.RECORDING_INDEX: [0]}), {KEY: 0}, None)
+
+    source = Source("fake", lambda paths: (paths, []), read_file, None, None)
+    tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
+    with pytest.raises(ValueError, match="a bad file"):
+        tasks.read_file(source, Path("g.txt"), BuildConfig(), 1, tmp_path, False)
+    assert seen == [layout.staged_scratch_dir(tmp_path, i) for i in (0, 1)]
+    assert not any(path.exists() for path in seen)
 
 
 def test_a_row_without_a_vehicle_id_is_an_error_not_a_row_lost(tmp_path: Path) -> None:

@@ -100,10 +100,11 @@ class FileRows:
 
     `rows` carry a RECORDING_INDEX column (null for rows no chosen recording keeps) and the
     provenance columns SOURCE_FILE and SOURCE_LINE; `recordings` maps each chosen recording's
-    key to its index. Nothing is copied per recording: `recording_rows` is lazy.
+    key to its index. The rows are lazy (in memory or scanned from the source's scratch files):
+    they are taken a batch or a recording at a time.
     """
 
-    rows: pl.DataFrame
+    rows: pl.LazyFrame
     recordings: dict[RecordingKey, int]
     report: FileReport
 
@@ -113,7 +114,7 @@ class FileRows:
         kept = pl.col(s.RECORDING_INDEX) == self.recordings[key]
         if where is not None:
             kept &= where
-        return self.rows.lazy().filter(kept).drop(s.RECORDING_INDEX)
+        return self.rows.filter(kept).drop(s.RECORDING_INDEX)
 
 
 @dataclass(frozen=True)
@@ -131,7 +132,9 @@ class Source:
     """A dataset behind the contract: four functions, and the name the manifest records.
 
     find_files(paths) -> (files to read, files skipped in the directories searched)
-    read_file(path, config, file_index, strict) -> FileRows, after the file's own checks
+    read_file(path, config, file_index, strict, scratch) -> FileRows, after the file's own
+        checks; `scratch` is a folder on the build's disk for files of its own that its rows
+        may be scanned from (removed once they are staged)
     vehicle_tracks(rows, key, config, first_track_id) -> TracksPart: the tracks of the
         vehicles of `rows` (all the rows of each, in any order, from any input file), numbered
         from `first_track_id`; the same tracks whichever other vehicles are in the part
@@ -142,7 +145,7 @@ class Source:
 
     name: str
     find_files: Callable[[list[Path]], tuple[list[Path], list[Path]]]
-    read_file: Callable[[Path, BuildConfig, int, bool], FileRows]
+    read_file: Callable[[Path, BuildConfig, int, bool, Path | None], FileRows]
     vehicle_tracks: Callable[[pl.DataFrame, RecordingKey, BuildConfig, int], TracksPart]
     recording_report: Callable[
         [list[TracksPart], RecordingKey, BuildConfig, list[FileReport], bool], RecordingReport

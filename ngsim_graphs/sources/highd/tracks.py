@@ -161,14 +161,17 @@ def _staged_rows(
     return rows, report
 
 
-def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) -> FileRows:
+def read_file(
+    path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
+) -> FileRows:
     """Read one highD file: a tracks file gives its recording's rows (STAGED_SCHEMA, with
-    RECORDING_INDEX and provenance); a meta file is checked and gives none."""
+    RECORDING_INDEX and provenance); a meta file is checked and gives none. (A recording's file
+    is read in memory: `scratch` is not used.)"""
     frames_per_step(config.time_step_s, path)  # a grid the 25 Hz frames cannot land on fails first
     kind, meta, key = _recording(path)
     allowed = chosen_locations(config.locations)
     chosen = allowed is None or key[0] in allowed
-    empty = pl.DataFrame(
+    empty = pl.LazyFrame(
         schema={**STAGED_SCHEMA, s.RECORDING_INDEX: pl.Int32, **s.PROVENANCE_SCHEMA}
     )
     if kind is HighdFile.TRACKS_META:
@@ -189,7 +192,7 @@ def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) ->
         strict,
     )
     staged = rows.with_columns(pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX))
-    return FileRows(staged.select(empty.columns), {key: 0}, report)
+    return FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
 
 
 def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:

@@ -43,9 +43,15 @@ class NotNgsimFileError(NgsimInputError):
     """The file is empty or of another kind: a folder search skips it, a named file fails."""
 
 
+# Where a build gives it a scratch folder, the parsed rows of a file are written there and read
+# back as they are needed, never held whole.
+PARSED_NAME = "parsed.parquet"
+
+
 @dataclass(frozen=True)
 class RawFile:
-    """A parsed raw file: its rows (RAW_SCHEMA + location, + ROW) and what reading it counted."""
+    """A parsed raw file: its rows (RAW_SCHEMA + location, + ROW; lazily, from memory or from
+    a scratch file) and what reading it counted."""
 
     path: Path
     raw_format: RawFormat
@@ -54,7 +60,7 @@ class RawFile:
     first_line: int  # the line number of data row 0: ROW + first_line is a row's line
     rows_other_locations: int  # rows of locations the build did not choose (portal CSV only)
     locations_found: tuple[str, ...]  # every location the file holds
-    frame: pl.DataFrame
+    frame: pl.LazyFrame
 
 
 def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
@@ -243,20 +249,32 @@ def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
     return None if found is None else int(found)
 
 
-def _first_bad_number(frame: pl.DataFrame) -> int | None:
-    """Index in `frame` of the first row with a field that did not parse as a finite number."""
+def _bad_number() -> pl.Expr:
+    """Whether a parsed row has a field that did not parse as a finite number."""
     parsed = pl.sum_horizontal(pl.col(s.TXT_COLUMNS).is_not_null().cast(pl.Int8))
     floats = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] == pl.Float64]
     not_finite = pl.any_horizontal(~pl.col(floats).is_finite()).fill_null(False)
-    bad = frame.select(((parsed != pl.col(PRESENT)) | not_finite).arg_true().first()).item()
-    return None if bad is None else int(bad)
+    return (parsed != pl.col(PRESENT)) | not_finite
 
 
-def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
+def _parsed(frame: pl.LazyFrame, scratch: Path | None) -> pl.LazyFrame:
+    """The parsed rows, collected (scratch None) or streamed into `scratch`/PARSED_NAME and
+    scanned from there: a file's rows are then never all in memory at once."""
+    if scratch is None:
+        return frame.collect(engine="streaming").lazy()
+    scratch.mkdir(parents=True, exist_ok=True)
+    target = scratch / PARSED_NAME
+    frame.sink_parquet(target, compression="lz4", statistics=False, maintain_order=True)
+    return pl.scan_parquet(target)
+
+
+def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None = None) -> RawFile:
     """Read one NGSIM file of any format; keep rows of `locations` (portal CSV only).
 
     Returns a frame with RAW_SCHEMA's columns (NGSIM units), `location` (null where the file does
     not say) and ROW. Empty fields become null. Raises NgsimInputError for unusable input.
+    With `scratch` (a folder of the build's staging area), the rows are written there and the
+    frame scans them, so that reading holds a part of them at a time.
     """
     raw_format = sniff_format(path)
     if raw_format is RawFormat.TXT:
@@ -275,18 +293,29 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
     kept = text.filter(pl.col(s.LOCATION).is_in(locations)) if is_portal else text
     tidied, parsed, present, pointed = _number_exprs(s.TXT_COLUMNS)
     try:
-        frame = (
-            kept.with_columns(tidied)
-            .select(ROW, *parsed, s.LOCATION, present, pointed, ODD)
-            .collect(engine="streaming")
+        frame = _parsed(
+            kept.with_columns(tidied).select(ROW, *parsed, s.LOCATION, present, pointed, ODD),
+            scratch,
         )
+        summary = frame.select(
+            pl.len().alias("rows"),
+            pl.col(ODD).sum().alias("odd"),
+            pl.col(ROW).filter(_bad_number()).min().alias("bad"),
+            pl.col(_POINTED).any().alias("pointed"),
+        ).collect(engine="streaming")
         # Rows of other locations are counted on their own; one collect_all sharing the scan
         # would hold all of its text in memory.
         by_location = (
-            text.group_by(s.LOCATION).agg(pl.len().alias("rows"), pl.col(ODD).sum().alias("odd"))
-            if is_portal
-            else pl.LazyFrame({"rows": [frame.height], "odd": [frame[ODD].sum()]})
-        ).collect(engine="streaming")
+            (
+                text.group_by(s.LOCATION).agg(
+                    pl.len().alias("rows"), pl.col(ODD).sum().alias("odd")
+                )
+                if is_portal
+                else summary.select("rows", "odd")
+            )
+            .lazy()
+            .collect(engine="streaming")
+        )
     except pl.exceptions.ComputeError as err:
         if raw_format is not RawFormat.TXT:
             raise_bad_quoting(path)
@@ -297,15 +326,16 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         raise NgsimInputError(path, "no data rows")
     if by_location["odd"].sum():
         raise_odd_shape(path, raw_format, text)
-    bad = _first_bad_number(frame)
+    height, bad = int(summary["rows"][0]), summary["bad"][0]
     if bad is not None:
-        raise_bad_number(path, text, frame[ROW][bad], first_line)
-    if frame[_POINTED].any():
-        fraction = _first_fraction(text, frame.filter(_POINTED)[ROW])
+        raise_bad_number(path, text, int(bad), first_line)
+    if summary["pointed"][0]:
+        pointed_rows = frame.filter(_POINTED).select(ROW).collect(engine="streaming")[ROW]
+        fraction = _first_fraction(text, pointed_rows)
         if fraction is not None:
             raise_bad_number(path, text, fraction, first_line)
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
-    if frame.height == 0:
+    if height == 0:
         unnamed = (
             int(by_location.filter(pl.col(s.LOCATION).is_null())["rows"].sum()) if is_portal else 0
         )
@@ -321,7 +351,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...]) -> RawFile:
         size_bytes=path.stat().st_size,
         rows_read=rows_read,
         first_line=first_line,
-        rows_other_locations=rows_read - frame.height,
+        rows_other_locations=rows_read - height,
         locations_found=found,
         frame=frame.drop(PRESENT, ODD, _POINTED),
     )

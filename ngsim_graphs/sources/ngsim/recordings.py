@@ -128,7 +128,21 @@ def _frame0_groups(frame: pl.LazyFrame) -> pl.DataFrame:
 def identify_recordings(
     frame: pl.DataFrame, path: Path, usable: pl.Series | None = None
 ) -> tuple[pl.Series, list[tuple[str, str]]]:
-    """Which recording each raw row belongs to: (index per row, (location, period) per index).
+    """Which recording each raw row belongs to: (index per row, (location, period) per index);
+    see `recording_index`."""
+    rows = frame.lazy() if usable is None else frame.lazy().with_columns(usable.alias(_USABLE))
+    index, keys = recording_index(rows, path, None if usable is None else pl.col(_USABLE))
+    return frame.select(index.alias(s.RECORDING_INDEX)).to_series(), keys
+
+
+_USABLE = "__usable"
+
+
+def recording_index(
+    frame: pl.LazyFrame, path: Path, usable: pl.Expr | None = None
+) -> tuple[pl.Expr, list[tuple[str, str]]]:
+    """Which recording each raw row belongs to: (an expression of each row's index, the
+    (location, period) of each index).
 
     `frame` needs global_time, frame_id and location (null where the file does not say, as in
     per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID` belong to
@@ -137,13 +151,14 @@ def identify_recordings(
     same recording as a larger group, or is shared by few rows (under STRAY_GROUP_SHARE of the
     location's largest group) and names no official period that a larger group has not named.
     A stray row's index is null, as is that of a row without a time or frame; the caller counts
-    and drops them. Only the `usable` rows (bool; all by default) form recordings; the others
+    and drops them. Only the `usable` rows (a bool expression; all by default) form recordings;
+    the others
     get the index of the recording whose frame-0 time they share, if any. Recordings are
     indexed in (location, frame-0 time) order.
     """
     accepted: list[tuple[str | None, int, int]] = []  # location, frame-0 time, group position
     keys: list[tuple[str, str]] = []
-    groups = _frame0_groups(frame.lazy() if usable is None else frame.lazy().filter(usable))
+    groups = _frame0_groups(frame if usable is None else frame.filter(usable))
     for position, (location, frame0_ms, _rows, last_frame, small) in enumerate(groups.iter_rows()):
         near = any(
             loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted
@@ -174,6 +189,6 @@ def identify_recordings(
             _FRAME0.eq(frame0_ms)
         )
         index = pl.when(same).then(pl.lit(new, dtype=pl.UInt16)).otherwise(index)
-    if not order:  # no recording: a lone literal would make one row, not the frame's
-        return pl.Series(s.RECORDING_INDEX, [None] * frame.height, dtype=pl.UInt16), []
-    return frame.select(index.alias(s.RECORDING_INDEX)).to_series(), [keys[i] for i in order]
+    if not order:  # no recording: a null of each row, not a lone literal
+        return pl.repeat(None, pl.len(), dtype=pl.UInt16), []
+    return index, [keys[i] for i in order]

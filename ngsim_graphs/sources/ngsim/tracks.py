@@ -46,7 +46,7 @@ from ngsim_graphs.sources.ngsim.plausibility import (
     speed_comparison,
     speed_medians,
 )
-from ngsim_graphs.sources.ngsim.recordings import identify_recordings
+from ngsim_graphs.sources.ngsim.recordings import recording_index
 from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
 
 # The required columns as NGSIM's header spells them, for messages.
@@ -58,20 +58,22 @@ FILE_REASONS: tuple[DropReason, ...] = tuple(
 )
 
 
-def read_file_recordings(path: Path, config: BuildConfig, file_index: int = 0) -> FileRows:
+def read_file_recordings(
+    path: Path, config: BuildConfig, file_index: int = 0, scratch: Path | None = None
+) -> FileRows:
     """Parse one file, drop what no recording can use, and tell its chosen recordings apart.
 
     Returns every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
     columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, and
     the file's report. The index is null for incomplete, implausible and stray rows, which are
-    dropped. No copy of the rows is made here: the caller takes one recording at a time.
+    dropped. The rows are lazy, and each count a streaming pass over them: with `scratch`
+    (`read_raw_file`), no more than a part of them is ever in memory.
     """
-    raw = read_raw_file(path, config.locations)
-    complete = raw.frame.select(is_complete()).to_series()
-    reason = raw.frame.select(pl.when(complete).then(row_drop_reason(config.limits))).to_series()
+    raw = read_raw_file(path, config.locations, scratch)
+    complete = is_complete()
+    reason = pl.when(complete).then(row_drop_reason(config.limits))
     usable = complete & reason.is_null()
-    timed = raw.frame.select(s.LOCATION, s.FRAME_ID, s.GLOBAL_TIME)
-    index, names = identify_recordings(timed, path, usable)
+    index, names = recording_index(raw.frame, path, usable)
     chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
     in_chosen = index.is_in(list(chosen.values())).fill_null(False)
     # Rows of recordings the build did not choose are other locations' rows, whatever they
@@ -79,34 +81,41 @@ def read_file_recordings(path: Path, config: BuildConfig, file_index: int = 0) -
     # file holds none (a per-period file of another location).
     other = (index.is_not_null() & ~in_chosen) | (pl.lit(not chosen) & index.is_null())
     stray = usable & index.is_null()
-    reason = pl.select(
+    reason = (
         pl.when(~complete | other)
         .then(None)
         .when(stray)
         .then(pl.lit(DropReason.GLOBAL_TIME.value))
         .otherwise(reason)
-    ).to_series()
-    line = (pl.col(ROW) + raw.first_line).alias(s.SOURCE_LINE)
+    )
+    line = pl.col(ROW) + raw.first_line
     rows = raw.frame.select(
         *s.RAW_SCHEMA.names(),
         pl.when(usable & in_chosen).then(index).alias(s.RECORDING_INDEX),
         pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
-        line,
+        line.alias(s.SOURCE_LINE),
     )
     dropped = (
-        pl.DataFrame({"reason": reason, s.SOURCE_LINE: rows[s.SOURCE_LINE]})
+        raw.frame.select(reason.alias("reason"), line.alias(s.SOURCE_LINE))
         .drop_nulls("reason")
         .group_by("reason")
         .agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+        .collect(engine="streaming")
     )
     counts = {r: n for r, n, _ in dropped.iter_rows()}
-    kept = int(rows[s.RECORDING_INDEX].is_not_null().sum())
-    missing = int((~complete).sum())
-    if missing == raw.frame.height:  # nothing to place in a recording: say why, naming the file
+    summary = raw.frame.select(
+        (usable & in_chosen).sum().alias("kept"),
+        (~complete).sum().alias("missing"),
+        line.filter(~complete).min().alias("first_missing"),
+        pl.len().alias("rows"),
+        line.min().alias("first_line"),
+    ).collect(engine="streaming")
+    kept, missing, first_missing, height, first = summary.row(0)
+    if missing == height:  # nothing to place in a recording: say why, naming the file
         raise NgsimInputError(
             path,
             f"every one of its {missing:,} rows has an empty required field "
-            f"({', '.join(REQUIRED_NAMES)}); the first at line {raw.first_line + int(raw.frame[ROW][0])}",
+            f"({', '.join(REQUIRED_NAMES)}); the first at line {first}",
         )
     report = FileReport(
         path=str(path),
@@ -116,9 +125,7 @@ def read_file_recordings(path: Path, config: BuildConfig, file_index: int = 0) -
         rows_read=raw.rows_read,
         rows_other_locations=raw.rows_read - kept - missing - sum(counts.values()),
         rows_missing_values=missing,
-        first_missing_line=None
-        if missing == 0
-        else int(rows.filter(~complete)[s.SOURCE_LINE].min()),
+        first_missing_line=None if missing == 0 else int(first_missing),
         rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
         first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
         rows_checked=kept + sum(counts.values()),
@@ -196,9 +203,11 @@ def build_tracks(
     return part.tracks, joined_report([part], key)
 
 
-def read_file(path: Path, config: BuildConfig, file_index: int, strict: bool) -> FileRows:
+def read_file(
+    path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
+) -> FileRows:
     """read_file_recordings, then the rule of dropped rows (plausibility.check_dropped)."""
-    read = read_file_recordings(path, config, file_index)
+    read = read_file_recordings(path, config, file_index, scratch)
     report = read.report
     check_dropped(
         report.path,
