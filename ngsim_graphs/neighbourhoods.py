@@ -28,7 +28,7 @@ from ngsim_graphs.grid import RecordingArrays, pair_search_key
 from ngsim_graphs.scaling import FEATURES, SCALED, MinMaxScaler
 from ngsim_graphs.schema import Protocol
 
-ROWS_PER_CHUNK = 4_096  # ego rows looked at together: their pair candidates stay ~100 MB
+ROWS_PER_CHUNK = 2_048  # ego rows looked at together: their pair candidates stay ~50 MB
 SAMPLES_PER_CHUNK = 65_536  # samples summed up together (cs-lstm: a million in a recording)
 
 

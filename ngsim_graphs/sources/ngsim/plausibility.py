@@ -59,6 +59,12 @@ def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
     raise ValueError(f"{reason} is not a row check")
 
 
+def passes_row_checks(limits: PhysicalLimits) -> pl.Expr:
+    """Whether a raw row fails none of ROW_CHECKS: `row_drop_reason` is null, told without
+    making a text per row."""
+    return ~pl.any_horizontal([_failed(reason, limits).fill_null(False) for reason in ROW_CHECKS])
+
+
 def row_drop_reason(limits: PhysicalLimits) -> pl.Expr:
     """The first of ROW_CHECKS a raw row fails, as its DropReason value; null for a good row."""
     chain = pl.when(_failed(ROW_CHECKS[0], limits).fill_null(False)).then(

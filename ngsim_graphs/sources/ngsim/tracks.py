@@ -42,6 +42,7 @@ from ngsim_graphs.sources.ngsim.plausibility import (
     check_speed_column,
     jump_rows,
     outlier_rows,
+    passes_row_checks,
     row_drop_reason,
     speed_comparison,
     speed_medians,
@@ -72,7 +73,7 @@ def read_file_recordings(
     raw = read_raw_file(path, config.locations, scratch)
     complete = is_complete()
     reason = pl.when(complete).then(row_drop_reason(config.limits))
-    usable = complete & reason.is_null()
+    usable = complete & passes_row_checks(config.limits)
     index, names = recording_index(raw.frame, path, usable)
     chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
     in_chosen = index.is_in(list(chosen.values())).fill_null(False)
