@@ -10,9 +10,26 @@ from conftest import make_row, straight_track, write_period_csv, write_portal, w
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim import files
 from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file, sniff_format
 
 US = ("us-101", "i-80")
+
+
+@pytest.fixture(autouse=True, params=["in memory", "through a scratch folder, line by line"])
+def reading(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch, tmp_path: Path):
+    """Every test twice: the file parsed whole in memory, and as a build parses it, a chunk of
+    its text at a time into a scratch folder; 100-byte chunks, shorter than a line, make a
+    chunk of each line (and of the header): the same rows, line numbers and errors."""
+    if request.param != "in memory":
+        monkeypatch.setattr(files, "CHUNK_BYTES", 100)
+        scratch = tmp_path / "scratch"
+        monkeypatch.setitem(
+            globals(),
+            "read_raw_file",
+            lambda path, locations: files.read_raw_file(path, locations, scratch),
+        )
+    return request.param
 
 
 def values(path: Path) -> list[tuple]:

@@ -12,7 +12,7 @@ from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.sources.ngsim.files import PARSED_NAME
+from ngsim_graphs.sources.ngsim import files
 from ngsim_graphs.sources.ngsim.tracks import (
     build_tracks,
     joined_report,
@@ -71,16 +71,20 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     assert report.recordings == ("us-101/0750am-0805am", "us-101/0805am-0820am")
 
 
-def test_rows_read_through_a_scratch_file_are_the_rows_read_in_memory(tmp_path: Path) -> None:
-    """With a scratch folder the parsed rows are written there and scanned back: the same rows
-    of each recording, in the same order, and the same report, dropped rows and all."""
+def test_rows_read_through_a_scratch_file_are_the_rows_read_in_memory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With a scratch folder the text is parsed a chunk at a time (here of 300 bytes: a few
+    lines) into files there, scanned back: the same rows of each recording, in the same order,
+    and the same report, dropped rows and all."""
+    monkeypatch.setattr(files, "CHUNK_BYTES", 300)
     first = straight_track(3, range(4), start_ms=US101_FIRST.start_epoch_ms)
     second = straight_track(5, range(3), start_ms=US101_SECOND.start_epoch_ms)
     bad = [make_row(3, 9, local_x=None), make_row(4, 2, v_vel_fps=-5.0)]
     path = write_portal(tmp_path / "p.csv", second + bad + first)
     in_memory = read_file_recordings(path, BuildConfig(), 2)
     scanned = read_file_recordings(path, BuildConfig(), 2, tmp_path / "scratch")
-    assert (tmp_path / "scratch" / PARSED_NAME).is_file()
+    assert len(list((tmp_path / "scratch").glob(f"{files.PARSED_STEM}-*.parquet"))) > 2
     assert scanned.report == in_memory.report
     assert scanned.report.rows_missing_values == 1 and sum(scanned.report.rows_dropped.values())
     assert scanned.recordings == in_memory.recordings

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import polars as pl
@@ -29,8 +30,9 @@ CONTROL = "__control"  # what follows a 0x1F byte in a line (see scan_lines)
 _CUT = "\x1f"
 
 
-def scan_lines(path: Path, skip_rows: int = 1) -> pl.LazyFrame:
-    """Every line after the first `skip_rows` as one text column (LINE), quotes untouched.
+def scan_lines(path: Path | IO[bytes], skip_rows: int = 1) -> pl.LazyFrame:
+    """Every line after the first `skip_rows` as one text column (LINE), quotes untouched (of a
+    file, or of a range of its bytes).
 
     Lines are cut at a byte no NGSIM file holds (0x1F, the unit separator); a line that holds it
     anyway has the rest in CONTROL, so that it is reported rather than read as more columns.
@@ -48,14 +50,17 @@ def scan_lines(path: Path, skip_rows: int = 1) -> pl.LazyFrame:
     )
 
 
-def scan_csv_fields(path: Path, names: list[str]) -> pl.LazyFrame:
-    """A CSV's data rows as text columns `names` (the header, lower-cased), with ROW; blank
+def scan_csv_fields(
+    path: Path | IO[bytes], names: list[str], skip_rows: int = 1, first_row: int = 0
+) -> pl.LazyFrame:
+    """A CSV's data rows as text columns `names` (the header, lower-cased), with ROW from
+    `first_row` (of a file, or of a range of its bytes: `skip_rows` 0 but in the first); blank
     lines dropped. Polars drops a row's surplus fields silently: the one spare column EXTRA
     keeps the first of them, so that ragged rows can be found."""
     frame = pl.scan_csv(
         path,
         has_header=False,
-        skip_rows=1,
+        skip_rows=skip_rows,
         schema=dict.fromkeys([*names, EXTRA], pl.String),
         missing_columns="insert",
         truncate_ragged_lines=True,
@@ -64,7 +69,7 @@ def scan_csv_fields(path: Path, names: list[str]) -> pl.LazyFrame:
     )
     # Blank lines read as all-null rows: neither data nor another location.
     not_blank = pl.any_horizontal(pl.col(names).is_not_null())
-    return frame.with_row_index(ROW).filter(not_blank)
+    return frame.with_row_index(ROW, offset=first_row).filter(not_blank)
 
 
 def raise_control_character(path: Path, row: int, first_line: int) -> None:
