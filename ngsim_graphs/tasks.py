@@ -163,9 +163,10 @@ class RecordingOutput:
 
 
 # A recording is cleaned a part of its vehicles at a time: those whose Vehicle_ID // this is the
-# same (NGSIM: a few hundred rows a vehicle, some 150,000 rows a part). Each input file's rows
-# are staged by part, so that a part is read whole from its own files.
-VEHICLES_PER_PART = 256
+# same (NGSIM: a few hundred rows a vehicle, 50,000 to 120,000 rows a part; with 256 a part, the
+# largest recording's cleaning task held 0.1 GB more). Each input file's rows are staged by
+# part, so that a part is read whole from its own files.
+VEHICLES_PER_PART = 128
 StagedParts = dict[int, list[Path]]  # a recording's staged raw files, by part
 
 

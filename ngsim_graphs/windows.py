@@ -54,7 +54,12 @@ def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
         pl.col(s.X_M).alias(s.ORIGIN_X_M),
         pl.col(s.Y_M).alias(s.ORIGIN_Y_M),
     )
-    return windows.join(origin, on=[s.EGO_TRACK_ID, s.PRESENT_STEP], how="left").sort(
+    # Each window's present step is one row of its track: the windows, the smaller side, are
+    # hashed and every grid node looked up in them (the nodes hashed would take more memory).
+    found = origin.join(windows, on=[s.EGO_TRACK_ID, s.PRESENT_STEP], how="inner")
+    if found.height != windows.height:
+        raise ValueError("a window's ego track has no grid node at its present step")
+    return found.select(*windows.columns, s.ORIGIN_X_M, s.ORIGIN_Y_M).sort(
         s.EGO_TRACK_ID, s.START_STEP
     )
 
