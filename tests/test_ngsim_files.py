@@ -92,6 +92,28 @@ def test_text_with_padding_blank_lines_and_no_final_newline(tmp_path: Path) -> N
     assert raw.frame.collect()[ROW].to_list() == [0, 3, 4]  # line numbers stay true to the file
 
 
+def test_chunks_that_start_with_blank_lines_keep_line_numbers_true(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, reading: str
+) -> None:
+    """A blank line (CRLF) after every other row, and chunks cut just before each blank line
+    in turn (its first chunk ends there, so a later one starts with it): every row keeps its
+    line's number."""
+    if reading == "in memory":
+        pytest.skip("chunks only")
+    path = write_period_csv(tmp_path / "c.csv", straight_track(2, range(6)), crlf=True)
+    lines = path.read_bytes().split(b"\r\n")
+    path.write_bytes(b"\r\n".join(line + b"\r\n" * (i % 2) for i, line in enumerate(lines)))
+    whole = files.read_raw_file(path, US).frame.collect()
+    assert whole[ROW].to_list() == [0, 2, 3, 5, 6, 8]  # blank lines after rows 0, 2 and 4
+    data = path.read_bytes()
+    blank_starts = [i + 2 for i in range(len(data)) if data.startswith(b"\r\n\r\n", i)]
+    assert len(blank_starts) == 4  # after rows 0, 2 and 4, and one at the end
+    for size in blank_starts:
+        monkeypatch.setattr(files, "CHUNK_BYTES", size)
+        scratch = tmp_path / f"scratch-{size}"
+        assert files.read_raw_file(path, US, scratch).frame.collect().equals(whole)
+
+
 def test_empty_fields_become_null(tmp_path: Path) -> None:
     rows = [make_row(1, 0), make_row(1, 1, v_acc=None, local_x=None)]
     frame = read_raw_file(write_portal(tmp_path / "p.csv", rows), US).frame.collect()
