@@ -197,7 +197,7 @@ def stage_rows(
     a part in the order they were read. A recording without rows is still staged (part 0,
     empty): it is built, with no sample."""
     keys = {index: key for key, index in read.recordings.items()}
-    columns = [c for c in read.rows.collect_schema().names() if c != s.RECORDING_INDEX]
+    schema = read.rows.drop(s.RECORDING_INDEX).collect_schema()
     part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
     staged: dict[RecordingKey, dict[int, Path]] = {key: {} for key in keys.values()}
     with contextlib.ExitStack() as files:
@@ -216,14 +216,12 @@ def stage_rows(
                 if (index, part) not in writers:
                     target = layout.staged_raw_path(root, *keys[index], part, file_index)
                     staged[keys[index]][part] = target
-                    rows_schema = rows.select(columns).schema
                     writers[index, part] = files.enter_context(
-                        layout.TableAppender(target, rows_schema, compression="lz4")
+                        layout.TableAppender(target, schema, compression="lz4")
                     )
-                writers[index, part].append(rows.select(columns))
+                writers[index, part].append(rows.select(schema.names()))
             if batch.height < batch_rows:
                 break
-    schema = read.rows.select(columns).collect_schema()
     for key, parts in staged.items():
         if not parts:
             parts[0] = layout.staged_raw_path(root, *key, 0, file_index)

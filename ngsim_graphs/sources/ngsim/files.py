@@ -309,11 +309,11 @@ def _parsed(
     if scratch is None:
         return parse(None).collect(engine="streaming").lazy()
     scratch.mkdir(parents=True, exist_ok=True)
-    parts = []
+    parts = []  # one at least: `sniff_format` let no empty file through
     for chunk in text_chunks(path, CHUNK_BYTES):
         parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.parquet")
         parse(chunk).sink_parquet(parts[-1], compression="lz4", statistics=False)
-    return pl.scan_parquet(parts) if parts else parse(None).clear()
+    return pl.scan_parquet(parts)
 
 
 def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None = None) -> RawFile:
@@ -356,15 +356,11 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
         # Rows of other locations are counted on their own; one collect_all sharing the scan
         # would hold all of its text in memory.
         by_location = (
-            (
-                text.group_by(s.LOCATION).agg(
-                    pl.len().alias("rows"), pl.col(ODD).sum().alias("odd")
-                )
-                if is_portal
-                else summary.select("rows", "odd")
-            )
-            .lazy()
+            text.group_by(s.LOCATION)
+            .agg(pl.len().alias("rows"), pl.col(ODD).sum().alias("odd"))
             .collect(engine="streaming")
+            if is_portal
+            else summary.select("rows", "odd")
         )
     except pl.exceptions.ComputeError as err:
         if raw_format is not RawFormat.TXT:

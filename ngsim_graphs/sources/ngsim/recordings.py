@@ -152,9 +152,8 @@ def recording_index(
     location's largest group) and names no official period that a larger group has not named.
     A stray row's index is null, as is that of a row without a time or frame; the caller counts
     and drops them. Only the `usable` rows (a bool expression; all by default) form recordings;
-    the others
-    get the index of the recording whose frame-0 time they share, if any. Recordings are
-    indexed in (location, frame-0 time) order.
+    the others get the index of the recording whose frame-0 time they share, if any. Recordings
+    are indexed in (location, frame-0 time) order.
     """
     accepted: list[tuple[str | None, int, int]] = []  # location, frame-0 time, group position
     keys: list[tuple[str, str]] = []
