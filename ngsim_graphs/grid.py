@@ -13,6 +13,7 @@ at a threshold is decided alike.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -79,9 +80,25 @@ def grid_nodes(tracks: pl.DataFrame, time_step_s: float) -> pl.DataFrame:
     A row's step is its time on the grid, `time_s / time_step_s`, rounded to the nearest integer
     (the tracks table contract puts every row on the grid; see `ngsim_graphs.sources`).
     """
+    return grid_node_rows(tracks.lazy(), time_step_s).collect().sort(s.STEP, s.TRACK_ID)
+
+
+def grid_node_rows(tracks: pl.LazyFrame, time_step_s: float) -> pl.LazyFrame:
+    """`grid_nodes` of a lazy tracks table, in the tracks' order: what a build streams."""
     step = (pl.col(s.TIME_S) / time_step_s).round().cast(pl.Int32).alias(s.STEP)
     columns = [step, *(pl.col(c) for c in s.GRID_NODE_SCHEMA.names() if c != s.STEP)]
-    return tracks.select(columns).cast(dict(s.GRID_NODE_SCHEMA)).sort(s.STEP, s.TRACK_ID)
+    return tracks.select(columns).cast(dict(s.GRID_NODE_SCHEMA))
+
+
+def nodes_in_steps(tracks: pl.LazyFrame, first: int, end: int, time_step_s: float) -> pl.DataFrame:
+    """`grid_nodes` of the steps [first, end) of a lazy tracks table (sorted by (step, track)).
+
+    The rows are first chosen by their time, a step wider on each side than the steps' times, so
+    that a Parquet file's row groups of other times are not read; then by their step exactly."""
+    near = pl.col(s.TIME_S).is_between((first - 1) * time_step_s, end * time_step_s)
+    nodes = grid_node_rows(tracks.filter(near), time_step_s)
+    chosen = nodes.filter(pl.col(s.STEP).is_between(first, end, closed="left"))
+    return chosen.collect().sort(s.STEP, s.TRACK_ID)
 
 
 def _pairs_by_sweep(step: np.ndarray, x: np.ndarray, y: np.ndarray, d_max_m: float):
@@ -160,11 +177,9 @@ def node_arrays(nodes: pl.DataFrame) -> RecordingArrays:
     by_track = np.lexsort((step, local_track)).astype(np.int32)
     track_ptr = _csr_ptr(local_track[by_track], n_tracks)
     track_first_step = step[by_track[track_ptr[:-1]]] if n_tracks else np.empty(0, np.int32)
-    state = nodes.select(s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS).to_numpy().astype(np.float64)
     return RecordingArrays(
         step_ptr=_csr_ptr(step, n_steps),
-        node_track=track.astype(np.int32),
-        node_state=np.ascontiguousarray(state),
+        **_row_arrays(nodes),
         track_first_step=track_first_step.astype(np.int32),
         track_ptr=track_ptr,
         track_rows=by_track,
@@ -174,6 +189,78 @@ def node_arrays(nodes: pl.DataFrame) -> RecordingArrays:
         pair_key=np.empty(0, np.float64),
         first_track_id=first_track,
     )
+
+
+# The fields of RecordingArrays that hold a value per grid row in (step, track) order: a build
+# writes them a range of steps at a time (`write_node_arrays`).
+ROW_ARRAYS = ("node_track", "node_state")
+
+
+def write_node_arrays(
+    tracks: pl.LazyFrame,
+    time_step_s: float,
+    rows_per_piece: int,
+    write: Callable[[dict[str, np.ndarray]], None],
+) -> RecordingArrays:
+    """`node_arrays` of a lazy tracks table, made a range of steps at a time (`step_pieces`):
+    never every grid row at once.
+
+    The ROW_ARRAYS of each range are given to `write`, in step order (their concatenation is
+    `node_arrays`' own); the arrays returned hold them with no row, and every other index whole
+    (a number or two per step, track or row). Each track must be numbered next to the last and
+    have a row at every step from its first to its last, as the tracks table contract says.
+    """
+    nodes = grid_node_rows(tracks, time_step_s)
+    counts = nodes.group_by(s.STEP).len().collect(engine="streaming")
+    per_track = (
+        nodes.group_by(s.TRACK_ID)
+        .agg(pl.col(s.STEP).min().alias("first"), pl.col(s.STEP).max().alias("last"), pl.len())
+        .sort(s.TRACK_ID)
+        .collect(engine="streaming")
+    )
+    step, track = counts[s.STEP].to_numpy(), per_track[s.TRACK_ID].to_numpy()
+    if len(step) and step.min() < 0:
+        raise ValueError(f"a grid step below 0: {int(step.min())}")
+    first_track = int(track[0]) if len(track) else 0
+    first, steps = per_track["first"].to_numpy(), per_track["len"].to_numpy().astype(np.int64)
+    if not (np.array_equal(track, first_track + np.arange(len(track)))):
+        raise ValueError("the track ids of a recording are not consecutive")
+    if not np.array_equal(per_track["last"].to_numpy() - first + 1, steps):
+        raise ValueError("a track has no row at a step between its first and its last")
+    per_step = np.zeros(int(step.max()) + 1 if len(step) else 0, np.int64)
+    per_step[step] = counts["len"].to_numpy()
+    step_ptr = np.concatenate([np.zeros(1, np.int64), np.cumsum(per_step)])
+    track_ptr = np.concatenate([np.zeros(1, np.int64), np.cumsum(steps)])
+    track_rows = np.empty(int(step_ptr[-1]), np.int32)
+    empty = node_arrays(nodes.head(0).collect())
+    write({name: getattr(empty, name) for name in ROW_ARRAYS})  # a recording without rows too
+    for piece_first, piece_end in step_pieces(step_ptr, rows_per_piece):
+        piece = nodes_in_steps(tracks, piece_first, piece_end, time_step_s)
+        lo, hi = int(step_ptr[piece_first]), int(step_ptr[piece_end])
+        if piece.height != hi - lo:  # the table changed between the counts and now
+            raise ValueError(f"steps {piece_first}-{piece_end}: {piece.height} rows, not {hi - lo}")
+        local = piece[s.TRACK_ID].to_numpy() - first_track
+        at = track_ptr[local] + piece[s.STEP].to_numpy() - first[local]
+        track_rows[at] = np.arange(lo, hi, dtype=np.int32)
+        write(_row_arrays(piece))
+    return replace(
+        empty,
+        step_ptr=step_ptr,
+        track_first_step=first.astype(np.int32),
+        track_ptr=track_ptr,
+        track_rows=track_rows,
+        pair_ptr=np.zeros(len(step_ptr), np.int64),
+        first_track_id=first_track,
+    )
+
+
+def _row_arrays(nodes: pl.DataFrame) -> dict[str, np.ndarray]:
+    """The ROW_ARRAYS of grid nodes sorted by (step, track)."""
+    state = nodes.select(s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS).to_numpy().astype(np.float64)
+    return {
+        "node_track": nodes[s.TRACK_ID].to_numpy().astype(np.int32),
+        "node_state": np.ascontiguousarray(state),
+    }
 
 
 def nodes_of_steps(rec: RecordingArrays, first: int, end: int) -> pl.DataFrame:

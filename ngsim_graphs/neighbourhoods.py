@@ -28,7 +28,7 @@ from ngsim_graphs.grid import RecordingArrays, pair_search_key
 from ngsim_graphs.scaling import FEATURES, SCALED, MinMaxScaler
 from ngsim_graphs.schema import Protocol
 
-ROWS_PER_CHUNK = 2_048  # ego rows looked at together: their pair candidates stay ~50 MB
+ROWS_PER_CHUNK = 1_024  # ego rows looked at together: their pair candidates stay ~25 MB
 SAMPLES_PER_CHUNK = 65_536  # samples summed up together (cs-lstm: a million in a recording)
 
 
@@ -203,15 +203,21 @@ def ego_rows(history: np.ndarray, n_rows: int) -> np.ndarray:
     return np.flatnonzero(used)
 
 
-def rows_by_y(rec: RecordingArrays) -> tuple[np.ndarray, np.ndarray]:
-    """(order, keys): the grid rows sorted by (step, y), and their pair_search_key: the search
-    along y of each ego's neighbours."""
-    if not np.isfinite(rec.node_state[:, :2]).all():  # such a row would fall out of every search
+def rows_by_y(
+    rec: RecordingArrays, first: int = 0, end: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(order, keys): the grid rows of steps [first, end) (all steps by default) sorted by
+    (step, y), and their pair_search_key: the search along y of the neighbours of each ego row
+    of those steps."""
+    end = rec.n_steps if end is None else end
+    lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[end])
+    position = rec.node_state[lo:hi, :2]
+    if not np.isfinite(position).all():  # such a row would fall out of every search
         raise NonFiniteStateError("positions that are not finite")
-    all_steps = np.repeat(np.arange(rec.n_steps), np.diff(rec.step_ptr))
-    keys = pair_search_key(all_steps, rec.node_state[:, 1])
+    steps = np.repeat(np.arange(first, end), np.diff(rec.step_ptr[first : end + 1]))
+    keys = pair_search_key(steps, position[:, 1])
     order = np.argsort(keys, kind="stable")
-    return order, keys[order]
+    return lo + order, keys[order]
 
 
 def neighbourhoods(

@@ -7,18 +7,23 @@ proximity edges, split ego windows, and every sample's counts and its share of t
 ranges (`neighbourhoods`). The graphs themselves are not stored per sample (see
 docs/build-format.md: the dataset induces them from the frame arrays).
 
-A recording is cleaned a part of its vehicles at a time (VEHICLES_PER_PART), and its proximity
-pairs, ten a grid row in a dense recording, are found, written and used a range of steps at a
-time (PIECE_ROWS). A reading task streams its file's parsed rows into a scratch file and stages
-them a batch at a time (BATCH_ROWS); a cleaning task holds a part of the raw rows; a build task
-a recording's node arrays (its grid nodes until the arrays and windows are made of them; its
-tracks table streamed, never whole; under cs-lstm also its raw rows' five columns until then),
-its samples' windows and counts, and a range of pairs and their neighbourhoods.
+No task holds a whole file's or recording's rows, so that its memory does not grow with the
+size of the recording (NGSIM's largest is twice its smallest):
+- a reading task streams its file's parsed rows into a scratch file and stages them a batch at
+  a time (BATCH_ROWS), per part of the recording's vehicles (VEHICLES_PER_PART);
+- a cleaning task holds a part of the raw rows;
+- a build task holds its samples' windows and counts and the indexes of its grid rows by step
+  and by track (a number or two per row), and a range of steps at a time (PIECE_ROWS) the rest:
+  the grid rows are made of the tracks table and written a range at a time, then mapped back
+  from their files a range at a time, and the range's proximity pairs, ten a grid row in a dense
+  recording, found, written and used (under cs-lstm it also holds its raw rows' five columns
+  until its windows are made).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import shutil
 from collections.abc import Callable
@@ -34,13 +39,14 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.cslstm import DATASET_IDS
 from ngsim_graphs.grid import (
     ARRAY_NAMES,
+    ROW_ARRAYS,
     RecordingArrays,
-    grid_nodes,
-    node_arrays,
+    grid_node_rows,
     nodes_of_steps,
     proximity_pairs,
     step_pieces,
     with_pairs,
+    write_node_arrays,
 )
 from ngsim_graphs.neighbourhoods import (
     ego_rows,
@@ -63,15 +69,16 @@ from ngsim_graphs.sources.contract import (
 from ngsim_graphs.splits import assign_splits
 from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script_windows
 
-# A recording's proximity pairs are found, written and used a range of steps at a time, about
-# this many grid rows each: the pairs, ten a row in a dense recording, then take memory by this
-# number, not by the size of the recording (its grid rows are still held whole).
-PIECE_ROWS = 65_536  # half of 131,072: the largest build task 0.37 -> 0.30 GB with 2,048-row chunks
+# A recording's grid rows are made, and its proximity pairs found, written and used, a range of
+# steps at a time, about this many grid rows each: the rows and their pairs, ten a row in a dense
+# recording, then take memory by this number, not by the size of the recording.
+PIECE_ROWS = 32_768  # with 1,024-row chunks: the largest task 0.25 -> 0.21 GB, no slower
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
-# The columns of the tracks table that `grid_nodes` reads.
-GRID_NODE_INPUTS = (s.TIME_S, *(c for c in s.GRID_NODE_SCHEMA.names() if c != s.STEP))
 # Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
 PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
+# Maps a recording's ROW_ARRAYS anew (`layout.open_arrays`): what a range of steps read of them
+# is let go with the maps, and the grid rows are never all in memory at once.
+RowArrays = Callable[[], dict[str, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -85,14 +92,15 @@ class RecordingSamples:
 
 
 def recording_windows(
-    nodes: pl.DataFrame,
+    nodes: pl.DataFrame | pl.LazyFrame,
     recording_index: int,
     config: BuildConfig,
     raw: pl.DataFrame | None = None,
     dataset_id: int = 0,
 ) -> tuple[pl.DataFrame, ScriptRows | None]:
-    """The split ego windows of one recording's grid nodes (`grid_nodes`), and under the cs-lstm
-    protocol what it made of CS-LSTM's rows (None under aigem).
+    """The split ego windows of one recording's grid nodes (`grid_node_rows`, in any order; a
+    lazy table is streamed), and under the cs-lstm protocol what it made of CS-LSTM's rows (None
+    under aigem).
 
     Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
     rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS)."""
@@ -100,44 +108,49 @@ def recording_windows(
         if raw is None:
             raise ValueError("the cs-lstm protocol needs the recording's raw rows")
         return script_windows(raw, nodes, dataset_id, config)
-    max_vehicle_id = int(nodes[s.VEHICLE_ID].max()) if nodes.height else 0
+    max_vehicle_id = nodes.lazy().select(pl.col(s.VEHICLE_ID).max()).collect().item() or 0
     windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
     return windows, None
 
 
 def recording_samples(
-    arrays: RecordingArrays, windows: pl.DataFrame, config: BuildConfig, write_pairs: PairSink
+    arrays: RecordingArrays,
+    windows: pl.DataFrame,
+    config: BuildConfig,
+    write_pairs: PairSink,
+    row_arrays: RowArrays | None = None,
 ) -> RecordingSamples:
     """Proximity edges, and the counts and the scaler's ranges of the split ego `windows`
     (`recording_windows`), of one recording's frame arrays (`node_arrays`).
 
     A range of steps at a time (PIECE_ROWS): its pairs go to `write_pairs`, the neighbourhoods
     of its ego rows are found with them, and what those add to each sample that has history rows
-    in the range is summed up; then the range's pairs and neighbourhoods are let go.
+    in the range is summed up; then the range's pairs and neighbourhoods are let go. Given
+    `row_arrays`, the ROW_ARRAYS of `arrays` are not used: each range maps them anew.
     """
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     history = history_rows(arrays, egos, starts, config)
-    rows = ego_rows(history, len(arrays.node_track))
+    rows = ego_rows(history, int(arrays.step_ptr[-1]))
     first_row, last_row = row_bounds(history)
     is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
-    by_y = rows_by_y(arrays)
     counts = np.zeros((len(history), len(s.COUNT_COLUMNS)), np.int64)
     train = MinMaxScaler.empty()
     pair_ptr, n_pairs = np.zeros_like(arrays.pair_ptr), 0
     # A recording without grid rows is one empty piece: its pair files are still written.
     for first, end in step_pieces(arrays.step_ptr, PIECE_ROWS) or [(0, 0)]:
+        rec = arrays if row_arrays is None else replace(arrays, **row_arrays())
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
-        pairs = proximity_pairs(nodes_of_steps(arrays, first, end), config.d_min_m)
-        piece = with_pairs(arrays, pairs)
+        pairs = proximity_pairs(nodes_of_steps(rec, first, end), config.d_min_m)
+        piece = with_pairs(rec, pairs)
         write_pairs(pairs, piece)
         pair_ptr += piece.pair_ptr
         n_pairs += pairs.height
         mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
-        hood = neighbourhoods_of_rows(piece, mine, by_y, config)
+        hood = neighbourhoods_of_rows(piece, mine, rows_by_y(rec, first, end), config)
         touched = np.flatnonzero((last_row >= lo) & (first_row < hi))
         counts[touched] += sample_counts(hood, history[touched], config)
         train = train.joined(train_ranges(piece, hood, history[touched], is_train[touched]))
-        del pairs, piece, hood  # before the next piece is made
+        del rec, pairs, piece, hood  # before the next piece is made
     windows = windows.with_columns(
         pl.Series(name, counts[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
     )
@@ -262,7 +275,9 @@ def build_recording(
     root: Path,
 ) -> RecordingOutput:
     """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
-    worker's task)."""
+    worker's task): its grid rows streamed from its tracks table (windows, largest vehicle
+    ids) and made a range of steps at a time (`grid.write_node_arrays`), then read back from
+    their files a range at a time (`recording_samples`)."""
     parts = [layout.staged_tracks_path(root, *key, part) for part in sorted(staged)]
     # Streamed, never held whole, in row groups of a fixed size: the bytes written do not
     # depend on the parts it was cleaned in. The grid nodes read back what they need of it.
@@ -270,10 +285,8 @@ def build_recording(
         (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
     )
     layout.sink_parquet(tracks, layout.tracks_path(root, *key))
-    nodes = grid_nodes(
-        pl.read_parquet(layout.tracks_path(root, *key), columns=list(GRID_NODE_INPUTS)),
-        config.time_step_s,
-    )
+    tracks = pl.scan_parquet(layout.tracks_path(root, *key))
+    nodes = grid_node_rows(tracks, config.time_step_s)  # each use streams them from the file
     raw = None
     if config.protocol is Protocol.CS_LSTM:
         # In any order but that of a vehicle's rows of one frame (cslstm.ordered_rows sorts
@@ -281,12 +294,14 @@ def build_recording(
         files = [path for part in sorted(staged) for path in staged[part]]
         raw = pl.read_parquet(files, columns=list(SCRIPT_COLUMNS))
     # The vehicle split's largest ids: the script's are of the rows before cleaning.
-    split_by = nodes if raw is None else raw
-    ids = split_by[s.VEHICLE_ID].unique().sort(descending=True).head(2).to_list() + [0, 0]
+    split_by = nodes if raw is None else raw.lazy()
+    largest = pl.col(s.VEHICLE_ID).unique().sort(descending=True).head(2)
+    ids = split_by.select(largest).collect(engine="streaming")[s.VEHICLE_ID].to_list() + [0, 0]
     windows, script = recording_windows(nodes, index, config, raw, DATASET_IDS.get(key, 0))
-    arrays = node_arrays(nodes)
-    del nodes, split_by, raw  # the arrays and windows are all the rest needs of them
+    del raw  # the windows are all the rest needs of it
     folder = layout.recording_arrays_dir(root, *key)
+    with layout.ArrayAppender(folder, ROW_ARRAYS) as row_files:
+        arrays = write_node_arrays(tracks, config.time_step_s, PIECE_ROWS, row_files.append)
     with (
         layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
         layout.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,
@@ -296,11 +311,13 @@ def build_recording(
             table.append(pairs)
             pair_files.append({name: getattr(piece, name) for name in PAIR_ARRAYS})
 
-        samples = recording_samples(arrays, windows, config, write_pairs)
+        row_arrays = functools.partial(layout.open_arrays, folder, ROW_ARRAYS)
+        samples = recording_samples(arrays, windows, config, write_pairs, row_arrays)
     del arrays, windows  # the samples' own, with the pairs' index and the counts, follow
     arrays = samples.arrays
+    written = (*PAIR_ARRAYS, *ROW_ARRAYS)
     layout.write_arrays(
-        folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in PAIR_ARRAYS}
+        folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in written}
     )
     # Staged in the samples tables' order, not returned: the build streams the tables from them.
     windows = samples.windows.sort(s.EGO_TRACK_ID, s.START_STEP, maintain_order=True).with_columns(

@@ -19,8 +19,9 @@ from ngsim_graphs.config import BuildConfig
 SCRIPT_COLUMNS = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
 
 
-def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
-    """Every window of every track of one recording's grid nodes (GRID_NODE_SCHEMA).
+def ego_windows(nodes: pl.DataFrame | pl.LazyFrame, config: BuildConfig) -> pl.DataFrame:
+    """Every window of every track of one recording's grid nodes (GRID_NODE_SCHEMA, in any
+    order; a lazy table is streamed, never held whole).
 
     A track of n steps starting at step f yields windows starting at f, f + stride, ... while the
     whole window (window_steps steps) lies inside the track. Tracks are contiguous on the grid, so
@@ -28,6 +29,7 @@ def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
     ego vehicle, start step, present step and the ego's present position (the sample's origin),
     sorted by (ego track, start step).
     """
+    nodes = nodes.lazy()
     per_track = nodes.group_by(s.TRACK_ID).agg(
         pl.col(s.VEHICLE_ID).first(),
         pl.col(s.STEP).min().alias("first"),
@@ -47,6 +49,7 @@ def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
             .alias(s.START_STEP),
         )
         .with_columns((pl.col(s.START_STEP) + config.history_steps - 1).alias(s.PRESENT_STEP))
+        .collect(engine="streaming")
     )
     origin = nodes.select(
         pl.col(s.TRACK_ID).alias(s.EGO_TRACK_ID),
@@ -56,7 +59,8 @@ def ego_windows(nodes: pl.DataFrame, config: BuildConfig) -> pl.DataFrame:
     )
     # Each window's present step is one row of its track: the windows, the smaller side, are
     # hashed and every grid node looked up in them (the nodes hashed would take more memory).
-    found = origin.join(windows, on=[s.EGO_TRACK_ID, s.PRESENT_STEP], how="inner")
+    found = origin.join(windows.lazy(), on=[s.EGO_TRACK_ID, s.PRESENT_STEP], how="inner")
+    found = found.collect(engine="streaming")
     if found.height != windows.height:
         raise ValueError("a window's ego track has no grid node at its present step")
     return found.select(*windows.columns, s.ORIGIN_X_M, s.ORIGIN_Y_M).sort(
@@ -112,7 +116,7 @@ def script_rows(
 
 
 def script_windows(
-    raw: pl.DataFrame, nodes: pl.DataFrame, dataset_id: int, config: BuildConfig
+    raw: pl.DataFrame, nodes: pl.DataFrame | pl.LazyFrame, dataset_id: int, config: BuildConfig
 ) -> tuple[pl.DataFrame, ScriptRows]:
     """The samples of the cs-lstm protocol of one recording, as ego windows with s.SPLIT.
 
@@ -124,7 +128,7 @@ def script_windows(
     `ego_windows`, plus s.SPLIT.
     """
     rows, kept, too_short = script_rows(raw, dataset_id, config)
-    ego = nodes.select(
+    ego = nodes.lazy().select(
         s.VEHICLE_ID,
         s.STEP,
         pl.col(s.TRACK_ID).alias(s.EGO_TRACK_ID),
@@ -132,7 +136,8 @@ def script_windows(
         pl.col(s.Y_M).alias(s.ORIGIN_Y_M),
     )
     windows = (
-        rows.join(ego, on=[s.VEHICLE_ID, s.STEP], how="inner")
+        rows.lazy()
+        .join(ego, on=[s.VEHICLE_ID, s.STEP], how="inner")
         .select(
             s.EGO_TRACK_ID,
             pl.col(s.VEHICLE_ID).alias(s.EGO_VEHICLE_ID),
@@ -142,6 +147,7 @@ def script_windows(
             s.ORIGIN_Y_M,
             s.SPLIT,
         )
+        .collect(engine="streaming")
         .sort(s.EGO_TRACK_ID, s.START_STEP)
     )
     counts = ScriptRows(kept, too_short, rows.height, rows.height - windows.height)

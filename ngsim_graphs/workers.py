@@ -38,6 +38,12 @@ POLARS_JEMALLOC_DEFAULTS = "dirty_decay_ms:500,muzzy_decay_ms:1000"
 FRUGAL_JEMALLOC_CONF = "dirty_decay_ms:0,muzzy_decay_ms:0"
 # glibc's malloc (numpy's) reads this when a process starts: see `one_malloc_arena`.
 MALLOC_ARENAS = "MALLOC_ARENA_MAX"
+# And these: blocks this large and under come from the heap, and as much freed at its top is
+# kept for the next ones. By default both start small and grow with the blocks freed, and so a
+# build task whose grid rows are mapped from their files, not held (`tasks.build_recording`),
+# had its neighbourhoods' temporaries given back and faulted in anew for every chunk of ego rows:
+# twice the page faults, a third slower, and no less memory at its peak than with these.
+MALLOC_THRESHOLDS = {"MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "33554432"}
 _M_ARENA_MAX = -8  # glibc's mallopt parameter of the same
 
 
@@ -75,13 +81,15 @@ def available_cores() -> int:
 
 def worker_environment(environment: dict[str, str], size: int, frugal: bool) -> dict[str, str]:
     """What a pool of `size` workers adds to `environment` for its processes: the cores shared
-    out among them for Polars' threads, one malloc arena each, and if `frugal`, Polars'
-    allocator giving freed pages back at once (the user's own settings win)."""
+    out among them for Polars' threads, one malloc arena each with fixed thresholds
+    (MALLOC_THRESHOLDS), and if `frugal`, Polars' allocator giving freed pages back at once (the
+    user's own settings win)."""
     settings = {}
     if POLARS_THREADS not in environment:
         settings[POLARS_THREADS] = str(max(1, available_cores() // size))
     if MALLOC_ARENAS not in environment:
         settings[MALLOC_ARENAS] = "1"
+    settings |= {k: v for k, v in MALLOC_THRESHOLDS.items() if k not in environment}
     allocator = environment.get(JEMALLOC_CONF, "")
     if frugal and "decay_ms" not in allocator.removeprefix(POLARS_JEMALLOC_DEFAULTS):
         settings[JEMALLOC_CONF] = ",".join(filter(None, [allocator, FRUGAL_JEMALLOC_CONF]))

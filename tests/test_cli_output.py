@@ -185,7 +185,7 @@ def _save_fails(monkeypatch: pytest.MonkeyPatch) -> None:
     real = np.save
 
     def save(file: object, array: np.ndarray, allow_pickle: bool = True) -> None:
-        if "node_state" in str(file):
+        if "track_rows" in str(file):
             raise OSError("100000 requested and 32752 written")  # what np.save says
         real(file, array, allow_pickle=allow_pickle)
 
@@ -213,7 +213,7 @@ def _manifest_fails(monkeypatch: pytest.MonkeyPatch) -> None:
             "parquet: underlying IO error: No space left on device (os error 28)")), "",
          "cannot write: No space left on device"),
         # layout's writers name the file numpy's short write was in
-        (_save_fails, "arrays/us-101_0750am-0805am/node_state.npy", "cannot write: No space left on device"),
+        (_save_fails, "arrays/us-101_0750am-0805am/track_rows.npy", "cannot write: No space left on device"),
         (_manifest_fails, "manifest.json", "cannot write: No space left on device"),
     ],
 )  # fmt: skip

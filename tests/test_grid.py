@@ -12,7 +12,9 @@ from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.grid import (
+    ARRAY_NAMES,
     PAIR_KEY_STEP,
+    ROW_ARRAYS,
     grid_nodes,
     node_arrays,
     nodes_of_steps,
@@ -20,6 +22,7 @@ from ngsim_graphs.grid import (
     recording_arrays,
     step_pieces,
     with_pairs,
+    write_node_arrays,
 )
 
 
@@ -222,3 +225,65 @@ def test_pairs_a_piece_of_steps_at_a_time_are_the_pairs_of_all_steps(rows_per_pi
             np.concatenate([getattr(p, name) for p in pieces]), getattr(whole, name)
         )
     np.testing.assert_array_equal(sum(p.pair_ptr for p in pieces), whole.pair_ptr)
+
+
+def tracks_of(nodes: pl.DataFrame, first_track_id: int = 0) -> pl.LazyFrame:
+    """A tracks table that `nodes` are the grid nodes of, its rows shuffled: nothing may rely on
+    the tracks table's own order."""
+    return (
+        nodes.with_columns(
+            (pl.col(s.STEP) * 0.2).alias(s.TIME_S), pl.col(s.TRACK_ID) + first_track_id
+        )
+        .drop(s.STEP)
+        .sample(fraction=1.0, shuffle=True, seed=5)
+        .lazy()
+    )
+
+
+@pytest.mark.parametrize("rows_per_piece", [1, 37, 10_000])
+def test_node_arrays_written_a_range_of_steps_at_a_time_are_the_node_arrays(
+    rows_per_piece: int,
+) -> None:
+    """The rows of each range given to `write` in step order, the indexes returned whole: the
+    arrays of all grid nodes at once (track ids from 7 here), but for the rows' arrays, empty."""
+    nodes = contiguous_nodes(np.random.default_rng(rows_per_piece))
+    expected = node_arrays(grid_nodes(tracks_of(nodes, 7).collect(), 0.2))
+    written: list[dict[str, np.ndarray]] = []
+    indexed = write_node_arrays(tracks_of(nodes, 7), 0.2, rows_per_piece, written.append)
+    assert len(written) == 1 + len(step_pieces(expected.step_ptr, rows_per_piece))
+    assert len(written) > 3 or rows_per_piece == 10_000
+    assert indexed.first_track_id == expected.first_track_id == 7
+    for name in ARRAY_NAMES:
+        if name in ROW_ARRAYS:
+            assert len(getattr(indexed, name)) == 0
+            whole = np.concatenate([part[name] for part in written])
+            assert whole.dtype == getattr(expected, name).dtype
+            np.testing.assert_array_equal(whole, getattr(expected, name))
+        else:
+            assert getattr(indexed, name).dtype == getattr(expected, name).dtype, name
+            np.testing.assert_array_equal(getattr(indexed, name), getattr(expected, name))
+
+
+def test_node_arrays_of_no_rows_are_written_empty() -> None:
+    written: list[dict[str, np.ndarray]] = []
+    empty = grid_table([])
+    indexed = write_node_arrays(tracks_of(empty), 0.2, 100, written.append)
+    expected = node_arrays(empty)
+    assert [part["node_state"].shape for part in written] == [(0, 4)]
+    for name in ARRAY_NAMES:
+        if name not in ROW_ARRAYS:
+            np.testing.assert_array_equal(getattr(indexed, name), getattr(expected, name))
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (0, 2, 3, 0.0, 9.0, 0.0, 1.0)], "not consecutive"),
+        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (2, 0, 1, 0.0, 9.0, 0.0, 1.0)], "no row at a step"),
+        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (0, 0, 1, 0.0, 9.0, 0.0, 1.0)], "no row at a step"),
+    ],
+)
+def test_tracks_that_break_the_contract_are_refused(rows: list[tuple], message: str) -> None:
+    """Track ids 0 and 2; a track at steps 0 and 2 only; a track twice at one step."""
+    with pytest.raises(ValueError, match=message):
+        write_node_arrays(tracks_of(grid_table(rows)), 0.2, 100, lambda _: None)

@@ -159,8 +159,8 @@ def test_random_scenes_match_the_induced_graphs(
 def test_counts_and_ranges_of_ranges_of_steps_add_up_to_those_of_all_steps(
     config: BuildConfig,
 ) -> None:
-    """As a build finds them: the pairs and neighbourhoods of one range of steps at a time,
-    each range's counts added to every sample and its scaler joined; a sample's history often
+    """As a build finds them: the pairs, the rows sorted by y and the neighbourhoods of one
+    range of steps at a time, each range's counts added to every sample and its scaler joined; a sample's history often
     spans two ranges, and a range of one step holds a part of many samples."""
     rng = np.random.default_rng(23)
     spanned = 0
@@ -180,14 +180,15 @@ def test_counts_and_ranges_of_ranges_of_steps_add_up_to_those_of_all_steps(
                 config.time_step_s,
             )
         )
-        rows, by_y = ego_rows(history, len(bare.node_track)), rows_by_y(bare)
+        rows = ego_rows(history, len(bare.node_track))
         first_row, last_row = row_bounds(history)
         counts, ranges = np.zeros_like(expected_counts), MinMaxScaler.empty()
         for first, end in step_pieces(bare.step_ptr, rows_per_piece):
             lo, hi = int(bare.step_ptr[first]), int(bare.step_ptr[end])
             pairs = proximity_pairs(nodes_of_steps(bare, first, end), config.d_min_m)
             piece = with_pairs(bare, pairs)
-            hood = neighbourhoods_of_rows(piece, rows[(rows >= lo) & (rows < hi)], by_y, config)
+            mine, by_y = rows[(rows >= lo) & (rows < hi)], rows_by_y(bare, first, end)
+            hood = neighbourhoods_of_rows(piece, mine, by_y, config)
             # Every sample, touched or not, as row_bounds tells the build which to take.
             added = sample_counts(hood, history, config)
             untouched = (last_row < lo) | (first_row >= hi)
@@ -215,3 +216,17 @@ def test_no_windows_no_counts() -> None:
     counts, ranges = counted(rec, none, none, np.empty(0, bool), TINY)
     assert counts.shape == (0, 5)
     assert not ranges.is_fitted
+
+
+def test_the_rows_of_a_range_of_steps_by_y_are_those_of_all_steps_in_the_range() -> None:
+    """Global rows and keys, in the order of the whole recording's, for ranges of 1 to all steps."""
+    rec = arrays_of(random_scene(np.random.default_rng(4), SCENE_CONFIGS[0]), SCENE_CONFIGS[0])
+    order, keys = rows_by_y(rec)
+    assert rec.n_steps > 10
+    for first, end in [(0, rec.n_steps), (0, 1), (3, 4), (2, 9), (rec.n_steps - 1, rec.n_steps)]:
+        lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[end])
+        inside = (order >= lo) & (order < hi)
+        part_order, part_keys = rows_by_y(rec, first, end)
+        np.testing.assert_array_equal(part_order, order[inside])
+        np.testing.assert_array_equal(part_keys, keys[inside])
+        assert len(part_order) == hi - lo > 0

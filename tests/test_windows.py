@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import polars as pl
 import pytest
+from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
@@ -73,3 +74,13 @@ def test_windows_with_other_history_and_future_lengths() -> None:
 
 def test_no_tracks_no_windows() -> None:
     assert ego_windows(nodes_of({}), BuildConfig()).height == 0
+
+
+def test_a_lazy_table_of_nodes_in_any_order_gives_the_same_windows() -> None:
+    """What a build passes: the grid nodes streamed from the tracks table, in its order."""
+    config = BuildConfig(stride_s=0.4)
+    nodes = nodes_of({4: (10, 81), 2: (0, 41), 9: (3, 30)})
+    shuffled = nodes.sample(fraction=1.0, shuffle=True, seed=1).lazy()
+    expected = ego_windows(nodes, config)
+    assert expected.height > 20
+    assert_frame_equal(ego_windows(shuffled, config), expected)

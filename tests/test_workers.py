@@ -18,6 +18,7 @@ from ngsim_graphs.workers import (
     FRUGAL_JEMALLOC_CONF,
     JEMALLOC_CONF,
     MALLOC_ARENAS,
+    MALLOC_THRESHOLDS,
     POLARS_JEMALLOC_DEFAULTS,
     POLARS_THREADS,
     Processes,
@@ -95,22 +96,25 @@ def test_workers_share_the_cores_and_leave_the_environment_as_it_was() -> None:
 def test_worker_environment_shares_cores_and_lets_the_users_settings_win() -> None:
     cores = str(max(1, available_cores() // 2))
     polars = POLARS_JEMALLOC_DEFAULTS  # what importing Polars leaves in the environment
-    assert worker_environment({}, 2, frugal=False) == {POLARS_THREADS: cores, MALLOC_ARENAS: "1"}
+    malloc = {MALLOC_ARENAS: "1", **MALLOC_THRESHOLDS}
+    assert worker_environment({}, 2, frugal=False) == {POLARS_THREADS: cores, **malloc}
     assert worker_environment({JEMALLOC_CONF: polars}, 2, frugal=True) == {
         POLARS_THREADS: cores,
-        MALLOC_ARENAS: "1",
+        **malloc,
         JEMALLOC_CONF: f"{polars},{FRUGAL_JEMALLOC_CONF}",  # later options win
     }
     users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", JEMALLOC_CONF: f"{polars},narenas:2"}
+    users |= {"MALLOC_TRIM_THRESHOLD_": "0"}
     assert worker_environment(users, 2, frugal=True) == {
-        JEMALLOC_CONF: f"{polars},narenas:2,{FRUGAL_JEMALLOC_CONF}"
+        JEMALLOC_CONF: f"{polars},narenas:2,{FRUGAL_JEMALLOC_CONF}",
+        "MALLOC_MMAP_THRESHOLD_": MALLOC_THRESHOLDS["MALLOC_MMAP_THRESHOLD_"],
     }
     # The user's own decay wins, and so does the user's environment wholly.
     users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", JEMALLOC_CONF: f"{polars},dirty_decay_ms:9"}
-    assert worker_environment(users, 2, frugal=True) == {}
+    assert worker_environment(users | MALLOC_THRESHOLDS, 2, frugal=True) == {}
     assert worker_environment({}, 2, frugal=True) == {
         POLARS_THREADS: cores,
-        MALLOC_ARENAS: "1",
+        **malloc,
         JEMALLOC_CONF: FRUGAL_JEMALLOC_CONF,
     }
 
