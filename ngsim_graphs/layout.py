@@ -246,6 +246,13 @@ def staged_tracks_path(root: Path, location: str, period: str, part: int) -> Pat
     return root / STAGING_DIR / recording_name(location, period) / f"tracks-{part:05d}.parquet"
 
 
+def staged_evidence_path(root: Path, location: str, period: str, part: int, group: int) -> Path:
+    """What the source's recording checks need of one group of vehicles of a part of a
+    recording (`sources.contract.TracksPart.evidence`), kept only while building."""
+    name = f"evidence-{part:05d}-{group:04d}.parquet"
+    return root / STAGING_DIR / recording_name(location, period) / name
+
+
 def staged_windows_path(root: Path, location: str, period: str) -> Path:
     """The samples (ego windows, split and counts) of one recording, kept only while building:
     the samples tables are streamed from them."""

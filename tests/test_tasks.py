@@ -107,3 +107,27 @@ def test_a_row_without_a_vehicle_id_is_an_error_not_a_row_lost(tmp_path: Path) -
     source = source_of([7, None], [0, 0])
     with pytest.raises(ValueError, match="without a vehicle id"):
         tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
+
+
+@pytest.mark.parametrize(
+    ("most_rows", "groups"),
+    [
+        (6, [[3, 4], [7, 9]]),  # rows before each vehicle: 0, 5, 7, 11 -> groups 0, 0, 1, 1
+        (4, [[3], [4, 7], [9]]),  # 0, 5, 7, 11 -> 0, 1, 1, 2: vehicle 3 alone, over the limit
+        (1_000, [[3, 4, 7, 9]]),
+        (1, [[3], [4], [7], [9]]),
+    ],
+)
+def test_a_part_is_cleaned_in_groups_of_whole_vehicles(most_rows: int, groups: list) -> None:
+    """Vehicles 3, 4, 7 and 9 with 5, 2, 4 and 1 rows, in any order: consecutive ids, each
+    group starting at the vehicle whose rows before it pass a multiple of `most_rows`."""
+    ids = [7, 3, 4, 3, 9, 3, 7, 3, 4, 7, 3, 7]
+    raw = pl.DataFrame({s.VEHICLE_ID: ids}, schema={s.VEHICLE_ID: pl.Int32}).lazy()
+    chosen = [raw.filter(group).collect() for group in tasks.vehicle_groups(raw, most_rows)]
+    assert [sorted(set(rows[s.VEHICLE_ID])) for rows in chosen] == groups
+    assert sum(rows.height for rows in chosen) == len(ids)
+
+
+def test_a_part_without_rows_is_one_group() -> None:
+    raw = pl.DataFrame(schema={s.VEHICLE_ID: pl.Int32}).lazy()
+    assert [raw.filter(g).collect().height for g in tasks.vehicle_groups(raw, 10)] == [0]

@@ -124,7 +124,9 @@ class TracksPart:
 
     tracks: pl.DataFrame  # TRACKS_SCHEMA
     report: RecordingReport  # the counts of these vehicles' rows; its speed_* fields unset
-    evidence: pl.DataFrame  # what the source's recording checks need of these rows, or empty
+    # What the source's recording checks need of these rows, or empty; lazy where a build has
+    # staged it (tasks.clean_recording): a recording's evidence is never held whole.
+    evidence: pl.DataFrame | pl.LazyFrame
 
 
 @dataclass(frozen=True)

@@ -159,16 +159,69 @@ def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
     return compared.filter(pl.col("whole").fill_null(False)).drop("whole")
 
 
-def speed_medians(compared: pl.DataFrame) -> tuple[float, float, int]:
+def speed_medians(compared: pl.DataFrame | pl.LazyFrame) -> tuple[float, float, int]:
     """(median |v_Vel - shown speed|, median shown speed, rows compared) in m/s of the rows of
-    `speed_comparison`; NaN medians when no row has a whole window."""
-    if compared.height == 0:
+    `speed_comparison`; NaN medians when no row has a whole window.
+
+    A lazy table (a build's, from its staged files) is never held whole: each median is exact,
+    found by `streamed_median`."""
+    compared = compared.lazy()
+    columns = {
+        "mismatch": (pl.col("vel") - pl.col("shown")).abs(),
+        "shown": pl.col("shown"),
+    }
+    rows = compared.select(pl.len()).collect(engine="streaming").item()
+    if rows == 0:
         return math.nan, math.nan, 0
-    medians = compared.select(
-        (pl.col("vel") - pl.col("shown")).abs().median(), pl.col("shown").median()
-    )
-    mismatch, speed = medians.row(0)
-    return mismatch * FEET_TO_M, speed * FEET_TO_M, compared.height
+    mismatch, speed = (streamed_median(compared.select(e.alias(n))) for n, e in columns.items())
+    return mismatch * FEET_TO_M, speed * FEET_TO_M, rows
+
+
+# A median is found among at most this many values held at once (`streamed_median`), narrowed
+# down a histogram of this many bins at a time.
+MEDIAN_HELD_VALUES = 65_536
+MEDIAN_BINS = 1_024
+
+
+def streamed_median(values: pl.LazyFrame) -> float | None:
+    """Polars' median of the one column of `values` (nulls left out; None if all are), exactly,
+    with no more than MEDIAN_HELD_VALUES of them in memory at once where no value is NaN.
+
+    The middle values (one, or two of an even count) are found by counting the values in bins
+    of a histogram over the range they are in, keeping the bin they fall in, until it holds few
+    enough to sort; Polars then takes their median, as it would of all the values."""
+    column = pl.col(values.collect_schema().names()[0])
+    values = values.filter(column.is_not_null())
+    count, nans = values.select(pl.len(), column.is_nan().sum()).collect(engine="streaming").row(0)
+    if count == 0:
+        return None
+    if nans:  # NaN sorts above every number: Polars' own median of all of them
+        return values.collect(engine="streaming").to_series().median()
+    middle = sorted({(count - 1) // 2, count // 2})
+    return pl.Series([_kth_smallest(values, column, k) for k in middle]).median()
+
+
+def _kth_smallest(values: pl.LazyFrame, column: pl.Expr, k: int) -> float:
+    """The k-th smallest (from 0) of a column without null or NaN (see `streamed_median`)."""
+    while True:
+        low, high, count = (
+            values.select(column.min().alias("low"), column.max().alias("high"), pl.len())
+            .collect(engine="streaming")
+            .row(0)
+        )
+        if low == high:
+            return low
+        if count <= MEDIAN_HELD_VALUES:
+            return values.collect(engine="streaming").to_series().sort()[k]
+        # The same expression in every pass: a value falls in the same bin each time.
+        bins = ((column - low) / (high - low) * MEDIAN_BINS).floor().clip(0, MEDIAN_BINS - 1)
+        per_bin = values.group_by(bins.alias("bin")).len().sort("bin").collect(engine="streaming")
+        if per_bin.height == 1:  # a range too wide for its bins: no narrowing, every value held
+            return values.collect(engine="streaming").to_series().sort()[k]
+        before = per_bin["len"].cum_sum() - per_bin["len"]
+        at = int((before <= k).sum()) - 1
+        k -= int(before[at])
+        values = values.filter(bins == per_bin["bin"][at])
 
 
 def check_speed_column(

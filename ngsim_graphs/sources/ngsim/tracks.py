@@ -185,8 +185,9 @@ def vehicle_tracks(
 
 def joined_report(parts: list[TracksPart], key: RecordingKey) -> RecordingReport:
     """The report of the recording made of `parts`, before its checks: summed counts, and the
-    medians of the speed comparison over all its rows."""
-    mismatch, shown, compared = speed_medians(pl.concat([p.evidence for p in parts]))
+    medians of the speed comparison over all its rows (streamed where the parts' evidence is
+    lazy, as a build stages it)."""
+    mismatch, shown, compared = speed_medians(pl.concat([p.evidence.lazy() for p in parts]))
     return replace(
         joined_counts(parts, key),
         speed_mismatch_mps=mismatch,
