@@ -74,6 +74,9 @@ from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script
 # steps at a time, about this many grid rows each: the rows and their pairs, ten a row in a dense
 # recording, then take memory by this number, not by the size of the recording.
 PIECE_ROWS = 32_768  # with 1,024-row chunks: the largest task 0.25 -> 0.21 GB, no slower
+# The grid rows are made in larger ranges: each reads the tracks table's row groups of its
+# times anew, and its rows alone take little memory (about 10 MB).
+GRID_ROWS = 262_144
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
 # Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
 PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
@@ -331,7 +334,7 @@ def build_recording(
     del raw  # the windows are all the rest needs of it
     folder = layout.recording_arrays_dir(root, *key)
     with layout.ArrayAppender(folder, ROW_ARRAYS) as row_files:
-        arrays = write_node_arrays(tracks, config.time_step_s, PIECE_ROWS, row_files.append)
+        arrays = write_node_arrays(tracks, config.time_step_s, GRID_ROWS, row_files.append)
     with (
         layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
         layout.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,

@@ -219,11 +219,13 @@ def test_the_same_build_twice_is_byte_identical(
 def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The pairs found, written and used 2,000 grid rows at a time (about 20 pieces a recording
-    here; the default is one): every array, table and count of the build is the same, the
-    proximity tables hold the same rows in more row groups."""
+    """The grid rows made 3,000 at a time, and the pairs found, written and used 2,000 grid
+    rows at a time (about 20 pieces a recording here; the default is one): every array, table
+    and count of the build is the same, the proximity tables hold the same rows in more row
+    groups."""
     raw, first = synthetic_build(tmp_path_factory)
     monkeypatch.setattr(tasks, "PIECE_ROWS", 2_000)
+    monkeypatch.setattr(tasks, "GRID_ROWS", 3_000)
     run_build([raw], tmp_path / "pieces", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "pieces")
     proximity = [name for name in before if name.startswith(layout.PROXIMITY_DIR)]
