@@ -262,7 +262,7 @@ def build(
             min=1,
             help="Worker processes that read the input files and build the recordings at once "
             "(default: one per core this process may use). The output is the same for any "
-            "number; peak memory grows with it, about 0.4 GB per job at full NGSIM scale.",
+            "number; peak memory grows with it, about 0.25 GB per job at full NGSIM scale.",
             show_default=False,
         ),
     ] = None,

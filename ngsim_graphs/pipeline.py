@@ -8,10 +8,12 @@ scaler's ranges (`tasks`). The files and then the recordings go to `--jobs` work
 the manifest) is decided here, between the stages, so that any number of jobs gives the same
 build.
 
-Memory stays bounded per job by one input file, by a part of a recording's vehicles, or by a
-recording's grid rows (cs-lstm: and raw rows) and a range of its proximity pairs (`tasks`). A
-recording's samples are staged by its task; this process writes the samples tables from them a
-recording at a time, and keeps of each recording only its counts and scaler ranges.
+Memory stays bounded per job, whatever the size of a file or recording: a task holds a batch of
+a file's rows, a group of a recording's vehicles, or a range of a recording's grid rows and
+proximity pairs, and of a whole recording only its samples and an index or two per grid row
+(`tasks`; cs-lstm: also its raw rows' five columns). A recording's samples are staged by its
+task; this process writes the samples tables from them a recording at a time, and keeps of each
+recording only its counts and scaler ranges.
 """
 
 from __future__ import annotations
