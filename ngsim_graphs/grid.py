@@ -225,24 +225,28 @@ def write_node_arrays(
     first, steps = per_track["first"].to_numpy(), per_track["len"].to_numpy().astype(np.int64)
     if not (np.array_equal(track, first_track + np.arange(len(track)))):
         raise ValueError("the track ids of a recording are not consecutive")
+    one_row_a_step = "a track has not one row at each step from its first to its last"
     if not np.array_equal(per_track["last"].to_numpy() - first + 1, steps):
-        raise ValueError("a track has no row at a step between its first and its last")
+        raise ValueError(one_row_a_step)
     per_step = np.zeros(int(step.max()) + 1 if len(step) else 0, np.int64)
     per_step[step] = counts["len"].to_numpy()
     step_ptr = np.concatenate([np.zeros(1, np.int64), np.cumsum(per_step)])
     track_ptr = np.concatenate([np.zeros(1, np.int64), np.cumsum(steps)])
-    track_rows = np.empty(int(step_ptr[-1]), np.int32)
+    track_rows = np.full(int(step_ptr[-1]), -1, np.int32)
     empty = node_arrays(nodes.head(0).collect())
     write({name: getattr(empty, name) for name in ROW_ARRAYS})  # a recording without rows too
     for piece_first, piece_end in step_pieces(step_ptr, rows_per_piece):
         piece = nodes_in_steps(tracks, piece_first, piece_end, time_step_s)
         lo, hi = int(step_ptr[piece_first]), int(step_ptr[piece_end])
-        if piece.height != hi - lo:  # the table changed between the counts and now
+        if piece.height != hi - lo:  # the rows read are the rows counted
             raise ValueError(f"steps {piece_first}-{piece_end}: {piece.height} rows, not {hi - lo}")
         local = piece[s.TRACK_ID].to_numpy() - first_track
         at = track_ptr[local] + piece[s.STEP].to_numpy() - first[local]
         track_rows[at] = np.arange(lo, hi, dtype=np.int32)
         write(_row_arrays(piece))
+        del piece, local, at  # before the next range is read
+    if (track_rows < 0).any():  # a step twice and one missing: as many rows as steps
+        raise ValueError(one_row_a_step)
     return replace(
         empty,
         step_ptr=step_ptr,

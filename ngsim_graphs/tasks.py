@@ -112,7 +112,8 @@ def recording_windows(
         if raw is None:
             raise ValueError("the cs-lstm protocol needs the recording's raw rows")
         return script_windows(raw, nodes, dataset_id, config)
-    max_vehicle_id = nodes.lazy().select(pl.col(s.VEHICLE_ID).max()).collect().item() or 0
+    largest = nodes.lazy().select(pl.col(s.VEHICLE_ID).max()).collect(engine="streaming")
+    max_vehicle_id = largest.item() or 0
     windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
     return windows, None
 
@@ -274,9 +275,11 @@ def clean_recording(
                 evidence = cleaned.evidence
                 if evidence.collect_schema().len():  # staged: the checks stream it
                     path = layout.staged_evidence_path(root, *key, part, group)
-                    layout.write_staged(evidence.lazy().collect(), path)
+                    lazy = isinstance(evidence, pl.LazyFrame)
+                    layout.write_staged(evidence.collect() if lazy else evidence, path)
                     evidence = pl.scan_parquet(path)
                 parts.append(replace(cleaned, tracks=cleaned.tracks.clear(), evidence=evidence))
+                del rows, cleaned  # before the next group is read
     return source.recording_report(parts, key, config, files, strict)
 
 
@@ -286,8 +289,9 @@ CLEAN_ROWS = 65_536
 
 
 def vehicle_groups(raw: pl.LazyFrame, most_rows: int) -> list[pl.Expr]:
-    """Which rows of `raw` to clean together: consecutive vehicle ids, as many as have at most
-    `most_rows` rows (at least one vehicle; every row of a vehicle in one group)."""
+    """Which rows of `raw` to clean together: consecutive vehicle ids, a group starting at each
+    vehicle whose rows before it pass a multiple of `most_rows` (so a group holds at most
+    `most_rows` rows and its last vehicle's; every row of a vehicle in one group)."""
     counts = raw.group_by(s.VEHICLE_ID).len().sort(s.VEHICLE_ID).collect(engine="streaming")
     if counts.height == 0:
         return [pl.lit(True)]  # a recording without rows: its part is cleaned all the same
@@ -331,7 +335,7 @@ def build_recording(
     largest = pl.col(s.VEHICLE_ID).unique().sort(descending=True).head(2)
     ids = split_by.select(largest).collect(engine="streaming")[s.VEHICLE_ID].to_list() + [0, 0]
     windows, script = recording_windows(nodes, index, config, raw, DATASET_IDS.get(key, 0))
-    del raw  # the windows are all the rest needs of it
+    del raw, split_by  # the windows are all the rest needs of them (a lazy frame holds its data)
     folder = layout.recording_arrays_dir(root, *key)
     with layout.ArrayAppender(folder, ROW_ARRAYS) as row_files:
         arrays = write_node_arrays(tracks, config.time_step_s, GRID_ROWS, row_files.append)

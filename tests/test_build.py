@@ -268,10 +268,12 @@ def test_tables_streamed_in_small_row_groups_hold_the_same_rows(
 ) -> None:
     """The samples tables streamed from the recordings' staged samples, and the tracks tables
     from their staged parts, 100 rows a row group (the default holds each here in one): the
-    same rows, the samples numbered over both recordings; every other file of the build is the
-    same, byte for byte."""
+    same rows, the samples numbered over both recordings. The grid rows, made 3,000 at a time
+    from such tracks tables (each range reads the row groups of its times), and every other
+    file of the build are the same, byte for byte."""
     raw, first = synthetic_build(tmp_path_factory)
     monkeypatch.setattr(layout, "SINK_ROW_GROUP_ROWS", 100)
+    monkeypatch.setattr(tasks, "GRID_ROWS", 3_000)  # grid rows of many row groups' times
     run_build([raw], tmp_path / "streamed", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "streamed")
     samples = [name for name in before if name.startswith(layout.SAMPLES_DIR)]

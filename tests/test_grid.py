@@ -279,11 +279,17 @@ def test_node_arrays_of_no_rows_are_written_empty() -> None:
     ("rows", "message"),
     [
         ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (0, 2, 3, 0.0, 9.0, 0.0, 1.0)], "not consecutive"),
-        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (2, 0, 1, 0.0, 9.0, 0.0, 1.0)], "no row at a step"),
-        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (0, 0, 1, 0.0, 9.0, 0.0, 1.0)], "no row at a step"),
+        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (2, 0, 1, 0.0, 9.0, 0.0, 1.0)], "not one row at each"),
+        ([(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (0, 0, 1, 0.0, 9.0, 0.0, 1.0)], "not one row at each"),
+        (
+            [(0, 0, 1, 0.0, 0.0, 0.0, 1.0), (0, 0, 1, 0.0, 9.0, 0.0, 1.0)]
+            + [(2, 0, 1, 0.0, 9.0, 0.0, 1.0)],
+            "not one row at each",
+        ),
     ],
 )
 def test_tracks_that_break_the_contract_are_refused(rows: list[tuple], message: str) -> None:
-    """Track ids 0 and 2; a track at steps 0 and 2 only; a track twice at one step."""
+    """Track ids 0 and 2; a track at steps 0 and 2 only; a track twice at one step; a track
+    twice at step 0 and at step 2 (as many rows as steps from its first to its last)."""
     with pytest.raises(ValueError, match=message):
         write_node_arrays(tracks_of(grid_table(rows)), 0.2, 100, lambda _: None)

@@ -160,8 +160,9 @@ def test_counts_and_ranges_of_ranges_of_steps_add_up_to_those_of_all_steps(
     config: BuildConfig,
 ) -> None:
     """As a build finds them: the pairs, the rows sorted by y and the neighbourhoods of one
-    range of steps at a time, each range's counts added to every sample and its scaler joined; a sample's history often
-    spans two ranges, and a range of one step holds a part of many samples."""
+    range of steps at a time, each range's counts added to every sample and its scaler
+    joined; a sample's history often spans two ranges, and a range of one step holds a part
+    of many samples."""
     rng = np.random.default_rng(23)
     spanned = 0
     for rows_per_piece in (1, 9, 60, 10_000):

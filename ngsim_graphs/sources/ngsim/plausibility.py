@@ -198,7 +198,8 @@ def streamed_median(values: pl.LazyFrame) -> float | None:
     if nans:  # NaN sorts above every number: Polars' own median of all of them
         return values.collect(engine="streaming").to_series().median()
     middle = sorted({(count - 1) // 2, count // 2})
-    return pl.Series([_kth_smallest(values, column, k) for k in middle]).median()
+    dtype = values.collect_schema().dtypes()[0]
+    return pl.Series([_kth_smallest(values, column, k) for k in middle], dtype=dtype).median()
 
 
 def _kth_smallest(values: pl.LazyFrame, column: pl.Expr, k: int) -> float:
