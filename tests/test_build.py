@@ -200,6 +200,14 @@ def build_files(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in files}
 
 
+def assert_same_build(first: Path, other: Path) -> None:
+    """Every file of the two builds, the manifest included, byte for byte the same."""
+    before, after = build_files(first), build_files(other)
+    assert before.keys() == after.keys()
+    assert [name for name in before if before[name] != after[name]] == []
+    assert (other / "manifest.json").read_bytes() == (first / "manifest.json").read_bytes()
+
+
 @pytest.mark.parametrize("jobs", [1, 3])
 def test_the_same_build_twice_is_byte_identical(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, jobs: int
@@ -207,13 +215,10 @@ def test_the_same_build_twice_is_byte_identical(
     """Also with three worker processes (the first build had one): files and manifest alike."""
     raw, first = synthetic_build(tmp_path_factory)
     run_build([raw], tmp_path / "again", BuildConfig(), jobs=jobs)
-    before, after = build_files(first), build_files(tmp_path / "again")
+    before = build_files(first)
     assert sum(name.endswith(".npy") for name in before) == 2 * 10 + 3 * 3
     assert sum(name.endswith(".parquet") for name in before) == 2 + 2 + 3
-    assert before.keys() == after.keys()
-    assert [name for name in before if before[name] != after[name]] == []
-    manifest = (tmp_path / "again" / "manifest.json").read_bytes()
-    assert manifest == (first / "manifest.json").read_bytes()
+    assert_same_build(first, tmp_path / "again")
 
 
 def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
@@ -256,11 +261,7 @@ def test_a_recording_cleaned_a_few_vehicles_at_a_time_is_the_recording_cleaned_a
     monkeypatch.setattr(tasks, "vehicle_groups", counted)
     run_build([raw], tmp_path / "groups", BuildConfig(), jobs=1)
     assert sum(len(g) for g in groups) > 10 * len(groups) > 10  # 10 groups a part and more
-    before, after = build_files(first), build_files(tmp_path / "groups")
-    assert before.keys() == after.keys()
-    assert [name for name in before if before[name] != after[name]] == []
-    manifest = (tmp_path / "groups" / "manifest.json").read_bytes()
-    assert manifest == (first / "manifest.json").read_bytes()
+    assert_same_build(first, tmp_path / "groups")
 
 
 def test_tables_streamed_in_small_row_groups_hold_the_same_rows(
