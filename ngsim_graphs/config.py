@@ -27,6 +27,11 @@ class PhysicalLimits:
     max_jump_m: float = 10.0  # between two consecutive 0.1 s frames of a vehicle: 100 m/s
     max_outlier_frames: int = 10  # a displaced burst this long or shorter is dropped (1 s)
     max_frame_id: int = 72_000  # two hours at 10 Hz; the first frame is 0
+    # Vehicle sizes above 0 and up to these (NGSIM's longest trucks are about 23 m, 2.6 m wide).
+    max_vehicle_length_m: float = 40.0
+    max_vehicle_width_m: float = 5.0
+    # Lane numbers from 0 up to this: NGSIM's arterials number turn bays and intersections too.
+    max_lane_id: int = 255
     # v_Vel must agree with the motion the positions show over 1 s: the median difference may be
     # at most this plus this share of the median speed, or the speed column is not a speed in
     # feet per second (swapped with v_Acc, another unit).
@@ -42,8 +47,11 @@ class PhysicalLimits:
             self.max_abs_accel_mps2,
             self.max_abs_position_m,
             self.max_jump_m,
+            self.max_vehicle_length_m,
+            self.max_vehicle_width_m,
         )
-        if min(positive) <= 0 or self.max_frame_id < 1 or self.max_outlier_frames < 1:
+        whole = (self.max_frame_id, self.max_outlier_frames, self.max_lane_id)
+        if min(positive) <= 0 or min(whole) < 1:
             raise ValueError("physical limits must be positive")
         if not 0 <= self.max_dropped_share <= 1:
             raise ValueError("max_dropped_share must be in [0, 1]")

@@ -51,6 +51,13 @@ class DropReason(str, Enum):
     ACCELERATION = "acceleration_out_of_range"  # |v_Acc| above the limit
     GLOBAL_TIME = "global_time_off_recording"  # Global_Time - 100 * Frame_ID not its recording's
     POSITION_OUTLIER = "position_outlier"  # farther than the jump limit from both its neighbours
+    VEHICLE_SIZE = "vehicle_size_out_of_range"  # length or width not above 0 or above the limit
+    LANE = "lane_id_out_of_range"  # Lane_ID below 0 or above the limit
+    VEHICLE_CLASS = "vehicle_class_unknown"  # v_Class none of 1 (motorcycle), 2 (car), 3 (truck)
+    HEADWAY = (
+        "headway_out_of_range"  # a headway below 0 or beyond its limit, a neighbour id below 0
+    )
+    DIRECTION = "driving_against_direction"  # highD: moving against its drivingDirection
 
 
 class Split(str, Enum):

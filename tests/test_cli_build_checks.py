@@ -89,6 +89,11 @@ def test_implausible_rows_are_counted_per_reason(tmp_path: Path, rows: list[dict
         DropReason.ACCELERATION.value: 1,
         DropReason.GLOBAL_TIME.value: 0,
         DropReason.POSITION_OUTLIER.value: 1,
+        DropReason.VEHICLE_SIZE.value: 0,
+        DropReason.LANE.value: 0,
+        DropReason.VEHICLE_CLASS.value: 0,
+        DropReason.HEADWAY.value: 0,
+        DropReason.DIRECTION.value: 0,
     }
     # Lines: the header is line 1, so row i is on line i + 2.
     assert manifest(out)["inputs"][0]["first_dropped_line"] == {

@@ -35,6 +35,11 @@ DESCRIPTIONS: dict[DropReason, str] = {
     DropReason.ACCELERATION: "v_Acc above the acceleration limit",
     DropReason.GLOBAL_TIME: "Global_Time off its recording (Global_Time - 100 * Frame_ID differs)",
     DropReason.POSITION_OUTLIER: "position jumps away from the neighbouring frames",
+    DropReason.VEHICLE_SIZE: "v_Length or v_Width not above 0 or above the size limit",
+    DropReason.LANE: "Lane_ID below 0 or above the lane limit",
+    DropReason.VEHICLE_CLASS: "v_Class none of 1 (motorcycle), 2 (car), 3 (truck)",
+    DropReason.HEADWAY: "a headway or a Preceding/Following id out of range",
+    DropReason.DIRECTION: "the positions move against the vehicle's driving direction",
 }
 
 
