@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import polars as pl
 import pytest
 from conftest import I80_FIRST, make_row, write_period_csv, write_portal, write_txt
 from test_cli_ngsim import assert_failed_cleanly, invoke, snapshot
@@ -117,6 +118,40 @@ def test_implausible_rows_are_counted_per_reason(tmp_path: Path, rows: list[dict
     cells = [[c.strip() for c in line.split("│")[1:-1]] for line in stats.stdout.splitlines()]
     assert ["speed out of range", "2", "0.2%"] in cells
     assert ["position outlier", "1", "0.1%"] in cells
+
+
+def test_impossible_values_beside_the_motion_never_reach_the_tracks(
+    tmp_path: Path, rows: list[dict]
+) -> None:
+    # On main these five rows reached the tracks table: length 3e307 m, width -1.5 m, lane -3,
+    # class 9, a time headway of -1e300 s.
+    edits = {
+        120: {s.V_LENGTH: 1e308},
+        230: {s.V_WIDTH: -5.0},
+        340: {s.LANE_ID: -3},
+        450: {s.V_CLASS: 9},
+        560: {s.TIME_HEADWAY: -1e300},
+    }
+    for i, edit in edits.items():
+        rows[i] = {**rows[i], **edit}
+    path = write_period_csv(tmp_path / "trajectories-0750am-0805am.csv", rows)
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    inputs = manifest(out)["inputs"][0]
+    assert inputs["first_dropped_line"] == {
+        DropReason.VEHICLE_SIZE.value: 122,
+        DropReason.LANE.value: 342,
+        DropReason.VEHICLE_CLASS.value: 452,
+        DropReason.HEADWAY.value: 562,
+    }
+    assert inputs["rows_dropped"][DropReason.VEHICLE_SIZE.value] == 2
+    assert "dropped 2 rows: v_Length or v_Width not above 0" in result.stdout
+    tracks = pl.read_parquet(out / "tracks" / "us-101_0750am-0805am.parquet")
+    assert tracks.select(
+        pl.col(s.LENGTH_M).max(), pl.col(s.WIDTH_M).min(), pl.col(s.LANE_ID).min(),
+        pl.col(s.V_CLASS).max(), pl.col(s.TIME_HEADWAY_S).min(),
+    ).row(0) == (pytest.approx(15.0 * 0.3048), pytest.approx(6.0 * 0.3048), 2, 2, None)  # fmt: skip
 
 
 def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:

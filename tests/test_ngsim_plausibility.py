@@ -66,6 +66,35 @@ def test_each_limit_by_hand() -> None:
     ]
 
 
+def test_the_columns_beside_the_motion_by_hand() -> None:
+    longest_ft, widest_ft = 40.0 / FT, 5.0 / FT
+    rows = [
+        make_row(1, 5, v_length=longest_ft, v_width=widest_ft),  # the largest allowed
+        make_row(1, 5, v_length=0.0),
+        make_row(1, 5, v_length=1e308),
+        make_row(1, 5, v_width=-5.0),
+        make_row(1, 5, v_length=None, v_width=None),  # empty: no reason
+        make_row(1, 5, lane_id=0),  # arterials number intersections 0
+        make_row(1, 5, lane_id=-3),
+        make_row(1, 5, lane_id=256),
+        make_row(1, 5, v_class=9),
+        make_row(1, 5, v_class=0),
+        make_row(1, 5, space_headway=-0.01),
+        make_row(1, 5, space_headway=5_000.0 / FT + 1.0),
+        make_row(1, 5, time_headway=-1e300),
+        make_row(1, 5, time_headway=10_000.0),
+        make_row(1, 5, preceding=-1),
+        make_row(1, 5, following=-7),
+        make_row(1, 5, preceding=12, space_headway=80.0, time_headway=1.7),
+    ]
+    size, lane = DropReason.VEHICLE_SIZE.value, DropReason.LANE.value
+    vehicle_class, headway = DropReason.VEHICLE_CLASS.value, DropReason.HEADWAY.value
+    assert reasons(rows) == [
+        None, size, size, size, None, None, lane, lane, vehicle_class, vehicle_class,
+        headway, headway, headway, headway, headway, headway, None,
+    ]  # fmt: skip
+
+
 def test_a_row_counts_under_its_first_failed_check() -> None:
     # Negative frame, zero vehicle, huge speed: the frame check comes first.
     assert reasons([make_row(0, -3, v_vel_fps=1e9)]) == [DropReason.FRAME_ID.value]

@@ -25,7 +25,12 @@ ROW_CHECKS: tuple[DropReason, ...] = (
     DropReason.POSITION,
     DropReason.SPEED,
     DropReason.ACCELERATION,
+    DropReason.VEHICLE_SIZE,
+    DropReason.LANE,
+    DropReason.VEHICLE_CLASS,
+    DropReason.HEADWAY,
 )
+VEHICLE_CLASSES = (1, 2, 3)  # motorcycle, car, truck
 
 DESCRIPTIONS: dict[DropReason, str] = {
     DropReason.FRAME_ID: "Frame_ID out of range",
@@ -61,7 +66,29 @@ def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
         return (pl.col(s.V_VEL) < 0) | (pl.col(s.V_VEL) > feet(limits.max_speed_mps))
     if reason is DropReason.ACCELERATION:
         return pl.col(s.V_ACC).abs() > feet(limits.max_abs_accel_mps2)
+    if reason is DropReason.VEHICLE_SIZE:
+        return _outside(s.V_LENGTH, 0, feet(limits.max_vehicle_length_m), True) | _outside(
+            s.V_WIDTH, 0, feet(limits.max_vehicle_width_m), True
+        )
+    if reason is DropReason.LANE:
+        return _outside(s.LANE_ID, 0, limits.max_lane_id)
+    if reason is DropReason.VEHICLE_CLASS:
+        return ~pl.col(s.V_CLASS).is_in(VEHICLE_CLASSES)
+    if reason is DropReason.HEADWAY:
+        # 0 says "no leader" for Space_Headway and the ids, 9999.99 for Time_Headway.
+        return (
+            _outside(s.SPACE_HEADWAY, 0, feet(limits.max_abs_position_m))
+            | _outside(s.TIME_HEADWAY, 0, s.NO_LEADER_TIME_HEADWAY_S)
+            | (pl.col(s.PRECEDING) < 0)
+            | (pl.col(s.FOLLOWING) < 0)
+        )
     raise ValueError(f"{reason} is not a row check")
+
+
+def _outside(column: str, low: float, high: float, open_below: bool = False) -> pl.Expr:
+    """Whether a value lies outside [low, high] ((low, high] where `open_below`)."""
+    below = pl.col(column) <= low if open_below else pl.col(column) < low
+    return below | (pl.col(column) > high)
 
 
 def passes_row_checks(limits: PhysicalLimits) -> pl.Expr:
