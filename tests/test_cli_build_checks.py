@@ -154,6 +154,39 @@ def test_impossible_values_beside_the_motion_never_reach_the_tracks(
     ).row(0) == (pytest.approx(15.0 * 0.3048), pytest.approx(6.0 * 0.3048), 2, 2, None)  # fmt: skip
 
 
+def _i80(rows: list[dict]) -> list[dict]:
+    """The same rows in i-80 0400-0415."""
+    shift = I80_FIRST.start_epoch_ms - rows[0][s.GLOBAL_TIME] + 100 * rows[0][s.FRAME_ID]
+    return [{**row, s.GLOBAL_TIME: row[s.GLOBAL_TIME] + shift} for row in rows]
+
+
+def _swap_position_and_acceleration(row: dict) -> dict:
+    return {**row, s.GLOBAL_X: row[s.V_ACC], s.V_ACC: row[s.GLOBAL_X]}
+
+
+@pytest.mark.parametrize(
+    ("damage", "fragment"),
+    [
+        (lambda row: {**row, s.V_VEL: 300.0}, "1,000 v_Vel negative or above the speed limit"),
+        (lambda row: {**row, s.FRAME_ID: row[s.FRAME_ID] + 80_000}, "1,000 Frame_ID out of range"),
+        (lambda row: {**row, s.VEHICLE_ID: 0}, "1,000 Vehicle_ID below 1"),
+        (_swap_position_and_acceleration, "1,000 v_Acc above the acceleration limit"),
+    ],
+)
+def test_a_file_none_of_whose_rows_is_usable_is_an_error(
+    tmp_path: Path, rows: list[dict], damage, fragment: str
+) -> None:
+    # On main such a file vanished as "rows of other locations"; the build went on without it.
+    damaged = [damage(row) for row in rows]
+    good = write_txt(tmp_path / "raw" / "i-80" / "trajectories-0400-0415.txt", _i80(rows))
+    bad = write_txt(tmp_path / "raw" / "us-101" / "trajectories-0750am-0805am.txt", damaged)
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", good.parent.parent, "--out", out), out, {}, bad,
+        "no row of it can be used", fragment, "the first at line 1",
+    )  # fmt: skip
+
+
 def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:
     rows[340] = {**rows[340], s.V_ACC: 400.0}
     rows[450] = {**rows[450], s.LOCAL_Y: rows[450][s.LOCAL_Y] + 3_280.0}

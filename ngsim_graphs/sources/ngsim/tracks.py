@@ -38,6 +38,7 @@ from ngsim_graphs.sources.ngsim.cleaning import (
 )
 from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file
 from ngsim_graphs.sources.ngsim.plausibility import (
+    DESCRIPTIONS,
     check_dropped,
     check_speed_column,
     jump_rows,
@@ -79,8 +80,10 @@ def read_file_recordings(
     in_chosen = index.is_in(list(chosen.values())).fill_null(False)
     # Rows of recordings the build did not choose are other locations' rows, whatever they
     # hold: nothing of them is checked. Strays belong to no recording: to none chosen when the
-    # file holds none (a per-period file of another location).
-    other = (index.is_not_null() & ~in_chosen) | (pl.lit(not chosen) & index.is_null())
+    # file holds none (a per-period file of another location). A file that yields no recording
+    # at all has no location to leave out: every row of it is counted under its reason.
+    strays_elsewhere = bool(names) and not chosen
+    other = (index.is_not_null() & ~in_chosen) | (pl.lit(strays_elsewhere) & index.is_null())
     stray = usable & index.is_null()
     reason = (
         pl.when(~complete | other)
@@ -118,6 +121,8 @@ def read_file_recordings(
             f"every one of its {missing:,} rows has an empty required field "
             f"({', '.join(REQUIRED_NAMES)}); the first at line {first}",
         )
+    if not names:
+        _raise_unusable(path, counts, {r: first for r, _, first in dropped.iter_rows()})
     report = FileReport(
         path=str(path),
         raw_format=raw.raw_format.value,
@@ -134,6 +139,22 @@ def read_file_recordings(
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
     )
     return FileRows(rows, chosen, report)
+
+
+def _raise_unusable(path: Path, counts: dict[str, int], first_line: dict[str, int]) -> None:
+    """Refuse a file none of whose rows can be placed in a recording: a file lost in silence as
+    "rows of other locations" would take its recording with it."""
+    total = sum(counts.values())
+    detail = ", ".join(
+        f"{n:,} {DESCRIPTIONS[DropReason(reason)]}" for reason, n in sorted(counts.items()) if n
+    )
+    line = min(first_line.values())
+    raise NgsimInputError(
+        path,
+        f"no row of it can be used: all {total:,} rows with every required field are "
+        f"implausible ({detail}); the first at line {line} (columns swapped, other units, "
+        "a damaged file?)",
+    )
 
 
 def _first_source(rows: pl.DataFrame) -> tuple[int, int] | None:
