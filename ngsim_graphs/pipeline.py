@@ -218,8 +218,8 @@ def _check_some_samples(
 
 def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
     samples = {f"{o.report.location}/{o.report.period}": o.samples for o in outputs}
-    top = {f"{o.report.location}/{o.report.period}": o.top_vehicle_ids for o in outputs}
-    return split_warnings(samples, top, config)
+    ids = {f"{o.report.location}/{o.report.period}": o.vehicle_ids for o in outputs}
+    return split_warnings(samples, ids, config)
 
 
 def _recording_entry(

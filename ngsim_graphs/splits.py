@@ -7,6 +7,7 @@ are whoever was there.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import polars as pl
@@ -97,6 +98,37 @@ def assign_splits(
 
 
 MIN_SPLIT_SHARE = 0.02  # a split with a smaller share of the samples is worth a warning
+# A Vehicle_ID above this many times the recording's median id, plus the margin, is a stray (one
+# damaged id, 99999): the vehicle split's cuts are taken from the largest of the others. A
+# recording numbers its vehicles from about 1 up, so its largest id is about twice its median.
+STRAY_ID_FACTOR = 3.0
+STRAY_ID_MARGIN = 100
+
+
+@dataclass(frozen=True)
+class VehicleIds:
+    """A recording's Vehicle_IDs as the vehicle split sees them."""
+
+    largest: int  # the id its cuts are taken from: the largest that is not a stray
+    next_largest: int  # the largest id below it (0 if none)
+    strays: tuple[int, ...] = ()  # ids far above the others, which the cuts ignore
+
+    @classmethod
+    def of(cls, ids: np.ndarray, strays_allowed: bool = True) -> VehicleIds:
+        """From a recording's Vehicle_IDs (any order, repeats allowed). Without
+        `strays_allowed` (CS-LSTM's script) the largest id is the largest, whatever it is."""
+        unique = np.unique(np.asarray(ids, dtype=np.int64))
+        if len(unique) == 0:
+            return cls(0, 0)
+        stray = np.zeros(len(unique), dtype=bool)
+        if strays_allowed:
+            stray = unique > STRAY_ID_FACTOR * np.median(unique) + STRAY_ID_MARGIN
+        kept = unique[~stray]
+        return cls(
+            largest=int(kept[-1]),
+            next_largest=int(kept[-2]) if len(kept) > 1 else 0,
+            strays=tuple(int(i) for i in unique[stray]),
+        )
 
 
 def _vehicle_cuts(max_vehicle_id: int, config: BuildConfig) -> tuple[int, int]:
@@ -109,54 +141,103 @@ def _matlab_round(x: float) -> int:
     return math.floor(x + 0.5)
 
 
-def _why_vehicle_split_is_small(
-    samples: dict[str, dict[str, int]],
-    split: Split,
-    top_vehicle_ids: dict[str, tuple[int, int]],
-    config: BuildConfig,
-) -> str:
-    """The rule, and the recordings that give `split` (almost) nothing, with their cuts."""
-    reasons = []
-    for name, per_split in samples.items():
-        n_all, n_split = sum(per_split.values()), per_split.get(split.value, 0)
-        if n_split >= MIN_SPLIT_SHARE * n_all:
-            continue
-        largest, second = top_vehicle_ids[name]
-        first_cut, second_cut = _vehicle_cuts(largest, config)
-        outlier = f", far above the next largest ({second:,})" if largest > 1.5 * second else ""
-        reasons.append(
-            f"{name} gives it {n_split:,} of {n_all:,}: its largest Vehicle_ID is {largest:,}{outlier}, "
-            f"so the cuts lie at {first_cut:,} and {second_cut:,}"
-        )
+def _cuts_of(name: str, ids: VehicleIds, config: BuildConfig) -> str:
+    """Where the vehicle split cuts recording `name`, and why there."""
+    first_cut, second_cut = _vehicle_cuts(ids.largest, config)
+    outlier = (
+        f", far above the next largest ({ids.next_largest:,})"
+        if ids.largest > 1.5 * ids.next_largest
+        else ""
+    )
+    return (
+        f"its largest Vehicle_ID is {ids.largest:,}{outlier}, so the cuts lie at {first_cut:,} "
+        f"and {second_cut:,}"
+    )
+
+
+def _vehicle_rule(config: BuildConfig) -> str:
     train, val, _ = config.split_fractions
-    rule = (
+    return (
         f"the vehicle split (CS-LSTM's rule) trains egos with Vehicle_ID <= round({train:g} * the "
         f"recording's largest ID) and validates those <= round({train + val:g} * it)"
     )
-    return f": {rule}; " + "; ".join(reasons[:3]) if reasons else f": {rule}"
+
+
+def _short_recordings(
+    samples: dict[str, dict[str, int]], split: Split, share: float
+) -> list[tuple[str, int, int]]:
+    """(name, samples of `split`, samples) of the recordings with samples that give `split`
+    no more than `share` of theirs (0: none), in the recordings' order."""
+    found = []
+    for name, per_split in samples.items():
+        n_all, n_split = sum(per_split.values()), per_split.get(split.value, 0)
+        if n_all and (n_split == 0 if share == 0 else n_split < share * n_all):
+            found.append((name, n_split, n_all))
+    return found
+
+
+def _why(
+    short: list[tuple[str, int, int]], vehicle_ids: dict[str, VehicleIds], config: BuildConfig
+) -> str:
+    """Why these recordings give a split (almost) nothing: the split's rule, and each one's cuts."""
+    if config.split is not SplitMode.VEHICLE:
+        n_all = sum(n for _, _, n in short)
+        return f"{n_all:,} samples are too few for a {config.split.value} split"
+    reasons = [
+        f"{name} gives it {n:,} of {n_all:,}: {_cuts_of(name, vehicle_ids[name], config)}"
+        for name, n, n_all in short[:3]
+    ]
+    return "; ".join([_vehicle_rule(config), *reasons])
 
 
 def split_warnings(
     samples: dict[str, dict[str, int]],
-    top_vehicle_ids: dict[str, tuple[int, int]],
+    vehicle_ids: dict[str, VehicleIds],
     config: BuildConfig,
 ) -> list[str]:
-    """One line for each split that is empty or holds under MIN_SPLIT_SHARE of the samples, with
-    the likely reason. `samples`: each recording's number of samples per split (a split left
-    out: none), by "location/period", in the recordings' order; `top_vehicle_ids`: the largest
-    and second largest Vehicle_ID of each recording, by the same names."""
+    """One line for each split that is empty or holds under MIN_SPLIT_SHARE of the samples, or
+    that some recording with samples gives none, with the likely reason; and one for each
+    recording whose vehicle split ignored stray Vehicle_IDs. `samples`: each recording's number
+    of samples per split (a split left out: none), by "location/period", in the recordings'
+    order; `vehicle_ids`: each recording's `VehicleIds`, by the same names."""
+    warnings = [
+        _stray_note(name, ids, config)
+        for name, ids in vehicle_ids.items()
+        if ids.strays and config.split is SplitMode.VEHICLE and name in samples
+    ]
     total = sum(sum(per_split.values()) for per_split in samples.values())
-    warnings = []
     for split in SPLIT_ORDER:
         n = sum(per_split.get(split.value, 0) for per_split in samples.values())
-        if total == 0 or n >= MIN_SPLIT_SHARE * total:
+        if total == 0:
             continue
-        what = "is empty" if n == 0 else f"holds {n:,} of {total:,} samples ({n / total:.1%})"
         if config.split_fractions[SPLIT_ORDER.index(split)] == 0:
-            why = ": its fraction is 0"
-        elif config.split is SplitMode.VEHICLE:
-            why = _why_vehicle_split_is_small(samples, split, top_vehicle_ids, config)
-        else:
-            why = f": {total:,} samples are too few for a {config.split.value} split"
-        warnings.append(f"the {split.value} split {what}{why}")
+            if n < MIN_SPLIT_SHARE * total:
+                warnings.append(f"the {split.value} split {_size(n, total)}: its fraction is 0")
+        elif n < MIN_SPLIT_SHARE * total:  # the recordings that give it little, or all
+            short = _short_recordings(samples, split, MIN_SPLIT_SHARE) or _short_recordings(
+                samples, split, 1.0
+            )
+            warnings.append(
+                f"the {split.value} split {_size(n, total)}: {_why(short, vehicle_ids, config)}"
+            )
+        elif short := _short_recordings(samples, split, 0):
+            names = ", ".join(name for name, _, _ in short)
+            warnings.append(
+                f"the {split.value} split has no sample of {names}: {_why(short, vehicle_ids, config)}"
+            )
     return warnings
+
+
+def _stray_note(name: str, ids: VehicleIds, config: BuildConfig) -> str:
+    one = len(ids.strays) == 1
+    listed = ", ".join(f"{i:,}" for i in ids.strays)
+    first_cut, second_cut = _vehicle_cuts(ids.largest, config)
+    return (
+        f"{name}: Vehicle_ID{'' if one else 's'} {listed} {'lies' if one else 'lie'} far above "
+        f"the others (the largest of which is {ids.largest:,}): the vehicle split ignores "
+        f"{'it' if one else 'them'} and cuts at {first_cut:,} and {second_cut:,}"
+    )
+
+
+def _size(n: int, total: int) -> str:
+    return "is empty" if n == 0 else f"holds {n:,} of {total:,} samples ({n / total:.1%})"

@@ -67,7 +67,7 @@ from ngsim_graphs.sources.contract import (
     RecordingReport,
     Source,
 )
-from ngsim_graphs.splits import assign_splits
+from ngsim_graphs.splits import VehicleIds, assign_splits
 from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script_windows
 
 # A recording's grid rows are made, and its proximity pairs found, written and used, a range of
@@ -99,12 +99,13 @@ def recording_windows(
     nodes: pl.DataFrame | pl.LazyFrame,
     recording_index: int,
     config: BuildConfig,
+    vehicle_ids: VehicleIds,
     raw: pl.DataFrame | None = None,
     dataset_id: int = 0,
 ) -> tuple[pl.DataFrame, ScriptRows | None]:
     """The split ego windows of one recording's grid nodes (`grid_node_rows`, in any order; a
     lazy table is streamed), and under the cs-lstm protocol what it made of CS-LSTM's rows (None
-    under aigem).
+    under aigem). The vehicle split cuts at the recording's `vehicle_ids.largest`.
 
     Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
     rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS)."""
@@ -112,10 +113,8 @@ def recording_windows(
         if raw is None:
             raise ValueError("the cs-lstm protocol needs the recording's raw rows")
         return script_windows(raw, nodes, dataset_id, config)
-    largest = nodes.lazy().select(pl.col(s.VEHICLE_ID).max()).collect(engine="streaming")
-    max_vehicle_id = largest.item() or 0
-    windows = assign_splits(ego_windows(nodes, config), max_vehicle_id, recording_index, config)
-    return windows, None
+    windows = ego_windows(nodes, config)
+    return assign_splits(windows, vehicle_ids.largest, recording_index, config), None
 
 
 def recording_samples(
@@ -172,7 +171,7 @@ class RecordingOutput:
     first_track_id: int
     n_steps: int
     longest_track_steps: int
-    top_vehicle_ids: tuple[int, int]  # the largest and second largest Vehicle_ID
+    vehicle_ids: VehicleIds  # what the vehicle split took of its Vehicle_IDs
     proximity_edges: int
     windows: Path  # staged: its samples, with location, period, s.SPLIT and counts
     samples: dict[str, int]  # its number of samples per split (every split, 0 included)
@@ -330,11 +329,14 @@ def build_recording(
         # stably): those are in one part, read from its files in the order they were read.
         files = [path for part in sorted(staged) for path in staged[part]]
         raw = pl.read_parquet(files, columns=list(SCRIPT_COLUMNS))
-    # The vehicle split's largest ids: the script's are of the rows before cleaning.
+    # The vehicle split's ids: the script's are of the rows before cleaning, and its largest
+    # is the largest, stray or not.
     split_by = nodes if raw is None else raw.lazy()
-    largest = pl.col(s.VEHICLE_ID).unique().sort(descending=True).head(2)
-    ids = split_by.select(largest).collect(engine="streaming")[s.VEHICLE_ID].to_list() + [0, 0]
-    windows, script = recording_windows(nodes, index, config, raw, DATASET_IDS.get(key, 0))
+    ids = split_by.select(pl.col(s.VEHICLE_ID).unique()).collect(engine="streaming")
+    vehicle_ids = VehicleIds.of(ids[s.VEHICLE_ID].to_numpy(), strays_allowed=raw is None)
+    windows, script = recording_windows(
+        nodes, index, config, vehicle_ids, raw, DATASET_IDS.get(key, 0)
+    )
     del raw, split_by  # the windows are all the rest needs of them (a lazy frame holds its data)
     folder = layout.recording_arrays_dir(root, *key)
     with layout.ArrayAppender(folder, ROW_ARRAYS) as row_files:
@@ -373,7 +375,7 @@ def build_recording(
         first_track_id,
         arrays.n_steps,
         longest,
-        (ids[0], ids[1]),
+        vehicle_ids,
         samples.proximity_edges,
         windows_path,
         per_split,

@@ -243,24 +243,37 @@ def test_short_tracks_are_an_error_that_says_why(tmp_path: Path, rows: list[dict
     )  # fmt: skip
 
 
-def test_an_outlying_vehicle_id_is_warned_about(tmp_path: Path, rows: list[dict]) -> None:
-    extra = [
-        make_row(99_999, f, local_x_ft=66.0, local_y_ft=3.5 * f, v_vel_fps=35.0)
-        for f in range(N_FRAMES)
-    ]
-    path, out = write_txt(tmp_path / "a.txt", rows + extra), tmp_path / "out"
+def test_a_stray_vehicle_id_does_not_decide_the_vehicle_split(
+    tmp_path: Path, rows: list[dict]
+) -> None:
+    # On main one row of vehicle 1 renamed 99,999 moved the cuts to 69,999 and 79,999: every
+    # other ego trained, val and test were empty, and no warning named the recording.
+    rows[2] = {**rows[2], s.VEHICLE_ID: 99_999}  # on the grid (an even frame)
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
-    # Cuts at round(0.7 * 99,999) = 69,999 and 79,999: vehicles 1..10 train, 99,999 test.
-    assert manifest(out)["splits"] == {"train": 10, "val": 0, "test": 1}
-    warning = next(
-        line for line in result.stderr.splitlines() if line.startswith("warning: the val split")
+    # Cuts at round(0.7 * 10) = 7 and 8: vehicles 1..7 train, 8 validates, 9 and 10 test.
+    assert manifest(out)["splits"] == {"train": 7, "val": 1, "test": 2}
+    assert manifest(out)["warnings"] == [
+        "us-101/0750am-0805am: Vehicle_ID 99,999 lies far above the others (the largest of which "
+        "is 10): the vehicle split ignores it and cuts at 7 and 8"
+    ]
+    assert f"warning: {manifest(out)['warnings'][0]}" in result.stderr
+
+
+def test_a_recording_without_validation_samples_is_named(tmp_path: Path, rows: list[dict]) -> None:
+    few = [row for row in _i80(rows) if row[s.VEHICLE_ID] <= 3]  # cuts at 2 and 2: no val
+    write_txt(tmp_path / "raw" / "a.txt", rows)
+    write_txt(tmp_path / "raw" / "b.txt", few)
+    out = tmp_path / "out"
+    result = invoke("build", tmp_path / "raw", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert manifest(out)["splits"] == {"train": 9, "val": 1, "test": 3}
+    [warning] = manifest(out)["warnings"]
+    assert warning.startswith("the val split has no sample of i-80/0400-0415: the vehicle split")
+    assert warning.endswith(
+        "i-80/0400-0415 gives it 0 of 3: its largest Vehicle_ID is 3, so the cuts lie at 2 and 2"
     )
-    assert "is empty" in warning
-    assert "its largest Vehicle_ID is 99,999, far above the next largest (10)" in warning
-    assert "cuts lie at 69,999 and 79,999" in warning
-    assert manifest(out)["warnings"] == [line.removeprefix("warning: ") for line in result.stderr.splitlines()
-                                         if line.startswith("warning: ")]  # fmt: skip
 
 
 def test_a_whole_number_column_with_a_fraction(tmp_path: Path, rows: list[dict]) -> None:

@@ -11,6 +11,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.schema import SplitMode
 from ngsim_graphs.splits import (
+    VehicleIds,
     assign_splits,
     split_by_time,
     split_by_vehicle,
@@ -168,7 +169,8 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
     config = BuildConfig(split_fractions=(0.5, 0.25, 0.25))
     windows = windows.with_columns(split_by_vehicle(windows, 1_000, config).alias(s.SPLIT))
     assert windows[s.SPLIT].to_list() == ["train"] * 10  # cuts at 500 and 750
-    warnings = split_warnings({"us-101/r": {"train": 10}}, {"us-101/r": (1_000, 10)}, config)
+    ids = {"us-101/r": VehicleIds(1_000, 10)}
+    warnings = split_warnings({"us-101/r": {"train": 10}}, ids, config)
     assert [w.split(":")[0] for w in warnings] == [
         "the val split is empty",
         "the test split is empty",
@@ -194,7 +196,11 @@ def test_split_warnings_name_the_recordings_that_give_a_split_too_little_in_thei
         "us-101/b": {"train": 0, "val": 0, "test": 0},
         "i-80/c": {"train": 40, "val": 10},
     }
-    top = {"us-101/a": (1_000, 990), "us-101/b": (5, 4), "i-80/c": (3_000, 1_000)}
+    top = {
+        "us-101/a": VehicleIds(1_000, 990),
+        "us-101/b": VehicleIds(5, 4),
+        "i-80/c": VehicleIds(3_000, 1_000),
+    }
     config = BuildConfig(split_fractions=(0.5, 0.25, 0.25))
     warnings = split_warnings(samples, top, config)
     assert len(warnings) == 1
@@ -203,4 +209,34 @@ def test_split_warnings_name_the_recordings_that_give_a_split_too_little_in_thei
         "us-101/a gives it 1 of 100: its largest Vehicle_ID is 1,000, so the cuts lie at 500 and "
         "750; i-80/c gives it 0 of 50: its largest Vehicle_ID is 3,000, far above the next "
         "largest (1,000), so the cuts lie at 1,500 and 2,250"
+    )
+
+
+def test_stray_vehicle_ids_by_hand() -> None:
+    # Ids 1..10: median 5.5, so an id above 3 * 5.5 + 100 = 116.5 is a stray.
+    assert VehicleIds.of(np.array([3, 1, 2, 10, 4, 5, 6, 7, 8, 9, 10])) == VehicleIds(10, 9)
+    assert VehicleIds.of(np.arange(1, 11).tolist() + [116]) == VehicleIds(116, 10)
+    # Twelve ids: median 6.5, limit 119.5.
+    assert VehicleIds.of(np.arange(1, 11).tolist() + [120, 99_999]) == VehicleIds(
+        10, 9, (120, 99_999)
+    )
+    assert VehicleIds.of(np.array([99_999]), strays_allowed=True) == VehicleIds(99_999, 0)
+    # CS-LSTM's script takes the largest id, whatever it is.
+    assert VehicleIds.of(np.array([1, 2, 99_999]), strays_allowed=False) == VehicleIds(99_999, 2)
+    assert VehicleIds.of(np.array([], dtype=np.int64)) == VehicleIds(0, 0)
+
+
+def test_a_recording_that_gives_a_split_nothing_is_named() -> None:
+    samples = {"us-101/a": {"train": 70, "val": 10, "test": 20}, "i-80/b": {"train": 2, "test": 1}}
+    ids = {"us-101/a": VehicleIds(100, 99), "i-80/b": VehicleIds(3, 2)}
+    assert split_warnings(samples, ids, BuildConfig()) == [
+        "the val split has no sample of i-80/b: the vehicle split (CS-LSTM's rule) trains egos "
+        "with Vehicle_ID <= round(0.7 * the recording's largest ID) and validates those <= "
+        "round(0.8 * it); i-80/b gives it 0 of 3: its largest Vehicle_ID is 3, so the cuts lie "
+        "at 2 and 2"
+    ]
+    strays = {**ids, "i-80/b": VehicleIds(3, 2, (99_999,))}
+    assert split_warnings(samples, strays, BuildConfig())[0] == (
+        "i-80/b: Vehicle_ID 99,999 lies far above the others (the largest of which is 3): the "
+        "vehicle split ignores it and cuts at 2 and 2"
     )
