@@ -183,6 +183,8 @@ class Manifest:
     scaler: MinMaxScaler  # fitted on the train split; not is_fitted if that split is empty
     warnings: tuple[str, ...]  # splits that are empty or tiny
     counts: BuildCounts
+    # files of the folders searched that are not the dataset's (nothing in them looks like it)
+    skipped_files: tuple[str, ...] = ()
     files: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)  # integrity's records
     manifest_sha256: str | None = None  # None until written
 
@@ -204,6 +206,7 @@ class Manifest:
             "scaler": self.scaler.to_dict(),
             "warnings": list(self.warnings),
             "counts": self.counts.to_dict(),
+            "skipped_files": list(self.skipped_files),
         }
         if self.manifest_sha256 is not None:
             body |= {FILES_KEY: dict(self.files), CHECKSUM_KEY: self.manifest_sha256}
@@ -230,6 +233,7 @@ class Manifest:
             scaler=MinMaxScaler.from_dict(values["scaler"]),
             warnings=tuple(values.get("warnings", ())),
             counts=BuildCounts.from_dict(values["counts"]),
+            skipped_files=tuple(values.get("skipped_files", ())),
             files=dict(files),
             manifest_sha256=values.get(CHECKSUM_KEY),
         )

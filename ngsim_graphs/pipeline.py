@@ -304,6 +304,7 @@ def _manifest(
     samples: dict[str, dict[str, int]],
     scaler: MinMaxScaler,
     warnings: list[str],
+    skipped: list[Path],
 ) -> Manifest:
     """What the build is, to be written last (`layout.write_manifest` adds the file records)."""
     return Manifest(
@@ -318,6 +319,7 @@ def _manifest(
         scaler=scaler,
         warnings=tuple(warnings),
         counts=_counts(files, outputs, samples),
+        skipped_files=tuple(str(path) for path in skipped),
     )
 
 
@@ -365,7 +367,9 @@ def run_build(
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)
         warnings = _warnings(outputs, config)
-        manifest = _manifest(source.name, config, file_reports, outputs, samples, scaler, warnings)
+        manifest = _manifest(
+            source.name, config, file_reports, outputs, samples, scaler, warnings, skipped
+        )
         manifest = layout.write_manifest(root, manifest)
     return BuildResult(
         out_dir=out_dir,

@@ -305,6 +305,36 @@ def test_build_reports_skipped_files_of_a_directory(tmp_path: Path, long_rows: l
     result = invoke("build", raw, "--out", tmp_path / "out")
     assert result.exit_code == 0, result.output
     assert f"skipped (not NGSIM): {(raw / 'README.txt').resolve()}" in result.stdout
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["skipped_files"] == [str((raw / "README.txt").resolve())]
+
+
+def test_a_damaged_first_line_does_not_skip_a_file(tmp_path: Path, long_rows: list[dict]) -> None:
+    # On main one damaged character in a .txt's first line skipped the file as "not NGSIM": its
+    # recording was lost, exit 0, and the manifest did not name the file.
+    raw = tmp_path / "raw"
+    write_txt(raw / "us-101" / "trajectories-0750am-0805am.txt", long_rows)
+    damaged = write_txt(raw / "i-80" / "trajectories-0400-0415.txt", long_rows)
+    text = damaged.read_text()
+    at = text.index(".") - 1  # a digit of the first line's first decimal number
+    damaged.write_text(text[:at] + "O" + text[at + 1 :])
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", raw, "--out", out), out, {}, damaged, "line 1: column", "is not a number"
+    )
+
+
+def test_a_csv_whose_header_is_damaged_is_refused(tmp_path: Path, long_rows: list[dict]) -> None:
+    raw = tmp_path / "raw"
+    write_txt(raw / "us-101" / "trajectories-0750am-0805am.txt", long_rows)
+    damaged = write_period_csv(raw / "i-80" / "trajectories-0400-0415.csv", long_rows)
+    lines = damaged.read_text().splitlines(keepends=True)
+    damaged.write_text("\x00garbled\n" + "".join(lines[1:]))
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", raw, "--out", out), out, {}, damaged,
+        "line 1: the first line is no header of NGSIM's columns", "header damaged or missing",
+    )  # fmt: skip
 
 
 def test_build_into_non_empty_directory_needs_overwrite(

@@ -98,11 +98,17 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     return unique, skipped
 
 
-def _first_line(path: Path) -> str:
+def _head_lines(path: Path) -> list[str]:
+    """The non-blank lines of the file's first SNIFF_BYTES (a byte-order mark dropped; the last
+    one may be cut short)."""
     with path.open("rb") as handle:
         head = handle.read(SNIFF_BYTES)
     text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
-    lines = [line for line in text.splitlines() if line.strip()]
+    return [line for line in text.splitlines() if line.strip()]
+
+
+def _first_line(path: Path) -> str:
+    lines = _head_lines(path)
     if not lines:
         raise NotNgsimFileError(path, "empty file: no header and no data")
     return lines[0]
@@ -138,19 +144,53 @@ def sniff_format(path: Path) -> RawFormat:
     return raw_format
 
 
+# Whether the lines after a first line that is neither a header nor a row look like NGSIM's: a
+# file is skipped as "not NGSIM" only when none of these does.
+SNIFF_LINES = 20
+
+
+def _is_txt_row(line: str) -> bool:
+    tokens = line.split()
+    return len(tokens) == len(s.TXT_COLUMNS) and all(_is_number(t) for t in tokens)
+
+
+def _is_csv_row(line: str) -> bool:
+    """Whether a line is a row of one of NGSIM's CSV files: as many fields as a header of
+    theirs (the portal file's 25, a per-period file's 24 or 18), most of them numbers."""
+    fields = next(csv.reader([line]), [])
+    numbers = sum(_is_number(f) for f in fields if f.strip())
+    widths = (len(s.TXT_COLUMNS), len(s.PORTAL_HEADER) - 1, len(s.PORTAL_HEADER))
+    return len(fields) in widths and numbers >= len(s.TXT_COLUMNS) - 2
+
+
 def _format_of_first_line(path: Path) -> RawFormat:
-    line = _first_line(path)
+    lines = _head_lines(path)
+    if not lines:
+        raise NotNgsimFileError(path, "empty file: no header and no data")
+    line = lines[0]
     if "," in line:
         header = [name.lower() for name in _header_names(line)]
         if s.VEHICLE_ID in header or sum(c in header for c in s.TXT_COLUMNS) >= 9:
             return RawFormat.PORTAL if s.LOCATION in header else RawFormat.CSV
-    tokens = line.split()
-    if len(tokens) == len(s.TXT_COLUMNS) and all(_is_number(t) for t in tokens):
+    if _is_txt_row(line):
         return RawFormat.TXT
+    # A damaged first line does not make a file of NGSIM rows another kind of file: it is read
+    # (its first line is then reported) or refused, never skipped with its recording.
+    after = lines[1 : SNIFF_LINES + 1]
+    if any(_is_txt_row(other) for other in after):
+        return RawFormat.TXT
+    if any(_is_csv_row(other) for other in after):
+        raise NgsimInputError(
+            path,
+            "the first line is no header of NGSIM's columns (Vehicle_ID, Frame_ID, ...), yet the "
+            "lines after it hold NGSIM rows: is the header damaged or missing?",
+            line=1,
+        )
     raise NotNgsimFileError(
         path,
         "not an NGSIM trajectory file: the first line is neither a CSV header with Vehicle_ID, "
-        f"Frame_ID, ... nor {len(s.TXT_COLUMNS)} whitespace-separated numbers",
+        f"Frame_ID, ... nor {len(s.TXT_COLUMNS)} whitespace-separated numbers, and neither are "
+        "the lines after it",
         line=1,
     )
 
