@@ -187,6 +187,31 @@ def test_a_file_none_of_whose_rows_is_usable_is_an_error(
     )  # fmt: skip
 
 
+@pytest.mark.parametrize(
+    ("write", "cut", "line", "value"),
+    [
+        (write_txt, 1, 1_000, "'9999.9'"),  # Time_Headway 9999.99 cut to 9999.9
+        (write_period_csv, 3, 1_001, "'9999'"),
+        (write_portal, 2, 1_001, "'us-1'"),  # the Location us-101 cut to us-1
+    ],
+)
+def test_a_file_cut_inside_its_last_field_is_refused(
+    tmp_path: Path, rows: list[dict], write, cut: int, line: int, value: str
+) -> None:
+    # On main such a file was read: its cut row kept a shortened value or, in the portal file,
+    # became a row of "other locations".
+    path = write(tmp_path / "trajectories-0750am-0805am.csv", rows)
+    whole = path.read_bytes().rstrip()
+    path.write_bytes(whole[:-cut])
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        f"line {line}: the file ends inside its last field ({value} where", "is it truncated?",
+    )  # fmt: skip
+    path.write_bytes(whole)  # whole, without a final line end: read
+    assert invoke("build", path, "--out", out).exit_code == 0
+
+
 def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:
     rows[340] = {**rows[340], s.V_ACC: 400.0}
     rows[450] = {**rows[450], s.LOCAL_Y: rows[450][s.LOCAL_Y] + 3_280.0}

@@ -356,6 +356,65 @@ def _parsed(
     return pl.scan_parquet(parts)
 
 
+# A file without a final line end may have been cut inside its last field, which then still
+# parses ("97.6" of "97.68", "us-10" of "us-101"): its last field is compared with the same field
+# of the lines before it, this many of them.
+CUT_CHECK_LINES = 20
+_TAIL_BYTES = 64 * 1024
+
+
+def _fields(line: str, raw_format: RawFormat) -> list[str]:
+    if raw_format is RawFormat.TXT:
+        return line.split()
+    return [field.strip() for field in next(csv.reader([line]), [])]
+
+
+def _decimals(text: str) -> int | None:
+    """Digits after the point of a plain decimal number (0 without a point); None otherwise."""
+    if not _is_number(text) or any(c in text for c in "eEnN"):
+        return None
+    return len(text.split(".")[1]) if "." in text else 0
+
+
+def _looks_cut(last: str, before: list[str]) -> bool:
+    """Whether `last` reads as a field of the same column as `before` cut short: empty where
+    they are not, fewer decimals than every one of them has, or the start of a name of theirs."""
+    if not last:
+        return all(before)
+    places = {_decimals(value) for value in before}
+    if len(places) == 1 and (fixed := places.pop()) is not None:
+        written = _decimals(last)
+        return written is None or written < fixed or last.endswith(".")
+    return last not in before and any(value.startswith(last) for value in before)
+
+
+def check_not_cut(path: Path, raw_format: RawFormat) -> None:
+    """Refuse a file that ends inside its last field (no final line end, and its last field
+    cut short against the lines before it, `_looks_cut`): a truncated copy."""
+    size = path.stat().st_size
+    with path.open("rb") as handle:
+        handle.seek(max(0, size - _TAIL_BYTES))
+        tail = handle.read()
+    if not tail or tail.endswith(b"\n"):
+        return
+    lines = [line for line in tail.decode("utf-8", errors="replace").splitlines() if line.strip()]
+    lines = lines[1:] if size > _TAIL_BYTES else lines  # the first may be a part of a line
+    rows = [_fields(line, raw_format) for line in lines[-CUT_CHECK_LINES - 1 :]]
+    if len(rows) < 2 or len(rows[-1]) != len(rows[-2]):  # a line cut short: the parser says
+        return
+    fields = [row[-1] if row else "" for row in rows]
+    if not _looks_cut(fields[-1], fields[:-1]):
+        return
+    with path.open("rb") as handle:
+        line = 1 + sum(chunk.count(b"\n") for chunk in iter(lambda: handle.read(1 << 24), b""))
+    raise NgsimInputError(
+        path,
+        f"the file ends inside its last field ({fields[-1]!r} where the lines before it hold "
+        f"values like {fields[-2]!r}) and without a line end: is it truncated?",
+        line=line,
+    )
+
+
 def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None = None) -> RawFile:
     """Read one NGSIM file of any format; keep rows of `locations` (portal CSV only).
 
@@ -365,6 +424,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
     frame scans them, so that reading holds a part of them at a time.
     """
     raw_format = sniff_format(path)
+    check_not_cut(path, raw_format)
     if raw_format is RawFormat.TXT:
         scan, first_line = (lambda chunk: _scan_txt_text(path, chunk)), 1
     else:
