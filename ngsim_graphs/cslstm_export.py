@@ -132,7 +132,7 @@ def read_file_rows(path: Path) -> tuple[dict[tuple[str, str], pl.DataFrame], Inp
             path, "no row has all of Vehicle_ID, Frame_ID, Global_Time, Local_X, Local_Y, Lane_ID"
         )
     index, names = identify_recordings(
-        frame.select(s.LOCATION, s.FRAME_ID, s.GLOBAL_TIME), path, complete
+        frame.select(s.LOCATION, s.FRAME_ID, s.GLOBAL_TIME, s.VEHICLE_ID), path, complete
     )
     if len(names) == 1:
         index = pl.Series(np.zeros(frame.height, dtype=np.uint16))

@@ -216,10 +216,14 @@ def _check_some_samples(
         )
 
 
-def _warnings(outputs: list[RecordingOutput], config: BuildConfig) -> list[str]:
+def _warnings(
+    outputs: list[RecordingOutput], config: BuildConfig, files: list[FileReport]
+) -> list[str]:
+    """What the reading said of its files' recordings, then of the splits."""
     samples = {f"{o.report.location}/{o.report.period}": o.samples for o in outputs}
     ids = {f"{o.report.location}/{o.report.period}": o.vehicle_ids for o in outputs}
-    return split_warnings(samples, ids, config)
+    notes = [f"{file.path}: {note}" for file in files for note in file.notes]
+    return notes + split_warnings(samples, ids, config)
 
 
 def _recording_entry(
@@ -366,7 +370,7 @@ def run_build(
         _check_some_samples(outputs, config, raw_paths)
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)
-        warnings = _warnings(outputs, config)
+        warnings = _warnings(outputs, config, file_reports)
         manifest = _manifest(
             source.name, config, file_reports, outputs, samples, scaler, warnings, skipped
         )

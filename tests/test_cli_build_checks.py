@@ -13,6 +13,7 @@ from test_cli_ngsim import assert_failed_cleanly, invoke, snapshot
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 N_VEHICLES, N_FRAMES = 10, 100
 
@@ -210,6 +211,36 @@ def test_a_file_cut_inside_its_last_field_is_refused(
     )  # fmt: skip
     path.write_bytes(whole)  # whole, without a final line end: read
     assert invoke("build", path, "--out", out).exit_code == 0
+
+
+def test_a_group_of_whole_vehicles_on_its_own_clock_is_a_recording(tmp_path: Path) -> None:
+    # A real Peachtree export: two groups of vehicles whose Global_Time - 100 * Frame_ID differ by
+    # 11.7 s, each consistent. On main the smaller was "Global_Time off its recording" and the
+    # build failed (23.8 % of the rows implausible).
+    start = OFFICIAL_RECORDINGS[0].start_epoch_ms + 3_620_000  # no official period: a label
+    rows = [
+        make_row(
+            v, f, local_x_ft=6.0 + 12.0 * (v % 5), local_y_ft=40.0 * (v // 5) + 3.5 * f,
+            v_vel_fps=35.0, start_ms=start + (11_700 if v > 25 else 0),
+        )
+        for v in range(1, 49)
+        for f in range(N_FRAMES)
+    ]  # fmt: skip
+    rows[7] = {**rows[7], s.GLOBAL_TIME: rows[7][s.GLOBAL_TIME] + 11_700}  # one stray row
+    path, out = write_portal(tmp_path / "p.csv", rows, "peachtree"), tmp_path / "out"
+    result = invoke("build", path, "--out", out, "--locations", "peachtree")
+    assert result.exit_code == 0, result.output
+    names = [r["name"] for r in manifest(out)["recordings"]]
+    assert names == ["peachtree_0850-0850", "peachtree_0850-0850-2"]  # both from 08:50 PDT
+    assert [r["vehicles"] for r in manifest(out)["recordings"]] == [25, 23]
+    assert manifest(out)["counts"]["rows_dropped"][DropReason.GLOBAL_TIME.value] == 1
+    note = (
+        f"{path}: peachtree/0850-0850-2: 23 vehicles (2,300 rows) keep a frame clock of their "
+        "own, Global_Time - 100 * Frame_ID +11.7 s from peachtree/0850-0850's: a recording of "
+        "their own, not stray rows"
+    )
+    assert manifest(out)["warnings"][0] == note
+    assert f"warning: {note}" in result.stderr
 
 
 def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:

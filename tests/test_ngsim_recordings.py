@@ -11,11 +11,13 @@ from conftest import I80_FIRST, US101_FIRST, US101_SECOND, make_row
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.ngsim.recordings import (
+    MIN_CLOCK_VEHICLES,
     OFFICIAL_RECORDINGS,
     find_official_recording,
     identify_recordings,
     location_from_path,
     period_label,
+    recording_index,
 )
 
 
@@ -107,6 +109,26 @@ def test_two_large_groups_of_one_period_keep_the_larger() -> None:
     index, names = identify_recordings(frame_of(rows, [None] * 100), Path("t.txt"))
     assert names == [("us-101", "0750am-0805am")]
     assert index.to_list() == [0] * 60 + [None] * 40
+
+
+@pytest.mark.parametrize("vehicles", [19, 20])
+def test_a_clock_of_twenty_whole_vehicles_is_a_recording_of_its_own(vehicles: int) -> None:
+    # Vehicles 1..30 on one clock, then `vehicles` others 11.7 s later: 20 whole vehicles are a
+    # recording of their own (its name suffixed), fewer are stray rows.
+    later = US101_FIRST.start_epoch_ms + 11_700
+    rows = [make_row(v, f) for v in range(1, 31) for f in range(10)] + [
+        make_row(v, f, start_ms=later) for v in range(31, 31 + vehicles) for f in range(10)
+    ]
+    frame = frame_of(rows, [None] * len(rows))
+    index, keys, notes = recording_index(frame.lazy(), Path("t.txt"))
+    index = frame.select(index).to_series()
+    if vehicles < MIN_CLOCK_VEHICLES:
+        assert keys == [("us-101", "0750am-0805am")] and index.null_count() == 10 * vehicles
+        return
+    assert keys == [("us-101", "0750am-0805am"), ("us-101", "0750am-0805am-2")]
+    assert index.to_list() == [0] * 300 + [1] * 200
+    assert notes[keys[1]].startswith("us-101/0750am-0805am-2: 20 vehicles (200 rows) keep a ")
+    assert "+11.7 s from us-101/0750am-0805am's" in notes[keys[1]]
 
 
 def test_recordings_are_indexed_by_location_and_time_whatever_their_size() -> None:

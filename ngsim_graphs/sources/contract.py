@@ -70,6 +70,7 @@ class FileReport:
     rows_checked: int  # rows of the chosen recordings with every required field, kept or dropped
     locations_found: tuple[str, ...]  # every location the file holds, chosen or not
     recordings: tuple[str, ...]  # "location/period" of each chosen recording the file holds
+    notes: tuple[str, ...] = ()  # what a user should know of how its rows were placed
 
 
 @dataclass(frozen=True)

@@ -110,19 +110,46 @@ def _names_an_unclaimed_period(
     return official is not None and (official.location, official.period) not in keys
 
 
-def _frame0_groups(frame: pl.LazyFrame) -> pl.DataFrame:
+# A frame-0 time shared by the whole record of this many vehicles (and nearly all of its rows
+# theirs) is a clock of its own, a recording, however near another: stray rows are rows of
+# vehicles recorded on another clock too, a damaged Global_Time, never whole vehicles.
+MIN_CLOCK_VEHICLES = 20
+MIN_CLOCK_OWN_SHARE = 0.9
+
+
+def _frame0_groups(frame: pl.LazyFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     """(location, frame-0 time) groups of rows with their row count and last frame, the largest
-    of each location first, and whether each is too small to be a recording of its own."""
-    groups = (
-        frame.select(s.LOCATION, _FRAME0.alias(FRAME0_MS), s.FRAME_ID)
+    of each location first, and whether each is too small to be a recording of its own; and the
+    rows of each vehicle in each group (location, frame-0 time, vehicle id, rows)."""
+    per_vehicle = (
+        frame.select(s.LOCATION, _FRAME0.alias(FRAME0_MS), s.FRAME_ID, s.VEHICLE_ID)
         .drop_nulls(FRAME0_MS)
-        .group_by(s.LOCATION, FRAME0_MS)
+        .group_by(s.LOCATION, FRAME0_MS, s.VEHICLE_ID)
         .agg(pl.len().alias("rows"), pl.col(s.FRAME_ID).max().alias("last_frame"))
-        .sort(s.LOCATION, "rows", FRAME0_MS, descending=[False, True, False], nulls_last=True)
         .collect(engine="streaming")  # morsel by morsel: no copy of a large file's keys
     )
+    groups = (
+        per_vehicle.group_by(s.LOCATION, FRAME0_MS)
+        .agg(pl.col("rows").sum(), pl.col("last_frame").max())
+        .sort(s.LOCATION, "rows", FRAME0_MS, descending=[False, True, False], nulls_last=True)
+    )
     small = pl.col("rows") < STRAY_GROUP_SHARE * pl.col("rows").max().over(s.LOCATION)
-    return groups.with_columns(small.alias("small"))
+    return groups.with_columns(small.alias("small")), per_vehicle.drop("last_frame")
+
+
+def _own_vehicles(
+    per_vehicle: pl.DataFrame, groups: pl.DataFrame, position: int
+) -> tuple[list[int], int]:
+    """The vehicles of group `position` that have no row in a larger group of its location, and
+    their rows."""
+    location, frame0_ms = groups.row(position)[:2]
+    of_location = per_vehicle.filter(pl.col(s.LOCATION).eq_missing(location))
+    larger = groups.head(position).filter(pl.col(s.LOCATION).eq_missing(location))[FRAME0_MS]
+    elsewhere = of_location.filter(pl.col(FRAME0_MS).is_in(larger.implode()))[s.VEHICLE_ID]
+    own = of_location.filter(
+        (pl.col(FRAME0_MS) == frame0_ms) & ~pl.col(s.VEHICLE_ID).is_in(elsewhere.implode())
+    )
+    return sorted(own[s.VEHICLE_ID].to_list()), int(own["rows"].sum())
 
 
 def identify_recordings(
@@ -131,25 +158,38 @@ def identify_recordings(
     """Which recording each raw row belongs to: (index per row, (location, period) per index);
     see `recording_index`."""
     rows = frame.lazy() if usable is None else frame.lazy().with_columns(usable.alias(_USABLE))
-    index, keys = recording_index(rows, path, None if usable is None else pl.col(_USABLE))
+    index, keys, _ = recording_index(rows, path, None if usable is None else pl.col(_USABLE))
     return frame.select(index.alias(s.RECORDING_INDEX)).to_series(), keys
 
 
 _USABLE = "__usable"
 
 
+def _distinct(key: tuple[str, str], keys: list[tuple[str, str]]) -> tuple[str, str]:
+    """`key`, or its period with the first free suffix -2, -3, ... if a recording has it."""
+    location, period = key
+    n = 1
+    while key in keys:
+        n += 1
+        key = (location, f"{period}-{n}")
+    return key
+
+
 def recording_index(
     frame: pl.LazyFrame, path: Path, usable: pl.Expr | None = None
-) -> tuple[pl.Expr, list[tuple[str, str]]]:
+) -> tuple[pl.Expr, list[tuple[str, str]], dict[tuple[str, str], str]]:
     """Which recording each raw row belongs to: (an expression of each row's index, the
-    (location, period) of each index).
+    (location, period) of each index, a line for each recording told apart by its own clock).
 
-    `frame` needs global_time, frame_id and location (null where the file does not say, as in
-    per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID` belong to
-    different recordings (the combined CSV holds three periods per location), unless they are
-    strays: rows whose frame-0 time lies within MATCH_TOLERANCE_MS of a larger group's, names the
-    same recording as a larger group, or is shared by few rows (under STRAY_GROUP_SHARE of the
-    location's largest group) and names no official period that a larger group has not named.
+    `frame` needs global_time, frame_id, vehicle_id and location (null where the file does not
+    say, as in per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID`
+    belong to different recordings (the combined CSV holds three periods per location), unless
+    they are strays: rows whose frame-0 time lies within MATCH_TOLERANCE_MS of a larger group's,
+    names the same recording as a larger group, or is shared by few rows (under
+    STRAY_GROUP_SHARE of the location's largest group) and names no official period that a
+    larger group has not named. A group that is a clock of its own (MIN_CLOCK_VEHICLES whole
+    vehicles and nearly all its rows theirs) is never stray: it is a recording, its period
+    suffixed (-2, ...) if a larger group has the same name, and said in the lines returned.
     A stray row's index is null, as is that of a row without a time or frame; the caller counts
     and drops them. Only the `usable` rows (a bool expression; all by default) form recordings;
     the others get the index of the recording whose frame-0 time they share, if any. Recordings
@@ -157,16 +197,27 @@ def recording_index(
     """
     accepted: list[tuple[str | None, int, int]] = []  # location, frame-0 time, group position
     keys: list[tuple[str, str]] = []
-    groups = _frame0_groups(frame if usable is None else frame.filter(usable))
-    for position, (location, frame0_ms, _rows, last_frame, small) in enumerate(groups.iter_rows()):
-        near = any(
-            loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS for loc, ms, _ in accepted
-        )
-        if near or (small and not _names_an_unclaimed_period(frame0_ms, location, keys)):
-            continue
-        key = _name_recording(frame0_ms, last_frame, location, path)
-        if key in keys:
-            continue
+    own: dict[int, list[int]] = {}  # by accepted position: the only vehicles of a clock's rows
+    notes: dict[tuple[str, str], str] = {}
+    groups, per_vehicle = _frame0_groups(frame if usable is None else frame.filter(usable))
+    for position, group in enumerate(groups.iter_rows(named=True)):
+        location, frame0_ms = group[s.LOCATION], group[FRAME0_MS]
+        near = [
+            (loc, ms) for loc, ms, _ in accepted
+            if loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS
+        ]  # fmt: skip
+        unclaimed = _names_an_unclaimed_period(frame0_ms, location, keys)
+        stray = bool(near) or (group["small"] and not unclaimed)
+        key = None if stray else _name_recording(frame0_ms, group["last_frame"], location, path)
+        if stray or key in keys:
+            vehicles, rows = _own_vehicles(per_vehicle, groups, position)
+            if len(vehicles) < MIN_CLOCK_VEHICLES or rows < MIN_CLOCK_OWN_SHARE * group["rows"]:
+                continue  # stray rows
+            key = key or _name_recording(frame0_ms, group["last_frame"], location, path)
+            own[len(keys)] = vehicles
+            if near or key in keys:
+                key = _distinct(key, keys)
+                notes[key] = _clock_note(group, key, len(vehicles), rows, near, accepted, keys)
         if len(keys) == MAX_RECORDINGS_PER_FILE:
             raise NgsimInputError(
                 path,
@@ -179,15 +230,42 @@ def recording_index(
         range(len(keys)),
         key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]),
     )
-    # A row takes the index of the accepted group it shares (location, frame-0 time) with;
-    # one test per recording, a handful, rather than a join that copies every row's keys.
+    # A row takes the index of the accepted group it shares (location, frame-0 time) with (of a
+    # clock's group, only its own vehicles' rows); one test per recording, a handful, rather
+    # than a join that copies every row's keys.
     index = pl.lit(None, dtype=pl.UInt16)
     for new, i in enumerate(order):
         location, frame0_ms, _ = accepted[i]
         same = pl.col(s.LOCATION).eq_missing(pl.lit(location, dtype=pl.String)) & (
             _FRAME0.eq(frame0_ms)
         )
+        if i in own:
+            same &= pl.col(s.VEHICLE_ID).is_in(own[i])
         index = pl.when(same).then(pl.lit(new, dtype=pl.UInt16)).otherwise(index)
     if not order:  # no recording: a null of each row, not a lone literal
-        return pl.repeat(None, pl.len(), dtype=pl.UInt16), []
-    return index, [keys[i] for i in order]
+        return pl.repeat(None, pl.len(), dtype=pl.UInt16), [], notes
+    return index, [keys[i] for i in order], notes
+
+
+def _clock_note(
+    group: dict,
+    key: tuple[str, str],
+    vehicles: int,
+    rows: int,
+    near: list[tuple[str | None, int]],
+    accepted: list[tuple[str | None, int, int]],
+    keys: list[tuple[str, str]],
+) -> str:
+    """What a build says of a recording told apart by its own clock: which, how many vehicles,
+    and how far from the recording it would otherwise have joined."""
+    same_name = [
+        (loc, ms) for (loc, ms, _), k in zip(accepted, keys, strict=True) if k[0] == key[0]
+    ]
+    other = near[0] if near else same_name[0]
+    other_key = keys[[(loc, ms) for loc, ms, _ in accepted].index(other)]
+    seconds = (group[FRAME0_MS] - other[1]) / 1000
+    return (
+        f"{key[0]}/{key[1]}: {vehicles:,} vehicles ({rows:,} rows) keep a frame clock of their "
+        f"own, Global_Time - 100 * Frame_ID {seconds:+.1f} s from {other_key[0]}/{other_key[1]}'s: "
+        "a recording of their own, not stray rows"
+    )

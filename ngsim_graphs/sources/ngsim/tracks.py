@@ -75,7 +75,7 @@ def read_file_recordings(
     complete = is_complete()
     reason = pl.when(complete).then(row_drop_reason(config.limits))
     usable = complete & passes_row_checks(config.limits)
-    index, names = recording_index(raw.frame, path, usable)
+    index, names, notes = recording_index(raw.frame, path, usable)
     chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
     in_chosen = index.is_in(list(chosen.values())).fill_null(False)
     # Rows of recordings the build did not choose are other locations' rows, whatever they
@@ -137,6 +137,7 @@ def read_file_recordings(
         rows_checked=kept + sum(counts.values()),
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
+        notes=tuple(note for key, note in sorted(notes.items()) if key in chosen),
     )
     return FileRows(rows, chosen, report)
 
