@@ -13,17 +13,20 @@ from rich.table import Table
 
 from ngsim_graphs.errors import NgsimError
 
-stderr = Console(stderr=True)
-stdout = Console()
+# Lines are never broken by us: a path or a number stays whole on a narrow terminal and in a
+# pipe (the terminal wraps what is too long; a pipe gets the line as it is).
+stderr = Console(stderr=True, soft_wrap=True)
+stdout = Console(soft_wrap=True)
 
 
 def print_table(table: Table) -> None:
-    """A table on stdout; piped or redirected, at its natural width rather than cut to 80 columns."""
-    if stdout.is_terminal:
+    """A table on stdout at its natural width where the terminal (or a pipe's 80 columns) is
+    narrower: rich would squeeze its columns and cut their values ("52…")."""
+    natural = Measurement.get(stdout, stdout.options.update(width=10_000), table).maximum
+    if natural <= stdout.width:
         stdout.print(table)
-    else:
-        natural = Measurement.get(stdout, stdout.options.update(width=10_000), table).maximum
-        Console(width=max(stdout.width, natural)).print(table)  # print() cannot widen the console
+    else:  # print() cannot widen the console
+        Console(width=natural, force_terminal=stdout.is_terminal).print(table)
 
 
 @contextmanager

@@ -10,7 +10,6 @@ from typing import Annotated
 import numpy as np
 import polars as pl
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from ngsim_cli.console import (
@@ -21,6 +20,7 @@ from ngsim_cli.console import (
     print_table,
     progress_bar,
     stderr,
+    stdout,
 )
 from ngsim_cli.cslstm import export_cslstm
 from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
@@ -41,7 +41,6 @@ app = typer.Typer(
     add_completion=False,
     **HELP_SETTINGS,
 )
-stdout = Console()
 
 
 add_version_option(app, "ngsim-graphs", __version__)
@@ -211,8 +210,11 @@ def build(
     split: Annotated[
         SplitMode,
         typer.Option(
-            help="How ego windows are divided 70/10/20 into train/val/test: by ego Vehicle_ID "
-            "per recording, by contiguous blocks of time, or at random by ego track."
+            help="How ego windows are divided into train/val/test: vehicle (CS-LSTM's rule, "
+            "per recording: egos with Vehicle_ID up to 70 % of the recording's largest id train, "
+            "up to 80 % validate, the rest test; the shares of samples differ from 70/10/20 and "
+            "the build prints them), time (contiguous blocks of 70/10/20 of the windows, a "
+            "window's length apart), random (70/10/20 of the ego tracks, seeded)."
         ),
     ] = SplitMode.VEHICLE,
     seed: Annotated[
@@ -324,10 +326,21 @@ def build(
         )
     for warning in result.warnings:
         stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
+    shares = " / ".join(
+        f"{splits.get(name, 0) / max(1, counts.samples):.0%}" for name in SPLIT_NAMES
+    )
     stdout.print(
         "samples: "
         + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
-        + f" ({counts.samples:,} in all)."
+        + f" ({counts.samples:,} in all; shares {shares}"
+        + (
+            ", the vehicle split cutting at Vehicle_IDs"
+            if config.split is SplitMode.VEHICLE
+            else ""
+        )
+        + ").",
+        markup=False,
+        highlight=False,
     )
 
 

@@ -290,12 +290,34 @@ def test_build_prints_summary_table(tmp_path: Path, long_rows: list[dict]) -> No
     ]  # fmt: skip
     summary = "164 rows read, 0 of other locations, 0 with empty required fields dropped."
     assert summary in result.stdout
-    assert "samples: 1 train, 1 val, 0 test (2 in all)." in result.stdout
+    assert (
+        "samples: 1 train, 1 val, 0 test (2 in all; shares 50% / 50% / 0%, the vehicle split "
+        "cutting at Vehicle_IDs)." in result.stdout
+    )
     # Largest Vehicle_ID 2: cuts at round(1.4) = 1 and round(1.6) = 2, nothing left for test.
     assert "warning: the test split is empty: the vehicle split" in result.stderr
     assert (out / "manifest.json").is_file()
     assert (out / "tracks" / "us-101_0750am-0805am.parquet").is_file()
     assert leftovers(out) == []
+
+
+def test_a_narrow_terminal_or_a_pipe_cuts_no_value(tmp_path: Path, long_rows: list[dict]) -> None:
+    # On main an 80-column terminal cut the table's numbers ("52…") and a pipe broke lines
+    # inside paths.
+    path = write_txt(tmp_path / ("a-long-folder-name-" * 4) / "a.txt", long_rows)
+    terminal = {"COLUMNS": "80", "TTY_COMPATIBLE": "1", "NO_COLOR": "1"}
+    for env in (terminal, NARROW):
+        out = tmp_path / "out"
+        result = invoke("build", path, "--out", out, "--overwrite", env=env)
+        assert result.exit_code == 0, result.output
+        assert "…" not in result.stdout
+        assert _table_row(result.stdout, "0750am-0805am") == [
+            "us-101", "0750am-0805am", "164", "0", "0", "0", "2", "82", "1", "1", "0"
+        ]  # fmt: skip
+        assert "warning: the test split is empty" in result.stderr
+        assert "rows read, 0 of other locations, 0 with empty required fields dropped.\n" in (
+            result.stdout
+        )
 
 
 def test_build_reports_skipped_files_of_a_directory(tmp_path: Path, long_rows: list[dict]) -> None:
@@ -561,7 +583,9 @@ def test_build_prints_samples_per_split(synthetic_raw: Path, tmp_path: Path) -> 
     totals = manifest["splits"]
     assert all(n > 0 for n in totals.values())
     line = f"samples: {totals['train']:,} train, {totals['val']:,} val, {totals['test']:,} test"
-    assert f"{line} ({manifest['counts']['samples']:,} in all)." in result.stdout
+    n = manifest["counts"]["samples"]
+    shares = " / ".join(f"{round(100 * totals[split] / n)}%" for split in ("train", "val", "test"))
+    assert f"{line} ({n:,} in all; shares {shares}, the vehicle split" in result.stdout
 
 
 RANDOM_D_MIN_0 = (

@@ -298,7 +298,10 @@ def test_the_build_prints_the_scripts_rows(tmp_path: Path) -> None:
         "row) and give no sample; 20 rows of vehicles under 31 rows left out (the script stops "
         "on them)." in result.stdout
     )
-    assert "samples: 166 train, 29 val, 58 test (253 in all)." in result.stdout
+    assert (
+        "samples: 166 train, 29 val, 58 test (253 in all; shares 66% / 11% / 23%, the vehicle "
+        "split cutting at Vehicle_IDs)." in result.stdout
+    )
     config = json.loads((tmp_path / "out" / "manifest.json").read_text())["config"]
     assert config["protocol"] == "cs-lstm"
     stats = invoke("stats", tmp_path / "out")  # the same counts, in the rows' table
