@@ -27,7 +27,9 @@ from ngsim_graphs import integrity
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.manifest import Manifest
 
-FORMAT_VERSION = 2  # 2: the manifest lists every file with its checksum, and its own checksum
+# 2: the manifest lists every file with its checksum, and its own checksum; 3: and every file's
+# sampled digest, which every open checks
+FORMAT_VERSION = 3
 MANIFEST_NAME = "manifest.json"
 TRACKS_DIR = "tracks"
 PROXIMITY_DIR = "proximity"

@@ -328,7 +328,7 @@ def test_open_build_without_manifest(tmp_path: Path) -> None:
 def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:
     manifest = dict(built.manifest.to_dict(), format_version=99)
     (tmp_path / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
-    with pytest.raises(NgsimInputError, match=r"format version 99; expected 2") as err:
+    with pytest.raises(NgsimInputError, match=r"format version 99; expected 3") as err:
         open_build(tmp_path)
     assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
 

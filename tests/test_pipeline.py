@@ -88,7 +88,7 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     on_disk = json.loads((out / "manifest.json").read_text())
     assert on_disk == json.loads(json.dumps(result.manifest.to_dict()))
     assert layout.read_manifest(out).to_dict() == on_disk
-    assert on_disk["format_version"] == layout.FORMAT_VERSION == 2
+    assert on_disk["format_version"] == layout.FORMAT_VERSION == 3
     assert on_disk["config"] == json.loads(json.dumps(SHORT.to_dict()))
     assert on_disk["config"]["locations"] == ["us-101", "i-80"]
     assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
