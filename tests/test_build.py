@@ -316,7 +316,9 @@ def test_recordings_cleaned_a_few_vehicles_at_a_time_are_the_recordings_cleaned_
 
 def test_open_build_without_manifest(tmp_path: Path) -> None:
     (tmp_path / "tracks").mkdir()
-    with pytest.raises(NgsimInputError, match="not a finished build: no manifest.json"):
+    with pytest.raises(
+        NgsimInputError, match=r"an unfinished build \(interrupted\?\): no manifest"
+    ):
         open_build(tmp_path)
     with pytest.raises(NgsimInputError, match="no such build directory"):
         open_build(tmp_path / "missing")
