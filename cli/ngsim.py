@@ -403,8 +403,10 @@ def verify(
 ) -> None:
     """Read every file of a build and compare it with the checksums in its manifest.
 
-    Opening a build (stats, export, aigem) checks the manifest's own checksum, every file's size
-    and every array's shape; verify also reads every byte. One line per damaged file, exit 1.
+    Opening a build (stats, export, show, aigem) checks the manifest's own checksum, every
+    file's size, every array's shape and a sampled digest of every file (the whole of a file up
+    to 8 MiB); verify also reads every byte, and names every file the manifest does not list and
+    every symbolic link. One line per problem, exit 1.
     """
     from ngsim_graphs.build import verify_build
 

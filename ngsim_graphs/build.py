@@ -1,9 +1,10 @@
 """A finished build, opened: its manifest, config, memory-mapped arrays and samples.
 
-Opening costs the same for a tiny build and for the six-recording one: the manifest is read and
-checked (its checksum, its config hash, every file's size), the arrays are memory-mapped and
-checked against their recorded dtype and shape, nothing else is loaded until used. Every path
-comes from `layout`, never from the manifest. See `integrity`.
+Opening reads the manifest and checks it (its checksum, its config hash) and every file it lists:
+its size, an array's dtype and shape, and its sampled digest (the whole of a file up to 8 MiB,
+1 MiB spread over a larger one: 86 MB of the six-recording build's 1.64 GB). The arrays
+are memory-mapped, nothing else is loaded until used. Every path comes from `layout`, never
+from the manifest. See `integrity`.
 """
 
 from __future__ import annotations
@@ -149,8 +150,8 @@ def read_table(path: Path) -> pl.DataFrame:
 
 
 def open_build(root: Path | str) -> OpenBuild:
-    """Open a finished build; a clear error for anything else (unfinished, other version, edited,
-    damaged: see `integrity`)."""
+    """Open a finished build, its files checked against the manifest (`integrity.check_files`);
+    a clear error for anything else (not a build, unfinished, other version, edited, damaged)."""
     root = Path(root)
     manifest = layout.read_manifest(root)  # typed: of a form that `Manifest` reads
     path = layout.manifest_path(root)
@@ -158,7 +159,7 @@ def open_build(root: Path | str) -> OpenBuild:
         for entry in manifest.recordings:
             for name in (entry.location, entry.period):
                 integrity.inside(root, name, path)  # a name of the build, never a path
-        integrity.check_sizes(root, manifest.files, path)
+        integrity.check_files(root, manifest.files, path)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         if isinstance(err, NgsimInputError):
             raise
@@ -172,15 +173,17 @@ class Verification:
 
     files: int
     bytes: int
-    problems: tuple[str, ...]  # one line per damaged, missing or edited file
+    problems: tuple[str, ...]  # one line per damaged, missing, edited or unlisted file or link
 
 
 def verify_build(
     root: Path, progress: Callable[[str, int, int], None] | None = None
 ) -> Verification:
     """Read every file of a build and compare it with the manifest's checksums (and the manifest
-    with its own). Unlike `open_build`, which checks sizes and shapes only, this reads it all."""
+    with its own); name every file the manifest does not list and every symbolic link. Unlike
+    `open_build`, which samples large files, this reads it all."""
     records = layout.read_manifest(root).files
     problems = integrity.verify_files(root, records, layout.manifest_path(root), progress)
+    problems += integrity.stray_entries(root, records, own=(layout.MANIFEST_NAME,))
     size = sum(record["bytes"] for record in records.values())
     return Verification(files=len(records), bytes=size, problems=tuple(problems))

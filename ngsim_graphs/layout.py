@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import itertools
 import json
 import os
 import re
@@ -27,7 +28,9 @@ from ngsim_graphs import integrity
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.manifest import Manifest
 
-FORMAT_VERSION = 2  # 2: the manifest lists every file with its checksum, and its own checksum
+# 2: the manifest lists every file with its checksum, and its own checksum; 3: and every file's
+# sampled digest, which every open checks
+FORMAT_VERSION = 3
 MANIFEST_NAME = "manifest.json"
 TRACKS_DIR = "tracks"
 PROXIMITY_DIR = "proximity"
@@ -353,9 +356,9 @@ def _read_manifest_json(root: Path) -> dict[str, Any]:
     if not root.exists():
         raise NgsimInputError(root, "no such build directory")
     if not root.is_dir():
-        raise NgsimInputError(root, "not a directory")
+        raise NgsimInputError(root, _what_file_is(root))
     if not path.is_file():
-        raise NgsimInputError(root, f"not a finished build: no {MANIFEST_NAME} (interrupted?)")
+        raise NgsimInputError(root, what_folder_is(root))
     try:
         manifest = json.loads(path.read_text())
     except json.JSONDecodeError as err:
@@ -374,3 +377,99 @@ def _read_manifest_json(root: Path) -> dict[str, Any]:
         raise NgsimInputError(path, f"format version {version!r}; expected {FORMAT_VERSION}{older}")
     integrity.check_manifest(manifest, path)
     return manifest
+
+
+# What marks a run directory of aigem (`aigem.runs`: RUN_INFO, HORIZONS), and the key of its
+# run.json that names its build: named here because ngsim_graphs never imports aigem.
+RUN_INFO_NAME, RUN_HORIZONS_NAME, RUN_BUILD_KEY = "run.json", "horizons.json", "build_dir"
+# What a build holds before its manifest is written (a folder of only these: an unfinished build)
+_UNFINISHED_NAMES = {TRACKS_DIR, PROXIMITY_DIR, SAMPLES_DIR, ARRAYS_DIR, STAGING_DIR}
+_LOOKED_AT = 1_000  # entries looked at for trajectory files, at most (not a whole home folder)
+
+
+def what_folder_is(root: Path) -> str:
+    """Why the folder `root`, which holds no manifest, is not a build, as a user can act on it:
+    empty, an aigem run (and its build), an unfinished build, a folder of trajectory files."""
+    try:
+        names = {entry.name for entry in root.iterdir()}
+        if not names:
+            return "an empty folder, not a build"
+        if names & {RUN_INFO_NAME, RUN_HORIZONS_NAME}:
+            build = _run_build(root)
+            return "an aigem run, not a build" + (f"; its build is {build}" if build else "")
+        if names <= {*_UNFINISHED_NAMES, f"{MANIFEST_NAME}.partial"}:
+            return f"an unfinished build (interrupted?): no {MANIFEST_NAME}"
+        if _holds_trajectory_files(root):
+            return (
+                "holds NGSIM/highD trajectory files, not a build: build one with "
+                f"`ngsim-graphs build {root} --out BUILD`"
+            )
+    except OSError:  # a folder it may not list: said as plainly as the rest
+        pass
+    return f"not a build: no {MANIFEST_NAME}"
+
+
+def _what_file_is(path: Path) -> str:
+    """Why the file `path` is not a build: a trajectory file, or another file."""
+    if _is_trajectory_file(path):
+        return (
+            "an NGSIM/highD trajectory file, not a build: build one with "
+            f"`ngsim-graphs build {path} --out BUILD`"
+        )
+    return "not a directory"
+
+
+def _json_of(path: Path) -> Any:
+    """The JSON value of a file; None if it cannot be read as JSON."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        return None
+
+
+def _run_build(run: Path) -> str | None:
+    """The build an aigem run names in its run.json (a multi-horizon run: in its first
+    member's); None where that cannot be read."""
+    info = _json_of(run / RUN_INFO_NAME)
+    if info is None:
+        horizons = _json_of(run / RUN_HORIZONS_NAME)
+        members = horizons.get("members") if isinstance(horizons, dict) else None
+        if isinstance(members, list) and members and integrity.SAFE_NAME.match(str(members[0])):
+            info = _json_of(run / str(members[0]) / RUN_INFO_NAME)
+    build = info.get(RUN_BUILD_KEY) if isinstance(info, dict) else None
+    return build if isinstance(build, str) else None
+
+
+def _holds_trajectory_files(root: Path) -> bool:
+    """Whether `root` or a folder in it holds a file that a source reads (of the first
+    _LOOKED_AT entries)."""
+
+    def entries() -> Iterator[Path]:
+        yield from root.iterdir()
+        for folder in root.iterdir():
+            if folder.is_dir() and not folder.is_symlink():
+                yield from folder.iterdir()
+
+    return any(_is_trajectory_file(path) for path in itertools.islice(entries(), _LOOKED_AT))
+
+
+def _is_trajectory_file(path: Path) -> bool:
+    """Whether `path` is a file that a source reads (NGSIM, highD), told from its content."""
+    # Imported here: only this error path needs the sources' sniffers.
+    from ngsim_graphs.sources.highd.files import sniff_highd
+    from ngsim_graphs.sources.ngsim.files import (
+        CANDIDATE_SUFFIXES,
+        NotNgsimFileError,
+        sniff_format,
+    )
+
+    if not path.is_file() or path.suffix.lower() not in CANDIDATE_SUFFIXES:
+        return False
+    try:
+        if sniff_highd(path) is None:
+            sniff_format(path)
+    except (NotNgsimFileError, OSError):
+        return False
+    except NgsimInputError:  # NGSIM's, but unreadable (CR line ends): a trajectory file still
+        return True
+    return True

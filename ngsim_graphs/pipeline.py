@@ -340,6 +340,7 @@ def run_build(
     """Read every raw file under `raw_paths` and write the finished build into `out_dir`.
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
+    The same files named in any order, or found in folders, give the same build, byte for byte.
     `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
     one per core this process may use); the output is the same for any number. The processes
     that run the tasks keep to one malloc arena (`workers.worker_environment`). With one job,
@@ -356,7 +357,10 @@ def run_build(
     if workers.jobs == 1:  # the tasks run in this process
         one_malloc_arena()
     report_progress = progress or (lambda _what, _done, _total: None)
-    source, files, skipped = choose_source(raw_paths, dataset)
+    source, found, skipped = choose_source(raw_paths, dataset)
+    # The build depends on the set of inputs, not on the order they were named in: the files
+    # (resolved paths) are read in path order, which numbers them and lists them in the manifest.
+    files = sorted(found)
     with landing.build_directory(out_dir, overwrite) as root:
         with workers:  # the workers end here: what they held goes back before the writing
             file_reports, staged = _stage_inputs(

@@ -93,7 +93,7 @@ def test_a_given_scaler_replaces_the_builds(tiny_build: Path) -> None:
 
 
 def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_path: Path) -> None:
-    with pytest.raises(NgsimInputError, match="not a finished build"):
+    with pytest.raises(NgsimInputError, match="not a build"):
         GraphDataset(tmp_path, "train")
     copy = tmp_path / "copy"
     copy.mkdir()

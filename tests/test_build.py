@@ -316,7 +316,9 @@ def test_recordings_cleaned_a_few_vehicles_at_a_time_are_the_recordings_cleaned_
 
 def test_open_build_without_manifest(tmp_path: Path) -> None:
     (tmp_path / "tracks").mkdir()
-    with pytest.raises(NgsimInputError, match="not a finished build: no manifest.json"):
+    with pytest.raises(
+        NgsimInputError, match=r"an unfinished build \(interrupted\?\): no manifest"
+    ):
         open_build(tmp_path)
     with pytest.raises(NgsimInputError, match="no such build directory"):
         open_build(tmp_path / "missing")
@@ -328,7 +330,7 @@ def test_open_build_without_manifest(tmp_path: Path) -> None:
 def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:
     manifest = dict(built.manifest.to_dict(), format_version=99)
     (tmp_path / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
-    with pytest.raises(NgsimInputError, match=r"format version 99; expected 2") as err:
+    with pytest.raises(NgsimInputError, match=r"format version 99; expected 3") as err:
         open_build(tmp_path)
     assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
 

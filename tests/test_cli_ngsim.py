@@ -491,7 +491,7 @@ def test_stats_without_manifest(tmp_path: Path) -> None:
     (folder / "tracks").mkdir(parents=True)
     for flag in ((), ("--json",)):
         line = error_line(invoke("stats", folder, *flag, env=NARROW))
-        assert str(folder) in line and "not a finished build" in line and "manifest.json" in line
+        assert str(folder) in line and "an unfinished build" in line and "manifest.json" in line
 
 
 def test_stats_on_missing_directory(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_cli_ngsim import error_line, invoke
+from typer.testing import CliRunner, Result
 
 from ngsim_graphs import integrity, layout
 from ngsim_graphs.build import open_build, verify_build
@@ -27,6 +28,12 @@ def copy(tiny_build: Path, tmp_path: Path) -> Path:
     target = tmp_path / "build"
     shutil.copytree(tiny_build, target)
     return target
+
+
+DIGEST_MISMATCH = (
+    "its bytes do not match the manifest's digest: edited or damaged (build it again; "
+    "`ngsim-graphs verify` names every damaged file)"
+)
 
 
 def manifest_of(build: Path) -> dict:
@@ -125,15 +132,16 @@ def test_a_reshaped_array_of_the_same_size_names_its_file(copy: Path) -> None:
 
 
 def test_nan_in_the_node_array(copy: Path) -> None:
+    opened = open_build(copy)  # before the edit: the values are the last line of defence
     path = first_arrays(copy) / "node_state.npy"
     array = np.load(path, mmap_mode="r+")
-    array[:, 0] = np.nan  # the same size and shape: only the checksum or the values tell
+    array[:, 0] = np.nan  # the same size and shape: only the digests or the values tell
     array.flush()
     del array
     with pytest.raises(NgsimInputError, match="node_state.npy: holds values that are not finite"):
-        open_build(copy).graphs("train", np.arange(4))
+        opened.graphs("train", np.arange(4))
     line = error_line(invoke("stats", copy))
-    assert f"{path}: holds values that are not finite" in line
+    assert line == f"error: {path}: {DIGEST_MISMATCH}"
     result = invoke("verify", copy)
     assert result.exit_code == 1
     assert (
@@ -190,7 +198,7 @@ def test_a_manifest_that_is_not_one(copy: Path, content: bytes) -> None:
         for f in (
             "not a JSON object",
             "not UTF-8",
-            "format version 1; expected 2 (made by an older",
+            f"format version 1; expected {layout.FORMAT_VERSION} (made by an older",
         )
     )
 
@@ -212,4 +220,102 @@ def test_an_array_header_claiming_more_than_the_file_holds(copy: Path) -> None:
     line = error_line(invoke("stats", copy))
     assert str(path) in line and (
         "unreadable array" in line or "where the manifest records" in line
+    )
+
+
+def shift_test_windows(build: Path) -> Path:
+    """repro_6's first edit: every test window starts 5 steps later (the same bytes in all)."""
+    path = build / "arrays" / "samples-test" / "start_step.npy"
+    np.save(path, np.load(path) + 5)
+    return path
+
+
+def halve_pair_distances(build: Path) -> Path:
+    """repro_6's second edit: a recording's pair distances halved (the same bytes in all)."""
+    path = first_arrays(build) / "pair_dist.npy"
+    np.save(path, np.load(path) * np.float32(0.5))
+    return path
+
+
+def aigem(*args: object) -> Result:
+    from ngsim_cli.aigem import app  # torch loads only for the tests that use it
+
+    return CliRunner(env={"COLUMNS": "200"}).invoke(app, [str(a) for a in args])
+
+
+@pytest.mark.parametrize("edit", [shift_test_windows, halve_pair_distances])
+def test_same_size_edits_are_refused_by_every_open(
+    copy: Path, tiny_run: Path, edit: Callable[[Path], Path]
+) -> None:
+    records = manifest_of(copy)["files"]
+    path = edit(copy)
+    assert path.stat().st_size == records[path.relative_to(copy).as_posix()]["bytes"]
+    expected = f"error: {path}: {DIGEST_MISMATCH}"
+    out = copy.parent / "out"
+    for result in (
+        invoke("stats", copy),
+        invoke("stats", copy, "--json"),
+        invoke("export", copy, "--out", out),
+        invoke("show", copy, "--out", out.with_suffix(".png")),
+    ):
+        assert error_line(result) == expected
+    for result in (  # fit has told the model's size on stdout by then
+        aigem("fit", copy, "--out", out, "--epochs", "1", "--device", "cpu"),
+        aigem("evaluate", tiny_run, "--data", copy, "--device", "cpu"),
+    ):
+        assert (result.exit_code, result.stderr.strip()) == (1, expected)
+    assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+def test_a_large_file_is_checked_by_samples(
+    copy: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    block = integrity.SAMPLE_BLOCK_BYTES
+    monkeypatch.setattr(integrity, "WHOLE_FILE_BYTES", 2 * block)
+    monkeypatch.setattr(integrity, "SAMPLE_BLOCKS", 3)
+    data = np.random.default_rng(0).bytes(100_000)
+    big, small = tmp_path / "big", tmp_path / "small"
+    big.write_bytes(data)
+    small.write_bytes(data[: 2 * block])
+    assert integrity.sample_offsets(100_000) == [0, 47_952, 95_904]  # (100,000 - 4,096) / 2
+    picked = data[:block] + data[47_952 : 47_952 + block] + data[-block:]
+    assert integrity.sampled_sha256(big) == hashlib.sha256(picked).hexdigest()
+    assert integrity.sampled_sha256(small) == integrity.file_sha256(small)
+    # Sealed with these sizes, a build's larger files are sampled; a spread edit is still found.
+    body = {k: v for k, v in manifest_of(copy).items() if k not in ("files", "manifest_sha256")}
+    layout.write_manifest_json(copy, body)
+    assert invoke("stats", copy).exit_code == 0
+    path = halve_pair_distances(copy)
+    assert path.stat().st_size > 2 * block
+    assert error_line(invoke("stats", copy)) == f"error: {path}: {DIGEST_MISMATCH}"
+
+
+def test_verify_names_unlisted_files_and_every_link(copy: Path, tmp_path: Path) -> None:
+    (copy / "arrays" / "notes.txt").write_text("mine\n")
+    val = copy / "samples" / "val.parquet"
+    outside = tmp_path / "val-elsewhere.parquet"
+    shutil.copyfile(val, outside)
+    val.unlink()
+    val.symlink_to(outside)  # the same bytes, from elsewhere
+    (copy / "again").symlink_to("arrays", target_is_directory=True)  # not followed
+    result = invoke("verify", copy)
+    assert result.exit_code == 1 and result.stdout == ""
+    assert result.stderr.splitlines() == [
+        f"error: {copy / 'again'}: a symbolic link to arrays, inside the build; a build holds "
+        "only its own files (copy them in, or build it again)",
+        f"error: {copy / 'arrays' / 'notes.txt'}: not listed in the manifest: not part of this "
+        "build",
+        f"error: {val}: a symbolic link to {outside}, outside the build; a build holds only its "
+        "own files (copy them in, or build it again)",
+    ]
+
+
+def test_a_build_of_the_format_before_sampled_digests_is_refused(copy: Path) -> None:
+    manifest = manifest_of(copy)
+    for record in manifest["files"].values():
+        del record["sampled_sha256"]
+    rewrite(copy, {**manifest, "format_version": 2}, checksum=True)  # as version 2 sealed it
+    assert error_line(invoke("stats", copy)) == (
+        f"error: {copy / layout.MANIFEST_NAME}: format version 2; expected 3 (made by an older "
+        "ngsim-graphs: build it again)"
     )

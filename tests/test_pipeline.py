@@ -18,13 +18,16 @@ from conftest import (
     write_portal,
     write_txt,
 )
+from highd_fixtures import two_directions
 from polars.testing import assert_frame_equal
+from test_cli_ngsim import invoke
 
 from ngsim_graphs import layout
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.synth.formats import write_synthetic
 
 FT = 0.3048
 # Windows of 3 grid steps (2 of history, 1 of future): the tiny inputs here give samples, and a
@@ -85,7 +88,7 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     on_disk = json.loads((out / "manifest.json").read_text())
     assert on_disk == json.loads(json.dumps(result.manifest.to_dict()))
     assert layout.read_manifest(out).to_dict() == on_disk
-    assert on_disk["format_version"] == layout.FORMAT_VERSION == 2
+    assert on_disk["format_version"] == layout.FORMAT_VERSION == 3
     assert on_disk["config"] == json.loads(json.dumps(SHORT.to_dict()))
     assert on_disk["config"]["locations"] == ["us-101", "i-80"]
     assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
@@ -299,3 +302,49 @@ def test_one_recording_from_two_files(tmp_path: Path) -> None:
     counts = (recording.rows, recording.vehicles, recording.tracks, recording.grid_rows)
     assert counts == (20, 2, 2, 10)
     assert tracks(out)[s.VEHICLE_ID].to_list() == [1] * 5 + [2] * 5
+
+
+def assert_built_alike(tmp_path: Path, *orders: list[Path]) -> list[Path]:
+    """Build the inputs in each order through the CLI; every file of every build, the manifest
+    included, byte for byte the first's. Returns the builds."""
+    outs = [tmp_path / f"out{i}" for i in range(len(orders))]
+    for inputs, out in zip(orders, outs, strict=True):
+        result = invoke("build", *inputs, "--out", out, "--jobs", "1")
+        assert result.exit_code == 0, result.output
+    first = snapshot(outs[0])
+    assert any(name.endswith(".npy") for name in first)
+    for out in outs[1:]:
+        assert snapshot(out) == first
+    return outs
+
+
+def test_the_same_inputs_in_another_order_give_the_same_build(tmp_path: Path) -> None:
+    raw = tmp_path / "raw"
+    write_synthetic(raw, SynthConfig(raw_format=s.RawFormat.CSV, recordings=2, minutes=0.3, seed=4))
+    a, b = sorted(raw.rglob("*.csv"))  # i-80's file, then us-101's
+    out, _, _ = assert_built_alike(tmp_path, [a, b], [b, a], [raw])
+    inputs = layout.read_manifest(out).inputs
+    assert [f.path for f in inputs] == [str(a.resolve()), str(b.resolve())]
+
+
+def test_a_conflicting_duplicate_across_files_is_kept_alike_in_any_order(tmp_path: Path) -> None:
+    """Vehicle 1 at frame 100 in both files, 0.5 ft apart: whichever file comes first, the row
+    that sorts first by (Local_Y, Local_X, ...) is kept (`cleaning.CONFLICT_ORDER`)."""
+    frames = range(0, 200)
+    x = write_period_csv(
+        tmp_path / "x.csv", straight_track(1, frames) + straight_track(2, frames, x_ft=30.0)
+    )
+    moved = make_row(1, 100, local_x_ft=18.5, local_y_ft=300.0)
+    y = write_period_csv(tmp_path / "y.csv", [moved, *straight_track(3, frames, x_ft=42.0)])
+    out, _ = assert_built_alike(tmp_path, [x, y], [y, x])
+    counts = layout.read_manifest(out).counts
+    assert (counts.exact_duplicates, counts.conflicting_duplicates) == (0, 1)
+    at_100 = tracks(out).filter((pl.col(s.VEHICLE_ID) == 1) & (pl.col(s.FRAME_ID) == 100))
+    assert at_100[s.X_M].to_list() == [pytest.approx(18.0 * FT)]
+
+
+def test_highd_recordings_named_by_any_of_their_files_in_any_order(tmp_path: Path) -> None:
+    first = two_directions(tmp_path / "one", number=1)
+    second = two_directions(tmp_path / "two", number=2)
+    meta = [second.with_name("02_recordingMeta.csv"), first.with_name("01_tracksMeta.csv")]
+    assert_built_alike(tmp_path, [first, second], meta)
