@@ -5,9 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from highd_fixtures import csv_text, track_rows, two_directions, write_recording
+from highd_fixtures import (
+    LONG,
+    LOWER_MARKINGS,
+    UPPER_MARKINGS,
+    csv_text,
+    track_rows,
+    two_directions,
+    write_recording,
+)
+from test_cli_ngsim import assert_failed_cleanly, invoke
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import HighdFile
 from ngsim_graphs.sources.highd.files import (
@@ -115,7 +125,7 @@ def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> Non
 
 def test_recording_meta_gives_id_location_and_markings(tmp_path: Path) -> None:
     two_directions(tmp_path, number=7, location_id=3)
-    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv")
+    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv", PhysicalLimits())
     assert (meta.recording_id, meta.location_id) == (7, 3)
     assert meta.upper_markings_m == (8.0, 11.5, 15.0) and meta.lower_markings_m == (
         18.0,
@@ -130,13 +140,18 @@ def test_recording_meta_must_be_25_hz_with_increasing_markings(tmp_path: Path) -
     with pytest.raises(
         NgsimInputError, match=r"line 2: frameRate 30: highD recordings run at 25 Hz"
     ):
-        read_recording_meta(tmp_path / "01_recordingMeta.csv")
+        read_recording_meta(tmp_path / "01_recordingMeta.csv", PhysicalLimits())
     path = tmp_path / "01_recordingMeta.csv"
     path.write_text(path.read_text().replace("30", "25").replace("8.0;11.5;15.0", "8.0;x;15.0"))
     with pytest.raises(
-        NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0' is not a list"
+        NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0': 'x' is not a num"
     ):
-        read_recording_meta(path)
+        read_recording_meta(path, PhysicalLimits())
+    path.write_text(path.read_text().replace("8.0;x;15.0", "8.0;15.0;11.5"))
+    with pytest.raises(
+        NgsimInputError, match=r"upperLaneMarkings: '8\.0;15\.0;11\.5' is not a list of increasing"
+    ):
+        read_recording_meta(path, PhysicalLimits())
 
 
 @pytest.mark.parametrize(
@@ -159,3 +174,30 @@ def test_tracks_meta_maps_classes_to_ngsim_codes(tmp_path: Path) -> None:
     two_directions(tmp_path)
     meta = read_tracks_meta(tmp_path / "01_tracksMeta.csv")
     assert meta.rows() == [(1, 2, 2), (2, 3, 1)]  # (id, v_class, drivingDirection)
+
+
+# Through the command line: one error line naming the file, the line and the column; no output.
+
+
+@pytest.mark.parametrize(
+    ("column", "markings", "problem"),
+    [
+        (s.HIGHD_LOWER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
+        (s.HIGHD_LOWER_LANE_MARKINGS, "nan;1;2", "'nan' is not a finite number"),
+        (s.HIGHD_LOWER_LANE_MARKINGS, "-inf;0;1", "'-inf' is not a finite number"),
+        (s.HIGHD_UPPER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
+        (s.HIGHD_UPPER_LANE_MARKINGS, "8.0;11.5;19.0", "upperLaneMarkings end at image y 19"),
+    ],
+)
+def test_build_refuses_implausible_lane_markings(
+    tmp_path: Path, column: str, markings: str, problem: str
+) -> None:
+    # On earlier versions 1e308;2e308 built, every x_m -1e308; nan or -inf ended in a traceback.
+    two_directions(tmp_path / "raw", frames=LONG)
+    meta = tmp_path / "raw" / "01_recordingMeta.csv"
+    default = ";".join(map(str, UPPER_MARKINGS if "upper" in column else LOWER_MARKINGS))
+    meta.write_text(meta.read_text().replace(default, markings))
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, meta)
+    assert line.startswith(f"error: {meta}, line 2: ")
+    assert problem in line and column in line

@@ -15,6 +15,7 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import HighdFile
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ, parse_file_name, sibling
@@ -220,12 +221,19 @@ def count_data_rows(path: Path) -> int:
     return int(lines.select(pl.len()).collect(engine="streaming").item())
 
 
-def _markings(path: Path, column: str, text: str | None) -> tuple[float, ...]:
-    """Lane markings `a;b;c` (image y, m): at least two, increasing."""
-    try:
-        values = tuple(float(v) for v in (text or "").split(";") if v.strip())
-    except ValueError:
-        values = ()
+def _markings(path: Path, column: str, text: str | None, far_m: float) -> tuple[float, ...]:
+    """Lane markings `a;b;c` (image y, m): at least two finite numbers within +-`far_m` (the
+    position limit), increasing."""
+    fields = [v.strip() for v in (text or "").split(";") if v.strip()]
+    for field in fields:
+        problem = number_problem(field, pl.Float64)
+        if problem is None and abs(float(field)) > far_m:
+            problem = f"lies beyond the position limit of {far_m:,g} m"
+        if problem:
+            raise NgsimInputError(
+                path, f"column {column}: {text!r}: {field!r} {problem}", line=FIRST_LINE
+            )
+    values = tuple(float(v) for v in fields)
     if len(values) < 2 or any(b <= a for a, b in zip(values, values[1:], strict=False)):
         raise NgsimInputError(
             path,
@@ -235,8 +243,10 @@ def _markings(path: Path, column: str, text: str | None) -> tuple[float, ...]:
     return values
 
 
-def read_recording_meta(path: Path) -> RecordingMeta:
-    """The one row of a recordingMeta file; its frame rate must be highD's 25 Hz."""
+def read_recording_meta(path: Path, limits: PhysicalLimits) -> RecordingMeta:
+    """The one row of a recordingMeta file; its frame rate must be highD's 25 Hz, its lane
+    markings plausible (finite, within `limits`' position limit, increasing, the upper
+    carriageway's above the lower's)."""
     frame = read_columns(path, HighdFile.RECORDING_META, s.HIGHD_RECORDING_META_SCHEMA)
     if frame.height != 1:
         raise NgsimInputError(path, f"holds {frame.height} rows; a recordingMeta file holds one")
@@ -252,15 +262,22 @@ def read_recording_meta(path: Path) -> RecordingMeta:
             f"frameRate {row[s.HIGHD_FRAME_RATE]}: highD recordings run at {FRAME_RATE_HZ} Hz",
             line=FIRST_LINE,
         )
+    upper, lower = (
+        _markings(path, column, row[column], limits.max_abs_position_m)
+        for column in (s.HIGHD_UPPER_LANE_MARKINGS, s.HIGHD_LOWER_LANE_MARKINGS)
+    )
+    if upper[-1] > lower[0]:
+        raise NgsimInputError(
+            path,
+            f"upperLaneMarkings end at image y {upper[-1]:g}, below the first of "
+            f"lowerLaneMarkings ({lower[0]:g}): the upper carriageway lies above the lower one",
+            line=FIRST_LINE,
+        )
     return RecordingMeta(
         recording_id=row[s.HIGHD_ID],
         location_id=row[s.HIGHD_LOCATION_ID],
-        upper_markings_m=_markings(
-            path, s.HIGHD_UPPER_LANE_MARKINGS, row[s.HIGHD_UPPER_LANE_MARKINGS]
-        ),
-        lower_markings_m=_markings(
-            path, s.HIGHD_LOWER_LANE_MARKINGS, row[s.HIGHD_LOWER_LANE_MARKINGS]
-        ),
+        upper_markings_m=upper,
+        lower_markings_m=lower,
     )
 
 

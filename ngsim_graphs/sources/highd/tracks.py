@@ -71,7 +71,7 @@ CONFLICT_ORDER: tuple[str, ...] = (
 )
 
 
-def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
+def _recording(path: Path, config: BuildConfig) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
     """The kind of file `path` is (by name), its recording's meta and key."""
     named = parse_file_name(path)
     if named is None:
@@ -84,7 +84,7 @@ def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
         raise NgsimInputError(
             path, f"no {meta_path.name} beside it: a highD recording needs all three files"
         )
-    meta = read_recording_meta(meta_path)
+    meta = read_recording_meta(meta_path, config.limits)
     if meta.recording_id != int(prefix):
         raise NgsimInputError(
             meta_path,
@@ -168,7 +168,7 @@ def read_file(
     RECORDING_INDEX and provenance); a meta file is checked and gives none. (A recording's file
     is read in memory: `scratch` is not used.)"""
     frames_per_step(config.time_step_s, path)  # a grid the 25 Hz frames cannot land on fails first
-    kind, meta, key = _recording(path)
+    kind, meta, key = _recording(path, config)
     allowed = chosen_locations(config.locations)
     chosen = allowed is None or key[0] in allowed
     empty = pl.LazyFrame(
