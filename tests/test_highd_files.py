@@ -8,10 +8,12 @@ import pytest
 from highd_fixtures import (
     LONG,
     LOWER_MARKINGS,
+    TWO_DIRECTIONS,
     UPPER_MARKINGS,
     csv_text,
     track_rows,
     two_directions,
+    two_directions_rows,
     write_recording,
 )
 from test_cli_ngsim import assert_failed_cleanly, invoke
@@ -116,10 +118,14 @@ def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> Non
     text = csv_text(
         s.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
     )
-    path.write_text(text[: text.rindex(",", 0, len(text) - 12)])  # the last line cut short
+    short = text[: text.rindex(",", 0, len(text) - 12)]  # the last line cut short
+    path.write_text(short + "\n")
     with pytest.raises(
         NgsimInputError, match=r"line 4: \d+ fields where the header has 25 \(truncated line\?\)"
     ):
+        read_tracks(path)
+    path.write_text(short)
+    with pytest.raises(NgsimInputError, match=r"line 4: the last line has no line end"):
         read_tracks(path)
 
 
@@ -201,3 +207,32 @@ def test_build_refuses_implausible_lane_markings(
     line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, meta)
     assert line.startswith(f"error: {meta}, line 2: ")
     assert problem in line and column in line
+
+
+@pytest.mark.parametrize(
+    ("kind", "cut"),
+    [
+        (HighdFile.TRACKS, 2),  # laneId 12 of the last row would read 1
+        (HighdFile.TRACKS_META, 2),  # numLaneChanges empty, its field still there
+        (HighdFile.RECORDING_META, 6),  # lowerLaneMarkings 18.0;21.5 (25.0 lost)
+    ],
+)
+def test_a_file_cut_inside_its_last_field_is_refused(
+    tmp_path: Path, kind: HighdFile, cut: int
+) -> None:
+    # On earlier versions each built (exit 0): the cut keeps the number of fields.
+    rows = two_directions_rows(LONG)
+    rows[-1][s.HIGHD_LANE_ID] = 12
+    write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    path = tmp_path / "raw" / f"01_{kind.value}.csv"
+    text = path.read_bytes()
+    path.write_bytes(text[:-cut])
+    last_line = text.count(b"\n")
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, path)
+    assert (
+        line
+        == f"error: {path}, line {last_line}: the last line has no line end: the file is cut short"
+    )
+    path.write_bytes(text)  # intact again: it builds
+    assert invoke("build", tmp_path / "raw", "--out", out).exit_code == 0

@@ -3,12 +3,14 @@
 A file's kind is told from its header (its content), its recording from its name's `NN_`
 prefix: `01_tracks.csv` needs `01_tracksMeta.csv` and `01_recordingMeta.csv` beside it. Every
 value is read as text and parsed here, so that a malformed number is reported with its file,
-line and column. Units stay highD's (metres, image coordinates); `geometry` maps them.
+line and column; a file whose last line has no line end was cut short and is refused. Units
+stay highD's (metres, image coordinates); `geometry` maps them.
 """
 
 from __future__ import annotations
 
 import difflib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -207,12 +209,25 @@ def read_columns(path: Path, kind: HighdFile, schema: pl.Schema) -> pl.DataFrame
         ) from None
     if frame.height == 0:
         raise NgsimInputError(path, "no data rows")
+    _check_line_end(path, int(frame[ROW].max()) + FIRST_LINE)
     if frame[EXTRA].any():
         check_csv_field_counts(path, len(header))
     bad = frame[_BAD].arg_true()
     if len(bad):
         _raise_bad_number(path, text, int(frame[ROW][int(bad[0])]), schema)
     return frame.drop(_BAD, EXTRA)
+
+
+def _check_line_end(path: Path, last_line: int) -> None:
+    """Raise when the file does not end with a line end: highD's files end every line with one,
+    the last too, so a file without was cut short, perhaps inside its last field, which keeps
+    the field count (a laneId 12 read as 1, a lane marking lost)."""
+    with path.open("rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        if handle.read(1) != b"\n":
+            raise NgsimInputError(
+                path, "the last line has no line end: the file is cut short", line=last_line
+            )
 
 
 def count_data_rows(path: Path) -> int:
