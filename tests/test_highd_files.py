@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import straight_track, write_txt
 from highd_fixtures import (
     LONG,
     LOWER_MARKINGS,
@@ -207,6 +208,43 @@ def test_build_refuses_implausible_lane_markings(
     line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, meta)
     assert line.startswith(f"error: {meta}, line 2: ")
     assert problem in line and column in line
+
+
+def _damage_header(path: Path, column: str) -> None:
+    """One name of the header misspelled: its last letter replaced by 'x'."""
+    header, body = path.read_text().split("\n", 1)
+    names = header.split(",")
+    names[names.index(column)] = column[:-1] + "x"
+    path.write_text(",".join(names) + "\n" + body)
+
+
+@pytest.mark.parametrize(
+    ("kind", "column"),
+    [
+        (HighdFile.TRACKS, s.HIGHD_X_VELOCITY),
+        (HighdFile.TRACKS, s.HIGHD_LANE_ID),
+        (HighdFile.TRACKS_META, s.HIGHD_DRIVING_DIRECTION),
+        (HighdFile.RECORDING_META, s.HIGHD_FRAME_RATE),
+    ],
+)
+@pytest.mark.parametrize("with_ngsim", [False, True])
+def test_a_damaged_header_is_refused_naming_the_column(
+    tmp_path: Path, kind: HighdFile, column: str, with_ngsim: bool
+) -> None:
+    # On earlier versions a folder search skipped recording 02 (its tracks file as "not NGSIM")
+    # and built recording 01 alone, exit 0; beside NGSIM files, the highD files were skipped.
+    raw = tmp_path / "raw"
+    two_directions(raw, frames=LONG, number=1)
+    two_directions(raw, frames=LONG, number=2)
+    if with_ngsim:
+        write_txt(raw / "trajectories-0750am-0805am.txt", straight_track(1, range(10, 92)))
+    damaged = raw / f"02_{kind.value}.csv"
+    _damage_header(damaged, column)
+    message = f"missing column {column} (found '{column[:-1]}x': misspelled?)"
+    for named in (raw, damaged):
+        out = tmp_path / "out"
+        line = assert_failed_cleanly(invoke("build", named, "--out", out), out, {}, damaged)
+        assert line == f"error: {damaged}, line 1: {message}"
 
 
 @pytest.mark.parametrize(

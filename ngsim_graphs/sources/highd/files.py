@@ -1,10 +1,12 @@
 """Reading highD's three CSV files: finding a recording's files, parsing, and one-line errors.
 
 A file's kind is told from its header (its content), its recording from its name's `NN_`
-prefix: `01_tracks.csv` needs `01_tracksMeta.csv` and `01_recordingMeta.csv` beside it. Every
-value is read as text and parsed here, so that a malformed number is reported with its file,
-line and column; a file whose last line has no line end was cut short and is refused. Units
-stay highD's (metres, image coordinates); `geometry` maps them.
+prefix: `01_tracks.csv` needs `01_tracksMeta.csv` and `01_recordingMeta.csv` beside it. A
+header with a damaged name is still its kind's (most of the kind's names, or the file's
+`NN_kind.csv` name, tell it), so that the reader refuses it naming the column rather than a
+search skipping the recording. Every value is read as text and parsed here, so that a malformed
+number is reported with its file, line and column; a file whose last line has no line end was
+cut short and is refused. Units stay highD's (metres, image coordinates); `geometry` maps them.
 """
 
 from __future__ import annotations
@@ -52,6 +54,11 @@ HEADERS = {
     HighdFile.TRACKS_META: s.HIGHD_TRACKS_META_HEADER,
     HighdFile.RECORDING_META: s.HIGHD_RECORDING_META_HEADER,
 }
+SCHEMAS = {
+    HighdFile.TRACKS: s.HIGHD_TRACKS_SCHEMA,
+    HighdFile.TRACKS_META: s.HIGHD_TRACKS_META_SCHEMA,
+    HighdFile.RECORDING_META: s.HIGHD_RECORDING_META_SCHEMA,
+}
 
 
 @dataclass(frozen=True)
@@ -74,10 +81,21 @@ def header_names(path: Path) -> list[str] | None:
 
 
 def sniff_highd(path: Path) -> HighdFile | None:
-    """The kind of highD file `path` holds, told from its header; None for any other file."""
+    """The kind of highD file `path` is; None for any other file.
+
+    Told from its header: the kind's signature columns, or else more than half of the kind's
+    names (a header with a damaged name); or else from a name `NN_<kind>.csv`. The reader then
+    refuses a damaged header naming its column (`check_header`)."""
     names = header_names(path)
     lowered = {name.lower() for name in names or ()}
-    return next((kind for kind, needed in SIGNATURES.items() if needed <= lowered), None)
+    signed = next((kind for kind, needed in SIGNATURES.items() if needed <= lowered), None)
+    if signed is not None:
+        return signed
+    for kind, header in HEADERS.items():
+        if 2 * len(lowered & {name.lower() for name in header}) > len(header):
+            return kind
+    named = parse_file_name(path)
+    return None if named is None else named[1]
 
 
 def recording_files(path: Path) -> list[Path]:
@@ -116,8 +134,8 @@ def find_highd_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     """Expand files and directories into highD files; returns (files, skipped other files).
 
     A named file brings its recording's three files. A directory is searched recursively for
-    tracks files (by header), each with its two meta files; other .csv/.txt files are skipped,
-    meta files without a tracks file too.
+    tracks files (`sniff_highd`: by header, a damaged one too, or by name), each with its two
+    meta files; other .csv/.txt files are skipped, meta files without a tracks file too.
     """
     found: list[Path] = []
     skipped: list[Path] = []
@@ -138,6 +156,15 @@ def find_highd_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
         skipped.extend(sorted(set(candidates) - set(members)))
     unique = list(dict.fromkeys(p.resolve() for p in found))
     return unique, skipped
+
+
+def check_header(path: Path, kind: HighdFile) -> None:
+    """Raise NgsimInputError unless the header of `path` holds every column the reader reads of
+    a `kind` file, once (naming the column missing and the damaged name that may be it)."""
+    header = header_names(path)
+    if header is None:
+        raise NgsimInputError(path, "empty file: no header and no data")
+    _check_header(path, header, kind, list(SCHEMAS[kind]))
 
 
 def _check_header(path: Path, header: list[str], kind: HighdFile, needed: list[str]) -> None:
