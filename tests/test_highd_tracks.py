@@ -5,12 +5,21 @@ fixtures (see highd_fixtures: markings 8.0/11.5/15.0 above the median, 18.0/21.5
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import polars as pl
 import pytest
-from highd_fixtures import track_rows, two_directions, write_recording
+from highd_fixtures import (
+    LONG,
+    TWO_DIRECTIONS,
+    track_rows,
+    two_directions,
+    two_directions_rows,
+    write_recording,
+)
+from test_cli_ngsim import invoke
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
@@ -18,6 +27,7 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.highd.tracks import build_tracks, read_file
+from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import choose_source
 
 KEY = ("highd-2", "01")
@@ -179,3 +189,47 @@ def test_a_build_lists_the_three_files_as_inputs(tmp_path: Path) -> None:
         len(f["sha256"]) == 64 and f["recordings"] == ["highd-2/01"] for f in inputs.values()
     )
     assert manifest["counts"]["rows"] == 2200 and sum(manifest["splits"].values()) > 0
+
+
+def manifest(out: Path) -> dict:
+    return json.loads((out / "manifest.json").read_text())
+
+
+def test_every_column_that_reaches_the_tracks_table_is_checked(tmp_path: Path) -> None:
+    # On earlier versions each of these reached the tracks table (a length of 1e308 m, lane -3).
+    rows = two_directions_rows(LONG)
+    bad = {
+        10: {s.HIGHD_WIDTH: 1e308},  # line 12 (row i is on line i + 2): 1e308 m long
+        20: {s.HIGHD_HEIGHT: -5.0},
+        30: {s.HIGHD_LANE_ID: -3},  # line 32
+        40: {s.HIGHD_LANE_ID: 300},
+        50: {s.HIGHD_DHW: -1.0, s.HIGHD_PRECEDING_ID: 2},  # line 52
+        60: {s.HIGHD_THW: 1e300, s.HIGHD_PRECEDING_ID: 2},
+        70: {s.HIGHD_PRECEDING_ID: -2},
+        80: {s.HIGHD_FOLLOWING_ID: -1},
+        90: {s.HIGHD_DHW: 30.0},  # a headway, but precedingId 0: no leader
+    }
+    for index, values in bad.items():
+        rows[index].update(values)
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    result = invoke("build", tmp_path / "raw", "--out", out)
+    assert result.exit_code == 0, result.output
+    dropped = manifest(out)["counts"]["rows_dropped"]
+    size, lane, headway = DropReason.VEHICLE_SIZE, DropReason.LANE, DropReason.HEADWAY
+    assert {r: n for r, n in dropped.items() if n} == {
+        size.value: 2,
+        lane.value: 2,
+        headway.value: 5,
+    }
+    tracks_input = next(f for f in manifest(out)["inputs"] if f["path"] == str(path))
+    assert tracks_input["first_dropped_line"] == {size.value: 12, lane.value: 32, headway.value: 52}
+    assert f"dropped 5 rows: {DESCRIPTIONS[headway]} (first: {path}, line 52)." in result.stdout
+    tracks = pl.read_parquet(out / "tracks" / "highd-2_01.parquet")
+    columns = (s.LENGTH_M, s.WIDTH_M, s.LANE_ID, s.PRECEDING, s.FOLLOWING, s.SPACE_HEADWAY_M,
+               s.TIME_HEADWAY_S)  # fmt: skip
+    low, high = pl.struct(pl.col(columns).min()), pl.struct(pl.col(columns).max())
+    ranges = tracks.select(low.alias("low"), high.alias("high"))
+    assert [tuple(r.values()) for r in ranges.row(0)] == [
+        (4.0, 2.0, 3, None, None, None, None), (5.0, 2.0, 5, None, None, None, None),
+    ]  # fmt: skip
