@@ -19,7 +19,7 @@ from highd_fixtures import (
     two_directions_rows,
     write_recording,
 )
-from test_cli_ngsim import invoke
+from test_cli_ngsim import assert_failed_cleanly, error_line, invoke, snapshot
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
@@ -193,6 +193,45 @@ def test_a_build_lists_the_three_files_as_inputs(tmp_path: Path) -> None:
 
 def manifest(out: Path) -> dict:
     return json.loads((out / "manifest.json").read_text())
+
+
+def _against_direction(frames: range) -> list[dict[str, float]]:
+    """The rows of two_directions with a vehicle 3 on the lower lanes that tracksMeta says
+    drives on the upper ones (direction 1): it moves against its direction, on lines 2202.."""
+    rows = two_directions_rows(LONG)
+    return rows + track_rows(3, frames, x0=150.0, y=22.5, x_velocity=25.0, laneId=6)
+
+
+def test_a_vehicle_driving_against_its_direction_is_dropped_and_counted(tmp_path: Path) -> None:
+    # On earlier versions it reached the tracks table driving backwards on the other carriageway.
+    vehicles = {**TWO_DIRECTIONS, 3: ("Car", 1)}
+    path = write_recording(tmp_path / "raw", _against_direction(range(1, 21)), vehicles)
+    out = tmp_path / "out"
+    result = invoke("build", tmp_path / "raw", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert (
+        "dropped 20 rows: the positions move against the vehicle's driving direction "
+        f"(first: {path}, line 2202)." in result.stdout
+    )
+    reason = DropReason.DIRECTION.value
+    assert manifest(out)["counts"]["rows_dropped"][reason] == 20
+    tracks_input = next(f for f in manifest(out)["inputs"] if f["path"] == str(path))
+    assert tracks_input["first_dropped_line"] == {reason: 2202}
+    assert manifest(out)["counts"]["rows"] == 2200
+    tracks = pl.read_parquet(out / "tracks" / "highd-2_01.parquet")
+    assert sorted(tracks[s.VEHICLE_ID].unique()) == [1, 2]
+    strict = invoke("build", tmp_path / "raw", "--out", out, "--overwrite", "--strict")
+    assert "line 2202: the positions move against the vehicle's driving direction (--strict" in (
+        error_line(strict)
+    )
+    # 100 rows of 2,300 (4.3 %): more than a build drops.
+    write_recording(tmp_path / "raw", _against_direction(range(1, 101)), vehicles)
+    before = snapshot(out)
+    assert_failed_cleanly(
+        invoke("build", tmp_path / "raw", "--out", out, "--overwrite"), out, before, path,
+        "100 of 2,300 rows (4.3%) are implausible",
+        "100 the positions move against the vehicle's driving direction; the first at line 2202",
+    )  # fmt: skip
 
 
 def test_every_column_that_reaches_the_tracks_table_is_checked(tmp_path: Path) -> None:

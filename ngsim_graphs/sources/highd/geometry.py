@@ -25,7 +25,8 @@ speed = |(xVelocity, yVelocity)|; acceleration along travel = xAcceleration, its
 direction 1. Sentinels become null: precedingId/followingId 0 (none), dhw/thw 0 (no leader).
 
 Every column that reaches the tracks table has a row check (`row_drop_reason`): frame, id,
-position, speed, acceleration, the vehicle's size, laneId, the headways and neighbour ids.
+position, speed, acceleration, the vehicle's size, laneId, the headways and neighbour ids; and a
+vehicle whose front moves against its driving direction loses its rows (`moves_backwards`).
 """
 
 from __future__ import annotations
@@ -43,6 +44,9 @@ UPPER, LOWER = 1, 2  # drivingDirection
 # thw's bound: NGSIM's (its "no leader" value, 2.8 hours); at a standstill thw = dhw / speed is
 # large but finite.
 MAX_TIME_HEADWAY_S = s.NO_LEADER_TIME_HEADWAY_S
+# A vehicle whose front ends its record this far behind where it began drives against its
+# drivingDirection (highD's tracker jitters by centimetres; no one reverses on a motorway).
+MAX_BACKWARDS_M = 1.0
 
 # The columns a tracks file gives its recording, in the tracks table's units and names.
 STAGED_SCHEMA = pl.Schema(
@@ -117,6 +121,14 @@ def row_drop_reason(limits: PhysicalLimits) -> pl.Expr:
     for reason, failed in checks[1:]:
         chain = chain.when(failed.fill_null(False)).then(pl.lit(reason.value))
     return chain.otherwise(pl.lit(None, dtype=pl.String))
+
+
+def moves_backwards() -> pl.Expr:
+    """True for every row of a vehicle whose front (`Y_M`, along its drivingDirection) is more
+    than MAX_BACKWARDS_M behind at its last frame than at its first: a vehicle put on the other
+    carriageway by a wrong drivingDirection. Over road-frame rows (`to_road_frame`)."""
+    front = pl.col(s.Y_M).sort_by(s.FRAME_ID)
+    return (front.last() - front.first() < -MAX_BACKWARDS_M).over(s.VEHICLE_ID)
 
 
 def _none_if_zero(column: str) -> pl.Expr:

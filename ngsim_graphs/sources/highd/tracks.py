@@ -1,10 +1,11 @@
 """highD files to the tracks table (SPEC section 8): the highD `Source`.
 
 Per input file: a tracks file is parsed, its rows beyond the physical limits or with an empty
-required field are dropped and counted, and the rest are mapped to the road frame (`geometry`)
-with the help of the recording's two meta files and staged for the recording. The meta files are
-inputs in their own right (listed in the manifest with size and checksum); they give no rows,
-so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting ones
+required field are dropped and counted, the rest are mapped to the road frame (`geometry`)
+with the help of the recording's two meta files, the rows of a vehicle that moves against its
+drivingDirection are dropped and counted, and the rest staged for the recording. The meta files
+are inputs in their own right (listed in the manifest with size and checksum); they give no
+rows, so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting ones
 resolved, each vehicle's record split at frame gaps, the 0.2 s grid kept by frame number
 (`frame % 5 == 0`), time from the 25 Hz frame number, tracks numbered and the heading derived.
 
@@ -43,7 +44,12 @@ from ngsim_graphs.sources.highd.files import (
     read_tracks,
     read_tracks_meta,
 )
-from ngsim_graphs.sources.highd.geometry import STAGED_SCHEMA, row_drop_reason, to_road_frame
+from ngsim_graphs.sources.highd.geometry import (
+    STAGED_SCHEMA,
+    moves_backwards,
+    row_drop_reason,
+    to_road_frame,
+)
 from ngsim_graphs.sources.highd.recordings import (
     FRAME_PERIOD_MS,
     FRAME_RATE_HZ,
@@ -118,18 +124,11 @@ def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> Fi
     )
 
 
-def _staged_rows(
-    path: Path, meta: RecordingMeta, config: BuildConfig, file_index: int
-) -> tuple[pl.DataFrame, dict[str, object]]:
-    """The usable rows of a tracks file in the road frame, with provenance; and its report."""
-    raw = read_tracks(path)
-    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
-    checked = raw.with_columns(
-        pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
-        complete.alias("complete"),
-        (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
-    )
-    usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
+def _road_rows(
+    usable: pl.DataFrame, path: Path, meta: RecordingMeta, file_index: int
+) -> pl.DataFrame:
+    """Raw tracks rows (with SOURCE_LINE) in the road frame, with provenance: each with its
+    vehicle's class and drivingDirection from the tracksMeta file, which must know it."""
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
     joined = usable.join(
@@ -142,11 +141,35 @@ def _staged_rows(
             f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
             line=int(unknown[s.SOURCE_LINE][0]),
         )
-    rows = to_road_frame(
+    return to_road_frame(
         joined.with_columns(pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE)), meta
     )
+
+
+def _staged_rows(
+    path: Path, meta: RecordingMeta, config: BuildConfig, file_index: int
+) -> tuple[pl.DataFrame, dict[str, object]]:
+    """The usable rows of a tracks file in the road frame, with provenance; and its report.
+
+    A row counts under the first reason it breaks: an empty required field, a row check
+    (geometry.row_drop_reason), then its vehicle's driving against its direction."""
+    raw = read_tracks(path)
+    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
+    checked = raw.with_columns(
+        pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
+        complete.alias("complete"),
+        (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
+    )
+    usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
+    rows = _road_rows(usable, path, meta, file_index)
+    backwards = rows.select(moves_backwards()).to_series()
+    against = rows.filter(backwards).select(
+        pl.lit(DropReason.DIRECTION.value).alias("reason"), s.SOURCE_LINE
+    )
+    rows = rows.filter(~backwards)
+    reasons = pl.concat([checked.select("reason", s.SOURCE_LINE), against])
     dropped = (
-        checked.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+        reasons.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
     )
     missing = checked.filter(~pl.col("complete"))
     counts = {reason: n for reason, n, _ in dropped.iter_rows()}
