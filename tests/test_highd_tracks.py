@@ -27,6 +27,7 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.highd.tracks import build_tracks, read_file
+from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import choose_source
 
@@ -191,8 +192,38 @@ def test_a_build_lists_the_three_files_as_inputs(tmp_path: Path) -> None:
     assert manifest["counts"]["rows"] == 2200 and sum(manifest["splits"].values()) > 0
 
 
+# Through the command line: checks that drop rows (counted, reported with the first line) or
+# fail the build (one line naming the file; nothing written).
+
+
 def manifest(out: Path) -> dict:
     return json.loads((out / "manifest.json").read_text())
+
+
+def test_positions_in_other_units_than_the_speeds_fail_the_build(tmp_path: Path) -> None:
+    # x in feet: the positions move 3.28 times as fast as xVelocity says (built on earlier
+    # versions, exit 0).
+    rows = [
+        {**row, s.HIGHD_X: round(row[s.HIGHD_X] / FEET_TO_M, 3)}
+        for row in two_directions_rows(LONG)
+    ]
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, path)
+    # shown 25 / 0.3048 = 82.0 m/s against 25: 57.0 apart, 1 + 0.25 * 82.0 = 21.5 allowed, over
+    # the 1,090 rows of each vehicle with 5 frames before and after them.
+    assert line == (
+        f"error: {path}: xVelocity disagrees with the vehicles' motion: the median difference "
+        "from the speed their positions show is 57.0 m/s over 2,180 rows (median speed 82.0 m/s, "
+        "21.5 allowed); is xVelocity swapped with another column, or in other units than metres "
+        "per second (x and y: metres)?"
+    )
+    # The same motion in metres: it builds, the speeds agree exactly.
+    write_recording(tmp_path / "raw", two_directions_rows(LONG), TWO_DIRECTIONS)
+    assert invoke("build", tmp_path / "raw", "--out", out).exit_code == 0
+    [recording] = manifest(out)["recordings"]
+    assert recording["speed_rows_compared"] == 2180
+    assert recording["speed_mismatch_mps"] == pytest.approx(0.0, abs=1e-6)
 
 
 def _against_direction(frames: range) -> list[dict[str, float]]:
