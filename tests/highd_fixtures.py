@@ -64,11 +64,20 @@ def write_recording(
     return tracks
 
 
+TWO_DIRECTIONS = {1: ("Car", 2), 2: ("Truck", 1)}  # the vehicles of two_directions_rows
+LONG = range(1, 1101)  # 44 s: one track of either vehicle holds windows of 8.2 s
+
+
+def two_directions_rows(frames: range = range(1, 301)) -> list[dict[str, float]]:
+    """Vehicle 1 (Car) on the lower lanes at 25 m/s, vehicle 2 (Truck) on the upper lanes at
+    -25 m/s: 1 m per frame each. Vehicle 1's rows come first: frame f on line f + 1 (from 1)."""
+    rows = track_rows(1, frames, x0=100.0, y=19.0, x_velocity=25.0)
+    return rows + track_rows(2, frames, x0=400.0, y=12.0, x_velocity=-25.0, width=5.0, laneId=3)
+
+
 def two_directions(
     folder: Path, frames: range = range(1, 301), number: int = 1, location_id: int = 2
 ) -> Path:
-    """Vehicle 1 (Car) on the lower lanes at 25 m/s, vehicle 2 (Truck) on the upper lanes at
-    -25 m/s: 1 m per frame each. Returns the tracks file."""
-    rows = track_rows(1, frames, x0=100.0, y=19.0, x_velocity=25.0)
-    rows += track_rows(2, frames, x0=400.0, y=12.0, x_velocity=-25.0, width=5.0, laneId=3)
-    return write_recording(folder, rows, {1: ("Car", 2), 2: ("Truck", 1)}, number, location_id)
+    """The recording of two_directions_rows; returns the tracks file."""
+    rows = two_directions_rows(frames)
+    return write_recording(folder, rows, TWO_DIRECTIONS, number, location_id)

@@ -5,9 +5,22 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from highd_fixtures import csv_text, track_rows, two_directions, write_recording
+from conftest import straight_track, write_txt
+from highd_fixtures import (
+    LONG,
+    LOWER_MARKINGS,
+    TWO_DIRECTIONS,
+    UPPER_MARKINGS,
+    csv_text,
+    track_rows,
+    two_directions,
+    two_directions_rows,
+    write_recording,
+)
+from test_cli_ngsim import assert_failed_cleanly, invoke
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import HighdFile
 from ngsim_graphs.sources.highd.files import (
@@ -106,16 +119,20 @@ def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> Non
     text = csv_text(
         s.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
     )
-    path.write_text(text[: text.rindex(",", 0, len(text) - 12)])  # the last line cut short
+    short = text[: text.rindex(",", 0, len(text) - 12)]  # the last line cut short
+    path.write_text(short + "\n")
     with pytest.raises(
         NgsimInputError, match=r"line 4: \d+ fields where the header has 25 \(truncated line\?\)"
     ):
+        read_tracks(path)
+    path.write_text(short)
+    with pytest.raises(NgsimInputError, match=r"line 4: the last line has no line end"):
         read_tracks(path)
 
 
 def test_recording_meta_gives_id_location_and_markings(tmp_path: Path) -> None:
     two_directions(tmp_path, number=7, location_id=3)
-    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv")
+    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv", PhysicalLimits())
     assert (meta.recording_id, meta.location_id) == (7, 3)
     assert meta.upper_markings_m == (8.0, 11.5, 15.0) and meta.lower_markings_m == (
         18.0,
@@ -130,13 +147,18 @@ def test_recording_meta_must_be_25_hz_with_increasing_markings(tmp_path: Path) -
     with pytest.raises(
         NgsimInputError, match=r"line 2: frameRate 30: highD recordings run at 25 Hz"
     ):
-        read_recording_meta(tmp_path / "01_recordingMeta.csv")
+        read_recording_meta(tmp_path / "01_recordingMeta.csv", PhysicalLimits())
     path = tmp_path / "01_recordingMeta.csv"
     path.write_text(path.read_text().replace("30", "25").replace("8.0;11.5;15.0", "8.0;x;15.0"))
     with pytest.raises(
-        NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0' is not a list"
+        NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0': 'x' is not a num"
     ):
-        read_recording_meta(path)
+        read_recording_meta(path, PhysicalLimits())
+    path.write_text(path.read_text().replace("8.0;x;15.0", "8.0;15.0;11.5"))
+    with pytest.raises(
+        NgsimInputError, match=r"upperLaneMarkings: '8\.0;15\.0;11\.5' is not a list of increasing"
+    ):
+        read_recording_meta(path, PhysicalLimits())
 
 
 @pytest.mark.parametrize(
@@ -159,3 +181,96 @@ def test_tracks_meta_maps_classes_to_ngsim_codes(tmp_path: Path) -> None:
     two_directions(tmp_path)
     meta = read_tracks_meta(tmp_path / "01_tracksMeta.csv")
     assert meta.rows() == [(1, 2, 2), (2, 3, 1)]  # (id, v_class, drivingDirection)
+
+
+# Through the command line: one error line naming the file, the line and the column; no output.
+
+
+@pytest.mark.parametrize(
+    ("column", "markings", "problem"),
+    [
+        (s.HIGHD_LOWER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
+        (s.HIGHD_LOWER_LANE_MARKINGS, "nan;1;2", "'nan' is not a finite number"),
+        (s.HIGHD_LOWER_LANE_MARKINGS, "-inf;0;1", "'-inf' is not a finite number"),
+        (s.HIGHD_UPPER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
+        (s.HIGHD_UPPER_LANE_MARKINGS, "8.0;11.5;19.0", "upperLaneMarkings end at image y 19"),
+    ],
+)
+def test_build_refuses_implausible_lane_markings(
+    tmp_path: Path, column: str, markings: str, problem: str
+) -> None:
+    # On earlier versions 1e308;2e308 built, every x_m -1e308; nan or -inf ended in a traceback.
+    two_directions(tmp_path / "raw", frames=LONG)
+    meta = tmp_path / "raw" / "01_recordingMeta.csv"
+    default = ";".join(map(str, UPPER_MARKINGS if "upper" in column else LOWER_MARKINGS))
+    meta.write_text(meta.read_text().replace(default, markings))
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, meta)
+    assert line.startswith(f"error: {meta}, line 2: ")
+    assert problem in line and column in line
+
+
+def _damage_header(path: Path, column: str) -> None:
+    """One name of the header misspelled: its last letter replaced by 'x'."""
+    header, body = path.read_text().split("\n", 1)
+    names = header.split(",")
+    names[names.index(column)] = column[:-1] + "x"
+    path.write_text(",".join(names) + "\n" + body)
+
+
+@pytest.mark.parametrize(
+    ("kind", "column"),
+    [
+        (HighdFile.TRACKS, s.HIGHD_X_VELOCITY),
+        (HighdFile.TRACKS, s.HIGHD_LANE_ID),
+        (HighdFile.TRACKS_META, s.HIGHD_DRIVING_DIRECTION),
+        (HighdFile.RECORDING_META, s.HIGHD_FRAME_RATE),
+    ],
+)
+@pytest.mark.parametrize("with_ngsim", [False, True])
+def test_a_damaged_header_is_refused_naming_the_column(
+    tmp_path: Path, kind: HighdFile, column: str, with_ngsim: bool
+) -> None:
+    # On earlier versions a folder search skipped recording 02 (its tracks file as "not NGSIM")
+    # and built recording 01 alone, exit 0; beside NGSIM files, the highD files were skipped.
+    raw = tmp_path / "raw"
+    two_directions(raw, frames=LONG, number=1)
+    two_directions(raw, frames=LONG, number=2)
+    if with_ngsim:
+        write_txt(raw / "trajectories-0750am-0805am.txt", straight_track(1, range(10, 92)))
+    damaged = raw / f"02_{kind.value}.csv"
+    _damage_header(damaged, column)
+    message = f"missing column {column} (found '{column[:-1]}x': misspelled?)"
+    for named in (raw, damaged):
+        out = tmp_path / "out"
+        line = assert_failed_cleanly(invoke("build", named, "--out", out), out, {}, damaged)
+        assert line == f"error: {damaged}, line 1: {message}"
+
+
+@pytest.mark.parametrize(
+    ("kind", "cut"),
+    [
+        (HighdFile.TRACKS, 2),  # laneId 12 of the last row would read 1
+        (HighdFile.TRACKS_META, 2),  # numLaneChanges empty, its field still there
+        (HighdFile.RECORDING_META, 6),  # lowerLaneMarkings 18.0;21.5 (25.0 lost)
+    ],
+)
+def test_a_file_cut_inside_its_last_field_is_refused(
+    tmp_path: Path, kind: HighdFile, cut: int
+) -> None:
+    # On earlier versions each built (exit 0): the cut keeps the number of fields.
+    rows = two_directions_rows(LONG)
+    rows[-1][s.HIGHD_LANE_ID] = 12
+    write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    path = tmp_path / "raw" / f"01_{kind.value}.csv"
+    text = path.read_bytes()
+    path.write_bytes(text[:-cut])
+    last_line = text.count(b"\n")
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, path)
+    assert (
+        line
+        == f"error: {path}, line {last_line}: the last line has no line end: the file is cut short"
+    )
+    path.write_bytes(text)  # intact again: it builds
+    assert invoke("build", tmp_path / "raw", "--out", out).exit_code == 0

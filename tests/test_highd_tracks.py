@@ -5,12 +5,21 @@ fixtures (see highd_fixtures: markings 8.0/11.5/15.0 above the median, 18.0/21.5
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import polars as pl
 import pytest
-from highd_fixtures import track_rows, two_directions, write_recording
+from highd_fixtures import (
+    LONG,
+    TWO_DIRECTIONS,
+    track_rows,
+    two_directions,
+    two_directions_rows,
+    write_recording,
+)
+from test_cli_ngsim import assert_failed_cleanly, error_line, invoke, snapshot
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
@@ -18,6 +27,8 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.highd.tracks import build_tracks, read_file
+from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
+from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import choose_source
 
 KEY = ("highd-2", "01")
@@ -179,3 +190,116 @@ def test_a_build_lists_the_three_files_as_inputs(tmp_path: Path) -> None:
         len(f["sha256"]) == 64 and f["recordings"] == ["highd-2/01"] for f in inputs.values()
     )
     assert manifest["counts"]["rows"] == 2200 and sum(manifest["splits"].values()) > 0
+
+
+# Through the command line: checks that drop rows (counted, reported with the first line) or
+# fail the build (one line naming the file; nothing written).
+
+
+def manifest(out: Path) -> dict:
+    return json.loads((out / "manifest.json").read_text())
+
+
+def test_positions_in_other_units_than_the_speeds_fail_the_build(tmp_path: Path) -> None:
+    # x in feet: the positions move 3.28 times as fast as xVelocity says (built on earlier
+    # versions, exit 0).
+    rows = [
+        {**row, s.HIGHD_X: round(row[s.HIGHD_X] / FEET_TO_M, 3)}
+        for row in two_directions_rows(LONG)
+    ]
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, path)
+    # shown 25 / 0.3048 = 82.0 m/s against 25: 57.0 apart, 1 + 0.25 * 82.0 = 21.5 allowed, over
+    # the 1,090 rows of each vehicle with 5 frames before and after them.
+    assert line == (
+        f"error: {path}: xVelocity disagrees with the vehicles' motion: the median difference "
+        "from the speed their positions show is 57.0 m/s over 2,180 rows (median speed 82.0 m/s, "
+        "21.5 allowed); is xVelocity swapped with another column, or in other units than metres "
+        "per second (x and y: metres)?"
+    )
+    # The same motion in metres: it builds, the speeds agree exactly.
+    write_recording(tmp_path / "raw", two_directions_rows(LONG), TWO_DIRECTIONS)
+    assert invoke("build", tmp_path / "raw", "--out", out).exit_code == 0
+    [recording] = manifest(out)["recordings"]
+    assert recording["speed_rows_compared"] == 2180
+    assert recording["speed_mismatch_mps"] == pytest.approx(0.0, abs=1e-6)
+
+
+def _against_direction(frames: range) -> list[dict[str, float]]:
+    """The rows of two_directions with a vehicle 3 on the lower lanes that tracksMeta says
+    drives on the upper ones (direction 1): it moves against its direction, on lines 2202.."""
+    rows = two_directions_rows(LONG)
+    return rows + track_rows(3, frames, x0=150.0, y=22.5, x_velocity=25.0, laneId=6)
+
+
+def test_a_vehicle_driving_against_its_direction_is_dropped_and_counted(tmp_path: Path) -> None:
+    # On earlier versions it reached the tracks table driving backwards on the other carriageway.
+    vehicles = {**TWO_DIRECTIONS, 3: ("Car", 1)}
+    path = write_recording(tmp_path / "raw", _against_direction(range(1, 21)), vehicles)
+    out = tmp_path / "out"
+    result = invoke("build", tmp_path / "raw", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert (
+        "dropped 20 rows: the positions move against the vehicle's driving direction "
+        f"(first: {path}, line 2202)." in result.stdout
+    )
+    reason = DropReason.DIRECTION.value
+    assert manifest(out)["counts"]["rows_dropped"][reason] == 20
+    tracks_input = next(f for f in manifest(out)["inputs"] if f["path"] == str(path))
+    assert tracks_input["first_dropped_line"] == {reason: 2202}
+    assert manifest(out)["counts"]["rows"] == 2200
+    tracks = pl.read_parquet(out / "tracks" / "highd-2_01.parquet")
+    assert sorted(tracks[s.VEHICLE_ID].unique()) == [1, 2]
+    strict = invoke("build", tmp_path / "raw", "--out", out, "--overwrite", "--strict")
+    assert "line 2202: the positions move against the vehicle's driving direction (--strict" in (
+        error_line(strict)
+    )
+    # 100 rows of 2,300 (4.3 %): more than a build drops.
+    write_recording(tmp_path / "raw", _against_direction(range(1, 101)), vehicles)
+    before = snapshot(out)
+    assert_failed_cleanly(
+        invoke("build", tmp_path / "raw", "--out", out, "--overwrite"), out, before, path,
+        "100 of 2,300 rows (4.3%) are implausible",
+        "100 the positions move against the vehicle's driving direction; the first at line 2202",
+    )  # fmt: skip
+
+
+def test_every_column_that_reaches_the_tracks_table_is_checked(tmp_path: Path) -> None:
+    # On earlier versions each of these reached the tracks table (a length of 1e308 m, lane -3).
+    rows = two_directions_rows(LONG)
+    bad = {
+        10: {s.HIGHD_WIDTH: 1e308},  # line 12 (row i is on line i + 2): 1e308 m long
+        20: {s.HIGHD_HEIGHT: -5.0},
+        30: {s.HIGHD_LANE_ID: -3},  # line 32
+        40: {s.HIGHD_LANE_ID: 300},
+        50: {s.HIGHD_DHW: -1.0, s.HIGHD_PRECEDING_ID: 2},  # line 52
+        60: {s.HIGHD_THW: 1e300, s.HIGHD_PRECEDING_ID: 2},
+        70: {s.HIGHD_PRECEDING_ID: -2},
+        80: {s.HIGHD_FOLLOWING_ID: -1},
+        90: {s.HIGHD_DHW: 30.0},  # a headway, but precedingId 0: no leader
+    }
+    for index, values in bad.items():
+        rows[index].update(values)
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    result = invoke("build", tmp_path / "raw", "--out", out)
+    assert result.exit_code == 0, result.output
+    dropped = manifest(out)["counts"]["rows_dropped"]
+    size, lane, headway = DropReason.VEHICLE_SIZE, DropReason.LANE, DropReason.HEADWAY
+    assert {r: n for r, n in dropped.items() if n} == {
+        size.value: 2,
+        lane.value: 2,
+        headway.value: 5,
+    }
+    tracks_input = next(f for f in manifest(out)["inputs"] if f["path"] == str(path))
+    assert tracks_input["first_dropped_line"] == {size.value: 12, lane.value: 32, headway.value: 52}
+    assert f"dropped 5 rows: {DESCRIPTIONS[headway]} (first: {path}, line 52)." in result.stdout
+    tracks = pl.read_parquet(out / "tracks" / "highd-2_01.parquet")
+    columns = (s.LENGTH_M, s.WIDTH_M, s.LANE_ID, s.PRECEDING, s.FOLLOWING, s.SPACE_HEADWAY_M,
+               s.TIME_HEADWAY_S)  # fmt: skip
+    low, high = pl.struct(pl.col(columns).min()), pl.struct(pl.col(columns).max())
+    ranges = tracks.select(low.alias("low"), high.alias("high"))
+    assert [tuple(r.values()) for r in ranges.row(0)] == [
+        (4.0, 2.0, 3, None, None, None, None), (5.0, 2.0, 5, None, None, None, None),
+    ]  # fmt: skip

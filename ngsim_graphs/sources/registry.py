@@ -1,9 +1,10 @@
 """Which source reads the given inputs: every dataset the pipeline knows, by name.
 
 Without a forced dataset the inputs' content decides: a file whose header is one of highD's
-three is highD's, one that NGSIM's reader recognises is NGSIM's. Inputs holding both are an
-error that asks for `--dataset`; inputs holding neither go to NGSIM, whose reader says why
-they are no use.
+three is highD's, one that NGSIM's reader recognises is NGSIM's. A highD file whose header is
+damaged (`highd.files.sniff_highd` still tells its kind) is refused at once, naming the column,
+whatever lies beside it. Inputs holding both are an error that asks for `--dataset`; inputs
+holding neither go to NGSIM, whose reader says why they are no use.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.contract import Source
-from ngsim_graphs.sources.highd.files import sniff_highd
+from ngsim_graphs.sources.highd.files import check_header, sniff_highd
 from ngsim_graphs.sources.highd.tracks import SOURCE as HIGHD
 from ngsim_graphs.sources.ngsim.files import CANDIDATE_SUFFIXES, NotNgsimFileError, sniff_format
 from ngsim_graphs.sources.ngsim.tracks import SOURCE as NGSIM
@@ -38,7 +39,9 @@ def choose_source(
 def _dataset_of(path: Path, named: bool) -> str | None:
     """The dataset whose file `path` is, by content; None for a file of neither found in a
     folder. A named file that is not highD's is NGSIM's: its reader says what is wrong."""
-    if sniff_highd(path) is not None:
+    highd = sniff_highd(path)
+    if highd is not None:
+        check_header(path, highd)  # a damaged highD header: refused here, naming its column
         return HIGHD.name
     if named:
         return NGSIM.name

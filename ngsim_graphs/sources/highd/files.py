@@ -1,20 +1,25 @@
 """Reading highD's three CSV files: finding a recording's files, parsing, and one-line errors.
 
 A file's kind is told from its header (its content), its recording from its name's `NN_`
-prefix: `01_tracks.csv` needs `01_tracksMeta.csv` and `01_recordingMeta.csv` beside it. Every
-value is read as text and parsed here, so that a malformed number is reported with its file,
-line and column. Units stay highD's (metres, image coordinates); `geometry` maps them.
+prefix: `01_tracks.csv` needs `01_tracksMeta.csv` and `01_recordingMeta.csv` beside it. A
+header with a damaged name is still its kind's (most of the kind's names, or the file's
+`NN_kind.csv` name, tell it), so that the reader refuses it naming the column rather than a
+search skipping the recording. Every value is read as text and parsed here, so that a malformed
+number is reported with its file, line and column; a file whose last line has no line end was
+cut short and is refused. Units stay highD's (metres, image coordinates); `geometry` maps them.
 """
 
 from __future__ import annotations
 
 import difflib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import polars as pl
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import HighdFile
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ, parse_file_name, sibling
@@ -49,6 +54,11 @@ HEADERS = {
     HighdFile.TRACKS_META: s.HIGHD_TRACKS_META_HEADER,
     HighdFile.RECORDING_META: s.HIGHD_RECORDING_META_HEADER,
 }
+SCHEMAS = {
+    HighdFile.TRACKS: s.HIGHD_TRACKS_SCHEMA,
+    HighdFile.TRACKS_META: s.HIGHD_TRACKS_META_SCHEMA,
+    HighdFile.RECORDING_META: s.HIGHD_RECORDING_META_SCHEMA,
+}
 
 
 @dataclass(frozen=True)
@@ -71,10 +81,21 @@ def header_names(path: Path) -> list[str] | None:
 
 
 def sniff_highd(path: Path) -> HighdFile | None:
-    """The kind of highD file `path` holds, told from its header; None for any other file."""
+    """The kind of highD file `path` is; None for any other file.
+
+    Told from its header: the kind's signature columns, or else more than half of the kind's
+    names (a header with a damaged name); or else from a name `NN_<kind>.csv`. The reader then
+    refuses a damaged header naming its column (`check_header`)."""
     names = header_names(path)
     lowered = {name.lower() for name in names or ()}
-    return next((kind for kind, needed in SIGNATURES.items() if needed <= lowered), None)
+    signed = next((kind for kind, needed in SIGNATURES.items() if needed <= lowered), None)
+    if signed is not None:
+        return signed
+    for kind, header in HEADERS.items():
+        if 2 * len(lowered & {name.lower() for name in header}) > len(header):
+            return kind
+    named = parse_file_name(path)
+    return None if named is None else named[1]
 
 
 def recording_files(path: Path) -> list[Path]:
@@ -113,8 +134,8 @@ def find_highd_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     """Expand files and directories into highD files; returns (files, skipped other files).
 
     A named file brings its recording's three files. A directory is searched recursively for
-    tracks files (by header), each with its two meta files; other .csv/.txt files are skipped,
-    meta files without a tracks file too.
+    tracks files (`sniff_highd`: by header, a damaged one too, or by name), each with its two
+    meta files; other .csv/.txt files are skipped, meta files without a tracks file too.
     """
     found: list[Path] = []
     skipped: list[Path] = []
@@ -135,6 +156,15 @@ def find_highd_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
         skipped.extend(sorted(set(candidates) - set(members)))
     unique = list(dict.fromkeys(p.resolve() for p in found))
     return unique, skipped
+
+
+def check_header(path: Path, kind: HighdFile) -> None:
+    """Raise NgsimInputError unless the header of `path` holds every column the reader reads of
+    a `kind` file, once (naming the column missing and the damaged name that may be it)."""
+    header = header_names(path)
+    if header is None:
+        raise NgsimInputError(path, "empty file: no header and no data")
+    _check_header(path, header, kind, list(SCHEMAS[kind]))
 
 
 def _check_header(path: Path, header: list[str], kind: HighdFile, needed: list[str]) -> None:
@@ -206,6 +236,7 @@ def read_columns(path: Path, kind: HighdFile, schema: pl.Schema) -> pl.DataFrame
         ) from None
     if frame.height == 0:
         raise NgsimInputError(path, "no data rows")
+    _check_line_end(path, int(frame[ROW].max()) + FIRST_LINE)
     if frame[EXTRA].any():
         check_csv_field_counts(path, len(header))
     bad = frame[_BAD].arg_true()
@@ -214,18 +245,37 @@ def read_columns(path: Path, kind: HighdFile, schema: pl.Schema) -> pl.DataFrame
     return frame.drop(_BAD, EXTRA)
 
 
+def _check_line_end(path: Path, last_line: int) -> None:
+    """Raise when the file does not end with a line end: highD's files end every line with one,
+    the last too, so a file without was cut short, perhaps inside its last field, which keeps
+    the field count (a laneId 12 read as 1, a lane marking lost)."""
+    with path.open("rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        if handle.read(1) != b"\n":
+            raise NgsimInputError(
+                path, "the last line has no line end: the file is cut short", line=last_line
+            )
+
+
 def count_data_rows(path: Path) -> int:
     """Non-blank lines after the header: the rows of a file whose values the build skips."""
     lines = scan_lines(path).filter(pl.col(LINE).str.strip_chars() != "")
     return int(lines.select(pl.len()).collect(engine="streaming").item())
 
 
-def _markings(path: Path, column: str, text: str | None) -> tuple[float, ...]:
-    """Lane markings `a;b;c` (image y, m): at least two, increasing."""
-    try:
-        values = tuple(float(v) for v in (text or "").split(";") if v.strip())
-    except ValueError:
-        values = ()
+def _markings(path: Path, column: str, text: str | None, far_m: float) -> tuple[float, ...]:
+    """Lane markings `a;b;c` (image y, m): at least two finite numbers within +-`far_m` (the
+    position limit), increasing."""
+    fields = [v.strip() for v in (text or "").split(";") if v.strip()]
+    for field in fields:
+        problem = number_problem(field, pl.Float64)
+        if problem is None and abs(float(field)) > far_m:
+            problem = f"lies beyond the position limit of {far_m:,g} m"
+        if problem:
+            raise NgsimInputError(
+                path, f"column {column}: {text!r}: {field!r} {problem}", line=FIRST_LINE
+            )
+    values = tuple(float(v) for v in fields)
     if len(values) < 2 or any(b <= a for a, b in zip(values, values[1:], strict=False)):
         raise NgsimInputError(
             path,
@@ -235,8 +285,10 @@ def _markings(path: Path, column: str, text: str | None) -> tuple[float, ...]:
     return values
 
 
-def read_recording_meta(path: Path) -> RecordingMeta:
-    """The one row of a recordingMeta file; its frame rate must be highD's 25 Hz."""
+def read_recording_meta(path: Path, limits: PhysicalLimits) -> RecordingMeta:
+    """The one row of a recordingMeta file; its frame rate must be highD's 25 Hz, its lane
+    markings plausible (finite, within `limits`' position limit, increasing, the upper
+    carriageway's above the lower's)."""
     frame = read_columns(path, HighdFile.RECORDING_META, s.HIGHD_RECORDING_META_SCHEMA)
     if frame.height != 1:
         raise NgsimInputError(path, f"holds {frame.height} rows; a recordingMeta file holds one")
@@ -252,15 +304,22 @@ def read_recording_meta(path: Path) -> RecordingMeta:
             f"frameRate {row[s.HIGHD_FRAME_RATE]}: highD recordings run at {FRAME_RATE_HZ} Hz",
             line=FIRST_LINE,
         )
+    upper, lower = (
+        _markings(path, column, row[column], limits.max_abs_position_m)
+        for column in (s.HIGHD_UPPER_LANE_MARKINGS, s.HIGHD_LOWER_LANE_MARKINGS)
+    )
+    if upper[-1] > lower[0]:
+        raise NgsimInputError(
+            path,
+            f"upperLaneMarkings end at image y {upper[-1]:g}, below the first of "
+            f"lowerLaneMarkings ({lower[0]:g}): the upper carriageway lies above the lower one",
+            line=FIRST_LINE,
+        )
     return RecordingMeta(
         recording_id=row[s.HIGHD_ID],
         location_id=row[s.HIGHD_LOCATION_ID],
-        upper_markings_m=_markings(
-            path, s.HIGHD_UPPER_LANE_MARKINGS, row[s.HIGHD_UPPER_LANE_MARKINGS]
-        ),
-        lower_markings_m=_markings(
-            path, s.HIGHD_LOWER_LANE_MARKINGS, row[s.HIGHD_LOWER_LANE_MARKINGS]
-        ),
+        upper_markings_m=upper,
+        lower_markings_m=lower,
     )
 
 

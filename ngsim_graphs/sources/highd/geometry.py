@@ -23,6 +23,10 @@ images its vehicles (y about 1,580..2,000 m) stay over a kilometre from directio
 
 speed = |(xVelocity, yVelocity)|; acceleration along travel = xAcceleration, its sign flipped for
 direction 1. Sentinels become null: precedingId/followingId 0 (none), dhw/thw 0 (no leader).
+
+Every column that reaches the tracks table has a row check (`row_drop_reason`): frame, id,
+position, speed, acceleration, the vehicle's size, laneId, the headways and neighbour ids; and a
+vehicle whose front moves against its driving direction loses its rows (`moves_backwards`).
 """
 
 from __future__ import annotations
@@ -37,6 +41,12 @@ from ngsim_graphs.sources.highd.recordings import max_frame
 
 UPPER_ORIGIN_M = 2_000.0  # direction 1: y_m = UPPER_ORIGIN_M - image x of the front
 UPPER, LOWER = 1, 2  # drivingDirection
+# thw's bound: NGSIM's (its "no leader" value, 2.8 hours); at a standstill thw = dhw / speed is
+# large but finite.
+MAX_TIME_HEADWAY_S = s.NO_LEADER_TIME_HEADWAY_S
+# A vehicle whose front ends its record this far behind where it began drives against its
+# drivingDirection (highD's tracker jitters by centimetres; no one reverses on a motorway).
+MAX_BACKWARDS_M = 1.0
 
 # The columns a tracks file gives its recording, in the tracks table's units and names.
 STAGED_SCHEMA = pl.Schema(
@@ -64,6 +74,20 @@ def _norm(x: str, y: str) -> pl.Expr:
     return (pl.col(x).pow(2) + pl.col(y).fill_null(0.0).pow(2)).sqrt()
 
 
+def _bad_headway(limits: PhysicalLimits) -> pl.Expr:
+    """dhw (m) or thw (s) out of range, a neighbour id below 0, or a headway without a leader:
+    highD writes dhw = thw = 0 where precedingId is 0 (none)."""
+    no_leader = pl.col(s.HIGHD_PRECEDING_ID) == s.HIGHD_NO_NEIGHBOUR
+    headway = (pl.col(s.HIGHD_DHW) != 0) | (pl.col(s.HIGHD_THW) != 0)
+    return (
+        ~pl.col(s.HIGHD_DHW).is_between(0, limits.max_abs_position_m)
+        | ~pl.col(s.HIGHD_THW).is_between(0, MAX_TIME_HEADWAY_S)
+        | (pl.col(s.HIGHD_PRECEDING_ID) < 0)
+        | (pl.col(s.HIGHD_FOLLOWING_ID) < 0)
+        | (no_leader & headway)
+    )
+
+
 def _checks(limits: PhysicalLimits) -> tuple[tuple[DropReason, pl.Expr], ...]:
     """(reason, True where a raw tracks row breaks its limit), in the order they are tried."""
     far = limits.max_abs_position_m
@@ -77,6 +101,13 @@ def _checks(limits: PhysicalLimits) -> tuple[tuple[DropReason, pl.Expr], ...]:
             DropReason.ACCELERATION,
             _norm(s.HIGHD_X_ACCELERATION, s.HIGHD_Y_ACCELERATION) > limits.max_abs_accel_mps2,
         ),
+        (
+            DropReason.VEHICLE_SIZE,  # the box's width is the vehicle's length, height its width
+            ~pl.col(s.HIGHD_WIDTH).is_between(0, limits.max_vehicle_length_m, closed="right")
+            | ~pl.col(s.HIGHD_HEIGHT).is_between(0, limits.max_vehicle_width_m, closed="right"),
+        ),
+        (DropReason.LANE, ~pl.col(s.HIGHD_LANE_ID).is_between(0, limits.max_lane_id)),
+        (DropReason.HEADWAY, _bad_headway(limits)),
     )
 
 
@@ -90,6 +121,14 @@ def row_drop_reason(limits: PhysicalLimits) -> pl.Expr:
     for reason, failed in checks[1:]:
         chain = chain.when(failed.fill_null(False)).then(pl.lit(reason.value))
     return chain.otherwise(pl.lit(None, dtype=pl.String))
+
+
+def moves_backwards() -> pl.Expr:
+    """True for every row of a vehicle whose front (`Y_M`, along its drivingDirection) is more
+    than MAX_BACKWARDS_M behind at its last frame than at its first: a vehicle put on the other
+    carriageway by a wrong drivingDirection. Over road-frame rows (`to_road_frame`)."""
+    front = pl.col(s.Y_M).sort_by(s.FRAME_ID)
+    return (front.last() - front.first() < -MAX_BACKWARDS_M).over(s.VEHICLE_ID)
 
 
 def _none_if_zero(column: str) -> pl.Expr:

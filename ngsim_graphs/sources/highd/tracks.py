@@ -1,15 +1,18 @@
 """highD files to the tracks table (SPEC section 8): the highD `Source`.
 
 Per input file: a tracks file is parsed, its rows beyond the physical limits or with an empty
-required field are dropped and counted, and the rest are mapped to the road frame (`geometry`)
-with the help of the recording's two meta files and staged for the recording. The meta files are
-inputs in their own right (listed in the manifest with size and checksum); they give no rows,
-so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting ones
-resolved, each vehicle's record split at frame gaps, the 0.2 s grid kept by frame number
-(`frame % 5 == 0`), time from the 25 Hz frame number, tracks numbered and the heading derived.
+required field are dropped and counted, the rest are mapped to the road frame (`geometry`)
+with the help of the recording's two meta files, the rows of a vehicle that moves against its
+drivingDirection are dropped and counted, and the rest staged for the recording. The meta files
+are inputs in their own right (listed in the manifest with size and checksum); they give no
+rows, so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting
+ones resolved, each vehicle's record split at frame gaps, the 0.2 s grid kept by frame number
+(`frame % 5 == 0`), time from the 25 Hz frame number, tracks numbered and the heading derived;
+then NGSIM's speed check (`plausibility.check_speed_column`): the speeds must be those the
+positions show.
 
 Not done for highD, whose trajectories come smoothed from its own tracker: NGSIM's position
-outlier and jump checks and its speed-column check (the reports' counts are 0 and NaN).
+outlier and jump checks (the reports' counts are 0).
 """
 
 from __future__ import annotations
@@ -31,7 +34,6 @@ from ngsim_graphs.sources.contract import (
     Source,
     TracksPart,
     finish_tracks,
-    joined_counts,
 )
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
@@ -43,9 +45,15 @@ from ngsim_graphs.sources.highd.files import (
     read_tracks,
     read_tracks_meta,
 )
-from ngsim_graphs.sources.highd.geometry import STAGED_SCHEMA, row_drop_reason, to_road_frame
+from ngsim_graphs.sources.highd.geometry import (
+    STAGED_SCHEMA,
+    moves_backwards,
+    row_drop_reason,
+    to_road_frame,
+)
 from ngsim_graphs.sources.highd.recordings import (
     FRAME_PERIOD_MS,
+    FRAME_PERIOD_S,
     FRAME_RATE_HZ,
     chosen_locations,
     frames_per_step,
@@ -54,13 +62,19 @@ from ngsim_graphs.sources.highd.recordings import (
     period_name,
     sibling,
 )
-from ngsim_graphs.sources.ngsim.cleaning import split_at_gaps
-from ngsim_graphs.sources.ngsim.plausibility import check_dropped
+from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M, split_at_gaps
+from ngsim_graphs.sources.ngsim.plausibility import (
+    check_dropped,
+    check_speed_column,
+    speed_comparison,
+)
 from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
+from ngsim_graphs.sources.ngsim.tracks import joined_report
 
 FILE_REASONS: tuple[DropReason, ...] = tuple(
     r for r in DropReason if r is not DropReason.POSITION_OUTLIER
 )
+TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's FileReport.raw_format
 # Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
 # by these columns (the smallest y_m, then x_m, ...): a rule of the values alone, never of the
 # order of the file.
@@ -71,7 +85,7 @@ CONFLICT_ORDER: tuple[str, ...] = (
 )
 
 
-def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
+def _recording(path: Path, config: BuildConfig) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
     """The kind of file `path` is (by name), its recording's meta and key."""
     named = parse_file_name(path)
     if named is None:
@@ -84,7 +98,7 @@ def _recording(path: Path) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
         raise NgsimInputError(
             path, f"no {meta_path.name} beside it: a highD recording needs all three files"
         )
-    meta = read_recording_meta(meta_path)
+    meta = read_recording_meta(meta_path, config.limits)
     if meta.recording_id != int(prefix):
         raise NgsimInputError(
             meta_path,
@@ -109,7 +123,7 @@ def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> Fi
     kind = parse_file_name(path)
     return FileReport(
         path=str(path),
-        raw_format=f"highd-{kind[1].value if kind else 'tracks'}",
+        raw_format=f"highd-{kind[1].value if kind else HighdFile.TRACKS.value}",
         size_bytes=path.stat().st_size,
         sha256=file_sha256(path),
         locations_found=(key[0],),
@@ -118,18 +132,11 @@ def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> Fi
     )
 
 
-def _staged_rows(
-    path: Path, meta: RecordingMeta, config: BuildConfig, file_index: int
-) -> tuple[pl.DataFrame, dict[str, object]]:
-    """The usable rows of a tracks file in the road frame, with provenance; and its report."""
-    raw = read_tracks(path)
-    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
-    checked = raw.with_columns(
-        pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
-        complete.alias("complete"),
-        (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
-    )
-    usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
+def _road_rows(
+    usable: pl.DataFrame, path: Path, meta: RecordingMeta, file_index: int
+) -> pl.DataFrame:
+    """Raw tracks rows (with SOURCE_LINE) in the road frame, with provenance: each with its
+    vehicle's class and drivingDirection from the tracksMeta file, which must know it."""
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
     joined = usable.join(
@@ -142,11 +149,35 @@ def _staged_rows(
             f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
             line=int(unknown[s.SOURCE_LINE][0]),
         )
-    rows = to_road_frame(
+    return to_road_frame(
         joined.with_columns(pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE)), meta
     )
+
+
+def _staged_rows(
+    path: Path, meta: RecordingMeta, config: BuildConfig, file_index: int
+) -> tuple[pl.DataFrame, dict[str, object]]:
+    """The usable rows of a tracks file in the road frame, with provenance; and its report.
+
+    A row counts under the first reason it breaks: an empty required field, a row check
+    (geometry.row_drop_reason), then its vehicle's driving against its direction."""
+    raw = read_tracks(path)
+    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
+    checked = raw.with_columns(
+        pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
+        complete.alias("complete"),
+        (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
+    )
+    usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
+    rows = _road_rows(usable, path, meta, file_index)
+    backwards = rows.select(moves_backwards()).to_series()
+    against = rows.filter(backwards).select(
+        pl.lit(DropReason.DIRECTION.value).alias("reason"), s.SOURCE_LINE
+    )
+    rows = rows.filter(~backwards)
+    reasons = pl.concat([checked.select("reason", s.SOURCE_LINE), against])
     dropped = (
-        checked.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
+        reasons.drop_nulls("reason").group_by("reason").agg(pl.len(), pl.col(s.SOURCE_LINE).min())
     )
     missing = checked.filter(~pl.col("complete"))
     counts = {reason: n for reason, n, _ in dropped.iter_rows()}
@@ -168,7 +199,7 @@ def read_file(
     RECORDING_INDEX and provenance); a meta file is checked and gives none. (A recording's file
     is read in memory: `scratch` is not used.)"""
     frames_per_step(config.time_step_s, path)  # a grid the 25 Hz frames cannot land on fails first
-    kind, meta, key = _recording(path)
+    kind, meta, key = _recording(path, config)
     allowed = chosen_locations(config.locations)
     chosen = allowed is None or key[0] in allowed
     empty = pl.LazyFrame(
@@ -212,17 +243,31 @@ def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
     return cleaned, multi.height - unique.height, unique.height - kept.height
 
 
+def _in_feet(rows: pl.DataFrame) -> pl.DataFrame:
+    """Staged rows (sorted by vehicle and frame) as NGSIM's speed check reads them: positions
+    and speed in its units (feet, feet per second) and names."""
+    return rows.select(
+        s.VEHICLE_ID,
+        s.FRAME_ID,
+        (pl.col(s.X_M) / FEET_TO_M).alias(s.LOCAL_X),
+        (pl.col(s.Y_M) / FEET_TO_M).alias(s.LOCAL_Y),
+        (pl.col(s.SPEED_MPS) / FEET_TO_M).alias(s.V_VEL),
+    )
+
+
 def vehicle_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
 ) -> TracksPart:
     """The tracks of the vehicles of `raw` in recording `key` (all the rows of each, from its
-    staged rows: any order, duplicates allowed), and what cleaning them counted.
+    staged rows: any order, duplicates allowed), what cleaning them counted, and the evidence
+    of the speed check (NGSIM's `speed_comparison` of their 25 Hz rows).
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
     by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
     (ms since the recording's frame 0; highD's frames start at 1).
     """
     unique, exact, conflicting = drop_duplicate_rows(raw)
+    compared = speed_comparison(_in_feet(unique), FRAME_PERIOD_S)
     segmented, gaps = split_at_gaps(unique)
     location, period = key
     on_grid = downsample_to_grid(
@@ -248,7 +293,7 @@ def vehicle_tracks(
         tracks=tracks[s.TRACK_ID].n_unique(),
         grid_rows=tracks.height,
     )
-    return TracksPart(tracks, report, pl.DataFrame())
+    return TracksPart(tracks, report, compared)
 
 
 def build_tracks(
@@ -257,7 +302,7 @@ def build_tracks(
     """The tracks table and report of recording `key` from all its staged rows at once: the
     tests' reference; a build cleans parts (vehicle_tracks)."""
     part = vehicle_tracks(raw, key, config, first_track_id)
-    return part.tracks, part.report
+    return part.tracks, joined_report([part], key)
 
 
 def recording_report(
@@ -267,9 +312,22 @@ def recording_report(
     files: list[FileReport],
     strict: bool,
 ) -> RecordingReport:
-    """The parts' counts summed. highD has no per-recording checks: its rows were checked as
-    read (read_file)."""
-    return joined_counts(parts, key)
+    """The parts' counts summed and the speed check's medians (NGSIM's `joined_report`), after
+    the recording's one check: xVelocity and yVelocity must be the speed the positions show
+    (its rows were checked as read, read_file)."""
+    report = joined_report(parts, key)
+    name = f"{report.location}/{report.period}"
+    tracks_files = [f.path for f in files if name in f.recordings and f.raw_format == TRACKS_FORMAT]
+    check_speed_column(
+        ", ".join(tracks_files),
+        report.speed_mismatch_mps,
+        report.shown_speed_mps,
+        report.speed_rows_compared,
+        config.limits,
+        column="xVelocity",
+        units="metres per second (x and y: metres)",
+    )
+    return report
 
 
 SOURCE = Source(

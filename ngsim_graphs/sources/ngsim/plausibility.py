@@ -173,9 +173,9 @@ SPEED_WINDOW_FRAMES = 5  # each side: the motion a speed is compared with spans 
 MIN_SPEED_ROWS = 100  # fewer rows with a whole window say too little to judge the column
 
 
-def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
+def speed_comparison(frame: pl.DataFrame, frame_period_s: float = FRAME_STEP_S) -> pl.DataFrame:
     """How well v_Vel agrees with the motion the positions show, row by row; `frame` sorted by
-    vehicle and frame.
+    vehicle and frame, `frame_period_s` apart (NGSIM's 0.1 s; highD's 0.04 s).
 
     For every row with the same vehicle recorded SPEED_WINDOW_FRAMES frames before and after
     it, the shown speed is the distance between those two positions over their time apart (a
@@ -184,7 +184,7 @@ def speed_comparison(frame: pl.DataFrame) -> pl.DataFrame:
     themselves: the rows of sets of whole vehicles, concatenated, are those of all at once."""
     h = SPEED_WINDOW_FRAMES
     whole = _same_vehicle(-h, h) & _same_vehicle(h, h)
-    shown = _distance_ft(-h, h) / (2 * h * FRAME_STEP_S)
+    shown = _distance_ft(-h, h) / (2 * h * frame_period_s)
     compared = frame.select(
         shown.alias("shown"), pl.col(s.V_VEL).alias("vel"), whole.alias("whole")
     )
@@ -258,17 +258,24 @@ def _kth_smallest(values: pl.LazyFrame, column: pl.Expr, k: int) -> float:
 
 
 def check_speed_column(
-    path: str, mismatch_mps: float, speed_mps: float, rows: int, limits: PhysicalLimits
+    path: str,
+    mismatch_mps: float,
+    speed_mps: float,
+    rows: int,
+    limits: PhysicalLimits,
+    column: str = "v_Vel",
+    units: str = "feet per second",
 ) -> None:
-    """Raise when v_Vel is not the speed the positions show (see speed_comparison)."""
+    """Raise when the speed `column` (in `units`, as the message says) is not the speed the
+    positions show (see speed_comparison)."""
     allowed = limits.max_speed_mismatch_mps + limits.max_speed_mismatch_share * speed_mps
     if rows >= MIN_SPEED_ROWS and mismatch_mps > allowed:
         raise NgsimInputError(
             path,
-            f"v_Vel disagrees with the vehicles' motion: the median difference from the speed "
+            f"{column} disagrees with the vehicles' motion: the median difference from the speed "
             f"their positions show is {mismatch_mps:.1f} m/s over {rows:,} rows (median speed "
-            f"{speed_mps:.1f} m/s, {allowed:.1f} allowed); is v_Vel swapped with another column, "
-            "or in other units than feet per second?",
+            f"{speed_mps:.1f} m/s, {allowed:.1f} allowed); is {column} swapped with another "
+            f"column, or in other units than {units}?",
         )
 
 
