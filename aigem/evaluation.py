@@ -35,6 +35,7 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import Protocol, Split
+from ngsim_graphs.synth.marker import synthetic_build
 
 # The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
 PAPER_TABLE = {
@@ -102,6 +103,7 @@ class Evaluation:
     constant_velocity: dict[str, dict[str, float | None]]
     build_dir: str
     same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
+    synthetic: bool  # the build is of `ngsim-graphs synth`'s data (ngsim_graphs.synth.marker)
     time_step_s: float
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
@@ -129,6 +131,7 @@ class HorizonsEvaluation:
     members: dict[str, Evaluation]
     build_dir: str
     same_build: bool
+    synthetic: bool
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
 
@@ -297,6 +300,7 @@ def evaluate(
         constant_velocity=summarize_errors(scores.constant_velocity, dataset.config.time_step_s),
         build_dir=str(build_dir),
         same_build=same_build,
+        synthetic=synthetic_build(open_build(build_dir).manifest),
         time_step_s=dataset.config.time_step_s,
         protocol=dataset.config.protocol.value,
         protocol_description=describe_protocol(dataset.config),
@@ -372,6 +376,7 @@ def evaluate_horizons(
         members=members,
         build_dir=longest.build_dir,
         same_build=longest.same_build,
+        synthetic=longest.synthetic,
         protocol=longest.protocol,
         protocol_description=longest.protocol_description,
     )

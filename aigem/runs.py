@@ -502,14 +502,16 @@ def read_baseline(run_dir: Path) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def plot_curves(run_dir: Path) -> Path | None:
+def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
     """Training and validation loss per epoch, the best epoch and constant velocity's validation
-    loss as a PNG (aigem.plots); None before the first epoch."""
+    loss as a PNG (aigem.plots), marked SYNTHETIC where the run's build is of synthetic data;
+    None before the first epoch."""
     from aigem.plots import curves_png  # matplotlib, imported only when drawing
 
     rows = read_metrics(run_dir)
     if not rows:
         return None
     horizon_s = read_run_info(run_dir)["train"].get("horizon_s")
-    write_atomic(run_dir / CURVES, curves_png(rows, read_baseline(run_dir), horizon_s))
+    picture = curves_png(rows, read_baseline(run_dir), horizon_s, synthetic)
+    write_atomic(run_dir / CURVES, picture)
     return run_dir / CURVES

@@ -38,6 +38,7 @@ from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import N_TARGETS, Split
+from ngsim_graphs.synth.marker import synthetic_build
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
 # (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
@@ -246,6 +247,7 @@ class _Loop:
     sampler: DistributedSampler | None
     generator: torch.Generator  # the shuffle's
     threads: ThreadChooser
+    synthetic: bool  # the build is of synthetic data: the curves say so
 
 
 @dataclass(eq=False)
@@ -398,7 +400,7 @@ def _train_epoch(
 
 
 def _end_epoch(
-    member: _Member, epoch: int, val_loss: float, timing: dict[str, float], rank: int
+    member: _Member, epoch: int, val_loss: float, timing: dict[str, float], loop: _Loop
 ) -> dict[str, float]:
     """Check the validation loss, log and checkpoint the epoch, stop early when the patience is
     out; returns the metrics row."""
@@ -416,11 +418,11 @@ def _end_epoch(
         val_loss,
         member.model,
         member.optimizer,
-        rank == 0,
+        loop.rank == 0,
         timing,
     )
-    if rank == 0:
-        runs.plot_curves(member.run_dir)  # after every epoch: a long run shows its course
+    if loop.rank == 0:  # after every epoch: a long run shows its course
+        runs.plot_curves(member.run_dir, loop.synthetic)
     patience = member.train.patience_epochs
     if patience is not None and epoch - member.state.best_epoch >= patience:
         member.stopped = "early stopping"
@@ -471,7 +473,7 @@ def _train(
         }
         for member, val_loss in zip(active, val_losses, strict=True):
             rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
-            row = _end_epoch(member, epoch, val_loss, timing | rate, loop.rank)
+            row = _end_epoch(member, epoch, val_loss, timing | rate, loop)
             if on_epoch is not None and loop.rank == 0:
                 on_epoch(member.train.horizon_s, row)
         if timed_out:
@@ -525,8 +527,18 @@ def fit_horizons(
     train_set, train_loader, val_loader, sampler, generator = _loaders(
         build_dir, model_config, train, rank, world, device, workers
     )
+    synthetic = synthetic_build(open_build(build_dir).manifest)
     loop = _Loop(
-        device, rank, world, train_set.scaler, train_loader, val_loader, sampler, generator, threads
+        device,
+        rank,
+        world,
+        train_set.scaler,
+        train_loader,
+        val_loader,
+        sampler,
+        generator,
+        threads,
+        synthetic,
     )
     members = _start_members(
         build_dir,
@@ -544,7 +556,7 @@ def fit_horizons(
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
         if rank == 0 and not (member.run_dir / runs.CURVES).exists():
-            runs.plot_curves(member.run_dir)  # a resumed model with no epoch left, of an old run
+            runs.plot_curves(member.run_dir, synthetic)  # a resumed model with no epoch left
     return tuple(
         FitResult(
             m.run_dir,

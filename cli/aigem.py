@@ -19,6 +19,7 @@ from ngsim_cli.console import (
     stderr,
     stdout,
 )
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 if TYPE_CHECKING:
     from aigem.evaluation import Evaluation, HorizonsEvaluation
@@ -336,10 +337,12 @@ def evaluate(
     other = (
         "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"
     )
-    stdout.print(
-        f"These numbers come from {result.build_dir}{other}. If it was made by `ngsim-graphs "
-        "synth`, they are synthetic results and not comparable to the paper's NGSIM numbers."
+    kind = (
+        f", a build of {SYNTHETIC_LABEL}: synthetic results, not comparable to the paper's NGSIM numbers"
+        if result.synthetic
+        else ""
     )
+    stdout.print(f"These numbers come from {result.build_dir}{other}{kind}.")
     if drawn:
         scenes = "" if result.same_build else " (no scenes: drawn on the run's own build only)"
         stdout.print(f"Plots in {plots}: {', '.join(path.name for path in drawn)}{scenes}")

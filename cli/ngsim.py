@@ -33,6 +33,7 @@ from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMod
 from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import DISPLAY_NAMES
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
 from ngsim_graphs.workers import available_cores
 
 app = typer.Typer(
@@ -331,12 +332,12 @@ def build(
     )
 
 
-def _write_plots(values, folder: Path) -> list[Path]:  # type: ignore[no-untyped-def]
+def _write_plots(values, folder: Path, synthetic: bool) -> list[Path]:  # type: ignore[no-untyped-def]
     """The PNG histograms, or one line on stderr and exit status 1 where the folder is unusable."""
     from ngsim_graphs.plotting import write_histograms  # matplotlib loads only when plotting
 
     try:
-        return write_histograms(values, folder)
+        return write_histograms(values, folder, synthetic)
     except OSError as err:
         stderr.print(
             f"error: {folder}: cannot write plots: {err.strerror or err}",
@@ -371,11 +372,17 @@ def stats(
             statistics, values = build_statistics(opened, degree_graphs, seed)
         except OSError as err:  # a file listed in the manifest is gone
             raise NgsimInputError(build_dir, f"incomplete build: {err}") from None
-    written = _write_plots(values, plots) if plots is not None else []
+        synthetic = synthetic_build(opened.manifest)
+    written = _write_plots(values, plots, synthetic) if plots is not None else []
     if as_json:
-        document = statistics.to_dict() | {"plots": [str(path) for path in written]}
+        document = statistics.to_dict() | {
+            "synthetic": synthetic,
+            "plots": [str(path) for path in written],
+        }
         typer.echo(json.dumps(document, indent=2))
         return
+    if synthetic:
+        stdout.print(f"{build_dir}: {SYNTHETIC_LABEL}.", markup=False, highlight=False)
     for make_table in STATS_TABLES:
         print_table(make_table(statistics))
     for path in written:
@@ -537,14 +544,16 @@ def show(
 
             batch, predictions = predict_samples(run, build_dir, split, ids)
         titles = scene_titles(opened.samples(split.value), split.value, ids)
+        synthetic = synthetic_build(opened.manifest)
         scenes = write_scenes(
-            out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite
+            out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite, synthetic
         )
     what = f"sample {start}" if end == start + 1 else f"samples {start}..{end - 1}"
     drawn = f"{sum(s.nodes for s in scenes):,} nodes, {sum(s.targets for s in scenes):,} targets"
     also = f"; dashed: {' and '.join(predictions)} of {run}" if predictions else ""
+    kind = f"; {SYNTHETIC_LABEL}" if synthetic else ""
     stdout.print(
-        f"wrote {out}: {split.value} {what} of {build_dir} ({drawn}){also}",
+        f"wrote {out}: {split.value} {what} of {build_dir} ({drawn}){also}{kind}",
         markup=False,
         highlight=False,
         soft_wrap=True,
