@@ -33,11 +33,11 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.model import AiGem, count_parameters
+from aigem.records import check_splits
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.build import open_build
-from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scaling import MinMaxScaler
-from ngsim_graphs.schema import N_TARGETS, Split
+from ngsim_graphs.schema import Split
 from ngsim_graphs.synth.marker import synthetic_build
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
@@ -102,34 +102,6 @@ def masked_mse_m2(
     mask = batch["target_mask"][:, :steps].to(predicted.dtype)
     squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
     return squared.sum() / mask.sum().clamp(min=1.0)
-
-
-def check_splits(build_dir: Path) -> None:
-    """Refuse a build whose train or validation split has no samples, or no target actors: one
-    gives nothing to train on (nor a scaler), the other no validation loss, which picks the best
-    checkpoint and stops early; training on would only log a validation MSE of NaN."""
-    build = open_build(build_dir)
-    why = {
-        Split.TRAIN: ("train", "there is nothing to train on (and the scaler is fitted on it)"),
-        Split.VAL: (
-            "validation",
-            "`aigem fit` keeps the best checkpoint and stops early by validation loss",
-        ),
-    }
-    for split, (name, reason) in why.items():
-        samples = int(build.manifest.splits.get(split.value, 0))
-        if samples == 0:
-            raise NgsimInputError(
-                build_dir,
-                f"the {name} split ({split.value}) is empty: {reason}; "
-                "rebuild with other split fractions or more data",
-            )
-        if int(build.samples(split)[N_TARGETS].sum()) == 0:
-            raise NgsimInputError(
-                build_dir,
-                f"the {name} split ({split.value}) has {samples} samples "
-                f"but no target actors: {reason}",
-            )
 
 
 def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:

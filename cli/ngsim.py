@@ -16,7 +16,10 @@ from rich.table import Table
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
+    counted,
     exit_on_error,
+    in_option_words,
+    option_names,
     print_error,
     print_table,
     progress_bar,
@@ -54,12 +57,18 @@ def _usage_error(message: str) -> typer.Exit:
     return typer.Exit(2)
 
 
+# Config fields set by an option of another name.
+RENAMED_OPTIONS = {"ego_is_target": "--ego-target", "raw_format": "--format"}
+
+
 def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
-    """The config dataclass, or one line on stderr and exit status 2 for an invalid option."""
+    """The config dataclass, or one line on stderr naming the option and exit status 2 for an
+    invalid option."""
     try:
         return factory(**kwargs)
     except ValueError as err:
-        raise _usage_error(str(err)) from None
+        options = option_names(kwargs, RENAMED_OPTIONS)
+        raise _usage_error(in_option_words(str(err), options)) from None
 
 
 @app.command(short_help="Write synthetic NGSIM- or highD-format trajectories.")
@@ -177,9 +186,8 @@ class DatasetChoice(str, Enum):
 def build(
     raw_paths: Annotated[
         list[Path],
-        typer.Argument(
-            metavar="RAW_PATH", help="NGSIM or highD files, or folders to search for them."
-        ),
+        # Said in the docstring: typer would show its type as "<list[Path]>".
+        typer.Argument(metavar="RAW_PATH", hidden=True),
     ],
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
     locations: Annotated[
@@ -270,6 +278,8 @@ def build(
 ) -> None:
     """Read raw NGSIM files (any of the three formats) or highD recordings and write the graph dataset.
 
+    RAW_PATH...: NGSIM or highD files, or folders to search for them (one or more).
+
     Rows beyond the physical limits (speed, acceleration, position, frame range, a jump between
     frames) or whose Global_Time disagrees with their recording are dropped one by one, counted
     per reason and reported; more than 1 % of a file's rows is an error (so is any, with
@@ -305,7 +315,7 @@ def build(
     print_table(_summary_table(result))
     counts, splits = result.manifest.counts, result.manifest.splits
     stdout.print(
-        f"{counts.rows_read:,} rows read, {counts.rows_other_locations:,} of other locations, "
+        f"{counted(counts.rows_read, 'row')} read, {counts.rows_other_locations:,} of other locations, "
         f"{counts.rows_missing_values:,} with empty required fields dropped."
     )
     for line in _dropped_lines(result):
@@ -313,11 +323,11 @@ def build(
     script = counts.cslstm_rows
     if script is not None:
         stdout.print(
-            f"cs-lstm protocol: CS-LSTM's script keeps {script.kept:,} rows, {script.on_grid:,} "
+            f"cs-lstm protocol: CS-LSTM's script keeps {counted(script.kept, 'row')}, {script.on_grid:,} "
             f"on the {config.time_step_s:g} s grid (one per vehicle and even frame); "
             f"{script.unmatched:,} of those "
             "have no track at their step (cleaning removed the row) and give no sample; "
-            f"{script.too_short:,} rows of vehicles under 31 rows left out (the script stops on "
+            f"{counted(script.too_short, 'row')} of vehicles under 31 rows left out (the script stops on "
             "them).",
             markup=False,
             highlight=False,
@@ -409,7 +419,7 @@ def verify(
     if result.problems:
         raise typer.Exit(1)
     stdout.print(
-        f"{build_dir}: all {result.files:,} files match the manifest ({result.bytes / 1e6:,.1f} MB read)."
+        f"{build_dir}: all {counted(result.files, 'file')} match the manifest ({result.bytes / 1e6:,.1f} MB read)."
     )
 
 
@@ -463,7 +473,7 @@ def export(
         )
         paths = write_tables(tables, out, overwrite)
     for path, table in zip(paths, tables.values(), strict=True):
-        stdout.print(f"{path}  {table.height:,} rows")
+        stdout.print(f"{path}  {counted(table.height, 'row')}")
 
 
 def _scene_range(text: str, max_panels: int) -> tuple[int, int]:
@@ -549,7 +559,7 @@ def show(
             out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite, synthetic
         )
     what = f"sample {start}" if end == start + 1 else f"samples {start}..{end - 1}"
-    drawn = f"{sum(s.nodes for s in scenes):,} nodes, {sum(s.targets for s in scenes):,} targets"
+    drawn = f"{counted(sum(s.nodes for s in scenes), 'node')}, {counted(sum(s.targets for s in scenes), 'target')}"
     also = f"; dashed: {' and '.join(predictions)} of {run}" if predictions else ""
     kind = f"; {SYNTHETIC_LABEL}" if synthetic else ""
     stdout.print(
