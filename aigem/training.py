@@ -31,11 +31,12 @@ from aigem import runs
 from aigem.baseline import record_baselines
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
-from aigem.data import Collate, GraphDataset, xy_to_metres
+from aigem.data import Collate, GraphDataset, check_covered, xy_to_metres
 from aigem.model import AiGem, count_parameters
 from aigem.records import check_splits
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.build import open_build
+from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Split
 from ngsim_graphs.synth.marker import synthetic_build
@@ -220,6 +221,7 @@ class _Loop:
     generator: torch.Generator  # the shuffle's
     threads: ThreadChooser
     synthetic: bool  # the build is of synthetic data: the curves say so
+    manifest: Path  # the build's, named when its scaler does not cover a train batch
 
 
 @dataclass(eq=False)
@@ -347,6 +349,7 @@ def _train_epoch(
     batches, graphs, read_batches, read_at, cut = 0, 0, 0, time.monotonic(), False
     total = len(loop.train_loader)
     for index, batch in enumerate(loop.train_loader):
+        check_covered(batch, loop.scaler, loop.manifest)  # on the CPU: the step never waits
         batch = to_device(batch, loop.device)
         for member in active:
             rate = learning_rate_at(member.train, epoch, index, total)
@@ -511,6 +514,7 @@ def fit_horizons(
         generator,
         threads,
         synthetic,
+        manifest_path(build_dir),
     )
     members = _start_members(
         build_dir,

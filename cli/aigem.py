@@ -205,7 +205,6 @@ def _train(
 ) -> tuple[FitResult, ...]:
     """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
     from aigem.cores import busy_cores_warning
-    from aigem.model import AiGem, count_parameters
     from aigem.training import DeviceUnavailableError, NonFiniteLossError, fit_horizons, pick_device
     from ngsim_cli.console import progress_bar
 
@@ -215,7 +214,6 @@ def _train(
         raise _fail(str(err)) from None
     if train.threads is not None and (warning := busy_cores_warning(train.threads)):
         print_warning(warning)
-    stdout.print(f"AiGem: {count_parameters(AiGem(model_config)):,} parameters (the paper: 74.5 K)")
     who = (lambda h: f"{h:g} s model, ") if horizons_s else (lambda h: "")
     created = not out.exists()
     with exit_on_error(), _interrupt_on_sigterm(), progress_bar() as progress:
@@ -231,10 +229,13 @@ def _train(
             return fit_horizons(
                 data, out, horizons_s, model_config, train, device, resume, show, on_epoch
             )
-        except (NonFiniteLossError, DeviceUnavailableError) as err:  # the project's: exit_on_error
-            raise _fail(str(err)) from None
         except KeyboardInterrupt:
             raise _interrupted(out, horizons_s, created) from None
+        except (NgsimError, NonFiniteLossError, DeviceUnavailableError) as err:
+            _discard_if_nothing_kept(out, horizons_s, created)
+            if isinstance(err, NgsimError):
+                raise  # exit_on_error says it
+            raise _fail(str(err)) from None
 
 
 @contextmanager
@@ -253,16 +254,26 @@ def _interrupt_on_sigterm() -> Iterator[None]:
         signal.signal(signal.SIGTERM, before)
 
 
-def _interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) -> typer.Exit:
-    """One line on what an interrupted fit kept, and exit status 130 (as for Ctrl-C): the epochs
-    of each model's last checkpoint, or, with none, nothing (the run's files go)."""
+def _discard_if_nothing_kept(
+    out: Path, horizons_s: tuple[float, ...] | None, created: bool
+) -> list[int]:
+    """Each model's epochs kept in `out` (its last checkpoint's); with none, a fit that stopped
+    (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
     from aigem.runs import discard_unfinished, epochs_kept, member_dir
 
     members = [out] if horizons_s is None else [member_dir(out, h) for h in horizons_s]
-    kept = [epochs_kept(member) for member in members]
+    kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
     if not any(kept):
         with exit_on_error():
             discard_unfinished(out, members, created)
+    return kept
+
+
+def _interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) -> typer.Exit:
+    """One line on what an interrupted fit kept, and exit status 130 (as for Ctrl-C): the epochs
+    of each model's last checkpoint, or, with none, nothing (the run's files go)."""
+    kept = _discard_if_nothing_kept(out, horizons_s, created)
+    if not any(kept):
         _say("interrupted before the first epoch ended; nothing kept")
     elif len(set(kept)) == 1:
         _say(
@@ -282,7 +293,8 @@ def _say(message: str) -> None:
 
 
 def _print_results(results: tuple[FitResult, ...], out: Path) -> None:
-    """A line per model; with several, one more for the run."""
+    """The model's size, a line per model; with several, one more for the run."""
+    stdout.print(f"AiGem: {results[0].parameters:,} parameters (the paper: 74.5 K)")
     several = len(results) > 1
     for result in results:
         who = f"{result.horizon_s:g} s model: " if several else ""

@@ -3,9 +3,11 @@ before PyTorch is loaded, and a warning when fixed threads meet busy cores."""
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -223,3 +225,28 @@ def test_sigterm_before_the_first_epoch_keeps_nothing(tiny_build: Path, tmp_path
     assert process.returncode == 130, stderr
     assert stderr.splitlines()[-1] == "interrupted before the first epoch ended; nothing kept"
     assert not run.exists()
+
+
+def test_a_resealed_manifest_whose_scaler_was_edited_is_caught_from_the_data(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """Anyone can recompute the manifest's unkeyed checksum; the train split's values cannot lie
+    outside the scaler fitted on them."""
+    build = tmp_path / "build"
+    shutil.copytree(tiny_build, build)
+    manifest = json.loads((build / "manifest.json").read_text())
+    manifest["scaler"]["speed_mps"]["max"] = 3.0
+    manifest.pop("manifest_sha256")
+    canonical = json.dumps(manifest, sort_keys=True, separators=(",", ":")).encode()
+    manifest["manifest_sha256"] = hashlib.sha256(canonical).hexdigest()
+    (build / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    run = tmp_path / "run"
+    result = CliRunner().invoke(app, ["fit", str(build), "--out", str(run), *FIT])
+    assert result.exit_code == 1
+    line = one_error_line(result)
+    assert re.fullmatch(
+        rf"error: {re.escape(str(build / 'manifest.json'))}: the scaler does not cover the train "
+        r"split: speed \d+\.\d m/s where its range ends at 3\.0 m/s; edited manifest\? build again",
+        line,
+    ), line
+    assert not run.exists()  # no epoch ended: nothing kept
