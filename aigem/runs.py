@@ -389,12 +389,22 @@ def epochs_kept(run_dir: Path) -> int:
 def discard_unfinished(run_dir: Path, members: Sequence[Path], created: bool) -> None:
     """Remove what a fit that finished no epoch wrote: each member's run.json, baseline.json and
     log (horizons.json for a multi-horizon run), the member directories left empty, and
-    `run_dir` itself where the fit `created` it and it is left empty. Nothing else is touched."""
+    `run_dir` itself where the fit `created` it and it is left empty. Only a member whose
+    run.json is an aigem run's is touched: files of these names in any other folder stay."""
     for member in members:
+        try:
+            read_run_info(member)
+        except NgsimInputError:
+            continue
         for name in (RUN_INFO, BASELINE, METRICS, CURVES, BEST):
             (member / name).unlink(missing_ok=True)
         if member != run_dir and member.is_dir() and not any(member.iterdir()):
             member.rmdir()
-    (run_dir / HORIZONS).unlink(missing_ok=True)
+    try:
+        group = read_horizons(run_dir) is not None
+    except NgsimInputError:  # not ours to remove
+        group = False
+    if group:
+        (run_dir / HORIZONS).unlink()
     if created and run_dir.is_dir() and not any(run_dir.iterdir()):
         run_dir.rmdir()
