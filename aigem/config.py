@@ -5,10 +5,28 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from enum import Enum
 from typing import Any
 
 MAX_HORIZON_S = 5.0  # the builds' 25 future steps at 0.2 s
-LR_SCHEDULES = ("constant", "cosine")  # aigem.schedule
+
+
+class LrSchedule(str, Enum):
+    """How the learning rate runs over the epochs (aigem.schedule)."""
+
+    CONSTANT = "constant"  # the paper's
+    COSINE = "cosine"  # falls to 0 along half a cosine by the end of `epochs`
+
+
+class DeviceChoice(str, Enum):
+    """Where a model runs: `auto` takes CUDA when present (aigem.training.pick_device)."""
+
+    AUTO = "auto"
+    CPU = "cpu"
+    CUDA = "cuda"
+
+
+LR_SCHEDULES = tuple(schedule.value for schedule in LrSchedule)
 
 
 @dataclass(frozen=True)
@@ -55,8 +73,10 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if not 0 < self.horizon_s <= MAX_HORIZON_S:
             raise ValueError("horizon_s must be in (0, 5]")
-        if self.epochs < 1 or self.batch_size < 1:
-            raise ValueError("epochs and batch_size must be >= 1")
+        if self.epochs < 1:
+            raise ValueError("epochs must be >= 1")
+        if self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1")
         if not (math.isfinite(self.learning_rate) and self.learning_rate > 0):
             raise ValueError("learning_rate must be > 0")
         if self.lr_schedule not in LR_SCHEDULES:
@@ -67,6 +87,10 @@ class TrainConfig:
             math.isfinite(self.clip_grad_norm) and self.clip_grad_norm > 0
         ):
             raise ValueError("clip_grad_norm must be > 0")
+        if self.max_minutes is not None and not self.max_minutes > 0:
+            raise ValueError("max_minutes must be > 0")
+        if self.patience_epochs is not None and self.patience_epochs < 1:
+            raise ValueError("patience_epochs must be >= 1")
         if self.workers is not None and self.workers < 0:
             raise ValueError("workers must be >= 0")
         if self.threads is not None and self.threads < 1:

@@ -46,6 +46,43 @@ def xy_to_metres(scaler: MinMaxScaler, scaled: torch.Tensor) -> torch.Tensor:
     return torch.stack([scaler.unscale(name, scaled[..., i]) for i, name in enumerate(XY)], dim=-1)
 
 
+COVER_TOLERANCE = 1e-3  # scaled units: float32 rounding, far below any edit that matters
+QUANTITIES = {  # how a scaled quantity is named to a user, and its unit
+    "x_m": ("x", "m"),
+    "y_m": ("y", "m"),
+    "heading_rad": ("heading", "rad"),
+    "speed_mps": ("speed", "m/s"),
+    "distance_m": ("spatial-edge distance", "m"),
+}
+
+
+def check_covered(batch: dict[str, Any], scaler: MinMaxScaler, manifest: Path) -> None:
+    """Refuse a train batch whose scaled inputs leave the scaler's target ranges: the scaler is
+    fitted on exactly the train split's values, so a value outside says the scaler recorded in
+    `manifest` is not the one fitted (an edited manifest, re-sealed: its checksum is unkeyed and
+    anyone can recompute it). A min and max per quantity of the batch's (N, 4) features and
+    (E, 1) distances, on the CPU."""
+    columns = [("distance_m", batch["spatial_attr"][:, 0])]
+    columns += [(name, batch["x"][:, i]) for i, name in enumerate(FEATURES)]
+    for name, values in columns:
+        if not len(values):
+            continue
+        low, high = (float(v) for v in torch.aminmax(values))
+        to_low, to_high = scaler.target[name]
+        label, unit = QUANTITIES[name]
+        for value, outside, end in (
+            (high, high > to_high + COVER_TOLERANCE, scaler.high[name]),
+            (low, low < to_low - COVER_TOLERANCE, scaler.low[name]),
+        ):
+            if outside:
+                raise NgsimInputError(
+                    manifest,
+                    f"the scaler does not cover the train split: {label} "
+                    f"{float(scaler.unscale(name, value)):.1f} {unit} where its range ends at "
+                    f"{end:.1f} {unit}; edited manifest? build again",
+                )
+
+
 class GraphDataset(Dataset):
     """The samples of one split of a build; item i is sample i's graph (a one-sample GraphBatch).
 

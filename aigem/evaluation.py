@@ -12,7 +12,6 @@ that each number of the baseline is on the same targets as the model's beside it
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,18 +22,17 @@ import torch
 from torch.utils.data import DataLoader
 
 from aigem.baseline import constant_velocity
-from aigem.checkpoints import build_identity, identity_difference
-from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors
 from aigem.model import AiGem, count_parameters
+from aigem.records import check_build, resolve_build
 from aigem.runs import BEST, load_model, member_dir, read_horizons
 from aigem.training import pick_device, to_device
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import Protocol, Split
+from ngsim_graphs.synth.marker import synthetic_build
 
 # The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
 PAPER_TABLE = {
@@ -102,6 +100,7 @@ class Evaluation:
     constant_velocity: dict[str, dict[str, float | None]]
     build_dir: str
     same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
+    synthetic: bool  # the build is of `ngsim-graphs synth`'s data (ngsim_graphs.synth.marker)
     time_step_s: float
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
@@ -129,61 +128,13 @@ class HorizonsEvaluation:
     members: dict[str, Evaluation]
     build_dir: str
     same_build: bool
+    synthetic: bool
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
 
 
 class NonFinitePredictionError(ValueError):
     """The model predicted NaN or infinite positions: no metric of them would mean anything."""
-
-
-def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
-    """The build to evaluate on: `data`, else the run's own (the absolute path recorded by fit)."""
-    if data is not None:
-        return data
-    recorded = Path(info["build_dir"])
-    if not (recorded / MANIFEST_NAME).is_file():
-        raise NgsimInputError(
-            recorded, "the run's build is gone (or unfinished); pass --data to name it"
-        )
-    return recorded
-
-
-def check_build(
-    info: dict[str, Any],
-    build_dir: Path,
-    run_dir: Path,
-    model: ModelConfig,
-    other_build: bool,
-    refusal: str = "pass --other-build to evaluate on another build",
-) -> bool:
-    """Whether `build_dir` is the run's own build. Refuses another build unless `other_build`,
-    and, even then, one whose time step or history and future lengths do not fit the run's model
-    and horizon."""
-    _, identity = build_identity(build_dir)
-    why = identity_difference(info, identity)
-    if why and not other_build:
-        raise NgsimInputError(
-            build_dir,
-            f"not the build that run {run_dir} was trained on ({why}); {refusal}",
-        )
-    config = open_build(build_dir).config
-    time_step_s = float(info["build_config"].get("time_step_s", math.nan))
-    if not math.isclose(config.time_step_s, time_step_s):
-        raise NgsimInputError(
-            build_dir,
-            f"its time step is {config.time_step_s} s; the run was "
-            f"trained on {time_step_s} s steps",
-        )
-    steps = round(info["train"]["horizon_s"] / time_step_s)
-    if config.history_steps < model.history_steps_read or config.future_steps < steps:
-        raise NgsimInputError(
-            build_dir,
-            f"its graphs have {config.history_steps} history and "
-            f"{config.future_steps} future steps; the run's model reads "
-            f"{model.history_steps_read} and predicts {steps}",
-        )
-    return why is None
 
 
 def score_targets(
@@ -297,6 +248,7 @@ def evaluate(
         constant_velocity=summarize_errors(scores.constant_velocity, dataset.config.time_step_s),
         build_dir=str(build_dir),
         same_build=same_build,
+        synthetic=synthetic_build(open_build(build_dir).manifest),
         time_step_s=dataset.config.time_step_s,
         protocol=dataset.config.protocol.value,
         protocol_description=describe_protocol(dataset.config),
@@ -372,6 +324,7 @@ def evaluate_horizons(
         members=members,
         build_dir=longest.build_dir,
         same_build=longest.same_build,
+        synthetic=longest.synthetic,
         protocol=longest.protocol,
         protocol_description=longest.protocol_description,
     )

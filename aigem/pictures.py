@@ -33,7 +33,7 @@ from aigem.plots import (
 from aigem.runs import write_atomic
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
-from ngsim_graphs.synth.formats import MARKER_NAME
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
 
 FIGURES = {
     "error_by_horizon": error_by_horizon,
@@ -47,34 +47,19 @@ PICTURES = (*(f"{name}.png" for name in FIGURES), SCENES)
 
 
 def describe_build(build_dir: str | Path) -> str:
-    """Where our numbers come from, for a figure: the build, its recordings, and whether its
-    inputs were written by `ngsim-graphs synth` (synth's marker lists them)."""
+    """Where our numbers come from, for a figure: the build's folder, its recordings, and whether
+    its inputs were written by `ngsim-graphs synth` (synth's marker lists them)."""
     build = open_build(Path(build_dir))
     entries = build.entries
     locations = ", ".join(sorted({entry.location for entry in entries}))
-    synthetic = any(_synthetic(Path(report.path)) for report in build.manifest.inputs)
     kind = (
-        "SYNTHETIC data (ngsim-graphs synth)"
-        if synthetic
+        SYNTHETIC_LABEL
+        if synthetic_build(build.manifest)
         else f"{build.manifest.dataset}-format inputs without synth's marker"
     )
     plural = "s" if len(entries) != 1 else ""
     name = Path(build_dir).resolve().name  # the folder, not a path of this machine
-    return f"build {name}: {len(entries)} recording{plural} of {locations}, {kind}"
-
-
-def _synthetic(path: Path) -> bool:
-    """Whether `ngsim-graphs synth` wrote the input file `path`: its folder, or the one above
-    (synth's <location>/<file> layouts), has synth's marker, which lists the file."""
-    for folder in path.parents[:2]:
-        marker = folder / MARKER_NAME
-        try:
-            listed = marker.read_text(errors="replace").splitlines() if marker.is_file() else []
-        except OSError:
-            listed = []
-        if f"- {path.relative_to(folder).as_posix()}" in listed:
-            return True
-    return False
+    return f'build folder "{name}": {len(entries)} recording{plural} of {locations}, {kind}'
 
 
 def scene_grid(
@@ -110,7 +95,9 @@ def scene_grid(
             places, names, [final.model_m[final.sample == i].mean() for i in ids], strict=True
         )
     ]
-    figure, _ = scene_figure(batch, titles, build.config.d_sense_m, predictions, per_group)
+    figure, _ = scene_figure(
+        batch, titles, build.config.d_sense_m, predictions, per_group, result.synthetic
+    )
     return png_bytes(figure, dpi=SCENE_DPI)
 
 

@@ -9,7 +9,8 @@ them as `aigem evaluate --plots DIR`). Each function takes the numbers and retur
 
 A multi-horizon run draws its longest model's curves, and its RMSE at h s from the h s model
 (the paper's protocol) as diamonds. Our curves are labelled with the build they come from
-(`label`), never as NGSIM: a build of `ngsim-graphs synth` data is synthetic.
+(`label`), never as NGSIM: a figure of a build of `ngsim-graphs synth` data says SYNTHETIC at
+its top left (ngsim_graphs.plotting.mark_synthetic).
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot` (as
 ngsim_graphs.plotting): no global state, no display, nothing kept open.
@@ -30,6 +31,7 @@ from matplotlib.ticker import LogFormatter, MaxNLocator
 
 from aigem.evaluation import PAPER_TABLE, Evaluation, HorizonsEvaluation
 from aigem.metrics import FRONT_Y_M, REGIONS
+from ngsim_graphs.plotting import mark_synthetic
 
 OURS, BASELINE = "tab:blue", "tab:orange"
 PAPER_MARKERS = {
@@ -64,18 +66,26 @@ class _PlainLog(LogFormatter):
 
 
 def curves_png(
-    rows: list[dict[str, float]], baseline_m2: float | None, horizon_s: float | None
+    rows: list[dict[str, float]],
+    baseline_m2: float | None,
+    horizon_s: float | None,
+    synthetic: bool = False,
 ) -> bytes:
     """curves.png of a run (curves_figure)."""
-    return png_bytes(curves_figure(rows, baseline_m2, horizon_s))
+    return png_bytes(curves_figure(rows, baseline_m2, horizon_s, synthetic))
 
 
 def curves_figure(
-    rows: list[dict[str, float]], baseline_m2: float | None, horizon_s: float | None
+    rows: list[dict[str, float]],
+    baseline_m2: float | None,
+    horizon_s: float | None,
+    synthetic: bool = False,
 ) -> Figure:
     """A run's training from its metrics.jsonl rows: train and validation MSE (m²) per epoch,
-    the best epoch (by validation MSE) marked, constant velocity's validation MSE as a line."""
-    figure = Figure(figsize=(7, 4.5), layout="constrained")
+    the best epoch (by validation MSE) marked, constant velocity's validation MSE as a line; the
+    legend below the axes, where it hides no point (after one epoch, the only points are in the
+    middle); SYNTHETIC at the top left for a run on a build of synthetic data."""
+    figure = Figure(figsize=(7, 5), layout="constrained")
     axes = figure.add_subplot()
     epochs = [row["epoch"] for row in rows]
     axes.plot(
@@ -96,6 +106,7 @@ def curves_figure(
             "*",
             ms=13,
             color="tab:green",
+            zorder=1.5,  # under the validation point it marks, which stays visible
             label=f"best: epoch {best}, validation {best_m2:.3g} m²",
         )
     if baseline_m2 is not None and math.isfinite(baseline_m2):
@@ -105,7 +116,9 @@ def curves_figure(
             ls="--",
             label=f"constant velocity, validation ({baseline_m2:.3g} m²)",
         )
-    axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+    # Whole epochs, also where the axis holds one (the default asks for two ticks, and falls
+    # back to 0.5, 0.6, ... when no two whole numbers fit).
+    axes.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
     axes.set_xlim(0.5, max(epochs) + 0.5)
     horizon = "" if horizon_s is None else f", {horizon_s:g} s horizon"
     axes.set(
@@ -116,7 +129,6 @@ def curves_figure(
     )
     axes.yaxis.set_major_formatter(_PlainLog(labelOnlyBase=False))
     axes.yaxis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
-    axes.legend(loc="upper right")  # where falling losses leave room
     rates = [r.get("learning_rate") for r in rows]
     if None not in rates and len(set(rates)) > 1:  # a schedule: its rate on a second axis
         rate_axes = axes.twinx()
@@ -124,6 +136,9 @@ def curves_figure(
         rate_axes.set_ylabel("learning rate at the epoch's end (grey)", color="tab:gray")
         rate_axes.set_ylim(bottom=0)
         rate_axes.tick_params(axis="y", colors="tab:gray")
+    figure.legend(*axes.get_legend_handles_labels(), loc="outside lower center", ncols=2)
+    if synthetic:
+        mark_synthetic(figure)
     return figure
 
 
@@ -167,6 +182,13 @@ def _evaluation_figure(
     engine = ConstrainedLayoutEngine(rect=(0, footer_in / height_in, 1, 1 - footer_in / height_in))
     figure = Figure(figsize=(width_in, height_in), layout=engine)
     figure.text(0.01, 0.02 / height_in, footer, fontsize=8, color="dimgray", va="bottom")
+    return figure
+
+
+def _marked(figure: Figure, result: Evaluation | HorizonsEvaluation) -> Figure:
+    """The finished figure, with SYNTHETIC at its top left where the build is of synthetic data."""
+    if result.synthetic:
+        mark_synthetic(figure)
     return figure
 
 
@@ -261,7 +283,7 @@ def error_by_horizon(result: Evaluation | HorizonsEvaluation, label: str) -> Fig
         _headroom(axes)
         axes.legend(fontsize=8, loc="upper left")
     figure.suptitle(f"Error by horizon, every {evaluation.time_step_s:g} s step")
-    return figure
+    return _marked(figure, result)
 
 
 def error_by_region(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
@@ -298,7 +320,7 @@ def error_by_region(result: Evaluation | HorizonsEvaluation, label: str) -> Figu
     panels[0].set_ylabel("error (m)")
     panels[0].legend(fontsize=8)
     figure.suptitle("Error by region of the actor's present position (y along the road)")
-    return figure
+    return _marked(figure, result)
 
 
 def final_error_distribution(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
@@ -339,4 +361,4 @@ def final_error_distribution(result: Evaluation | HorizonsEvaluation, label: str
     )
     axes.grid(alpha=0.3)
     axes.legend(fontsize=8, loc="lower right")
-    return figure
+    return _marked(figure, result)

@@ -29,6 +29,7 @@ import io
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -38,41 +39,34 @@ from torch import nn
 
 from aigem.checkpoints import (
     BEST_KEYS,
-    IDENTITY,
     LAST_KEYS,
-    check_info,
     check_weights,
     fitted_model,
-    identity_difference,
     load_checkpoint,
+)
+from aigem.config import ModelConfig, TrainConfig
+from aigem.model import AiGem
+from aigem.records import (  # noqa: F401  (the run directory's names, here too)
+    BASELINE,
+    BEFORE_SCHEDULES,
+    BEST,
+    CURVES,
+    HORIZONS,
+    IDENTITY,
+    LAST,
+    METRICS,
+    RUN_INFO,
+    check_fresh_group,
+    check_fresh_out,
+    check_group_start,
+    check_resume,
+    check_single_start,
+    member_dir,
+    read_horizons,
+    read_run_info,
     run_info,
 )
-from aigem.config import ModelConfig, TrainConfig, check_horizons_s
-from aigem.model import AiGem
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
-
-RUN_INFO, METRICS, LAST, BEST, CURVES = (
-    "run.json",
-    "metrics.jsonl",
-    "last.pt",
-    "best.pt",
-    "curves.png",
-)
-HORIZONS = "horizons.json"  # a multi-horizon run's members
-BASELINE = "baseline.json"  # constant velocity's validation loss
-# Train settings that a resumed run must keep: they change what it learns. Epochs (unless the
-# schedule decays over them), time limit, patience, workers and threads may change.
-RESUME_FIXED = (
-    "horizon_s",
-    "batch_size",
-    "learning_rate",
-    "lr_schedule",
-    "warmup_epochs",
-    "clip_grad_norm",
-    "seed",
-)
-# How runs of aigem before these options trained: their checkpoints do not name them.
-BEFORE_SCHEDULES = {"lr_schedule": "constant", "warmup_epochs": 0.0, "clip_grad_norm": None}
 
 
 @dataclass(frozen=True)
@@ -84,43 +78,6 @@ class RunState:
 
 # ------------------------------------------------------------------------------------------------
 # Reading: a run directory, its run.json and its best model.
-
-
-def read_run_info(run_dir: Path) -> dict[str, Any]:
-    """run.json of a run directory; one clear error for a directory that is not a run."""
-    if not run_dir.exists():
-        raise NgsimInputError(run_dir, "no such run directory")
-    path = run_dir / RUN_INFO
-    if not run_dir.is_dir() or not path.is_file():
-        raise NgsimInputError(
-            run_dir, f"not a run directory: no {RUN_INFO} (written by `aigem fit`)"
-        )
-    try:
-        info = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise NgsimInputError(path, f"unreadable run description: {err}") from None
-    check_info(info, path)
-    return info
-
-
-def member_dir(run_dir: Path, horizon_s: float) -> Path:
-    """The run directory of a multi-horizon run's model for `horizon_s`: RUN/h2s, RUN/h2.5s."""
-    return run_dir / f"h{horizon_s:g}s"
-
-
-def _seconds(horizons_s: tuple[float, ...]) -> str:
-    return ",".join(f"{h:g}" for h in horizons_s)
-
-
-def read_horizons(run_dir: Path) -> tuple[float, ...] | None:
-    """The horizons of a multi-horizon run, from its horizons.json; None without that file."""
-    path = run_dir / HORIZONS
-    if not path.is_file():
-        return None
-    try:  # a JSONDecodeError is a ValueError; a list of other things, a TypeError
-        return check_horizons_s(json.loads(path.read_text())["horizons_s"])
-    except (ValueError, TypeError, KeyError, UnicodeDecodeError):
-        raise NgsimInputError(path, "not aigem's list of horizons (damaged?)") from None
 
 
 def _check_same_run(checkpoint_info: dict[str, Any], run: dict[str, Any], path: Path) -> None:
@@ -208,12 +165,7 @@ def start_run(
     """Start a fresh run, or load the last checkpoint into `model` and `optimizer` to resume;
     returns the state and the run info that every checkpoint of this run carries. A directory
     with last.pt needs `resume`; one without it has nothing to resume and starts over."""
-    if (horizons_s := read_horizons(run_dir)) is not None:
-        raise NgsimInputError(
-            run_dir,
-            f"holds a multi-horizon run ({_seconds(horizons_s)} s): give "
-            f"--horizon-s {_seconds(horizons_s)} to resume it, or choose another --out",
-        )
+    check_single_start(run_dir, resume)
     info = run_info(build_dir, model_config, train)
     if resume:
         state = _resume(run_dir, build_dir, info, model, optimizer)
@@ -221,12 +173,8 @@ def start_run(
             _write_info(run_dir, info)  # the latest limits (epochs, time, patience)
             _drop_metrics_after(run_dir, state.next_epoch)
         return state, info
-    if (run_dir / LAST).exists():
-        raise NgsimInputError(
-            run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
-        )
     if is_writer:  # the other ranks of a distributed run would see rank 0 writing run.json
-        _check_fresh_out(run_dir)
+        check_fresh_out(run_dir)
         created = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
         try:
@@ -251,78 +199,16 @@ def start_group(
     resume needs the same horizons and a last.pt in at least one member (a member without one,
     killed before its first checkpoint, starts over)."""
     members = tuple(member_dir(run_dir, h) for h in horizons_s)
-    recorded = read_horizons(run_dir)
+    check_group_start(run_dir, horizons_s, resume)
     if resume:
-        if recorded is None:
-            raise NgsimInputError(
-                run_dir, f"nothing to resume: no {HORIZONS} (not a multi-horizon run)"
-            )
-        if recorded != horizons_s:
-            raise NgsimInputError(
-                run_dir,
-                f"cannot resume with other horizons ({_seconds(recorded)} -> "
-                f"{_seconds(horizons_s)} s): it changes what the run learns",
-            )
-        if not any((member / LAST).is_file() for member in members):
-            raise NgsimInputError(run_dir, f"nothing to resume: no member has a {LAST}")
         return members
-    if recorded is not None and any((member_dir(run_dir, h) / LAST).exists() for h in recorded):
-        raise NgsimInputError(
-            run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
-        )
     if is_writer:
-        _check_fresh_group(run_dir, horizons_s, recorded)
+        check_fresh_group(run_dir, horizons_s, read_horizons(run_dir))
         run_dir.mkdir(parents=True, exist_ok=True)
         names = [member.name for member in members]
         text = json.dumps({"horizons_s": list(horizons_s), "members": names}, indent=2) + "\n"
         write_atomic(run_dir / HORIZONS, text.encode())
     return members
-
-
-def _check_fresh_group(
-    run_dir: Path, horizons_s: tuple[float, ...], recorded: tuple[float, ...] | None
-) -> None:
-    """A fresh multi-horizon run goes into a new or empty directory, or one of a multi-horizon run
-    of the same horizons that never finished an epoch (each member is checked by start_run)."""
-    if not run_dir.exists() or recorded == horizons_s:
-        return
-    if not run_dir.is_dir():
-        raise NgsimOutputError(run_dir, "exists and is not a directory")
-    if recorded is not None:
-        raise NgsimOutputError(
-            run_dir,
-            f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
-            "that never finished an epoch; choose another --out, or delete it",
-        )
-    _refuse_other_contents(run_dir, "a multi-horizon aigem run")
-
-
-def _check_fresh_out(run_dir: Path) -> None:
-    """A fresh run goes into a new or empty directory, or one of an aigem run that never finished
-    an epoch (its run.json is ours): never into another program's folder, whose files it would
-    overwrite."""
-    if not run_dir.exists():
-        return
-    if not run_dir.is_dir():
-        raise NgsimOutputError(run_dir, "exists and is not a directory")
-    if (run_dir / RUN_INFO).is_file():
-        read_run_info(run_dir)  # an error unless it is an aigem run's
-        return
-    _refuse_other_contents(run_dir, "an aigem run")
-
-
-def _refuse_other_contents(run_dir: Path, what: str) -> None:
-    """Refuse a directory that is not empty (it is not `what`)."""
-    entries = sorted(p.name for p in run_dir.iterdir())
-    if entries:
-        shown = ", ".join(entries[:3]) + (
-            f" and {len(entries) - 3} more" if len(entries) > 3 else ""
-        )
-        raise NgsimOutputError(
-            run_dir,
-            f"directory is not empty and is not {what}: it holds {shown}; "
-            "choose a new or empty --out",
-        )
 
 
 def _resume(
@@ -338,36 +224,7 @@ def _resume(
     checkpoint = load_checkpoint(last, LAST_KEYS)
     saved = checkpoint["info"]
     _check_same_run(saved, read_run_info(run_dir), last)
-    why = identity_difference(saved, info)
-    if why:
-        raise NgsimInputError(
-            build_dir,
-            f"not the build that run {run_dir} was trained on ({why}); a run resumes on its own build only",
-        )
-    if saved["model"] != info["model"]:
-        changed = sorted(k for k in info["model"] if saved["model"][k] != info["model"][k])
-        raise NgsimInputError(
-            run_dir,
-            f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
-        )
-    before = BEFORE_SCHEDULES | saved["train"]
-    changed = [
-        f"{k} {before.get(k)} -> {info['train'][k]}"
-        for k in RESUME_FIXED
-        if before.get(k) != info["train"][k]
-    ]
-    if changed:
-        raise NgsimInputError(
-            run_dir,
-            f"cannot resume with another {', '.join(changed)}: it changes what the run learns",
-        )
-    schedule, epochs = info["train"]["lr_schedule"], before.get("epochs")
-    if schedule != "constant" and epochs != info["train"]["epochs"]:
-        raise NgsimInputError(
-            run_dir,
-            f"cannot resume with another epochs {epochs} -> {info['train']['epochs']}: the "
-            f"{schedule} schedule decays over the run's epochs; resume with --epochs {epochs}",
-        )
+    check_resume(run_dir, build_dir, saved, info)
     check_weights(model.state_dict(), checkpoint["model"], last)
     model.load_state_dict(checkpoint["model"])
     _load_optimizer(optimizer, checkpoint["optimizer"], last)
@@ -502,14 +359,52 @@ def read_baseline(run_dir: Path) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def plot_curves(run_dir: Path) -> Path | None:
+def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
     """Training and validation loss per epoch, the best epoch and constant velocity's validation
-    loss as a PNG (aigem.plots); None before the first epoch."""
+    loss as a PNG (aigem.plots), marked SYNTHETIC where the run's build is of synthetic data;
+    None before the first epoch."""
     from aigem.plots import curves_png  # matplotlib, imported only when drawing
 
     rows = read_metrics(run_dir)
     if not rows:
         return None
     horizon_s = read_run_info(run_dir)["train"].get("horizon_s")
-    write_atomic(run_dir / CURVES, curves_png(rows, read_baseline(run_dir), horizon_s))
+    picture = curves_png(rows, read_baseline(run_dir), horizon_s, synthetic)
+    write_atomic(run_dir / CURVES, picture)
     return run_dir / CURVES
+
+
+# ------------------------------------------------------------------------------------------------
+# After an interruption: what a run kept.
+
+
+def epochs_kept(run_dir: Path) -> int:
+    """The epochs whose checkpoint a run directory holds (its last.pt's), 0 without one."""
+    path = run_dir / LAST
+    if not path.is_file():
+        return 0
+    return _run_state(load_checkpoint(path, LAST_KEYS)["state"], path).next_epoch
+
+
+def discard_unfinished(run_dir: Path, members: Sequence[Path], created: bool) -> None:
+    """Remove what a fit that finished no epoch wrote: each member's run.json, baseline.json and
+    log (horizons.json for a multi-horizon run), the member directories left empty, and
+    `run_dir` itself where the fit `created` it and it is left empty. Only a member whose
+    run.json is an aigem run's is touched: files of these names in any other folder stay."""
+    for member in members:
+        try:
+            read_run_info(member)
+        except NgsimInputError:
+            continue
+        for name in (RUN_INFO, BASELINE, METRICS, CURVES, BEST):
+            (member / name).unlink(missing_ok=True)
+        if member != run_dir and member.is_dir() and not any(member.iterdir()):
+            member.rmdir()
+    try:
+        group = read_horizons(run_dir) is not None
+    except NgsimInputError:  # not ours to remove
+        group = False
+    if group:
+        (run_dir / HORIZONS).unlink()
+    if created and run_dir.is_dir() and not any(run_dir.iterdir()):
+        run_dir.rmdir()

@@ -31,13 +31,15 @@ from aigem import runs
 from aigem.baseline import record_baselines
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
-from aigem.data import Collate, GraphDataset, xy_to_metres
+from aigem.data import Collate, GraphDataset, check_covered, xy_to_metres
 from aigem.model import AiGem, count_parameters
+from aigem.records import check_splits
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.build import open_build
-from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.scaling import MinMaxScaler
-from ngsim_graphs.schema import N_TARGETS, Split
+from ngsim_graphs.schema import Split
+from ngsim_graphs.synth.marker import synthetic_build
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
 # (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
@@ -101,34 +103,6 @@ def masked_mse_m2(
     mask = batch["target_mask"][:, :steps].to(predicted.dtype)
     squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
     return squared.sum() / mask.sum().clamp(min=1.0)
-
-
-def check_splits(build_dir: Path) -> None:
-    """Refuse a build whose train or validation split has no samples, or no target actors: one
-    gives nothing to train on (nor a scaler), the other no validation loss, which picks the best
-    checkpoint and stops early; training on would only log a validation MSE of NaN."""
-    build = open_build(build_dir)
-    why = {
-        Split.TRAIN: ("train", "there is nothing to train on (and the scaler is fitted on it)"),
-        Split.VAL: (
-            "validation",
-            "`aigem fit` keeps the best checkpoint and stops early by validation loss",
-        ),
-    }
-    for split, (name, reason) in why.items():
-        samples = int(build.manifest.splits.get(split.value, 0))
-        if samples == 0:
-            raise NgsimInputError(
-                build_dir,
-                f"the {name} split ({split.value}) is empty: {reason}; "
-                "rebuild with other split fractions or more data",
-            )
-        if int(build.samples(split)[N_TARGETS].sum()) == 0:
-            raise NgsimInputError(
-                build_dir,
-                f"the {name} split ({split.value}) has {samples} samples "
-                f"but no target actors: {reason}",
-            )
 
 
 def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
@@ -246,6 +220,8 @@ class _Loop:
     sampler: DistributedSampler | None
     generator: torch.Generator  # the shuffle's
     threads: ThreadChooser
+    synthetic: bool  # the build is of synthetic data: the curves say so
+    manifest: Path  # the build's, named when its scaler does not cover a train batch
 
 
 @dataclass(eq=False)
@@ -373,6 +349,7 @@ def _train_epoch(
     batches, graphs, read_batches, read_at, cut = 0, 0, 0, time.monotonic(), False
     total = len(loop.train_loader)
     for index, batch in enumerate(loop.train_loader):
+        check_covered(batch, loop.scaler, loop.manifest)  # on the CPU: the step never waits
         batch = to_device(batch, loop.device)
         for member in active:
             rate = learning_rate_at(member.train, epoch, index, total)
@@ -398,7 +375,7 @@ def _train_epoch(
 
 
 def _end_epoch(
-    member: _Member, epoch: int, val_loss: float, timing: dict[str, float], rank: int
+    member: _Member, epoch: int, val_loss: float, timing: dict[str, float], loop: _Loop
 ) -> dict[str, float]:
     """Check the validation loss, log and checkpoint the epoch, stop early when the patience is
     out; returns the metrics row."""
@@ -416,11 +393,11 @@ def _end_epoch(
         val_loss,
         member.model,
         member.optimizer,
-        rank == 0,
+        loop.rank == 0,
         timing,
     )
-    if rank == 0:
-        runs.plot_curves(member.run_dir)  # after every epoch: a long run shows its course
+    if loop.rank == 0:  # after every epoch: a long run shows its course
+        runs.plot_curves(member.run_dir, loop.synthetic)
     patience = member.train.patience_epochs
     if patience is not None and epoch - member.state.best_epoch >= patience:
         member.stopped = "early stopping"
@@ -471,7 +448,7 @@ def _train(
         }
         for member, val_loss in zip(active, val_losses, strict=True):
             rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
-            row = _end_epoch(member, epoch, val_loss, timing | rate, loop.rank)
+            row = _end_epoch(member, epoch, val_loss, timing | rate, loop)
             if on_epoch is not None and loop.rank == 0:
                 on_epoch(member.train.horizon_s, row)
         if timed_out:
@@ -525,8 +502,19 @@ def fit_horizons(
     train_set, train_loader, val_loader, sampler, generator = _loaders(
         build_dir, model_config, train, rank, world, device, workers
     )
+    synthetic = synthetic_build(open_build(build_dir).manifest)
     loop = _Loop(
-        device, rank, world, train_set.scaler, train_loader, val_loader, sampler, generator, threads
+        device,
+        rank,
+        world,
+        train_set.scaler,
+        train_loader,
+        val_loader,
+        sampler,
+        generator,
+        threads,
+        synthetic,
+        manifest_path(build_dir),
     )
     members = _start_members(
         build_dir,
@@ -544,7 +532,7 @@ def fit_horizons(
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
         if rank == 0 and not (member.run_dir / runs.CURVES).exists():
-            runs.plot_curves(member.run_dir)  # a resumed model with no epoch left, of an old run
+            runs.plot_curves(member.run_dir, synthetic)  # a resumed model with no epoch left
     return tuple(
         FitResult(
             m.run_dir,

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 import math
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -11,14 +15,22 @@ import typer
 from rich.table import Table
 
 from aigem import __version__
+from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, parse_horizons_s
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
+    counted,
     exit_on_error,
+    in_option_words,
+    option_names,
     print_table,
+    print_warning,
     stderr,
     stdout,
 )
+from ngsim_graphs.errors import NgsimError
+from ngsim_graphs.schema import Split
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 if TYPE_CHECKING:
     from aigem.evaluation import Evaluation, HorizonsEvaluation
@@ -40,6 +52,26 @@ def _fail(message: str, code: int = 1) -> typer.Exit:
     return typer.Exit(code)
 
 
+# TrainConfig's and ModelConfig's fields set by an option of another name.
+RENAMED_OPTIONS = {
+    "patience_epochs": "--patience",
+    "compile": "--compile",
+    "concat_position": "--no-concat",
+}
+FIT_OPTIONS = option_names(
+    (*(f.name for f in fields(TrainConfig)), "concat_position"), RENAMED_OPTIONS
+)
+
+
+@contextmanager
+def _option_words(options: dict[str, str]) -> Iterator[None]:
+    """The project's errors about a setting, naming the option that sets it (in_option_words)."""
+    try:
+        yield
+    except NgsimError as err:
+        raise type(err)(err.path, in_option_words(err.message, options), err.line) from None
+
+
 @app.command(short_help="Train AiGem on a build (one horizon or the paper's five).")
 def fit(
     data: Annotated[
@@ -51,9 +83,10 @@ def fit(
     horizon_s: Annotated[
         str,
         typer.Option(
+            metavar="S[,S...]",
             help="Prediction horizon, s, in (0, 5]; or several, comma-separated: 1,2,3,4,5 trains "
             "one model per horizon (the paper's protocol) in one loop over the data, into "
-            "RUN/h1s ... RUN/h5s, and `aigem evaluate RUN` scores them as the paper does."
+            "RUN/h1s ... RUN/h5s, and `aigem evaluate RUN` scores them as the paper does.",
         ),
     ] = "5",
     epochs: Annotated[int, typer.Option(help="Epochs over the train split.")] = 100,
@@ -62,12 +95,12 @@ def fit(
         float, typer.Option(help="Adam's learning rate (the paper's: 1e-3), after any warm-up.")
     ] = 1e-3,
     lr_schedule: Annotated[
-        str,
+        LrSchedule,
         typer.Option(
             help="constant (the paper's), or cosine: the learning rate falls to 0 along half a "
             "cosine by the end of --epochs."
         ),
-    ] = "constant",
+    ] = LrSchedule.CONSTANT,
     warmup_epochs: Annotated[
         float,
         typer.Option(
@@ -86,7 +119,9 @@ def fit(
         int | None,
         typer.Option(help="Stop after this many epochs without a better validation loss."),
     ] = None,
-    device: Annotated[str, typer.Option(help="auto (CUDA when present), cpu or cuda.")] = "auto",
+    device: Annotated[
+        DeviceChoice, typer.Option(help="auto (CUDA when present), cpu or cuda.")
+    ] = DeviceChoice.AUTO,
     seed: Annotated[
         int, typer.Option(help="Seed of the initialisation, shuffling and dropout.")
     ] = 0,
@@ -101,7 +136,10 @@ def fit(
         int | None,
         typer.Option(
             help="CPU threads of the model step (default: the usable cores that other processes "
-            "leave idle, looked at again every 10 s; give a number for bit-reproducible runs)."
+            "leave idle, looked at again every 10 s). A number gives bit-reproducible runs, but "
+            "keep it to the idle cores: a thread without a core of its own stalls every "
+            "operator (one busy core of two: 6 instead of 314 graphs/s), and fit warns when it "
+            "starts on fewer idle cores than threads."
         ),
     ] = None,
     compile_decoder: Annotated[
@@ -123,13 +161,6 @@ def fit(
     ] = False,
 ) -> None:
     """Train AiGem on DATA's train split; keep the best model by validation loss."""
-    from aigem.config import ModelConfig, TrainConfig, parse_horizons_s
-    from aigem.model import AiGem, count_parameters
-    from aigem.training import DeviceUnavailableError, NonFiniteLossError, fit_horizons
-    from ngsim_cli.console import progress_bar
-
-    if device not in ("auto", "cpu", "cuda"):
-        raise _fail(f"--device must be auto, cpu or cuda, not {device!r}", 2)
     try:
         horizons_s = parse_horizons_s(horizon_s)
     except ValueError as err:
@@ -140,7 +171,7 @@ def fit(
             epochs=epochs,
             batch_size=batch_size,
             learning_rate=learning_rate,
-            lr_schedule=lr_schedule,
+            lr_schedule=lr_schedule.value,
             warmup_epochs=warmup_epochs,
             clip_grad_norm=clip_grad_norm,
             max_minutes=max_minutes,
@@ -151,42 +182,125 @@ def fit(
             compile=compile_decoder,
         )
     except ValueError as err:
-        raise _fail(str(err), 2) from None
+        raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
     model_config = ModelConfig(concat_position=not no_concat)
-    stdout.print(f"AiGem: {count_parameters(AiGem(model_config)):,} parameters (the paper: 74.5 K)")
     several = len(horizons_s) > 1
-    with exit_on_error(), progress_bar() as progress:
-        show = lambda epoch, done, total, losses: progress(
-            f"epoch {epoch} loss {_losses(losses)} m²", done, total
-        )
-        on_epoch = lambda horizon_s, row: _print_epoch(
-            row, f"{horizon_s:g} s model, " if several else ""
-        )
-        try:
-            results = fit_horizons(
-                data,
-                out,
-                horizons_s if several else None,
-                model_config,
-                train,
-                device,
-                resume,
-                show,
-                on_epoch,
-            )
-        except (NonFiniteLossError, DeviceUnavailableError) as err:  # the project's: exit_on_error
-            raise _fail(str(err)) from None
+    from aigem.records import check_fit
+
+    with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
+        check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+    group = horizons_s if several else None
+    results = _train(data, out, group, model_config, train, device.value, resume)
     _print_results(results, out)
 
 
+def _train(
+    data: Path,
+    out: Path,
+    horizons_s: tuple[float, ...] | None,
+    model_config: ModelConfig,
+    train: TrainConfig,
+    device: str,
+    resume: bool,
+) -> tuple[FitResult, ...]:
+    """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
+    from aigem.cores import busy_cores_warning
+    from aigem.training import DeviceUnavailableError, NonFiniteLossError, fit_horizons, pick_device
+    from ngsim_cli.console import progress_bar
+
+    try:
+        pick_device(device)
+    except DeviceUnavailableError as err:
+        raise _fail(str(err)) from None
+    if train.threads is not None and (warning := busy_cores_warning(train.threads)):
+        print_warning(warning)
+    who = (lambda h: f"{h:g} s model, ") if horizons_s else (lambda h: "")
+    created = not out.exists()
+    with exit_on_error(), _interrupt_on_sigterm(), progress_bar() as progress:
+        # One bar over the run's epochs, so that its ETA is the run's (at the rate of the
+        # recent batches; validation and early stopping are not foreseen).
+        show = lambda epoch, done, total, losses: progress(
+            f"epoch {epoch}/{train.epochs} loss {_losses(losses)} m²",
+            (epoch - 1) * total + done,
+            train.epochs * total,
+        )
+        on_epoch = lambda horizon_s, row: _print_epoch(row, who(horizon_s))
+        try:
+            return fit_horizons(
+                data, out, horizons_s, model_config, train, device, resume, show, on_epoch
+            )
+        except KeyboardInterrupt:
+            raise _interrupted(out, horizons_s, created) from None
+        except (NgsimError, NonFiniteLossError, DeviceUnavailableError) as err:
+            _discard_if_nothing_kept(out, horizons_s, created)
+            if isinstance(err, NgsimError):
+                raise  # exit_on_error says it
+            raise _fail(str(err)) from None
+
+
+@contextmanager
+def _interrupt_on_sigterm() -> Iterator[None]:
+    """SIGTERM (a `kill`, a job scheduler's stop) ends training as Ctrl-C does: with the files
+    written whole (they are written to a .partial name and renamed) and a line saying what is
+    kept, rather than the silent death that SIGTERM's default is."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+def _discard_if_nothing_kept(
+    out: Path, horizons_s: tuple[float, ...] | None, created: bool
+) -> list[int]:
+    """Each model's epochs kept in `out` (its last checkpoint's); with none, a fit that stopped
+    (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
+    from aigem.runs import discard_unfinished, epochs_kept, member_dir
+
+    members = [out] if horizons_s is None else [member_dir(out, h) for h in horizons_s]
+    kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
+    if not any(kept):
+        with exit_on_error():
+            discard_unfinished(out, members, created)
+    return kept
+
+
+def _interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) -> typer.Exit:
+    """One line on what an interrupted fit kept, and exit status 130 (as for Ctrl-C): the epochs
+    of each model's last checkpoint, or, with none, nothing (the run's files go)."""
+    kept = _discard_if_nothing_kept(out, horizons_s, created)
+    if not any(kept):
+        _say("interrupted before the first epoch ended; nothing kept")
+    elif len(set(kept)) == 1:
+        _say(
+            f"interrupted after epoch {kept[0]} (run {out} holds its checkpoint); continue "
+            "with --resume"
+        )
+    else:
+        each = ", ".join(
+            f"{h:g} s model after epoch {n}" for h, n in zip(horizons_s or (), kept, strict=True)
+        )
+        _say(f"interrupted ({each}; run {out} holds their checkpoints); continue with --resume")
+    return typer.Exit(130)
+
+
+def _say(message: str) -> None:
+    stderr.print(message, markup=False, highlight=False, soft_wrap=True)
+
+
 def _print_results(results: tuple[FitResult, ...], out: Path) -> None:
-    """A line per model; with several, one more for the run."""
+    """The model's size, a line per model; with several, one more for the run."""
+    stdout.print(f"AiGem: {results[0].parameters:,} parameters (the paper: 74.5 K)")
     several = len(results) > 1
     for result in results:
         who = f"{result.horizon_s:g} s model: " if several else ""
         speed = "" if several else f"{result.train_graphs_per_s:,.1f} graphs/s in training. "
         stdout.print(
-            f"{who}{result.epochs_done} epochs on {result.device} ({result.stopped_because}); best "
+            f"{who}{counted(result.epochs_done, 'epoch')} on {result.device} ({result.stopped_because}); best "
             f"epoch {result.best_epoch}, validation MSE {result.best_val_loss_m2:.3f} m²; "
             f"{speed}Run: {result.run_dir}"
         )
@@ -250,7 +364,7 @@ def evaluate(
             "--data", help="The build to evaluate on (default: the run's own, as recorded by fit)."
         ),
     ] = None,
-    split: Annotated[str, typer.Option(help="train, val or test.")] = "test",
+    split: Annotated[Split, typer.Option(help="The split to score.")] = Split.TEST,
     other_build: Annotated[
         bool,
         typer.Option(
@@ -264,7 +378,9 @@ def evaluate(
     as_json: Annotated[
         bool, typer.Option("--json", help="Print one JSON document, nothing else.")
     ] = False,
-    device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
+    device: Annotated[
+        DeviceChoice, typer.Option(help="auto (CUDA when present), cpu or cuda.")
+    ] = DeviceChoice.AUTO,
     plots: Annotated[
         Path | None,
         typer.Option(
@@ -279,24 +395,23 @@ def evaluate(
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity. A
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
+    from aigem.records import check_evaluate, read_horizons
+
+    with exit_on_error():  # the run and the build, before PyTorch
+        check_evaluate(run, data, split, other_build)
+        several = read_horizons(run) is not None
     from aigem.evaluation import PAPER_TABLE, as_dict, evaluate_horizons
     from aigem.evaluation import evaluate as run_evaluate
-    from aigem.runs import read_horizons
     from aigem.training import DeviceUnavailableError
 
-    if split not in ("train", "val", "test"):
-        raise _fail(f"--split must be train, val or test, not {split!r}", 2)
-    if device not in ("auto", "cpu", "cuda"):
-        raise _fail(f"--device must be auto, cpu or cuda, not {device!r}", 2)
     with exit_on_error():
         try:
-            several = read_horizons(run) is not None
             result = (evaluate_horizons if several else run_evaluate)(
-                run, data, split, device, other_build=other_build
+                run, data, split.value, device.value, other_build=other_build
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
             raise _fail(str(err)) from None
-        drawn = _draw(result, run, plots, device) if plots is not None else []
+        drawn = _draw(result, run, plots, device.value) if plots is not None else []
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))
         return
@@ -311,11 +426,12 @@ def evaluate(
             continue
         ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
         rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
-        print_table(_metrics_table(f"{split} split, {region} actors (metres)", rows, seconds))
+        title = f"{split.value} split, {region} actors (metres)"
+        print_table(_metrics_table(title, rows, seconds))
     if empty:
         stdout.print(f"No {' or '.join(empty)} actors among the targets: no table for them.")
     counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
-    stdout.print(f"{result.samples:,} samples; evaluated actors per horizon: {counts}")
+    stdout.print(f"{counted(result.samples, 'sample')}; evaluated actors per horizon: {counts}")
     stdout.print(
         f"Protocol: {result.protocol} ({result.protocol_description})",
         markup=False,
@@ -336,10 +452,12 @@ def evaluate(
     other = (
         "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"
     )
-    stdout.print(
-        f"These numbers come from {result.build_dir}{other}. If it was made by `ngsim-graphs "
-        "synth`, they are synthetic results and not comparable to the paper's NGSIM numbers."
+    kind = (
+        f", a build of {SYNTHETIC_LABEL}: synthetic results, not comparable to the paper's NGSIM numbers"
+        if result.synthetic
+        else ""
     )
+    stdout.print(f"These numbers come from {result.build_dir}{other}{kind}.")
     if drawn:
         scenes = "" if result.same_build else " (no scenes: drawn on the run's own build only)"
         stdout.print(f"Plots in {plots}: {', '.join(path.name for path in drawn)}{scenes}")

@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import re
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 
 import typer
 from rich.console import Console
 from rich.measure import Measurement
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from ngsim_graphs.errors import NgsimError
@@ -31,7 +39,8 @@ def print_table(table: Table) -> None:
 
 @contextmanager
 def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
-    """A callback (what, done, total) drawn as one bar on stderr; silent unless it is a terminal."""
+    """A callback (what, done, total) drawn as one bar on stderr, with the time elapsed and the
+    time left at the recent rate (ETA); silent unless it is a terminal."""
     if not stderr.is_terminal:
         yield lambda _what, _done, _total: None
         return
@@ -40,11 +49,17 @@ def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
     )
     with Progress(*columns, console=stderr, transient=True) as bar:
         task = bar.add_task("starting", total=None)
+        totals: list[int] = []
 
         def update(what: str, done: int, total: int) -> None:
+            if totals != [total]:  # a new count (or a resumed run's first): a new rate, no jump
+                totals[:] = [total]
+                bar.reset(task, total=total, completed=done, description=what)
             bar.update(task, description=what, completed=done, total=total)
 
         yield update
@@ -78,6 +93,40 @@ def add_version_option(app: typer.Typer, program: str, version: str) -> None:
 
     options.__doc__ = app.info.help
     app.callback()(options)
+
+
+def option_names(fields: Iterable[str], renamed: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Each config field's option: `--` and the field with hyphens (batch_size -> --batch-size),
+    unless `renamed` says otherwise (patience_epochs -> --patience)."""
+    renamed = renamed or {}
+    return {field: renamed.get(field, "--" + field.replace("_", "-")) for field in fields}
+
+
+def in_option_words(message: str, options: Mapping[str, str]) -> str:
+    """A config's error as the command line says it: each field of `options` replaced by its
+    option ("batch_size must be >= 1" -> "--batch-size must be >= 1"). A field with an underscore
+    is replaced wherever it stands; a field of one word (epochs, split, seed) is also a plain
+    word, so only where a setting is named: before " must ", or before its value and "->", ","
+    or ":" ("seed 3 -> 4", "split time, ...")."""
+    joined = sorted((name for name in options if "_" in name), key=len, reverse=True)
+    single = [name for name in options if "_" not in name]
+    words = lambda names: r"(?<![\w-])(" + "|".join(map(re.escape, names)) + r")\b"
+    patterns = [words(joined)] if joined else []
+    if single:
+        patterns.append(words(single) + r"(?= must | \S+ -> | [^\s,:]+[,:])")
+    if not patterns:
+        return message
+    return re.sub("|".join(patterns), lambda m: options[m.group(1) or m.group(2)], message)
+
+
+def counted(count: int, noun: str, plural: str | None = None) -> str:
+    """'1 epoch', '2 epochs', '1,024 rows': a count and its noun, singular for one."""
+    return f"{count:,} {noun if count == 1 else plural or noun + 's'}"
+
+
+def print_warning(message: str) -> None:
+    """One line `warning: ...` on stderr, never wrapped or marked up."""
+    stderr.print(f"warning: {message}", markup=False, highlight=False, soft_wrap=True)
 
 
 def print_error(message: str) -> None:

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ngsim_cli.console import exit_on_error, print_table, progress_bar, stdout
+from ngsim_cli.console import counted, exit_on_error, print_table, progress_bar, stdout
 from ngsim_graphs.cslstm import SPLIT_NAMES as SPLITS
 
 
@@ -25,7 +25,7 @@ def _summary(result) -> Table:  # type: ignore[no-untyped-def]
             f"{d.rows:,}",
             f"{d.vehicles:,}",
             *(f"{d.kept_rows[s]:,}" for s in SPLITS),
-            f"{d.short_vehicles:,} ({d.short_vehicle_rows:,} rows)",
+            f"{d.short_vehicles:,} ({counted(d.short_vehicle_rows, 'row')})",
         )
     return table
 
@@ -35,18 +35,18 @@ def _dropped_lines(result) -> list[str]:  # type: ignore[no-untyped-def]
     for report in result.inputs:
         if report.rows_missing_values:
             lines.append(
-                f"{report.path}: {report.rows_missing_values:,} rows with an empty Vehicle_ID, "
+                f"{report.path}: {counted(report.rows_missing_values, 'row')} with an empty Vehicle_ID, "
                 "Frame_ID, Global_Time, Local_X, Local_Y or Lane_ID left out, the first at line "
                 f"{report.first_missing_line}"
             )
         if report.rows_stray:
             lines.append(
-                f"{report.path}: {report.rows_stray:,} rows whose Global_Time fits none of its "
+                f"{report.path}: {counted(report.rows_stray, 'row')} whose Global_Time fits none of its "
                 f"recordings left out, the first at line {report.first_stray_line}"
             )
         if report.rows_other_locations:
             lines.append(
-                f"{report.path}: {report.rows_other_locations:,} rows of other locations skipped"
+                f"{report.path}: {counted(report.rows_other_locations, 'row')} of other locations skipped"
             )
     return lines
 
@@ -54,11 +54,8 @@ def _dropped_lines(result) -> list[str]:  # type: ignore[no-untyped-def]
 def export_cslstm(
     raw_paths: Annotated[
         list[Path],
-        typer.Argument(
-            metavar="RAW_PATH",
-            help="The six US-101 and I-80 recordings: files of any of the three NGSIM formats "
-            "(the portal CSV too), or folders to search for them.",
-        ),
+        # Said in the docstring: typer would show its type as "<list[Path]>".
+        typer.Argument(metavar="RAW_PATH", hidden=True),
     ],
     out: Annotated[Path, typer.Option("--out", help="Folder for the three .mat files.")],
     allow_partial: Annotated[
@@ -74,6 +71,9 @@ def export_cslstm(
     ] = False,
 ) -> None:
     """Write TrainSet.mat, ValSet.mat and TestSet.mat as CS-LSTM's preprocess_data.m makes them.
+
+    RAW_PATH...: the six US-101 and I-80 recordings: files of any of the three NGSIM formats (the
+    portal CSV too), or folders to search for them.
 
     The literature's dataset (CS-LSTM, and every model compared on its files): each recording's
     raw rows, uncleaned, in the script's order; per row the lateral and longitudinal maneuver

@@ -15,7 +15,10 @@ from rich.table import Table
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
+    counted,
     exit_on_error,
+    in_option_words,
+    option_names,
     print_error,
     print_table,
     progress_bar,
@@ -33,6 +36,7 @@ from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMod
 from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import DISPLAY_NAMES
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
 from ngsim_graphs.workers import available_cores
 
 app = typer.Typer(
@@ -52,12 +56,18 @@ def _usage_error(message: str) -> typer.Exit:
     return typer.Exit(2)
 
 
+# Config fields set by an option of another name.
+RENAMED_OPTIONS = {"ego_is_target": "--ego-target", "raw_format": "--format"}
+
+
 def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
-    """The config dataclass, or one line on stderr and exit status 2 for an invalid option."""
+    """The config dataclass, or one line on stderr naming the option and exit status 2 for an
+    invalid option."""
     try:
         return factory(**kwargs)
     except ValueError as err:
-        raise _usage_error(str(err)) from None
+        options = option_names(kwargs, RENAMED_OPTIONS)
+        raise _usage_error(in_option_words(str(err), options)) from None
 
 
 @app.command(short_help="Write synthetic NGSIM- or highD-format trajectories.")
@@ -175,9 +185,8 @@ class DatasetChoice(str, Enum):
 def build(
     raw_paths: Annotated[
         list[Path],
-        typer.Argument(
-            metavar="RAW_PATH", help="NGSIM or highD files, or folders to search for them."
-        ),
+        # Said in the docstring: typer would show its type as "<list[Path]>".
+        typer.Argument(metavar="RAW_PATH", hidden=True),
     ],
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
     locations: Annotated[
@@ -271,6 +280,8 @@ def build(
 ) -> None:
     """Read raw NGSIM files (any of the three formats) or highD recordings and write the graph dataset.
 
+    RAW_PATH...: NGSIM or highD files, or folders to search for them (one or more).
+
     Rows beyond the physical limits (speed, acceleration, position, frame range, a jump between
     frames) or whose Global_Time disagrees with their recording are dropped one by one, counted
     per reason and reported; more than 1 % of a file's rows is an error (so is any, with
@@ -306,7 +317,7 @@ def build(
     print_table(_summary_table(result))
     counts, splits = result.manifest.counts, result.manifest.splits
     stdout.print(
-        f"{counts.rows_read:,} rows read, {counts.rows_other_locations:,} of other locations, "
+        f"{counted(counts.rows_read, 'row')} read, {counts.rows_other_locations:,} of other locations, "
         f"{counts.rows_missing_values:,} with empty required fields dropped."
     )
     for line in _dropped_lines(result):
@@ -314,11 +325,11 @@ def build(
     script = counts.cslstm_rows
     if script is not None:
         stdout.print(
-            f"cs-lstm protocol: CS-LSTM's script keeps {script.kept:,} rows, {script.on_grid:,} "
+            f"cs-lstm protocol: CS-LSTM's script keeps {counted(script.kept, 'row')}, {script.on_grid:,} "
             f"on the {config.time_step_s:g} s grid (one per vehicle and even frame); "
             f"{script.unmatched:,} of those "
             "have no track at their step (cleaning removed the row) and give no sample; "
-            f"{script.too_short:,} rows of vehicles under 31 rows left out (the script stops on "
+            f"{counted(script.too_short, 'row')} of vehicles under 31 rows left out (the script stops on "
             "them).",
             markup=False,
             highlight=False,
@@ -344,12 +355,12 @@ def build(
     )
 
 
-def _write_plots(values, folder: Path) -> list[Path]:  # type: ignore[no-untyped-def]
+def _write_plots(values, folder: Path, synthetic: bool) -> list[Path]:  # type: ignore[no-untyped-def]
     """The PNG histograms, or one line on stderr and exit status 1 where the folder is unusable."""
     from ngsim_graphs.plotting import write_histograms  # matplotlib loads only when plotting
 
     try:
-        return write_histograms(values, folder)
+        return write_histograms(values, folder, synthetic)
     except OSError as err:
         stderr.print(
             f"error: {folder}: cannot write plots: {err.strerror or err}",
@@ -384,11 +395,17 @@ def stats(
             statistics, values = build_statistics(opened, degree_graphs, seed)
         except OSError as err:  # a file listed in the manifest is gone
             raise NgsimInputError(build_dir, f"incomplete build: {err}") from None
-    written = _write_plots(values, plots) if plots is not None else []
+        synthetic = synthetic_build(opened.manifest)
+    written = _write_plots(values, plots, synthetic) if plots is not None else []
     if as_json:
-        document = statistics.to_dict() | {"plots": [str(path) for path in written]}
+        document = statistics.to_dict() | {
+            "synthetic": synthetic,
+            "plots": [str(path) for path in written],
+        }
         typer.echo(json.dumps(document, indent=2))
         return
+    if synthetic:
+        stdout.print(f"{build_dir}: {SYNTHETIC_LABEL}.", markup=False, highlight=False)
     for make_table in STATS_TABLES:
         print_table(make_table(statistics))
     for path in written:
@@ -417,7 +434,7 @@ def verify(
     if result.problems:
         raise typer.Exit(1)
     stdout.print(
-        f"{build_dir}: all {result.files:,} files match the manifest ({result.bytes / 1e6:,.1f} MB read)."
+        f"{build_dir}: all {counted(result.files, 'file')} match the manifest ({result.bytes / 1e6:,.1f} MB read)."
     )
 
 
@@ -471,7 +488,7 @@ def export(
         )
         paths = write_tables(tables, out, overwrite)
     for path, table in zip(paths, tables.values(), strict=True):
-        stdout.print(f"{path}  {table.height:,} rows")
+        stdout.print(f"{path}  {counted(table.height, 'row')}")
 
 
 def _scene_range(text: str, max_panels: int) -> tuple[int, int]:
@@ -552,14 +569,16 @@ def show(
 
             batch, predictions = predict_samples(run, build_dir, split, ids)
         titles = scene_titles(opened.samples(split.value), split.value, ids)
+        synthetic = synthetic_build(opened.manifest)
         scenes = write_scenes(
-            out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite
+            out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite, synthetic
         )
     what = f"sample {start}" if end == start + 1 else f"samples {start}..{end - 1}"
-    drawn = f"{sum(s.nodes for s in scenes):,} nodes, {sum(s.targets for s in scenes):,} targets"
+    drawn = f"{counted(sum(s.nodes for s in scenes), 'node')}, {counted(sum(s.targets for s in scenes), 'target')}"
     also = f"; dashed: {' and '.join(predictions)} of {run}" if predictions else ""
+    kind = f"; {SYNTHETIC_LABEL}" if synthetic else ""
     stdout.print(
-        f"wrote {out}: {split.value} {what} of {build_dir} ({drawn}){also}",
+        f"wrote {out}: {split.value} {what} of {build_dir} ({drawn}){also}{kind}",
         markup=False,
         highlight=False,
         soft_wrap=True,

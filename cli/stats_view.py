@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from rich.table import Table
 
+from ngsim_cli.console import counted
 from ngsim_graphs.schema import Split
 from ngsim_graphs.statistics import BuildStatistics, Distribution
 
@@ -138,7 +139,7 @@ def _degree_table(st: BuildStatistics) -> Table:
 def _kinematics_table(st: BuildStatistics) -> Table:
     rows = st.kinematics["speed_mps"].count
     table = _table(
-        f"Kinematics ({rows:,} tracks rows)",
+        f"Kinematics ({counted(rows, 'tracks row')})",
         ["quantity"],
         ["mean", "std", *DISTRIBUTION_COLUMNS[1:]],
     )

@@ -1,7 +1,8 @@
 """PNG histograms of a build's statistics: one figure per quantity, written with matplotlib's Agg.
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot`: no global
-state, no display needed, nothing kept open after a file is written.
+state, no display needed, nothing kept open after a file is written. A figure of a build of
+synthetic data says so at its top left (`mark_synthetic`, used by every picture of a build).
 """
 
 from __future__ import annotations
@@ -12,12 +13,44 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 from ngsim_graphs.schema import N_NODES, N_SPATIAL
 from ngsim_graphs.statistics import SPLITS, BuildValues
 
 SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
 PLOT_NAMES = ("nodes_per_graph", "spatial_edges_per_graph", "node_degree", "speed", "heading")
+SYNTHETIC_COLOUR = "crimson"
+# What a picture of a build of synthetic data says at its top left: short enough to stay clear of
+# a centred title on the same line.
+SYNTHETIC_PICTURE_LABEL = "SYNTHETIC data (ngsim-graphs synth)"
+SYNTHETIC_BAND_IN = 0.25  # the strip taken from the top of a figure without a suptitle
+
+
+def mark_synthetic(figure: Figure) -> None:
+    """Write SYNTHETIC_PICTURE_LABEL at the top left of `figure`, bold and red: on the line of its
+    suptitle where it has one, else in a strip taken from the top of its layout (a constrained
+    layout's rect, or fixed margins), so that it covers nothing. Call it once the figure has its
+    final size and suptitle."""
+    height_in = figure.get_figheight()
+    if not figure.get_suptitle():
+        share = SYNTHETIC_BAND_IN / height_in
+        engine = figure.get_layout_engine()
+        if isinstance(engine, ConstrainedLayoutEngine):
+            left, bottom, width, height = engine.get()["rect"]
+            engine.set(rect=(left, bottom, width, min(height, 1 - share - bottom)))
+        else:
+            figure.subplots_adjust(top=figure.subplotpars.top - share)
+    figure.text(
+        0.01,
+        1 - 0.06 / height_in,
+        SYNTHETIC_PICTURE_LABEL,
+        ha="left",
+        va="top",
+        fontsize=10,
+        fontweight="bold",
+        color=SYNTHETIC_COLOUR,
+    )
 
 
 def _integer_bins(values: list[np.ndarray], max_bins: int = 60) -> np.ndarray:
@@ -59,20 +92,18 @@ def degree_title(degree_graphs: dict[str, int]) -> str:
 
 
 def _histogram(
-    folder: Path,
-    name: str,
     values: np.ndarray,
     title: str,
     xlabel: str,
     ylabel: str,
     log_y: bool = False,
-) -> Path:
+) -> Figure:
     figure, axes = _figure()
     axes.hist(values, bins=80, histtype="stepfilled", color="tab:blue")
     if log_y:
         axes.set_yscale("log")
     axes.set(title=title, xlabel=xlabel, ylabel=ylabel)
-    return _save(figure, folder / f"{name}.png")
+    return figure
 
 
 def _figure(top: float = 0.92) -> tuple[Figure, Axes]:
@@ -88,13 +119,14 @@ def _save(figure: Figure, path: Path) -> Path:
     return path
 
 
-def write_histograms(values: BuildValues, folder: Path) -> list[Path]:
-    """Write PLOT_NAMES as `<name>.png` into `folder` (created); returns the paths written."""
+def write_histograms(values: BuildValues, folder: Path, synthetic: bool = False) -> list[Path]:
+    """Write PLOT_NAMES as `<name>.png` into `folder` (created), each marked as synthetic data
+    where `synthetic` (mark_synthetic); returns the paths written."""
     folder.mkdir(parents=True, exist_ok=True)
     nodes = {split: values.samples[split][N_NODES].to_numpy() for split in SPLITS}
     edges = {split: values.samples[split][N_SPATIAL].to_numpy() for split in SPLITS}
     rows = f"{len(values.speed_mps):,} tracks rows"
-    shares = {
+    figures = {
         "nodes_per_graph": share_figure(
             nodes,
             "Nodes per graph (all history steps), share per split",
@@ -113,19 +145,16 @@ def write_histograms(values: BuildValues, folder: Path) -> list[Path]:
             "spatial in-degree (edges into a node at its step)",
             "nodes",
         ),
-    }
-    return [
-        *(_save(figure, folder / f"{name}.png") for name, figure in shares.items()),
-        _histogram(
-            folder, "speed", values.speed_mps, f"Speed ({rows})", "speed (m/s)", "tracks rows"
-        ),
-        _histogram(
-            folder,
-            "heading",
+        "speed": _histogram(values.speed_mps, f"Speed ({rows})", "speed (m/s)", "tracks rows"),
+        "heading": _histogram(
             values.heading_rad,
             f"Heading ({rows}, log scale)",
             "heading (rad, from +y towards +x)",
             "tracks rows",
             log_y=True,
         ),
-    ]
+    }
+    if synthetic:
+        for figure in figures.values():
+            mark_synthetic(figure)
+    return [_save(figure, folder / f"{name}.png") for name, figure in figures.items()]

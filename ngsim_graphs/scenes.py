@@ -8,7 +8,8 @@ present step), at equal aspect:
   pair drawn once (the counts returned are of directed edges, as the graph holds them);
 - the temporal edges, which draw each vehicle's history as a line through its nodes;
 - the targets' recorded futures (masked steps left out), and optional predictions, dashed;
-- the d_sense circle around the ego at the present step.
+- the d_sense circle around the ego at the present step;
+- for a build of synthetic data, a red label at the top (plotting.mark_synthetic).
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot`, as in
 `plotting`: no global state, no display needed.
@@ -36,6 +37,7 @@ from matplotlib.patches import Circle
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.plotting import SYNTHETIC_BAND_IN, mark_synthetic
 
 EGO_COLOUR, ACTOR_COLOUR = "tab:red", "tab:blue"
 EGO_EDGE_COLOUR, ACTOR_EDGE_COLOUR = "tab:orange", "tab:purple"
@@ -323,9 +325,11 @@ def scene_figure(
     d_sense_m: float,
     predictions: Mapping[str, np.ndarray] | None = None,
     columns: int = 4,
+    synthetic: bool = False,
 ) -> tuple[Figure, tuple[DrawnScene, ...]]:
     """Every sample of `batch` drawn in one figure, a panel each in rows of `columns`, titled
-    `titles[b]`; and what each panel drew (see `DrawnScene`)."""
+    `titles[b]`, marked as synthetic data where `synthetic` (plotting.mark_synthetic); and what
+    each panel drew (see `DrawnScene`)."""
     if len(titles) != batch.n_samples:
         raise ValueError(f"{len(titles)} titles for {batch.n_samples} samples")
     if not 1 <= batch.n_samples <= MAX_PANELS:
@@ -344,9 +348,12 @@ def scene_figure(
     panel_height_in = (PANEL_WIDTH_IN - 0.75) * float(np.clip(ratio, 0.6, 3.0)) + 1.0  # + titles
     figure.set_size_inches(PANEL_WIDTH_IN * n_columns, panel_height_in * n_rows)
     legend_rows = add_legend(figure, list(predictions or {}))
+    band_in = SYNTHETIC_BAND_IN if synthetic else 0.0
     figure.set_size_inches(
-        PANEL_WIDTH_IN * n_columns, panel_height_in * n_rows + 0.2 * legend_rows + 0.2
+        PANEL_WIDTH_IN * n_columns, panel_height_in * n_rows + 0.2 * legend_rows + 0.2 + band_in
     )
+    if synthetic:
+        mark_synthetic(figure)
     return figure, scenes
 
 
@@ -358,6 +365,7 @@ def write_scenes(
     predictions: Mapping[str, np.ndarray] | None = None,
     columns: int = 4,
     overwrite: bool = True,
+    synthetic: bool = False,
 ) -> tuple[DrawnScene, ...]:
     """`scene_figure` written as one PNG to `path`; returns what each panel drew.
 
@@ -366,7 +374,7 @@ def write_scenes(
     """
     if not overwrite and path.exists():
         raise NgsimOutputError(path, "exists; not replaced")
-    figure, scenes = scene_figure(batch, titles, d_sense_m, predictions, columns)
+    figure, scenes = scene_figure(batch, titles, d_sense_m, predictions, columns, synthetic)
     _save(figure, path, overwrite)
     return scenes
 

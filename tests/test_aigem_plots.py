@@ -4,10 +4,13 @@ per target, the paper's points labelled as the paper's."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
 from aigem import runs
@@ -24,6 +27,7 @@ from aigem.plots import (
 from aigem.training import fit_horizons
 from ngsim_cli.aigem import app
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 ROWS = [
@@ -114,7 +118,39 @@ def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
 
 def test_describe_build_names_synthetic_data(tiny_build: Path) -> None:
     label = describe_build(tiny_build)
-    assert label.startswith(f"build {tiny_build.name}: 1 recording of ") and "SYNTHETIC" in label
+    assert label == f'build folder "{tiny_build.name}": 1 recording of us-101, {SYNTHETIC_LABEL}'
+
+
+def test_one_epochs_curves_show_the_point_on_a_whole_epoch_clear_of_the_legend() -> None:
+    figure = curves_figure(ROWS[:1], 3.5, 2.0)
+    axes = figure.axes[0]
+    low, high = axes.get_xlim()
+    assert [tick for tick in axes.get_xticks() if low <= tick <= high] == [1.0]  # not 0.5..1.5
+    assert axes.get_legend() is None and len(figure.legends) == 1  # below the axes, not on them
+    FigureCanvasAgg(figure).draw()
+    legend = figure.legends[0].get_window_extent()
+    point = axes.transData.transform((1.0, 5.0))
+    assert not legend.contains(*point) and axes.bbox.contains(*point)
+    validation, best = _line(axes, "validation"), _line(axes, "best: epoch 1, validation 5 m²")
+    assert validation.get_zorder() > best.get_zorder()  # the star marks the point, never hides it
+
+
+def test_every_picture_of_a_synthetic_build_says_so(
+    run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / "pictures"
+    result = CliRunner().invoke(
+        app, ["evaluate", str(run / "h2s"), "--device", "cpu", "--plots", str(folder)]
+    )
+    assert result.exit_code == 0, result.output
+    for name in (*(f"{name}.png" for name in FIGURES), SCENES):
+        assert label_pixels(folder / name) > 200, name
+    assert label_pixels(run / "h2s" / runs.CURVES) > 200  # fit's curves
+    result, label = evaluate(run / "h2s", device_choice="cpu"), describe_build(tiny_build)
+    footer = error_by_horizon(result, label).texts[0].get_text().replace("\n", " ")
+    assert footer == f"Lines: test split ({result.samples} samples) of {label}."  # no "build build"
+    document = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu", "--json"])
+    assert json.loads(document.stdout)["synthetic"] is True
 
 
 def test_cli_plots_of_a_multi_horizon_and_a_single_run(run: Path, tmp_path: Path) -> None:

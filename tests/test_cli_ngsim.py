@@ -653,10 +653,11 @@ def test_ego_target_adds_one_target_per_sample(
 @pytest.mark.parametrize(
     ("option", "value", "fragment"),
     [
-        ("--stride-s", "0.3", "stride_s must be a positive multiple"),
-        ("--stride-s", "0", "stride_s must be a positive multiple"),
-        ("--d-sense-m", "-1", "d_sense_m must be > 0"),
-        ("--d-min-m", "-0.5", "d_min_m >= 0"),
+        ("--stride-s", "0.3", "--stride-s must be a positive multiple"),
+        ("--stride-s", "0", "--stride-s must be a positive multiple"),
+        ("--d-sense-m", "-1", "--d-sense-m must be > 0"),
+        ("--heading-smoothing-s", "-1", "--heading-smoothing-s and --min-heading-speed-mps must"),
+        ("--d-min-m", "-0.5", "--d-min-m >= 0"),
     ],
 )
 def test_invalid_build_option(

@@ -13,6 +13,7 @@ from typer.testing import CliRunner, Result
 from ngsim_cli.ngsim import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.scenes import DPI, PANEL_WIDTH_IN
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -42,7 +43,8 @@ def test_show_three_samples(tiny_build: Path, tmp_path: Path) -> None:
     samples = open_build(tiny_build).samples("val").head(3)
     nodes, targets = samples["n_nodes"].sum(), samples["n_targets"].sum()
     assert result.stdout == (
-        f"wrote {out}: val samples 0..2 of {tiny_build} ({nodes:,} nodes, {targets:,} targets)\n"
+        f"wrote {out}: val samples 0..2 of {tiny_build} ({nodes:,} nodes, {targets:,} targets); "
+        f"{SYNTHETIC_LABEL}\n"
     )
     assert assert_png(out)[0] == 3 * PANEL_WIDTH_IN * DPI  # three panels in a row
     out.unlink()
@@ -113,7 +115,9 @@ def test_show_with_a_run(tiny_build: Path, tiny_run: Path, tmp_path: Path) -> No
         "show", tiny_build, "--split", "val", "--sample", "0:2", "--run", tiny_run, "--out", out
     )
     assert result.exit_code == 0, result.output
-    assert result.stdout.rstrip().endswith(f"; dashed: AiGem and constant velocity of {tiny_run}")
+    assert result.stdout.rstrip().endswith(
+        f"; dashed: AiGem and constant velocity of {tiny_run}; {SYNTHETIC_LABEL}"
+    )
     assert_png(out)
 
 

@@ -320,9 +320,9 @@ def test_the_build_prints_the_scripts_rows(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("options", "fragment"),
     [
-        (["--split", "time"], "split time: "),
-        (["--split", "random", "--stride-s", "2"], "split random, stride_s 2.0: "),
-        (["--ego-target"], "ego_is_target True: "),
+        (["--split", "time"], "--split time: "),
+        (["--split", "random", "--stride-s", "2"], "--split random, --stride-s 2.0: "),
+        (["--ego-target"], "--ego-target True: "),
         (["--locations", "us-101,lankershim"], "reads us-101 and i-80 only"),
     ],
 )

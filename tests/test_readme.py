@@ -28,20 +28,38 @@ def test_the_quick_start_has_the_promised_parts() -> None:
         assert part in code
 
 
-def test_the_quick_start_runs_as_written(
-    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    demo = tmp_path / "demo"
-    demo.mkdir()
-    (demo / "build").symlink_to(tiny_build, target_is_directory=True)
-    fit(demo / "build", demo / "run", ModelConfig(), TrainConfig(epochs=1, batch_size=8), "cpu")
-    monkeypatch.chdir(tmp_path)
+@pytest.fixture(scope="module")
+def demo(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder laid out as the README's commands leave it: demo/build, demo/run."""
+    root = tmp_path_factory.mktemp("readme")
+    (root / "demo").mkdir()
+    (root / "demo" / "build").symlink_to(tiny_build, target_is_directory=True)
+    config = TrainConfig(epochs=1, batch_size=8)
+    fit(root / "demo" / "build", root / "demo" / "run", ModelConfig(), config, "cpu")
+    return root
+
+
+def run_blocks(blocks: list[str]) -> tuple[dict[str, object], str]:
+    """Run the blocks one after the other in one fresh scope; (the scope, what they printed)."""
     scope: dict[str, object] = {"__name__": "readme"}
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
-        for block in quick_start_blocks():
+        for block in blocks:
             exec(compile(block, str(README), "exec"), scope)  # noqa: S102 (our own README)
-    out = printed.getvalue()
+    return scope, printed.getvalue()
+
+
+@pytest.mark.parametrize("index", range(len(quick_start_blocks())))
+def test_each_block_runs_alone(demo: Path, monkeypatch: pytest.MonkeyPatch, index: int) -> None:
+    """A reader copies one block: it must not lean on names another block defined."""
+    monkeypatch.chdir(demo)
+    _, out = run_blocks([quick_start_blocks()[index]])
+    assert "torch.Size([" in out
+
+
+def test_the_quick_start_runs_as_written(demo: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(demo)
+    scope, out = run_blocks(quick_start_blocks())
     assert "torch.Size([" in out
     loss = scope["loss"]
     assert loss.item() > 0  # type: ignore[attr-defined]

@@ -27,6 +27,7 @@ from ngsim_graphs.landing import some_names
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
 from ngsim_graphs.synth.highd import DECIMALS as HIGHD_DECIMALS
 from ngsim_graphs.synth.highd import highd_paths, highd_tables
+from ngsim_graphs.synth.marker import MARKER_NAME  # written first into every folder synth fills
 from ngsim_graphs.synth.traffic import simulate_recording
 
 PORTAL_FILE_NAME = "Next_Generation_Simulation__NGSIM__Vehicle_Trajectories_and_Supporting_Data.csv"
@@ -38,8 +39,6 @@ FOREIGN_RECORDING = Recording(
     int(datetime(2005, 6, 16, 8, 28, tzinfo=PACIFIC_DAYLIGHT).timestamp() * 1000),
 )
 FOREIGN_MINUTES = 0.25  # a few thousand rows
-# Written first into every folder synth fills: says the data are synthetic, lists synth's files.
-MARKER_NAME = "SYNTHETIC.md"
 
 GAP_VEHICLE_SHARE = 0.01  # vehicles whose record loses a run of frames
 GAP_FRAMES = (3, 20)  # length of the lost run, inclusive

@@ -1,0 +1,252 @@
+"""`aigem` as a user meets it: help that shows the choices, errors that name the option and come
+before PyTorch is loaded, and a warning when fixed threads meet busy cores."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+from typer.testing import CliRunner
+
+from aigem import cores, runs
+from ngsim_cli import console
+from ngsim_cli.aigem import app
+from ngsim_cli.ngsim import app as ngsim_app
+
+FIT = ["--epochs", "1", "--batch-size", "8", "--horizon-s", "2", "--seed", "3", "--device", "cpu"]
+FIELD = re.compile(r"\b[a-z]+_[a-z_]+\b")  # a config field's name (batch_size, lr_schedule)
+
+
+def one_error_line(result) -> str:  # noqa: ANN001
+    assert result.exit_code != 0 and result.stdout == "", result.output
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("program", "command"),
+    [(app, "fit"), (app, "evaluate"), *((ngsim_app, c) for c in ("build", "export-cslstm"))],
+)
+def test_help_shows_choices_not_python_types(program, command: str) -> None:  # noqa: ANN001
+    text = CliRunner(env={"COLUMNS": "100"}).invoke(program, [command, "--help"]).stdout
+    assert "list[" not in text, text
+    assert program is not app or "<str>" not in text, text  # each aigem option of choices
+    assert text.startswith("Usage: ")
+
+
+def test_the_choices_are_in_the_help() -> None:
+    fit = CliRunner(env={"COLUMNS": "100"}).invoke(app, ["fit", "--help"]).stdout
+    assert "--device <auto|cpu|cuda>" in fit and "--lr-schedule <constant|cosine>" in fit
+    assert "--horizon-s S[,S...]" in fit
+    assert "fit warns when it starts on fewer idle cores" in " ".join(fit.split())
+    evaluate = CliRunner(env={"COLUMNS": "100"}).invoke(app, ["evaluate", "--help"]).stdout
+    assert "--split <train|val|test>" in evaluate and "--device <auto|cpu|cuda>" in evaluate
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--batch-size", "0"], "--batch-size must be >= 1"),
+        (["--epochs", "0"], "--epochs must be >= 1"),
+        (["--learning-rate", "0"], "--learning-rate must be > 0"),
+        (["--warmup-epochs", "3"], "--warmup-epochs must be >= 0 and fewer than epochs"),
+        (["--clip-grad-norm", "-1"], "--clip-grad-norm must be > 0"),
+        (["--max-minutes", "0"], "--max-minutes must be > 0"),
+        (["--patience", "0"], "--patience must be >= 1"),
+        (["--workers", "-1"], "--workers must be >= 0"),
+        (["--threads", "0"], "--threads must be >= 1"),
+        (["--horizon-s", "6"], "--horizon-s 6: 6 s is not a horizon in (0, 5] s"),
+    ],
+)
+def test_an_option_error_names_the_option(
+    tiny_build: Path, tmp_path: Path, options: list[str], message: str
+) -> None:
+    result = CliRunner().invoke(
+        app, ["fit", str(tiny_build), "--out", str(tmp_path / "run"), *FIT, *options]
+    )
+    assert result.exit_code == 2
+    line = one_error_line(result)
+    assert line == f"error: {message}" and not FIELD.search(line)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_resume_refused_names_the_options(tiny_build: Path, tiny_run: Path) -> None:
+    args = ["fit", str(tiny_build), "--out", str(tiny_run), "--resume", *FIT]
+    result = CliRunner().invoke(app, [*args, "--batch-size", "16", "--no-concat"])
+    line = one_error_line(result)
+    assert line == (
+        f"error: {tiny_run}: cannot resume: the model config differs from the run's (--no-concat)"
+    )
+    line = one_error_line(CliRunner().invoke(app, [*args, "--batch-size", "16", "--seed", "4"]))
+    assert line == (
+        f"error: {tiny_run}: cannot resume with another --batch-size 8 -> 16, --seed 3 -> 4: it "
+        "changes what the run learns"
+    )
+
+
+# Each of these is refused from the options, the build's manifest or the run's run.json alone.
+REFUSED = [
+    ["fit", "{build}", "--out", "{tmp}/a", "--batch-size", "0"],
+    ["fit", "{tmp}", "--out", "{tmp}/b"],  # not a build
+    ["fit", "{build}", "--out", "{run}"],  # a run there: needs --resume
+    ["fit", "{build}", "--out", "{tmp}/c", "--resume"],  # nothing to resume
+    ["fit", "{build}", "--out", "{run}", "--resume", "--horizon-s", "2", "--batch-size", "16"],
+    ["evaluate", "{build}"],  # not a run
+    ["evaluate", "{run}", "--data", "{tmp}"],  # not a build
+    ["evaluate", "{run}", "--data", "{other}"],  # another build without --other-build
+]
+PROBE = """
+import json, sys
+from typer.testing import CliRunner
+from ngsim_cli.aigem import app
+results = [CliRunner().invoke(app, args) for args in json.loads(sys.argv[1])]
+print(json.dumps({
+    "torch": "torch" in sys.modules,
+    "results": [[r.exit_code, r.stdout, r.stderr] for r in results],
+}))
+"""
+
+
+def test_errors_come_before_pytorch_is_loaded_and_nothing_is_printed_first(
+    tiny_build: Path, tiny_run: Path, two_recording_build: Path, tmp_path: Path
+) -> None:
+    """PyTorch takes seconds to import: a refusal that loads it keeps a user waiting for nothing
+    (3.5 to 7 s on a busy 2-core machine), and `fit` printed the parameter count first."""
+    values = {"build": tiny_build, "run": tiny_run, "tmp": tmp_path, "other": two_recording_build}
+    commands = [[arg.format(**values) for arg in args] for args in REFUSED]
+    probe = subprocess.run(
+        [sys.executable, "-c", PROBE, json.dumps(commands)],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
+    )
+    report = json.loads(probe.stdout)
+    assert report["torch"] is False
+    for args, (code, stdout, stderr) in zip(commands, report["results"], strict=True):
+        assert code in (1, 2) and stdout == "", (args, stdout)
+        lines = [line for line in stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error: "), (args, stderr)
+
+
+def test_busy_cores_warning_from_the_idle_cores_given() -> None:
+    cpus = len(cores.os.sched_getaffinity(0))
+    warning = cores.busy_cores_warning(2, idle=1.0)
+    assert warning == (
+        f"--threads 2 with 1.0 of {cpus} usable cores idle (other processes keep "
+        f"{cpus - 1:.1f} busy): every step waits for the threads without a core, which made "
+        "training 50 times slower; give --threads 1 or leave --threads out (it follows the idle "
+        "cores)"
+    )
+    assert cores.busy_cores_warning(2, idle=1.8) is None  # a little load: no thread waits
+    assert cores.busy_cores_warning(1, idle=0.3) is None  # one thread always has a core
+
+
+def test_busy_cores_are_read_from_proc_stat(monkeypatch: pytest.MonkeyPatch) -> None:
+    samples = iter([(100, 400), (250, 600)])  # 150 of 200 jiffies busy on 2 cores: 0.5 idle
+    monkeypatch.setattr(cores, "_busy_and_total", lambda cpus: next(samples))
+    assert cores.idle_cores({0, 1}, over_s=0.0) == pytest.approx(0.5)
+    monkeypatch.setattr(cores, "_busy_and_total", lambda cpus: None)  # not Linux: silent
+    assert cores.idle_cores({0, 1}, over_s=0.0) is None
+    assert cores.busy_cores_warning(4) is None
+
+
+def test_fit_warns_when_fixed_threads_meet_busy_cores(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(cores, "idle_cores", lambda cpus, over_s=0.2: 1.0)
+    args = ["fit", str(tiny_build), "--out", str(tmp_path / "run"), *FIT, "--workers", "0"]
+    busy = CliRunner().invoke(app, [*args, "--threads", "2"])
+    assert busy.exit_code == 0, busy.output
+    warnings = [line for line in busy.stderr.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) == 1 and warnings[0].startswith("warning: --threads 2 with 1.0 of ")
+    assert "1 epoch on cpu (epochs); best epoch 1" in busy.stdout  # not "1 epochs"
+    terminal = io.StringIO()  # the progress bar draws on a terminal only
+    monkeypatch.setattr(
+        console, "stderr", Console(file=terminal, force_terminal=True, width=150, color_system=None)
+    )
+    one = CliRunner().invoke(app, [*args[:3], str(tmp_path / "one"), *args[4:], "--threads", "1"])
+    assert one.exit_code == 0 and "warning" not in one.stderr
+    drawn = re.sub(r"\x1b\[[0-9;?]*[a-zA-Z]", "", terminal.getvalue())  # the cursor's moves
+    assert re.search(r"epoch 1/1 loss [\d.]+ m² .* ETA \d+:\d\d:\d\d", drawn), drawn
+
+
+def _start_fit(build: Path, run: Path, batch_size: int) -> subprocess.Popen:
+    command = [sys.executable, "-m", "ngsim_cli.aigem", "fit", str(build), "--out", str(run)]
+    options = ["--epochs", "50", "--batch-size", str(batch_size), "--workers", "0"]
+    return subprocess.Popen(
+        [*command, *options, "--device", "cpu", "--threads", "1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _wait_for(path: Path, process: subprocess.Popen, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not (path.is_file() and path.stat().st_size) and process.poll() is None:
+        assert time.monotonic() < deadline, f"no {path} after {timeout_s} s"
+        time.sleep(0.02)
+
+
+def test_ctrl_c_after_an_epoch_says_what_the_run_kept(tiny_build: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    process = _start_fit(tiny_build, run, batch_size=8)
+    _wait_for(run / runs.LAST, process)  # the first epoch's checkpoint
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    kept = runs.epochs_kept(run)
+    assert kept >= 1 and stderr.splitlines()[-1] == (
+        f"interrupted after epoch {kept} (run {run} holds its checkpoint); continue with --resume"
+    )
+    assert not list(run.glob("*.partial"))
+    assert json.loads((run / "run.json").read_text())["train"]["epochs"] == 50
+    assert len(runs.read_metrics(run)) >= kept  # a row written before its checkpoint is redone
+
+
+def test_sigterm_before_the_first_epoch_keeps_nothing(tiny_build: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    process = _start_fit(tiny_build, run, batch_size=1)  # an epoch of hundreds of steps
+    _wait_for(run / "run.json", process)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    assert stderr.splitlines()[-1] == "interrupted before the first epoch ended; nothing kept"
+    assert not run.exists()
+
+
+def test_a_resealed_manifest_whose_scaler_was_edited_is_caught_from_the_data(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """Anyone can recompute the manifest's unkeyed checksum; the train split's values cannot lie
+    outside the scaler fitted on them."""
+    build = tmp_path / "build"
+    shutil.copytree(tiny_build, build)
+    manifest = json.loads((build / "manifest.json").read_text())
+    manifest["scaler"]["speed_mps"]["max"] = 3.0
+    manifest.pop("manifest_sha256")
+    canonical = json.dumps(manifest, sort_keys=True, separators=(",", ":")).encode()
+    manifest["manifest_sha256"] = hashlib.sha256(canonical).hexdigest()
+    (build / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    run = tmp_path / "run"
+    result = CliRunner().invoke(app, ["fit", str(build), "--out", str(run), *FIT])
+    assert result.exit_code == 1
+    line = one_error_line(result)
+    assert re.fullmatch(
+        rf"error: {re.escape(str(build / 'manifest.json'))}: the scaler does not cover the train "
+        r"split: speed \d+\.\d m/s where its range ends at 3\.0 m/s; edited manifest\? build again",
+        line,
+    ), line
+    assert not run.exists()  # no epoch ended: nothing kept
