@@ -17,6 +17,7 @@ from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
     exit_on_error,
+    exit_on_interrupt,
     print_error,
     print_table,
     progress_bar,
@@ -100,7 +101,8 @@ def synth(
         seed=seed,
         quirks=quirks,
     )
-    with exit_on_error(), progress_bar() as progress:
+    left = f"no file this run wrote is left in {out_dir}"
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
@@ -287,7 +289,8 @@ def build(
         heading_smoothing_s=heading_smoothing_s,
         protocol=protocol,
     )
-    with exit_on_error(), progress_bar() as progress:
+    left = f"nothing written ({out} is as it was)"
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         chosen = None if dataset is DatasetChoice.AUTO else dataset.value
         result = run_build(
             raw_paths,
@@ -446,7 +449,7 @@ def export(
     """
     from ngsim_graphs.export import check_export_target, graph_tables, write_tables
 
-    with exit_on_error():
+    with exit_on_interrupt(f"nothing written ({out} is as it was)"), exit_on_error():
         check_export_target(out, overwrite)  # before the work, not only after it
         opened = open_build(build_dir)
         ids = _sample_ids(samples, int(opened.manifest.splits[split.value]))
