@@ -444,8 +444,9 @@ def export(
 
     The build stores graphs compactly (grid nodes and proximity pairs once per step); this writes
     nodes, spatial_edges, temporal_edges, targets and samples tables for the chosen samples.
-    --out must be new or empty, or (with --overwrite) hold only the tables of an earlier export;
-    a folder holding anything else is refused. The tables land together when all are written.
+    --out must be new or empty, or (with --overwrite) hold only an earlier export as it wrote it
+    (export.json lists its tables' checksums); a folder holding anything else is refused. The
+    tables land together when all are written.
     """
     from ngsim_graphs.export import check_export_target, graph_tables, write_tables
 

@@ -20,12 +20,12 @@ from typer.testing import CliRunner, Result
 from ngsim_cli.ngsim import app
 from ngsim_graphs import layout, lock
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.export import EXPORT_TABLES
+from ngsim_graphs.export import EXPORT_MARKER, EXPORT_TABLES
 from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.formats import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
 
 NGSIM_FILE = "trajectories-0750am-0805am.txt"
-EXPORT_FILES = sorted(f"{name}.parquet" for name in EXPORT_TABLES)
+EXPORT_FILES = sorted([EXPORT_MARKER, *(f"{name}.parquet" for name in EXPORT_TABLES)])
 
 
 def invoke(*args: object) -> Result:
@@ -423,17 +423,36 @@ def _export(build: Path, out: Path, *options: str) -> Result:
     return invoke("export", build, "--out", out, "--split", "train", "--samples", "0:3", *options)
 
 
-def test_export_keeps_a_folder_of_other_files(build: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("mine", "named"),
+    [
+        ({"nodes.parquet": b"someone else's", "notes.txt": b"mine\n"}, "nodes.parquet, notes.txt"),
+        ({"nodes.parquet": b"someone else's"}, "nodes.parquet"),  # only an export's name
+    ],
+)
+def test_export_keeps_a_folder_of_other_files(
+    build: Path, tmp_path: Path, mine: dict[str, bytes], named: str
+) -> None:
     out = tmp_path / "t"
     out.mkdir()
-    (out / "nodes.parquet").write_bytes(b"someone else's")
-    (out / "notes.txt").write_text("mine\n")
+    for name, content in mine.items():
+        (out / name).write_bytes(content)
     line = error_line(_export(build, out, "--overwrite"))
     assert line == (
-        f"error: {out}: folder is not empty: it holds notes.txt, which export did not write; "
+        f"error: {out}: folder is not empty: it holds {named}, which export did not write; "
         "choose a new or empty folder"
     )
-    assert files(out) == {"nodes.parquet": b"someone else's", "notes.txt": b"mine\n"}
+    assert files(out) == mine
+
+
+def test_export_keeps_a_table_changed_since_it_was_exported(build: Path, tmp_path: Path) -> None:
+    out = tmp_path / "t"
+    assert _export(build, out).exit_code == 0
+    (out / "nodes.parquet").write_bytes(b"my own edit of it")
+    before = files(out)
+    line = error_line(_export(build, out, "--overwrite"))
+    assert line.startswith(f"error: {out}: folder is not empty: it holds {EXPORT_MARKER}, ")
+    assert files(out) == before
 
 
 def test_export_replaces_an_earlier_export_only_with_overwrite(build: Path, tmp_path: Path) -> None:
