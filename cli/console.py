@@ -1,10 +1,14 @@
-"""What both programs share on the terminal: a progress bar and one-line errors on stderr."""
+"""What both programs share on the terminal: a progress bar, one-line errors on stderr, and
+one line for an interrupt."""
 
 from __future__ import annotations
 
 import re
+import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
+from types import FrameType
 
 import typer
 from rich.console import Console
@@ -147,3 +151,35 @@ def exit_on_error() -> Iterator[None]:
         where = f"{err.filename}: " if err.filename else ""
         print_error(f"{where}{err.strerror or err}")
         raise typer.Exit(1) from None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised as an interrupt is: whatever a program writes is cleaned up on it as on
+    Ctrl-C."""
+
+
+def _terminated(_signum: int, _frame: FrameType | None) -> None:
+    raise Terminated
+
+
+@contextmanager
+def exit_on_interrupt(left: str) -> Iterator[None]:
+    """Turn Ctrl-C (SIGINT) and SIGTERM in the block into one line on stderr, `interrupted;
+    LEFT` (`terminated; LEFT`), and exit status 130 (143), the shells' 128 + the signal. `left`
+    says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`.
+
+    The work cleans up as it unwinds; the worker processes of a build never see the Ctrl-C
+    that a terminal sends to them too (`ngsim_graphs.workers`).
+    """
+    in_main = threading.current_thread() is threading.main_thread()
+    before = signal.signal(signal.SIGTERM, _terminated) if in_main else None
+    try:
+        yield
+    except KeyboardInterrupt as err:
+        terminated = isinstance(err, Terminated)
+        what = "terminated" if terminated else "interrupted"
+        stderr.print(f"{what}; {left}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(128 + (signal.SIGTERM if terminated else signal.SIGINT)) from None
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, before)

@@ -8,7 +8,14 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ngsim_cli.console import counted, exit_on_error, print_table, progress_bar, stdout
+from ngsim_cli.console import (
+    counted,
+    exit_on_error,
+    exit_on_interrupt,
+    print_table,
+    progress_bar,
+    stdout,
+)
 from ngsim_graphs.cslstm import SPLIT_NAMES as SPLITS
 
 
@@ -85,7 +92,8 @@ def export_cslstm(
     from ngsim_graphs.cslstm_export import FILE_NAMES, MARKER
     from ngsim_graphs.cslstm_export import export_cslstm as export
 
-    with exit_on_error(), progress_bar() as progress:
+    left = f"nothing written ({out}'s files are as they were)"
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         result = export(
             raw_paths, out, allow_partial=allow_partial, overwrite=overwrite, progress=progress
         )

@@ -17,6 +17,7 @@ from ngsim_cli.console import (
     add_version_option,
     counted,
     exit_on_error,
+    exit_on_interrupt,
     in_option_words,
     option_names,
     print_error,
@@ -109,7 +110,8 @@ def synth(
         seed=seed,
         quirks=quirks,
     )
-    with exit_on_error(), progress_bar() as progress:
+    left = f"no file this run wrote is left in {out_dir}"
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
@@ -300,7 +302,8 @@ def build(
         heading_smoothing_s=heading_smoothing_s,
         protocol=protocol,
     )
-    with exit_on_error(), progress_bar() as progress:
+    left = f"nothing written ({out} is as it was)"
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         chosen = None if dataset is DatasetChoice.AUTO else dataset.value
         result = run_build(
             raw_paths,
@@ -473,12 +476,13 @@ def export(
 
     The build stores graphs compactly (grid nodes and proximity pairs once per step); this writes
     nodes, spatial_edges, temporal_edges, targets and samples tables for the chosen samples.
-    --out must be new or empty, or (with --overwrite) hold only the tables of an earlier export;
-    a folder holding anything else is refused. The tables land together when all are written.
+    --out must be new or empty, or (with --overwrite) hold only an earlier export as it wrote it
+    (export.json lists its tables' checksums); a folder holding anything else is refused. The
+    tables land together when all are written.
     """
     from ngsim_graphs.export import check_export_target, graph_tables, write_tables
 
-    with exit_on_error():
+    with exit_on_interrupt(f"nothing written ({out} is as it was)"), exit_on_error():
         check_export_target(out, overwrite)  # before the work, not only after it
         opened = open_build(build_dir)
         ids = _sample_ids(samples, int(opened.manifest.splits[split.value]))

@@ -37,6 +37,7 @@ from ngsim_graphs.cslstm import (
 )
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
+from ngsim_graphs.interrupts import interrupts_held
 from ngsim_graphs.sources.ngsim.files import find_raw_files, read_raw_file
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
 
@@ -320,6 +321,7 @@ def export_cslstm(
         rows={name: t.traj_rows for name, t in tables.items()},
         tracks_width={name: t.width for name, t in tables.items()},
     )
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     partials = {}
     try:
@@ -331,13 +333,18 @@ def export_cslstm(
                 f"CS-LSTM's {FILE_NAMES[name]}"
             )
             write_mat(partials[name], tables.pop(name), description)
-    except (OSError, ValueError) as err:
+    except BaseException as err:  # an interrupt too: no partial file is left
         for partial in partials.values():
             partial.unlink(missing_ok=True)
+        if created and not any(out.iterdir()):
+            out.rmdir()
+        if not isinstance(err, (OSError, ValueError)):
+            raise
         why = err.strerror if isinstance(err, OSError) and err.strerror else err
         raise NgsimOutputError(out, f"cannot write the export: {why}") from None
-    _write_marker(out, result, complete=False)
-    for name, partial in partials.items():
-        partial.replace(out / FILE_NAMES[name])
-    _write_marker(out, result, complete=True)
+    with interrupts_held():  # the three files land together, or (interrupted earlier) none
+        _write_marker(out, result, complete=False)
+        for name, partial in partials.items():
+            partial.replace(out / FILE_NAMES[name])
+        _write_marker(out, result, complete=True)
     return result

@@ -3,11 +3,13 @@
 The build stores graphs compactly (grid nodes and proximity pairs, once per step); these tables
 are the per-sample form of SPEC section 4, for any subset a researcher wants to look at or feed
 to another tool. They are written as a whole into a hidden folder beside the target and renamed
-into place when complete; a target that holds anything but export tables is never replaced.
+into place when complete, with EXPORT_MARKER listing them and their sha256; a target that holds
+anything but the tables its marker lists, as they were written, is never replaced.
 """
 
 from __future__ import annotations
 
+import json
 from functools import partial
 from pathlib import Path
 
@@ -18,8 +20,11 @@ from ngsim_graphs import landing, layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.integrity import file_sha256
 
 EXPORT_TABLES = ("nodes", "spatial_edges", "temporal_edges", "targets", "samples")
+EXPORT_MARKER = "export.json"  # the tables an export wrote, with their sha256
+EXPORT_PROGRAM = "ngsim-graphs export"
 
 
 def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.DataFrame]:
@@ -80,14 +85,37 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
     }
 
 
+def earlier_export_files(out: Path) -> set[str] | None:
+    """The files of an earlier export in `out` (its marker and the tables it lists that are
+    there, each as it was written), or None where `out` holds no export's marker."""
+    marker = out / EXPORT_MARKER
+    if marker.is_symlink() or not marker.is_file():
+        return None
+    try:
+        document = json.loads(marker.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(document, dict) or document.get("program") != EXPORT_PROGRAM:
+        return None
+    tables = document.get("tables")
+    ours = {f"{name}.parquet" for name in EXPORT_TABLES}
+    if not isinstance(tables, dict) or not set(tables) <= ours:
+        return None
+    present = {name for name in tables if (out / name).is_file()}
+    if any(file_sha256(out / name) != tables[name] for name in present):
+        return None  # a table replaced or edited since: not the export's any more
+    return {EXPORT_MARKER, *present}
+
+
 def check_export_target(out: Path, overwrite: bool) -> None:
     """Refuse a target folder that must not be replaced: a file, a folder holding anything but
-    export tables, or (without `overwrite`) an earlier export. A new or empty folder is taken."""
+    an earlier export's files as it wrote them, or (without `overwrite`) an earlier export. A new
+    or empty folder is taken."""
     if out.exists() and not out.is_dir():
         raise NgsimOutputError(out, "exists and is not a directory")
     entries = sorted(out.iterdir()) if out.is_dir() else []
-    ours = {f"{name}.parquet" for name in EXPORT_TABLES}
-    foreign = [p.name for p in entries if p.name not in ours or not p.is_file() or p.is_symlink()]
+    ours = earlier_export_files(out) if entries else set()
+    foreign = [p.name for p in entries if p.name not in (ours or ()) or p.is_symlink()]
     if foreign:
         raise NgsimOutputError(
             out,
@@ -111,4 +139,7 @@ def write_tables(tables: dict[str, pl.DataFrame], out: Path, overwrite: bool) ->
     with landing.output_directory(out, check) as folder:
         for name, table in tables.items():
             layout.write_parquet(table, folder / f"{name}.parquet")
+        sums = {f"{name}.parquet": file_sha256(folder / f"{name}.parquet") for name in tables}
+        document = {"program": EXPORT_PROGRAM, "tables": sums}
+        (folder / EXPORT_MARKER).write_text(json.dumps(document, indent=2) + "\n")
     return [out / f"{name}.parquet" for name in tables]

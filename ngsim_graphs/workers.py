@@ -7,14 +7,21 @@ a time, so peak memory grows with the number of jobs, never with the number of t
 are shared out among the workers for Polars' own threads (unless POLARS_MAX_THREADS says). A
 worker keeps to one malloc arena and gives back what a task freed when it ends (glibc); where
 peak memory counts more than speed, its Polars allocator gives freed memory back at once.
+
+Workers end with their parent. They start with Ctrl-C blocked (`interrupts`), so that the one a
+terminal sends to the whole process group reaches only the parent, which then stops them at
+once (SIGTERM), without waiting for their running tasks; and a worker whose parent is gone,
+killed with no chance to stop them, ends itself the moment it sees that.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+import multiprocessing
 import os
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -23,6 +30,7 @@ from multiprocessing import get_context
 from typing import Any, TypeVar
 
 from ngsim_graphs.errors import NgsimError
+from ngsim_graphs.interrupts import children_deaf_to_ctrl_c
 
 Result = TypeVar("Result")
 POLARS_THREADS = "POLARS_MAX_THREADS"
@@ -45,6 +53,10 @@ MALLOC_ARENAS = "MALLOC_ARENA_MAX"
 # twice the page faults, a third slower, and no less memory at its peak than with these.
 MALLOC_THRESHOLDS = {"MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "33554432"}
 _M_ARENA_MAX = -8  # glibc's mallopt parameter of the same
+# How often this process looks up from waiting for its workers, to run its signal handlers: a
+# Ctrl-C taken by another of its threads (Polars' start some) does not wake a wait without a
+# timeout, and was handled only once a task ended, seconds later.
+_SIGNAL_CHECK_S = 0.1
 
 
 @functools.cache
@@ -115,6 +127,24 @@ def _releasing(function: Callable[..., Result], *args: Any) -> Result:
             libc.malloc_trim(0)
 
 
+def end_with_parent() -> None:
+    """A worker's start: a thread that ends the process the moment its parent has ended.
+
+    multiprocessing's parent process of a spawned worker ends (`join` returns) when the pipe
+    that the parent holds open to it closes, which the kernel does when the parent dies, by
+    kill -9 included: no polling, and no task of an abandoned build goes on writing.
+    """
+    parent = multiprocessing.parent_process()
+    if parent is None:  # not a worker process
+        return
+
+    def watch() -> None:
+        parent.join()
+        os._exit(1)  # nothing to hand results to; what it wrote is its parent's partial output
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
+
+
 def _failed(future: Future) -> bool:
     return future.done() and not future.cancelled() and future.exception() is not None
 
@@ -134,6 +164,8 @@ class Workers:
         self._pool: ProcessPoolExecutor | None = None
         self._shape = (0, Processes.KEPT)  # the running pool's size and kind
         self._saved_environment: dict[str, str | None] = {}
+        # The processes this one had started before the running pool: not its workers.
+        self._others: set[multiprocessing.process.BaseProcess] | None = None
 
     def __enter__(self) -> Workers:
         return self
@@ -142,8 +174,15 @@ class Workers:
         self._close(cancel=exc_type is not None)  # after an error or Ctrl-C, start nothing more
 
     def _close(self, cancel: bool = False) -> None:
+        """End the processes: once their tasks are done, or with `cancel` at once (their running
+        tasks are stopped, the others never start)."""
         pool, self._pool = self._pool, None
+        others, self._others = self._others, None
         try:
+            if cancel and others is not None:  # an interrupt may have come before `_pool` was set
+                for process in multiprocessing.active_children():
+                    if process not in others:
+                        process.terminate()
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=cancel)
         finally:  # a second Ctrl-C while waiting: the environment is still given back
@@ -161,9 +200,11 @@ class Workers:
         settings = worker_environment(dict(os.environ), size, processes is Processes.FRUGAL)
         self._saved_environment = {name: os.environ.get(name) for name in settings}
         os.environ.update(settings)
+        self._others = set(multiprocessing.active_children())
         self._pool = ProcessPoolExecutor(
             size,
             mp_context=get_context("spawn"),
+            initializer=end_with_parent,
             # 1 or None only: CPython 3.11-3.13 can hang with more (gh-115634).
             max_tasks_per_child=1 if processes is Processes.FRESH else None,
         )
@@ -196,19 +237,25 @@ class Workers:
                 results.append(_releasing(function, *task))
                 finished(len(results))
             return results
-        same = self._pool is not None and self._shape == (size, processes)
-        pool = self._pool if same else self._start(size, processes)
         order = (
             range(len(tasks))
             if sizes is None
             else sorted(range(len(tasks)), key=sizes.__getitem__, reverse=True)
         )
-        submitted = {i: pool.submit(_releasing, function, *tasks[i]) for i in order}
+        same = self._pool is not None and self._shape == (size, processes)
+        pool = self._pool if same else self._start(size, processes)
+        # The processes start as the tasks are submitted, or later from the pool's own thread,
+        # which starts at the first submit: both with Ctrl-C blocked from here. Not from before
+        # the pool is made: its queue starts multiprocessing's resource tracker, which unblocks
+        # SIGINT in the thread it was started from (test_workers checks that workers start with
+        # SIGINT blocked).
+        with children_deaf_to_ctrl_c():
+            submitted = {i: pool.submit(_releasing, function, *tasks[i]) for i in order}
         futures = [submitted[i] for i in range(len(tasks))]
         remaining = set(futures)
         n_done = 0
         while remaining:
-            done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+            done, remaining = wait(remaining, _SIGNAL_CHECK_S, FIRST_COMPLETED)
             failed = next((i for i, future in enumerate(futures) if _failed(future)), None)
             if failed is not None:
                 for future in futures[failed + 1 :]:

@@ -18,14 +18,14 @@ from conftest import straight_track, write_txt
 from typer.testing import CliRunner, Result
 
 from ngsim_cli.ngsim import app
-from ngsim_graphs import landing, layout
+from ngsim_graphs import layout, lock
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.export import EXPORT_TABLES
+from ngsim_graphs.export import EXPORT_MARKER, EXPORT_TABLES
 from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.formats import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
 
 NGSIM_FILE = "trajectories-0750am-0805am.txt"
-EXPORT_FILES = sorted(f"{name}.parquet" for name in EXPORT_TABLES)
+EXPORT_FILES = sorted([EXPORT_MARKER, *(f"{name}.parquet" for name in EXPORT_TABLES)])
 
 
 def invoke(*args: object) -> Result:
@@ -76,7 +76,7 @@ def test_overwrite_keeps_a_folder_that_is_not_a_build(tmp_path: Path, raw: Path)
     line = error_line(invoke("build", raw, "--out", out, "--overwrite"))
     assert line == (
         f"error: {out}: directory is not empty and is not a build: it holds notes.txt, sub/; "
-        "--overwrite replaces only a build (move them away or choose another --out)"
+        "--overwrite replaces only a finished build (move them away or choose another --out)"
     )
     assert files(out) == before and siblings(out) == []
 
@@ -109,16 +109,119 @@ def test_building_twice_with_overwrite_replaces_the_build(tmp_path: Path, raw: P
     assert siblings(out) == []
 
 
-def test_overwrite_replaces_an_unfinished_build(tmp_path: Path, raw: Path) -> None:
+def test_overwrite_keeps_an_unfinished_build_of_an_earlier_version(
+    tmp_path: Path, raw: Path
+) -> None:
+    """Folders named as a build's, no manifest: not ours beyond doubt (builds land whole now)."""
     out = tmp_path / "out"
     (out / "tracks").mkdir(parents=True)
     (out / "tracks" / "us-101_0750am-0805am.parquet").write_bytes(b"PAR1 cut short")
     (out / "arrays" / "samples-train").mkdir(parents=True)
-    result = invoke("build", raw, "--out", out, "--overwrite")
+    before = files(out)
+    line = error_line(invoke("build", raw, "--out", out, "--overwrite"))
+    assert line == (
+        f"error: {out}: directory is not empty and is not a build: it holds arrays/, tracks/; "
+        "--overwrite replaces only a finished build (move them away or choose another --out)"
+    )
+    assert files(out) == before and siblings(out) == []
+
+
+# --- build: nothing that is not its own -----------------------------------------------------
+
+
+@pytest.fixture
+def built(tmp_path: Path, raw: Path) -> Path:
+    out = tmp_path / "b"
+    assert invoke("build", raw, "--out", out).exit_code == 0
+    return out
+
+
+def _folder(path: Path, content: str = "precious\n") -> dict[str, bytes]:
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "keep.txt").write_text(content)
+    return files(path)
+
+
+@pytest.mark.parametrize("name", [".b.old-backup", ".b.partial-notes", ".b.partial-123"])
+def test_folders_named_like_a_builds_leftovers_are_not_touched(
+    tmp_path: Path, raw: Path, built: Path, name: str
+) -> None:
+    mine = _folder(tmp_path / name)
+    result = invoke("build", raw, "--out", built, "--overwrite")
     assert result.exit_code == 0, result.output
-    assert (out / "manifest.json").is_file()
-    assert (out / "tracks" / "us-101_0750am-0805am.parquet").read_bytes()[:4] == b"PAR1"
-    assert (out / "tracks" / "us-101_0750am-0805am.parquet").stat().st_size > 100
+    assert files(tmp_path / name) == mine
+    assert siblings(built) == [name]
+
+
+def test_a_hidden_old_folder_is_not_taken_for_a_missing_out(tmp_path: Path, raw: Path) -> None:
+    mine = _folder(tmp_path / ".c.old-2024")
+    result = invoke("build", raw, "--out", tmp_path / "c")
+    assert result.exit_code == 0, result.output
+    assert files(tmp_path / ".c.old-2024") == mine
+    assert (tmp_path / "c" / "manifest.json").is_file() and not (tmp_path / "c/keep.txt").exists()
+
+
+def test_a_lock_path_that_is_a_link_is_refused_not_followed(tmp_path: Path, raw: Path) -> None:
+    out, victim = tmp_path / "e", tmp_path / "victim.txt"
+    victim.write_text("precious-content")
+    lock.lock_path(out).symlink_to(victim)
+    line = error_line(invoke("build", raw, "--out", out))
+    assert line == (
+        f"error: {lock.lock_path(out)}: is a symbolic link, not a lock of ngsim-graphs: left as "
+        f"it is, and {out} not written (remove it if no program is writing {out}, or choose "
+        "another --out)"
+    )
+    assert victim.read_text() == "precious-content" and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("name", "named"),
+    [("samples/my_experiment.parquet", "samples/my_experiment.parquet"),
+     ("_staging/x/y.parquet", "_staging/"),
+     ("arrays/run1/weights.npy", "arrays/run1/")],
+)  # fmt: skip
+def test_overwrite_keeps_a_users_file_of_the_layouts_names(
+    tmp_path: Path, raw: Path, built: Path, name: str, named: str
+) -> None:
+    (built / name).parent.mkdir(parents=True, exist_ok=True)
+    (built / name).write_bytes((built / "samples" / "train.parquet").read_bytes())
+    before = files(built)
+    line = error_line(invoke("build", raw, "--out", built, "--overwrite"))
+    assert line == (
+        f"error: {built}: holds a build and also {named}, which are not the build's and "
+        "--overwrite would delete with it; move them away first"
+    )
+    assert files(built) == before
+
+
+def test_overwrite_keeps_a_folder_whose_manifest_only_looks_like_ours(
+    tmp_path: Path, raw: Path
+) -> None:
+    out = tmp_path / "g"
+    (out / "arrays" / "run1").mkdir(parents=True)
+    (out / "manifest.json").write_text(
+        '{"format_version": 3, "config_hash": "x", "tool": "someone else"}'
+    )
+    (out / "arrays" / "run1" / "weights.npy").write_text("data")
+    before = files(out)
+    line = error_line(invoke("build", raw, "--out", out, "--overwrite"))
+    assert line == (
+        f"error: {out}: directory is not empty and is not a build: its manifest.json is not one "
+        "that ngsim-graphs wrote, or it was edited since; --overwrite replaces only a finished "
+        "build"
+    )
+    assert files(out) == before
+
+
+def test_a_killed_builds_leftovers_are_cleaned_up_by_the_next(
+    tmp_path: Path, raw: Path, built: Path
+) -> None:
+    token = "5" * 32
+    lock.lock_path(built).write_text(f"ngsim-graphs lock {token} 4242\n")  # no flock: killed
+    _folder(lock.partial_path(built, token), "half a build")
+    result = invoke("build", raw, "--out", built, "--overwrite")
+    assert result.exit_code == 0, result.output
+    assert siblings(built) == []
 
 
 # --- build: one at a time --------------------------------------------------------------------
@@ -128,19 +231,20 @@ def test_second_build_of_a_locked_directory_is_refused(tmp_path: Path, raw: Path
     out = tmp_path / "out"
     assert invoke("build", raw, "--out", out).exit_code == 0
     before = files(out)
-    first = tmp_path / ".out.partial-4242"  # the running build's work
+    token = "4" * 32
+    first = lock.partial_path(out, token)  # the running build's work
     (first / "tracks").mkdir(parents=True)
     (first / "tracks" / "half.parquet").write_bytes(b"PAR1")
-    lock = landing.lock_path(out)
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT)
+    path = lock.lock_path(out)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        os.write(fd, b"4242\n")
+        os.write(fd, f"ngsim-graphs lock {token} 4242\n".encode())
         line = error_line(invoke("build", raw, "--out", out, "--overwrite"))
     finally:
         os.close(fd)
     assert line == (
-        f"error: {out}: another process is writing it (process 4242), holding {lock}; "
+        f"error: {out}: another process is writing it (process 4242), holding {path}; "
         "wait for it to finish or choose another --out"
     )
     assert files(out) == before
@@ -319,17 +423,36 @@ def _export(build: Path, out: Path, *options: str) -> Result:
     return invoke("export", build, "--out", out, "--split", "train", "--samples", "0:3", *options)
 
 
-def test_export_keeps_a_folder_of_other_files(build: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("mine", "named"),
+    [
+        ({"nodes.parquet": b"someone else's", "notes.txt": b"mine\n"}, "nodes.parquet, notes.txt"),
+        ({"nodes.parquet": b"someone else's"}, "nodes.parquet"),  # only an export's name
+    ],
+)
+def test_export_keeps_a_folder_of_other_files(
+    build: Path, tmp_path: Path, mine: dict[str, bytes], named: str
+) -> None:
     out = tmp_path / "t"
     out.mkdir()
-    (out / "nodes.parquet").write_bytes(b"someone else's")
-    (out / "notes.txt").write_text("mine\n")
+    for name, content in mine.items():
+        (out / name).write_bytes(content)
     line = error_line(_export(build, out, "--overwrite"))
     assert line == (
-        f"error: {out}: folder is not empty: it holds notes.txt, which export did not write; "
+        f"error: {out}: folder is not empty: it holds {named}, which export did not write; "
         "choose a new or empty folder"
     )
-    assert files(out) == {"nodes.parquet": b"someone else's", "notes.txt": b"mine\n"}
+    assert files(out) == mine
+
+
+def test_export_keeps_a_table_changed_since_it_was_exported(build: Path, tmp_path: Path) -> None:
+    out = tmp_path / "t"
+    assert _export(build, out).exit_code == 0
+    (out / "nodes.parquet").write_bytes(b"my own edit of it")
+    before = files(out)
+    line = error_line(_export(build, out, "--overwrite"))
+    assert line.startswith(f"error: {out}: folder is not empty: it holds {EXPORT_MARKER}, ")
+    assert files(out) == before
 
 
 def test_export_replaces_an_earlier_export_only_with_overwrite(build: Path, tmp_path: Path) -> None:

@@ -1,20 +1,24 @@
-"""Where a build may land: the output lock, what --overwrite may replace, overlap with the
-inputs, and a failed write reported as one error naming the file, leaving nothing."""
+"""Where a build may land: what --overwrite may replace, overlap with the inputs, the swap, and
+a failed write reported as one error naming the file, leaving nothing."""
 
 from __future__ import annotations
 
 import errno
-import fcntl
 import json
 import os
-from collections.abc import Callable, Iterator
+import signal
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 import pytest
 
 from ngsim_graphs import landing, layout
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.integrity import canonical_sha256
+
+TRACKS = "tracks/us-101_0750am-0805am.parquet"
 
 
 def files(root: Path) -> dict[str, bytes]:
@@ -27,17 +31,6 @@ def files(root: Path) -> dict[str, bytes]:
 def siblings(out: Path) -> list[str]:
     """Hidden entries beside `out`: partial and retired directories, the lock file."""
     return sorted(p.name for p in out.parent.glob(f".{out.name}.*"))
-
-
-@pytest.fixture
-def held(tmp_path: Path) -> Iterator[Path]:
-    """`tmp_path/out`, locked by this test as another build would hold it, with PID 4242."""
-    out = tmp_path / "out"
-    fd = os.open(landing.lock_path(out), os.O_RDWR | os.O_CREAT)
-    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    os.write(fd, b"4242\n")
-    yield out
-    os.close(fd)
 
 
 # --- an output apart from the inputs ---------------------------------------------------------
@@ -78,10 +71,17 @@ def test_sibling_and_missing_paths_are_apart(tmp_path: Path) -> None:
 # --- which directories may be replaced -------------------------------------------------------
 
 
-def _finished(out: Path, manifest: object) -> Path:
-    (out / layout.TRACKS_DIR).mkdir(parents=True)
-    (out / layout.TRACKS_DIR / "us-101_0750am-0805am.parquet").write_bytes(b"PAR1")
-    (out / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
+def _finished(out: Path, names: tuple[str, ...] = (TRACKS,), config: object = None) -> Path:
+    """A finished build in `out`: the files `names` and a manifest sealed over them."""
+    for name in names:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        if name.endswith(".npy"):
+            np.save(out / name, np.arange(3.0))
+        else:
+            (out / name).write_bytes(b"PAR1 " + name.encode())
+    config = {"d_min_m": 25.0} if config is None else config
+    body = {"format_version": 1, "config": config, "config_hash": canonical_sha256(config)}
+    layout.write_manifest_json(out, body)
     return out
 
 
@@ -92,7 +92,10 @@ def test_empty_or_missing_target_needs_no_overwrite(tmp_path: Path) -> None:
 
 
 def test_our_build_is_replaced_only_with_overwrite(tmp_path: Path) -> None:
-    out = _finished(tmp_path / "out", {"format_version": 0, "config_hash": "ab", "x": 1})
+    out = _finished(tmp_path / "out", (TRACKS, "arrays/us-101_0750am-0805am/node_x_m.npy"))
+    assert landing.finished_build_files(out) == {
+        "manifest.json", TRACKS, "arrays/us-101_0750am-0805am/node_x_m.npy"
+    }  # fmt: skip
     with pytest.raises(NgsimOutputError) as caught:
         landing._check_target(out, overwrite=False)
     assert str(caught.value) == (
@@ -101,39 +104,50 @@ def test_our_build_is_replaced_only_with_overwrite(tmp_path: Path) -> None:
     landing._check_target(out, overwrite=True)
 
 
-def test_files_put_into_a_build_keep_it_from_being_replaced(tmp_path: Path) -> None:
-    out = _finished(tmp_path / "out", {"format_version": 2, "config_hash": "ab"})
-    (out / "notes.txt").write_text("mine\n")
-    (out / "run1").mkdir()
-    (out / "run1" / "best.pt").write_bytes(b"a model trained on this build")
+def test_a_build_missing_a_file_is_still_ours(tmp_path: Path) -> None:
+    out = _finished(tmp_path / "out", (TRACKS, "samples/train.parquet"))
+    (out / "samples/train.parquet").unlink()
+    landing._check_target(out, overwrite=True)
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["notes.txt", "run1/best.pt"], "notes.txt, run1/"),
+        (["samples/my_experiment.parquet"], "samples/my_experiment.parquet"),  # layout's names
+        (["_staging/x/y.parquet"], "_staging/"),  # a finished build has none
+        (["tracks/old/"], "tracks/old/"),  # an empty folder
+    ],
+)
+def test_files_put_into_a_build_keep_it_from_being_replaced(
+    tmp_path: Path, extra: list[str], named: str
+) -> None:
+    out = _finished(tmp_path / "out", (TRACKS, "samples/train.parquet"))
+    for name in extra:
+        (out / name.rstrip("/")).parent.mkdir(parents=True, exist_ok=True)
+        if name.endswith("/"):
+            (out / name).mkdir()
+        else:
+            (out / name).write_text("mine\n")
     with pytest.raises(NgsimOutputError) as caught:
         landing._check_target(out, overwrite=True)
     assert str(caught.value) == (
-        f"{out}: holds a build and also notes.txt, run1/, which are not the build's and "
+        f"{out}: holds a build and also {named}, which are not the build's and "
         "--overwrite would delete with it; move them away first"
     )
-
-
-def test_unfinished_build_of_layout_names_is_ours(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    for name in ("arrays/us-101_0750am-0805am/node_x_m.npy", "_staging/r/0000.parquet",
-                 "samples/train.parquet", "proximity/p.parquet"):  # fmt: skip
-        (out / name).parent.mkdir(parents=True, exist_ok=True)
-        (out / name).write_bytes(b"x")
-    (out / "tracks").mkdir()
-    landing._check_target(out, overwrite=True)
 
 
 @pytest.mark.parametrize(
     ("entries", "named"),
     [
         (["notes.txt"], "notes.txt"),
-        (["tracks/notes.txt"], "tracks/notes.txt"),
-        (["arrays/x.npy"], "arrays/x.npy"),  # .npy belong one folder deeper
+        (["tracks/us-101_0750am-0805am.parquet"], "tracks/"),  # a build's names, no manifest
+        (["arrays/r/x.npy", "_staging/r/0000.parquet", "samples/train.parquet"],
+         "_staging/, arrays/, samples/"),  # an unfinished build of an earlier version
         (["src/a.py", "src/b.py", "b", "c", "d"], "b, c, d and 1 more"),
     ],
-)
-def test_foreign_directory_is_refused_even_with_overwrite(
+)  # fmt: skip
+def test_anything_but_a_finished_build_is_refused_even_with_overwrite(
     tmp_path: Path, entries: list[str], named: str
 ) -> None:
     out = tmp_path / "out"
@@ -144,74 +158,53 @@ def test_foreign_directory_is_refused_even_with_overwrite(
         landing._check_target(out, overwrite=True)
     assert str(caught.value) == (
         f"{out}: directory is not empty and is not a build: it holds {named}; "
-        "--overwrite replaces only a build (move them away or choose another --out)"
+        "--overwrite replaces only a finished build (move them away or choose another --out)"
     )
 
 
-@pytest.mark.parametrize("manifest", ['{"format_version": 1}', "[1, 2]", "not json"])
-def test_directory_with_a_foreign_manifest_is_refused(tmp_path: Path, manifest: str) -> None:
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / layout.MANIFEST_NAME).write_text(manifest)
-    with pytest.raises(NgsimOutputError, match="its manifest.json is not one of ngsim-graphs"):
-        landing._check_target(out, overwrite=True)
+def _edit_manifest(out: Path) -> None:
+    manifest = json.loads((out / layout.MANIFEST_NAME).read_text())
+    manifest["config"]["d_min_m"] = 50.0
+    (out / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
 
 
-def test_symbolic_link_inside_is_foreign(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    out.mkdir()
-    (tmp_path / "precious").mkdir()
-    (out / "tracks").symlink_to(tmp_path / "precious")
-    with pytest.raises(NgsimOutputError, match="it holds tracks/;"):
-        landing._check_target(out, overwrite=True)
-
-
-# --- one writer at a time --------------------------------------------------------------------
-
-
-def test_second_writer_is_refused_naming_the_holder(held: Path) -> None:
-    with pytest.raises(NgsimOutputError) as caught, landing.output_lock(held):
-        pass
-    assert str(caught.value) == (
-        f"{held}: another process is writing it (process 4242), holding "
-        f"{landing.lock_path(held)}; wait for it to finish or choose another --out"
-    )
-
-
-def test_lock_records_the_pid_and_is_removed_on_release(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    with landing.output_lock(out):
-        assert landing.lock_path(out).read_text() == f"{os.getpid()}\n"
-    assert siblings(out) == []
-
-
-def test_lock_file_of_a_killed_build_does_not_block(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    landing.lock_path(out).write_text("999999\n")  # present, but nobody holds an flock on it
-    with landing.output_lock(out):
-        assert landing.lock_path(out).read_text() == f"{os.getpid()}\n"
-
-
-def test_lock_unlinked_by_its_holder_before_ours_is_taken_again(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda out: (out / layout.MANIFEST_NAME).write_text('{"format_version": 1}'),
+        lambda out: (out / layout.MANIFEST_NAME).write_text("[1, 2]"),
+        lambda out: (out / layout.MANIFEST_NAME).write_text("not json"),
+        lambda out: (out / layout.MANIFEST_NAME).write_text(  # another tool's, by two keys
+            '{"format_version": 3, "config_hash": "x", "tool": "someone else"}'
+        ),
+        lambda out: _edit_manifest(_finished(out)),  # ours, edited since
+    ],
+)
+def test_directory_with_a_foreign_manifest_is_refused(
+    tmp_path: Path, make: Callable[[Path], object]
 ) -> None:
-    """A holder releasing between our open() and our flock() unlinks the file we opened: a lock
-    on it would hold nothing, since the next writer creates a new file."""
     out = tmp_path / "out"
-    path = landing.lock_path(out)
-    real_flock, calls = fcntl.flock, []
+    out.mkdir()
+    make(out)
+    with pytest.raises(NgsimOutputError) as caught:
+        landing._check_target(out, overwrite=True)
+    assert str(caught.value) == (
+        f"{out}: directory is not empty and is not a build: its manifest.json is not one that "
+        "ngsim-graphs wrote, or it was edited since; --overwrite replaces only a finished build"
+    )
 
-    def flock_after_a_release(fd: int, operation: int) -> None:
-        calls.append(os.fstat(fd).st_ino)
-        if len(calls) == 1:
-            path.unlink()  # the holder's release
-            path.write_text("")  # and a new writer's file
-        real_flock(fd, operation)
 
-    monkeypatch.setattr(landing.fcntl, "flock", flock_after_a_release)
-    with landing.output_lock(out):
-        assert len(calls) == 2 and calls[1] == path.stat().st_ino
-        assert path.read_text() == f"{os.getpid()}\n"
+def test_symbolic_links_inside_are_foreign(tmp_path: Path) -> None:
+    out = _finished(tmp_path / "out")
+    (tmp_path / "precious").mkdir()
+    (out / "proximity").symlink_to(tmp_path / "precious")
+    with pytest.raises(NgsimOutputError, match="also proximity/, which"):
+        landing._check_target(out, overwrite=True)
+    elsewhere = _finished(tmp_path / "elsewhere")
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / layout.MANIFEST_NAME).symlink_to(elsewhere / layout.MANIFEST_NAME)
+    assert landing.finished_build_files(linked) is None
 
 
 # --- failures while writing ------------------------------------------------------------------
@@ -219,7 +212,7 @@ def test_lock_unlinked_by_its_holder_before_ours_is_taken_again(
 
 @pytest.fixture
 def previous(tmp_path: Path) -> tuple[Path, dict[str, bytes]]:
-    out = _finished(tmp_path / "out", {"format_version": 1, "config_hash": "ab"})
+    out = _finished(tmp_path / "out")
     return out, files(out)
 
 
@@ -274,3 +267,35 @@ def test_other_errors_go_on_as_they_came(tmp_path: Path) -> None:
     with pytest.raises(KeyError), landing.build_directory(out, False):
         raise KeyError("x")
     assert not (tmp_path / "deep").exists()  # the folders made for it are gone too
+
+
+# --- the swap --------------------------------------------------------------------------------
+
+
+def test_interrupt_while_writing_leaves_out_as_it_was(previous: tuple) -> None:
+    out, before = previous
+    with pytest.raises(KeyboardInterrupt), landing.build_directory(out, True) as root:
+        (root / TRACKS).parent.mkdir(parents=True)
+        raise KeyboardInterrupt
+    assert files(out) == before
+    assert siblings(out) == []
+
+
+def test_interrupt_while_swapping_lets_the_swap_finish(
+    previous: tuple, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C between the two renames would leave no `out` at all, and the new build hidden."""
+    out, before = previous
+    real = landing._swap_into_place
+
+    def interrupted(partial: Path, target: Path, retired: Path) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        real(partial, target, retired)
+
+    monkeypatch.setattr(landing, "_swap_into_place", interrupted)
+    with landing.build_directory(out, overwrite=True) as root:
+        (root / "tracks").mkdir()
+        (root / TRACKS).write_bytes(b"PAR1 new")
+    assert files(out) == {TRACKS: b"PAR1 new"}
+    assert siblings(out) == []
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -26,6 +26,7 @@ from ngsim_graphs import layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.lock import lock_path, partial_path
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.synth.formats import write_synthetic
 
@@ -230,15 +231,17 @@ def test_failure_mid_build_leaves_no_output(tmp_path: Path, portal_rows: list) -
 
 
 def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: list) -> None:
+    """A killed build's, named by the lock file it left; one no lock names is not ours."""
     raw = _write(tmp_path / "portal.csv", portal_rows)
     out = tmp_path / "out"
-    killed = tmp_path / ".out.partial-123"
-    (killed / layout.TRACKS_DIR).mkdir(parents=True)
-    (killed / layout.TRACKS_DIR / "half.parquet").write_bytes(b"PAR1")
+    token = "a" * 32
+    lock_path(out).write_text(f"ngsim-graphs lock {token} 123\n")
+    for killed in (partial_path(out, token), tmp_path / ".out.partial-123"):
+        (killed / layout.TRACKS_DIR).mkdir(parents=True)
+        (killed / layout.TRACKS_DIR / "half.parquet").write_bytes(b"PAR1")
     result = run_build([raw], out, SHORT)
     assert result.manifest.counts.tracks == 3
-    assert not killed.exists()
-    assert hidden_siblings(out) == []
+    assert hidden_siblings(out) == [".out.partial-123"]
     assert [f for f in sorted(snapshot(out)) if not f.startswith("arrays/")] == [
         "manifest.json",
         f"proximity/us-101_{FIRST}.parquet",

@@ -5,10 +5,13 @@ The tasks are module-level functions of this file: a spawned worker imports them
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import polars as pl
 import pytest
@@ -43,6 +46,20 @@ def polars_threads(_: int) -> str | None:
 
 def allocator_settings(_: int) -> tuple[str | None, str | None]:
     return os.environ.get(JEMALLOC_CONF), os.environ.get(MALLOC_ARENAS)
+
+
+def sigint_blocked(_: int) -> bool:
+    return signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+def pid_file_then_work(folder: str, index: int, seconds: float) -> None:
+    """Say which process runs the task, then work for `seconds`, as a long computation in C
+    would: a Ctrl-C does not stop it."""
+    (Path(folder) / f"pid-{index}").write_text(str(os.getpid()))
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        with contextlib.suppress(KeyboardInterrupt):
+            time.sleep(0.05)
 
 
 def resident_bytes() -> int:
@@ -202,3 +219,84 @@ def test_the_earliest_failure_in_task_order_is_raised_as_with_one_job() -> None:
 def test_jobs_must_be_positive() -> None:
     with pytest.raises(ValueError, match="jobs must be at least 1"):
         Workers(0)
+
+
+# --- workers end with their parent -----------------------------------------------------------
+
+# A program of two workers, one at a task of a minute, the other done with its task and waiting
+# for the next; it says `interrupted` on Ctrl-C.
+TWO_WORKERS = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_workers import pid_file_then_work
+from ngsim_graphs.workers import Workers
+try:
+    with Workers(2) as workers:
+        workers.map(pid_file_then_work, [({folder!r}, 0, 60), ({folder!r}, 1, 0)])
+except KeyboardInterrupt:
+    sys.stderr.write("interrupted\\n")
+    sys.exit(130)
+"""
+
+
+def alive(pid: int) -> bool:
+    """Whether process `pid` runs (a zombie, ended but not yet reaped, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def start_two_workers(folder: Path) -> tuple[subprocess.Popen, list[int]]:
+    """The program above, in a process group of its own, once its second worker waits."""
+    code = TWO_WORKERS.format(tests=str(Path(__file__).parent), folder=str(folder))
+    program = subprocess.Popen(
+        [sys.executable, "-c", code], stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    files = [folder / "pid-0", folder / "pid-1"]
+    deadline = time.monotonic() + 60
+    while not all(f.exists() and f.read_text() for f in files):
+        assert time.monotonic() < deadline and program.poll() is None, "workers did not start"
+        time.sleep(0.02)
+    time.sleep(0.3)  # the second worker's task ends at once
+    return program, [int(f.read_text()) for f in files]
+
+
+def gone_within(pids: list[int], seconds: float) -> bool:
+    deadline = time.monotonic() + seconds
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return not any(alive(pid) for pid in pids)
+
+
+@pytest.mark.parametrize("processes", [Processes.KEPT, Processes.FRESH])
+def test_workers_start_with_ctrl_c_blocked(processes: Processes) -> None:
+    """FRESH processes are started by the pool's own thread too, as tasks end."""
+    with Workers(2) as workers:
+        assert (
+            workers.map(sigint_blocked, [(i,) for i in range(4)], processes=processes) == [True] * 4
+        )
+    assert not sigint_blocked(0)  # this process takes its Ctrl-C as before
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_end_when_their_parent_is_killed(tmp_path: Path) -> None:
+    program, workers = start_two_workers(tmp_path)
+    program.kill()  # kill -9: no chance to stop its workers
+    program.communicate()
+    assert gone_within(workers, 5), "the workers outlived their parent"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_ctrl_c_to_the_process_group_stops_the_workers_without_a_word(tmp_path: Path) -> None:
+    """A terminal's Ctrl-C reaches the workers too: a waiting worker stopped by it printed its
+    traceback, and a busy one went on to its task's end. Both are stopped at once, silently."""
+    program, workers = start_two_workers(tmp_path)
+    os.killpg(program.pid, signal.SIGINT)
+    try:
+        _, stderr = program.communicate(timeout=30)
+    finally:
+        if program.poll() is None:  # not stopped: its workers are not left behind either
+            os.killpg(program.pid, signal.SIGKILL)
+    assert (program.returncode, stderr) == (130, "interrupted\n")
+    assert gone_within(workers, 1)

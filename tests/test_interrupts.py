@@ -1,0 +1,63 @@
+"""Ctrl-C and SIGTERM held off around a swap, and blocked in the processes started meanwhile."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from ngsim_graphs.interrupts import children_deaf_to_ctrl_c, interrupts_held
+
+SHOW_MASK = (
+    "import signal; print(sorted(int(s) for s in signal.pthread_sigmask(signal.SIG_BLOCK, [])))"
+)
+
+
+def test_held_interrupts_let_the_block_end_and_are_told() -> None:
+    terminated: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, _frame: terminated.append(signum))
+    try:
+        steps = []
+        with interrupts_held() as came:
+            os.kill(os.getpid(), signal.SIGINT)
+            steps.append("after Ctrl-C")
+            os.kill(os.getpid(), signal.SIGTERM)
+            steps.append("after SIGTERM")
+        assert steps == ["after Ctrl-C", "after SIGTERM"]
+        assert came == [signal.SIGINT, signal.SIGTERM]
+        assert terminated == []  # the handler was held off, and is back
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_held_interrupts_outside_the_main_thread_change_nothing() -> None:
+    seen = []
+
+    def run() -> None:
+        with interrupts_held() as came:
+            seen.append((came, signal.getsignal(signal.SIGINT)))
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+    assert seen == [([], signal.default_int_handler)]
+
+
+def test_processes_started_meanwhile_start_with_ctrl_c_blocked() -> None:
+    def mask() -> str:
+        return subprocess.run(
+            [sys.executable, "-c", SHOW_MASK], capture_output=True, text=True, check=True
+        ).stdout.strip()
+
+    assert mask() == "[]"
+    with children_deaf_to_ctrl_c():
+        assert mask() == f"[{int(signal.SIGINT)}]"  # Python keeps it blocked as it starts
+    assert mask() == "[]"
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
