@@ -1,0 +1,139 @@
+"""How a build's traffic moves, beside what is published of NGSIM's: the statistics of the realism
+report (`bench/realism.py`), pure functions over tracks tables.
+
+Every statistic is of the tracks table, on its grid (0.2 s by default), per location and over
+all: the recorded speed; its change between consecutive steps of a track (longitudinal
+acceleration) and that change's change (jerk); lateral speed (the change of x); the recorded space
+and time headways where there is a leader; density (vehicles in view per km of the section and per
+lane, at each step); lane changes (a change of lane_id between consecutive steps of a track) per
+vehicle-minute; the share of time below 5 m/s. Constant velocity's errors, the other half of the
+report, need the graphs: `bench/realism.py` computes them with `aigem.baseline`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import polars as pl
+
+from ngsim_graphs import schema as s
+from ngsim_graphs.statistics import Distribution, describe
+
+ALL = "all"  # the name of the statistics over every location
+SLOW_MPS = 5.0  # the share of time below this speed (stop-and-go)
+# A lane holds at least this share of a recording's rows to count among its lanes for the density
+# (on- and off-ramps, which few rows use, do not).
+MIN_LANE_SHARE = 0.02
+DISTRIBUTIONS = (
+    "speed_mps",
+    "accel_mps2",
+    "jerk_mps3",
+    "lateral_speed_mps",
+    "space_headway_m",
+    "time_headway_s",
+    "density_veh_per_km_lane",
+)
+
+
+@dataclass(frozen=True)
+class Realism:
+    """The statistics of one location (or of all): a distribution per DISTRIBUTIONS name, and
+    two rates."""
+
+    distributions: dict[str, Distribution]
+    lane_changes_per_vehicle_minute: float | None  # None without any track time
+    slow_share: float | None  # share of rows below SLOW_MPS; None without rows
+
+
+def step_values(tracks: pl.LazyFrame, time_step_s: float) -> pl.DataFrame:
+    """Per tracks row: location, speed, the acceleration, jerk and lateral speed from the steps
+    before it (null at a track's first steps), the headways (null without a leader), and whether
+    the lane changed since the step before (null at a track's first step).
+
+    Rows of a track are consecutive grid steps (the tracks contract), so differences between
+    consecutive rows of a track are differences over one time step.
+    """
+    per_step = lambda column: pl.col(column).diff().over(s.TRACK_ID) / time_step_s  # noqa: E731
+    return (
+        tracks.sort(s.TRACK_ID, s.TIME_S)
+        .select(
+            s.LOCATION,
+            s.TRACK_ID,
+            s.SPEED_MPS,
+            per_step(s.SPEED_MPS).alias("accel_mps2"),
+            per_step(s.X_M).alias("lateral_speed_mps"),
+            pl.col(s.SPACE_HEADWAY_M).alias("space_headway_m"),
+            pl.col(s.TIME_HEADWAY_S).alias("time_headway_s"),
+            (pl.col(s.LANE_ID).diff().over(s.TRACK_ID) != 0).alias("lane_change"),
+        )
+        .with_columns(per_step("accel_mps2").alias("jerk_mps3"))
+        .drop(s.TRACK_ID)
+        .collect(engine="streaming")
+    )
+
+
+def densities(tracks: pl.LazyFrame, time_step_s: float) -> pl.DataFrame:
+    """Per recording and grid step: location and vehicles in view per km per lane; the section's
+    length is the span of its rows' y, its lanes those holding MIN_LANE_SHARE of its rows."""
+    recording = [s.LOCATION, s.PERIOD]
+    step = (pl.col(s.TIME_S) / time_step_s).round().cast(pl.Int64).alias("step")
+    rows = tracks.select(*recording, s.LANE_ID, s.Y_M, step).collect(engine="streaming")
+    length_km = ((pl.col(s.Y_M).max() - pl.col(s.Y_M).min()) / 1000).alias("length_km")
+    sections = rows.group_by(recording).agg(length_km)
+    share = pl.col("len") / pl.col("len").sum().over(recording)
+    lanes = (
+        rows.group_by(*recording, s.LANE_ID)
+        .len()
+        .filter(share >= MIN_LANE_SHARE)
+        .group_by(recording)
+        .len("lanes")
+    )
+    per_step = rows.group_by(*recording, "step").len("vehicles")
+    density = pl.col("vehicles") / (pl.col("length_km") * pl.col("lanes"))
+    return (
+        per_step.join(sections, on=recording)
+        .join(lanes, on=recording)
+        .select(s.LOCATION, density.alias("density_veh_per_km_lane"))
+    )
+
+
+def realism(tracks: pl.LazyFrame, time_step_s: float) -> dict[str, Realism]:
+    """The statistics of each location of `tracks` (TRACKS_SCHEMA), and of all (ALL)."""
+    values = step_values(tracks, time_step_s)
+    density = densities(tracks, time_step_s)
+    locations = sorted(values[s.LOCATION].unique().to_list())
+    return {
+        name: _statistics(
+            values if name == ALL else values.filter(pl.col(s.LOCATION) == name),
+            density if name == ALL else density.filter(pl.col(s.LOCATION) == name),
+            time_step_s,
+        )
+        for name in [*locations, ALL]
+    }
+
+
+def _statistics(values: pl.DataFrame, density: pl.DataFrame, time_step_s: float) -> Realism:
+    columns = {**{name: values[name] for name in DISTRIBUTIONS[:-1]}, DISTRIBUTIONS[-1]: density}
+    distributions = {
+        name: describe(
+            (column if isinstance(column, pl.Series) else column[name]).drop_nulls().to_numpy()
+        )
+        for name, column in columns.items()
+    }
+    minutes = values.height * time_step_s / 60
+    changes = int(values["lane_change"].sum())
+    return Realism(
+        distributions=distributions,
+        lane_changes_per_vehicle_minute=changes / minutes if minutes else None,
+        slow_share=float((values[s.SPEED_MPS] < SLOW_MPS).mean()) if values.height else None,
+    )
+
+
+def distribution_values(tracks: pl.LazyFrame, time_step_s: float) -> dict[str, np.ndarray]:
+    """Every value behind each of DISTRIBUTIONS, over all locations: what a plot overlays."""
+    values = step_values(tracks, time_step_s)
+    density = densities(tracks, time_step_s)
+    out = {name: values[name].drop_nulls().to_numpy() for name in DISTRIBUTIONS[:-1]}
+    out[DISTRIBUTIONS[-1]] = density[DISTRIBUTIONS[-1]].to_numpy()
+    return out
