@@ -265,7 +265,7 @@ def _discard_if_nothing_kept(
     kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
     if not any(kept):
         with exit_on_error():
-            discard_unfinished(out, members, created)
+            discard_unfinished(out, horizons_s, created)
     return kept
 
 
