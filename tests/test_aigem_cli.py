@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -250,6 +251,53 @@ def test_a_resealed_manifest_whose_scaler_was_edited_is_caught_from_the_data(
         line,
     ), line
     assert not run.exists()  # no epoch ended: nothing kept
+
+
+# What the installed `aigem` runs (pyproject.toml), with the program's own name.
+PROGRAM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
+
+
+def test_the_installed_program_is_the_entry_point_tested_here() -> None:
+    pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert pyproject["project"]["scripts"]["aigem"] == "ngsim_cli.entry:aigem"
+
+
+def _mapped(pid: int, library: str) -> bool:
+    try:
+        return library in Path(f"/proc/{pid}/maps").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize(
+    ("command", "library"),
+    [("fit", "polars"), ("fit", "libtorch"), ("evaluate", "libtorch")],
+    ids=["fit, loading aigem", "fit, loading PyTorch", "evaluate, loading PyTorch"],
+)
+def test_ctrl_c_while_aigem_loads_is_one_line(
+    tiny_build: Path, tiny_run: Path, tmp_path: Path, command: str, library: str
+) -> None:
+    run = tmp_path / "run"
+    arguments = {
+        "fit": ["fit", str(tiny_build), "--out", str(run), *FIT],
+        "evaluate": ["evaluate", str(tiny_run), "--device", "cpu"],
+    }[command]
+    program = subprocess.Popen(
+        [sys.executable, "-c", PROGRAM, *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not _mapped(program.pid, library):
+        assert program.poll() is None, f"it ended before loading {library}: {program.stderr.read()}"
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    program.send_signal(signal.SIGINT)
+    stdout, stderr = program.communicate(timeout=120)
+    assert (program.returncode, stdout, stderr) == (130, "", "interrupted; nothing written\n")
+    assert not run.exists()
 
 
 def test_a_fit_killed_at_any_point_resumes_to_the_uninterrupted_run(
