@@ -37,7 +37,7 @@ from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMod
 from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import DISPLAY_NAMES
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
-from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
 from ngsim_graphs.workers import available_cores
 
 app = typer.Typer(
@@ -399,16 +399,26 @@ def stats(
         except OSError as err:  # a file listed in the manifest is gone
             raise NgsimInputError(build_dir, f"incomplete build: {err}") from None
         synthetic = synthetic_build(opened.manifest)
+        synthetic_files = synthetic_inputs_of(opened.manifest)
     written = _write_plots(values, plots, synthetic) if plots is not None else []
     if as_json:
         document = statistics.to_dict() | {
             "synthetic": synthetic,
+            "synthetic_inputs": list(synthetic_files),
             "plots": [str(path) for path in written],
         }
         typer.echo(json.dumps(document, indent=2))
         return
     if synthetic:
         stdout.print(f"{build_dir}: {SYNTHETIC_LABEL}.", markup=False, highlight=False)
+    elif synthetic_files:
+        stdout.print(
+            f"{build_dir}: {len(synthetic_files)} of {len(opened.manifest.inputs)} inputs are "
+            f"{SYNTHETIC_LABEL} (the manifest's synthetic_inputs).",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
     for make_table in STATS_TABLES:
         print_table(make_table(statistics))
     for path in written:
