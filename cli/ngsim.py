@@ -77,8 +77,10 @@ def synth(
         Path,
         typer.Argument(
             metavar="OUT_DIR",
-            help="Folder to write the files into: new, empty, or one synth wrote before (it "
-            "carries SYNTHETIC.md); synth never replaces files it did not write.",
+            help="Folder to write the files into: new, empty, or one synth wrote before, holding "
+            "only its files as written (SYNTHETIC.md lists them with their sha256); it is "
+            "replaced whole once the new files are written. Synth never replaces files it did "
+            "not write.",
         ),
     ],
     raw_format: Annotated[
@@ -100,8 +102,6 @@ def synth(
     ] = False,
 ) -> None:
     """Write synthetic NGSIM-shaped trajectories (simulated traffic, NOT real NGSIM data)."""
-    from ngsim_graphs.synth.formats import write_synthetic  # the simulator loads only when used
-
     config = _config_or_exit(
         SynthConfig,
         raw_format=raw_format,
@@ -110,9 +110,11 @@ def synth(
         seed=seed,
         quirks=quirks,
     )
-    left = f"no file this run wrote is left in {out_dir}"
-    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
-        paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
+    with exit_on_interrupt(f"nothing written ({out_dir} is as it was)"):
+        from ngsim_graphs.synth.formats import write_synthetic  # the simulator, only when used
+
+        with exit_on_error(), progress_bar() as progress:
+            paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
 

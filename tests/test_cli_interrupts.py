@@ -207,14 +207,15 @@ def test_workers_end_with_a_killed_build_whose_leftovers_the_next_removes(
 def test_sigterm_of_synth_leaves_no_file(tmp_path: Path) -> None:
     folder = tmp_path / "new"
     arguments = ["synth", str(folder), "--recordings", "2", "--minutes", "2"]
-    program, _ = run_until(arguments, lambda _pid, _out: any(folder.rglob(".*.partial")), folder)
+    writing = lambda _pid, out: any(out.parent.glob(f".{out.name}.partial-*/*/*.txt"))
+    program, _ = run_until(arguments, writing, folder)
     os.kill(program.pid, signal.SIGTERM)
     lines = finish(program)
     assert (program.returncode, lines) == (
         143,
-        [f"terminated; no file this run wrote is left in {folder}"],
+        [f"terminated; nothing written ({folder} is as it was)"],
     )
-    assert not folder.exists()
+    assert not folder.exists() and siblings(folder) == []
 
 
 def test_sigterm_of_export_cslstm_leaves_no_file(raw: Path, tmp_path: Path) -> None:
