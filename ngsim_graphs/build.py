@@ -39,7 +39,7 @@ class OpenBuild:
     def _listed(self, path: Path) -> Path:
         """`path`, a file of the build that the manifest lists (checked on opening); an error
         naming it otherwise: every read goes through here."""
-        integrity.listed_record(self.root, path, dict(self.manifest.files))
+        integrity.listed_record(self.root, path, self.manifest.files)
         return path
 
     def _open_arrays(self, folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -186,7 +186,7 @@ def open_build(root: Path | str) -> OpenBuild:
         for entry in manifest.recordings:
             for name in (entry.location, entry.period):
                 integrity.inside(root, name, path)  # a name of the build, never a path
-        integrity.check_listed(root, build_files(root, manifest), dict(manifest.files))
+        integrity.check_listed(root, build_files(root, manifest), manifest.files)
         integrity.check_files(root, manifest.files, path)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         if isinstance(err, NgsimInputError):

@@ -17,7 +17,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -170,7 +170,7 @@ NOT_LISTED = (
 )
 
 
-def listed_record(root: Path, path: Path, records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def listed_record(root: Path, path: Path, records: Mapping[str, Any]) -> Any:
     """The manifest's record of the build's file `path` (under `root`); raise for a file the
     manifest does not list, whose checks an open would otherwise skip."""
     record = records.get(path.relative_to(root).as_posix())
@@ -179,7 +179,7 @@ def listed_record(root: Path, path: Path, records: dict[str, dict[str, Any]]) ->
     return record
 
 
-def check_listed(root: Path, paths: list[Path], records: dict[str, dict[str, Any]]) -> None:
+def check_listed(root: Path, paths: list[Path], records: Mapping[str, Any]) -> None:
     """Raise for the first of `paths` (files of the build under `root`) not in `records`."""
     for path in paths:
         listed_record(root, path, records)
