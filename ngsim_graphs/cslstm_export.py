@@ -297,15 +297,11 @@ def check_output(out: Path, overwrite: bool) -> None:
 def _marker_digests(out: Path) -> dict[str, str] | None:
     """What the marker of an earlier export in `out` lists (file name -> sha256), or None where
     `out` holds no such marker: none, a link, another program's, one without sha256s."""
-    marker = out / MARKER
-    if marker.is_symlink() or not marker.is_file():
+    document = landing.json_object(out / MARKER)
+    if document is None or document.get("program") != PROGRAM:
         return None
-    try:
-        document = json.loads(marker.read_text())
-    except (OSError, UnicodeDecodeError, ValueError):
-        return None
-    files = document.get("files") if isinstance(document, dict) else None
-    if document.get("program") != PROGRAM or not isinstance(files, dict) or not files:
+    files = document.get("files")
+    if not isinstance(files, dict) or not files:
         return None
     digests = {name: record.get("sha256") if isinstance(record, dict) else None
                for name, record in files.items()}  # fmt: skip

@@ -52,16 +52,17 @@ def exported(tmp_path: Path) -> tuple[list[Path], Path]:
     return inputs, out
 
 
+@pytest.mark.parametrize("marker", [{"files": {"TrainSet.mat": {}}}, ["TrainSet.mat"]])
 def test_a_marker_that_only_names_the_files_does_not_make_them_ours(
-    exported: tuple[list[Path], Path], tmp_path: Path
+    exported: tuple[list[Path], Path], tmp_path: Path, marker: object
 ) -> None:
-    """A cslstm-export.json with a `files` key (written by hand, or by an earlier version) does
-    not give --overwrite another program's TrainSet.mat."""
+    """A cslstm-export.json that names the files (written by hand, or by an earlier version;
+    an object or not) does not give --overwrite another program's TrainSet.mat."""
     inputs, _ = exported
     theirs = tmp_path / "theirs"
     theirs.mkdir()
     (theirs / "TrainSet.mat").write_bytes(b"someone else's")
-    (theirs / "cslstm-export.json").write_text(json.dumps({"files": {"TrainSet.mat": {}}}))
+    (theirs / "cslstm-export.json").write_text(json.dumps(marker))
     before = _folder(theirs)
     line = error_line(invoke("export-cslstm", *inputs, "--out", theirs, "--overwrite"))
     assert line == (
