@@ -14,6 +14,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
+import stat
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -23,6 +25,7 @@ from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.layout import MANIFEST_NAME, manifest_path, read_manifest
 from ngsim_graphs.manifest import Manifest, json_form
+from ngsim_graphs.partial_files import create_exclusive, partial_of, write_failure
 from ngsim_graphs.schema import N_TARGETS, Split
 
 RUN_INFO, METRICS, LAST, BEST, CURVES = (
@@ -34,6 +37,12 @@ RUN_INFO, METRICS, LAST, BEST, CURVES = (
 )
 HORIZONS = "horizons.json"  # a multi-horizon run's members
 BASELINE = "baseline.json"  # constant velocity's validation loss
+# fit's marker in a folder it set up, until a checkpoint is kept there: a fresh fit may start
+# over in such a folder, and only in such a one (besides a new or empty folder)
+STARTED = ".fit-started"
+STARTED_LINE = b"aigem fit: no checkpoint kept here yet; a new fit may start over in this folder\n"
+RUN_FILES = frozenset({RUN_INFO, METRICS, LAST, BEST, CURVES, BASELINE, HORIZONS})
+EARLY_FILES = frozenset({RUN_INFO, METRICS, BEST, CURVES, BASELINE})  # before the first last.pt
 IDENTITY = ("build_config_hash", "build_manifest_sha256")  # a build's identity, as a run records it
 INFO_KEYS = ("build_dir", *IDENTITY, "build_config", "scaler", "model", "train")
 # Train settings that a resumed run must keep: they change what it learns. Epochs (unless the
@@ -321,47 +330,154 @@ def check_fit(
 def check_fresh_group(
     run_dir: Path, horizons_s: tuple[float, ...], recorded: tuple[float, ...] | None
 ) -> None:
-    """A fresh multi-horizon run goes into a new or empty directory, or one of a multi-horizon run
-    of the same horizons that never finished an epoch (each member is checked by start_run)."""
-    if not run_dir.exists() or recorded == horizons_s:
+    """A fresh multi-horizon run goes into a new or empty directory, or one that a fit of the
+    same horizons left before any of its models kept a checkpoint (`unfinished_group`); each
+    member is checked by `check_fresh_out`."""
+    if not os.path.lexists(run_dir):
         return
     if not run_dir.is_dir():
         raise NgsimOutputError(run_dir, "exists and is not a directory")
-    if recorded is not None:
+    if recorded is not None and recorded != horizons_s:
         raise NgsimOutputError(
             run_dir,
             f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
             "that never finished an epoch; choose another --out, or delete it",
         )
-    refuse_other_contents(run_dir, "a multi-horizon aigem run")
+    if not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
+        return
+    members = {member_dir(run_dir, h).name for h in horizons_s}
+    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, *members})
 
 
 def check_fresh_out(run_dir: Path) -> None:
-    """A fresh run goes into a new or empty directory, or one of an aigem run that never finished
-    an epoch (its run.json is ours): never into another program's folder, whose files it would
-    overwrite."""
-    if not run_dir.exists():
+    """A fresh run goes into a new or empty directory, or one that a fit left before its first
+    checkpoint (`unfinished_start`): never into another folder, whose files it would replace,
+    even one that holds a run's files (a run kept without its last.pt, a copy)."""
+    if not os.path.lexists(run_dir):
         return
     if not run_dir.is_dir():
         raise NgsimOutputError(run_dir, "exists and is not a directory")
-    if (run_dir / RUN_INFO).is_file():
-        read_run_info(run_dir)  # an error unless it is an aigem run's
+    if not any(run_dir.iterdir()) or unfinished_start(run_dir):
         return
-    refuse_other_contents(run_dir, "an aigem run")
+    if (run_dir / RUN_INFO).is_file():
+        read_run_info(run_dir)  # an error naming run.json unless it is an aigem run's
+    if (run_dir / RUN_INFO).is_file() and not _is_started(run_dir):
+        raise NgsimOutputError(
+            run_dir,
+            f"holds an aigem run with no {LAST} to resume, which no fit left unfinished here (a "
+            "run kept without its checkpoint, or a copy): its files are not fit's to replace; "
+            "choose a new or empty --out",
+        )
+    refuse_other_contents(run_dir, "an aigem run", EARLY_FILES)
 
 
-def refuse_other_contents(run_dir: Path, what: str) -> None:
-    """Refuse a directory that is not empty (it is not `what`)."""
-    entries = sorted(p.name for p in run_dir.iterdir())
+def refuse_other_contents(run_dir: Path, what: str, ours: frozenset[str] | set[str]) -> None:
+    """Refuse a directory that is not empty and not `what`, naming what it holds: beside fit's
+    marker, the entries that are not among the names `ours` (all of them without the marker)."""
+    started = _is_started(run_dir)
+    entries = sorted(
+        p.name
+        for p in run_dir.iterdir()
+        if not started
+        or not (p.name in ours or p.name == STARTED or partial_of(p.name) in RUN_FILES)
+    )
     if entries:
         shown = ", ".join(entries[:3]) + (
             f" and {len(entries) - 3} more" if len(entries) > 3 else ""
         )
+        written = ", which fit did not write" if started else ""
         raise NgsimOutputError(
             run_dir,
-            f"directory is not empty and is not {what}: it holds {shown}; "
+            f"directory is not empty and is not {what}: it holds {shown}{written}; "
             "choose a new or empty --out",
         )
+    raise NgsimOutputError(
+        run_dir,
+        f"is not {what} that fit left unfinished (its files are links, folders or damaged); "
+        "choose a new or empty --out",
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# A run that a fit left before its first checkpoint: the only non-empty folder a fresh fit takes.
+
+
+def _is_started(folder: Path) -> bool:
+    """Whether `folder` holds fit's marker STARTED: a regular file (not a link) of its line."""
+    path = folder / STARTED
+    try:
+        mode = path.lstat().st_mode
+        return stat.S_ISREG(mode) and path.read_bytes() == STARTED_LINE
+    except OSError:
+        return False
+
+
+def _regular_file(path: Path) -> bool:
+    return path.is_file() and not path.is_symlink()
+
+
+def unfinished_start(run_dir: Path) -> bool:
+    """Whether `run_dir` is, beyond doubt, what a fit left before its first checkpoint: fit's
+    marker STARTED, and besides it only files of EARLY_FILES (regular files; run.json an aigem
+    run's) and partial files of a run's files."""
+    if not _is_started(run_dir) or os.path.lexists(run_dir / LAST):
+        return False
+    for entry in run_dir.iterdir():
+        if entry.name == STARTED or partial_of(entry.name) in RUN_FILES:
+            continue
+        if entry.name not in EARLY_FILES or not _regular_file(entry):
+            return False
+    if (run_dir / RUN_INFO).exists():
+        try:
+            read_run_info(run_dir)
+        except NgsimInputError:
+            return False
+    return True
+
+
+def unfinished_group(run_dir: Path, horizons_s: tuple[float, ...]) -> bool:
+    """Whether `run_dir` is, beyond doubt, what a multi-horizon fit of `horizons_s` left before
+    any model kept a checkpoint: fit's marker, its horizons.json (if written yet, a regular file
+    of these horizons), and member folders each empty or `unfinished_start`."""
+    if not _is_started(run_dir):
+        return False
+    members = {member_dir(run_dir, h).name for h in horizons_s}
+    for entry in run_dir.iterdir():
+        if entry.name == STARTED or partial_of(entry.name) == HORIZONS:
+            continue
+        if entry.name == HORIZONS:
+            if not _regular_file(entry):
+                return False
+            continue
+        if entry.name not in members or entry.is_symlink() or not entry.is_dir():
+            return False
+        if any(entry.iterdir()) and not unfinished_start(entry):
+            return False
+    try:
+        return read_horizons(run_dir) in (None, horizons_s)
+    except NgsimInputError:
+        return False
+
+
+def mark_started(folder: Path) -> None:
+    """Write fit's marker into `folder` (new or empty, or unfinished: it may be there already):
+    created exclusively, never through a link."""
+    path = folder / STARTED
+    if _is_started(folder):
+        return
+    try:
+        with create_exclusive(path) as marker:
+            marker.write(STARTED_LINE)
+    except OSError as err:
+        if not isinstance(err, FileExistsError):  # ours, half written: a full disk
+            path.unlink(missing_ok=True)
+        raise write_failure(path, err) from None
+
+
+def unmark_started(folder: Path) -> None:
+    """Remove fit's marker from `folder` (its first checkpoint is kept, or it is discarded)."""
+    if _is_started(folder):
+        (folder / STARTED).unlink(missing_ok=True)
 
 
 def resolve_build(info: dict[str, Any], data: Path | None) -> Path:

@@ -18,8 +18,16 @@ directory per horizon and a file naming them:
     RUN/horizons.json   {"horizons_s": [1.0, 2.0, ...], "members": ["h1s", "h2s", ...]}
     RUN/h1s/, RUN/h2s/  each what a single-horizon fit of that horizon writes
 
-Files are written to `NAME.partial` and renamed, so a kill never leaves a torn file, and a failed
-write (a full disk) removes its partial file and is one error naming the file.
+Files are written to a fresh partial file `.NAME.partial-HEX`, created exclusively and never
+through a link, and renamed (ngsim_graphs.partial_files): a kill never leaves a torn file, a link
+put in the run is never written through, and a failed write (a full disk) removes its partial file
+and is one error naming the file. The log is appended to, never through a link.
+
+A fresh fit writes only into a new or empty folder, or into one that a fit left before its first
+checkpoint: such a folder carries fit's marker `RUN/.fit-started` (aigem.records.STARTED), written
+before anything else and removed once the first last.pt is kept, and nothing else but a run's
+files. A folder that only looks like a run (run.json and best.pt kept without last.pt, a copy)
+is refused, never emptied; `--resume` continues a run whose last.pt is its own.
 """
 
 from __future__ import annotations
@@ -29,7 +37,6 @@ import io
 import json
 import math
 import os
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -55,18 +62,26 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     IDENTITY,
     LAST,
     METRICS,
+    RUN_FILES,
     RUN_INFO,
+    STARTED,
+    STARTED_LINE,
     check_fresh_group,
     check_fresh_out,
     check_group_start,
     check_resume,
     check_single_start,
+    mark_started,
     member_dir,
     read_horizons,
     read_run_info,
     run_info,
+    unfinished_group,
+    unfinished_start,
+    unmark_started,
 )
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
+from ngsim_graphs.partial_files import leftover_partials, write_atomic, write_failure
 
 
 @dataclass(frozen=True)
@@ -106,24 +121,7 @@ def load_model(run_dir: Path, device: torch.device | str = "cpu") -> tuple[AiGem
 
 
 # ------------------------------------------------------------------------------------------------
-# Writing: atomically, and never a torn file.
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write `data` to `path` through `path.partial` and a rename; a failure removes the partial."""
-    partial = path.with_name(path.name + ".partial")
-    try:
-        with open(partial, "wb") as file:
-            file.write(data)
-            file.flush()
-            os.fsync(file.fileno())  # the bytes are on disk before the name points at them
-        os.replace(partial, path)
-    except OSError as err:
-        partial.unlink(missing_ok=True)
-        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
+# Writing: atomically, never a torn file, never through a link (write_atomic: partial_files).
 
 
 def _save_checkpoint(payload: dict[str, Any], path: Path) -> None:
@@ -133,15 +131,25 @@ def _save_checkpoint(payload: dict[str, Any], path: Path) -> None:
 
 
 def _append_line(path: Path, text: str) -> None:
-    """Append one line to a log; a failed write leaves the log as it was (no torn line)."""
-    size = path.stat().st_size if path.exists() else 0
+    """Append one line to a log, never through a link; a failed write leaves the log as it was
+    (no torn line)."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
     try:
-        with path.open("a") as log:
-            log.write(text + "\n")
+        fd = os.open(path, flags, 0o666)
     except OSError as err:
-        with contextlib.suppress(OSError):
-            os.truncate(path, size)
-        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
+        raise write_failure(path, err) from None
+    try:
+        size, data = os.fstat(fd).st_size, (text + "\n").encode()
+        try:
+            done = 0
+            while done < len(data):
+                done += os.write(fd, data[done:])
+        except OSError as err:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, size)
+            raise write_failure(path, err) from None
+    finally:
+        os.close(fd)
 
 
 def _write_info(run_dir: Path, info: dict[str, Any]) -> None:
@@ -170,25 +178,42 @@ def start_run(
     if resume:
         state = _resume(run_dir, build_dir, info, model, optimizer)
         if is_writer:
+            _remove_leftovers(run_dir)  # the run is ours: its last.pt is
+            unmark_started(run_dir)  # killed after its first last.pt, before this
             _write_info(run_dir, info)  # the latest limits (epochs, time, patience)
             _drop_metrics_after(run_dir, state.next_epoch)
         return state, info
     if is_writer:  # the other ranks of a distributed run would see rank 0 writing run.json
-        check_fresh_out(run_dir)
-        created = not run_dir.exists()
-        run_dir.mkdir(parents=True, exist_ok=True)
-        try:
-            _write_info(run_dir, info)
-        except NgsimOutputError:
-            if created:
-                run_dir.rmdir()
-            raise
-        # Without last.pt no epoch of an earlier start got its checkpoint (killed, or a full
-        # disk): nothing to resume, so its log rows and best.pt go, and the run starts over.
-        _drop_metrics_after(run_dir, 0)
-        (run_dir / BEST).unlink(missing_ok=True)
-        (run_dir / BASELINE).unlink(missing_ok=True)  # an earlier start's: fit writes it anew
+        _start_over(run_dir, info)
     return RunState(), info
+
+
+def _start_over(run_dir: Path, info: dict[str, Any]) -> None:
+    """Set up `run_dir` for a fresh run: new or empty, or what a fit left before its first
+    checkpoint (check_fresh_out), whose files then go: nothing to resume, so its log rows,
+    best.pt, baseline.json and partial files go, and the run starts over. Fit's marker is
+    written first, so that a kill at any point leaves a folder the next fit takes."""
+    check_fresh_out(run_dir)
+    created = not run_dir.exists()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        mark_started(run_dir)
+        _remove_leftovers(run_dir)
+        for name in (METRICS, BEST, BASELINE, CURVES):
+            (run_dir / name).unlink(missing_ok=True)
+        _write_info(run_dir, info)
+    except NgsimOutputError:
+        if created:
+            unmark_started(run_dir)
+            with contextlib.suppress(OSError):
+                run_dir.rmdir()
+        raise
+
+
+def _remove_leftovers(folder: Path) -> None:
+    """Remove the partial files of a run's files that a killed fit left in `folder` (ours)."""
+    for path in leftover_partials(folder, RUN_FILES):
+        path.unlink(missing_ok=True)
 
 
 def start_group(
@@ -200,11 +225,16 @@ def start_group(
     killed before its first checkpoint, starts over)."""
     members = tuple(member_dir(run_dir, h) for h in horizons_s)
     check_group_start(run_dir, horizons_s, resume)
+    if is_writer and resume:
+        _remove_leftovers(run_dir)
+        unmark_started(run_dir)  # a member has kept a checkpoint
     if resume:
         return members
     if is_writer:
         check_fresh_group(run_dir, horizons_s, read_horizons(run_dir))
         run_dir.mkdir(parents=True, exist_ok=True)
+        mark_started(run_dir)
+        _remove_leftovers(run_dir)
         names = [member.name for member in members]
         text = json.dumps({"horizons_s": list(horizons_s), "members": names}, indent=2) + "\n"
         write_atomic(run_dir / HORIZONS, text.encode())
@@ -312,6 +342,7 @@ def end_epoch(
         "state": asdict(new),
     }
     _save_checkpoint(checkpoint, run_dir / LAST)
+    unmark_started(run_dir)  # a checkpoint is kept: a fresh fit may no longer start over here
     return new, row
 
 
@@ -320,7 +351,7 @@ def _drop_metrics_after(run_dir: Path, epochs_done: int) -> None:
     row and its last.pt redoes that epoch, which must not be logged twice."""
     rows = read_metrics(run_dir)
     kept = [row for row in rows if row["epoch"] <= epochs_done]
-    if len(kept) < len(rows):
+    if len(kept) < len(rows) or (run_dir / METRICS).is_symlink():  # a link: replaced, not followed
         write_atomic(run_dir / METRICS, "".join(json.dumps(row) + "\n" for row in kept).encode())
 
 
@@ -386,25 +417,26 @@ def epochs_kept(run_dir: Path) -> int:
     return _run_state(load_checkpoint(path, LAST_KEYS)["state"], path).next_epoch
 
 
-def discard_unfinished(run_dir: Path, members: Sequence[Path], created: bool) -> None:
-    """Remove what a fit that finished no epoch wrote: each member's run.json, baseline.json and
-    log (horizons.json for a multi-horizon run), the member directories left empty, and
-    `run_dir` itself where the fit `created` it and it is left empty. Only a member whose
-    run.json is an aigem run's is touched: files of these names in any other folder stay."""
+def discard_unfinished(run_dir: Path, horizons_s: tuple[float, ...] | None, created: bool) -> None:
+    """Remove what a fit that finished no epoch wrote: each member's files, the member
+    directories left empty, horizons.json for a multi-horizon run, and `run_dir` itself where
+    the fit `created` it and it is left empty (`horizons_s`: those of a multi-horizon run, None
+    for a run of one model). Only a folder that is, beyond doubt, what a fit
+    left before its first checkpoint (records.unfinished_start, unfinished_group) is touched:
+    files of these names in any other folder stay."""
+    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
     for member in members:
-        try:
-            read_run_info(member)
-        except NgsimInputError:
+        if not unfinished_start(member):
             continue
+        _remove_leftovers(member)
         for name in (RUN_INFO, BASELINE, METRICS, CURVES, BEST):
             (member / name).unlink(missing_ok=True)
-        if member != run_dir and member.is_dir() and not any(member.iterdir()):
+        unmark_started(member)
+        if member != run_dir and not any(member.iterdir()):
             member.rmdir()
-    try:
-        group = read_horizons(run_dir) is not None
-    except NgsimInputError:  # not ours to remove
-        group = False
-    if group:
-        (run_dir / HORIZONS).unlink()
+    if horizons_s is not None and unfinished_group(run_dir, horizons_s):
+        _remove_leftovers(run_dir)
+        (run_dir / HORIZONS).unlink(missing_ok=True)
+        unmark_started(run_dir)
     if created and run_dir.is_dir() and not any(run_dir.iterdir()):
         run_dir.rmdir()

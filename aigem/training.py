@@ -241,6 +241,7 @@ class _Member:
     rng: RngState | None = None  # its dropout stream, between its steps
     running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
     shown: float = math.nan  # its mean training loss of the epoch, as last read
+    group: Path | None = None  # the multi-horizon run it is a member of
 
 
 def _start_members(
@@ -299,6 +300,7 @@ def _start_members(
                 state,
                 who,
                 _done_before(state, member_train),
+                group=run_dir if horizons_s is not None else None,
             )
         )
     return members
@@ -397,6 +399,8 @@ def _end_epoch(
         timing,
     )
     if loop.rank == 0:  # after every epoch: a long run shows its course
+        if member.group is not None:  # a checkpoint is kept: not a group a fit may start over
+            runs.unmark_started(member.group)
         runs.plot_curves(member.run_dir, loop.synthetic)
     patience = member.train.patience_epochs
     if patience is not None and epoch - member.state.best_epoch >= patience:

@@ -21,6 +21,7 @@ from ngsim_cli.console import (
     add_version_option,
     counted,
     exit_on_error,
+    exit_on_interrupt,
     in_option_words,
     option_names,
     print_table,
@@ -185,10 +186,12 @@ def fit(
         raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
     model_config = ModelConfig(concat_position=not no_concat)
     several = len(horizons_s) > 1
-    from aigem.records import check_fit
+    with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
+        from aigem.records import check_fit
 
-    with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
-        check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+        with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
+            check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+        import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
     group = horizons_s if several else None
     results = _train(data, out, group, model_config, train, device.value, resume)
     _print_results(results, out)
@@ -265,7 +268,7 @@ def _discard_if_nothing_kept(
     kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
     if not any(kept):
         with exit_on_error():
-            discard_unfinished(out, members, created)
+            discard_unfinished(out, horizons_s, created)
     return kept
 
 
@@ -395,16 +398,18 @@ def evaluate(
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity. A
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
-    from aigem.records import check_evaluate, read_horizons
+    with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
+        from aigem.records import check_evaluate, read_horizons
 
-    with exit_on_error():  # the run and the build, before PyTorch
-        check_evaluate(run, data, split, other_build)
-        several = read_horizons(run) is not None
-    from aigem.evaluation import PAPER_TABLE, as_dict, evaluate_horizons
-    from aigem.evaluation import evaluate as run_evaluate
-    from aigem.training import DeviceUnavailableError
+        with exit_on_error():  # the run and the build, before PyTorch
+            check_evaluate(run, data, split, other_build)
+            several = read_horizons(run) is not None
+        from aigem.evaluation import PAPER_TABLE, as_dict, evaluate_horizons
+        from aigem.evaluation import evaluate as run_evaluate
+        from aigem.training import DeviceUnavailableError
 
-    with exit_on_error():
+    left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
+    with exit_on_interrupt(left), exit_on_error():
         try:
             result = (evaluate_horizons if several else run_evaluate)(
                 run, data, split.value, device.value, other_build=other_build

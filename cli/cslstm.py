@@ -64,7 +64,14 @@ def export_cslstm(
         # Said in the docstring: typer would show its type as "<list[Path]>".
         typer.Argument(metavar="RAW_PATH", hidden=True),
     ],
-    out: Annotated[Path, typer.Option("--out", help="Folder for the three .mat files.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Folder for the three .mat files: new or empty (or an earlier export); it is "
+            "written aside and put in place whole.",
+        ),
+    ],
     allow_partial: Annotated[
         bool,
         typer.Option(
@@ -74,7 +81,10 @@ def export_cslstm(
     ] = False,
     overwrite: Annotated[
         bool,
-        typer.Option(help="Replace an earlier export in --out (never files it did not write)."),
+        typer.Option(
+            help="Replace an earlier export in --out: only one whose files are still those its "
+            "cslstm-export.json lists (their sha256), nothing else beside them."
+        ),
     ] = False,
 ) -> None:
     """Write TrainSet.mat, ValSet.mat and TestSet.mat as CS-LSTM's preprocess_data.m makes them.
@@ -92,7 +102,7 @@ def export_cslstm(
     from ngsim_graphs.cslstm_export import FILE_NAMES, MARKER
     from ngsim_graphs.cslstm_export import export_cslstm as export
 
-    left = f"nothing written ({out}'s files are as they were)"
+    left = f"nothing written ({out} is as it was)"
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         result = export(
             raw_paths, out, allow_partial=allow_partial, overwrite=overwrite, progress=progress

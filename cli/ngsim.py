@@ -37,7 +37,7 @@ from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMod
 from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
 from ngsim_graphs.sources.registry import DISPLAY_NAMES
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
-from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
 from ngsim_graphs.workers import available_cores
 
 app = typer.Typer(
@@ -77,8 +77,10 @@ def synth(
         Path,
         typer.Argument(
             metavar="OUT_DIR",
-            help="Folder to write the files into: new, empty, or one synth wrote before (it "
-            "carries SYNTHETIC.md); synth never replaces files it did not write.",
+            help="Folder to write the files into: new, empty, or one synth wrote before, holding "
+            "only its files as written (SYNTHETIC.md lists them with their sha256); it is "
+            "replaced whole once the new files are written. Synth never replaces files it did "
+            "not write.",
         ),
     ],
     raw_format: Annotated[
@@ -100,8 +102,6 @@ def synth(
     ] = False,
 ) -> None:
     """Write synthetic NGSIM-shaped trajectories (simulated traffic, NOT real NGSIM data)."""
-    from ngsim_graphs.synth.formats import write_synthetic  # the simulator loads only when used
-
     config = _config_or_exit(
         SynthConfig,
         raw_format=raw_format,
@@ -110,9 +110,11 @@ def synth(
         seed=seed,
         quirks=quirks,
     )
-    left = f"no file this run wrote is left in {out_dir}"
-    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
-        paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
+    with exit_on_interrupt(f"nothing written ({out_dir} is as it was)"):
+        from ngsim_graphs.synth.formats import write_synthetic  # the simulator, only when used
+
+        with exit_on_error(), progress_bar() as progress:
+            paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
 
@@ -399,16 +401,26 @@ def stats(
         except OSError as err:  # a file listed in the manifest is gone
             raise NgsimInputError(build_dir, f"incomplete build: {err}") from None
         synthetic = synthetic_build(opened.manifest)
+        synthetic_files = synthetic_inputs_of(opened.manifest)
     written = _write_plots(values, plots, synthetic) if plots is not None else []
     if as_json:
         document = statistics.to_dict() | {
             "synthetic": synthetic,
+            "synthetic_inputs": list(synthetic_files),
             "plots": [str(path) for path in written],
         }
         typer.echo(json.dumps(document, indent=2))
         return
     if synthetic:
         stdout.print(f"{build_dir}: {SYNTHETIC_LABEL}.", markup=False, highlight=False)
+    elif synthetic_files:
+        stdout.print(
+            f"{build_dir}: {len(synthetic_files)} of {len(opened.manifest.inputs)} inputs are "
+            f"{SYNTHETIC_LABEL} (the manifest's synthetic_inputs).",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
     for make_table in STATS_TABLES:
         print_table(make_table(statistics))
     for path in written:

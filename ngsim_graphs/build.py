@@ -1,9 +1,11 @@
 """A finished build, opened: its manifest, config, memory-mapped arrays and samples.
 
-Opening reads the manifest and checks it (its checksum, its config hash) and every file it lists:
-its size, an array's dtype and shape, and its sampled digest (the whole of a file up to 8 MiB,
-1 MiB spread over a larger one: 86 MB of the six-recording build's 1.64 GB). The arrays
-are memory-mapped, nothing else is loaded until used. Every path comes from `layout`, never
+Opening reads the manifest and checks it (its checksum, its config hash), that it lists every
+file the layout reads (a manifest re-sealed without a file's record would leave it unchecked),
+and every file it lists: its size, an array's dtype and shape, and its sampled digest (the whole
+of a file up to 8 MiB, 1 MiB spread over a larger one: 86 MB of the six-recording build's
+1.64 GB). The arrays are memory-mapped, nothing else is loaded until used, and every read checks
+again that the manifest lists its file. Every path comes from `layout`, never
 from the manifest. See `integrity`.
 """
 
@@ -34,8 +36,16 @@ class OpenBuild:
     manifest: Manifest
     config: BuildConfig
 
+    def _listed(self, path: Path) -> Path:
+        """`path`, a file of the build that the manifest lists (checked on opening); an error
+        naming it otherwise: every read goes through here."""
+        integrity.listed_record(self.root, path, self.manifest.files)
+        return path
+
     def _open_arrays(self, folder: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Memory-mapped arrays of `folder`, each checked against its record in the manifest."""
+        for name in names:
+            self._listed(folder / f"{name}.npy")
         arrays = layout.open_arrays(folder, names)
         records = self.manifest.files
         for name, array in arrays.items():
@@ -60,12 +70,12 @@ class OpenBuild:
 
     def samples(self, split: Split | str) -> pl.DataFrame:
         """The samples table of a split (SAMPLE_SCHEMA and graph counts)."""
-        return read_table(layout.samples_path(self.root, Split(split).value))
+        return read_table(self._listed(layout.samples_path(self.root, Split(split).value)))
 
     def tracks(self) -> pl.LazyFrame:
         """The tracks tables of every recording, scanned lazily (TRACKS_SCHEMA)."""
         paths = [layout.tracks_path(self.root, r.location, r.period) for r in self.entries]
-        return pl.scan_parquet(paths)
+        return pl.scan_parquet([self._listed(path) for path in paths])
 
     @cached_property
     def _sample_arrays(self) -> dict[Split, dict[str, np.ndarray]]:
@@ -149,9 +159,26 @@ def read_table(path: Path) -> pl.DataFrame:
         raise NgsimInputError(path, f"unreadable table (damaged?): {first}") from None
 
 
+def build_files(root: Path, manifest: Manifest) -> list[Path]:
+    """Every file of a build that the layout reads or writes for the manifest's recordings and
+    splits: each must be listed in the manifest, so that every read of one is checked."""
+    paths = []
+    for entry in manifest.recordings:
+        key = (entry.location, entry.period)
+        folder = layout.recording_arrays_dir(root, *key)
+        paths += [layout.tracks_path(root, *key), layout.proximity_path(root, *key)]
+        paths += [folder / f"{name}.npy" for name in ARRAY_NAMES]
+    for split in Split:
+        folder = layout.sample_arrays_dir(root, split.value)
+        paths.append(layout.samples_path(root, split.value))
+        paths += [folder / f"{name}.npy" for name in layout.SAMPLE_ARRAYS]
+    return paths
+
+
 def open_build(root: Path | str) -> OpenBuild:
-    """Open a finished build, its files checked against the manifest (`integrity.check_files`);
-    a clear error for anything else (not a build, unfinished, other version, edited, damaged)."""
+    """Open a finished build, its files checked against the manifest (`integrity.check_files`),
+    every file the layout reads among them; a clear error for anything else (not a build,
+    unfinished, other version, edited, damaged, a file it reads that the manifest leaves out)."""
     root = Path(root)
     manifest = layout.read_manifest(root)  # typed: of a form that `Manifest` reads
     path = layout.manifest_path(root)
@@ -159,6 +186,7 @@ def open_build(root: Path | str) -> OpenBuild:
         for entry in manifest.recordings:
             for name in (entry.location, entry.period):
                 integrity.inside(root, name, path)  # a name of the build, never a path
+        integrity.check_listed(root, build_files(root, manifest), manifest.files)
         integrity.check_files(root, manifest.files, path)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         if isinstance(err, NgsimInputError):

@@ -5,15 +5,20 @@ neither does the export), applies the rules of `ngsim_graphs.cslstm` to each rec
 builds each split's `tracks` and applies the edge filter, and writes the three files in the MAT
 v5 format that `scipy.io.loadmat` reads (docs/cslstm.md says what each value is).
 
-The output folder is ours to replace only where `cslstm-export.json` says so: it is written
-first with `"complete": false`, the three files are renamed into place, and it is rewritten with
-`"complete": true` last. A `TrainSet.mat` the marker does not list is never replaced.
+The output folder lands whole (`landing.output_directory`): the three files and the marker
+`cslstm-export.json` are written into a hidden partial folder beside it, each created
+exclusively and never through a link, and the finished folder is swapped in, so that an
+interrupted or killed export leaves nothing that looks complete. An existing folder is replaced
+only when it is empty, or (with --overwrite) an earlier export beyond doubt: the files in it are
+exactly its marker and the files the marker lists, each of the sha256 the marker records. A
+`TrainSet.mat` the marker does not list, or one changed since, is never replaced.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -21,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import __version__, matfile
+from ngsim_graphs import __version__, landing, layout, matfile
 from ngsim_graphs import schema as s
 from ngsim_graphs.cslstm import (
     DATASET_IDS,
@@ -37,12 +42,14 @@ from ngsim_graphs.cslstm import (
 )
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
-from ngsim_graphs.interrupts import interrupts_held
+from ngsim_graphs.landing import entries_beyond, some_names
+from ngsim_graphs.partial_files import create_exclusive
 from ngsim_graphs.sources.ngsim.files import find_raw_files, read_raw_file
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
 
 FILE_NAMES = {"train": "TrainSet.mat", "val": "ValSet.mat", "test": "TestSet.mat"}
 MARKER = "cslstm-export.json"
+PROGRAM = "ngsim-graphs export-cslstm"
 LOCATIONS = ("us-101", "i-80")
 # What the script keeps of a row, and Global_Time, which tells the recordings apart.
 _NEEDED = (s.VEHICLE_ID, s.FRAME_ID, s.GLOBAL_TIME, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
@@ -242,8 +249,9 @@ def split_tables(
 
 
 def write_mat(path: Path, table: SplitTables, description: str) -> None:
-    """`traj` and `tracks` as one MAT v5 file (ngsim_graphs.matfile), synced to disk."""
-    with path.open("wb") as handle:
+    """`traj` and `tracks` as one new MAT v5 file (ngsim_graphs.matfile), synced to disk:
+    created exclusively, never through a link."""
+    with create_exclusive(path) as handle:
         handle.write(matfile.header(description))
         matfile.write_single_matrix(handle, "traj", table.traj_blocks, TRAJ_COLUMNS)
         matfile.write_cell_array(handle, "tracks", (6, table.width), table.cells)
@@ -252,50 +260,82 @@ def write_mat(path: Path, table: SplitTables, description: str) -> None:
 
 
 def check_output(out: Path, overwrite: bool) -> None:
-    """Refuse an --out whose files are not ours to replace, or ours without --overwrite."""
+    """Refuse an --out that must not be replaced: anything but a new or empty folder or an
+    earlier export beyond doubt (its marker's files, each of the sha256 it records, and nothing
+    else), and that without `overwrite`."""
     if out.exists() and not out.is_dir():
         raise NgsimOutputError(out, "exists and is not a folder")
-    present = [name for name in FILE_NAMES.values() if (out / name).exists()]
-    marker = out / MARKER
-    if not present and not marker.exists():
+    if not out.is_dir() or not any(out.iterdir()):
         return
-    listed = _listed_files(marker)
-    foreign = [name for name in present if name not in listed]
+    listed = _marker_digests(out)
+    if listed is None:
+        entries = sorted(p.name for p in out.iterdir())
+        ours = [name for name in (*FILE_NAMES.values(), MARKER) if name in entries]
+        if not ours:
+            raise NgsimOutputError(
+                out,
+                f"folder is not empty and holds no export: it holds {some_names(entries)}; "
+                "choose a new or empty --out",
+            )
+        raise NgsimOutputError(
+            out / ours[0],
+            f"was not written by export-cslstm (no {MARKER} of it lists its sha256): not "
+            "replaced; choose another --out",
+        )
+    changed = [name for name, digest in listed.items() if _changed(out / name, digest)]
+    foreign = changed + entries_beyond(out, {MARKER, *listed})
     if foreign:
         raise NgsimOutputError(
             out / foreign[0],
-            f"was not written by export-cslstm (no {MARKER} lists it): not replaced; "
-            "choose another --out",
+            f"was not written by export-cslstm (not listed in {out / MARKER}, or changed since): "
+            "not replaced; move it away or choose another --out",
         )
     if not overwrite:
         raise NgsimOutputError(out, "holds an export already: --overwrite replaces it")
 
 
-def _listed_files(marker: Path) -> set[str]:
-    if not marker.exists():
-        return set()
-    try:
-        document = json.loads(marker.read_text())
-        files = document["files"]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise NgsimOutputError(marker, "is not an export-cslstm marker: not replaced") from None
-    return {name for name in files if name in FILE_NAMES.values()}
+def _marker_digests(out: Path) -> dict[str, str] | None:
+    """What the marker of an earlier export in `out` lists (file name -> sha256), or None where
+    `out` holds no such marker: none, a link, another program's, one without sha256s."""
+    document = landing.json_object(out / MARKER)
+    if document is None or document.get("program") != PROGRAM:
+        return None
+    files = document.get("files")
+    if not isinstance(files, dict) or not files:
+        return None
+    digests = {name: record.get("sha256") if isinstance(record, dict) else None
+               for name, record in files.items()}  # fmt: skip
+    if not set(digests) <= set(FILE_NAMES.values()) or not all(map(_is_sha256, digests.values())):
+        return None
+    return digests
 
 
-def _write_marker(out: Path, result: ExportResult, complete: bool) -> None:
+def _changed(path: Path, digest: str) -> bool:
+    """Whether a file an earlier export listed is there but not as it wrote it (a link too)."""
+    if not os.path.lexists(path):
+        return False
+    return path.is_symlink() or not path.is_file() or file_sha256(path) != digest
+
+
+def _is_sha256(value: object) -> bool:
+    return isinstance(value, str) and re.fullmatch(r"[0-9a-f]{64}", value) is not None
+
+
+def _write_marker(folder: Path, result: ExportResult) -> None:
     document = {
-        "program": "ngsim-graphs export-cslstm",
+        "program": PROGRAM,
         "version": __version__,
-        "complete": complete,
-        "files": {FILE_NAMES[name]: {"traj_rows": n} for name, n in result.rows.items()},
+        "files": {
+            FILE_NAMES[name]: {"traj_rows": n, "sha256": file_sha256(folder / FILE_NAMES[name])}
+            for name, n in result.rows.items()
+        },
         "tracks_width": {FILE_NAMES[name]: n for name, n in result.tracks_width.items()},
         "missing_recordings": result.missing,
         "datasets": [asdict(d) for d in result.datasets],
         "inputs": [asdict(i) for i in result.inputs],
     }
-    partial = out / f".{MARKER}.partial"
-    partial.write_text(json.dumps(document, indent=2) + "\n")
-    partial.replace(out / MARKER)
+    with create_exclusive(folder / MARKER) as handle:
+        handle.write((json.dumps(document, indent=2) + "\n").encode())
 
 
 def export_cslstm(
@@ -321,30 +361,17 @@ def export_cslstm(
         rows={name: t.traj_rows for name, t in tables.items()},
         tracks_width={name: t.width for name, t in tables.items()},
     )
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
-    partials = {}
-    try:
-        for done, name in enumerate(SPLIT_NAMES):
-            progress(f"writing {FILE_NAMES[name]}", done, len(SPLIT_NAMES))
-            partials[name] = out / f".{FILE_NAMES[name]}.partial"
-            description = (
-                f"MATLAB 5.0 MAT-file, written by ngsim-graphs {__version__} export-cslstm: "
-                f"CS-LSTM's {FILE_NAMES[name]}"
-            )
-            write_mat(partials[name], tables.pop(name), description)
-    except BaseException as err:  # an interrupt too: no partial file is left
-        for partial in partials.values():
-            partial.unlink(missing_ok=True)
-        if created and not any(out.iterdir()):
-            out.rmdir()
-        if not isinstance(err, (OSError, ValueError)):
-            raise
-        why = err.strerror if isinstance(err, OSError) and err.strerror else err
-        raise NgsimOutputError(out, f"cannot write the export: {why}") from None
-    with interrupts_held():  # the three files land together, or (interrupted earlier) none
-        _write_marker(out, result, complete=False)
-        for name, partial in partials.items():
-            partial.replace(out / FILE_NAMES[name])
-        _write_marker(out, result, complete=True)
+    with landing.output_directory(out, lambda target: check_output(target, overwrite)) as folder:
+        try:
+            for done, name in enumerate(SPLIT_NAMES):
+                progress(f"writing {FILE_NAMES[name]}", done, len(SPLIT_NAMES))
+                description = (
+                    f"MATLAB 5.0 MAT-file, written by ngsim-graphs {__version__} export-cslstm: "
+                    f"CS-LSTM's {FILE_NAMES[name]}"
+                )
+                with layout.writing(folder / FILE_NAMES[name]):  # a full disk names the file
+                    write_mat(folder / FILE_NAMES[name], tables.pop(name), description)
+        except ValueError as err:  # a table the MAT format cannot hold
+            raise NgsimOutputError(out, f"cannot write the export: {err}") from None
+        _write_marker(folder, result)
     return result

@@ -88,14 +88,8 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
 def earlier_export_files(out: Path) -> set[str] | None:
     """The files of an earlier export in `out` (its marker and the tables it lists that are
     there, each as it was written), or None where `out` holds no export's marker."""
-    marker = out / EXPORT_MARKER
-    if marker.is_symlink() or not marker.is_file():
-        return None
-    try:
-        document = json.loads(marker.read_text())
-    except (OSError, UnicodeDecodeError, ValueError):
-        return None
-    if not isinstance(document, dict) or document.get("program") != EXPORT_PROGRAM:
+    document = landing.json_object(out / EXPORT_MARKER)
+    if document is None or document.get("program") != EXPORT_PROGRAM:
         return None
     tables = document.get("tables")
     ours = {f"{name}.parquet" for name in EXPORT_TABLES}

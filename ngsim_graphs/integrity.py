@@ -17,7 +17,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -164,10 +164,31 @@ def check_sizes(root: Path, records: dict[str, dict[str, Any]], manifest: Path) 
             )
 
 
+NOT_LISTED = (
+    "not listed in the manifest: not part of this build (a manifest re-sealed without it?); "
+    "build it again"
+)
+
+
+def listed_record(root: Path, path: Path, records: Mapping[str, Any]) -> Any:
+    """The manifest's record of the build's file `path` (under `root`); raise for a file the
+    manifest does not list, whose checks an open would otherwise skip."""
+    record = records.get(path.relative_to(root).as_posix())
+    if record is None:
+        raise NgsimInputError(path, NOT_LISTED)
+    return record
+
+
+def check_listed(root: Path, paths: list[Path], records: Mapping[str, Any]) -> None:
+    """Raise for the first of `paths` (files of the build under `root`) not in `records`."""
+    for path in paths:
+        listed_record(root, path, records)
+
+
 def check_array(path: Path, array: np.ndarray, record: dict[str, Any] | None) -> None:
     """Raise unless an opened array has the dtype and shape its record gives."""
     if record is None:
-        raise NgsimInputError(path, "not listed in the manifest: not part of this build")
+        raise NgsimInputError(path, NOT_LISTED)
     if array.dtype.str != record["dtype"] or list(array.shape) != record["shape"]:
         raise NgsimInputError(
             path,

@@ -62,18 +62,26 @@ def some_names(entries: list[str]) -> str:
 # --- what --overwrite may replace ------------------------------------------------------------
 
 
+def json_object(path: Path) -> dict | None:
+    """The JSON object in the file at `path`, or None where there is none: no file, a link, a
+    file that cannot be read or is not JSON, JSON that is not an object. How a marker of ours
+    is told from anything else, before its content is checked."""
+    if path.is_symlink() or not path.is_file():
+        return None
+    try:
+        document = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    return document if isinstance(document, dict) else None
+
+
 def finished_build_files(out: Path) -> set[str] | None:
     """The files of the finished build in `out` (POSIX paths relative to it, its manifest
     included), or None where `out` holds none: no manifest, or one that is not JSON or does not
     match its own checksum and config hash (so not written by a build, or edited since)."""
     path = manifest_path(out)
-    if path.is_symlink() or not path.is_file():
-        return None
-    try:
-        manifest = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError):
-        return None
-    if not isinstance(manifest, dict) or not isinstance(manifest.get(integrity.FILES_KEY), dict):
+    manifest = json_object(path)
+    if manifest is None or not isinstance(manifest.get(integrity.FILES_KEY), dict):
         return None
     try:
         integrity.check_manifest(manifest, path)

@@ -167,6 +167,16 @@ class BuildCounts:
         )
 
 
+def _synthetic_from_json(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The synthetic record of a manifest's JSON value (absent from an older manifest)."""
+    synthetic, inputs = values.get("synthetic"), values.get("synthetic_inputs", [])
+    if synthetic is not None and not isinstance(synthetic, bool):
+        raise ValueError(f"synthetic is {synthetic!r}, not true or false")
+    if not isinstance(inputs, list) or not all(isinstance(path, str) for path in inputs):
+        raise ValueError("synthetic_inputs is not a list of paths")
+    return {"synthetic": synthetic, "synthetic_inputs": tuple(inputs)}
+
+
 @dataclass(frozen=True)
 class Manifest:
     """What a build is (see the module docstring). `files` and `manifest_sha256` are set when
@@ -185,6 +195,10 @@ class Manifest:
     counts: BuildCounts
     # files of the folders searched that are not the dataset's (nothing in them looks like it)
     skipped_files: tuple[str, ...] = ()
+    # Whether every input was written by `ngsim-graphs synth` (synth.marker), told at build time;
+    # None in a manifest made before it was recorded. synthetic_inputs: the inputs that were.
+    synthetic: bool | None = None
+    synthetic_inputs: tuple[str, ...] = ()
     files: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)  # integrity's records
     manifest_sha256: str | None = None  # None until written
 
@@ -208,6 +222,8 @@ class Manifest:
             "counts": self.counts.to_dict(),
             "skipped_files": list(self.skipped_files),
         }
+        if self.synthetic is not None:
+            body |= {"synthetic": self.synthetic, "synthetic_inputs": list(self.synthetic_inputs)}
         if self.manifest_sha256 is not None:
             body |= {FILES_KEY: dict(self.files), CHECKSUM_KEY: self.manifest_sha256}
         return json_form(body)
@@ -234,6 +250,7 @@ class Manifest:
             warnings=tuple(values.get("warnings", ())),
             counts=BuildCounts.from_dict(values["counts"]),
             skipped_files=tuple(values.get("skipped_files", ())),
+            **_synthetic_from_json(values),
             files=dict(files),
             manifest_sha256=values.get(CHECKSUM_KEY),
         )

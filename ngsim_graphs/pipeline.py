@@ -38,6 +38,7 @@ from ngsim_graphs.schema import DropReason, Protocol
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
+from ngsim_graphs.synth.marker import mixed_inputs_warning, synthetic_inputs
 from ngsim_graphs.tasks import (
     RecordingOutput,
     StagedParts,
@@ -374,9 +375,16 @@ def run_build(
         _check_some_samples(outputs, config, raw_paths)
         report_progress("writing samples", len(staged), len(staged))
         samples = _write_samples(root, outputs)
-        warnings = _warnings(outputs, config, file_reports)
+        synthetic = synthetic_inputs(file.path for file in file_reports)  # told now: files move
+        mixed = mixed_inputs_warning([file.path for file in file_reports], synthetic)
+        warnings = _warnings(outputs, config, file_reports) + ([mixed] if mixed else [])
         manifest = _manifest(
             source.name, config, file_reports, outputs, samples, scaler, warnings, skipped
+        )
+        manifest = replace(
+            manifest,
+            synthetic=len(synthetic) == len(file_reports),
+            synthetic_inputs=synthetic,
         )
         manifest = layout.write_manifest(root, manifest)
     return BuildResult(

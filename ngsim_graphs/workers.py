@@ -20,6 +20,7 @@ import ctypes
 import functools
 import multiprocessing
 import os
+import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
@@ -27,6 +28,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from enum import Enum
 from multiprocessing import get_context
+from types import FrameType
 from typing import Any, TypeVar
 
 from ngsim_graphs.errors import NgsimError
@@ -127,12 +129,16 @@ def _releasing(function: Callable[..., Result], *args: Any) -> Result:
             libc.malloc_trim(0)
 
 
-def end_with_parent() -> None:
-    """A worker's start: a thread that ends the process the moment its parent has ended.
+def start_worker() -> None:
+    """A worker's start (the pool's initializer): it ends the moment its parent has ended, and
+    leaves on SIGTERM by SystemExit.
 
     multiprocessing's parent process of a spawned worker ends (`join` returns) when the pipe
     that the parent holds open to it closes, which the kernel does when the parent dies, by
-    kill -9 included: no polling, and no task of an abandoned build goes on writing.
+    kill -9 included: no polling, and no task of an abandoned build goes on writing. SystemExit
+    unwinds what the worker holds: a worker killed outright while it waited for a task could
+    leave the pool's queue locked, and another worker, and the pool's shutdown, waiting on it
+    for ever.
     """
     parent = multiprocessing.parent_process()
     if parent is None:  # not a worker process
@@ -143,6 +149,14 @@ def end_with_parent() -> None:
         os._exit(1)  # nothing to hand results to; what it wrote is its parent's partial output
 
     threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
+    signal.signal(signal.SIGTERM, _leave)
+
+
+def _leave(_signum: int, _frame: FrameType | None) -> None:
+    # Stopped by its parent, which says why: nothing to say, also where the SystemExit comes
+    # while the worker was ending already (Python reports an exception in an exit handler).
+    sys.stderr = open(os.devnull, "w")  # noqa: SIM115
+    raise SystemExit(1)
 
 
 def _failed(future: Future) -> bool:
@@ -182,7 +196,7 @@ class Workers:
             if cancel and others is not None:  # an interrupt may have come before `_pool` was set
                 for process in multiprocessing.active_children():
                     if process not in others:
-                        process.terminate()
+                        process.terminate()  # SIGTERM: the worker leaves by SystemExit
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=cancel)
         finally:  # a second Ctrl-C while waiting: the environment is still given back
@@ -204,7 +218,7 @@ class Workers:
         self._pool = ProcessPoolExecutor(
             size,
             mp_context=get_context("spawn"),
-            initializer=end_with_parent,
+            initializer=start_worker,
             # 1 or None only: CPython 3.11-3.13 can hang with more (gh-115634).
             max_tasks_per_child=1 if processes is Processes.FRESH else None,
         )

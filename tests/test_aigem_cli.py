@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -211,7 +212,7 @@ def test_ctrl_c_after_an_epoch_says_what_the_run_kept(tiny_build: Path, tmp_path
     assert kept >= 1 and stderr.splitlines()[-1] == (
         f"interrupted after epoch {kept} (run {run} holds its checkpoint); continue with --resume"
     )
-    assert not list(run.glob("*.partial"))
+    assert not list(run.glob("*.partial*"))
     assert json.loads((run / "run.json").read_text())["train"]["epochs"] == 50
     assert len(runs.read_metrics(run)) >= kept  # a row written before its checkpoint is redone
 
@@ -250,3 +251,103 @@ def test_a_resealed_manifest_whose_scaler_was_edited_is_caught_from_the_data(
         line,
     ), line
     assert not run.exists()  # no epoch ended: nothing kept
+
+
+# What the installed `aigem` runs (pyproject.toml), with the program's own name.
+PROGRAM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
+
+
+def test_the_installed_program_is_the_entry_point_tested_here() -> None:
+    pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert pyproject["project"]["scripts"]["aigem"] == "ngsim_cli.entry:aigem"
+
+
+def _mapped(pid: int, library: str) -> bool:
+    try:
+        return library in Path(f"/proc/{pid}/maps").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize(
+    ("command", "library"),
+    [("fit", "polars"), ("fit", "libtorch"), ("evaluate", "libtorch")],
+    ids=["fit, loading aigem", "fit, loading PyTorch", "evaluate, loading PyTorch"],
+)
+def test_ctrl_c_while_aigem_loads_is_one_line(
+    tiny_build: Path, tiny_run: Path, tmp_path: Path, command: str, library: str
+) -> None:
+    run = tmp_path / "run"
+    arguments = {
+        "fit": ["fit", str(tiny_build), "--out", str(run), *FIT],
+        "evaluate": ["evaluate", str(tiny_run), "--device", "cpu"],
+    }[command]
+    program = subprocess.Popen(
+        [sys.executable, "-c", PROGRAM, *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not _mapped(program.pid, library):
+        assert program.poll() is None, f"it ended before loading {library}: {program.stderr.read()}"
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    program.send_signal(signal.SIGINT)
+    stdout, stderr = program.communicate(timeout=120)
+    assert (program.returncode, stdout, stderr) == (130, "", "interrupted; nothing written\n")
+    assert not run.exists()
+
+
+def test_a_fit_killed_at_any_point_resumes_to_the_uninterrupted_run(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """kill -9 before the first checkpoint (a fresh fit takes the folder over) and right after
+    it (--resume): the run ends as one that was never stopped, weights to the bit."""
+
+    def fit_process(run: Path, *more: str, batch_size: int = 8) -> subprocess.Popen:
+        command = [sys.executable, "-m", "ngsim_cli.aigem", "fit", str(tiny_build), "--out"]
+        options = ["--epochs", "2", "--batch-size", str(batch_size), "--horizon-s", "2", "--seed",
+                   "3"]  # fmt: skip
+        return subprocess.Popen(
+            [*command, str(run), *options, "--device", "cpu", "--threads", "1", "--workers", "0",
+             *more],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+
+    def done(process: subprocess.Popen) -> None:
+        _, stderr = process.communicate(timeout=300)
+        assert process.returncode == 0, stderr
+
+    straight, killed = tmp_path / "straight", tmp_path / "killed"
+    done(fit_process(straight))
+    # Batches of one: a long first epoch, killed well before its checkpoint; a fresh fit (of
+    # other settings even) takes the folder over, and is killed once its first checkpoint is
+    # kept (perhaps before its marker went); --resume ends it.
+    process = fit_process(killed, batch_size=1)
+    _wait_for(killed / runs.RUN_INFO, process)
+    process.kill()
+    process.wait(timeout=60)
+    assert (killed / runs.STARTED).is_file() and not (killed / runs.LAST).exists()
+    process = fit_process(killed)
+    _wait_for(killed / runs.LAST, process)
+    process.kill()
+    process.wait(timeout=60)
+    done(fit_process(killed, "--resume"))
+    weights = lambda run, name: torch_load(run / name)["model"]
+    for name in (runs.BEST, runs.LAST):
+        one, other = weights(straight, name), weights(killed, name)
+        assert one.keys() == other.keys() and all(one[k].equal(other[k]) for k in one)
+    rows = lambda run: [{k: r[k] for k in ("epoch", "train_loss_m2", "val_loss_m2")}
+                        for r in runs.read_metrics(run)]  # fmt: skip
+    assert rows(killed) == rows(straight) and len(rows(straight)) == 2
+    assert sorted(p.name for p in killed.iterdir()) == sorted(p.name for p in straight.iterdir())
+
+
+def torch_load(path: Path) -> dict:
+    import torch
+
+    return torch.load(path, map_location="cpu", weights_only=True)

@@ -146,9 +146,10 @@ def test_a_resumed_run_ends_as_an_uninterrupted_one(
     assert (short.epochs_done, short.stopped_because, long.epochs_done) == (2, "epochs", 2)
     assert (run / "h1s" / runs.LAST).read_bytes() == h1s_last
     assert _same_run(run / "h2s", straight / "h2s")
-    # A member without any checkpoint (killed before its first) starts over.
+    # A member without any checkpoint (killed before its first: its marker is there) starts over.
     for name in (runs.LAST, runs.BEST, runs.METRICS):
         (run / "h1s" / name).unlink()
+    (run / "h1s" / runs.STARTED).write_bytes(runs.STARTED_LINE)
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
     assert _same_run(run / "h1s", straight / "h1s")
 

@@ -23,7 +23,9 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from aigem.training import fit
 from ngsim_cli.aigem import app
+from ngsim_graphs import partial_files
 from ngsim_graphs.layout import write_manifest_json
+from ngsim_graphs.partial_files import create_exclusive, partial_of
 
 FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
 FIT = ["--epochs", "1", "--batch-size", "8", "--horizon-s", "1.0", "--seed", "3", "--device", "cpu"]
@@ -235,16 +237,16 @@ def test_a_full_disk_is_one_error_line_and_leaves_no_torn_file(
     monkeypatch: pytest.MonkeyPatch,
     name: str,
 ) -> None:
-    def full_disk_open(path, mode="r", *args, **kwargs):
-        file = builtins.open(path, mode, *args, **kwargs)  # noqa: SIM115 - returned open, the caller closes it
-        return _FullDisk(file, 100) if Path(path).name == f"{name}.partial" else file
+    def full_disk_create(path: Path):  # noqa: ANN202
+        file = create_exclusive(path)
+        return _FullDisk(file, 100) if partial_of(path.name) == name else file
 
-    monkeypatch.setattr(runs, "open", full_disk_open, raising=False)
+    monkeypatch.setattr(partial_files, "create_exclusive", full_disk_create)
     run = tmp_path / "run"
     result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
     line = _one_error_line(result, run / name)
     assert line == f"error: {run / name}: cannot write: No space left on device\n"
-    assert not list(tmp_path.rglob("*.partial"))
+    assert not list(tmp_path.rglob("*.partial*"))
     assert not (run / name).exists() and not (run / runs.LAST).exists()
     if name == runs.RUN_INFO:
         assert not run.exists()  # the run folder it had just made is gone again
@@ -338,3 +340,119 @@ def test_a_damaged_metrics_log_is_one_line(
         result.stderr
         == f"error: {run / runs.METRICS}, line 2: not a row of aigem's metrics log (damaged?)\n"
     )
+
+
+def _contents(folder: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+@pytest.mark.parametrize(
+    "kept",
+    [
+        (runs.RUN_INFO, runs.BEST),  # a run kept without its last.pt: what evaluate needs
+        (runs.RUN_INFO, runs.BEST, runs.BASELINE, runs.METRICS, runs.CURVES),
+    ],
+    ids=["run.json and best.pt", "all but last.pt"],
+)
+def test_fit_never_empties_a_folder_that_only_looks_like_a_run(
+    trained_run: Path, tiny_build: Path, tmp_path: Path, kept: tuple[str, ...]
+) -> None:
+    folder = tmp_path / "final-model"
+    folder.mkdir()
+    for name in kept:
+        shutil.copy(trained_run / name, folder / name)
+    before = _contents(folder)
+    result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(folder), *FIT])
+    assert _one_error_line(result, folder) == (
+        f"error: {folder}: holds an aigem run with no last.pt to resume, which no fit left "
+        "unfinished here (a run kept without its checkpoint, or a copy): its files are not fit's "
+        "to replace; choose a new or empty --out\n"
+    )
+    assert _contents(folder) == before
+
+
+def test_a_multi_horizon_fit_never_empties_a_folder_that_only_looks_like_one(
+    trained_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    """horizons.json of the same horizons is not enough: every member is looked at too."""
+    folder = tmp_path / "models"
+    for member in ("h1s", "h2s"):
+        (folder / member).mkdir(parents=True)
+        for name in (runs.RUN_INFO, runs.BEST):
+            shutil.copy(trained_run / name, folder / member / name)
+    horizons = {"horizons_s": [1.0, 2.0], "members": ["h1s", "h2s"]}
+    (folder / runs.HORIZONS).write_text(json.dumps(horizons))
+    (folder / "notes.txt").write_text("mine\n")
+    before = _contents(folder)
+    result = CliRunner().invoke(
+        app,
+        ["fit", str(tiny_build), "--out", str(folder), *FIT[:4], "--horizon-s", "1,2", *FIT[6:]],
+    )
+    assert _one_error_line(result, folder) == (
+        f"error: {folder}: directory is not empty and is not a multi-horizon aigem run: it holds "
+        "h1s, h2s, horizons.json and 1 more; choose a new or empty --out\n"
+    )
+    assert _contents(folder) == before
+
+
+def test_a_fit_stopped_before_its_first_checkpoint_is_started_over(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """What a fit leaves before its first last.pt carries its marker: the next fit takes the
+    folder (its leftovers go); the marker goes once a checkpoint is kept."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / runs.STARTED).write_bytes(runs.STARTED_LINE)
+    leftover = run / ".best.pt.partial-0123456789abcdef"  # a write killed halfway
+    leftover.write_bytes(b"half a checkpoint")
+    (run / runs.METRICS).write_text('{"epoch": 1, "train_loss_m2": 1.0}\n')
+    result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in run.iterdir()) == sorted(
+        [runs.RUN_INFO, runs.METRICS, runs.LAST, runs.BEST, runs.BASELINE, runs.CURVES]
+    )
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    # The same with a file fit did not write beside the marker: refused, nothing removed.
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / runs.STARTED).write_bytes(runs.STARTED_LINE)
+    (other / runs.BEST).write_bytes(b"someone else's model")
+    (other / "notes.txt").write_text("mine\n")
+    before = _contents(other)
+    refused = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(other), *FIT])
+    assert _one_error_line(refused, other) == (
+        f"error: {other}: directory is not empty and is not an aigem run: it holds notes.txt, "
+        "which fit did not write; choose a new or empty --out\n"
+    )
+    assert _contents(other) == before
+
+
+def test_a_run_is_never_written_through_a_link(
+    trained_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    """Links put at the partial names of a run's files, and at its log, lead outside the run:
+    a resumed fit writes its files beside them, never into what they lead to."""
+    run = _copy(trained_run, tmp_path)
+    victims = tmp_path / "victims"
+    victims.mkdir()
+    for name in (runs.RUN_INFO, runs.LAST, runs.BEST, runs.CURVES, runs.METRICS):
+        (victims / name).write_text(f"mine: {name}\n")
+        os.symlink(victims / name, run / f"{name}.partial")
+    metrics = (run / runs.METRICS).read_bytes()
+    (victims / "log").write_bytes(metrics)
+    (run / runs.METRICS).unlink()
+    os.symlink(victims / "log", run / runs.METRICS)
+    result = CliRunner().invoke(
+        app, ["fit", str(tiny_build), "--out", str(run), "--resume", *_fit_args(2)]
+    )
+    assert result.exit_code == 0, result.output
+    assert {p.name: p.read_bytes() for p in victims.iterdir()} == {
+        **{name: f"mine: {name}\n".encode() for name in (runs.RUN_INFO, runs.LAST, runs.BEST,
+                                                         runs.CURVES, runs.METRICS)},
+        "log": metrics,
+    }  # fmt: skip
+    assert not (run / runs.METRICS).is_symlink()
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1, 2]
+    assert runs.epochs_kept(run) == 2

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import hashlib
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -365,8 +366,10 @@ def test_synth_twice_replaces_its_own_files(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert files(folder) == first and sorted(first) == [PORTAL_FILE_NAME, MARKER_NAME]
     marker = (folder / MARKER_NAME).read_text()
-    assert "NOT real NGSIM" in marker and "Status: complete." in marker
-    assert f"\n- {PORTAL_FILE_NAME}\n" in marker
+    assert "NOT real NGSIM" in marker and f"\n- {PORTAL_FILE_NAME}\n" in marker
+    digest = hashlib.sha256(first[PORTAL_FILE_NAME]).hexdigest()
+    assert f"\n    {digest}  {PORTAL_FILE_NAME}\n" in marker  # as sha256sum -c reads it
+    assert siblings(folder) == []  # no lock file, no partial folder
 
 
 def test_synth_keeps_a_file_its_marker_does_not_list(tmp_path: Path) -> None:
@@ -375,22 +378,22 @@ def test_synth_keeps_a_file_its_marker_does_not_list(tmp_path: Path) -> None:
     real = folder / "us-101" / NGSIM_FILE
     real.parent.mkdir()
     real.write_text("real data\n")
+    before = files(folder)
     line = error_line(invoke("synth", folder, "--recordings", "1", "--minutes", "0.05"))
     assert line == (
-        f"error: {real}: not written by synth (not listed in {folder / MARKER_NAME}); "
-        "move it away first"
+        f"error: {real.parent}: not written by synth (not listed in {folder / MARKER_NAME}, or "
+        "changed since); move it away first: synth replaces only a folder of its own files"
     )
-    assert real.read_text() == "real data\n" and (folder / PORTAL_FILE_NAME).is_file()
+    assert files(folder) == before and siblings(folder) == []
 
 
-def test_synth_in_another_format_removes_its_earlier_files(tmp_path: Path) -> None:
+def test_synth_in_another_format_replaces_its_earlier_files(tmp_path: Path) -> None:
     folder = tmp_path / "raw"
     assert invoke("synth", folder, *SYNTH[:-2], "--format", "csv").exit_code == 0
-    (folder / "notes.md").write_text("mine\n")
     assert invoke("synth", folder, *SYNTH).exit_code == 0
-    # one copy of the data, not two; the file synth did not write is still there
-    assert sorted(files(folder)) == [PORTAL_FILE_NAME, MARKER_NAME, "notes.md"]
-    assert sorted(p.name for p in folder.iterdir()) == sorted(files(folder))  # no empty us-101/
+    # one copy of the data, not two, and no empty us-101/
+    assert sorted(files(folder)) == [PORTAL_FILE_NAME, MARKER_NAME]
+    assert sorted(p.name for p in folder.iterdir()) == sorted(files(folder))
 
 
 def test_synth_full_disk_is_one_line_naming_the_file(
@@ -404,8 +407,8 @@ def test_synth_full_disk_is_one_line_naming_the_file(
     folder = tmp_path / "raw"
     line = error_line(invoke("synth", folder, "--recordings", "1", "--minutes", "0.05"))
     path = folder / "us-101" / NGSIM_FILE
-    assert line == f"error: {path}: cannot write: No space left on device (os error 28)"
-    assert not folder.exists()
+    assert line == f"error: {path}: cannot write: No space left on device"
+    assert not folder.exists() and siblings(folder) == []
 
 
 # --- export ----------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ ngsimDataset reads them; the inputs' formats; and what the export refuses."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -76,11 +77,16 @@ def test_export_equals_the_reference_of_the_script(tmp_path: Path) -> None:
     assert all(n > 0 for n in result.rows.values())
     assert [d.dataset_id for d in result.datasets] == [1, 2, 3, 4, 5, 6]
     marker = json.loads((tmp_path / "out" / MARKER).read_text())
-    assert marker["complete"] is True and marker["missing_recordings"] == []
+    assert marker["program"] == "ngsim-graphs export-cslstm" and marker["missing_recordings"] == []
     assert {name: f["traj_rows"] for name, f in marker["files"].items()} == {
         FILE_NAMES[name]: n for name, n in result.rows.items()
     }
+    for name, record in marker["files"].items():
+        assert (
+            record["sha256"] == hashlib.sha256((tmp_path / "out" / name).read_bytes()).hexdigest()
+        )
     assert not list((tmp_path / "out").glob(".*"))  # no partial files left
+    assert not list(tmp_path.glob(".out.*"))  # no lock, no partial folder
 
 
 def test_a_sample_reads_as_ngsim_dataset_reads_it(tmp_path: Path) -> None:
@@ -178,7 +184,9 @@ def test_the_output_folder_is_replaced_only_when_ours(tmp_path: Path) -> None:
     foreign = tmp_path / "theirs"
     foreign.mkdir()
     (foreign / "TestSet.mat").write_bytes(b"someone else's")
-    with pytest.raises(NgsimOutputError, match="TestSet.mat: was not written by export-cslstm"):
+    with pytest.raises(
+        NgsimOutputError, match="TestSet.mat: was not written by export-cslstm \\(no"
+    ):
         export_cslstm(inputs, foreign, overwrite=True)
     assert (foreign / "TestSet.mat").read_bytes() == b"someone else's"
     assert not (foreign / "TrainSet.mat").exists()

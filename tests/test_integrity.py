@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import polars as pl
 import pytest
 from test_cli_ngsim import error_line, invoke
 from typer.testing import CliRunner, Result
@@ -319,3 +320,36 @@ def test_a_build_of_the_format_before_sampled_digests_is_refused(copy: Path) -> 
         f"error: {copy / layout.MANIFEST_NAME}: format version 2; expected 3 (made by an older "
         "ngsim-graphs: build it again)"
     )
+
+
+@pytest.mark.parametrize(
+    "relative",
+    ["samples/test.parquet", "samples/train.parquet", "tracks", "proximity", "arrays/samples-val"],
+)
+def test_a_file_the_manifest_leaves_out_is_refused_by_every_open(copy: Path, relative: str) -> None:
+    """A manifest re-sealed without a file's record: the file would be read unchecked (here an
+    empty table in place of the test samples), so every open refuses it, naming it."""
+    entry = manifest_of(copy)["recordings"][0]
+    name = layout.recording_name(entry["location"], entry["period"])
+    relative = {
+        "tracks": f"tracks/{name}.parquet",
+        "proximity": f"proximity/{name}.parquet",
+        "arrays/samples-val": "arrays/samples-val/start_step.npy",
+    }.get(relative, relative)
+    manifest = manifest_of(copy)
+    del manifest["files"][relative]
+    rewrite(copy, manifest, checksum=True)
+    path = copy / relative
+    if relative == "samples/test.parquet":
+        pl.read_parquet(path).clear().write_parquet(path)  # what the record would have caught
+    expected = f"error: {path}: {integrity.NOT_LISTED}"
+    out = copy.parent / "out"
+    for result in (
+        invoke("stats", copy, "--json"),
+        invoke("export", copy, "--out", out),
+        invoke("show", copy, "--out", out.with_suffix(".png")),
+    ):
+        assert error_line(result) == expected
+    fit = aigem("fit", copy, "--out", out, "--epochs", "1", "--device", "cpu")
+    assert (fit.exit_code, fit.stderr) == (1, expected + "\n")
+    assert not out.exists() and not out.with_suffix(".png").exists()

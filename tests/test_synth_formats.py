@@ -8,18 +8,25 @@ from __future__ import annotations
 import csv
 import io
 import re
+import signal
+import subprocess
+import sys
+import time
 from collections import Counter
 from datetime import datetime
 from pathlib import Path
 
 import polars as pl
 import pytest
+from typer.testing import CliRunner, Result
 
+from ngsim_cli.ngsim import app
 from ngsim_graphs import schema
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
 from ngsim_graphs.synth import formats as synthesis
+from ngsim_graphs.synth.marker import MARKER_NAME
 from ngsim_graphs.synth.traffic import simulate_recording
 
 MINUTES = 0.3
@@ -233,3 +240,88 @@ def test_interrupted_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.Mo
     with pytest.raises(KeyboardInterrupt):
         synthesis.write_synthetic(tmp_path, config)
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+# --- the folder synth writes: through the command line ---------------------------------------
+
+SYNTH = ("--recordings", "2", "--minutes", "0.05", "--format", "txt")
+FIRST, SECOND = (f"trajectories-{r.period}.txt" for r in OFFICIAL_RECORDINGS[:2])
+
+
+def invoke(*args: object) -> Result:
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def siblings(out: Path) -> list[str]:
+    return sorted(p.name for p in out.parent.glob(f".{out.name}.*"))
+
+
+def test_a_marker_that_only_lists_a_file_does_not_make_it_synths(tmp_path: Path) -> None:
+    """A SYNTHETIC.md naming real data (copied, or written by hand) lists no sha256 that synth
+    recorded: synth replaces nothing in that folder."""
+    folder = tmp_path / "ngsim"
+    real = folder / "us-101" / FIRST
+    real.parent.mkdir(parents=True)
+    real.write_text("real data\n")
+    (folder / MARKER_NAME).write_text(f"# Synthetic data\n\nFiles:\n\n- us-101/{FIRST}\n")
+    before = files(folder)
+    result = invoke("synth", folder, *SYNTH)
+    assert result.exit_code == 1 and result.stderr == (
+        f"error: {folder / MARKER_NAME}: is not a marker that synth wrote (or was edited since: "
+        "it lists no file with its sha256): the folder is not replaced; move it away or choose "
+        "another folder\n"
+    )
+    assert files(folder) == before and siblings(folder) == []
+
+
+def test_synth_never_writes_through_a_link(tmp_path: Path) -> None:
+    """A link in a folder of synth's, at the partial name of one of its files, leads to a file
+    of yours: synth refuses the folder and the file stays as it was."""
+    folder = tmp_path / "raw"
+    assert invoke("synth", folder, *SYNTH).exit_code == 0
+    victim = tmp_path / "mine.txt"
+    victim.write_text("mine\n")
+    (folder / "us-101" / f".{FIRST}.partial").symlink_to(victim)
+    result = invoke("synth", folder, *SYNTH, "--seed", "1")
+    assert result.exit_code == 1 and result.stderr.startswith(
+        f"error: {folder / 'us-101' / f'.{FIRST}.partial'}: not written by synth"
+    )
+    assert victim.read_text() == "mine\n"
+
+
+def _run_synth_until_second_file(folder: Path) -> subprocess.Popen:
+    """`ngsim-graphs synth` in a process of its own, stopped once its first file is written
+    whole (the second is being written, wherever that is)."""
+    program = "import sys; from ngsim_cli.entry import ngsim_graphs; ngsim_graphs()"
+    arguments = ["synth", str(folder), "--recordings", "2", "--minutes", "1"]
+    process = subprocess.Popen(
+        [sys.executable, "-c", program, *arguments], stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while not any(SECOND in p.name for p in folder.parent.rglob("*")):
+        assert process.poll() is None, process.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    return process
+
+
+@pytest.mark.parametrize("how", ["kill -9", "Ctrl-C"])
+def test_a_stopped_synth_leaves_nothing_that_looks_complete(tmp_path: Path, how: str) -> None:
+    folder = tmp_path / "raw"
+    process = _run_synth_until_second_file(folder)
+    process.send_signal(signal.SIGKILL if how == "kill -9" else signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    if how == "Ctrl-C":
+        assert (process.returncode, stderr) == (
+            130,
+            f"interrupted; nothing written ({folder} is as it was)\n",
+        )
+        assert siblings(folder) == []
+    assert not folder.exists()  # no first file, complete but of an unfinished run
+    again = invoke("synth", folder, "--recordings", "1", "--minutes", "0.05")
+    assert again.exit_code == 0, again.output
+    assert sorted(files(folder)) == [MARKER_NAME, f"us-101/{FIRST}"] and siblings(folder) == []

@@ -13,9 +13,12 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from ngsim_cli.ngsim import app
-from ngsim_graphs.config import BuildConfig
+from ngsim_graphs import integrity
+from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.plotting import PLOT_NAMES
+from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.synth.formats import write_synthetic
 from ngsim_graphs.synth.marker import MARKER_NAME, SYNTHETIC_LABEL, written_by_synth
 
 LABEL_ROWS = 40  # the top of a picture, where the label is drawn
@@ -89,3 +92,60 @@ def test_show_of_a_synthetic_build_carries_the_label(
     assert SYNTHETIC_LABEL not in plain.stdout
     assert label_pixels(tmp_path / "synth.png") > 200
     assert label_pixels(tmp_path / "plain.png") == 0
+
+
+FAST_BUILD = ("--d-sense-m", "12", "--d-min-m", "6", "--stride-s", "2")
+
+
+def test_a_build_is_synthetic_by_its_manifest_wherever_its_inputs_go(tmp_path: Path) -> None:
+    """Told when the build reads its inputs and recorded: moving the raw files (or losing
+    synth's marker) afterwards does not make a build of simulated data read as real."""
+    raw = tmp_path / "raw"
+    (path,) = write_synthetic(raw, SynthConfig(RawFormat.PORTAL, recordings=1, minutes=0.3))
+    build = tmp_path / "build"
+    assert invoke("build", raw, "--out", build, *FAST_BUILD).exit_code == 0
+    manifest = json.loads((build / "manifest.json").read_text())
+    assert (manifest["synthetic"], manifest["synthetic_inputs"]) == (True, [str(path)])
+    raw.rename(tmp_path / "moved")
+    document = json.loads(invoke("stats", build, "--json", "--degree-graphs", "5").stdout)
+    assert (document["synthetic"], document["synthetic_inputs"]) == (True, [str(path)])
+    shown = invoke("show", build, "--sample", "0:2", "--out", tmp_path / "scene.png")
+    assert shown.exit_code == 0, shown.output
+    assert shown.stdout.rstrip().endswith(f"; {SYNTHETIC_LABEL}")
+    assert label_pixels(tmp_path / "scene.png") > 200
+
+
+def test_a_build_of_synthetic_and_other_inputs_names_both(tmp_path: Path) -> None:
+    raw = tmp_path / "raw"
+    ours, theirs = write_synthetic(raw, SynthConfig(RawFormat.CSV, recordings=2, minutes=0.3))
+    measured = tmp_path / "measured" / theirs.name  # the same rows, no marker beside them
+    measured.parent.mkdir()
+    shutil.copyfile(theirs, measured)
+    build = tmp_path / "build"
+    result = invoke("build", ours, measured, "--out", build, *FAST_BUILD)
+    assert result.exit_code == 0, result.output
+    warning = (
+        f"the inputs mix synthetic and other data: 1 ({ours}) written by `ngsim-graphs synth` "
+        f"({MARKER_NAME} lists them), 1 ({measured}) not; the build is recorded as not "
+        "synthetic, its manifest's synthetic_inputs names the synthetic ones"
+    )
+    assert warning in " ".join(result.stderr.split())
+    manifest = json.loads((build / "manifest.json").read_text())
+    assert (manifest["synthetic"], manifest["synthetic_inputs"]) == (False, [str(ours)])
+    assert warning in manifest["warnings"]
+    document = json.loads(invoke("stats", build, "--json", "--degree-graphs", "5").stdout)
+    assert (document["synthetic"], document["synthetic_inputs"]) == (False, [str(ours)])
+    table = invoke("stats", build, "--degree-graphs", "5").stdout
+    assert table.startswith(f"{build}: 1 of 2 inputs are {SYNTHETIC_LABEL} (the manifest's")
+
+
+def test_a_manifest_made_before_the_record_still_reads(tiny_build: Path, tmp_path: Path) -> None:
+    """Without the synthetic keys (an earlier build), synth's markers beside the inputs tell."""
+    build = Path(shutil.copytree(tiny_build, tmp_path / "build"))
+    manifest = json.loads((build / "manifest.json").read_text())
+    for key in ("synthetic", "synthetic_inputs"):
+        del manifest[key]
+    (build / "manifest.json").write_text(json.dumps(integrity.with_checksum(manifest)))
+    document = json.loads(invoke("stats", build, "--json", "--degree-graphs", "5").stdout)
+    assert document["synthetic"] is True
+    assert document["synthetic_inputs"] == [r["path"] for r in manifest["inputs"]]

@@ -62,6 +62,52 @@ def pid_file_then_work(folder: str, index: int, seconds: float) -> None:
             time.sleep(0.05)
 
 
+def fail_last(index: int) -> int:
+    """Task 2 fails at once; the others take a moment."""
+    if index == 2:
+        raise ValueError("task 2")
+    time.sleep(0.3)
+    return index
+
+
+# Failed maps of fresh processes, one after the other: when task 2 fails, the processes that
+# ran tasks 0 and 1 have been replaced by new ones, which wait for a task.
+FAILING_MAPS = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_workers import fail_last
+from ngsim_graphs.workers import Processes, Workers
+for _ in range({runs}):
+    try:
+        with Workers(2) as workers:
+            tasks = [(i,) for i in range(3)]
+            workers.map(fail_last, tasks, sizes=[3, 2, 1], processes=Processes.FRESH)
+    except ValueError:
+        pass
+print("done")
+"""
+
+
+def test_a_failed_map_never_waits_for_ever_on_its_workers() -> None:
+    # A worker stopped while it waited for a task could hold the pool's queue: the shutdown that
+    # followed waited for ever on a worker that waited for the queue (a build refused by a
+    # worker's error hung about one time in two).
+    code = FAILING_MAPS.format(tests=str(Path(__file__).parent), runs=6)
+    program = subprocess.Popen(
+        [sys.executable, "-c", code],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        out, err = program.communicate(timeout=60)
+    finally:
+        if program.poll() is None:
+            os.killpg(program.pid, signal.SIGKILL)
+    assert (out, err) == ("done\n", "")
+
+
 def resident_bytes() -> int:
     with open("/proc/self/statm") as statm:
         return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")

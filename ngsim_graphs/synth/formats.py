@@ -1,15 +1,19 @@
 """Synthetic NGSIM files behind `ngsim-graphs synth`: simulated recordings written in one of the
 three raw formats (SPEC section 1), optionally with the quirks of real exports.
 
-Every file is written under a hidden temporary name in its folder and renamed into place when
-complete, so an interrupted run never leaves a complete-looking file. The same config always gives
-byte-identical files. A folder synth fills carries `SYNTHETIC.md`, which says the data are
-simulated and lists synth's files: synth replaces files only in a new or empty folder or in one of
-its own, and only those it listed.
+The folder lands whole (`landing.output_directory`): its files are written into a hidden partial
+folder beside it, each created exclusively and never through a link, and the finished folder is
+swapped in, so that an interrupted or killed run leaves nothing that looks complete (a killed
+run's partial folder is removed by the next run into the same folder). The same config always
+gives byte-identical files. A folder synth fills carries `SYNTHETIC.md`, which says the data are
+simulated and lists synth's files with their sha256: synth replaces a folder only when it is new
+or empty or holds exactly the files its marker lists, as synth wrote them.
 """
 
 from __future__ import annotations
 
+import os
+import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -20,14 +24,16 @@ from typing import BinaryIO
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import schema
+from ngsim_graphs import landing, layout, schema
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
-from ngsim_graphs.landing import some_names
+from ngsim_graphs.integrity import file_sha256
+from ngsim_graphs.landing import entries_beyond, some_names
+from ngsim_graphs.partial_files import create_exclusive
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
 from ngsim_graphs.synth.highd import DECIMALS as HIGHD_DECIMALS
 from ngsim_graphs.synth.highd import highd_paths, highd_tables
-from ngsim_graphs.synth.marker import MARKER_NAME  # written first into every folder synth fills
+from ngsim_graphs.synth.marker import MARKER_NAME  # written last into every folder synth fills
 from ngsim_graphs.synth.traffic import simulate_recording
 
 PORTAL_FILE_NAME = "Next_Generation_Simulation__NGSIM__Vehicle_Trajectories_and_Supporting_Data.csv"
@@ -46,6 +52,7 @@ EXACT_DUPLICATE_SHARE = 0.001
 CONFLICT_SHARE = 0.0005  # second rows with a larger Local_Y (the reader keeps the smallest)
 EMPTY_LOCAL_X_SHARE = 0.0001
 CHUNK_ROWS = 500_000  # rows formatted at a time when writing text
+_DIGEST_LINE = re.compile(r"    ([0-9a-f]{64})  (\S+)")  # a marker's sha256 of one file
 
 # Header spellings of per-period CSVs in the wild: case and `v_Length` vary.
 CSV_HEADER_VARIANTS = {"Vehicle_ID": "vehicle_id", "Local_Y": "LOCAL_Y", "v_length": "v_Length"}
@@ -61,32 +68,18 @@ def write_synthetic(
 
     PORTAL: one combined CSV; CSV and TXT: `<location>/trajectories-<period>.<ext>` per recording;
     HIGHD: `NN_tracks.csv`, `NN_tracksMeta.csv`, `NN_recordingMeta.csv` per recording (`synth.highd`).
-    `out_dir` must be new, empty, or synth's own (it carries MARKER_NAME, which lists the files
-    synth wrote there): files synth did not write are never replaced, and files of an earlier
-    run that this run does not write are removed, so that the folder holds one run's data. On
-    failure this run's files are removed again. Calls `on_progress` with a one-line message after
-    each recording. Returns the files written.
+    `out_dir` must be new, empty, or synth's own (`check_synth_target`): it is then replaced as a
+    whole once every file is written, and left as it was on failure or interrupt. Calls
+    `on_progress` with a one-line message after each recording. Returns the files written.
     """
     report = on_progress or (lambda message: None)
     paths = synthetic_paths(out_dir, config)
-    marker = out_dir / MARKER_NAME
-    earlier = claim_folder(out_dir, paths)
-    created = [p for p in (out_dir, *out_dir.parents) if not p.exists()]
-    had_marker = marker.is_file()
-    written: list[Path] = []
-    try:
-        for name in sorted(earlier - {_relative(path, out_dir) for path in paths}):
-            _remove_file(out_dir, name)  # listed in the marker: synth's own
-        _write_marker(marker, config, paths, complete=False)
-        _write_files(paths, config, report, written)
-        _write_marker(marker, config, paths, complete=True)
-    except BaseException:
-        for path in written:
-            path.unlink(missing_ok=True)
-        if not had_marker:  # the folder was new or empty: leave it so
-            marker.unlink(missing_ok=True)
-            _remove_empty_folders(out_dir, created)
-        raise
+    names = [_relative(path, out_dir) for path in paths]
+    with landing.output_directory(out_dir, check_synth_target) as folder:
+        _write_files([folder / name for name in names], paths, config, report)
+        digests = {name: file_sha256(folder / name) for name in names}
+        with create_exclusive(folder / MARKER_NAME) as marker:
+            marker.write(_marker_text(config, digests).encode())
     return paths
 
 
@@ -102,40 +95,69 @@ def synthetic_paths(out_dir: Path, config: SynthConfig) -> list[Path]:
     ]
 
 
-def claim_folder(out_dir: Path, paths: list[Path]) -> set[str]:
-    """Refuse a folder whose files synth may not replace; returns the files it wrote there before.
-
-    A new or empty folder is taken; so is one with synth's marker, as long as none of `paths`
-    is a file the marker does not list (someone else's, real data perhaps).
-    """
+def check_synth_target(out_dir: Path) -> None:
+    """Refuse a folder that synth may not replace: one that is neither new nor empty nor exactly
+    an earlier run's files as synth wrote them (`earlier_synth_files`)."""
     if out_dir.exists() and not out_dir.is_dir():
         raise NgsimOutputError(out_dir, "exists and is not a directory")
+    if not out_dir.is_dir() or not any(out_dir.iterdir()):
+        return
     marker = out_dir / MARKER_NAME
-    if marker.is_file():
-        listed = _listed_files(marker.read_text(errors="replace"))
-        foreign = [p for p in paths if p.exists() and _relative(p, out_dir) not in listed]
-        if foreign:
-            raise NgsimOutputError(
-                foreign[0], f"not written by synth (not listed in {marker}); move it away first"
-            )
-        return listed
-    if out_dir.is_dir() and (entries := sorted(p.name for p in out_dir.iterdir())):
+    listed = earlier_synth_files(out_dir)
+    if listed is None and not os.path.lexists(marker):
+        entries = sorted(p.name for p in out_dir.iterdir())
         raise NgsimOutputError(
             out_dir,
             f"folder is not empty and not synth's (no {MARKER_NAME}): it holds "
             f"{some_names(entries)}; "
             "synth writes only into a new or empty folder or one it wrote before",
         )
-    return set()
+    if listed is None:
+        raise NgsimOutputError(
+            marker,
+            "is not a marker that synth wrote (or was edited since: it lists no file with its "
+            "sha256): the folder is not replaced; move it away or choose another folder",
+        )
+    beyond = entries_beyond(out_dir, {MARKER_NAME, *listed})
+    changed = [
+        name
+        for name, digest in listed.items()
+        if os.path.lexists(out_dir / name) and _digest(out_dir / name) != digest
+    ]
+    if beyond or changed:
+        raise NgsimOutputError(
+            out_dir / (beyond + changed)[0],
+            f"not written by synth (not listed in {marker}, or changed since); move it away "
+            "first: synth replaces only a folder of its own files",
+        )
+
+
+def _digest(path: Path) -> str | None:
+    return file_sha256(path) if path.is_file() and not path.is_symlink() else None
+
+
+def earlier_synth_files(out_dir: Path) -> dict[str, str] | None:
+    """The files an earlier run of synth wrote into `out_dir` (relative name -> sha256), as its
+    marker lists them; None where `out_dir` holds no marker of synth's (a link, or a file
+    listing no file with its sha256)."""
+    marker = out_dir / MARKER_NAME
+    if marker.is_symlink() or not marker.is_file():
+        return None
+    try:
+        text = marker.read_text(errors="replace")
+    except OSError:
+        return None
+    digests = _listed_digests(text)
+    return digests if digests and set(digests) == _listed_files(text) else None
 
 
 def _relative(path: Path, out_dir: Path) -> str:
     return path.relative_to(out_dir).as_posix()
 
 
-def _marker_text(config: SynthConfig, names: list[str], complete: bool) -> str:
-    """What the marker tells a person, and the list of files that makes them synth's."""
-    status = "complete" if complete else "INCOMPLETE (being written, or the run failed)"
+def _marker_text(config: SynthConfig, digests: dict[str, str]) -> str:
+    """What the marker tells a person, and the list of files (with their sha256) that makes
+    them synth's."""
     quirks = "on" if config.quirks else "off"
     highd = config.raw_format is schema.RawFormat.HIGHD
     return (
@@ -143,90 +165,79 @@ def _marker_text(config: SynthConfig, names: list[str], complete: bool) -> str:
         "The files listed below were written by `ngsim-graphs synth`: simulated traffic in the\n"
         + ("format of the highD files" if highd else "formats of the NGSIM US-101 / I-80 files")
         + ", not measurements. `ngsim-graphs synth` replaces\n"
-        "files in this folder only while this file is here, and only the files it lists.\n\n"
-        f"Status: {status}.\n"
+        "this folder only while it holds these files and nothing else, each with its sha256 below.\n\n"
         f"Settings: format {config.raw_format.value}, {config.recordings} recordings of "
         f"{config.minutes:g} minutes, seed {config.seed}, quirks {quirks}.\n\n"
-        "Files:\n\n" + "".join(f"- {name}\n" for name in names)
+        "Files:\n\n"
+        + "".join(f"- {name}\n" for name in digests)
+        + "\nsha256 (`sha256sum -c` reads these lines):\n\n"
+        + "".join(f"    {digest}  {name}\n" for name, digest in digests.items())
     )
 
 
-def _write_marker(marker: Path, config: SynthConfig, paths: list[Path], complete: bool) -> None:
-    names = [_relative(path, marker.parent) for path in paths]
-    with _atomic_file(marker) as handle:
-        handle.write(_marker_text(config, names, complete).encode())
+def _possible_names() -> set[str]:
+    """Every file name that synth can write (relative to its folder)."""
+    everything = SynthConfig(recordings=len(OFFICIAL_RECORDINGS))
+    return {
+        _relative(path, Path("."))
+        for raw_format in schema.RawFormat
+        for path in synthetic_paths(Path("."), replace(everything, raw_format=raw_format))
+    }
 
 
 def _listed_files(text: str) -> set[str]:
     """The files a marker lists (its lines `- NAME`) that synth can write: a list edited to name
     anything else makes nothing else synth's."""
-    everything = SynthConfig(recordings=len(OFFICIAL_RECORDINGS))
-    possible = {
-        _relative(path, Path("."))
-        for raw_format in schema.RawFormat
-        for path in synthetic_paths(Path("."), replace(everything, raw_format=raw_format))
-    }
-    return {line[2:].strip() for line in text.splitlines() if line.startswith("- ")} & possible
+    return {line[2:].strip() for line in text.splitlines() if line.startswith("- ")} & (
+        _possible_names()
+    )
 
 
-def _remove_file(out_dir: Path, name: str) -> None:
-    """Remove a file of an earlier run, and its location folder if that is left empty."""
-    path = out_dir / name
-    path.unlink(missing_ok=True)
-    if path.parent != out_dir and path.parent.is_dir() and not any(path.parent.iterdir()):
-        path.parent.rmdir()
+def _listed_digests(text: str) -> dict[str, str]:
+    """The sha256 a marker records of each file synth can write (its lines `    HEX  NAME`)."""
+    found = (_DIGEST_LINE.fullmatch(line) for line in text.splitlines())
+    possible = _possible_names()
+    return {m.group(2): m.group(1) for m in found if m and m.group(2) in possible}
 
 
 def _write_files(
-    paths: list[Path], config: SynthConfig, report: Callable[[str], None], written: list[Path]
+    targets: list[Path], paths: list[Path], config: SynthConfig, report: Callable[[str], None]
 ) -> None:
-    """Write the files of `synthetic_paths`, appending each to `written` once it is complete."""
+    """Write the files of `synthetic_paths` as `targets` (in the partial folder); `paths`, where
+    they land, are what the progress messages name."""
     recordings = OFFICIAL_RECORDINGS[: config.recordings]
     if config.raw_format is schema.RawFormat.PORTAL:
-        written.append(_write_portal(paths[0], recordings, config, report))
+        _write_portal(targets[0], recordings, config, report)
         return
     if config.raw_format is schema.RawFormat.HIGHD:
-        _write_highd(paths, recordings, config, report, written)
+        _write_highd(targets, paths, recordings, config, report)
         return
-    for index, (recording, path) in enumerate(zip(recordings, paths, strict=True)):
+    for index, (recording, target, path) in enumerate(zip(recordings, targets, paths, strict=True)):
         rows = simulated_rows(recording, index, config)
-        with _atomic_file(path) as handle:
+        with _new_file(target) as handle:
             if config.raw_format is schema.RawFormat.CSV:
                 _write_period_csv(handle, rows, config.quirks)
             else:
                 _write_txt(handle, rows, config.quirks)
-        written.append(path)
         report(f"{recording.location} {recording.period}: {len(rows):,} rows -> {path}")
 
 
 def _write_highd(
+    targets: list[Path],
     paths: list[Path],
     recordings: tuple[Recording, ...],
     config: SynthConfig,
     report: Callable[[str], None],
-    written: list[Path],
 ) -> None:
-    """Each recording's three highD files (in `paths` order: tracks, tracksMeta, recordingMeta)."""
+    """Each recording's three highD files (in `targets` order: tracks, tracksMeta,
+    recordingMeta)."""
     for index, recording in enumerate(recordings):
         rows = simulated_rows(recording, index, config)
         tables = highd_tables(rows, recording, index, config.minutes)
-        for table, path in zip(tables.values(), paths[3 * index : 3 * index + 3], strict=True):
-            with _atomic_file(path) as handle:
+        for table, target in zip(tables.values(), targets[3 * index : 3 * index + 3], strict=True):
+            with _new_file(target) as handle:
                 table.write_csv(handle, float_precision=HIGHD_DECIMALS)
-            written.append(path)
         report(f"{recording.location} {recording.period}: {len(rows):,} rows -> {paths[3 * index]}")
-
-
-def _remove_empty_folders(out_dir: Path, created: list[Path]) -> None:
-    """After a failure in a folder that was new or empty: its empty sub-folders, and the
-    folders created for it (innermost first)."""
-    if out_dir.is_dir():
-        for folder in sorted(out_dir.iterdir(), reverse=True):
-            if folder.is_dir() and not folder.is_symlink() and not any(folder.iterdir()):
-                folder.rmdir()
-    for folder in created:
-        if folder.is_dir() and not any(folder.iterdir()):
-            folder.rmdir()
 
 
 def simulated_rows(recording: Recording, index: int, config: SynthConfig) -> pl.DataFrame:
@@ -270,18 +281,12 @@ def drop_frame_runs(rows: pl.DataFrame, rng: np.random.Generator) -> pl.DataFram
 
 
 @contextmanager
-def _atomic_file(path: Path) -> Iterator[BinaryIO]:
-    """A binary file written under a hidden temporary name and renamed to `path` on success."""
+def _new_file(path: Path) -> Iterator[BinaryIO]:
+    """A new file of the partial folder, its folder made: created exclusively, never through a
+    link; a failed write (a full disk, which polars does not name) names it."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")
-    try:
-        with open(partial, "wb") as handle:
-            yield handle
-        partial.replace(path)
-    except OSError as err:  # a full disk: name the file, not its hidden temporary name
-        raise NgsimOutputError(path, f"cannot write: {err.strerror or err}") from None
-    finally:
-        partial.unlink(missing_ok=True)
+    with layout.writing(path), create_exclusive(path) as handle:
+        yield handle
 
 
 def _header_columns(header: tuple[str, ...]) -> list[pl.Expr]:
@@ -337,10 +342,10 @@ def _write_portal(
 ) -> Path:
     """The combined portal CSV: plain and streamed per recording, or with every export quirk."""
     if config.quirks:
-        with _atomic_file(path) as handle:
+        with _new_file(path) as handle:
             _write_quirky_portal(handle, recordings, config, report)
         return path
-    with _atomic_file(path) as handle:
+    with _new_file(path) as handle:
         handle.write((",".join(schema.PORTAL_HEADER) + "\n").encode())
         for index, recording in enumerate(recordings):
             rows = simulated_rows(recording, index, config)
