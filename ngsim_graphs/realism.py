@@ -2,12 +2,15 @@
 report (`bench/realism.py`), pure functions over tracks tables.
 
 Every statistic is of the tracks table, on its grid (0.2 s by default), per location and over
-all: the recorded speed; its change between consecutive steps of a track (longitudinal
-acceleration) and that change's change (jerk); lateral speed (the change of x); the recorded space
-and time headways where there is a leader; density (vehicles in view per km of the section and per
-lane, at each step); lane changes (a change of lane_id between consecutive steps of a track) per
-vehicle-minute; the share of time below 5 m/s. Constant velocity's errors, the other half of the
-report, need the graphs: `bench/realism.py` computes them with `aigem.baseline`.
+all: the recorded speed and its change between consecutive steps of a track; the recorded
+(longitudinal) acceleration and its change per step (jerk); lateral speed (the change of x); the
+recorded space and time headways where there is a leader; density (vehicles in view per km of the
+section and per lane, at each step). And rates: lane changes (a change of lane_id between
+consecutive steps of a track) per vehicle-minute; the share of time below 5 m/s; the share of rows
+whose recorded acceleration is beyond 3 m/s²; the mean over tracks of the share of a track's
+steps whose jerk is beyond 15 m/s³ (the data-quality literature's measures of NGSIM's noise).
+Constant velocity's errors, the other half of the report, need the graphs: `bench/realism.py`
+computes them with `aigem.baseline`.
 """
 
 from __future__ import annotations
@@ -22,11 +25,14 @@ from ngsim_graphs.statistics import Distribution, describe
 
 ALL = "all"  # the name of the statistics over every location
 SLOW_MPS = 5.0  # the share of time below this speed (stop-and-go)
+HARD_ACCEL_MPS2 = 3.0  # the share of rows whose recorded acceleration is beyond this
+HARD_JERK_MPS3 = 15.0  # the per-track share of steps whose jerk is beyond this
 # A lane holds at least this share of a recording's rows to count among its lanes for the density
 # (on- and off-ramps, which few rows use, do not).
 MIN_LANE_SHARE = 0.02
 DISTRIBUTIONS = (
     "speed_mps",
+    "speed_change_mps2",
     "accel_mps2",
     "jerk_mps3",
     "lateral_speed_mps",
@@ -39,17 +45,20 @@ DISTRIBUTIONS = (
 @dataclass(frozen=True)
 class Realism:
     """The statistics of one location (or of all): a distribution per DISTRIBUTIONS name, and
-    two rates."""
+    the rates (None where there is nothing to count)."""
 
     distributions: dict[str, Distribution]
-    lane_changes_per_vehicle_minute: float | None  # None without any track time
-    slow_share: float | None  # share of rows below SLOW_MPS; None without rows
+    lane_changes_per_vehicle_minute: float | None
+    slow_share: float | None  # of rows, below SLOW_MPS
+    hard_accel_share: float | None  # of rows, |recorded acceleration| > HARD_ACCEL_MPS2
+    hard_jerk_track_share: float | None  # mean over tracks of the share of |jerk| > HARD_JERK_MPS3
 
 
 def step_values(tracks: pl.LazyFrame, time_step_s: float) -> pl.DataFrame:
-    """Per tracks row: location, speed, the acceleration, jerk and lateral speed from the steps
-    before it (null at a track's first steps), the headways (null without a leader), and whether
-    the lane changed since the step before (null at a track's first step).
+    """Per tracks row: location, track, speed, the changes per step of speed, of acceleration
+    (jerk) and of x (lateral speed) since the step before (null at a track's first step, the
+    jerk at its first two), the recorded acceleration and headways (null without a leader), and
+    whether the lane changed since the step before (null at a track's first step).
 
     Rows of a track are consecutive grid steps (the tracks contract), so differences between
     consecutive rows of a track are differences over one time step.
@@ -61,14 +70,14 @@ def step_values(tracks: pl.LazyFrame, time_step_s: float) -> pl.DataFrame:
             s.LOCATION,
             s.TRACK_ID,
             s.SPEED_MPS,
-            per_step(s.SPEED_MPS).alias("accel_mps2"),
+            per_step(s.SPEED_MPS).alias("speed_change_mps2"),
+            pl.col(s.ACCEL_MPS2).alias("accel_mps2"),
+            per_step(s.ACCEL_MPS2).alias("jerk_mps3"),
             per_step(s.X_M).alias("lateral_speed_mps"),
             pl.col(s.SPACE_HEADWAY_M).alias("space_headway_m"),
             pl.col(s.TIME_HEADWAY_S).alias("time_headway_s"),
             (pl.col(s.LANE_ID).diff().over(s.TRACK_ID) != 0).alias("lane_change"),
         )
-        .with_columns(per_step("accel_mps2").alias("jerk_mps3"))
-        .drop(s.TRACK_ID)
         .collect(engine="streaming")
     )
 
@@ -114,20 +123,25 @@ def realism(tracks: pl.LazyFrame, time_step_s: float) -> dict[str, Realism]:
 
 
 def _statistics(values: pl.DataFrame, density: pl.DataFrame, time_step_s: float) -> Realism:
-    columns = {**{name: values[name] for name in DISTRIBUTIONS[:-1]}, DISTRIBUTIONS[-1]: density}
-    distributions = {
-        name: describe(
-            (column if isinstance(column, pl.Series) else column[name]).drop_nulls().to_numpy()
-        )
-        for name, column in columns.items()
-    }
+    columns = {name: values[name] for name in DISTRIBUTIONS[:-1]}
+    columns[DISTRIBUTIONS[-1]] = density[DISTRIBUTIONS[-1]]
     minutes = values.height * time_step_s / 60
-    changes = int(values["lane_change"].sum())
+    jerk = values.drop_nulls("jerk_mps3")
+    per_track = jerk.group_by(s.TRACK_ID).agg((pl.col("jerk_mps3").abs() > HARD_JERK_MPS3).mean())
+    accel = values["accel_mps2"].drop_nulls()
     return Realism(
-        distributions=distributions,
-        lane_changes_per_vehicle_minute=changes / minutes if minutes else None,
-        slow_share=float((values[s.SPEED_MPS] < SLOW_MPS).mean()) if values.height else None,
+        distributions={name: describe(c.drop_nulls().to_numpy()) for name, c in columns.items()},
+        lane_changes_per_vehicle_minute=(
+            int(values["lane_change"].sum()) / minutes if minutes else None
+        ),
+        slow_share=_mean(values[s.SPEED_MPS] < SLOW_MPS),
+        hard_accel_share=_mean(accel.abs() > HARD_ACCEL_MPS2),
+        hard_jerk_track_share=_mean(per_track["jerk_mps3"]),
     )
+
+
+def _mean(flags: pl.Series) -> float | None:
+    return float(flags.mean()) if len(flags) else None
 
 
 def distribution_values(tracks: pl.LazyFrame, time_step_s: float) -> dict[str, np.ndarray]:

@@ -59,7 +59,8 @@ def test_data_defaults_to_the_runs_own_build(trained_run: Path, tiny_build: Path
 
 
 def test_another_build_needs_the_flag(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
-    other = _build(tiny_build, tmp_path / "dmin3", d_min_m=3.0)
+    # every pair of actors within d_sense shares edges: the test samples' graphs differ
+    other = _build(tiny_build, tmp_path / "dmin12", d_min_m=12.0)
     code, _, err = _evaluate(str(trained_run), "--data", str(other))
     theirs = json.loads((other / "manifest.json").read_text())["config_hash"][:12]
     ours = json.loads((tiny_build / "manifest.json").read_text())["config_hash"][:12]

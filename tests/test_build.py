@@ -8,6 +8,7 @@ make vehicles of two tracks) is built once per session and shared with test_scal
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -186,9 +187,10 @@ def test_samples_are_every_window_once_split_by_vehicle(built: OpenBuild, tables
         assert (origins[s.EGO_VEHICLE_ID] == origins[s.VEHICLE_ID]).all()
         # the vehicle rule with the recording's largest Vehicle_ID
         max_id = table[s.VEHICLE_ID].max()
+        matlab_round = lambda x: math.floor(x + 0.5)  # noqa: E731 - halves up, not to even
         rule = (
-            pl.when(pl.col(s.EGO_VEHICLE_ID) <= round(0.7 * max_id)).then(pl.lit("train"))
-            .when(pl.col(s.EGO_VEHICLE_ID) <= round(0.8 * max_id)).then(pl.lit("val"))
+            pl.when(pl.col(s.EGO_VEHICLE_ID) <= matlab_round(0.7 * max_id)).then(pl.lit("train"))
+            .when(pl.col(s.EGO_VEHICLE_ID) <= matlab_round(0.8 * max_id)).then(pl.lit("val"))
             .otherwise(pl.lit("test"))
         )  # fmt: skip
         assert mine.select((rule == pl.col("split")).all()).item()

@@ -3,6 +3,7 @@ error line with a non-zero exit (2: a bad option, 1: a bad build or output) for 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -82,11 +83,14 @@ def test_default_name_and_overwrite(
         ("1:", "give N or START:END"),
         ("-1", "START:END needs 0 <= START < END"),
         ("0:65", "at most 64 samples"),
-        ("30:40", "the val split has samples 0..33"),
+        ("100:110", "the val split has samples 0..{last}"),
     ],
 )
 def test_bad_sample(tiny_build: Path, tmp_path: Path, spec: str, fragment: str) -> None:
     out = tmp_path / "x.png"
+    val = json.loads((tiny_build / "manifest.json").read_text())["splits"]["val"]
+    assert 2 < val < 100
+    fragment = fragment.format(last=val - 1)
     result = invoke("show", tiny_build, "--split", "val", "--sample", spec, "--out", out)
     line = error_line(result, 2)
     assert f"--sample {spec!r}" in line and fragment in line

@@ -12,34 +12,34 @@ DT = 0.2
 
 
 def tracks(rows: list[tuple]) -> pl.LazyFrame:
-    """(location, period, track, step, x, y, speed, lane, space headway, time headway) rows."""
-    names = (s.LOCATION, s.PERIOD, s.TRACK_ID, "step", s.X_M, s.Y_M, s.SPEED_MPS, s.LANE_ID,
-             s.SPACE_HEADWAY_M, s.TIME_HEADWAY_S)  # fmt: skip
+    """(location, period, track, step, x, y, speed, acceleration, lane, space headway, time
+    headway) rows."""
+    names = (s.LOCATION, s.PERIOD, s.TRACK_ID, "step", s.X_M, s.Y_M, s.SPEED_MPS, s.ACCEL_MPS2,
+             s.LANE_ID, s.SPACE_HEADWAY_M, s.TIME_HEADWAY_S)  # fmt: skip
     frame = pl.DataFrame(rows, schema=names, orient="row")
     return frame.lazy().with_columns((pl.col("step") * DT).alias(s.TIME_S)).drop("step")
 
 
 # us-101: one track of five steps, one lane change; i-80: one track of three steps, two slow.
 ROWS = [
-    ("us-101", "p", 1, 0, 1.0, 0.0, 10.0, 1, 20.0, 2.0),
-    ("us-101", "p", 1, 1, 1.1, 2.0, 11.0, 1, None, None),
-    ("us-101", "p", 1, 2, 1.1, 5.0, 13.0, 2, 22.0, 1.7),
-    ("us-101", "p", 1, 3, 1.3, 8.0, 13.0, 2, 24.0, 1.8),
-    ("us-101", "p", 1, 4, 1.3, 10.0, 12.0, 2, 26.0, 2.1),
-    ("i-80", "q", 7, 10, 5.0, 0.0, 4.0, 3, None, None),
-    ("i-80", "q", 7, 11, 5.0, 1.0, 4.0, 3, None, None),
-    ("i-80", "q", 7, 12, 5.0, 3.0, 6.0, 3, None, None),
+    ("us-101", "p", 1, 0, 1.0, 0.0, 10.0, 0.0, 1, 20.0, 2.0),
+    ("us-101", "p", 1, 1, 1.1, 2.0, 11.0, 3.5, 1, None, None),
+    ("us-101", "p", 1, 2, 1.1, 5.0, 13.0, 1.0, 2, 22.0, 1.7),
+    ("us-101", "p", 1, 3, 1.3, 8.0, 13.0, 0.0, 2, 24.0, 1.8),
+    ("us-101", "p", 1, 4, 1.3, 10.0, 12.0, -3.0, 2, 26.0, 2.1),
+    ("i-80", "q", 7, 10, 5.0, 0.0, 4.0, 0.0, 3, None, None),
+    ("i-80", "q", 7, 11, 5.0, 1.0, 4.0, 0.5, 3, None, None),
+    ("i-80", "q", 7, 12, 5.0, 3.0, 6.0, 0.5, 3, None, None),
 ]
 
 
 def test_step_values_by_hand() -> None:
     # In any order: the rows of a track are taken in time order.
     values = step_values(tracks(ROWS[::-1]), DT).filter(pl.col(s.LOCATION) == "us-101")
-    assert values["accel_mps2"].to_list() == pytest.approx(
-        [None, 5.0, 10.0, 0.0, -5.0], nan_ok=True
-    )
-    assert values["jerk_mps3"].to_list()[2:] == pytest.approx([25.0, -50.0, -25.0])
-    assert values["jerk_mps3"].to_list()[:2] == [None, None]
+    assert values["speed_change_mps2"].to_list()[1:] == pytest.approx([5.0, 10.0, 0.0, -5.0])
+    assert values["speed_change_mps2"][0] is None
+    # The recorded acceleration 0, 3.5, 1, 0, -3 changes by 3.5, -2.5, -1, -3 per 0.2 s.
+    assert values["jerk_mps3"].to_list()[1:] == pytest.approx([17.5, -12.5, -5.0, -15.0])
     assert values["lateral_speed_mps"].to_list()[1:] == pytest.approx([0.5, 0.0, 1.0, 0.0])
     assert values["lane_change"].to_list() == [None, False, True, False, False]
 
@@ -56,7 +56,8 @@ def test_density_by_hand() -> None:
 def test_a_lane_of_few_rows_is_not_a_lane_of_the_section() -> None:
     # 99 rows in lane 1 and one in lane 2 (1 %, under 2 %): one lane.
     rows = [
-        ("us-101", "p", t, 0, 1.0, float(t), 10.0, 1 if t else 2, None, None) for t in range(100)
+        ("us-101", "p", t, 0, 1.0, float(t), 10.0, 0.0, 1 if t else 2, None, None)
+        for t in range(100)
     ]
     [density] = densities(tracks(rows), DT)["density_veh_per_km_lane"].to_list()
     assert density == pytest.approx(100 / 0.099)
@@ -72,8 +73,11 @@ def test_rates_and_distributions_by_hand() -> None:
     assert (us101.slow_share, i80.slow_share, every.slow_share) == (0.0, 2 / 3, 2 / 8)
     speed = us101.distributions["speed_mps"]
     assert (speed.count, speed.mean, speed.min, speed.max) == (5, 11.8, 10.0, 13.0)
-    accel = every.distributions["accel_mps2"]  # us-101's 5, 10, 0, -5 and i-80's 0, 10
-    assert (accel.count, accel.mean) == (6, pytest.approx(20 / 6))
+    change = every.distributions["speed_change_mps2"]  # us-101's 5, 10, 0, -5; i-80's 0, 10
+    assert (change.count, change.mean) == (6, pytest.approx(20 / 6))
+    # |acceleration| > 3: us-101's 3.5 (not -3); per track, |jerk| > 15: 1 of 4 steps, 0 of 2.
+    assert (us101.hard_accel_share, every.hard_accel_share) == (0.2, 1 / 8)
+    assert (us101.hard_jerk_track_share, every.hard_jerk_track_share) == (0.25, 0.125)
     headway = us101.distributions["time_headway_s"]  # no leader: no value
     assert (headway.count, headway.p50) == (4, pytest.approx(1.9))
     assert i80.distributions["space_headway_m"].count == 0

@@ -121,11 +121,10 @@ def test_speeds_and_accelerations_plausible(rows: pl.DataFrame) -> None:
     speed = rows[schema.V_VEL]
     assert speed.min() >= 0.0
     assert speed.max() <= MAX_SPEED_FPS
-    assert rows[schema.V_ACC].abs().max() < 35.0
-    # v_Acc follows the speed: over a second, the mean acceleration explains the speed change.
-    track = rows.filter(pl.col(schema.VEHICLE_ID) == rows[schema.VEHICLE_ID].mode()[0])
-    dv = track[schema.V_VEL].tail(11)[-1] - track[schema.V_VEL].tail(11)[0]
-    assert abs(track[schema.V_ACC].tail(10).mean() * 1.0 - dv) < 1.5
+    assert rows[schema.V_ACC].abs().max() < 40.0
+    # v_Acc is as noisy as NGSIM's: about 9 % of the rows beyond 3 m/s² (raw US-101: 8.99 %).
+    hard = (rows[schema.V_ACC].abs() > 3.0 / 0.3048).mean()
+    assert 0.06 < hard < 0.13
 
 
 def test_congested_recordings_are_slower() -> None:

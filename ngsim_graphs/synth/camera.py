@@ -15,7 +15,7 @@ import polars as pl
 from ngsim_graphs import schema
 from ngsim_graphs.synth.road import Roadway, lane_of_ft
 
-WHITE_NOISE_FT = (0.1, 0.15)  # (Local_X, Local_Y) uncorrelated part of the measurement error
+WHITE_NOISE_FT = (0.05, 0.15)  # (Local_X, Local_Y) uncorrelated part of the measurement error
 SPEED_NOISE = 0.01  # relative
 ACCEL_NOISE_FPS2 = 0.15
 
@@ -45,6 +45,8 @@ class Sightings(NamedTuple):
     acc_fps2: np.ndarray
     noise_x_ft: np.ndarray
     noise_y_ft: np.ndarray
+    noise_v_fps: np.ndarray  # of the recorded speed
+    noise_acc_fps2: np.ndarray  # of the recorded acceleration
 
 
 def observed_rows(
@@ -105,9 +107,11 @@ def _measure(
     white = rng.standard_normal((2, n)) * np.array(WHITE_NOISE_FT)[:, None]
     local_x = np.round(seen.x_ft + seen.noise_x_ft + white[0], 3)
     local_y = np.clip(seen.y_ft + seen.noise_y_ft + white[1], 0.0, roadway.length_ft).round(3)
-    speed = np.maximum(seen.v_fps * (1.0 + SPEED_NOISE * rng.standard_normal(n)), 0.0).round(2)
     moving = seen.v_fps > 0
-    accel = np.round(seen.acc_fps2 + ACCEL_NOISE_FPS2 * rng.standard_normal(n) * moving, 2)
+    relative = 1.0 + SPEED_NOISE * rng.standard_normal(n)
+    speed = np.maximum(seen.v_fps * relative + seen.noise_v_fps * moving, 0.0).round(2)
+    white = ACCEL_NOISE_FPS2 * rng.standard_normal(n)
+    accel = np.round(seen.acc_fps2 + (seen.noise_acc_fps2 + white) * moving, 2)
     return local_x, local_y, speed, accel
 
 

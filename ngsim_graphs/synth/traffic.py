@@ -42,9 +42,9 @@ KEY_LANE = 1.0e5  # sort key lane * KEY_LANE + y + KEY_OFFSET orders entries by 
 KEY_OFFSET = 1.0e4
 DECISION_EVERY = 10  # steps between two lane-change decisions of one driver (1 s)
 POLITENESS = 0.3  # MOBIL's weight of the new follower's disadvantage
-CHANGE_THRESHOLD_FPS2 = 0.8  # advantage a discretionary lane change must bring
+CHANGE_THRESHOLD_FPS2 = 0.3  # advantage a discretionary lane change must bring
 SAFE_BRAKE_FPS2 = 8.0  # MOBIL safety: the new follower need not brake harder than this
-COOLDOWN_S = 6.0  # after the start of one lane change, before the next decision
+COOLDOWN_S = 4.0  # after the start of one lane change, before the next decision
 MIN_GAP_FT = 3.0
 YIELD_FT, YIELD_FPS = 80.0, 8.0  # drivers let in a vehicle stuck this close to its lane's end
 ENTRY_GAP_FT, ENTRY_HEADWAY_S = 7.0, 1.2  # room a vehicle needs to enter at speed v
@@ -73,10 +73,14 @@ FLEET_DTYPE = np.dtype(
         ("noise_x", np.float64),  # temporally correlated measurement error, ft
         ("noise_y", np.float64),
         ("noise_a", np.float64),  # driver's acceleration noise, ft/s^2
+        ("noise_v", np.float64),  # error of the recorded speed (v_Vel), ft/s
+        ("noise_acc", np.float64),  # error of the recorded acceleration (v_Acc), ft/s^2
     ]
 )
-NOISE_SD = np.array([0.25, 0.35, 0.6])  # noise_x ft, noise_y ft, noise_a ft/s^2
-NOISE_RHO = np.exp(-DT_S / np.array([1.0, 1.0, 2.0]))  # AR(1) factors, time constants in s
+# Each a first-order autoregressive process per vehicle: its standard deviation and time constant.
+NOISES = ("noise_x", "noise_y", "noise_a", "noise_v", "noise_acc")
+NOISE_SD = np.array([0.12, 0.35, 1.4, 2.2, 5.4])  # ft, ft, ft/s^2, ft/s, ft/s^2
+NOISE_RHO = np.exp(-DT_S / np.array([1.0, 1.0, 2.0, 1.0, 0.3]))  # AR(1) factors
 
 
 class _LaneIndex(NamedTuple):
@@ -184,7 +188,10 @@ def _new_vehicles(sim: _Simulation, n: int) -> np.ndarray:
     new["offset_x"] = rng.normal(0.0, 0.6, n).clip(-1.5, 1.5)
     new["change_dur_s"] = 1.0
     new["change_s"] = COOLDOWN_S
-    new["noise_x"], new["noise_y"], new["noise_a"] = rng.normal(0.0, NOISE_SD[:, None], (3, n))
+    for name, value in zip(
+        NOISES, rng.normal(0.0, NOISE_SD[:, None], (len(NOISES), n)), strict=True
+    ):
+        new[name] = value
     new["uid"] = sim.next_uid + np.arange(n)
     sim.next_uid += n
     sim.created.append(new[["uid", "length", "width", "v_class"]])
@@ -208,7 +215,7 @@ def _run(sim: _Simulation, n_frames: int) -> Sightings:
             counts[step] = len(blocks[-1])
         _enter(sim, index)
         _leave(sim)
-    columns = np.concatenate(blocks).T  # (7, R)
+    columns = np.concatenate(blocks).T  # (10, R)
     frames = np.repeat(np.arange(n_frames, dtype=np.int32), counts)
     return Sightings(columns[0].astype(np.int64), frames, *columns[1:])
 
@@ -406,13 +413,15 @@ def _move(sim: _Simulation, acc: np.ndarray) -> None:
     fleet["change_s"] += DT_S
     done = (fleet["from_lane"] != fleet["lane"]) & (fleet["change_s"] >= fleet["change_dur_s"])
     fleet["from_lane"][done] = fleet["lane"][done]
-    shocks = sim.rng.standard_normal((3, n)) * (NOISE_SD * np.sqrt(1 - NOISE_RHO**2))[:, None]
-    for k, name in enumerate(("noise_x", "noise_y", "noise_a")):
+    shocks = sim.rng.standard_normal((len(NOISES), n))
+    shocks *= (NOISE_SD * np.sqrt(1 - NOISE_RHO**2))[:, None]
+    for k, name in enumerate(NOISES):
         fleet[name] = NOISE_RHO[k] * fleet[name] + shocks[k]
 
 
 def _in_view(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
-    """(K, 7) uid, y, x, v, acc, noise_x, noise_y of the vehicles in the view (see Sightings)."""
+    """(K, 10) uid, y, x, v, acc and the measurement errors of the vehicles in the view (see
+    Sightings)."""
     # A foot of margin at the edges keeps the jittered Local_Y inside [0, length].
     inside = (fleet["y"] >= 1.0) & (fleet["y"] <= roadway.length_ft - 1.0)
     seen = fleet[inside]
@@ -424,6 +433,8 @@ def _in_view(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
         seen["acc"],
         seen["noise_x"],
         seen["noise_y"],
+        seen["noise_v"],
+        seen["noise_acc"],
     )
     return np.column_stack(columns).astype(np.float64)
 
