@@ -40,6 +40,8 @@ class ModelConfig:
     mlp_hidden: int = 128
     dropout: float = 0.05
     concat_position: bool = True  # the output MLP sees the previous position (ablation: False)
+    # Beyond the paper: each step's displacement is constant velocity's plus the MLP's output.
+    cv_residual: bool = False
     future_steps: int = 25  # K_F predicted steps (5 s at 0.2 s)
 
     @property

@@ -165,6 +165,17 @@ class Collate:
     scaler: MinMaxScaler
     layers: int | None = None
 
+    def cv_step(self, present: np.ndarray, time_step_s: float) -> np.ndarray:
+        """(A, 4) physical present states -> (A, 2) float32 constant velocity's displacement over
+        one time step (the present speed along the present heading) in scaled units."""
+        heading, speed = present[:, 2], present[:, 3]
+        metres = (speed * time_step_s)[:, None] * np.stack([np.sin(heading), np.cos(heading)], 1)
+        scaled = [
+            self.scaler.scale(name, metres[:, i]) - self.scaler.scale(name, 0.0)
+            for i, name in enumerate(XY)
+        ]
+        return np.stack(scaled, axis=1).astype(np.float32)
+
     def __call__(self, graphs: list[GraphBatch]) -> dict[str, Any]:
         batch = concat_batches(graphs)
         targets = batch.target_node
@@ -185,6 +196,7 @@ class Collate:
             "target_state": torch.from_numpy(present.astype(np.float32)),  # (A, 4) physical, metres
             "target_xy": torch.from_numpy(batch.target_xy.astype(np.float32)),  # (A, K, 2) metres
             "target_mask": torch.from_numpy(batch.target_mask),  # (A, K)
+            "cv_step": torch.from_numpy(self.cv_step(present, batch.time_step_s)),  # (A, 2)
             "graphs": batch.n_samples,
         }
         if self.layers is not None:

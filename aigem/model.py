@@ -350,15 +350,34 @@ class AiGem(nn.Module):
         takes about a minute and the step is no faster (bench/bench_train.py)."""
         self._compiled_decode = torch.compile(self._decode, dynamic=True)
 
-    def decode(self, z_target: torch.Tensor, start_xy: torch.Tensor, steps: int) -> torch.Tensor:
+    def decode(
+        self,
+        z_target: torch.Tensor,
+        start_xy: torch.Tensor,
+        steps: int,
+        cv_step: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """(A, H) present embeddings, (A, 2) present positions -> (A, steps, 2) positions.
 
         GRU inputs: z at step 1, z + g_1 at step 2, g_{k-1} + g_{k-2} after; h_0 = 0.
-        Y_k = Y_{k-1} + MLP([g_k, Y_{k-1}]), Y_0 the present position.
+        Y_k = Y_{k-1} + MLP([g_k, Y_{k-1}]), Y_0 the present position. With
+        `config.cv_residual`, Y_k = Y_{k-1} + cv_step + MLP(...): `cv_step` (A, 2) is constant
+        velocity's displacement over one step (`aigem.data.Collate.cv_step`).
         """
-        return (self._compiled_decode or self._decode)(z_target, start_xy, steps)
+        if self.config.cv_residual:
+            if cv_step is None:
+                raise ValueError("a model with cv_residual needs the batch's cv_step")
+        else:
+            cv_step = None
+        return (self._compiled_decode or self._decode)(z_target, start_xy, steps, cv_step)
 
-    def _decode(self, z_target: torch.Tensor, start_xy: torch.Tensor, steps: int) -> torch.Tensor:
+    def _decode(
+        self,
+        z_target: torch.Tensor,
+        start_xy: torch.Tensor,
+        steps: int,
+        cv_step: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         hidden = torch.zeros_like(z_target)
         previous_g, before_g = (
             z_target,
@@ -373,6 +392,8 @@ class AiGem(nn.Module):
                 torch.cat([hidden, position], dim=-1) if self.config.concat_position else hidden
             )
             position = position + self.output(mlp_in)  # (A, 2)
+            if cv_step is not None:
+                position = position + cv_step
             outputs.append(position)
         return torch.stack(outputs, dim=1)  # (A, steps, 2)
 
@@ -391,7 +412,8 @@ class AiGem(nn.Module):
             target,
             plan,
         )
-        return self.decode(z_target, batch["x"][target, :2], steps or self.config.future_steps)
+        steps = steps or self.config.future_steps
+        return self.decode(z_target, batch["x"][target, :2], steps, batch.get("cv_step"))
 
 
 def count_parameters(model: nn.Module) -> int:

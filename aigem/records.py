@@ -155,12 +155,17 @@ def check_info(info: object, path: Path) -> None:
         raise NgsimInputError(path, f"unknown train config: {err}") from None
 
 
+# Model settings added after the first runs were written, as those runs had them.
+ADDED_MODEL_SETTINGS = {"cv_residual": False}
+
+
 def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
     """The model config a run recorded; an error for settings or types this aigem does not know."""
     values, defaults = info.get("model"), ModelConfig()
     if not isinstance(values, dict):
         raise NgsimInputError(path, "no model config")
     known = {f.name for f in fields(ModelConfig)}
+    values = {**ADDED_MODEL_SETTINGS, **values}
     unknown, missing = sorted(set(values) - known), sorted(known - set(values))
     if unknown or missing:
         raise NgsimInputError(

@@ -60,7 +60,7 @@ RENAMED_OPTIONS = {
     "concat_position": "--no-concat",
 }
 FIT_OPTIONS = option_names(
-    (*(f.name for f in fields(TrainConfig)), "concat_position"), RENAMED_OPTIONS
+    (*(f.name for f in fields(TrainConfig)), "concat_position", "cv_residual"), RENAMED_OPTIONS
 )
 
 
@@ -157,6 +157,15 @@ def fit(
             "--no-concat", help="Ablation: the output MLP does not see the previous position."
         ),
     ] = False,
+    cv_residual: Annotated[
+        bool,
+        typer.Option(
+            "--cv-residual",
+            help="Beyond the paper, never the default: each step's displacement is constant "
+            "velocity's (the present speed along the present heading) plus the output MLP's, "
+            "so the model learns the correction to constant velocity (docs/aigem.md).",
+        ),
+    ] = False,
     resume: Annotated[
         bool, typer.Option(help="Continue the run in --out from its last checkpoint.")
     ] = False,
@@ -184,7 +193,7 @@ def fit(
         )
     except ValueError as err:
         raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
-    model_config = ModelConfig(concat_position=not no_concat)
+    model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     several = len(horizons_s) > 1
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
         from aigem.records import check_fit

@@ -10,6 +10,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
+from aigem.baseline import constant_velocity
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
@@ -45,6 +46,19 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     assert torch.equal(batch["target_xy"], torch.from_numpy(graphs.target_xy.astype(np.float32)))
     metres = xy_to_metres(dataset.scaler, batch["x"][:, :2].double())
     assert np.allclose(metres.numpy(), graphs.node_features[:, :2], atol=1e-4)
+
+
+def test_cv_step_is_constant_velocitys_step_in_scaled_units(tiny_build: Path) -> None:
+    dataset = GraphDataset(tiny_build, "train")
+    batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1, 2, 3]))
+    state = batch["target_state"].double().numpy()  # (A, 4) metres
+    expected = constant_velocity(state, 3, 0.2)  # (A, 3, 2) metres
+    start = batch["x"][batch["target_node"], :2].double()
+    k = torch.arange(1, 4, dtype=torch.float64)[None, :, None]
+    carried = start[:, None, :] + k * batch["cv_step"].double()[:, None, :]
+    assert batch["cv_step"].shape == (len(state), 2) and len(state) > 2
+    assert np.allclose(xy_to_metres(dataset.scaler, carried).numpy(), expected, atol=1e-3)
+    assert float(batch["cv_step"].abs().max()) > 1e-3  # the targets move
 
 
 def test_a_batch_is_induced_once_per_recording_grouped_by_recording(

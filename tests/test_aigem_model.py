@@ -54,6 +54,21 @@ def test_decoder_follows_the_residual_recursion() -> None:
     assert torch.allclose(out[:, :3], torch.stack([y1, y2, y3], 1), atol=1e-6)
 
 
+def test_cv_residual_adds_constant_velocitys_step_to_every_step() -> None:
+    # Without the position in the MLP's input, the MLP's outputs do not depend on the path.
+    config = ModelConfig(dropout=0.0, concat_position=False, cv_residual=True)
+    model = AiGem(config).eval()
+    paper = AiGem(ModelConfig(dropout=0.0, concat_position=False)).eval()
+    paper.load_state_dict(model.state_dict())  # the same parameters: none is added
+    batch = {**tiny_batch(), "cv_step": torch.tensor([[0.01, 0.02], [-0.03, 0.5]])}
+    k = torch.arange(1, 6, dtype=torch.float32)[None, :, None]
+    expected = paper(batch, steps=5) + k * batch["cv_step"][:, None, :]
+    assert torch.allclose(model(batch, steps=5), expected, atol=1e-5)
+    assert torch.equal(paper(batch, steps=5), paper(tiny_batch(), steps=5))  # ignores cv_step
+    with pytest.raises(ValueError, match="cv_step"):
+        model(tiny_batch())
+
+
 def test_gradients_reach_every_parameter() -> None:
     model = AiGem(ModelConfig())
     model(tiny_batch()).sum().backward()

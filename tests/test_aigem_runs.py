@@ -456,3 +456,44 @@ def test_a_run_is_never_written_through_a_link(
     assert not (run / runs.METRICS).is_symlink()
     assert [r["epoch"] for r in runs.read_metrics(run)] == [1, 2]
     assert runs.epochs_kept(run) == 2
+
+
+def test_a_run_from_before_cv_residual_reads_as_without_it(
+    trained_run: Path, tmp_path: Path
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    evaluate = ["evaluate", str(run), "--device", "cpu", "--json"]
+    before = json.loads(CliRunner().invoke(app, evaluate).stdout)
+    for name in (runs.BEST, runs.LAST):
+        checkpoint = torch.load(run / name, map_location="cpu", weights_only=True)
+        info = checkpoint["info"]
+        model = {k: v for k, v in info["model"].items() if k != "cv_residual"}
+        assert len(model) == len(info["model"]) - 1
+        torch.save({**checkpoint, "info": {**info, "model": model}}, run / name)
+    document = json.loads((run / "run.json").read_text())
+    del document["model"]["cv_residual"]
+    (run / "run.json").write_text(json.dumps(document))
+    result = CliRunner().invoke(app, evaluate)
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["model"] == before["model"]
+
+
+def test_fit_with_cv_residual_records_it_and_starts_near_constant_velocity(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    run = tmp_path / "run"
+    result = CliRunner().invoke(
+        app, ["fit", str(tiny_build), "--out", str(run), "--cv-residual", *FIT]
+    )
+    assert result.exit_code == 0, result.output
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    assert checkpoint["info"]["model"]["cv_residual"] is True
+    scores = json.loads(
+        CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu", "--json"]).stdout
+    )
+    # One epoch moves the MLP's outputs a little off 0: within a metre of constant velocity's.
+    model, baseline = (
+        scores["model"]["all"]["rmse_1s_m"],
+        scores["constant_velocity"]["all"]["rmse_1s_m"],
+    )
+    assert abs(model - baseline) < 1.0
