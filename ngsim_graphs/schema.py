@@ -388,13 +388,14 @@ HIGHD_REQUIRED_COLUMNS: Final[tuple[str, ...]] = (
 
 HIGHD_CLASS: Final = "class"  # "Car" or "Truck"
 HIGHD_DRIVING_DIRECTION: Final = "drivingDirection"  # 1: upper lanes, towards -x; 2: lower, +x
+HIGHD_NUM_FRAMES: Final = "numFrames"  # rows of the track in the tracks file
 HIGHD_TRACKS_META_HEADER: Final[tuple[str, ...]] = (
     HIGHD_ID,
     HIGHD_WIDTH,
     HIGHD_HEIGHT,
     "initialFrame",
     "finalFrame",
-    "numFrames",
+    HIGHD_NUM_FRAMES,
     HIGHD_CLASS,
     HIGHD_DRIVING_DIRECTION,
     "traveledDistance",
@@ -407,7 +408,12 @@ HIGHD_TRACKS_META_HEADER: Final[tuple[str, ...]] = (
     "numLaneChanges",
 )
 HIGHD_TRACKS_META_SCHEMA: Final = pl.Schema(
-    {HIGHD_ID: pl.Int32, HIGHD_CLASS: pl.String, HIGHD_DRIVING_DIRECTION: pl.Int8}
+    {
+        HIGHD_ID: pl.Int32,
+        HIGHD_NUM_FRAMES: pl.Int32,
+        HIGHD_CLASS: pl.String,
+        HIGHD_DRIVING_DIRECTION: pl.Int8,
+    }
 )
 # highD's vehicle classes as NGSIM's v_class codes (matched case-insensitively).
 HIGHD_CLASS_CODES: Final[dict[str, int]] = {"car": 2, "truck": 3}

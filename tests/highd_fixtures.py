@@ -7,6 +7,7 @@ the lower lanes towards +x, direction 1 on the upper lanes towards -x.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 from ngsim_graphs import schema as s
@@ -49,8 +50,10 @@ def write_recording(
     prefix = f"{number:02d}"
     tracks = folder / f"{prefix}_tracks.csv"
     tracks.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
+    frames = Counter(row[s.HIGHD_ID] for row in rows)  # numFrames: the track's rows
     meta_rows = [{s.HIGHD_ID: vid, s.HIGHD_WIDTH: 4.0, s.HIGHD_HEIGHT: 2.0, s.HIGHD_CLASS: cls,
-                  s.HIGHD_DRIVING_DIRECTION: direction} for vid, (cls, direction) in vehicles.items()]  # fmt: skip
+                  s.HIGHD_DRIVING_DIRECTION: direction, s.HIGHD_NUM_FRAMES: frames[vid]}
+                 for vid, (cls, direction) in vehicles.items()]  # fmt: skip
     (folder / f"{prefix}_tracksMeta.csv").write_text(
         csv_text(s.HIGHD_TRACKS_META_HEADER, meta_rows)
     )

@@ -274,3 +274,23 @@ def test_a_file_cut_inside_its_last_field_is_refused(
     )
     path.write_bytes(text)  # intact again: it builds
     assert invoke("build", tmp_path / "raw", "--out", out).exit_code == 0
+
+
+@pytest.mark.parametrize(("lines_kept", "expected"), [(1 + 1100 + 600, (2, 600, 1100, "")),
+                                                     (1 + 700, (1, 700, 1100, " (and 1 more track)"))])  # fmt: skip
+def test_a_tracks_file_cut_at_a_line_end_is_refused(
+    tmp_path: Path, lines_kept: int, expected: tuple[int, int, int, str]
+) -> None:
+    """Whole lines lost at the end: tracksMeta's numFrames tells (earlier versions built the
+    rest, exit 0)."""
+    write_recording(tmp_path / "raw", two_directions_rows(LONG), TWO_DIRECTIONS)
+    path = tmp_path / "raw" / "01_tracks.csv"
+    text = path.read_text()
+    path.write_text("".join(text.splitlines(keepends=True)[:lines_kept]))
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, path)
+    track, rows, frames, more = expected
+    assert line == (
+        f"error: {path}: track {track} has {rows:,} rows where 01_tracksMeta.csv says "
+        f"{frames:,} (numFrames){more}: cut short?"
+    )

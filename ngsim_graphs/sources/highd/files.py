@@ -324,7 +324,8 @@ def read_recording_meta(path: Path, limits: PhysicalLimits) -> RecordingMeta:
 
 
 def read_tracks_meta(path: Path) -> pl.DataFrame:
-    """Per vehicle: VEHICLE_ID, V_CLASS (NGSIM's code) and HIGHD_DRIVING_DIRECTION (1 or 2).
+    """Per vehicle: VEHICLE_ID, V_CLASS (NGSIM's code), HIGHD_DRIVING_DIRECTION (1 or 2) and
+    HIGHD_NUM_FRAMES (its rows in the tracks file).
 
     Raises for an empty field, a class other than Car or Truck, a direction other than 1 or 2,
     or an id that appears twice.
@@ -346,7 +347,10 @@ def read_tracks_meta(path: Path) -> pl.DataFrame:
         if found.height:
             raise NgsimInputError(path, f"holds {what}", line=int(found[ROW].min()) + FIRST_LINE)
     return checked.select(
-        pl.col(s.HIGHD_ID).alias(s.VEHICLE_ID), s.V_CLASS, s.HIGHD_DRIVING_DIRECTION
+        pl.col(s.HIGHD_ID).alias(s.VEHICLE_ID),
+        s.V_CLASS,
+        s.HIGHD_DRIVING_DIRECTION,
+        s.HIGHD_NUM_FRAMES,
     )
 
 

@@ -132,15 +132,42 @@ def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> Fi
     )
 
 
+def _check_whole_tracks(path: Path, raw: pl.DataFrame, vehicles: pl.DataFrame) -> None:
+    """Raise when a track has fewer rows in the tracks file than its numFrames in the
+    tracksMeta file: a file cut short at a line end (which keeps every line whole) loses the
+    end of one track and every track after it."""
+    counts = raw.filter(pl.col(s.HIGHD_ID).is_not_null()).group_by(s.HIGHD_ID).len("rows")
+    short = (
+        vehicles.join(counts, left_on=s.VEHICLE_ID, right_on=s.HIGHD_ID, how="left")
+        .with_columns(pl.col("rows").fill_null(0))
+        .filter(pl.col("rows") < pl.col(s.HIGHD_NUM_FRAMES))
+        .sort(s.VEHICLE_ID)
+    )
+    if short.height:
+        track, rows, frames = short.select(s.VEHICLE_ID, "rows", s.HIGHD_NUM_FRAMES).row(0)
+        others = short.height - 1
+        more = f" (and {others:,} more track{'s' * (others > 1)})" if others else ""
+        meta_name = sibling(path, parse_file_name(path)[0], HighdFile.TRACKS_META).name  # type: ignore[index]
+        raise NgsimInputError(
+            path,
+            f"track {track} has {rows:,} rows where {meta_name} says {frames:,} (numFrames)"
+            f"{more}: cut short?",
+        )
+
+
 def _road_rows(
-    usable: pl.DataFrame, path: Path, meta: RecordingMeta, file_index: int
+    usable: pl.DataFrame, path: Path, meta: RecordingMeta, file_index: int, vehicles: pl.DataFrame
 ) -> pl.DataFrame:
     """Raw tracks rows (with SOURCE_LINE) in the road frame, with provenance: each with its
-    vehicle's class and drivingDirection from the tracksMeta file, which must know it."""
+    vehicle's class and drivingDirection from the tracksMeta file (`vehicles`), which must
+    know it."""
     prefix = parse_file_name(path)[0]  # type: ignore[index]
-    vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
     joined = usable.join(
-        vehicles, left_on=s.HIGHD_ID, right_on=s.VEHICLE_ID, how="left", maintain_order="left"
+        vehicles.select(s.VEHICLE_ID, s.V_CLASS, s.HIGHD_DRIVING_DIRECTION),
+        left_on=s.HIGHD_ID,
+        right_on=s.VEHICLE_ID,
+        how="left",
+        maintain_order="left",
     )
     unknown = joined.filter(pl.col(s.HIGHD_DRIVING_DIRECTION).is_null())
     if unknown.height:
@@ -162,6 +189,9 @@ def _staged_rows(
     A row counts under the first reason it breaks: an empty required field, a row check
     (geometry.row_drop_reason), then its vehicle's driving against its direction."""
     raw = read_tracks(path)
+    prefix = parse_file_name(path)[0]  # type: ignore[index]
+    vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
+    _check_whole_tracks(path, raw, vehicles)
     complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
     checked = raw.with_columns(
         pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
@@ -169,7 +199,7 @@ def _staged_rows(
         (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
     )
     usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
-    rows = _road_rows(usable, path, meta, file_index)
+    rows = _road_rows(usable, path, meta, file_index, vehicles)
     backwards = rows.select(moves_backwards()).to_series()
     against = rows.filter(backwards).select(
         pl.lit(DropReason.DIRECTION.value).alias("reason"), s.SOURCE_LINE
