@@ -33,6 +33,7 @@ from torch.utils.data import DataLoader
 
 from aigem.baseline import constant_velocity
 from aigem.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
+from aigem.model import AiGem
 from aigem.records import resolve_build
 from aigem.runs import BEST, load_model
 from ngsim_graphs.scaling import FEATURES, MinMaxScaler
@@ -55,14 +56,12 @@ class Targets:
     mask: np.ndarray  # (A, FIRST_STEPS)
 
 
-def targets_of(run: Path, split: str, batch_size: int = 64) -> Targets:
-    """Run the run's best model over `split` of its build, keeping what the report needs."""
-    model, info = load_model(run, "cpu")
+def targets_of(
+    model: AiGem, scaler: MinMaxScaler, build: Path, split: str, batch_size: int = 64
+) -> Targets:
+    """Run `model` over `split` of `build`, keeping what the report needs."""
     model.eval()
-    scaler = run_scaler(info["scaler"], run / BEST)
-    dataset = GraphDataset(
-        resolve_build(info, None), split, model.config.history_steps_read, scaler
-    )
+    dataset = GraphDataset(build, split, model.config.history_steps_read, scaler)
     collate = Collate(scaler, layers=model.config.layers)
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
     steps = min(FIRST_STEPS, model.config.future_steps)
@@ -123,7 +122,8 @@ class Report:
 def report(run: Path, split: str) -> Report:
     model, info = load_model(run, "cpu")
     scaler = run_scaler(info["scaler"], run / BEST)
-    scored, fitted = targets_of(run, split), targets_of(run, "val")
+    build = resolve_build(info, None)
+    scored, fitted = (targets_of(model, scaler, build, name) for name in (split, "val"))
     occupied = {}
     for i, name in enumerate(FEATURES):
         low, high = np.percentile(scored.features[:, i], [1, 99])
