@@ -59,6 +59,7 @@ _M_ARENA_MAX = -8  # glibc's mallopt parameter of the same
 # Ctrl-C taken by another of its threads (Polars' start some) does not wake a wait without a
 # timeout, and was handled only once a task ended, seconds later.
 _SIGNAL_CHECK_S = 0.1
+STOP_GRACE_S = 5.0  # after SIGTERM, before a worker that is still there is killed
 
 
 @functools.cache
@@ -145,6 +146,9 @@ def start_worker() -> None:
         return
 
     def watch() -> None:
+        # SIGTERM is for the main thread, whose wait for a task it interrupts (a signal handled
+        # here would leave that wait, and the worker, blocked).
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
         parent.join()
         os._exit(1)  # nothing to hand results to; what it wrote is its parent's partial output
 
@@ -194,9 +198,16 @@ class Workers:
         others, self._others = self._others, None
         try:
             if cancel and others is not None:  # an interrupt may have come before `_pool` was set
-                for process in multiprocessing.active_children():
-                    if process not in others:
-                        process.terminate()  # SIGTERM: the worker leaves by SystemExit
+                ours = [p for p in multiprocessing.active_children() if p not in others]
+                for process in ours:
+                    process.terminate()  # SIGTERM: the worker leaves by SystemExit
+                for process in ours:
+                    # One that SIGTERM did not end (a SystemExit that came while its task ran
+                    # is the task's error, and the worker waits for the next) is killed: the
+                    # pool's shutdown would wait for it for ever.
+                    process.join(STOP_GRACE_S)
+                    if process.is_alive():
+                        process.kill()
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=cancel)
         finally:  # a second Ctrl-C while waiting: the environment is still given back

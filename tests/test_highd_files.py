@@ -180,7 +180,7 @@ def test_tracks_meta_errors_name_the_line(
 def test_tracks_meta_maps_classes_to_ngsim_codes(tmp_path: Path) -> None:
     two_directions(tmp_path)
     meta = read_tracks_meta(tmp_path / "01_tracksMeta.csv")
-    assert meta.rows() == [(1, 2, 2), (2, 3, 1)]  # (id, v_class, drivingDirection)
+    assert meta.rows() == [(1, 2, 2, 300), (2, 3, 1, 300)]  # id, v_class, direction, numFrames
 
 
 # Through the command line: one error line naming the file, the line and the column; no output.

@@ -24,6 +24,7 @@ from ngsim_graphs.workers import (
     MALLOC_THRESHOLDS,
     POLARS_JEMALLOC_DEFAULTS,
     POLARS_THREADS,
+    STOP_GRACE_S,
     Processes,
     Workers,
     available_cores,
@@ -106,6 +107,25 @@ def test_a_failed_map_never_waits_for_ever_on_its_workers() -> None:
         if program.poll() is None:
             os.killpg(program.pid, signal.SIGKILL)
     assert (out, err) == ("done\n", "")
+
+
+def deaf_to_sigterm(index: int) -> int:
+    """Task 1 will not end on SIGTERM and would run for a minute; task 0 fails after it began."""
+    if index == 0:
+        time.sleep(0.5)
+        raise ValueError("task 0")
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    time.sleep(60)
+    return index
+
+
+def test_a_worker_that_sigterm_does_not_end_is_killed() -> None:
+    # A worker that SIGTERM did not end (it came as the task's error, say) held the pool's
+    # shutdown until it ended: for ever where it waited for a task that never came.
+    start = time.monotonic()
+    with Workers(2) as workers, pytest.raises(ValueError, match="task 0"):
+        workers.map(deaf_to_sigterm, [(0,), (1,)])
+    assert time.monotonic() - start < STOP_GRACE_S + 10
 
 
 def resident_bytes() -> int:
