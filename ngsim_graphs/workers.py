@@ -16,6 +16,7 @@ killed with no chance to stop them, ends itself the moment it sees that.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import multiprocessing
@@ -27,7 +28,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from enum import Enum
-from multiprocessing import get_context
+from multiprocessing import connection, get_context
 from types import FrameType
 from typing import Any, TypeVar
 
@@ -146,9 +147,6 @@ def start_worker() -> None:
         return
 
     def watch() -> None:
-        # SIGTERM is for the main thread, whose wait for a task it interrupts (a signal handled
-        # here would leave that wait, and the worker, blocked).
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
         parent.join()
         os._exit(1)  # nothing to hand results to; what it wrote is its parent's partial output
 
@@ -161,6 +159,19 @@ def _leave(_signum: int, _frame: FrameType | None) -> None:
     # while the worker was ending already (Python reports an exception in an exit handler).
     sys.stderr = open(os.devnull, "w")  # noqa: SIM115
     raise SystemExit(1)
+
+
+def _kill_stragglers(processes: list[multiprocessing.process.BaseProcess]) -> None:
+    """Kill the `processes` that SIGTERM has not ended after STOP_GRACE_S: one whose SystemExit
+    came while its task ran (the task's error, to the pool) waits for the next task, and the
+    pool's shutdown for it, for ever. Their sentinels tell which have ended, without reaping
+    them (the pool's own thread does)."""
+    sentinels = {process.sentinel: process for process in processes}
+    ended = set(connection.wait(list(sentinels), timeout=STOP_GRACE_S))
+    for sentinel, process in sentinels.items():
+        if sentinel not in ended:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(process.pid, signal.SIGKILL)  # type: ignore[arg-type]
 
 
 def _failed(future: Future) -> bool:
@@ -201,13 +212,7 @@ class Workers:
                 ours = [p for p in multiprocessing.active_children() if p not in others]
                 for process in ours:
                     process.terminate()  # SIGTERM: the worker leaves by SystemExit
-                for process in ours:
-                    # One that SIGTERM did not end (a SystemExit that came while its task ran
-                    # is the task's error, and the worker waits for the next) is killed: the
-                    # pool's shutdown would wait for it for ever.
-                    process.join(STOP_GRACE_S)
-                    if process.is_alive():
-                        process.kill()
+                threading.Thread(target=_kill_stragglers, args=(ours,), daemon=True).start()
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=cancel)
         finally:  # a second Ctrl-C while waiting: the environment is still given back
