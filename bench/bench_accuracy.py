@@ -40,8 +40,9 @@ from aigem.training import fit, pick_device
 
 # The settings compared by default: the paper's rate at batch 32, constant and decayed, and at batch
 # 256; then batch 256 and 1024 with the rate scaled by about sqrt(batch / 32) and by batch / 32,
-# warmed up and decayed. (Gradient norms run from ~4e5 at the start to ~1e3 after a few epochs, so
-# a fixed clipping norm either clips every step or none: it is an option, not in the defaults.)
+# warmed up and decayed. (Gradient norms fall from ~4e4 over the first steps to ~3e3 after two
+# epochs, so a fixed clipping norm clips nearly every step or hardly any: it is an option, not in
+# the defaults.)
 SETTINGS = (
     "batch=32",
     "batch=32,schedule=cosine",
