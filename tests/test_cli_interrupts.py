@@ -204,24 +204,19 @@ def test_workers_end_with_a_killed_build_whose_leftovers_the_next_removes(
     assert siblings(out) == []
 
 
-def test_sigterm_of_synth_leaves_no_file(tmp_path: Path) -> None:
+@pytest.mark.parametrize("command", ["synth", "export-cslstm"])
+def test_sigterm_of_a_command_that_writes_a_folder_leaves_no_file(
+    command: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
     folder = tmp_path / "new"
-    arguments = ["synth", str(folder), "--recordings", "2", "--minutes", "2"]
-    writing = lambda _pid, out: any(out.parent.glob(f".{out.name}.partial-*/*/*.txt"))
-    program, _ = run_until(arguments, writing, folder)
-    os.kill(program.pid, signal.SIGTERM)
-    lines = finish(program)
-    assert (program.returncode, lines) == (
-        143,
-        [f"terminated; nothing written ({folder} is as it was)"],
-    )
-    assert not folder.exists() and siblings(folder) == []
-
-
-def test_sigterm_of_export_cslstm_leaves_no_file(raw: Path, tmp_path: Path) -> None:
-    folder = tmp_path / "cs"
-    arguments = ["export-cslstm", str(raw), "--out", str(folder), "--allow-partial"]
-    program, _ = run_until(arguments, WRITING_MAT, folder)
+    if command == "synth":
+        arguments = ["synth", str(folder), "--recordings", "2", "--minutes", "2"]
+        moment: Moment = lambda _pid, out: any(out.parent.glob(f".{out.name}.partial-*/*/*.txt"))
+    else:
+        raw = request.getfixturevalue("raw")
+        arguments = ["export-cslstm", str(raw), "--out", str(folder), "--allow-partial"]
+        moment = WRITING_MAT
+    program, _ = run_until(arguments, moment, folder)
     os.kill(program.pid, signal.SIGTERM)
     lines = finish(program)
     assert (program.returncode, lines) == (
