@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
@@ -24,6 +25,7 @@ from rich.progress import (
 from rich.table import Table
 
 from ngsim_graphs.errors import NgsimError
+from ngsim_graphs.interrupts import HELD_SIGNALS
 
 # Lines are never broken by us: a path or a number stays whole on a narrow terminal and in a
 # pipe (the terminal wraps what is too long; a pipe gets the line as it is).
@@ -158,10 +160,6 @@ class Terminated(KeyboardInterrupt):
     Ctrl-C."""
 
 
-def _terminated(_signum: int, _frame: FrameType | None) -> None:
-    raise Terminated
-
-
 @contextmanager
 def exit_on_interrupt(left: str) -> Iterator[None]:
     """Turn Ctrl-C (SIGINT) and SIGTERM in the block into one line on stderr, `interrupted;
@@ -169,17 +167,42 @@ def exit_on_interrupt(left: str) -> Iterator[None]:
     says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`.
 
     The work cleans up as it unwinds; the worker processes of a build never see the Ctrl-C
-    that a terminal sends to them too (`ngsim_graphs.workers`).
+    that a terminal sends to them too (`ngsim_graphs.workers`). An interrupt that lands in a
+    library's callback may come out as the library's own error (Polars reports the
+    KeyboardInterrupt as "Exception ignored" and raises a TypeError): once a signal has come,
+    the error that ends the block is the interrupt, and Python's report of the ignored
+    KeyboardInterrupt is not printed.
     """
+    came: list[int] = []
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        came.append(signum)
+        raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
     in_main = threading.current_thread() is threading.main_thread()
-    before = signal.signal(signal.SIGTERM, _terminated) if in_main else None
+    handlers = {signum: signal.getsignal(signum) for signum in HELD_SIGNALS} if in_main else {}
+    for signum, handler in handlers.items():
+        if handler is not signal.SIG_IGN:  # `nohup`, a shell's background job: left ignored
+            signal.signal(signum, on_signal)
+    report_unraisable = sys.unraisablehook
+
+    def unraisable(info: sys.UnraisableHookArgs) -> None:
+        if not isinstance(info.exc_value, KeyboardInterrupt):
+            report_unraisable(info)
+
+    sys.unraisablehook = unraisable
     try:
         yield
-    except KeyboardInterrupt as err:
-        terminated = isinstance(err, Terminated)
+    except (typer.Exit, SystemExit):
+        raise
+    except BaseException as err:
+        if not came and not isinstance(err, KeyboardInterrupt):
+            raise
+        terminated = came[:1] == [signal.SIGTERM] or isinstance(err, Terminated)
         what = "terminated" if terminated else "interrupted"
         stderr.print(f"{what}; {left}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(128 + (signal.SIGTERM if terminated else signal.SIGINT)) from None
     finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, before)
+        sys.unraisablehook = report_unraisable
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)

@@ -50,14 +50,21 @@ def children_deaf_to_ctrl_c() -> Iterator[None]:
     """Block SIGINT in this thread for the block, so that the processes started from it, and
     from threads it starts meanwhile, start with SIGINT blocked: a signal mask is inherited
     across fork and exec, and Python does not unblock it at start-up, so a worker never sees a
-    Ctrl-C (its parent stops it). This thread's own SIGINT waits until the block ends; other
-    threads of this process still take it, and the main thread then raises KeyboardInterrupt.
+    Ctrl-C (its parent stops it).
+
+    Another thread of this process may still take the SIGINT, and Python then runs its handler
+    in the main thread: the handlers are held off too (`interrupts_held`), and a signal that came
+    is raised again once the block ends. A KeyboardInterrupt between starting a process and
+    handing it its work had left the process to die with a traceback of its own.
     """
     if not hasattr(signal, "pthread_sigmask"):  # not POSIX: nothing to inherit
         yield
         return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+    with interrupts_held() as came:
+        before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+    for signum in came:
+        signal.raise_signal(signum)

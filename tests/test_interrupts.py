@@ -61,3 +61,20 @@ def test_processes_started_meanwhile_start_with_ctrl_c_blocked() -> None:
         assert mask() == f"[{int(signal.SIGINT)}]"  # Python keeps it blocked as it starts
     assert mask() == "[]"
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+def test_a_ctrl_c_another_thread_takes_comes_once_the_block_has_ended() -> None:
+    """The SIGINT a terminal sends goes to any thread that has it unblocked (Polars' threads):
+    Python's handler, in the main thread, waits for the end of the block, where processes are
+    started and handed their work."""
+    go = threading.Event()
+    other = threading.Thread(target=lambda: go.wait() and signal.raise_signal(signal.SIGINT))
+    other.start()  # before the block: its SIGINT is not blocked
+    steps = []
+    with pytest.raises(KeyboardInterrupt), children_deaf_to_ctrl_c():
+        go.set()
+        other.join()
+        steps.extend(range(1000))  # where Python would run the handler
+        steps.append("end of the block")
+    assert steps[-1] == "end of the block"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
