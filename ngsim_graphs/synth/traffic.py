@@ -1,8 +1,7 @@
 """A seeded microscopic traffic simulation of one recording, observed the way NGSIM's video was.
 
-Car-following is the improved Intelligent Driver Model (IIDM, Treiber and Kesting 2013), lane
-changes are MOBIL (Kesting, Treiber, Helbing 2007) with biases for mandatory moves (see
-`road.change_bias`). A downstream bottleneck whose speed cap varies in time queues the traffic
+The drivers follow the improved Intelligent Driver Model and change lanes by MOBIL, with biases
+for mandatory moves (`drivers`, `road.change_bias`). A downstream bottleneck whose speed cap varies in time queues the traffic
 into the view and sends stop-and-go waves upstream. Every step is vectorised over the vehicles; the
 loop runs over time only. Units are NGSIM's: feet, seconds, feet/s, feet/s^2.
 
@@ -15,38 +14,37 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 import polars as pl
 
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, Recording
 from ngsim_graphs.synth.camera import Sightings, observed_rows
+from ngsim_graphs.synth.drivers import (
+    LaneIndex,
+    accelerations,
+    change_gain,
+    gap_to,
+    lane_index,
+    neighbours_at,
+)
 from ngsim_graphs.synth.road import (
     ROADWAYS,
     EntryPoints,
     Regime,
     Roadway,
     bottleneck_cap_fps,
-    change_bias,
     entry_points,
     lane_centre_ft,
-    lane_open,
     regime_for,
 )
 
 DT_S = 0.1  # one NGSIM frame
 WARMUP_S = 150.0  # simulated before frame 0, so the recording opens on settled traffic
 MAX_BRAKE_FPS2 = 30.0  # about 0.9 g
-KEY_LANE = 1.0e5  # sort key lane * KEY_LANE + y + KEY_OFFSET orders entries by lane, then y
-KEY_OFFSET = 1.0e4
 DECISION_EVERY = 10  # steps between two lane-change decisions of one driver (1 s)
-POLITENESS = 0.3  # MOBIL's weight of the new follower's disadvantage
 CHANGE_THRESHOLD_FPS2 = 0.3  # advantage a discretionary lane change must bring
-SAFE_BRAKE_FPS2 = 8.0  # MOBIL safety: the new follower need not brake harder than this
 COOLDOWN_S = 4.0  # after the start of one lane change, before the next decision
-MIN_GAP_FT = 3.0
-YIELD_FT, YIELD_FPS = 80.0, 8.0  # drivers let in a vehicle stuck this close to its lane's end
 ENTRY_GAP_FT, ENTRY_HEADWAY_S = 7.0, 1.2  # room a vehicle needs to enter at speed v
 MAX_PENDING = 20  # vehicles waiting to enter at one entry point
 
@@ -81,15 +79,6 @@ FLEET_DTYPE = np.dtype(
 NOISES = ("noise_x", "noise_y", "noise_a", "noise_v", "noise_acc")
 NOISE_SD = np.array([0.12, 0.35, 1.4, 2.2, 5.4])  # ft, ft, ft/s^2, ft/s, ft/s^2
 NOISE_RHO = np.exp(-DT_S / np.array([1.0, 1.0, 2.0, 1.0, 0.3]))  # AR(1) factors
-
-
-class _LaneIndex(NamedTuple):
-    """Lane occupancy: (E,) entries sorted by lane then y; a changing vehicle has two entries."""
-
-    keys: np.ndarray
-    vehicle: np.ndarray  # fleet row of each entry
-    lane: np.ndarray
-    courtesy: np.ndarray  # bool: the entry of a vehicle waiting to merge, in the lane it waits for
 
 
 @dataclass
@@ -206,8 +195,8 @@ def _run(sim: _Simulation, n_frames: int) -> Sightings:
     counts = np.zeros(n_frames, np.int64)
     for step in range(-round(WARMUP_S / DT_S), n_frames):
         cap = bottleneck_cap_fps(sim.regime, step * DT_S, duration_s, phase)
-        following, index = _lane_index(sim.fleet, sim.roadway)
-        acc = _accelerations(sim.fleet, following, sim.roadway, cap)
+        following, index = lane_index(sim.fleet, sim.roadway)
+        acc = accelerations(sim.fleet, following, sim.roadway, cap)
         _change_lanes(sim, index, acc, step)
         _move(sim, acc)
         if step >= 0:
@@ -220,124 +209,7 @@ def _run(sim: _Simulation, n_frames: int) -> Sightings:
     return Sightings(columns[0].astype(np.int64), frames, *columns[1:])
 
 
-def _lane_index(fleet: np.ndarray, roadway: Roadway) -> tuple[_LaneIndex, _LaneIndex]:
-    """Occupancy for car-following, and the same without courtesy entries for gap searches.
-
-    A vehicle stuck near the end of the extra lane that must leave it also appears in the lane it
-    waits for: the drivers there stop behind it, as real drivers let a waiting car in.
-    """
-    changing = np.flatnonzero(fleet["from_lane"] != fleet["lane"])
-    waiting = np.zeros(0, np.int64)
-    if roadway.extra_lane_ft is not None:
-        must_leave = ~fleet["exits"] if roadway.extra_lane_exits else True
-        waiting = np.flatnonzero(
-            (fleet["lane"] == roadway.lanes)
-            & (fleet["from_lane"] == roadway.lanes)
-            & must_leave
-            & (fleet["y"] > roadway.extra_lane_ft[1] - YIELD_FT)
-            & (fleet["v"] < YIELD_FPS)
-        )
-    vehicle = np.concatenate([np.arange(len(fleet)), changing, waiting])
-    lane = np.concatenate(
-        [fleet["lane"], fleet["from_lane"][changing], np.full(waiting.size, roadway.main_lanes)]
-    )
-    keys = lane * KEY_LANE + fleet["y"][vehicle] + KEY_OFFSET
-    order = np.argsort(keys, kind="stable")
-    courtesy = order >= len(fleet) + changing.size
-    following = _LaneIndex(keys[order], vehicle[order], lane[order], courtesy)
-    if waiting.size == 0:
-        return following, following
-    real = ~courtesy
-    return following, _LaneIndex(
-        keys[order][real], vehicle[order][real], lane[order][real], courtesy[real]
-    )
-
-
-def _neighbours_at(
-    index: _LaneIndex, lanes: np.ndarray, ys: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Fleet rows of the first vehicle at or ahead of (lane, y) and the last behind it; -1: none."""
-    n = len(index.keys)
-    if n == 0:
-        none = np.full(len(lanes), -1)
-        return none, none
-    pos = np.searchsorted(index.keys, lanes * KEY_LANE + ys + KEY_OFFSET)
-    ahead, behind = np.minimum(pos, n - 1), np.maximum(pos - 1, 0)
-    leader = np.where((pos < n) & (index.lane[ahead] == lanes), index.vehicle[ahead], -1)
-    follower = np.where((pos > 0) & (index.lane[behind] == lanes), index.vehicle[behind], -1)
-    return leader, follower
-
-
-def _idm(
-    fleet: np.ndarray, rows: np.ndarray, v0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray
-) -> np.ndarray:
-    """IIDM acceleration (ft/s^2) of fleet rows behind a leader gap ft away (inf: none) at v_lead.
-
-    The improved IDM (Treiber and Kesting 2013) keeps the IDM's dynamics but not its low free-flow
-    capacity: a driver cruises at v0 until the gap falls to the desired one. Above v0 (entering the
-    bottleneck) it brakes towards v0 at no more than about b.
-    """
-    v, a, b = fleet["v"][rows], fleet["a_max"][rows], fleet["b_comf"][rows]
-    dynamic = v * fleet["headway_s"][rows] + v * (v - v_lead) / (2.0 * np.sqrt(a * b))
-    z = (fleet["s0"][rows] + np.maximum(dynamic, 0.0)) / np.maximum(gap, 0.5)
-    below = v <= v0
-    ratio = np.where(below, v / v0, v0 / np.maximum(v, 1e-6))
-    a_free = np.where(below, a * (1.0 - ratio**4), -b * (1.0 - ratio ** (4.0 * a / b)))
-    close = a * (1.0 - z**2)
-    smooth = a_free * (1.0 - np.minimum(z, 1.0) ** (2.0 * a / np.maximum(a_free, 1e-9)))
-    return np.where(
-        below, np.where(z >= 1.0, close, smooth), a_free + np.where(z >= 1.0, close, 0.0)
-    )
-
-
-def _desired_speed(fleet: np.ndarray, roadway: Roadway, cap_fps: float) -> np.ndarray:
-    """Desired speed (N,) ft/s: the driver's own, capped inside the bottleneck."""
-    y = fleet["y"] - roadway.length_ft
-    inside = (y >= roadway.bottleneck_ft[0]) & (y <= roadway.bottleneck_ft[1])
-    return np.where(inside, np.minimum(fleet["v0"], cap_fps), fleet["v0"])
-
-
-def _gap_to(
-    fleet: np.ndarray, rows: np.ndarray, leader: np.ndarray, y: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Gap (ft; inf without a leader) from positions y to leader rows (-1: none), and the leaders'
-    speed (the rows' own where there is none, so that nothing is approached)."""
-    has = leader >= 0
-    safe = np.where(has, leader, rows)
-    gap = np.where(has, fleet["y"][safe] - fleet["length"][safe] - y, np.inf)
-    return gap, np.where(has, fleet["v"][safe], fleet["v"][rows])
-
-
-def _accelerations(
-    fleet: np.ndarray, index: _LaneIndex, roadway: Roadway, cap_fps: float
-) -> np.ndarray:
-    """IIDM acceleration (N,) ft/s^2 of every vehicle: the harder of its lanes' constraints."""
-    veh = index.vehicle
-    leader = np.full(len(veh), -1)
-    leader[:-1] = np.where(index.lane[1:] == index.lane[:-1], veh[1:], -1)
-    gap, v_lead = _gap_to(fleet, veh, leader, fleet["y"][veh])
-    alongside = np.flatnonzero(index.courtesy[1:] & (gap[:-1] < 0.0))
-    if alongside.size:  # too late to let that one in: follow the vehicle beyond it
-        beyond = np.minimum(alongside + 2, len(veh) - 1)
-        same = (alongside + 2 < len(veh)) & (index.lane[beyond] == index.lane[alongside])
-        leader[alongside] = np.where(same, veh[beyond], -1)
-        gap, v_lead = _gap_to(fleet, veh, leader, fleet["y"][veh])
-    if roadway.extra_lane_ft is not None:
-        extra, end = roadway.lanes, roadway.extra_lane_ft[1]
-        bound = (index.lane == extra) & (fleet["lane"][veh] == extra)
-        if roadway.extra_lane_exits:
-            bound &= ~fleet["exits"][veh]
-        gap_end = np.where(bound, end - fleet["y"][veh], np.inf)  # the lane's end stands still
-        closer = gap_end < gap
-        gap, v_lead = np.where(closer, gap_end, gap), np.where(closer, 0.0, v_lead)
-    acc_entry = _idm(fleet, veh, _desired_speed(fleet, roadway, cap_fps)[veh], gap, v_lead)
-    acc_entry[index.courtesy] = np.inf  # a waiting vehicle creeps on in its own lane
-    acc = np.full(len(fleet), np.inf)
-    np.minimum.at(acc, veh, acc_entry)
-    return acc
-
-
-def _change_lanes(sim: _Simulation, index: _LaneIndex, acc: np.ndarray, step: int) -> None:
+def _change_lanes(sim: _Simulation, index: LaneIndex, acc: np.ndarray, step: int) -> None:
     """MOBIL decisions of the drivers whose turn it is; chosen changes start their lateral move."""
     fleet = sim.fleet
     deciding = (
@@ -353,44 +225,12 @@ def _change_lanes(sim: _Simulation, index: _LaneIndex, acc: np.ndarray, step: in
     direction = -1 if (step // DECISION_EVERY) % 2 == 0 else 1
     lane = fleet["lane"][rows]
     target = (lane + direction).astype(np.int16)
-    gain = _change_gain(fleet, index, acc, rows, target, sim.roadway)
+    gain = change_gain(fleet, index, acc, rows, target, sim.roadway)
     moving = rows[gain > CHANGE_THRESHOLD_FPS2]
     fleet["from_lane"][moving] = fleet["lane"][moving]
     fleet["lane"][moving] += direction
     fleet["change_s"][moving] = 0.0
     fleet["change_dur_s"][moving] = sim.rng.uniform(3.0, 5.0, moving.size)
-
-
-def _change_gain(
-    fleet: np.ndarray,
-    index: _LaneIndex,
-    acc: np.ndarray,
-    rows: np.ndarray,
-    target: np.ndarray,
-    roadway: Roadway,
-) -> np.ndarray:
-    """MOBIL incentive (ft/s^2) of moving rows to target lanes; -inf where unsafe or impossible."""
-    y = fleet["y"][rows]
-    leader, follower = _neighbours_at(index, target, y)
-    gap_ahead, v_ahead = _gap_to(fleet, rows, leader, y)
-    v0 = fleet["v0"]
-    own_new = _idm(fleet, rows, v0[rows], gap_ahead, v_ahead)
-    has_f = follower >= 0
-    behind = np.where(has_f, follower, rows)
-    gap_behind = np.where(has_f, y - fleet["length"][rows] - fleet["y"][behind], np.inf)
-    follower_new = _idm(fleet, behind, v0[behind], gap_behind, fleet["v"][rows])
-    follower_loss = np.where(has_f, follower_new - acc[behind], 0.0)
-    exits = fleet["exits"][rows]
-    bias = change_bias(roadway, fleet["lane"][rows], target, y, exits)
-    gain = own_new - acc[rows] + POLITENESS * follower_loss + bias
-    safe_brake = SAFE_BRAKE_FPS2 + np.maximum(bias, 0.0)  # mandatory moves accept harder braking
-    safe = (
-        (gap_ahead > MIN_GAP_FT)
-        & (gap_behind > MIN_GAP_FT)
-        & (own_new > -safe_brake)
-        & (np.where(has_f, follower_new, 0.0) > -safe_brake)
-    )
-    return np.where(safe & lane_open(roadway, target, y, exits), gain, -np.inf)
 
 
 def _lateral_ft(fleet: np.ndarray) -> np.ndarray:
@@ -439,7 +279,7 @@ def _in_view(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
     return np.column_stack(columns).astype(np.float64)
 
 
-def _enter(sim: _Simulation, index: _LaneIndex) -> None:
+def _enter(sim: _Simulation, index: LaneIndex) -> None:
     """Arrivals join the entry queues; the head of each queue enters when its lane has room."""
     entries = sim.entries
     sim.pending = np.minimum(sim.pending + sim.rng.poisson(entries.rate_per_s * DT_S), MAX_PENDING)
@@ -447,11 +287,11 @@ def _enter(sim: _Simulation, index: _LaneIndex) -> None:
     if points.size == 0:
         return
     lanes, ys = entries.lane[points], entries.y_ft[points]
-    leader, _ = _neighbours_at(index, lanes, ys)
+    leader, _ = neighbours_at(index, lanes, ys)
     free = sim.roadway.free_speed_fps * np.where(lanes > sim.roadway.main_lanes, 0.7, 0.95)
     gap, v_lead = np.full(points.size, np.inf), free
     if len(sim.fleet):
-        gap, v_lead = _gap_to(sim.fleet, np.zeros_like(leader), leader, ys)
+        gap, v_lead = gap_to(sim.fleet, np.zeros_like(leader), leader, ys)
     v_in = np.where(leader >= 0, np.minimum(v_lead, free), free)
     fits = gap >= ENTRY_GAP_FT + ENTRY_HEADWAY_S * v_in
     if not fits.any():
