@@ -3,7 +3,8 @@
 The drivers follow the improved Intelligent Driver Model and change lanes by MOBIL, with biases
 for mandatory moves (`drivers`, `road.change_bias`). A downstream bottleneck whose speed cap
 varies in time queues the traffic into the view and sends stop-and-go waves upstream. Every step
-is vectorised over the vehicles; the loop runs over time only. Units are NGSIM's: feet, seconds, feet/s, feet/s^2.
+is vectorised over the vehicles; the loop runs over time only. Units are NGSIM's: feet, seconds,
+feet/s, feet/s^2.
 
 The fleet is a numpy structured array, one row per simulated vehicle, appended on entry and removed
 on exit. A vehicle changing lanes (`from_lane != lane`) follows leaders in both lanes and is a
