@@ -224,7 +224,10 @@ def concat_batches(batches: list[GraphBatch]) -> GraphBatch:
         edges={
             name: EdgeSet(
                 np.concatenate(
-                    [b.edges[name].index + o for b, o in zip(batches, node_offsets, strict=True)],
+                    [
+                        b.edges[name].index + o
+                        for b, o in zip(batches, node_offsets[:-1], strict=True)
+                    ],
                     axis=1,
                 ),
                 np.concatenate([b.edges[name].attribute for b in batches]),
