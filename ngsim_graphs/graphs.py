@@ -66,6 +66,13 @@ class GraphBatch:
     target_mask: np.ndarray  # (T, K_F) bool: True where the position is recorded
     time_step_s: float  # the grid's time step
 
+    def __getattr__(self, name: str) -> np.ndarray:
+        """`batch.<type>_edges` (`spatial_edges`, ...): edges[type].index, (2, E) int64."""
+        edge_sets = self.__dict__.get("edges", {})
+        if name.endswith("_edges") and name.removesuffix("_edges") in edge_sets:
+            return edge_sets[name.removesuffix("_edges")].index
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
     @property
     def n_samples(self) -> int:
         return len(self.node_ptr) - 1

@@ -540,3 +540,15 @@ def test_random_scene_thresholds_are_exact() -> None:
     assert 50.0 in distances and 25.0 in distances
     assert any(50.0 < d < 50.0 + 1e-12 for d in distances)
     assert any(25.0 < d < 25.0 + 1e-12 for d in distances)
+
+
+def test_an_edge_type_s_index_is_also_an_attribute() -> None:
+    """`batch.spatial_edges` (the README's quick start) is batch.edges["spatial"].index."""
+    config = BuildConfig()
+    table = tiny_scene()
+    egos, starts = all_windows(table, config)
+    batch = fast_path(table, egos, starts, config)
+    assert batch.spatial_edges is batch.edges["spatial"].index
+    assert batch.temporal_edges is batch.edges["temporal"].index
+    with pytest.raises(AttributeError, match="lane_edges"):
+        batch.lane_edges  # noqa: B018
