@@ -9,10 +9,13 @@ attribute, twice over the same decisions:
 
 `EDGE_TYPES` lists them in order: the batch's edge sets, the build's count columns, the model's
 GAT per type (and its checkpoint keys), PyG's relations and the export's tables follow it. Code
-reads it as `edges.EDGE_TYPES` at call time, so a test may register a type of its own.
+reads it as `edges.EDGE_TYPES` at call time, so a test may register a type of its own. A new
+type adds its count column to `schema.COUNT_COLUMNS` (in this order); a scaled attribute of a new
+name is a new quantity of the scaler (`scaling.SCALED`, and so of the manifest).
 
 - spatial: at each step, ego <-> each actor node, and actor <-> actor where the two are at
-  most d_min apart (a proximity pair), both directions; attribute: the distance in metres.
+  most d_max apart (a proximity pair of `grid`; the build's field and manifest key `d_min_m`
+  keep their name), both directions; attribute: the distance in metres.
 - temporal: a track's node at step k -> the same track's node at k+1; attribute: t_s.
 """
 

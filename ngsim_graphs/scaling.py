@@ -20,7 +20,7 @@ import numpy as np
 
 from ngsim_graphs import edges
 from ngsim_graphs.grid import STATE_COLUMNS, RecordingArrays
-from ngsim_graphs.neighbourhoods import Neighbourhoods, positions, sample_chunks
+from ngsim_graphs.neighbourhoods import Neighbourhoods, positions, ranged, sample_chunks
 
 FEATURES = STATE_COLUMNS  # node feature columns, in order
 SCALED = FEATURES + edges.scaled_attributes()  # the quantities, in order: the manifest's
@@ -169,7 +169,9 @@ def train_ranges(
             low[name] = min(low[name], (sample_low - origin[:, i]).min())
             high[name] = max(high[name], (sample_high - origin[:, i]).max())
         used[at[present]] = True
-    for i, name in enumerate(SCALED[2:], start=2):
+    columns = ranged()  # hood.low's and hood.high's, by name
+    for name in SCALED[2:]:
+        i = columns.index(name)
         low[name] = hood.low[used, i].min(initial=np.inf)
         high[name] = hood.high[used, i].max(initial=-np.inf)
     return MinMaxScaler(
