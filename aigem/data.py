@@ -18,7 +18,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aigem.model import make_plan
+from aigem.model import edge_inputs, make_plan
+from ngsim_graphs import edges
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, concat_batches
@@ -61,8 +62,12 @@ def check_covered(batch: dict[str, Any], scaler: MinMaxScaler, manifest: Path) -
     fitted on exactly the train split's values, so a value outside says the scaler recorded in
     `manifest` is not the one fitted (an edited manifest, re-sealed: its checksum is unkeyed and
     anyone can recompute it). A min and max per quantity of the batch's (N, 4) features and
-    (E, 1) distances, on the CPU."""
-    columns = [("distance_m", batch["spatial_attr"][:, 0])]
+    (E, 1) scaled edge attributes, on the CPU."""
+    columns = [
+        (edge.attribute, batch[f"{edge.name}_attr"][:, 0])
+        for edge in edges.EDGE_TYPES
+        if edge.scaled
+    ]
     columns += [(name, batch["x"][:, i]) for i, name in enumerate(FEATURES)]
     for name, values in columns:
         if not len(values):
@@ -180,16 +185,14 @@ class Collate:
         batch = concat_batches(graphs)
         targets = batch.target_node
         present = batch.node_features[targets]
-        out = {
-            "x": torch.from_numpy(self.scaler.scale_features(batch.node_features)),  # (N, 4)
-            "spatial_edges": torch.from_numpy(batch.spatial_edges),  # (2, E_s)
-            "spatial_attr": torch.from_numpy(self.scaler.scale_distance(batch.spatial_distance))[
-                :, None
-            ],  # (E_s, 1)
-            "temporal_edges": torch.from_numpy(batch.temporal_edges),  # (2, E_t)
-            "temporal_attr": torch.full(
-                (batch.temporal_edges.shape[1], 1), batch.time_step_s
-            ),  # (E_t, 1)
+        out = {"x": torch.from_numpy(self.scaler.scale_features(batch.node_features))}  # (N, 4)
+        for edge in edges.EDGE_TYPES:  # "<name>_edges" (2, E), "<name>_attr" (E, 1)
+            edge_set = batch.edges[edge.name]
+            out[f"{edge.name}_edges"] = torch.from_numpy(edge_set.index)
+            out[f"{edge.name}_attr"] = torch.from_numpy(
+                self.scaler.scale_edges(edge, edge_set.attribute)
+            )
+        out |= {
             "node_sample": torch.from_numpy(batch.node_sample),  # (N,)
             "target_node": torch.from_numpy(targets),  # (A,)
             "target_sample": torch.from_numpy(batch.node_sample[targets]),  # (A,)
@@ -200,8 +203,8 @@ class Collate:
             "graphs": batch.n_samples,
         }
         if self.layers is not None:
-            edges = [
-                (out[f"{kind}_edges"], out[f"{kind}_attr"]) for kind in ("spatial", "temporal")
-            ]
-            out["plan"] = make_plan(len(batch.node_sample), out["target_node"], edges, self.layers)
+            plan = make_plan(
+                len(batch.node_sample), out["target_node"], edge_inputs(out), self.layers
+            )
+            out["plan"] = plan
         return out

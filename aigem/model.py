@@ -3,7 +3,8 @@
 Shapes: N nodes in a batch of graphs, A target actors, H = hidden width, K = future steps,
 E edges of one type.
 
-The parameters are those of PyTorch Geometric's `GATConv` (one per edge type and layer, with
+The parameters are those of PyTorch Geometric's `GATConv` (one per edge type of
+`ngsim_graphs.edges.EDGE_TYPES` and layer, named by the type: `encoder.0.spatial.lin.weight`; with
 `edge_dim=1`, `add_self_loops=False`), `nn.Linear`, `nn.GRUCell` and the output MLP, so the
 parameter count and the checkpoints' keys are theirs. The encoder computes the same function as
 `GATConv.forward` (`EncoderLayer.reference` keeps the plain PyG form; the two agree to float32
@@ -45,6 +46,14 @@ from torch import nn
 from torch_geometric.nn import GATConv
 
 from aigem.config import ModelConfig
+from ngsim_graphs import edges
+
+
+def edge_inputs(batch: dict) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """(edge_index (2, E), edge_attr (E, 1)) of each edge type, in EDGE_TYPES order, from a
+    batch's "<name>_edges" and "<name>_attr" (`aigem.data.Collate`)."""
+    return [(batch[f"{e.name}_edges"], batch[f"{e.name}_attr"]) for e in edges.EDGE_TYPES]
+
 
 # ------------------------------------------------------------------------------------------------
 # The plan: pruned, relabelled, destination-sorted adjacency shared by all layers.
@@ -271,38 +280,47 @@ def _gat(conv: GATConv, h: torch.Tensor, crow, col, attr, dst) -> torch.Tensor: 
 
 
 class EncoderLayer(nn.Module):
-    """Z_l = GAT_spatial(Z, E_s) + GAT_temporal(Z, E_t) + Linear(Z): one GAT per edge type, summed."""
+    """Z_l = sum over the edge types of GAT_type(Z, E_type) + Linear(Z): one GAT per edge type
+    (an attribute named by the type, so the checkpoints' keys are `spatial.*`, `temporal.*`)."""
 
     def __init__(self, in_features: int, config: ModelConfig) -> None:
         super().__init__()
-        gat = lambda: GATConv(  # noqa: E731
-            in_features,
-            config.hidden,
-            heads=config.heads,
-            concat=False,
-            edge_dim=1,
-            add_self_loops=False,
-            dropout=config.dropout,
-        )
-        self.spatial = gat()
-        self.temporal = gat()
+        self.edge_names = tuple(edge.name for edge in edges.EDGE_TYPES)
+        for name in self.edge_names:  # registered in order: the parameters' order and init
+            conv = GATConv(
+                in_features,
+                config.hidden,
+                heads=config.heads,
+                concat=False,
+                edge_dim=1,
+                add_self_loops=False,
+                dropout=config.dropout,
+            )
+            self.add_module(name, conv)
         self.linear = nn.Linear(in_features, config.hidden)
 
-    def forward(self, z, n_dst: int, spatial: _Adjacency, temporal: _Adjacency) -> torch.Tensor:  # noqa: ANN001
-        """(n_src, F) inputs -> (n_dst, H) outputs at the first n_dst nodes (see `Plan`)."""
-        gats = []
-        for conv, adjacency in ((self.spatial, spatial), (self.temporal, temporal)):
-            gat = _gat(conv, conv.lin(z), *adjacency.prefix(n_dst))
-            gats.append(gat + conv.bias if conv.bias is not None else gat)
-        return gats[0] + gats[1] + self.linear(z[:n_dst])  # in the reference's order
+    def convs(self) -> list[GATConv]:
+        """The GAT of each edge type, in EDGE_TYPES order."""
+        return [getattr(self, name) for name in self.edge_names]
 
-    def reference(self, z, spatial_edges, spatial_attr, temporal_edges, temporal_attr):  # noqa: ANN001, ANN201
-        """The same layer on all N nodes through PyG's `GATConv.forward` (for checks)."""
-        return (
-            self.spatial(z, spatial_edges, spatial_attr)
-            + self.temporal(z, temporal_edges, temporal_attr)
-            + self.linear(z)
-        )  # (N, H)
+    def forward(self, z, n_dst: int, adjacency: list[_Adjacency]) -> torch.Tensor:  # noqa: ANN001
+        """(n_src, F) inputs -> (n_dst, H) outputs at the first n_dst nodes (see `Plan`);
+        `adjacency`: one per edge type."""
+        total = None
+        for conv, edge_adjacency in zip(self.convs(), adjacency, strict=True):
+            gat = _gat(conv, conv.lin(z), *edge_adjacency.prefix(n_dst))
+            gat = gat + conv.bias if conv.bias is not None else gat
+            total = gat if total is None else total + gat
+        return total + self.linear(z[:n_dst])  # in the reference's order
+
+    def reference(self, z, edge_list: list[tuple[torch.Tensor, torch.Tensor]]):  # noqa: ANN001, ANN201
+        """The same layer on all N nodes through PyG's `GATConv.forward` (for checks);
+        `edge_list`: (edge_index, edge_attr) per edge type."""
+        total = None
+        for conv, (edge_index, attr) in zip(self.convs(), edge_list, strict=True):
+            gat = conv(z, edge_index, attr)
+            total = gat if total is None else total + gat
+        return total + self.linear(z)  # (N, H)
 
 
 class AiGem(nn.Module):
@@ -321,26 +339,25 @@ class AiGem(nn.Module):
             nn.Linear(mlp_in, config.mlp_hidden), nn.ReLU(), nn.Linear(config.mlp_hidden, 2)
         )
 
-    def _encode(
-        self, x, spatial_edges, spatial_attr, temporal_edges, temporal_attr, outputs, plan=None
-    ):  # noqa: ANN001, ANN202
+    def _encode(self, x, edge_list, outputs, plan=None):  # noqa: ANN001, ANN202
         """(len(outputs), H) embeddings of the batch nodes `outputs` (None: all, in batch order).
-        `plan`: the plan of these edges and outputs for this many layers, made beforehand."""
+        `edge_list`: `edge_inputs` of the batch; `plan`: the plan of these edges and outputs for
+        this many layers, made beforehand."""
         if plan is None:
-            edges = [(spatial_edges, spatial_attr), (temporal_edges, temporal_attr)]
-            plan = make_plan(x.shape[0], outputs, edges, len(self.encoder))
+            plan = make_plan(x.shape[0], outputs, edge_list, len(self.encoder))
         z = x.index_select(0, plan.order)
         for index, layer in enumerate(self.encoder):
-            z = layer(z, plan.sizes[index + 1], *plan.adjacency)
+            z = layer(z, plan.sizes[index + 1], plan.adjacency)
             if index < len(self.encoder) - 1:
                 z = self.dropout(torch.relu(z))
         if plan.outputs is None:  # every node: back to batch order
             return z.new_empty(z.shape).index_copy_(0, plan.order, z)
         return z.index_select(0, plan.outputs)
 
-    def encode(self, x, spatial_edges, spatial_attr, temporal_edges, temporal_attr):  # noqa: ANN001, ANN201
-        """(N, F) scaled node features -> (N, H) embeddings after L layers."""
-        return self._encode(x, spatial_edges, spatial_attr, temporal_edges, temporal_attr, None)
+    def encode(self, x, edge_list):  # noqa: ANN001, ANN201
+        """(N, F) scaled node features -> (N, H) embeddings after L layers; `edge_list`:
+        (edge_index, edge_attr) per edge type (`edge_inputs`)."""
+        return self._encode(x, edge_list, None)
 
     def compile_decoder(self) -> None:
         """Run the decoder through `torch.compile` (shapes dynamic in A; one compilation per
@@ -403,15 +420,7 @@ class AiGem(nn.Module):
         plan = batch.get("plan")
         if plan is not None and plan.layers != len(self.encoder):
             plan = None  # made for another model
-        z_target = self._encode(
-            batch["x"],
-            batch["spatial_edges"],
-            batch["spatial_attr"],
-            batch["temporal_edges"],
-            batch["temporal_attr"],
-            target,
-            plan,
-        )
+        z_target = self._encode(batch["x"], edge_inputs(batch), target, plan)
         steps = steps or self.config.future_steps
         return self.decode(z_target, batch["x"][target, :2], steps, batch.get("cv_step"))
 

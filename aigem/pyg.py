@@ -4,7 +4,7 @@ PyG batches `HeteroData` by concatenating every attribute and offsetting only ed
 attributes named `*batch*`). Targets kept as a list of node indices would then point at the wrong
 nodes of every graph but the first, so here a target is a node-level mask (`is_target`) with
 node-level ground truth (`y`, `y_mask`), which concatenation keeps right. Per sample, with N
-nodes, E_s spatial and E_t temporal edges, K = K_F future steps:
+nodes, E edges of a type, K = K_F future steps:
 
     data["vehicle"].x          (N, 4) float32 [x, y, heading, speed], scaled as `Collate` does
     data["vehicle"].step       (N,) int64 history step k, 0..K_H-1 (K_H-1 is the present)
@@ -14,8 +14,9 @@ nodes, E_s spatial and E_t temporal edges, K = K_F future steps:
     data["vehicle"].y          (N, K, 2) float32 future positions, metres, in the sample's frame;
                                0 for non-targets and at masked steps
     data["vehicle"].y_mask     (N, K) bool: True where y is recorded (all False for non-targets)
-    data["vehicle", "spatial", "vehicle"]   edge_index (2, E_s), edge_attr (E_s, 1) scaled distance
-    data["vehicle", "temporal", "vehicle"]  edge_index (2, E_t), edge_attr (E_t, 1) t_s in seconds
+    data["vehicle", name, "vehicle"]  for each edge type of `ngsim_graphs.edges.EDGE_TYPES`:
+                               edge_index (2, E), edge_attr (E, 1) as `Collate` gives them
+                               (spatial: the scaled distance; temporal: t_s in seconds)
     data.sample_id             (1,) int64 the sample's index in its split
 
 The targets come in node order, which is the order of `Collate`'s `target_node`;
@@ -33,13 +34,21 @@ from torch_geometric.data import Dataset as PygDataset
 from torch_geometric.data import HeteroData
 
 from aigem.data import GraphDataset
+from ngsim_graphs import edges
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Split
 
 NODE = "vehicle"
-SPATIAL = (NODE, "spatial", NODE)
-TEMPORAL = (NODE, "temporal", NODE)
+
+
+def relation(edge: edges.EdgeType) -> tuple[str, str, str]:
+    """The HeteroData edge type of an edge type: (NODE, its name, NODE)."""
+    return (NODE, edge.name, NODE)
+
+
+SPATIAL = relation(edges.SPATIAL)
+TEMPORAL = relation(edges.TEMPORAL)
 
 
 def to_hetero_data(
@@ -62,12 +71,12 @@ def to_hetero_data(
     node.track_id = torch.from_numpy(graph.node_track.astype(np.int64))
     node.is_target = torch.from_numpy(is_target)
     node.y, node.y_mask = torch.from_numpy(y), torch.from_numpy(y_mask)
-    data[SPATIAL].edge_index = torch.from_numpy(graph.spatial_edges)
-    data[SPATIAL].edge_attr = torch.from_numpy(scaler.scale_distance(graph.spatial_distance))[
-        :, None
-    ]
-    data[TEMPORAL].edge_index = torch.from_numpy(graph.temporal_edges)
-    data[TEMPORAL].edge_attr = torch.full((graph.temporal_edges.shape[1], 1), graph.time_step_s)
+    for edge in edges.EDGE_TYPES:
+        edge_set = graph.edges[edge.name]
+        data[relation(edge)].edge_index = torch.from_numpy(edge_set.index)
+        data[relation(edge)].edge_attr = torch.from_numpy(
+            scaler.scale_edges(edge, edge_set.attribute)
+        )
     if sample_id is not None:
         data.sample_id = torch.tensor([sample_id])
     return data
@@ -79,12 +88,11 @@ def to_model_batch(data: HeteroData) -> dict[str, torch.Tensor]:
     node = data[NODE]
     target = torch.nonzero(node.is_target).squeeze(1)  # (A,)
     node_sample = node.batch if "batch" in node else torch.zeros(node.num_nodes, dtype=torch.long)
-    return {
-        "x": node.x,  # (N, 4) scaled
-        "spatial_edges": data[SPATIAL].edge_index,  # (2, E_s)
-        "spatial_attr": data[SPATIAL].edge_attr,  # (E_s, 1)
-        "temporal_edges": data[TEMPORAL].edge_index,  # (2, E_t)
-        "temporal_attr": data[TEMPORAL].edge_attr,  # (E_t, 1)
+    batch = {"x": node.x}  # (N, 4) scaled
+    for edge in edges.EDGE_TYPES:
+        batch[f"{edge.name}_edges"] = data[relation(edge)].edge_index  # (2, E)
+        batch[f"{edge.name}_attr"] = data[relation(edge)].edge_attr  # (E, 1)
+    return batch | {
         "node_sample": node_sample,  # (N,)
         "target_node": target,  # (A,)
         "target_sample": node_sample[target],  # (A,)

@@ -33,7 +33,7 @@ from torch.utils.data import DataLoader
 
 from aigem.baseline import constant_velocity
 from aigem.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.model import AiGem
+from aigem.model import AiGem, edge_inputs
 from aigem.records import resolve_build
 from aigem.runs import BEST, load_model
 from ngsim_graphs.scaling import FEATURES, MinMaxScaler
@@ -70,10 +70,8 @@ def targets_of(
     with torch.no_grad():
         for batch in loader:
             target = batch["target_node"]
-            z = model._encode(  # the present-step embeddings the decoder starts from
-                batch["x"], batch["spatial_edges"], batch["spatial_attr"],
-                batch["temporal_edges"], batch["temporal_attr"], target, batch["plan"],
-            )  # fmt: skip
+            # the present-step embeddings the decoder starts from
+            z = model._encode(batch["x"], edge_inputs(batch), target, batch["plan"])
             predicted = xy_to_metres(scaler, model(batch, steps)).numpy().astype(np.float64)
             state = batch["target_state"].numpy().astype(np.float64)
             cv = constant_velocity(state, steps, dt)

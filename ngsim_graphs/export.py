@@ -16,19 +16,25 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import landing, layout
+from ngsim_graphs import edges, landing, layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.integrity import file_sha256
 
-EXPORT_TABLES = ("nodes", "spatial_edges", "temporal_edges", "targets", "samples")
+
+def export_tables() -> tuple[str, ...]:
+    """The tables an export writes: nodes, one per edge type (`<name>_edges`), targets, samples."""
+    return ("nodes", *(edge.table for edge in edges.EDGE_TYPES), "targets", "samples")
+
+
+EXPORT_TABLES = export_tables()  # those of the edge types this package defines
 EXPORT_MARKER = "export.json"  # the tables an export wrote, with their sha256
 EXPORT_PROGRAM = "ngsim-graphs export"
 
 
 def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.DataFrame]:
-    """nodes, spatial_edges, temporal_edges and targets of the samples of `batch`.
+    """nodes, the edge tables (one per edge type) and targets of the samples of `batch`.
 
     `sample_ids[b]` is the split's sample id of the batch's sample b.
     """
@@ -48,7 +54,7 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
         }
     )
 
-    def edges(pairs: np.ndarray) -> dict[str, np.ndarray]:
+    def edge_table(pairs: np.ndarray) -> dict[str, np.ndarray]:
         return {
             s.SAMPLE_ID: sample_of_node[pairs[0]],
             s.K: batch.node_step[pairs[0]],
@@ -56,10 +62,6 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
             s.EDGE_DESTINATION: local[pairs[1]],
         }
 
-    spatial = pl.DataFrame({**edges(batch.spatial_edges), s.DISTANCE_M: batch.spatial_distance})
-    temporal = pl.DataFrame(edges(batch.temporal_edges)).with_columns(
-        pl.lit(batch.time_step_s).alias(s.DT_S)
-    )
     n_targets, k_f = batch.target_mask.shape
     target = np.repeat(batch.target_node, k_f)
     targets = pl.DataFrame(
@@ -74,10 +76,18 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
         }
     )
     order = [s.SAMPLE_ID, s.K, s.EDGE_SOURCE, s.EDGE_DESTINATION]
+    edge_tables = {
+        edge.table: pl.DataFrame(
+            {
+                **edge_table(batch.edges[edge.name].index),
+                edge.attribute: batch.edges[edge.name].attribute,
+            }
+        ).sort(order)
+        for edge in edges.EDGE_TYPES
+    }
     return {
         "nodes": nodes.sort(s.SAMPLE_ID, s.NODE),
-        "spatial_edges": spatial.sort(order),
-        "temporal_edges": temporal.sort(order),
+        **edge_tables,
         "targets": targets.with_columns(
             pl.when(pl.col(s.RECORDED)).then(pl.col(s.X_M)).alias(s.X_M),
             pl.when(pl.col(s.RECORDED)).then(pl.col(s.Y_M)).alias(s.Y_M),
@@ -92,7 +102,7 @@ def earlier_export_files(out: Path) -> set[str] | None:
     if document is None or document.get("program") != EXPORT_PROGRAM:
         return None
     tables = document.get("tables")
-    ours = {f"{name}.parquet" for name in EXPORT_TABLES}
+    ours = {f"{name}.parquet" for name in export_tables()}
     if not isinstance(tables, dict) or not set(tables) <= ours:
         return None
     present = {name for name in tables if (out / name).is_file()}
@@ -126,7 +136,7 @@ def write_tables(tables: dict[str, pl.DataFrame], out: Path, overwrite: bool) ->
     Raises NgsimOutputError where `out` must not be replaced (see `check_export_target`) or a
     table cannot be written (a full disk); `out` is then left as it was.
     """
-    unknown = sorted(set(tables) - set(EXPORT_TABLES))
+    unknown = sorted(set(tables) - set(export_tables()))
     if unknown:
         raise ValueError(f"not export tables: {', '.join(unknown)}")
     check = partial(check_export_target, overwrite=overwrite)

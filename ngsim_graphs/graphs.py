@@ -4,9 +4,8 @@ For history steps k = 0..K_H-1 (k = K_H-1 is the present) of the window of ego t
 starts at grid step s0:
 - nodes at k: the ego, then every vehicle at step s0+k whose distance to the ego is <= d_sense,
   by ascending track id; features [x, y, heading, speed] with the ego's present position at (0, 0);
-- spatial edges at k: ego <-> each actor node, and actor <-> actor where the two are <= d_min
-  apart, both directions; attribute: the distance in metres;
-- temporal edges: a track's node at k -> the same track's node at k+1; attribute: t_s;
+- edges: one set per edge type of `edges.EDGE_TYPES` (spatial within a step, temporal from a
+  step to the next), each type's rule in `ngsim_graphs.edges`;
 - targets: the actor nodes at the present step (and the ego, if asked), with their positions at
   the K_F future steps in the sample frame and a mask where the track has no row (it left).
 
@@ -21,15 +20,15 @@ over samples, steps or rows.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from ngsim_graphs import edges
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.grid import RecordingArrays, pair_search_key
+from ngsim_graphs.grid import RecordingArrays, concat_ranges
 from ngsim_graphs.schema import Protocol
-
-SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding
 
 
 class NonFiniteStateError(ValueError):
@@ -37,14 +36,22 @@ class NonFiniteStateError(ValueError):
 
 
 @dataclass(frozen=True)
+class EdgeSet:
+    """The edges of one type: [source, destination] node pairs and one attribute per edge."""
+
+    index: np.ndarray  # (2, E) int64 [source, destination], batch-global nodes
+    attribute: np.ndarray  # (E,) float64 (spatial: metres, float32 precision for actor-actor)
+
+
+@dataclass(frozen=True)
 class GraphBatch:
     """The graphs of B samples, concatenated. Node indices are batch-global.
 
     Nodes of sample b are node_ptr[b]:node_ptr[b+1], ordered by step, then ego first, then by
-    track id; the sample-local index of node n is n - node_ptr[node_sample[n]]. Spatial edges
-    come by sample, and within a sample grouped by kind (ego->actor, actor->ego, actor->actor
-    both ways), each in step order; temporal edges by source. A batch therefore equals the
-    concatenation of its samples' graphs.
+    track id; the sample-local index of node n is n - node_ptr[node_sample[n]]. `edges` holds
+    an EdgeSet per edge type, by name in `edges.EDGE_TYPES` order; each comes by sample (the
+    order within a sample is its rule's), so a batch equals the concatenation of its samples'
+    graphs.
     """
 
     node_ptr: np.ndarray  # (B+1,) int64
@@ -53,28 +60,22 @@ class GraphBatch:
     node_track: np.ndarray  # (N,) int32
     node_is_ego: np.ndarray  # (N,) bool
     node_features: np.ndarray  # (N, 4) float64 [x_m, y_m, heading_rad, speed_mps], sample frame
-    spatial_edges: np.ndarray  # (2, E_s) int64 [source, destination]
-    spatial_distance: (
-        np.ndarray
-    )  # (E_s,) float64 metres (actor-actor: as stored, float32 precision)
-    temporal_edges: np.ndarray  # (2, E_t) int64 [node at k, node at k+1]
+    edges: Mapping[str, EdgeSet]  # by edge type name
     target_node: np.ndarray  # (T,) int64 node of each target (present step), by sample
     target_xy: np.ndarray  # (T, K_F, 2) float64 future positions, sample frame; 0 where masked
     target_mask: np.ndarray  # (T, K_F) bool: True where the position is recorded
-    time_step_s: float  # the temporal edges' attribute
+    time_step_s: float  # the grid's time step
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        """`batch.<type>_edges` (`spatial_edges`, ...): edges[type].index, (2, E) int64."""
+        edge_sets = self.__dict__.get("edges", {})
+        if name.endswith("_edges") and name.removesuffix("_edges") in edge_sets:
+            return edge_sets[name.removesuffix("_edges")].index
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def n_samples(self) -> int:
         return len(self.node_ptr) - 1
-
-
-def concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Concatenate the integer ranges [starts[i], ends[i]): returns (owner i, value) per element."""
-    lengths = (ends - starts).astype(np.int64)
-    owner = np.repeat(np.arange(len(starts)), lengths)
-    first = np.cumsum(lengths) - lengths
-    value = np.arange(int(lengths.sum()), dtype=np.int64) - np.repeat(first - starts, lengths)
-    return owner, value
 
 
 def _distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -153,21 +154,23 @@ def induce_graphs(
     features = np.take(rec.node_state, node_row, axis=0)
     features[:, :2] -= origin[node_sample]
 
-    spatial, distance = _spatial_edges(
-        rec,
-        ss_step,
-        ego_rows,
-        cand_ss,
-        cand_is_ego,
-        cand_dist,
-        node_of_cand,
-        order,
-        node_sample,
-        config.d_sense_m,
-    )
     node_track = rec.node_track[node_row]
     node_step = (first_step + node_ss % n_kept).astype(np.int8)
-    temporal = _temporal_edges(node_sample, node_track, node_step)
+    nodes = edges.Nodes(
+        rec=rec,
+        config=config,
+        ss_step=ss_step,
+        ego_rows=ego_rows,
+        cand_ss=cand_ss,
+        cand_is_ego=cand_is_ego,
+        cand_dist=cand_dist,
+        node_of_cand=node_of_cand,
+        order=order,
+        node_sample=node_sample,
+        node_step=node_step,
+        node_track=node_track,
+    )
+    edge_sets = {edge.name: EdgeSet(*edge.induce(nodes)) for edge in edges.EDGE_TYPES}
     target_node, target_xy, target_mask = _targets(
         rec, node_sample, node_step, node_track, cand_is_ego[order], origin, start_step, config
     )
@@ -178,85 +181,12 @@ def induce_graphs(
         node_track=node_track,
         node_is_ego=cand_is_ego[order],
         node_features=features,
-        spatial_edges=spatial,
-        spatial_distance=distance,
-        temporal_edges=temporal,
+        edges=edge_sets,
         target_node=target_node,
         target_xy=target_xy,
         target_mask=target_mask,
         time_step_s=config.time_step_s,
     )
-
-
-def _spatial_edges(
-    rec,
-    ss_step,
-    ego_rows,
-    cand_ss,
-    cand_is_ego,
-    cand_dist,
-    node_of_cand,
-    order,
-    node_sample,
-    d_sense_m,
-):
-    """Ego <-> actor edges, then actor <-> actor edges among nodes, in both directions.
-
-    Edges come by sample; within a sample grouped by kind (ego->actor, actor->ego,
-    actor->actor both ways), each group in step order: deterministic, without a full sort.
-    """
-    # Candidates of sample-step ss occupy a contiguous block, in row order from step_ptr[step];
-    # an ss without the ego (cs-lstm) has none, and no pairs.
-    has_ego = ego_rows >= 0
-    block_start = np.searchsorted(cand_ss, np.arange(len(ss_step)))
-    actors = order[~cand_is_ego[order]]
-    in_block = np.where(has_ego, ego_rows - rec.step_ptr[ss_step], 0)
-    ego_node = node_of_cand[np.minimum(block_start + in_block, len(node_of_cand) - 1)]
-    ego_src = ego_node[cand_ss[actors]]
-    ego_dst = node_of_cand[actors]
-    # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes. The
-    # range is a little wider than d_sense: a distance that rounds to exactly d_sense may lie a
-    # float step beyond it along y; the extra pairs fall out at the node check below.
-    ego_y = rec.node_state[ego_rows, 1]
-    reach = d_sense_m + SEARCH_MARGIN_M
-    lo = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y - reach), "left")
-    hi = np.searchsorted(rec.pair_key, pair_search_key(ss_step, ego_y + reach), "right")
-    hi = np.where(has_ego, hi, lo)
-    pair_ss, pair_index = concat_ranges(lo, hi)
-    base = block_start - rec.step_ptr[ss_step]
-    pair_rows = np.take(rec.pair_rows, pair_index, axis=0)
-    node_a = node_of_cand[base[pair_ss] + pair_rows[:, 0]]
-    node_b = node_of_cand[base[pair_ss] + pair_rows[:, 1]]
-    ego_row = ego_rows[pair_ss]
-    keep = (
-        (node_a >= 0) & (node_b >= 0) & (pair_rows[:, 0] != ego_row) & (pair_rows[:, 1] != ego_row)
-    )
-    node_a, node_b = node_a[keep], node_b[keep]
-    pair_dist = rec.pair_dist[pair_index[keep]].astype(np.float64)
-    src = np.concatenate([ego_src, ego_dst, node_a, node_b])
-    dst = np.concatenate([ego_dst, ego_src, node_b, node_a])
-    dist = np.concatenate([cand_dist[actors], cand_dist[actors], pair_dist, pair_dist])
-    # Stable by sample (a radix sort on 16-bit keys): a batch equals its samples concatenated.
-    by_sample = np.argsort(node_sample[src].astype(np.uint16), kind="stable")
-    return np.stack([src[by_sample], dst[by_sample]]), dist[by_sample]
-
-
-def _temporal_edges(
-    node_sample: np.ndarray, node_track: np.ndarray, node_step: np.ndarray
-) -> np.ndarray:
-    """Node of (sample, track) at step k -> its node at k+1, where both exist.
-
-    Only consecutive steps are joined (and spatial edges stay within a step): that is why a model
-    of L layers reads the last L + 1 steps alone (`ModelConfig.history_steps_read`), which the
-    dataset relies on to cut graphs. Joining further steps would need that changed too."""
-    by = np.lexsort((node_step, node_track, node_sample))
-    same = (node_sample[by][1:] == node_sample[by][:-1]) & (
-        node_track[by][1:] == node_track[by][:-1]
-    )
-    follows = same & (node_step[by][1:] == node_step[by][:-1] + 1)
-    src, dst = by[:-1][follows], by[1:][follows]
-    order = np.lexsort((dst, src))
-    return np.stack([src[order], dst[order]]).astype(np.int64)
 
 
 def _targets(rec, node_sample, node_step, node_track, node_is_ego, origin, start_step, config):
@@ -298,13 +228,19 @@ def concat_batches(batches: list[GraphBatch]) -> GraphBatch:
         node_track=join("node_track"),
         node_is_ego=join("node_is_ego"),
         node_features=join("node_features"),
-        spatial_edges=np.concatenate(
-            [b.spatial_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1
-        ),
-        spatial_distance=join("spatial_distance"),
-        temporal_edges=np.concatenate(
-            [b.temporal_edges + o for b, o in zip(batches, node_offsets, strict=False)], axis=1
-        ),
+        edges={
+            name: EdgeSet(
+                np.concatenate(
+                    [
+                        b.edges[name].index + o
+                        for b, o in zip(batches, node_offsets[:-1], strict=True)
+                    ],
+                    axis=1,
+                ),
+                np.concatenate([b.edges[name].attribute for b in batches]),
+            )
+            for name in batches[0].edges
+        },
         target_node=np.concatenate(
             [b.target_node + o for b, o in zip(batches, node_offsets, strict=False)]
         ),

@@ -3,8 +3,8 @@
 Two things per recording, both on the 0.2 s grid:
 - the grid nodes: every track at every step, sorted by (step, track), with an index by step and
   an index by track (`RecordingArrays`, the memory-mappable form the dataset opens);
-- the proximity edges: every pair of vehicles at most d_min apart, found once per step by a sweep
-  along y, instead of once per sample that sees them.
+- the proximity pairs: every pair of vehicles at most d_max apart (the build's `d_min_m`), found
+  once per step by a sweep along y, instead of once per sample that sees them.
 
 Distances everywhere are `sqrt(dx * dx + dy * dy)` in float64 over world positions in metres, the
 same formula in the fast path and in the tests' brute-force reference, so that a distance exactly
@@ -20,6 +20,8 @@ import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema as s
+
+STATE_COLUMNS = (s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS)  # node_state's columns, in order
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,37 @@ PAIR_KEY_STEP = 1.0e5
 def pair_search_key(step: np.ndarray, y_m: np.ndarray) -> np.ndarray:
     """The sort key of a pair whose lower vehicle is at `y_m`, at grid step `step`."""
     return step.astype(np.float64) * PAIR_KEY_STEP + y_m
+
+
+SEARCH_MARGIN_M = 1e-3  # widening of the pair search along y, far above float rounding
+
+
+def concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate the integer ranges [starts[i], ends[i]): returns (owner i, value) per element."""
+    lengths = (ends - starts).astype(np.int64)
+    owner = np.repeat(np.arange(len(starts)), lengths)
+    first = np.cumsum(lengths) - lengths
+    value = np.arange(int(lengths.sum()), dtype=np.int64) - np.repeat(first - starts, lengths)
+    return owner, value
+
+
+def y_window(
+    keys: np.ndarray,
+    rec: RecordingArrays,
+    egos: np.ndarray,
+    step: np.ndarray,
+    reach_m: float,
+    present: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, index): the entries of `keys` (pair_search_key order) within `reach_m` and
+    SEARCH_MARGIN_M of each ego row along y, at its step; none where `present` is False. The
+    margin: a distance that rounds to exactly the reach may lie a float step beyond it along y;
+    the distance check drops it."""
+    ego_y = rec.node_state[egos, 1]
+    reach = reach_m + SEARCH_MARGIN_M
+    lo = np.searchsorted(keys, pair_search_key(step, ego_y - reach), "left")
+    hi = np.searchsorted(keys, pair_search_key(step, ego_y + reach), "right")
+    return concat_ranges(lo, hi if present is None else np.where(present, hi, lo))
 
 
 ARRAY_NAMES = tuple(f.name for f in fields(RecordingArrays) if f.name != "first_track_id")
@@ -260,7 +293,7 @@ def write_node_arrays(
 
 def _row_arrays(nodes: pl.DataFrame) -> dict[str, np.ndarray]:
     """The ROW_ARRAYS of grid nodes sorted by (step, track)."""
-    state = nodes.select(s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS).to_numpy().astype(np.float64)
+    state = nodes.select(STATE_COLUMNS).to_numpy().astype(np.float64)
     return {
         "node_track": nodes[s.TRACK_ID].to_numpy().astype(np.int32),
         "node_state": np.ascontiguousarray(state),

@@ -1,9 +1,11 @@
 """MinMax scaling fitted on the train split only (SPEC section 3): one type, both directions.
 
-x, y and heading map to (-1, 1); speed and spatial-edge distance to (0, 1); the temporal-edge
-attribute (t_s) is not scaled. Stored values stay physical: the build fits a `MinMaxScaler`
-(`widened` over every train graph), the manifest records its `to_dict`, and the dataset reads it
-back (`from_dict`) and applies it. `scale` and `unscale` are plain arithmetic with Python floats,
+x, y and heading map to (-1, 1); speed and the scaled edge attributes (the spatial edges'
+distance) to (0, 1); an edge type that is not `scaled` (temporal: t_s) keeps its attribute. Stored
+values stay physical: the build fits a `MinMaxScaler` with `train_ranges` (from the neighbourhoods
+of the train samples' ego rows, which the edge types' rules count: the same minima and maxima as
+`widened` over every train graph gives), the manifest records its `to_dict`, and the dataset reads
+it back (`from_dict`) and applies it. `scale` and `unscale` are plain arithmetic with Python floats,
 so they take numpy arrays and torch tensors alike (a tensor keeps its dtype, device and graph).
 """
 
@@ -16,8 +18,12 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-SCALED = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")  # the quantities, in order
-FEATURES = SCALED[:4]  # node feature columns, in order
+from ngsim_graphs import edges
+from ngsim_graphs.grid import STATE_COLUMNS, RecordingArrays
+from ngsim_graphs.neighbourhoods import Neighbourhoods, positions, ranged, sample_chunks
+
+FEATURES = STATE_COLUMNS  # node feature columns, in order
+SCALED = FEATURES + edges.scaled_attributes()  # the quantities, in order: the manifest's
 TARGET_RANGES: Mapping[str, tuple[float, float]] = {
     "x_m": (-1.0, 1.0),
     "y_m": (-1.0, 1.0),
@@ -52,12 +58,14 @@ class MinMaxScaler:
         """Nothing observed yet: `widened` by each train graph in turn."""
         return cls(dict.fromkeys(SCALED, math.inf), dict.fromkeys(SCALED, -math.inf))
 
-    def widened(self, node_features: np.ndarray, distances_m: np.ndarray) -> MinMaxScaler:
-        """Widened by (N, 4) node features (FEATURES order) and (E,) spatial-edge distances."""
+    def widened(
+        self, node_features: np.ndarray, attributes: Mapping[str, np.ndarray]
+    ) -> MinMaxScaler:
+        """Widened by (N, 4) node features (FEATURES order) and (E,) edge attributes by the name
+        of the scaled quantity (an edge type's `attribute`: "distance_m")."""
         low, high = dict(self.low), dict(self.high)
-        values = {name: node_features[:, i] for i, name in enumerate(FEATURES)}
-        values["distance_m"] = distances_m
-        for name, column in values.items():
+        columns = [(name, node_features[:, i]) for i, name in enumerate(FEATURES)]
+        for name, column in [*columns, *attributes.items()]:
             if len(column):
                 low[name] = min(low[name], float(column.min()))
                 high[name] = max(high[name], float(column.max()))
@@ -96,9 +104,11 @@ class MinMaxScaler:
         columns = [self.scale(name, node_features[:, i]) for i, name in enumerate(FEATURES)]
         return np.stack(columns, axis=1).astype(np.float32)
 
-    def scale_distance(self, distances_m: np.ndarray) -> np.ndarray:
-        """(E,) spatial-edge distances in metres -> (E,) scaled float32."""
-        return self.scale("distance_m", distances_m).astype(np.float32)
+    def scale_edges(self, edge: edges.EdgeType, attribute: np.ndarray) -> np.ndarray:
+        """(E,) physical attributes of edges of type `edge` -> (E, 1) float32, scaled where
+        the edge type's attribute is (`edge.scaled`)."""
+        values = self.scale(edge.attribute, attribute) if edge.scaled else attribute
+        return np.asarray(values, dtype=np.float32)[:, None]
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, as the manifest records it: {name: {"min", "max", "to"}} in SCALED order;
@@ -132,3 +142,38 @@ class MinMaxScaler:
             high[name] = -math.inf if bounds[1] is None else bounds[1]
             target[name] = (to[0], to[1])
         return cls(low, high, target)
+
+
+def train_ranges(
+    rec: RecordingArrays, hood: Neighbourhoods, history: np.ndarray, is_train: np.ndarray
+) -> MinMaxScaler:
+    """The minima and maxima of SCALED over the graphs of the train samples (`is_train`, (B,)
+    bool) as a scaler: x and y in each sample's frame, with its present ego at (0, 0); the edge
+    attributes as the edge types' rules counted them in `hood`.
+
+    Only the rows `hood` holds count: the scalers of the neighbourhoods of consecutive ranges of
+    steps, joined, are that of all at once (a minimum of minima; the ego's frame is a
+    subtraction, which rounds monotonically)."""
+    if len(hood.rows) == 0:
+        return MinMaxScaler.empty()
+    low, high = dict.fromkeys(SCALED, np.inf), dict.fromkeys(SCALED, -np.inf)
+    used = np.zeros(len(hood.rows), bool)
+    train = np.flatnonzero(is_train)
+    for part in sample_chunks(len(train)):
+        rows = history[train[part]]
+        present, at = positions(hood, rows)
+        origin = np.take(rec.node_state, rows[:, -1], axis=0)
+        for i, name in enumerate(SCALED[:2]):
+            sample_low = np.where(present, hood.low[at, i], np.inf).min(axis=1)
+            sample_high = np.where(present, hood.high[at, i], -np.inf).max(axis=1)
+            low[name] = min(low[name], (sample_low - origin[:, i]).min())
+            high[name] = max(high[name], (sample_high - origin[:, i]).max())
+        used[at[present]] = True
+    columns = ranged()  # hood.low's and hood.high's, by name
+    for name in SCALED[2:]:
+        i = columns.index(name)
+        low[name] = hood.low[used, i].min(initial=np.inf)
+        high[name] = hood.high[used, i].max(initial=-np.inf)
+    return MinMaxScaler(
+        {n: float(v) for n, v in low.items()}, {n: float(v) for n, v in high.items()}
+    )

@@ -91,12 +91,11 @@ def _sample(batch: GraphBatch, sample: int) -> _Sample:
         raise ValueError(f"sample {sample} is not in a batch of {batch.n_samples}")
     first, last = int(batch.node_ptr[sample]), int(batch.node_ptr[sample + 1])
     present = int(batch.node_step[first:last].max())
-    source = batch.spatial_edges[0]
+    spatial, temporal = batch.edges["spatial"].index, batch.edges["temporal"].index
+    source = spatial[0]
     mine = (source >= first) & (source < last)
-    spatial = batch.spatial_edges[:, mine & (batch.node_step[source] == present)]
-    temporal = batch.temporal_edges[
-        :, (batch.temporal_edges[0] >= first) & (batch.temporal_edges[0] < last)
-    ]
+    spatial = spatial[:, mine & (batch.node_step[source] == present)]
+    temporal = temporal[:, (temporal[0] >= first) & (temporal[0] < last)]
     targets = np.flatnonzero(batch.node_sample[batch.target_node] == sample)
     return _Sample(np.arange(first, last), present, spatial, temporal, targets)
 

@@ -290,6 +290,7 @@ N_SPATIAL: Final = "n_spatial_edges"
 N_TEMPORAL: Final = "n_temporal_edges"
 N_TARGETS: Final = "n_targets"
 N_FULL_TARGETS: Final = "n_targets_full_future"  # targets recorded at every future step
+# Nodes, one column per edge type in `edges.EDGE_TYPES` order (its `count_column`), targets.
 COUNT_COLUMNS: Final[tuple[str, ...]] = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS, N_FULL_TARGETS)
 # A split's samples table: its samples and the counts of their graphs.
 SAMPLES_TABLE_SCHEMA: Final = pl.Schema({**SAMPLE_SCHEMA, **dict.fromkeys(COUNT_COLUMNS, pl.Int32)})

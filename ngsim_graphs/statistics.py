@@ -135,7 +135,9 @@ def spatial_in_degree(build: OpenBuild, split: str, sample_ids: np.ndarray) -> n
     if len(sample_ids) == 0:
         return np.zeros(0, dtype=np.int64)
     batch = build.graphs(split, sample_ids)
-    return np.bincount(batch.spatial_edges[1], minlength=len(batch.node_track)).astype(np.int64)
+    return np.bincount(batch.edges["spatial"].index[1], minlength=len(batch.node_track)).astype(
+        np.int64
+    )
 
 
 def read_kinematics(build: OpenBuild) -> dict[str, np.ndarray]:

@@ -56,9 +56,8 @@ from ngsim_graphs.neighbourhoods import (
     row_bounds,
     rows_by_y,
     sample_counts,
-    train_ranges,
 )
-from ngsim_graphs.scaling import MinMaxScaler
+from ngsim_graphs.scaling import MinMaxScaler, train_ranges
 from ngsim_graphs.schema import Protocol, Split
 from ngsim_graphs.sources.contract import (
     FileReport,

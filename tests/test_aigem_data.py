@@ -37,7 +37,7 @@ def test_batches_equal_the_induced_graphs_scaled(tiny_build: Path) -> None:
     expected_x = MinMaxScaler.from_dict(ranges).scale("x_m", graphs.node_features[:, 0])
     assert np.allclose(batch["x"][:, 0].numpy(), expected_x, atol=1e-6)
     assert batch["x"].dtype == torch.float32 and batch["spatial_attr"].shape == (
-        graphs.spatial_edges.shape[1],
+        graphs.edges["spatial"].index.shape[1],
         1,
     )
     assert float(batch["spatial_attr"].min()) >= -1e-6 and float(

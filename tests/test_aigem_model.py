@@ -79,8 +79,8 @@ def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int)
     """The model through PyG's plain GATConv path on every node (no pruning, no sparse product)."""
     z = batch["x"]
     for index, layer in enumerate(model.encoder):
-        z = layer.reference(z, batch["spatial_edges"], batch["spatial_attr"],
-                            batch["temporal_edges"], batch["temporal_attr"])  # fmt: skip
+        z = layer.reference(z, [(batch["spatial_edges"], batch["spatial_attr"]),
+                                (batch["temporal_edges"], batch["temporal_attr"])])  # fmt: skip
         if index < len(model.encoder) - 1:
             z = torch.relu(z)
     target = batch["target_node"]
@@ -248,3 +248,30 @@ def test_the_compiled_decoder_equals_the_eager_one() -> None:
     assert torch.allclose(results[0][0], results[1][0], atol=1e-5, rtol=1e-5)
     for a, b in zip(results[0][1], results[1][1], strict=True):
         assert torch.allclose(a, b, atol=1e-4, rtol=1e-4)
+
+
+def _base_state_dict_keys(layers: int = 4) -> list[str]:
+    """The state_dict keys of AiGem(ModelConfig()) as every earlier checkpoint holds them."""
+    gat = ["att_src", "att_dst", "att_edge", "bias", "lin.weight", "lin_edge.weight"]
+    keys = []
+    for layer in range(layers):
+        for kind in ("spatial", "temporal"):
+            keys += [f"encoder.{layer}.{kind}.{name}" for name in gat]
+        keys += [f"encoder.{layer}.linear.weight", f"encoder.{layer}.linear.bias"]
+    keys += ["decoder.weight_ih", "decoder.weight_hh", "decoder.bias_ih", "decoder.bias_hh"]
+    return keys + [f"output.{i}.{p}" for i in (0, 2) for p in ("weight", "bias")]
+
+
+def test_checkpoints_keep_their_keys_and_outputs() -> None:
+    """A state_dict saved before the edge types had one home loads, and predicts as it did."""
+    torch.manual_seed(5)
+    model = AiGem(ModelConfig()).eval()
+    assert list(model.state_dict()) == _base_state_dict_keys()
+    out = model(tiny_batch(), steps=3).detach()
+    assert float(out.sum()) == pytest.approx(1.7010380029678345, abs=1e-6)
+    first = [0.6205710768699646, -0.46159085631370544, 0.632907509803772, -0.5080237984657288]
+    assert out[0, :2].reshape(-1).tolist() == pytest.approx(first, abs=1e-6)
+    assert out[1, 2].tolist() == pytest.approx([-0.1647607535123825, 0.49213117361068726], abs=1e-6)
+    again = AiGem(ModelConfig()).eval()
+    again.load_state_dict(dict(model.state_dict()), strict=True)
+    assert torch.equal(again(tiny_batch(), steps=3), out)

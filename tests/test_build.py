@@ -118,7 +118,7 @@ def test_a_vehicle_with_two_tracks_is_two_nodes(built: OpenBuild, tables: dict) 
     )
     assert per_sample.height == n_samples
     assert per_sample.filter(pl.col("tracks") > pl.col("vehicles")).height > 0
-    src, dst = batch.temporal_edges
+    src, dst = batch.edges["temporal"].index
     assert np.array_equal(batch.node_track[src], batch.node_track[dst])
     assert np.array_equal(batch.node_step[dst], batch.node_step[src] + 1)
 
@@ -151,7 +151,7 @@ def test_samples_table_ids_order_and_counts(built: OpenBuild, split: str) -> Non
 
     full = batch.target_node[batch.target_mask.all(axis=1)]
     expected = np.stack(
-        [np.diff(batch.node_ptr), per(batch.spatial_edges[0]), per(batch.temporal_edges[0]),
+        [np.diff(batch.node_ptr), per(batch.edges["spatial"].index[0]), per(batch.edges["temporal"].index[0]),
          per(batch.target_node), per(full)], axis=1,
     )  # fmt: skip
     assert np.array_equal(samples.select(COUNTS).to_numpy(), expected)

@@ -109,14 +109,15 @@ def fast_graphs(batch: GraphBatch) -> list[SampleGraph]:
     assert np.array_equal(
         batch.node_sample, np.repeat(np.arange(batch.n_samples), np.diff(batch.node_ptr))
     )
-    src, dst = batch.spatial_edges
+    src, dst = batch.edges["spatial"].index
     assert np.array_equal(batch.node_sample[src], batch.node_sample[dst]), (
         "an edge joins two samples"
     )
     assert np.array_equal(
-        batch.node_sample[batch.temporal_edges[0]], batch.node_sample[batch.temporal_edges[1]]
+        batch.node_sample[batch.edges["temporal"].index[0]],
+        batch.node_sample[batch.edges["temporal"].index[1]],
     )
-    assert len(batch.spatial_distance) == batch.spatial_edges.shape[1]
+    assert len(batch.edges["spatial"].attribute) == batch.edges["spatial"].index.shape[1]
     assert batch.target_xy.shape == (*batch.target_mask.shape, 2)
     assert not batch.target_xy[~batch.target_mask].any(), "masked target positions must be 0"
     assert np.all(np.diff(batch.target_node) > 0), "targets come by node, so by sample"
@@ -124,11 +125,11 @@ def fast_graphs(batch: GraphBatch) -> list[SampleGraph]:
         np.argsort(batch.node_sample[nodes], kind="stable"),
         np.cumsum(np.bincount(batch.node_sample[nodes], minlength=batch.n_samples))[:-1],
     )
-    spatial_by, temporal_by = by_sample(src), by_sample(batch.temporal_edges[0])
+    spatial_by, temporal_by = by_sample(src), by_sample(batch.edges["temporal"].index[0])
     step, track = batch.node_step.tolist(), batch.node_track.tolist()
     is_ego, features = batch.node_is_ego.tolist(), batch.node_features.tolist()
-    src_l, dst_l, dist_l = src.tolist(), dst.tolist(), batch.spatial_distance.tolist()
-    t_src, t_dst = batch.temporal_edges.tolist()
+    src_l, dst_l, dist_l = src.tolist(), dst.tolist(), batch.edges["spatial"].attribute.tolist()
+    t_src, t_dst = batch.edges["temporal"].index.tolist()
     target_node, mask_l, xy_l = (
         batch.target_node.tolist(),
         batch.target_mask.tolist(),
@@ -279,7 +280,10 @@ def test_tiny_scene_by_hand(ego_is_target: bool) -> None:
     assert_same_graph(fast, expected)
     batch = fast_path(tiny_scene(), [0], [0], config)
     assert batch.time_step_s == 0.2
-    assert batch.spatial_distance.dtype == np.float64 and batch.node_features.dtype == np.float64
+    assert (
+        batch.edges["spatial"].attribute.dtype == np.float64
+        and batch.node_features.dtype == np.float64
+    )
 
 
 def test_tiny_scene_d_min_zero_keeps_only_ego_edges() -> None:
@@ -536,3 +540,15 @@ def test_random_scene_thresholds_are_exact() -> None:
     assert 50.0 in distances and 25.0 in distances
     assert any(50.0 < d < 50.0 + 1e-12 for d in distances)
     assert any(25.0 < d < 25.0 + 1e-12 for d in distances)
+
+
+def test_an_edge_type_s_index_is_also_an_attribute() -> None:
+    """`batch.spatial_edges` (the README's quick start) is batch.edges["spatial"].index."""
+    config = BuildConfig()
+    table = tiny_scene()
+    egos, starts = all_windows(table, config)
+    batch = fast_path(table, egos, starts, config)
+    assert batch.spatial_edges is batch.edges["spatial"].index
+    assert batch.temporal_edges is batch.edges["temporal"].index
+    with pytest.raises(AttributeError, match="lane_edges"):
+        batch.lane_edges  # noqa: B018

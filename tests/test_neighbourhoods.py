@@ -35,9 +35,8 @@ from ngsim_graphs.neighbourhoods import (
     row_bounds,
     rows_by_y,
     sample_counts,
-    train_ranges,
 )
-from ngsim_graphs.scaling import MinMaxScaler
+from ngsim_graphs.scaling import MinMaxScaler, train_ranges
 from ngsim_graphs.schema import Protocol
 
 
@@ -48,8 +47,8 @@ def induced_counts(batch: GraphBatch) -> np.ndarray:
     return np.stack(
         [
             np.diff(batch.node_ptr),
-            per(batch.spatial_edges[0]),
-            per(batch.temporal_edges[0]),
+            per(batch.edges["spatial"].index[0]),
+            per(batch.edges["temporal"].index[0]),
             per(batch.target_node),
             per(full),
         ],
@@ -60,9 +59,10 @@ def induced_counts(batch: GraphBatch) -> np.ndarray:
 def induced_ranges(batch: GraphBatch, is_train: np.ndarray) -> MinMaxScaler:
     """The scaler widened by the train samples' graphs, as the build once fitted it."""
     node_train = is_train[batch.node_sample]
-    edge_train = node_train[batch.spatial_edges[0]]
+    edge_train = node_train[batch.edges["spatial"].index[0]]
     return MinMaxScaler.empty().widened(
-        batch.node_features[node_train], batch.spatial_distance[edge_train]
+        batch.node_features[node_train],
+        {"distance_m": batch.edges["spatial"].attribute[edge_train]},
     )
 
 

@@ -196,8 +196,8 @@ def test_history_without_the_ego_has_no_nodes(script_build: Path) -> None:
             ref = induce_graphs(rec, np.array([ego]), np.array([start]), aigem, skipped)
             for name in ("node_step", "node_track", "node_is_ego", "node_features"):
                 np.testing.assert_array_equal(getattr(ours, name), getattr(ref, name))
-            np.testing.assert_array_equal(ours.spatial_edges, ref.spatial_edges)
-            np.testing.assert_array_equal(ours.temporal_edges, ref.temporal_edges)
+            np.testing.assert_array_equal(ours.edges["spatial"].index, ref.edges["spatial"].index)
+            np.testing.assert_array_equal(ours.edges["temporal"].index, ref.edges["temporal"].index)
             ego_target = ref.target_node[ref.node_is_ego[ref.target_node]]
             np.testing.assert_array_equal(ours.target_node, ego_target)
             checked.add(int(samples[s.EGO_VEHICLE_ID][i]))

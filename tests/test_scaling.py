@@ -14,6 +14,7 @@ import pytest
 from conftest import straight_track, write_txt
 from test_build import all_graphs, grid_tables, synthetic_build
 
+from ngsim_graphs import edges
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig
@@ -41,8 +42,8 @@ def test_update_ranges_and_to_dict() -> None:
     ranges = MinMaxScaler.empty()
     assert ranges.to_dict()["x_m"] == {"min": None, "max": None, "to": [-1.0, 1.0]}
     features = np.array([[1.0, -2.0, 0.1, 5.0], [-3.0, 4.0, -0.2, 0.0]])
-    ranges = ranges.widened(features, np.array([7.5, 2.5]))
-    ranges = ranges.widened(np.array([[0.0, 9.0, 0.0, 1.0]]), np.empty(0))
+    ranges = ranges.widened(features, {"distance_m": np.array([7.5, 2.5])})
+    ranges = ranges.widened(np.array([[0.0, 9.0, 0.0, 1.0]]), {"distance_m": np.empty(0)})
     assert ranges.to_dict() == {
         "x_m": {"min": -3.0, "max": 1.0, "to": [-1.0, 1.0]},
         "y_m": {"min": -2.0, "max": 9.0, "to": [-1.0, 1.0]},
@@ -56,7 +57,7 @@ def test_update_ranges_and_to_dict() -> None:
 def fitted() -> MinMaxScaler:
     """x -10..30 m, y 0..100 m, heading -0.5..0.5 rad, speed 0..20 m/s, distance 2..42 m."""
     features = np.array([[-10.0, 0.0, -0.5, 0.0], [30.0, 100.0, 0.5, 20.0]])
-    return MinMaxScaler.empty().widened(features, np.array([2.0, 42.0]))
+    return MinMaxScaler.empty().widened(features, {"distance_m": np.array([2.0, 42.0])})
 
 
 def test_a_value_scaled_by_hand() -> None:
@@ -66,7 +67,11 @@ def test_a_value_scaled_by_hand() -> None:
     assert scaler.scale_features(np.array([[20.0, 25.0, 0.25, 5.0]])).tolist() == [
         [0.5, -0.5, 0.5, 0.25]
     ]
-    assert scaler.scale_distance(np.array([12.0])).tolist() == [0.25]
+    assert scaler.scale_edges(edges.SPATIAL, np.array([12.0])).tolist() == [[0.25]]
+    assert scaler.scale_edges(edges.TEMPORAL, np.array([0.2, 0.2])).tolist() == [  # not scaled
+        [np.float32(0.2)],
+        [np.float32(0.2)],
+    ]
     assert scaler.scale_features(np.zeros((1, 4))).dtype == np.float32
 
 
@@ -214,7 +219,7 @@ def test_scaler_is_fitted_on_every_train_graph_and_only_those(built: OpenBuild) 
 
 def test_scaler_equals_min_max_of_the_induced_train_graphs(built: OpenBuild) -> None:
     batch = all_graphs(built, "train")
-    columns = [*batch.node_features.T, batch.spatial_distance]
+    columns = [*batch.node_features.T, batch.edges["spatial"].attribute]
     scaler = built.manifest.scaler.to_dict()
     for name, column in zip(NAMES, columns, strict=True):
         assert (scaler[name]["min"], scaler[name]["max"]) == (

@@ -13,7 +13,7 @@ from PIL import Image
 
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
-from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.graphs import EdgeSet, GraphBatch
 from ngsim_graphs.scenes import DrawnScene, draw_scene, scene_titles, write_scenes
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -51,9 +51,10 @@ def hand_batch() -> GraphBatch:
         node_track=np.array([10, 11, 10, 11, 12, 10, 11, 12, 20, 20, 20, 21], dtype=np.int32),
         node_is_ego=np.array([1, 0, 1, 0, 0, 1, 0, 0, 1, 1, 1, 0], dtype=bool),
         node_features=features,
-        spatial_edges=np.array(spatial, dtype=np.int64).T,
-        spatial_distance=np.ones(len(spatial)),
-        temporal_edges=np.array(temporal, dtype=np.int64).T,
+        edges={
+            "spatial": EdgeSet(np.array(spatial, dtype=np.int64).T, np.ones(len(spatial))),
+            "temporal": EdgeSet(np.array(temporal, dtype=np.int64).T, np.full(len(temporal), 0.2)),
+        },
         target_node=np.array([6, 7, 11]),
         target_xy=target_xy,
         target_mask=mask,
@@ -159,7 +160,7 @@ def _present_spatial_edges(batch: GraphBatch, sample: int) -> tuple[int, int]:
     first, last = batch.node_ptr[sample], batch.node_ptr[sample + 1]
     present = max(batch.node_step[first:last])
     ego = actor = 0
-    for source, destination in batch.spatial_edges.T:
+    for source, destination in batch.edges["spatial"].index.T:
         if first <= source < last and batch.node_step[source] == present:
             if batch.node_is_ego[source] or batch.node_is_ego[destination]:
                 ego += 1

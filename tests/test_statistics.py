@@ -105,9 +105,9 @@ def test_degree_mean_is_spatial_edges_over_nodes_of_the_sampled_graphs(
         assert summary.sampled_graphs == len(ids) == min(MAX_GRAPHS, build.samples(split).height)
         assert summary.spatial_in_degree.count == len(batch.node_track)
         assert summary.spatial_in_degree.mean == pytest.approx(
-            batch.spatial_edges.shape[1] / len(batch.node_track)
+            batch.edges["spatial"].index.shape[1] / len(batch.node_track)
         )
-        assert values.spatial_in_degree[split].sum() == batch.spatial_edges.shape[1]
+        assert values.spatial_in_degree[split].sum() == batch.edges["spatial"].index.shape[1]
 
 
 def test_degree_over_all_graphs_matches_the_samples_table_counts(build: OpenBuild) -> None:

@@ -151,8 +151,14 @@ def _compare_graphs(
     flipped = only.select(*keys).with_columns(pl.lit(True).alias("flip"))
     edge_keys = [f"{k}_{end}" for end in "sd" for k in keys]
     for edges_a, edges_b, dist_a, dist_b, limit in (
-        (a.spatial_edges, b.spatial_edges, a.spatial_distance, b.spatial_distance, config.d_min_m),
-        (a.temporal_edges, b.temporal_edges, None, None, None),
+        (
+            a.edges["spatial"].index,
+            b.edges["spatial"].index,
+            a.edges["spatial"].attribute,
+            b.edges["spatial"].attribute,
+            config.d_min_m,
+        ),
+        (a.edges["temporal"].index, b.edges["temporal"].index, None, None, None),
     ):
         ea, eb = _edges(a, na, edges_a, dist_a), _edges(b, nb, edges_b, dist_b)
         edges = ea.join(eb, on=edge_keys, how="full", coalesce=True, suffix="_h")
