@@ -36,7 +36,7 @@ from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, SourceL
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import DropReason, Protocol
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
-from ngsim_graphs.sources.registry import choose_source
+from ngsim_graphs.sources.registry import check_locations, choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
 from ngsim_graphs.synth.marker import mixed_inputs_warning, synthetic_inputs
 from ngsim_graphs.tasks import (
@@ -349,10 +349,12 @@ def run_build(
     one arena for the rest of its life (`workers.one_malloc_arena`: only threads started after
     keep to it). The workers are started with multiprocessing's "spawn": a script that builds
     with jobs > 1 must do so under `if __name__ == "__main__":`.
-    Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
+    Raises ValueError for a location no source knows, NgsimInputError for unusable input and
+    NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.
     """
+    check_locations(config.locations)
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
     workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
     if workers.jobs == 1:  # the tasks run in this process

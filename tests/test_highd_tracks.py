@@ -26,10 +26,10 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.cleaning import DESCRIPTIONS
 from ngsim_graphs.sources.highd.tracks import build_tracks, read_file
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
-from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
-from ngsim_graphs.sources.registry import choose_source
+from ngsim_graphs.sources.registry import check_locations, choose_source
 
 KEY = ("highd-2", "01")
 DEFAULT = BuildConfig()
@@ -158,8 +158,11 @@ def test_the_location_filter_names_highd_locations_or_keeps_them_all(tmp_path: P
         other.recordings == {}
         and other.report.rows_other_locations == other.report.rows_read == 600
     )
-    with pytest.raises(ValueError, match="unknown location"):
-        BuildConfig(locations=("highd-x",))
+    with pytest.raises(
+        ValueError, match=r"unknown location\(s\) \['highd-x'\]; choose from us-101"
+    ):
+        check_locations(("us-101", "highd-x"))
+    check_locations(("us-101", "highd-7"))  # each a location of some source
 
 
 def test_detection_from_content(tmp_path: Path) -> None:

@@ -13,12 +13,13 @@ from polars.testing import assert_frame_equal
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.sources.ngsim import files
+from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.ngsim.tracks import (
     build_tracks,
-    joined_report,
     read_file_recordings,
     vehicle_tracks,
 )
+from ngsim_graphs.sources.speeds import joined_report
 
 KEY = ("us-101", "0750am-0805am")
 
@@ -121,5 +122,5 @@ def test_a_recording_cleaned_a_part_of_its_vehicles_at_a_time_is_cleaned_alike()
     first = vehicle_tracks(pl.concat([by_vehicle[(2,)], by_vehicle[(1,)]]), KEY, config, 0)
     second = vehicle_tracks(by_vehicle[(3,)], KEY, config, first.report.tracks)
     assert (first.report.tracks, second.report.tracks) == (5, 1)
-    assert joined_report([first, second], KEY) == report
+    assert joined_report([first, second], KEY, FEET_TO_M) == report
     assert_frame_equal(pl.concat([first.tracks, second.tracks]), whole)

@@ -23,7 +23,7 @@ from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import HighdFile
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ, parse_file_name, sibling
-from ngsim_graphs.sources.ngsim.faults import (
+from ngsim_graphs.sources.text import (
     EXTRA,
     LINE,
     ROW,
@@ -96,6 +96,15 @@ def sniff_highd(path: Path) -> HighdFile | None:
             return kind
     named = parse_file_name(path)
     return None if named is None else named[1]
+
+
+def is_highd_file(path: Path) -> bool:
+    """Whether `path` is a highD file (`sniff_highd`); a highD file whose header is damaged
+    raises NgsimInputError naming the column (`check_header`)."""
+    kind = sniff_highd(path)
+    if kind is not None:
+        check_header(path, kind)
+    return kind is not None
 
 
 def recording_files(path: Path) -> list[Path]:

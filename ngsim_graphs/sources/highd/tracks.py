@@ -8,11 +8,11 @@ are inputs in their own right (listed in the manifest with size and checksum); t
 rows, so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting
 ones resolved, each vehicle's record split at frame gaps, the 0.2 s grid kept by frame number
 (`frame % 5 == 0`), time from the 25 Hz frame number, tracks numbered and the heading derived;
-then NGSIM's speed check (`plausibility.check_speed_column`): the speeds must be those the
+then the speed check (`sources.speeds.check_speed_column`): the speeds must be those the
 positions show.
 
-Not done for highD, whose trajectories come smoothed from its own tracker: NGSIM's position
-outlier and jump checks (the reports' counts are 0).
+Not done for highD, whose trajectories come smoothed from its own tracker: the position
+outlier and jump checks of NGSIM (the reports' counts are 0).
 """
 
 from __future__ import annotations
@@ -26,6 +26,13 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason, HighdFile
+from ngsim_graphs.sources.cleaning import (
+    FILE_REASONS,
+    check_dropped,
+    downsample_to_grid,
+    drop_duplicate_rows,
+    split_at_gaps,
+)
 from ngsim_graphs.sources.contract import (
     FileReport,
     FileRows,
@@ -41,6 +48,7 @@ from ngsim_graphs.sources.highd.files import (
     RecordingMeta,
     count_data_rows,
     find_highd_files,
+    is_highd_file,
     read_recording_meta,
     read_tracks,
     read_tracks_meta,
@@ -57,23 +65,15 @@ from ngsim_graphs.sources.highd.recordings import (
     FRAME_RATE_HZ,
     chosen_locations,
     frames_per_step,
+    is_highd_location,
     location_name,
     parse_file_name,
     period_name,
     sibling,
 )
-from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M, split_at_gaps
-from ngsim_graphs.sources.ngsim.plausibility import (
-    check_dropped,
-    check_speed_column,
-    speed_comparison,
-)
-from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
-from ngsim_graphs.sources.ngsim.tracks import joined_report
+from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
 
-FILE_REASONS: tuple[DropReason, ...] = tuple(
-    r for r in DropReason if r is not DropReason.POSITION_OUTLIER
-)
+METRES = 1.0  # highD's unit of length, in metres (the speed check's evidence is in it)
 TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's FileReport.raw_format
 # Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
 # by these columns (the smallest y_m, then x_m, ...): a rule of the values alone, never of the
@@ -256,48 +256,19 @@ def read_file(
     return FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
 
 
-def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
-    """Drop exact duplicates, then keep one row per (vehicle, frame) by CONFLICT_ORDER.
-
-    Returns (rows sorted by vehicle and frame, exact duplicates dropped, conflicting duplicates
-    dropped). Provenance columns are not values: two rows alike but for their line are exact.
-    """
-    keys = [s.VEHICLE_ID, s.FRAME_ID]
-    repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
-    multi = frame.filter(repeated)
-    values = [c for c in frame.columns if c not in s.PROVENANCE_SCHEMA]
-    unique = multi.unique(subset=values, keep="first", maintain_order=True)
-    ordered = unique.sort([*keys, *CONFLICT_ORDER], nulls_last=True)
-    kept = ordered.unique(subset=keys, keep="first", maintain_order=True)
-    cleaned = pl.concat([frame.filter(~repeated), kept]).sort(keys)
-    return cleaned, multi.height - unique.height, unique.height - kept.height
-
-
-def _in_feet(rows: pl.DataFrame) -> pl.DataFrame:
-    """Staged rows (sorted by vehicle and frame) as NGSIM's speed check reads them: positions
-    and speed in its units (feet, feet per second) and names."""
-    return rows.select(
-        s.VEHICLE_ID,
-        s.FRAME_ID,
-        (pl.col(s.X_M) / FEET_TO_M).alias(s.LOCAL_X),
-        (pl.col(s.Y_M) / FEET_TO_M).alias(s.LOCAL_Y),
-        (pl.col(s.SPEED_MPS) / FEET_TO_M).alias(s.V_VEL),
-    )
-
-
 def vehicle_tracks(
     raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
 ) -> TracksPart:
     """The tracks of the vehicles of `raw` in recording `key` (all the rows of each, from its
     staged rows: any order, duplicates allowed), what cleaning them counted, and the evidence
-    of the speed check (NGSIM's `speed_comparison` of their 25 Hz rows).
+    of the speed check (`speeds.speed_comparison` of their 25 Hz rows, in metres).
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
     by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
     (ms since the recording's frame 0; highD's frames start at 1).
     """
-    unique, exact, conflicting = drop_duplicate_rows(raw)
-    compared = speed_comparison(_in_feet(unique), FRAME_PERIOD_S)
+    unique, exact, conflicting = drop_duplicate_rows(raw, CONFLICT_ORDER)
+    compared = speed_comparison(unique, s.X_M, s.Y_M, s.SPEED_MPS, FRAME_PERIOD_S)
     segmented, gaps = split_at_gaps(unique)
     location, period = key
     on_grid = downsample_to_grid(
@@ -332,7 +303,7 @@ def build_tracks(
     """The tracks table and report of recording `key` from all its staged rows at once: the
     tests' reference; a build cleans parts (vehicle_tracks)."""
     part = vehicle_tracks(raw, key, config, first_track_id)
-    return part.tracks, joined_report([part], key)
+    return part.tracks, joined_report([part], key, METRES)
 
 
 def recording_report(
@@ -342,10 +313,10 @@ def recording_report(
     files: list[FileReport],
     strict: bool,
 ) -> RecordingReport:
-    """The parts' counts summed and the speed check's medians (NGSIM's `joined_report`), after
+    """The parts' counts summed and the speed check's medians (`speeds.joined_report`), after
     the recording's one check: xVelocity and yVelocity must be the speed the positions show
     (its rows were checked as read, read_file)."""
-    report = joined_report(parts, key)
+    report = joined_report(parts, key, METRES)
     name = f"{report.location}/{report.period}"
     tracks_files = [f.path for f in files if name in f.recordings and f.raw_format == TRACKS_FORMAT]
     check_speed_column(
@@ -366,4 +337,9 @@ SOURCE = Source(
     read_file=read_file,
     vehicle_tracks=vehicle_tracks,
     recording_report=recording_report,
+    label="highD",
+    suffixes=(".csv",),
+    claims=is_highd_file,
+    is_location=is_highd_location,
+    locations_help="highd-N (a highD locationId)",
 )

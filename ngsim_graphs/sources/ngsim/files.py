@@ -20,16 +20,18 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim.faults import (
-    CONTROL,
-    EXTRA,
-    LINE,
     N_FIELDS,
     ODD,
     PRESENT,
-    ROW,
     raise_bad_number,
-    raise_bad_quoting,
     raise_odd_shape,
+)
+from ngsim_graphs.sources.text import (
+    CONTROL,
+    EXTRA,
+    LINE,
+    ROW,
+    raise_bad_quoting,
     scan_csv_fields,
     scan_lines,
 )
@@ -142,6 +144,18 @@ def sniff_format(path: Path) -> RawFormat:
             path, "lines end in CR alone (classic Mac OS); convert them to LF or CRLF", line=1
         )
     return raw_format
+
+
+def is_ngsim_file(path: Path) -> bool:
+    """Whether `path` is an NGSIM file, told from its content: one that `sniff_format` reads, or
+    refuses for a fault of its own (CR line ends: the reader says why)."""
+    try:
+        sniff_format(path)
+    except NotNgsimFileError:
+        return False
+    except NgsimInputError:
+        return True
+    return True
 
 
 # Whether the lines after a first line that is neither a header nor a row look like NGSIM's: a
