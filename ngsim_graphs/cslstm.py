@@ -23,6 +23,7 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import concat_ranges
 from ngsim_graphs.manifest import ScriptRows
 from ngsim_graphs.sources.contract import RecordingKey
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.splits import VehicleIds
 from ngsim_graphs.windows import RecordingWindows, SampleProtocol
 
@@ -49,7 +50,7 @@ DATASET_IDS: dict[tuple[str, str], int] = {
 RECORDING_OF_DATASET = {dataset_id: key for key, dataset_id in DATASET_IDS.items()}
 SPLIT_NAMES = ("train", "val", "test")  # split codes 0, 1, 2 (split_codes)
 # The raw columns the script reads (script_rows).
-SCRIPT_COLUMNS = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
+SCRIPT_COLUMNS = (s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_X, ns.LOCAL_Y, s.LANE_ID)
 
 
 @dataclass(frozen=True)

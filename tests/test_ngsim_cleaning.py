@@ -8,6 +8,7 @@ from conftest import make_row
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.sources.cleaning import drop_duplicate_rows, split_at_gaps
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
     CONFLICT_ORDER,
     FEET_TO_M,
@@ -17,7 +18,7 @@ from ngsim_graphs.sources.ngsim.cleaning import (
 
 
 def raw(rows: list[dict]) -> pl.DataFrame:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
     return frame.with_columns(pl.lit("us-101").alias(s.LOCATION), pl.lit("p").alias(s.PERIOD))
 
 
@@ -38,7 +39,7 @@ def test_exact_and_conflicting_duplicates() -> None:
     ]
     kept, exact, conflicting = drop_duplicate_rows(raw(rows), CONFLICT_ORDER)
     assert (exact, conflicting) == (1, 2)
-    assert kept.select(s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_Y, s.LOCAL_X).rows() == [
+    assert kept.select(s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_Y, ns.LOCAL_X).rows() == [
         (1, 0, 49.0, 18.0),
         (1, 1, 100.0, 18.0),
         (2, 0, 10.0, 19.0),
@@ -58,7 +59,7 @@ def test_duplicate_rule_does_not_depend_on_row_order() -> None:
         raw(rows).sample(fraction=1.0, shuffle=True, seed=3), CONFLICT_ORDER
     )[0]
     assert forward.equals(backward) and forward.equals(shuffled)
-    assert forward[s.LOCAL_Y].to_list() == [0.0, 10.0, 20.0, 30.0, 40.0] * 2
+    assert forward[ns.LOCAL_Y].to_list() == [0.0, 10.0, 20.0, 30.0, 40.0] * 2
 
 
 def test_tracks_split_at_frame_gaps() -> None:

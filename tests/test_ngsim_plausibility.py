@@ -8,6 +8,7 @@ from conftest import make_row, straight_track
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig, PhysicalLimits
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.plausibility import (
     jump_rows,
     outlier_rows,
@@ -21,7 +22,7 @@ LIMITS = PhysicalLimits()
 
 
 def reasons(rows: list[dict]) -> list[str | None]:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
     found = frame.select(row_drop_reason(LIMITS)).to_series().to_list()
     passes = frame.select(passes_row_checks(LIMITS)).to_series().to_list()
     assert passes == [reason is None for reason in found]  # the cheap test, row by row
@@ -96,14 +97,14 @@ def test_a_row_counts_under_its_first_failed_check() -> None:
 
 
 def _flags(rows: list[dict]) -> tuple[list[bool], list[bool]]:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA).sort(s.VEHICLE_ID, s.FRAME_ID)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA).sort(s.VEHICLE_ID, s.FRAME_ID)
     return outlier_rows(frame, LIMITS).to_list(), jump_rows(frame, LIMITS).to_list()
 
 
 def test_one_displaced_row_is_an_outlier_wherever_it_is() -> None:
     for bad in (0, 4, 9):  # first, middle, last frame
         rows = straight_track(1, range(10))
-        rows[bad] = {**rows[bad], s.LOCAL_Y: rows[bad][s.LOCAL_Y] + 3_280.0}  # 1 km away
+        rows[bad] = {**rows[bad], ns.LOCAL_Y: rows[bad][ns.LOCAL_Y] + 3_280.0}  # 1 km away
         outlier, _ = _flags(rows)
         assert outlier == [i == bad for i in range(10)], bad
 
@@ -119,7 +120,7 @@ def test_a_short_displaced_burst_is_an_outlier_a_long_one_a_jump() -> None:
         outlier, jump = _flags(rows)
         assert [f for f in range(30) if outlier[f]] == outliers
         assert [f for f in range(30) if jump[f]] == [10, last + 1]  # before any row is dropped
-        frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+        frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
         _, report = build_tracks(frame, ("us-101", "0750am-0805am"), BuildConfig(), 0)
         assert (report.position_outliers, report.position_jumps) == (
             len(outliers),
@@ -153,9 +154,9 @@ def test_tracks_drop_outliers_and_split_at_jumps() -> None:
     # Vehicle 1, frames 0..19 at 3 ft per frame; frame 8 displaced 1 km (an outlier); from frame
     # 14 on the whole record is 1 km further (a jump): tracks [0..7], [9..13], [14..19].
     rows = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if f >= 14 else 0.0)) for f in range(20)]
-    rows[8] = {**rows[8], s.LOCAL_Y: 9_999.0}
+    rows[8] = {**rows[8], ns.LOCAL_Y: 9_999.0}
     key = ("us-101", "0750am-0805am")
-    tracks, report = build_tracks(pl.DataFrame(rows, schema=s.RAW_SCHEMA), key, BuildConfig(), 0)
+    tracks, report = build_tracks(pl.DataFrame(rows, schema=ns.RAW_SCHEMA), key, BuildConfig(), 0)
     assert (report.rows, report.position_outliers, report.position_jumps, report.gaps) == (
         20,
         1,

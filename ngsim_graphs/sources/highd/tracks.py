@@ -25,7 +25,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
-from ngsim_graphs.schema import DropReason, HighdFile
+from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.cleaning import (
     FILE_REASONS,
     check_dropped,
@@ -42,6 +42,7 @@ from ngsim_graphs.sources.contract import (
     TracksPart,
     finish_tracks,
 )
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
     ROW,
@@ -71,6 +72,7 @@ from ngsim_graphs.sources.highd.recordings import (
     period_name,
     sibling,
 )
+from ngsim_graphs.sources.highd.schema import HighdFile
 from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
 
 METRES = 1.0  # highD's unit of length, in metres (the speed check's evidence is in it)
@@ -136,15 +138,15 @@ def _check_whole_tracks(path: Path, raw: pl.DataFrame, vehicles: pl.DataFrame) -
     """Raise when a track has fewer rows in the tracks file than its numFrames in the
     tracksMeta file: a file cut short at a line end (which keeps every line whole) loses the
     end of one track and every track after it."""
-    counts = raw.filter(pl.col(s.HIGHD_ID).is_not_null()).group_by(s.HIGHD_ID).len("rows")
+    counts = raw.filter(pl.col(hs.HIGHD_ID).is_not_null()).group_by(hs.HIGHD_ID).len("rows")
     short = (
-        vehicles.join(counts, left_on=s.VEHICLE_ID, right_on=s.HIGHD_ID, how="left")
+        vehicles.join(counts, left_on=s.VEHICLE_ID, right_on=hs.HIGHD_ID, how="left")
         .with_columns(pl.col("rows").fill_null(0))
-        .filter(pl.col("rows") < pl.col(s.HIGHD_NUM_FRAMES))
+        .filter(pl.col("rows") < pl.col(hs.HIGHD_NUM_FRAMES))
         .sort(s.VEHICLE_ID)
     )
     if short.height:
-        track, rows, frames = short.select(s.VEHICLE_ID, "rows", s.HIGHD_NUM_FRAMES).row(0)
+        track, rows, frames = short.select(s.VEHICLE_ID, "rows", hs.HIGHD_NUM_FRAMES).row(0)
         others = short.height - 1
         more = f" (and {others:,} more track{'s' * (others > 1)})" if others else ""
         meta_name = sibling(path, parse_file_name(path)[0], HighdFile.TRACKS_META).name  # type: ignore[index]
@@ -163,17 +165,17 @@ def _road_rows(
     know it."""
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     joined = usable.join(
-        vehicles.select(s.VEHICLE_ID, s.V_CLASS, s.HIGHD_DRIVING_DIRECTION),
-        left_on=s.HIGHD_ID,
+        vehicles.select(s.VEHICLE_ID, s.V_CLASS, hs.HIGHD_DRIVING_DIRECTION),
+        left_on=hs.HIGHD_ID,
         right_on=s.VEHICLE_ID,
         how="left",
         maintain_order="left",
     )
-    unknown = joined.filter(pl.col(s.HIGHD_DRIVING_DIRECTION).is_null())
+    unknown = joined.filter(pl.col(hs.HIGHD_DRIVING_DIRECTION).is_null())
     if unknown.height:
         raise NgsimInputError(
             path,
-            f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
+            f"track id {unknown[hs.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
             line=int(unknown[s.SOURCE_LINE][0]),
         )
     return to_road_frame(
@@ -192,7 +194,7 @@ def _staged_rows(
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
     _check_whole_tracks(path, raw, vehicles)
-    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
+    complete = pl.all_horizontal(pl.col(hs.HIGHD_REQUIRED_COLUMNS).is_not_null())
     checked = raw.with_columns(
         pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
         complete.alias("complete"),

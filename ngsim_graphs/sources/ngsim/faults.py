@@ -11,9 +11,9 @@ from pathlib import Path
 
 import polars as pl
 
-from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.text import (
     CONTROL,
     EXTRA,
@@ -30,10 +30,10 @@ N_FIELDS = "__n_fields"  # fields of a text line
 
 def raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) -> None:
     """Name the first field of data row `row` that is not a number (re-reading that row only)."""
-    fields = text.filter(pl.col(ROW) == row).select(s.TXT_COLUMNS).collect().row(0, named=True)
-    official = {name.lower(): name for name in s.PORTAL_HEADER}
+    fields = text.filter(pl.col(ROW) == row).select(ns.TXT_COLUMNS).collect().row(0, named=True)
+    official = {name.lower(): name for name in ns.PORTAL_HEADER}
     for column, value in fields.items():
-        problem = number_problem((value or "").replace(",", ""), s.RAW_SCHEMA[column])
+        problem = number_problem((value or "").replace(",", ""), ns.RAW_SCHEMA[column])
         if problem:
             message = f"column {official[column]}: {value!r} {problem}"
             raise NgsimInputError(path, message, line=row + first_line)
@@ -47,7 +47,7 @@ def raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> No
         row, n_fields, control = odd
         if control is not None:
             raise_control_character(path, row, 1)
-        expected = len(s.TXT_COLUMNS)
+        expected = len(ns.TXT_COLUMNS)
         cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
         raise NgsimInputError(
             path, f"{n_fields} fields where {expected} were expected ({cause})", line=row + 1

@@ -19,6 +19,7 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.faults import (
     N_FIELDS,
     ODD,
@@ -165,7 +166,7 @@ SNIFF_LINES = 20
 
 def _is_txt_row(line: str) -> bool:
     tokens = line.split()
-    return len(tokens) == len(s.TXT_COLUMNS) and all(_is_number(t) for t in tokens)
+    return len(tokens) == len(ns.TXT_COLUMNS) and all(_is_number(t) for t in tokens)
 
 
 def _is_csv_row(line: str) -> bool:
@@ -173,8 +174,8 @@ def _is_csv_row(line: str) -> bool:
     theirs (the portal file's 25, a per-period file's 24 or 18), most of them numbers."""
     fields = next(csv.reader([line]), [])
     numbers = sum(_is_number(f) for f in fields if f.strip())
-    widths = (len(s.TXT_COLUMNS), len(s.PORTAL_HEADER) - 1, len(s.PORTAL_HEADER))
-    return len(fields) in widths and numbers >= len(s.TXT_COLUMNS) - 2
+    widths = (len(ns.TXT_COLUMNS), len(ns.PORTAL_HEADER) - 1, len(ns.PORTAL_HEADER))
+    return len(fields) in widths and numbers >= len(ns.TXT_COLUMNS) - 2
 
 
 def _format_of_first_line(path: Path) -> RawFormat:
@@ -184,7 +185,7 @@ def _format_of_first_line(path: Path) -> RawFormat:
     line = lines[0]
     if "," in line:
         header = [name.lower() for name in _header_names(line)]
-        if s.VEHICLE_ID in header or sum(c in header for c in s.TXT_COLUMNS) >= 9:
+        if s.VEHICLE_ID in header or sum(c in header for c in ns.TXT_COLUMNS) >= 9:
             return RawFormat.PORTAL if s.LOCATION in header else RawFormat.CSV
     if _is_txt_row(line):
         return RawFormat.TXT
@@ -203,7 +204,7 @@ def _format_of_first_line(path: Path) -> RawFormat:
     raise NotNgsimFileError(
         path,
         "not an NGSIM trajectory file: the first line is neither a CSV header with Vehicle_ID, "
-        f"Frame_ID, ... nor {len(s.TXT_COLUMNS)} whitespace-separated numbers, and neither are "
+        f"Frame_ID, ... nor {len(ns.TXT_COLUMNS)} whitespace-separated numbers, and neither are "
         "the lines after it",
         line=1,
     )
@@ -214,8 +215,8 @@ def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> 
     twice = next((name for i, name in enumerate(header) if lowered[i] in lowered[:i]), None)
     if twice is not None:
         raise NgsimInputError(path, f"column {twice} appears twice in the header", line=1)
-    required = s.TXT_COLUMNS + ((s.LOCATION,) if raw_format is RawFormat.PORTAL else ())
-    official = {name.lower(): name for name in s.PORTAL_HEADER}
+    required = ns.TXT_COLUMNS + ((s.LOCATION,) if raw_format is RawFormat.PORTAL else ())
+    official = {name.lower(): name for name in ns.PORTAL_HEADER}
     present = {name.lower() for name in header}
     # Only a name that matches no known column can be a misspelling of the missing one.
     unknown = {name.lower(): name for name in header if name.lower() not in official}
@@ -259,10 +260,10 @@ def _scan_txt_text(path: Path, chunk: TextChunk | None = None) -> pl.LazyFrame:
         (pl.col(LINE).list.len() > 0) | pl.col(CONTROL).is_not_null()
     )
     columns = [
-        pl.col(LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(s.TXT_COLUMNS)
+        pl.col(LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(ns.TXT_COLUMNS)
     ]
     n_fields = pl.col(LINE).list.len().alias(N_FIELDS)
-    odd = (pl.col(N_FIELDS) != len(s.TXT_COLUMNS)) | pl.col(CONTROL).is_not_null()
+    odd = (pl.col(N_FIELDS) != len(ns.TXT_COLUMNS)) | pl.col(CONTROL).is_not_null()
     return split.select(ROW, *columns, n_fields, CONTROL).with_columns(odd.alias(ODD))
 
 
@@ -286,7 +287,7 @@ def _number_exprs(
     for column in columns:
         text = pl.col(column)
         tidied.append(text.str.strip_chars().str.replace_all(",", "", literal=True))
-        dtype = s.RAW_SCHEMA[column]
+        dtype = ns.RAW_SCHEMA[column]
         parsed.append(text.cast(pl.Float64, strict=False).cast(dtype, strict=False))
         present.append((text != "").fill_null(False).cast(pl.Int8))
         if dtype != pl.Float64:
@@ -298,7 +299,7 @@ def _number_exprs(
 def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
     """The first of `rows` (ROW numbers, rows with a pointed integer field) whose integer field
     is not whole; re-reads those rows only."""
-    integers = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] != pl.Float64]
+    integers = [c for c in ns.TXT_COLUMNS if ns.RAW_SCHEMA[c] != pl.Float64]
     fields = text.filter(pl.col(ROW).is_in(rows.implode())).select(ROW, *integers)
     real = [
         pl.col(c)
@@ -314,8 +315,8 @@ def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
 
 def _bad_number() -> pl.Expr:
     """Whether a parsed row has a field that did not parse as a finite number."""
-    parsed = pl.sum_horizontal(pl.col(s.TXT_COLUMNS).is_not_null().cast(pl.Int8))
-    floats = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] == pl.Float64]
+    parsed = pl.sum_horizontal(pl.col(ns.TXT_COLUMNS).is_not_null().cast(pl.Int8))
+    floats = [c for c in ns.TXT_COLUMNS if ns.RAW_SCHEMA[c] == pl.Float64]
     not_finite = pl.any_horizontal(~pl.col(floats).is_finite()).fill_null(False)
     return (parsed != pl.col(PRESENT)) | not_finite
 
@@ -451,7 +452,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
         if is_portal
         else pl.lit(None, dtype=pl.String)
     )
-    tidied, parsed, present, pointed = _number_exprs(s.TXT_COLUMNS)
+    tidied, parsed, present, pointed = _number_exprs(ns.TXT_COLUMNS)
 
     def parse(chunk: TextChunk | None) -> pl.LazyFrame:
         text = scan(chunk).with_columns(location.alias(s.LOCATION))

@@ -13,6 +13,7 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.speeds import distance, same_vehicle
 
@@ -45,14 +46,14 @@ def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
         return pl.col(s.VEHICLE_ID) < 1
     if reason is DropReason.POSITION:
         far = feet(limits.max_abs_position_m)
-        return (pl.col(s.LOCAL_X).abs() > far) | (pl.col(s.LOCAL_Y).abs() > far)
+        return (pl.col(ns.LOCAL_X).abs() > far) | (pl.col(ns.LOCAL_Y).abs() > far)
     if reason is DropReason.SPEED:
-        return (pl.col(s.V_VEL) < 0) | (pl.col(s.V_VEL) > feet(limits.max_speed_mps))
+        return (pl.col(ns.V_VEL) < 0) | (pl.col(ns.V_VEL) > feet(limits.max_speed_mps))
     if reason is DropReason.ACCELERATION:
-        return pl.col(s.V_ACC).abs() > feet(limits.max_abs_accel_mps2)
+        return pl.col(ns.V_ACC).abs() > feet(limits.max_abs_accel_mps2)
     if reason is DropReason.VEHICLE_SIZE:
-        return _outside(s.V_LENGTH, 0, feet(limits.max_vehicle_length_m), True) | _outside(
-            s.V_WIDTH, 0, feet(limits.max_vehicle_width_m), True
+        return _outside(ns.V_LENGTH, 0, feet(limits.max_vehicle_length_m), True) | _outside(
+            ns.V_WIDTH, 0, feet(limits.max_vehicle_width_m), True
         )
     if reason is DropReason.LANE:
         return _outside(s.LANE_ID, 0, limits.max_lane_id)
@@ -61,8 +62,8 @@ def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
     if reason is DropReason.HEADWAY:
         # 0 says "no leader" for Space_Headway and the ids, 9999.99 for Time_Headway.
         return (
-            _outside(s.SPACE_HEADWAY, 0, feet(limits.max_abs_position_m))
-            | _outside(s.TIME_HEADWAY, 0, s.NO_LEADER_TIME_HEADWAY_S)
+            _outside(ns.SPACE_HEADWAY, 0, feet(limits.max_abs_position_m))
+            | _outside(ns.TIME_HEADWAY, 0, ns.NO_LEADER_TIME_HEADWAY_S)
             | (pl.col(s.PRECEDING) < 0)
             | (pl.col(s.FOLLOWING) < 0)
         )
@@ -96,8 +97,8 @@ def _jumps(far_ft: float) -> tuple[pl.Expr, pl.Expr, pl.Expr, pl.Expr]:
     after) per row of a frame sorted by vehicle and frame; a jump is a move of more than
     `far_ft` between adjacent frames of one vehicle."""
     before, after = same_vehicle(1, 1), same_vehicle(-1, 1)
-    jump_in = before & (distance(s.LOCAL_X, s.LOCAL_Y, 1) > far_ft).fill_null(False)
-    jump_out = after & (distance(s.LOCAL_X, s.LOCAL_Y, -1) > far_ft).fill_null(False)
+    jump_in = before & (distance(ns.LOCAL_X, ns.LOCAL_Y, 1) > far_ft).fill_null(False)
+    jump_out = after & (distance(ns.LOCAL_X, ns.LOCAL_Y, -1) > far_ft).fill_null(False)
     return before, after, jump_in, jump_out
 
 
@@ -113,7 +114,7 @@ def outlier_rows(frame: pl.DataFrame, limits: PhysicalLimits) -> pl.Series:
     far = feet(limits.max_jump_m)
     before, after, jump_in, jump_out = _jumps(far)
     isolated = (jump_in | jump_out) & ~(before & ~jump_in) & ~(after & ~jump_out)
-    indexed = frame.select(s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y).with_row_index(_ROW)
+    indexed = frame.select(s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_X, ns.LOCAL_Y).with_row_index(_ROW)
     single = indexed.select(isolated).to_series()
     rest = indexed.filter(~single)
     before, _, jump_in, jump_out = _jumps(far)

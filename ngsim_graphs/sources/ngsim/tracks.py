@@ -36,6 +36,7 @@ from ngsim_graphs.sources.contract import (
     TracksPart,
     finish_tracks,
 )
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
     CONFLICT_ORDER,
     FEET_TO_M,
@@ -64,7 +65,7 @@ from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed
 
 # The required columns as NGSIM's header spells them, for messages.
 REQUIRED_NAMES = tuple(
-    next(h for h in s.PORTAL_HEADER if h.lower() == column) for column in s.REQUIRED_VALUE_COLUMNS
+    next(h for h in ns.PORTAL_HEADER if h.lower() == column) for column in ns.REQUIRED_VALUE_COLUMNS
 )
 
 
@@ -102,7 +103,7 @@ def read_file_recordings(
     )
     line = pl.col(ROW) + raw.first_line
     rows = raw.frame.select(
-        *s.RAW_SCHEMA.names(),
+        *ns.RAW_SCHEMA.names(),
         pl.when(usable & in_chosen).then(index).alias(s.RECORDING_INDEX),
         pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
         line.alias(s.SOURCE_LINE),
@@ -188,7 +189,7 @@ def vehicle_tracks(
     outlier = outlier_rows(unique, config.limits)
     cleaned = unique.filter(~outlier)
     jumps = jump_rows(cleaned, config.limits)
-    compared = speed_comparison(cleaned, s.LOCAL_X, s.LOCAL_Y, s.V_VEL, FRAME_STEP_S)
+    compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_STEP_S)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
     on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
