@@ -45,7 +45,8 @@ from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import entries_beyond, some_names
 from ngsim_graphs.partial_files import create_exclusive
 from ngsim_graphs.sources.ngsim import schema as ns
-from ngsim_graphs.sources.ngsim.files import find_raw_files, read_raw_file
+from ngsim_graphs.sources.ngsim.files import read_raw_file
+from ngsim_graphs.sources.ngsim.formats import find_raw_files
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
 
 FILE_NAMES = {"train": "TrainSet.mat", "val": "ValSet.mat", "test": "TestSet.mat"}

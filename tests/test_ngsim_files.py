@@ -12,7 +12,8 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim import files
 from ngsim_graphs.sources.ngsim import schema as ns
-from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file, sniff_format
+from ngsim_graphs.sources.ngsim.files import ROW, read_raw_file
+from ngsim_graphs.sources.ngsim.formats import find_raw_files, sniff_format
 
 US = ("us-101", "i-80")
 

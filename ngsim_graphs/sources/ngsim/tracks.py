@@ -43,13 +43,8 @@ from ngsim_graphs.sources.ngsim.cleaning import (
     is_complete,
     to_si_units,
 )
-from ngsim_graphs.sources.ngsim.files import (
-    CANDIDATE_SUFFIXES,
-    ROW,
-    find_raw_files,
-    is_ngsim_file,
-    read_raw_file,
-)
+from ngsim_graphs.sources.ngsim.files import read_raw_file
+from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_files, is_ngsim_file
 from ngsim_graphs.sources.ngsim.plausibility import (
     jump_rows,
     outlier_rows,
@@ -62,6 +57,7 @@ from ngsim_graphs.sources.ngsim.recordings import (
     recording_index,
 )
 from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
+from ngsim_graphs.sources.text import ROW
 
 # The required columns as NGSIM's header spells them, for messages.
 REQUIRED_NAMES = tuple(
