@@ -12,6 +12,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport
 
 _BREAK = "__break"
 
@@ -117,3 +118,46 @@ def check_dropped(
             f"{limits.max_dropped_share:.0%} a build drops: {detail}; the first at line {line} "
             "(columns swapped, other units, a damaged file?)",
         )
+
+
+def check_file_drops(report: FileReport, limits: PhysicalLimits, strict: bool) -> None:
+    """`check_dropped` of the rows a file's report says were dropped as it was read."""
+    check_dropped(
+        report.path,
+        report.rows_dropped,
+        report.first_dropped_line,
+        report.rows_checked,
+        limits,
+        strict,
+    )
+
+
+def cleaned_report(
+    key: RecordingKey,
+    rows: int,
+    unique: pl.DataFrame,
+    tracks: pl.DataFrame,
+    duplicates: tuple[int, int],
+    gaps: int,
+    outliers: int = 0,
+    jumps: int = 0,
+    first_outlier: tuple[int, int] | None = None,
+) -> RecordingReport:
+    """The counts of cleaning some of a recording's vehicles: `rows` raw rows, `unique` of them
+    left by `drop_duplicate_rows` ((exact, conflicting) `duplicates` dropped), `gaps` found by
+    `split_at_gaps`, and their `tracks`; what a source's own checks found (position `outliers`
+    and `jumps`, the first outlier's (file index, line)), none where it has none."""
+    return RecordingReport(
+        location=key[0],
+        period=key[1],
+        rows=rows,
+        exact_duplicates=duplicates[0],
+        conflicting_duplicates=duplicates[1],
+        position_outliers=outliers,
+        position_jumps=jumps,
+        gaps=gaps,
+        vehicles=unique[s.VEHICLE_ID].n_unique(),
+        tracks=tracks[s.TRACK_ID].n_unique(),
+        grid_rows=tracks.height,
+        first_outlier=first_outlier,
+    )

@@ -16,6 +16,7 @@ from pathlib import Path
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.contract import Source
 from ngsim_graphs.sources.highd.tracks import SOURCE as HIGHD
+from ngsim_graphs.sources.inputs import files_in
 from ngsim_graphs.sources.ngsim.tracks import SOURCE as NGSIM
 
 SOURCES: dict[str, Source] = {NGSIM.name: NGSIM, HIGHD.name: HIGHD}
@@ -74,12 +75,6 @@ def _dataset_of(path: Path, named: bool) -> str | None:
     return None
 
 
-def _candidates(folder: Path) -> list[Path]:
-    """The files under `folder` with a suffix of some source's files, in path order."""
-    suffixes = {suffix for source in SOURCES.values() for suffix in source.suffixes}
-    return sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
-
-
 def detect_dataset(paths: list[Path]) -> str:
     """The name of the dataset the files under `paths` belong to (the fallback when none is
     found).
@@ -91,7 +86,8 @@ def detect_dataset(paths: list[Path]) -> str:
         if path.is_file():
             candidates = [(path, True)]
         elif path.is_dir():
-            candidates = [(p, False) for p in _candidates(path)]
+            suffixes = tuple({s for source in SOURCES.values() for s in source.suffixes})
+            candidates = [(p, False) for p in files_in(path, suffixes) or []]
         else:
             continue  # missing: the source's find_files says so
         for candidate, named in candidates:

@@ -147,15 +147,18 @@ def _kth_smallest(values: pl.LazyFrame, column: pl.Expr, k: int) -> float:
 
 def check_speed_column(
     path: str,
-    mismatch_mps: float,
-    speed_mps: float,
-    rows: int,
+    report: RecordingReport,
     limits: PhysicalLimits,
     column: str = "v_Vel",
     units: str = "feet per second",
 ) -> None:
-    """Raise when the speed `column` (in `units`, as the message says) is not the speed the
-    positions show (see speed_comparison)."""
+    """Raise when the speed `column` (in `units`, as the message says) of the recording of
+    `report` (its files: `path`) is not the speed the positions show (see speed_comparison)."""
+    mismatch_mps, speed_mps, rows = (
+        report.speed_mismatch_mps,
+        report.shown_speed_mps,
+        report.speed_rows_compared,
+    )
     allowed = limits.max_speed_mismatch_mps + limits.max_speed_mismatch_share * speed_mps
     if rows >= MIN_SPEED_ROWS and mismatch_mps > allowed:
         raise NgsimInputError(

@@ -24,6 +24,7 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ, parse_file_name, sibling
 from ngsim_graphs.sources.highd.schema import HighdFile
+from ngsim_graphs.sources.inputs import files_in
 from ngsim_graphs.sources.text import (
     EXTRA,
     LINE,
@@ -150,14 +151,10 @@ def find_highd_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     found: list[Path] = []
     skipped: list[Path] = []
     for path in paths:
-        if not path.exists():
-            raise NgsimInputError(path, "no such file or directory")
-        if path.is_file():
+        candidates = files_in(path, (".csv", ".txt"))
+        if candidates is None:  # named: its recording's three files
             found.extend(recording_files(path))
             continue
-        candidates = sorted(
-            p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in (".csv", ".txt")
-        )
         tracks = [p for p in candidates if sniff_highd(p) is HighdFile.TRACKS]
         if not tracks:
             raise NgsimInputError(path, "no highD tracks files (NN_tracks.csv) in this directory")

@@ -26,22 +26,7 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason
-from ngsim_graphs.sources.cleaning import (
-    FILE_REASONS,
-    check_dropped,
-    downsample_to_grid,
-    drop_duplicate_rows,
-    split_at_gaps,
-)
-from ngsim_graphs.sources.contract import (
-    FileReport,
-    FileRows,
-    RecordingKey,
-    RecordingReport,
-    Source,
-    TracksPart,
-    finish_tracks,
-)
+from ngsim_graphs.sources import cleaning, contract, speeds
 from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
@@ -73,10 +58,9 @@ from ngsim_graphs.sources.highd.recordings import (
     sibling,
 )
 from ngsim_graphs.sources.highd.schema import HighdFile
-from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
 
 METRES = 1.0  # highD's unit of length, in metres (the speed check's evidence is in it)
-TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's FileReport.raw_format
+TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's contract.FileReport.raw_format
 # Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
 # by these columns (the smallest y_m, then x_m, ...): a rule of the values alone, never of the
 # order of the file.
@@ -87,7 +71,9 @@ CONFLICT_ORDER: tuple[str, ...] = (
 )
 
 
-def _recording(path: Path, config: BuildConfig) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
+def _recording(
+    path: Path, config: BuildConfig
+) -> tuple[HighdFile, RecordingMeta, contract.RecordingKey]:
     """The kind of file `path` is (by name), its recording's meta and key."""
     named = parse_file_name(path)
     if named is None:
@@ -110,20 +96,22 @@ def _recording(path: Path, config: BuildConfig) -> tuple[HighdFile, RecordingMet
     return kind, meta, (location_name(meta.location_id), period_name(meta.recording_id))
 
 
-def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> FileReport:
+def _report(
+    path: Path, key: contract.RecordingKey, chosen: bool, **counts: object
+) -> contract.FileReport:
     """A file's report; `counts` fill in what reading its rows found (a meta file has none)."""
     fields: dict[str, object] = {
         "rows_read": 0,
         "rows_other_locations": 0,
         "rows_missing_values": 0,
         "first_missing_line": None,
-        "rows_dropped": {r.value: 0 for r in FILE_REASONS},
+        "rows_dropped": {r.value: 0 for r in cleaning.FILE_REASONS},
         "first_dropped_line": {},
         "rows_checked": 0,
     }
     fields.update(counts)
     kind = parse_file_name(path)
-    return FileReport(
+    return contract.FileReport(
         path=str(path),
         raw_format=f"highd-{kind[1].value if kind else HighdFile.TRACKS.value}",
         size_bytes=path.stat().st_size,
@@ -217,7 +205,7 @@ def _staged_rows(
         "rows_read": raw.height,
         "rows_missing_values": missing.height,
         "first_missing_line": int(missing[s.SOURCE_LINE].min()) if missing.height else None,
-        "rows_dropped": {r.value: counts.get(r.value, 0) for r in FILE_REASONS},
+        "rows_dropped": {r.value: counts.get(r.value, 0) for r in cleaning.FILE_REASONS},
         "first_dropped_line": {r: first for r, _, first in sorted(dropped.iter_rows())},
         "rows_checked": raw.height - missing.height,
     }
@@ -226,7 +214,7 @@ def _staged_rows(
 
 def read_file(
     path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
-) -> FileRows:
+) -> contract.FileRows:
     """Read one highD file: a tracks file gives its recording's rows (STAGED_SCHEMA, with
     RECORDING_INDEX and provenance); a meta file is checked and gives none. (A recording's file
     is read in memory: `scratch` is not used.)"""
@@ -240,27 +228,22 @@ def read_file(
     if kind is HighdFile.TRACKS_META:
         read_tracks_meta(path)  # its recording's meta was read above
     if kind is not HighdFile.TRACKS:
-        return FileRows(empty, {}, _report(path, key, chosen))
+        return contract.FileRows(empty, {}, _report(path, key, chosen))
     if not chosen:
         n = count_data_rows(path)
-        return FileRows(empty, {}, _report(path, key, chosen, rows_read=n, rows_other_locations=n))
+        return contract.FileRows(
+            empty, {}, _report(path, key, chosen, rows_read=n, rows_other_locations=n)
+        )
     rows, counts = _staged_rows(path, meta, config, file_index)
     report = _report(path, key, chosen, **counts)
-    check_dropped(
-        report.path,
-        report.rows_dropped,
-        report.first_dropped_line,
-        report.rows_checked,
-        config.limits,
-        strict,
-    )
+    cleaning.check_file_drops(report, config.limits, strict)
     staged = rows.with_columns(pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX))
-    return FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
+    return contract.FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
 
 
 def vehicle_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
-) -> TracksPart:
+    raw: pl.DataFrame, key: contract.RecordingKey, config: BuildConfig, first_track_id: int
+) -> contract.TracksPart:
     """The tracks of the vehicles of `raw` in recording `key` (all the rows of each, from its
     staged rows: any order, duplicates allowed), what cleaning them counted, and the evidence
     of the speed check (`speeds.speed_comparison` of their 25 Hz rows, in metres).
@@ -269,11 +252,11 @@ def vehicle_tracks(
     by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
     (ms since the recording's frame 0; highD's frames start at 1).
     """
-    unique, exact, conflicting = drop_duplicate_rows(raw, CONFLICT_ORDER)
-    compared = speed_comparison(unique, s.X_M, s.Y_M, s.SPEED_MPS, FRAME_PERIOD_S)
-    segmented, gaps = split_at_gaps(unique)
+    unique, exact, conflicting = cleaning.drop_duplicate_rows(raw, CONFLICT_ORDER)
+    compared = speeds.speed_comparison(unique, s.X_M, s.Y_M, s.SPEED_MPS, FRAME_PERIOD_S)
+    segmented, gaps = cleaning.split_at_gaps(unique)
     location, period = key
-    on_grid = downsample_to_grid(
+    on_grid = cleaning.downsample_to_grid(
         segmented, frames_per_step(config.time_step_s, Path(f"{location}/{period}"))
     )
     grid = on_grid.with_columns(
@@ -282,63 +265,44 @@ def vehicle_tracks(
         (pl.col(s.FRAME_ID) / FRAME_RATE_HZ).alias(s.TIME_S),
         (pl.col(s.FRAME_ID).cast(pl.Int64) * FRAME_PERIOD_MS).alias(s.GLOBAL_TIME),
     )
-    tracks = finish_tracks(grid, first_track_id, config)
-    report = RecordingReport(
-        location=location,
-        period=period,
-        rows=raw.height,
-        exact_duplicates=exact,
-        conflicting_duplicates=conflicting,
-        position_outliers=0,
-        position_jumps=0,
-        gaps=gaps,
-        vehicles=unique[s.VEHICLE_ID].n_unique(),
-        tracks=tracks[s.TRACK_ID].n_unique(),
-        grid_rows=tracks.height,
-    )
-    return TracksPart(tracks, report, compared)
+    tracks = contract.finish_tracks(grid, first_track_id, config)
+    report = cleaning.cleaned_report(key, raw.height, unique, tracks, (exact, conflicting), gaps)
+    return contract.TracksPart(tracks, report, compared)
 
 
 def build_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
-) -> tuple[pl.DataFrame, RecordingReport]:
+    raw: pl.DataFrame, key: contract.RecordingKey, config: BuildConfig, first_track_id: int
+) -> tuple[pl.DataFrame, contract.RecordingReport]:
     """The tracks table and report of recording `key` from all its staged rows at once: the
     tests' reference; a build cleans parts (vehicle_tracks)."""
     part = vehicle_tracks(raw, key, config, first_track_id)
-    return part.tracks, joined_report([part], key, METRES)
+    return part.tracks, speeds.joined_report([part], key, METRES)
 
 
 def recording_report(
-    parts: list[TracksPart],
-    key: RecordingKey,
+    parts: list[contract.TracksPart],
+    key: contract.RecordingKey,
     config: BuildConfig,
-    files: list[FileReport],
+    files: list[contract.FileReport],
     strict: bool,
-) -> RecordingReport:
+) -> contract.RecordingReport:
     """The parts' counts summed and the speed check's medians (`speeds.joined_report`), after
     the recording's one check: xVelocity and yVelocity must be the speed the positions show
     (its rows were checked as read, read_file)."""
-    report = joined_report(parts, key, METRES)
+    report = speeds.joined_report(parts, key, METRES)
     name = f"{report.location}/{report.period}"
     tracks_files = [f.path for f in files if name in f.recordings and f.raw_format == TRACKS_FORMAT]
-    check_speed_column(
-        ", ".join(tracks_files),
-        report.speed_mismatch_mps,
-        report.shown_speed_mps,
-        report.speed_rows_compared,
-        config.limits,
-        column="xVelocity",
-        units="metres per second (x and y: metres)",
-    )
+    units = "metres per second (x and y: metres)"
+    speeds.check_speed_column(", ".join(tracks_files), report, config.limits, "xVelocity", units)
     return report
 
 
-SOURCE = Source(
-    name="highd",
-    find_files=find_highd_files,
-    read_file=read_file,
-    vehicle_tracks=vehicle_tracks,
-    recording_report=recording_report,
+SOURCE = contract.Source(  # the contract's four functions in its order, then how it is told
+    "highd",
+    find_highd_files,
+    read_file,
+    vehicle_tracks,
+    recording_report,
     label="highD",
     suffixes=(".csv",),
     claims=is_highd_file,

@@ -213,6 +213,33 @@ def _parsed(
 # A file without a final line end may have been cut inside its last field, which then still
 # parses ("97.6" of "97.68", "us-10" of "us-101"): its last field is compared with the same field
 # of the lines before it, this many of them.
+def _check_fields(
+    path: Path,
+    raw_format: RawFormat,
+    text: pl.LazyFrame,
+    frame: pl.LazyFrame,
+    summary: pl.DataFrame,
+    by_location: pl.DataFrame,
+    first_line: int,
+) -> None:
+    """Raise for a file without data rows, a row with a wrong number of fields, or a field that
+    is not a value of its column (a whole number's column with a fraction too), naming the first
+    such line of the whole file (`text`); `frame` is its parsed rows, `summary` and `by_location`
+    what read_raw_file counted of them."""
+    if int(by_location["rows"].sum()) == 0:
+        raise NgsimInputError(path, "no data rows")
+    if by_location["odd"].sum():
+        raise_odd_shape(path, raw_format, text)
+    bad = summary["bad"][0]
+    if bad is not None:
+        raise_bad_number(path, text, int(bad), first_line)
+    if summary["pointed"][0]:
+        pointed_rows = frame.filter(_POINTED).select(ROW).collect(engine="streaming")[ROW]
+        fraction = _first_fraction(text, pointed_rows)
+        if fraction is not None:
+            raise_bad_number(path, text, fraction, first_line)
+
+
 def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None = None) -> RawFile:
     """Read one NGSIM file of any format; keep rows of `locations` (portal CSV only).
 
@@ -265,19 +292,8 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
             raise_bad_quoting(path)
         message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise NgsimInputError(path, f"cannot parse as CSV: {message}") from None
-    rows_read = int(by_location["rows"].sum())
-    if rows_read == 0:
-        raise NgsimInputError(path, "no data rows")
-    if by_location["odd"].sum():
-        raise_odd_shape(path, raw_format, text)
-    height, bad = int(summary["rows"][0]), summary["bad"][0]
-    if bad is not None:
-        raise_bad_number(path, text, int(bad), first_line)
-    if summary["pointed"][0]:
-        pointed_rows = frame.filter(_POINTED).select(ROW).collect(engine="streaming")[ROW]
-        fraction = _first_fraction(text, pointed_rows)
-        if fraction is not None:
-            raise_bad_number(path, text, fraction, first_line)
+    _check_fields(path, raw_format, text, frame, summary, by_location, first_line)
+    rows_read, height = int(by_location["rows"].sum()), int(summary["rows"][0])
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
     if height == 0:
         unnamed = (

@@ -11,6 +11,7 @@ from pathlib import Path
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.inputs import files_in
 from ngsim_graphs.sources.ngsim import schema as ns
 
 SNIFF_BYTES = 64 * 1024
@@ -30,14 +31,10 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     found: list[Path] = []
     skipped: list[Path] = []
     for path in paths:
-        if not path.exists():
-            raise NgsimInputError(path, "no such file or directory")
-        if path.is_file():
+        candidates = files_in(path, CANDIDATE_SUFFIXES)
+        if candidates is None:  # named: always taken
             found.append(path)
             continue
-        candidates = sorted(
-            p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in CANDIDATE_SUFFIXES
-        )
         inside = []
         for candidate in candidates:
             try:

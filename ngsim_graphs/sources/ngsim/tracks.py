@@ -23,6 +23,8 @@ from ngsim_graphs.sources.cleaning import (
     DESCRIPTIONS,
     FILE_REASONS,
     check_dropped,
+    check_file_drops,
+    cleaned_report,
     downsample_to_grid,
     drop_duplicate_rows,
     split_at_gaps,
@@ -193,18 +195,15 @@ def vehicle_tracks(
     )
     grid = to_si_units(on_grid)
     tracks = finish_tracks(grid, first_track_id, config)
-    report = RecordingReport(
-        location=location,
-        period=period,
-        rows=raw.height,
-        exact_duplicates=exact,
-        conflicting_duplicates=conflicting,
-        position_outliers=int(outlier.sum()),
-        position_jumps=int(jumps.sum()),
-        gaps=gaps,
-        vehicles=unique[s.VEHICLE_ID].n_unique(),
-        tracks=tracks[s.TRACK_ID].n_unique(),
-        grid_rows=tracks.height,
+    report = cleaned_report(
+        key,
+        raw.height,
+        unique,
+        tracks,
+        (exact, conflicting),
+        gaps,
+        outliers=int(outlier.sum()),
+        jumps=int(jumps.sum()),
         first_outlier=_first_source(unique.filter(outlier)),
     )
     return TracksPart(tracks, report, compared)
@@ -222,17 +221,9 @@ def build_tracks(
 def read_file(
     path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
 ) -> FileRows:
-    """read_file_recordings, then the rule of dropped rows (plausibility.check_dropped)."""
+    """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
     read = read_file_recordings(path, config, file_index, scratch)
-    report = read.report
-    check_dropped(
-        report.path,
-        report.rows_dropped,
-        report.first_dropped_line,
-        report.rows_checked,
-        config.limits,
-        strict,
-    )
+    check_file_drops(read.report, config.limits, strict)
     return read
 
 
@@ -248,13 +239,7 @@ def recording_report(
     report = joined_report(parts, key, FEET_TO_M)
     name = f"{report.location}/{report.period}"
     sources = ", ".join(f.path for f in files if name in f.recordings)
-    check_speed_column(
-        sources,
-        report.speed_mismatch_mps,
-        report.shown_speed_mps,
-        report.speed_rows_compared,
-        config.limits,
-    )
+    check_speed_column(sources, report, config.limits)
     if report.first_outlier is not None:
         file_index, line = report.first_outlier
         reason = DropReason.POSITION_OUTLIER.value
