@@ -24,6 +24,7 @@ import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 FORMATS = ("portal", "csv", "txt")
@@ -33,8 +34,8 @@ FILE_NAMES = {
     "txt": "trajectories-0750am-0805am.txt",
 }
 N_VEHICLES, N_FRAMES = 10, 100
-OFFICIAL_NAMES = {name.lower(): name for name in s.PORTAL_HEADER}
-INTEGER_COLUMNS = frozenset(c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] != pl.Float64)
+OFFICIAL_NAMES = {name.lower(): name for name in ns.PORTAL_HEADER}
+INTEGER_COLUMNS = frozenset(c for c in ns.TXT_COLUMNS if ns.RAW_SCHEMA[c] != pl.Float64)
 
 Mutator = Callable[[np.random.Generator, bytes, str], tuple[bytes, str]]
 
@@ -54,22 +55,22 @@ def base_rows() -> list[dict[str, float]]:
                 {
                     s.VEHICLE_ID: vehicle,
                     s.FRAME_ID: frame,
-                    s.TOTAL_FRAMES: N_FRAMES,
+                    ns.TOTAL_FRAMES: N_FRAMES,
                     s.GLOBAL_TIME: frame0_ms + 100 * frame,
-                    s.LOCAL_X: x_ft,
-                    s.LOCAL_Y: y_ft,
-                    s.GLOBAL_X: 6451000.0 + x_ft,
-                    s.GLOBAL_Y: 1873000.0 + y_ft,
-                    s.V_LENGTH: 15.0,
-                    s.V_WIDTH: 6.0,
+                    ns.LOCAL_X: x_ft,
+                    ns.LOCAL_Y: y_ft,
+                    ns.GLOBAL_X: 6451000.0 + x_ft,
+                    ns.GLOBAL_Y: 1873000.0 + y_ft,
+                    ns.V_LENGTH: 15.0,
+                    ns.V_WIDTH: 6.0,
                     s.V_CLASS: 2,
-                    s.V_VEL: 35.0,
-                    s.V_ACC: 0.0,
+                    ns.V_VEL: 35.0,
+                    ns.V_ACC: 0.0,
                     s.LANE_ID: 1 + vehicle % 5,
                     s.PRECEDING: 0,
                     s.FOLLOWING: 0,
-                    s.SPACE_HEADWAY: 0.0,
-                    s.TIME_HEADWAY: s.NO_LEADER_TIME_HEADWAY_S,
+                    ns.SPACE_HEADWAY: 0.0,
+                    ns.TIME_HEADWAY: ns.NO_LEADER_TIME_HEADWAY_S,
                 }
             )
     return rows
@@ -100,16 +101,17 @@ def base_input(fmt: str) -> bytes:
     rows = base_rows()
     if fmt == "txt":
         lines = [
-            "   " + "  ".join(_text(r[c], False).rjust(6) for c in s.TXT_COLUMNS) + "  "
+            "   " + "  ".join(_text(r[c], False).rjust(6) for c in ns.TXT_COLUMNS) + "  "
             for r in rows
         ]
         return "\n".join(lines).encode()
     if fmt == "portal":
         body = [
-            [_text(r.get(c.lower()), True) for c in s.PORTAL_HEADER[:-1]] + ["us-101"] for r in rows
+            [_text(r.get(c.lower()), True) for c in ns.PORTAL_HEADER[:-1]] + ["us-101"]
+            for r in rows
         ]
-        return _csv_bytes(list(s.PORTAL_HEADER), body, quirks=True)
-    header = ["v_Length" if name == "v_length" else name for name in s.PERIOD_CSV_HEADER]
+        return _csv_bytes(list(ns.PORTAL_HEADER), body, quirks=True)
+    header = ["v_Length" if name == "v_length" else name for name in ns.PERIOD_CSV_HEADER]
     body = [[_text(r.get(c.lower()), False) for c in header] for r in rows]
     return _csv_bytes(header, body, quirks=False)
 
@@ -169,7 +171,7 @@ def replace_spans(line: bytes, spans: list[tuple[int, int]], new: dict[int, byte
 def column_names(lines: list[bytes], fmt: str) -> list[str]:
     """Column names as the header spells them (txt: NGSIM's official names)."""
     if fmt == "txt":
-        return [OFFICIAL_NAMES[c] for c in s.TXT_COLUMNS]
+        return [OFFICIAL_NAMES[c] for c in ns.TXT_COLUMNS]
     body = _body(lines[0])
     return [body[a:b].decode(errors="replace") for a, b in field_spans(body, fmt)]
 
@@ -242,7 +244,7 @@ def replace_field(value: str | None, integer_columns_only: bool = False) -> Muta
         i = int(rng.choice(data_line_indices(lines, fmt)))
         spans = field_spans(_body(lines[i]), fmt)
         fields = range(min(len(spans), len(names)))
-        parsed = [j for j in fields if names[j].lower() in s.TXT_COLUMNS]
+        parsed = [j for j in fields if names[j].lower() in ns.TXT_COLUMNS]
         if integer_columns_only:
             usable = [j for j in parsed if names[j].lower() in INTEGER_COLUMNS]
         else:  # mostly a column the reader parses; now and then one it ignores (O_Zone, Location)

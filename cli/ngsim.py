@@ -34,8 +34,8 @@ from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.pipeline import BuildResult, run_build
 from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMode
-from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
-from ngsim_graphs.sources.registry import DISPLAY_NAMES
+from ngsim_graphs.sources.cleaning import DESCRIPTIONS
+from ngsim_graphs.sources.registry import check_locations, dataset_names, label
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
 from ngsim_graphs.workers import available_cores
@@ -177,12 +177,17 @@ def _dropped_lines(result: BuildResult) -> list[str]:
     return lines
 
 
-class DatasetChoice(str, Enum):
-    """`build --dataset`: told from the files, or forced (`sources.registry.SOURCES`)."""
+# `build --dataset`: told from the files (auto), or forced: the registry's sources.
+DatasetChoice = Enum(  # type: ignore[misc]
+    "DatasetChoice", {"AUTO": "auto", **{name.upper(): name for name in dataset_names()}}, type=str
+)
 
-    AUTO = "auto"
-    NGSIM = "ngsim"
-    HIGHD = "highd"
+
+def _build_config(**options):  # type: ignore[no-untyped-def]
+    """The BuildConfig of the options, its locations known to some source."""
+    config = BuildConfig(**options)
+    check_locations(config.locations)
+    return config
 
 
 @app.command(short_help="Build the graph dataset from NGSIM or highD files.")
@@ -292,7 +297,7 @@ def build(
     --strict). A build that ends with no samples is an error that says why.
     """
     config = _config_or_exit(
-        BuildConfig,
+        _build_config,
         locations=tuple(name.strip().lower() for name in locations.split(",") if name.strip()),
         stride_s=stride_s,
         d_sense_m=d_sense_m,
@@ -318,7 +323,7 @@ def build(
             jobs=jobs or available_cores(),
         )
     for skipped in result.skipped_files:
-        stdout.print(f"skipped (not {DISPLAY_NAMES[result.manifest.dataset]}): {skipped}")
+        stdout.print(f"skipped (not {label(result.manifest.dataset)}): {skipped}")
     print_table(_summary_table(result))
     counts, splits = result.manifest.counts, result.manifest.splits
     stdout.print(

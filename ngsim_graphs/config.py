@@ -6,8 +6,6 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
-from ngsim_graphs.sources.highd.recordings import is_highd_location
-from ngsim_graphs.sources.ngsim.recordings import KNOWN_LOCATION_NAMES
 
 FRAME_STEP_S = 0.1  # NGSIM's 10 Hz frame period
 
@@ -79,17 +77,9 @@ class BuildConfig:
     protocol: Protocol = Protocol.AIGEM
 
     def __post_init__(self) -> None:
-        # A source's filter is the names of its own locations; none named: all of them (highD).
-        unknown = sorted(
-            name
-            for name in set(self.locations)
-            if name not in KNOWN_LOCATION_NAMES and not is_highd_location(name)
-        )
-        if unknown or not self.locations:
-            raise ValueError(
-                f"unknown location(s) {unknown}; choose from {', '.join(KNOWN_LOCATION_NAMES)} "
-                "or highd-N (a highD locationId)"
-            )
+        # Which names are locations is the sources' to say (`sources.registry.check_locations`).
+        if not self.locations:
+            raise ValueError("locations must name at least one location")
         if (
             self.frames_per_step < 1
             or abs(self.frames_per_step * FRAME_STEP_S - self.time_step_s) > 1e-9

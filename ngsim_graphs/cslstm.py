@@ -1,11 +1,14 @@
-"""CS-LSTM's dataset (`preprocess_data.m`): the rules of docs/cslstm.md on one recording's rows.
+"""CS-LSTM's dataset (`preprocess_data.m`): the rules of docs/cslstm.md on one recording's rows,
+and the cs-lstm protocol of a build (`CS_LSTM`), whose samples are the script's kept rows.
 
-Pure numpy over one recording's raw rows in the script's row order (by Vehicle_ID, then
-Frame_ID, stable), every value float32 as the script computes it, feet. Per row: the lateral and
-longitudinal maneuver classes and the 39-cell neighbour grid; per recording: the vehicle split
-and the edge filter. `tests/cslstm_reference.py` holds the same rules as plain loops, written
-from the script's text, and the tests hold the two against each other. Writing the .mat files
-and the command line are still to come (issue 13).
+The rules are pure numpy over one recording's raw rows in the script's row order (by
+Vehicle_ID, then Frame_ID, stable), every value float32 as the script computes it, feet. Per
+row: the lateral and longitudinal maneuver classes and the 39-cell neighbour grid; per
+recording: the vehicle split and the edge filter. `tests/cslstm_reference.py` holds the same
+rules as plain loops, written from the script's text, and the tests hold the two against each
+other. `cslstm_export` writes the script's .mat files with them; a build under the cs-lstm
+protocol takes its samples from them (`cslstm_windows`): the stages never import this module,
+they are handed `CS_LSTM` (`protocols.PROTOCOLS`).
 """
 
 from __future__ import annotations
@@ -13,8 +16,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import polars as pl
 
+from ngsim_graphs import schema as s
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import concat_ranges
+from ngsim_graphs.manifest import ScriptRows
+from ngsim_graphs.sources.contract import RecordingKey
+from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.splits import VehicleIds
+from ngsim_graphs.windows import RecordingWindows, SampleProtocol
 
 GRID_CELLS = 39  # 13 cells of 15 ft along each of the left, own and right lanes
 TRAJ_COLUMNS = 8 + GRID_CELLS  # dataset, vehicle, frame, x, y, lane, lateral, longitudinal, grid
@@ -38,6 +49,8 @@ DATASET_IDS: dict[tuple[str, str], int] = {
 }
 RECORDING_OF_DATASET = {dataset_id: key for key, dataset_id in DATASET_IDS.items()}
 SPLIT_NAMES = ("train", "val", "test")  # split codes 0, 1, 2 (split_codes)
+# The raw columns the script reads (script_rows).
+SCRIPT_COLUMNS = (s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_X, ns.LOCAL_Y, s.LANE_ID)
 
 
 @dataclass(frozen=True)
@@ -248,3 +261,117 @@ def kept_by_edge_filter(rows: RecordingRows) -> tuple[np.ndarray, np.ndarray]:
     last_frame = rows.frame[first + count - 1]
     kept = ~too_short & (history_frame <= rows.frame) & (last_frame > rows.frame + 1)
     return kept, too_short
+
+
+def script_rows(
+    raw: pl.DataFrame, dataset_id: int, config: BuildConfig
+) -> tuple[pl.DataFrame, int, int]:
+    """The rows of one recording that CS-LSTM's `preprocess_data.m` keeps (docs/md), on
+    the grid: (table, kept, too_short). The table has one row per (vehicle, step) with its split
+    (VEHICLE_ID, STEP, SPLIT), in the script's row order; `kept` counts every kept row, on the
+    grid or not; `too_short` the rows of vehicles under 31 rows (the script stops on them).
+
+    `raw`: the recording's rows before cleaning (RAW_SCHEMA columns, any order, duplicates and
+    all). A kept row is on the grid when its Frame_ID is a multiple of `frames_per_step`; its
+    step is Frame_ID / frames_per_step; the rows of one vehicle and frame make one row.
+    """
+    ordered = ordered_rows(
+        dataset_id, *(raw[c].cast(pl.Float64).to_numpy() for c in SCRIPT_COLUMNS)
+    )
+    kept, too_short = kept_by_edge_filter(ordered)
+    split = split_codes(ordered)[kept]
+    frame = ordered.frame[kept].astype(np.int64)
+    on_grid = frame % config.frames_per_step == 0
+    table = pl.DataFrame(
+        {
+            s.VEHICLE_ID: ordered.vehicle[kept][on_grid].astype(np.int32),
+            s.STEP: (frame[on_grid] // config.frames_per_step).astype(np.int32),
+            s.SPLIT: np.array(SPLIT_NAMES)[split[on_grid]],
+        },
+        schema={s.VEHICLE_ID: pl.Int32, s.STEP: pl.Int32, s.SPLIT: pl.String},
+    ).unique(subset=[s.VEHICLE_ID, s.STEP], keep="first", maintain_order=True)
+    return table, int(kept.sum()), int(too_short.sum())
+
+
+def script_windows(
+    raw: pl.DataFrame, nodes: pl.DataFrame | pl.LazyFrame, dataset_id: int, config: BuildConfig
+) -> tuple[pl.DataFrame, ScriptRows]:
+    """The samples of the cs-lstm protocol of one recording, as ego windows with s.SPLIT.
+
+    One sample per script row on the grid (`script_rows`) whose vehicle has a track at that step
+    in `nodes` (the recording's grid nodes, GRID_NODE_SCHEMA): the ego is that track, the present
+    that step, and the window starts history_steps - 1 steps before it (the ego may be absent at
+    earlier steps: its track may start later, at a gap or where cleaning removed rows). The rows
+    without such a track are counted (`ScriptRows.unmatched`). Columns and order as
+    `ego_windows`, plus s.SPLIT.
+    """
+    rows, kept, too_short = script_rows(raw, dataset_id, config)
+    ego = nodes.lazy().select(
+        s.VEHICLE_ID,
+        s.STEP,
+        pl.col(s.TRACK_ID).alias(s.EGO_TRACK_ID),
+        pl.col(s.X_M).alias(s.ORIGIN_X_M),
+        pl.col(s.Y_M).alias(s.ORIGIN_Y_M),
+    )
+    windows = (
+        rows.lazy()
+        .join(ego, on=[s.VEHICLE_ID, s.STEP], how="inner")
+        .select(
+            s.EGO_TRACK_ID,
+            pl.col(s.VEHICLE_ID).alias(s.EGO_VEHICLE_ID),
+            (pl.col(s.STEP) - (config.history_steps - 1)).cast(pl.Int32).alias(s.START_STEP),
+            pl.col(s.STEP).alias(s.PRESENT_STEP),
+            s.ORIGIN_X_M,
+            s.ORIGIN_Y_M,
+            s.SPLIT,
+        )
+        .collect(engine="streaming")
+        .sort(s.EGO_TRACK_ID, s.START_STEP)
+    )
+    counts = ScriptRows(kept, too_short, rows.height, rows.height - windows.height)
+    return windows, counts
+
+
+def cslstm_windows(
+    nodes: pl.DataFrame | pl.LazyFrame,
+    raw: pl.LazyFrame,
+    key: RecordingKey,
+    recording_index: int,
+    config: BuildConfig,
+) -> RecordingWindows:
+    """The cs-lstm protocol's samples of one recording (`script_windows`) from its staged rows
+    before cleaning (`raw`: their SCRIPT_COLUMNS are read); the vehicle split's ids are those
+    rows' own, and its largest the largest, stray or not.
+
+    `raw` may come in any order but that of a vehicle's rows of one frame (`ordered_rows` sorts
+    stably): those are in one part, read from its files in the order they were read."""
+    rows = raw.select(SCRIPT_COLUMNS).collect()
+    vehicle_ids = VehicleIds.of(rows[s.VEHICLE_ID].unique().to_numpy(), strays_allowed=False)
+    windows, counts = script_windows(rows, nodes, DATASET_IDS.get(key, 0), config)
+    return RecordingWindows(windows, vehicle_ids, counts)
+
+
+def refused_recording(key: RecordingKey) -> str | None:
+    """Why the cs-lstm protocol cannot take recording `key`: it is none of the script's six."""
+    if key in DATASET_IDS:
+        return None
+    official = ", ".join(f"{loc} {period}" for loc, period in DATASET_IDS)
+    return (
+        f"recording {key[0]}/{key[1]} is not one of the six that CS-LSTM's script reads "
+        f"({official}); the cs-lstm protocol takes those only"
+    )
+
+
+def why_no_samples(script: ScriptRows | None, rows: int, config: BuildConfig) -> str | None:
+    """Why the script's rows (of `rows` raw rows in all) gave no sample."""
+    if script is None:
+        return None
+    return (
+        f"CS-LSTM's script keeps {script.kept:,} of the {rows:,} rows (and would stop on "
+        f"the {script.too_short:,} rows of vehicles under 31 rows), {script.on_grid:,} of "
+        f"them on the {config.time_step_s} s grid, {script.unmatched:,} of those with no "
+        "track at their step"
+    )
+
+
+CS_LSTM = SampleProtocol(cslstm_windows, refused_recording, why_no_samples)

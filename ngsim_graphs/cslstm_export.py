@@ -44,7 +44,9 @@ from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import entries_beyond, some_names
 from ngsim_graphs.partial_files import create_exclusive
-from ngsim_graphs.sources.ngsim.files import find_raw_files, read_raw_file
+from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.sources.ngsim.files import read_raw_file
+from ngsim_graphs.sources.ngsim.formats import find_raw_files
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
 
 FILE_NAMES = {"train": "TrainSet.mat", "val": "ValSet.mat", "test": "TestSet.mat"}
@@ -52,7 +54,7 @@ MARKER = "cslstm-export.json"
 PROGRAM = "ngsim-graphs export-cslstm"
 LOCATIONS = ("us-101", "i-80")
 # What the script keeps of a row, and Global_Time, which tells the recordings apart.
-_NEEDED = (s.VEHICLE_ID, s.FRAME_ID, s.GLOBAL_TIME, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
+_NEEDED = (s.VEHICLE_ID, s.FRAME_ID, s.GLOBAL_TIME, ns.LOCAL_X, ns.LOCAL_Y, s.LANE_ID)
 Progress = Callable[[str, int, int], None]
 
 

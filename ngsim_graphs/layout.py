@@ -456,20 +456,6 @@ def _holds_trajectory_files(root: Path) -> bool:
 def _is_trajectory_file(path: Path) -> bool:
     """Whether `path` is a file that a source reads (NGSIM, highD), told from its content."""
     # Imported here: only this error path needs the sources' sniffers.
-    from ngsim_graphs.sources.highd.files import sniff_highd
-    from ngsim_graphs.sources.ngsim.files import (
-        CANDIDATE_SUFFIXES,
-        NotNgsimFileError,
-        sniff_format,
-    )
+    from ngsim_graphs.sources.registry import is_source_file
 
-    if not path.is_file() or path.suffix.lower() not in CANDIDATE_SUFFIXES:
-        return False
-    try:
-        if sniff_highd(path) is None:
-            sniff_format(path)
-    except (NotNgsimFileError, OSError):
-        return False
-    except NgsimInputError:  # NGSIM's, but unreadable (CR line ends): a trajectory file still
-        return True
-    return True
+    return path.is_file() and is_source_file(path)

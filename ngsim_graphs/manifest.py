@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, astuple, dataclass, field, fields, replace
 from enum import Enum
 from typing import Any
 
@@ -20,7 +20,6 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.integrity import CHECKSUM_KEY, FILES_KEY
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.sources.contract import FileReport, RecordingReport
-from ngsim_graphs.windows import ScriptRows
 
 DEFAULT_DATASET = "ngsim"  # what a manifest written before the "dataset" key was built from
 
@@ -35,6 +34,24 @@ def json_form(value: Any) -> Any:
     if isinstance(value, Enum):
         return value.value
     return value
+
+
+@dataclass(frozen=True)
+class ScriptRows:
+    """What the cs-lstm protocol made of CS-LSTM's rows of one recording (or of a build), as
+    the manifest records it (`cslstm.cslstm_windows` counts them)."""
+
+    kept: int  # rows the script keeps (its edge filter), every split
+    too_short: int  # rows of vehicles under 31 rows: the script stops on them; left out, counted
+    on_grid: int  # kept rows on the grid, one per (vehicle, frame): an even Frame_ID
+    unmatched: int  # of those, rows whose vehicle has no track at that step: no sample
+
+    @property
+    def samples(self) -> int:
+        return self.on_grid - self.unmatched
+
+    def plus(self, other: ScriptRows) -> ScriptRows:
+        return ScriptRows(*(a + b for a, b in zip(astuple(self), astuple(other), strict=True)))
 
 
 def _script_rows(values: Mapping[str, int] | None) -> ScriptRows | None:

@@ -30,13 +30,13 @@ import polars as pl
 from ngsim_graphs import __version__, landing, layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.cslstm import DATASET_IDS
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, SourceLine
+from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, ScriptRows, SourceLine
+from ngsim_graphs.protocols import PROTOCOLS
 from ngsim_graphs.scaling import MinMaxScaler
-from ngsim_graphs.schema import DropReason, Protocol
+from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
-from ngsim_graphs.sources.registry import choose_source
+from ngsim_graphs.sources.registry import check_locations, choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
 from ngsim_graphs.synth.marker import mixed_inputs_warning, synthetic_inputs
 from ngsim_graphs.tasks import (
@@ -46,7 +46,7 @@ from ngsim_graphs.tasks import (
     clean_recording,
     read_file,
 )
-from ngsim_graphs.windows import ScriptRows
+from ngsim_graphs.windows import SampleProtocol
 from ngsim_graphs.workers import Processes, Workers, available_cores, one_malloc_arena
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -126,8 +126,10 @@ def _build_recordings(
     ]
     reports = workers.map(clean_recording, cleaning, stage("cleaning recordings"), sizes)
     first_ids = [0, *accumulate(report.tracks for report in reports)]
+    protocol = PROTOCOLS[config.protocol]
     building = [
-        (key, i, reports[i], first_ids[i], staged[key], config, root) for i, key in enumerate(keys)
+        (key, i, reports[i], first_ids[i], staged[key], config, root, protocol)
+        for i, key in enumerate(keys)
     ]
     # The build's peak is here: freed memory given back at once, which costs building no time.
     progress_of = stage("building recordings")
@@ -184,14 +186,9 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
 def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
     """Why the chosen recordings gave no sample at all, as a user can act on it."""
     rows = sum(o.report.rows for o in outputs)
-    script = _script_total(outputs)
-    if script is not None:
-        return (
-            f"CS-LSTM's script keeps {script.kept:,} of the {rows:,} rows (and would stop on "
-            f"the {script.too_short:,} rows of vehicles under 31 rows), {script.on_grid:,} of "
-            f"them on the {config.time_step_s} s grid, {script.unmatched:,} of those with no "
-            "track at their step"
-        )
+    why = PROTOCOLS[config.protocol].why_no_samples(_script_total(outputs), rows, config)
+    if why is not None:
+        return why
     if sum(o.report.grid_rows for o in outputs) == 0:
         return (
             f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
@@ -252,22 +249,16 @@ def _script_total(outputs: list[RecordingOutput]) -> ScriptRows | None:
     return reduce(ScriptRows.plus, parts) if parts else None
 
 
-def _check_script_recordings(
-    staged: dict[RecordingKey, StagedParts], files: list[FileReport], config: BuildConfig
+def _check_recordings(
+    staged: dict[RecordingKey, StagedParts], files: list[FileReport], protocol: SampleProtocol
 ) -> None:
-    """Under the cs-lstm protocol every recording must be one of the script's six."""
-    if config.protocol is not Protocol.CS_LSTM:
-        return
+    """Every recording must be one the protocol takes (cs-lstm: one of the script's six)."""
     for key in sorted(staged):
-        if key not in DATASET_IDS:
+        why = protocol.refuses(key)
+        if why is not None:
             name = f"{key[0]}/{key[1]}"
             path = next((f.path for f in files if name in f.recordings), files[0].path)
-            official = ", ".join(f"{loc} {period}" for loc, period in DATASET_IDS)
-            raise NgsimInputError(
-                path,
-                f"recording {name} is not one of the six that CS-LSTM's script reads "
-                f"({official}); the cs-lstm protocol takes those only",
-            )
+            raise NgsimInputError(path, why)
 
 
 def _counts(
@@ -349,10 +340,12 @@ def run_build(
     one arena for the rest of its life (`workers.one_malloc_arena`: only threads started after
     keep to it). The workers are started with multiprocessing's "spawn": a script that builds
     with jobs > 1 must do so under `if __name__ == "__main__":`.
-    Raises NgsimInputError for unusable input and NgsimOutputError for an `out_dir` that must
+    Raises ValueError for a location no source knows, NgsimInputError for unusable input and
+    NgsimOutputError for an `out_dir` that must
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.
     """
+    check_locations(config.locations)
     landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
     workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
     if workers.jobs == 1:  # the tasks run in this process
@@ -367,7 +360,7 @@ def run_build(
             file_reports, staged = _stage_inputs(
                 source, files, config, root, report_progress, strict, workers
             )
-            _check_script_recordings(staged, file_reports, config)
+            _check_recordings(staged, file_reports, PROTOCOLS[config.protocol])
             outputs = _build_recordings(
                 source, staged, config, root, file_reports, report_progress, strict, workers
             )

@@ -1,7 +1,9 @@
-"""Column names and dtypes of every table the pipeline reads or writes. No logic lives here.
+"""Column names and dtypes of every table the pipeline writes, and of the sources' common rows.
+No logic lives here.
 
-Raw tables keep NGSIM's own units (feet, feet/s, feet/s^2, milliseconds); the tracks table is in SI
-units (metres, seconds, metres per second, radians).
+Each source's raw columns live in its folder (`sources/ngsim/schema.py`,
+`sources/highd/schema.py`); the tracks table and everything after it is in SI units (metres,
+seconds, metres per second, radians).
 """
 
 from __future__ import annotations
@@ -66,115 +68,17 @@ class Split(str, Enum):
     TEST = "test"
 
 
-# Canonical raw column names: NGSIM's header names in lower case. Readers match headers
-# case-insensitively, so `v_Length` and `v_length` both map to `v_length`.
+# The columns the tracks table shares with NGSIM's raw rows, named as NGSIM's header is in lower
+# case (each source's raw columns are in its folder: `sources/ngsim/schema.py`, ...).
 VEHICLE_ID: Final = "vehicle_id"
 FRAME_ID: Final = "frame_id"
-TOTAL_FRAMES: Final = "total_frames"
 GLOBAL_TIME: Final = "global_time"
-LOCAL_X: Final = "local_x"
-LOCAL_Y: Final = "local_y"
-GLOBAL_X: Final = "global_x"
-GLOBAL_Y: Final = "global_y"
-V_LENGTH: Final = "v_length"
-V_WIDTH: Final = "v_width"
 V_CLASS: Final = "v_class"
-V_VEL: Final = "v_vel"
-V_ACC: Final = "v_acc"
 LANE_ID: Final = "lane_id"
 PRECEDING: Final = "preceding"
 FOLLOWING: Final = "following"
-SPACE_HEADWAY: Final = "space_headway"
-TIME_HEADWAY: Final = "time_headway"
 LOCATION: Final = "location"
 
-# The 18 columns of the original whitespace text files, in file order. Per-period CSVs and the
-# portal CSV carry them too (plus zone/intersection columns the pipeline does not use).
-TXT_COLUMNS: Final[tuple[str, ...]] = (
-    VEHICLE_ID,
-    FRAME_ID,
-    TOTAL_FRAMES,
-    GLOBAL_TIME,
-    LOCAL_X,
-    LOCAL_Y,
-    GLOBAL_X,
-    GLOBAL_Y,
-    V_LENGTH,
-    V_WIDTH,
-    V_CLASS,
-    V_VEL,
-    V_ACC,
-    LANE_ID,
-    PRECEDING,
-    FOLLOWING,
-    SPACE_HEADWAY,
-    TIME_HEADWAY,
-)
-
-# The 25 columns of the combined portal CSV, in file order, with the official header spelling.
-PORTAL_HEADER: Final[tuple[str, ...]] = (
-    "Vehicle_ID",
-    "Frame_ID",
-    "Total_Frames",
-    "Global_Time",
-    "Local_X",
-    "Local_Y",
-    "Global_X",
-    "Global_Y",
-    "v_length",
-    "v_Width",
-    "v_Class",
-    "v_Vel",
-    "v_Acc",
-    "Lane_ID",
-    "O_Zone",
-    "D_Zone",
-    "Int_ID",
-    "Section_ID",
-    "Direction",
-    "Movement",
-    "Preceding",
-    "Following",
-    "Space_Headway",
-    "Time_Headway",
-    "Location",
-)
-
-# The header of a per-period CSV: the portal's columns without Location.
-PERIOD_CSV_HEADER: Final[tuple[str, ...]] = PORTAL_HEADER[:-1]
-
-# Dtypes of the parsed raw table (NGSIM units). Columns a reader needs before it can place a row
-# anywhere; a row with one of them empty is dropped and counted.
-RAW_SCHEMA: Final = pl.Schema(
-    {
-        VEHICLE_ID: pl.Int32,
-        FRAME_ID: pl.Int32,
-        TOTAL_FRAMES: pl.Int32,
-        GLOBAL_TIME: pl.Int64,
-        LOCAL_X: pl.Float64,
-        LOCAL_Y: pl.Float64,
-        GLOBAL_X: pl.Float64,
-        GLOBAL_Y: pl.Float64,
-        V_LENGTH: pl.Float64,
-        V_WIDTH: pl.Float64,
-        V_CLASS: pl.Int8,
-        V_VEL: pl.Float64,
-        V_ACC: pl.Float64,
-        LANE_ID: pl.Int16,
-        PRECEDING: pl.Int32,
-        FOLLOWING: pl.Int32,
-        SPACE_HEADWAY: pl.Float64,
-        TIME_HEADWAY: pl.Float64,
-    }
-)
-REQUIRED_VALUE_COLUMNS: Final[tuple[str, ...]] = (
-    VEHICLE_ID,
-    FRAME_ID,
-    GLOBAL_TIME,
-    LOCAL_X,
-    LOCAL_Y,
-    V_VEL,
-)
 
 # Where a raw row came from, carried until cleaning so that drops can name the file and line.
 SOURCE_FILE: Final = "__source_file"  # index of the input file in the build's list of inputs
@@ -185,10 +89,6 @@ PROVENANCE_SCHEMA: Final = pl.Schema({SOURCE_FILE: pl.UInt16, SOURCE_LINE: pl.In
 PERIOD: Final = "period"
 RECORDING_KEY: Final[tuple[str, str]] = (LOCATION, PERIOD)
 RECORDING_INDEX: Final = "recording_index"  # a recording's index in its file, then in the build
-
-# NGSIM sentinels.
-NO_LEADER_TIME_HEADWAY_S: Final = 9999.99
-NO_NEIGHBOUR_ID: Final = 0
 
 # The tracks table: one row per track and 0.2 s grid step, SI units.
 TRACK_ID = "track_id"  # dense id over the whole table, in (location, period, vehicle, frame) order
@@ -294,159 +194,3 @@ N_FULL_TARGETS: Final = "n_targets_full_future"  # targets recorded at every fut
 COUNT_COLUMNS: Final[tuple[str, ...]] = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS, N_FULL_TARGETS)
 # A split's samples table: its samples and the counts of their graphs.
 SAMPLES_TABLE_SCHEMA: Final = pl.Schema({**SAMPLE_SCHEMA, **dict.fromkeys(COUNT_COLUMNS, pl.Int32)})
-
-
-# ---------------------------------------------------------------------------------------------
-# highD raw columns (SPEC section 8), as highD's header spells them; readers match them
-# case-insensitively. Each recording NN is three CSV files: NN_tracks.csv (one row per vehicle
-# and 25 Hz frame), NN_tracksMeta.csv (one row per vehicle), NN_recordingMeta.csv (one row).
-# Units are highD's own: metres, m/s, m/s^2, image coordinates (x right, y down).
-
-
-class HighdFile(str, Enum):
-    """The three files of one highD recording: the name's suffix, `NN_<suffix>.csv`."""
-
-    TRACKS = "tracks"
-    TRACKS_META = "tracksMeta"
-    RECORDING_META = "recordingMeta"
-
-
-HIGHD_FRAME: Final = "frame"  # 25 Hz frame number, from 1
-HIGHD_ID: Final = "id"  # track id in tracks/tracksMeta (>= 1); recording id in recordingMeta
-HIGHD_X: Final = "x"  # upper-left corner of the bounding box, image x (right), m
-HIGHD_Y: Final = "y"  # upper-left corner of the bounding box, image y (down), m
-HIGHD_WIDTH: Final = "width"  # the bounding box along image x: the vehicle's length, m
-HIGHD_HEIGHT: Final = "height"  # the bounding box along image y: the vehicle's width, m
-HIGHD_X_VELOCITY: Final = "xVelocity"
-HIGHD_Y_VELOCITY: Final = "yVelocity"
-HIGHD_X_ACCELERATION: Final = "xAcceleration"
-HIGHD_Y_ACCELERATION: Final = "yAcceleration"
-HIGHD_DHW: Final = "dhw"  # distance headway, m; 0: no preceding vehicle
-HIGHD_THW: Final = "thw"  # time headway, s; 0: no preceding vehicle
-HIGHD_TTC: Final = "ttc"  # time to collision, s; 0: none
-HIGHD_PRECEDING_X_VELOCITY: Final = "precedingXVelocity"
-HIGHD_PRECEDING_ID: Final = "precedingId"  # 0: none
-HIGHD_FOLLOWING_ID: Final = "followingId"  # 0: none
-HIGHD_LANE_ID: Final = "laneId"  # numbered from the top of the image, edges and median included
-
-HIGHD_TRACKS_HEADER: Final[tuple[str, ...]] = (
-    HIGHD_FRAME,
-    HIGHD_ID,
-    HIGHD_X,
-    HIGHD_Y,
-    HIGHD_WIDTH,
-    HIGHD_HEIGHT,
-    HIGHD_X_VELOCITY,
-    HIGHD_Y_VELOCITY,
-    HIGHD_X_ACCELERATION,
-    HIGHD_Y_ACCELERATION,
-    "frontSightDistance",
-    "backSightDistance",
-    HIGHD_DHW,
-    HIGHD_THW,
-    HIGHD_TTC,
-    HIGHD_PRECEDING_X_VELOCITY,
-    HIGHD_PRECEDING_ID,
-    HIGHD_FOLLOWING_ID,
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
-    HIGHD_LANE_ID,
-)
-# The tracks columns the reader parses, with their dtypes; the rest of the header is not read.
-HIGHD_TRACKS_SCHEMA: Final = pl.Schema(
-    {
-        HIGHD_FRAME: pl.Int32,
-        HIGHD_ID: pl.Int32,
-        HIGHD_X: pl.Float64,
-        HIGHD_Y: pl.Float64,
-        HIGHD_WIDTH: pl.Float64,
-        HIGHD_HEIGHT: pl.Float64,
-        HIGHD_X_VELOCITY: pl.Float64,
-        HIGHD_Y_VELOCITY: pl.Float64,
-        HIGHD_X_ACCELERATION: pl.Float64,
-        HIGHD_Y_ACCELERATION: pl.Float64,
-        HIGHD_DHW: pl.Float64,
-        HIGHD_THW: pl.Float64,
-        HIGHD_PRECEDING_ID: pl.Int32,
-        HIGHD_FOLLOWING_ID: pl.Int32,
-        HIGHD_LANE_ID: pl.Int16,
-    }
-)
-# A tracks row with one of these empty is dropped and counted (rows_missing_values).
-HIGHD_REQUIRED_COLUMNS: Final[tuple[str, ...]] = (
-    HIGHD_FRAME,
-    HIGHD_ID,
-    HIGHD_X,
-    HIGHD_Y,
-    HIGHD_WIDTH,
-    HIGHD_HEIGHT,
-    HIGHD_X_VELOCITY,
-)
-
-HIGHD_CLASS: Final = "class"  # "Car" or "Truck"
-HIGHD_DRIVING_DIRECTION: Final = "drivingDirection"  # 1: upper lanes, towards -x; 2: lower, +x
-HIGHD_NUM_FRAMES: Final = "numFrames"  # rows of the track in the tracks file
-HIGHD_TRACKS_META_HEADER: Final[tuple[str, ...]] = (
-    HIGHD_ID,
-    HIGHD_WIDTH,
-    HIGHD_HEIGHT,
-    "initialFrame",
-    "finalFrame",
-    HIGHD_NUM_FRAMES,
-    HIGHD_CLASS,
-    HIGHD_DRIVING_DIRECTION,
-    "traveledDistance",
-    "minXVelocity",
-    "maxXVelocity",
-    "meanXVelocity",
-    "minDHW",
-    "minTHW",
-    "minTTC",
-    "numLaneChanges",
-)
-HIGHD_TRACKS_META_SCHEMA: Final = pl.Schema(
-    {
-        HIGHD_ID: pl.Int32,
-        HIGHD_NUM_FRAMES: pl.Int32,
-        HIGHD_CLASS: pl.String,
-        HIGHD_DRIVING_DIRECTION: pl.Int8,
-    }
-)
-# highD's vehicle classes as NGSIM's v_class codes (matched case-insensitively).
-HIGHD_CLASS_CODES: Final[dict[str, int]] = {"car": 2, "truck": 3}
-
-HIGHD_FRAME_RATE: Final = "frameRate"  # 25
-HIGHD_LOCATION_ID: Final = "locationId"
-HIGHD_UPPER_LANE_MARKINGS: Final = "upperLaneMarkings"  # image y of the markings, "a;b;c", m
-HIGHD_LOWER_LANE_MARKINGS: Final = "lowerLaneMarkings"
-HIGHD_RECORDING_META_HEADER: Final[tuple[str, ...]] = (
-    HIGHD_ID,
-    HIGHD_FRAME_RATE,
-    HIGHD_LOCATION_ID,
-    "speedLimit",
-    "month",
-    "weekDay",
-    "startTime",
-    "duration",
-    "totalDrivenDistance",
-    "totalDrivenTime",
-    "numVehicles",
-    "numCars",
-    "numTrucks",
-    HIGHD_UPPER_LANE_MARKINGS,
-    HIGHD_LOWER_LANE_MARKINGS,
-)
-HIGHD_RECORDING_META_SCHEMA: Final = pl.Schema(
-    {
-        HIGHD_ID: pl.Int32,
-        HIGHD_FRAME_RATE: pl.Int32,
-        HIGHD_LOCATION_ID: pl.Int32,
-        HIGHD_UPPER_LANE_MARKINGS: pl.String,
-        HIGHD_LOWER_LANE_MARKINGS: pl.String,
-    }
-)
-HIGHD_NO_NEIGHBOUR: Final = 0  # precedingId/followingId, dhw/thw/ttc: none

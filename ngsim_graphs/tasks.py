@@ -37,7 +37,6 @@ import polars as pl
 from ngsim_graphs import layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.cslstm import DATASET_IDS
 from ngsim_graphs.grid import (
     ARRAY_NAMES,
     ROW_ARRAYS,
@@ -49,6 +48,7 @@ from ngsim_graphs.grid import (
     with_pairs,
     write_node_arrays,
 )
+from ngsim_graphs.manifest import ScriptRows
 from ngsim_graphs.neighbourhoods import (
     ego_rows,
     history_rows,
@@ -58,7 +58,7 @@ from ngsim_graphs.neighbourhoods import (
     sample_counts,
 )
 from ngsim_graphs.scaling import MinMaxScaler, train_ranges
-from ngsim_graphs.schema import Protocol, Split
+from ngsim_graphs.schema import Split
 from ngsim_graphs.sources.contract import (
     FileReport,
     FileRows,
@@ -66,8 +66,8 @@ from ngsim_graphs.sources.contract import (
     RecordingReport,
     Source,
 )
-from ngsim_graphs.splits import VehicleIds, assign_splits
-from ngsim_graphs.windows import SCRIPT_COLUMNS, ScriptRows, ego_windows, script_windows
+from ngsim_graphs.splits import VehicleIds
+from ngsim_graphs.windows import SampleProtocol
 
 # A recording's grid rows are made, and its proximity pairs found, written and used, a range of
 # steps at a time, about this many grid rows each: the rows and their pairs, ten a row in a dense
@@ -94,28 +94,6 @@ class RecordingSamples:
     train_ranges: MinMaxScaler  # what this recording's train samples observed
 
 
-def recording_windows(
-    nodes: pl.DataFrame | pl.LazyFrame,
-    recording_index: int,
-    config: BuildConfig,
-    vehicle_ids: VehicleIds,
-    raw: pl.DataFrame | None = None,
-    dataset_id: int = 0,
-) -> tuple[pl.DataFrame, ScriptRows | None]:
-    """The split ego windows of one recording's grid nodes (`grid_node_rows`, in any order; a
-    lazy table is streamed), and under the cs-lstm protocol what it made of CS-LSTM's rows (None
-    under aigem). The vehicle split cuts at the recording's `vehicle_ids.largest`.
-
-    Under the cs-lstm protocol the windows are CS-LSTM's kept rows of `raw` (the recording's
-    rows before cleaning), for the script's `dataset_id` (cslstm.DATASET_IDS)."""
-    if config.protocol is Protocol.CS_LSTM:
-        if raw is None:
-            raise ValueError("the cs-lstm protocol needs the recording's raw rows")
-        return script_windows(raw, nodes, dataset_id, config)
-    windows = ego_windows(nodes, config)
-    return assign_splits(windows, vehicle_ids.largest, recording_index, config), None
-
-
 def recording_samples(
     arrays: RecordingArrays,
     windows: pl.DataFrame,
@@ -124,7 +102,7 @@ def recording_samples(
     row_arrays: RowArrays | None = None,
 ) -> RecordingSamples:
     """Proximity edges, and the counts and the scaler's ranges of the split ego `windows`
-    (`recording_windows`), of one recording's frame arrays (`node_arrays`).
+    (`SampleProtocol.recording_windows`), of one recording's frame arrays (`node_arrays`).
 
     A range of steps at a time (PIECE_ROWS): its pairs go to `write_pairs`, the neighbourhoods
     of its ego rows are found with them, and what those add to each sample that has history rows
@@ -308,6 +286,7 @@ def build_recording(
     staged: StagedParts,
     config: BuildConfig,
     root: Path,
+    protocol: SampleProtocol,
 ) -> RecordingOutput:
     """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
     worker's task): its grid rows streamed from its tracks table (windows, largest vehicle
@@ -322,21 +301,11 @@ def build_recording(
     layout.sink_parquet(tracks, layout.tracks_path(root, *key))
     tracks = pl.scan_parquet(layout.tracks_path(root, *key))
     nodes = grid_node_rows(tracks, config.time_step_s)  # each use streams them from the file
-    raw = None
-    if config.protocol is Protocol.CS_LSTM:
-        # In any order but that of a vehicle's rows of one frame (cslstm.ordered_rows sorts
-        # stably): those are in one part, read from its files in the order they were read.
-        files = [path for part in sorted(staged) for path in staged[part]]
-        raw = pl.read_parquet(files, columns=list(SCRIPT_COLUMNS))
-    # The vehicle split's ids: the script's are of the rows before cleaning, and its largest
-    # is the largest, stray or not.
-    split_by = nodes if raw is None else raw.lazy()
-    ids = split_by.select(pl.col(s.VEHICLE_ID).unique()).collect(engine="streaming")
-    vehicle_ids = VehicleIds.of(ids[s.VEHICLE_ID].to_numpy(), strays_allowed=raw is None)
-    windows, script = recording_windows(
-        nodes, index, config, vehicle_ids, raw, DATASET_IDS.get(key, 0)
-    )
-    del raw, split_by  # the windows are all the rest needs of them (a lazy frame holds its data)
+    # The staged rows before cleaning, scanned: a protocol that reads them takes what it needs.
+    raw = pl.scan_parquet([path for part in sorted(staged) for path in staged[part]])
+    made = protocol.recording_windows(nodes, raw, key, index, config)
+    windows, vehicle_ids, script = made.windows, made.vehicle_ids, made.script_rows
+    del made, raw  # the windows are all the rest needs of the raw rows
     folder = layout.recording_arrays_dir(root, *key)
     with layout.ArrayAppender(folder, ROW_ARRAYS) as row_files:
         arrays = write_node_arrays(tracks, config.time_step_s, GRID_ROWS, row_files.append)

@@ -1,22 +1,24 @@
 """Ego windows: the samples of a build, as (ego track, start step) with the ego's present position.
 
-The aigem protocol cuts K_H + K_F consecutive grid steps of each track at a fixed stride
-(`ego_windows`); the cs-lstm protocol takes CS-LSTM's kept rows on the grid (`script_windows`).
+A protocol (`schema.Protocol`) decides which windows a recording gives, and how they are split:
+a `SampleProtocol`, chosen by `protocols.PROTOCOLS`. The aigem protocol (AIGEM, here) cuts
+K_H + K_F consecutive grid steps of each track at a fixed stride (`ego_windows`) and splits
+them by `splits.assign_splits`; the cs-lstm protocol (`cslstm.CS_LSTM`) takes CS-LSTM's kept
+rows on the grid.
 """
 
 from __future__ import annotations
 
-from dataclasses import astuple, dataclass
+from collections.abc import Callable
+from dataclasses import dataclass
 
-import numpy as np
 import polars as pl
 
-from ngsim_graphs import cslstm
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-
-# The raw columns CS-LSTM's script reads (script_rows).
-SCRIPT_COLUMNS = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
+from ngsim_graphs.manifest import ScriptRows
+from ngsim_graphs.sources.contract import RecordingKey
+from ngsim_graphs.splits import VehicleIds, assign_splits
 
 
 def ego_windows(nodes: pl.DataFrame | pl.LazyFrame, config: BuildConfig) -> pl.DataFrame:
@@ -69,86 +71,58 @@ def ego_windows(nodes: pl.DataFrame | pl.LazyFrame, config: BuildConfig) -> pl.D
 
 
 @dataclass(frozen=True)
-class ScriptRows:
-    """What the cs-lstm protocol made of CS-LSTM's rows of one recording (or of a build)."""
+class RecordingWindows:
+    """A recording's samples as a protocol makes them."""
 
-    kept: int  # rows the script keeps (its edge filter), every split
-    too_short: int  # rows of vehicles under 31 rows: the script stops on them; left out, counted
-    on_grid: int  # kept rows on the grid, one per (vehicle, frame): an even Frame_ID
-    unmatched: int  # of those, rows whose vehicle has no track at that step: no sample
-
-    @property
-    def samples(self) -> int:
-        return self.on_grid - self.unmatched
-
-    def plus(self, other: ScriptRows) -> ScriptRows:
-        return ScriptRows(*(a + b for a, b in zip(astuple(self), astuple(other), strict=True)))
+    windows: pl.DataFrame  # ego windows (`ego_windows`' columns) with s.SPLIT
+    vehicle_ids: VehicleIds  # what the vehicle split took of its Vehicle_IDs
+    script_rows: ScriptRows | None = None  # the cs-lstm protocol's rows (None: aigem)
 
 
-def script_rows(
-    raw: pl.DataFrame, dataset_id: int, config: BuildConfig
-) -> tuple[pl.DataFrame, int, int]:
-    """The rows of one recording that CS-LSTM's `preprocess_data.m` keeps (docs/cslstm.md), on
-    the grid: (table, kept, too_short). The table has one row per (vehicle, step) with its split
-    (VEHICLE_ID, STEP, SPLIT), in the script's row order; `kept` counts every kept row, on the
-    grid or not; `too_short` the rows of vehicles under 31 rows (the script stops on them).
+@dataclass(frozen=True)
+class SampleProtocol:
+    """Which samples a build makes of each recording (`schema.Protocol`): three functions.
 
-    `raw`: the recording's rows before cleaning (RAW_SCHEMA columns, any order, duplicates and
-    all). A kept row is on the grid when its Frame_ID is a multiple of `frames_per_step`; its
-    step is Frame_ID / frames_per_step; the rows of one vehicle and frame make one row.
+    recording_windows(nodes, raw, key, recording_index, config) -> RecordingWindows: the split
+        windows of one recording's grid nodes (GRID_NODE_SCHEMA, in any order; a lazy table is
+        streamed); `raw` is the recording's staged rows before cleaning, lazy (scanned from its
+        files), for a protocol that reads them
+    refuses(key) -> why the protocol cannot take recording `key`, or None
+    why_no_samples(script_rows, rows, config) -> why the recordings (of `rows` raw rows in all)
+        gave no sample, where the protocol can tell; None to leave it to the build
     """
-    ordered = cslstm.ordered_rows(
-        dataset_id, *(raw[c].cast(pl.Float64).to_numpy() for c in SCRIPT_COLUMNS)
-    )
-    kept, too_short = cslstm.kept_by_edge_filter(ordered)
-    split = cslstm.split_codes(ordered)[kept]
-    frame = ordered.frame[kept].astype(np.int64)
-    on_grid = frame % config.frames_per_step == 0
-    table = pl.DataFrame(
-        {
-            s.VEHICLE_ID: ordered.vehicle[kept][on_grid].astype(np.int32),
-            s.STEP: (frame[on_grid] // config.frames_per_step).astype(np.int32),
-            s.SPLIT: np.array(cslstm.SPLIT_NAMES)[split[on_grid]],
-        },
-        schema={s.VEHICLE_ID: pl.Int32, s.STEP: pl.Int32, s.SPLIT: pl.String},
-    ).unique(subset=[s.VEHICLE_ID, s.STEP], keep="first", maintain_order=True)
-    return table, int(kept.sum()), int(too_short.sum())
+
+    recording_windows: Callable[
+        [pl.DataFrame | pl.LazyFrame, pl.LazyFrame, RecordingKey, int, BuildConfig],
+        RecordingWindows,
+    ]
+    refuses: Callable[[RecordingKey], str | None]
+    why_no_samples: Callable[[ScriptRows | None, int, BuildConfig], str | None]
 
 
-def script_windows(
-    raw: pl.DataFrame, nodes: pl.DataFrame | pl.LazyFrame, dataset_id: int, config: BuildConfig
-) -> tuple[pl.DataFrame, ScriptRows]:
-    """The samples of the cs-lstm protocol of one recording, as ego windows with s.SPLIT.
+def aigem_windows(
+    nodes: pl.DataFrame | pl.LazyFrame,
+    raw: pl.LazyFrame,
+    key: RecordingKey,
+    recording_index: int,
+    config: BuildConfig,
+) -> RecordingWindows:
+    """Every ego window of the recording (`ego_windows`), split by `splits.assign_splits`; the
+    vehicle split cuts at the largest Vehicle_ID of its tracks, strays left out (`raw` is not
+    read)."""
+    ids = nodes.lazy().select(pl.col(s.VEHICLE_ID).unique()).collect(engine="streaming")
+    vehicle_ids = VehicleIds.of(ids[s.VEHICLE_ID].to_numpy(), strays_allowed=True)
+    windows = ego_windows(nodes, config)
+    split = assign_splits(windows, vehicle_ids.largest, recording_index, config)
+    return RecordingWindows(split, vehicle_ids)
 
-    One sample per script row on the grid (`script_rows`) whose vehicle has a track at that step
-    in `nodes` (the recording's grid nodes, GRID_NODE_SCHEMA): the ego is that track, the present
-    that step, and the window starts history_steps - 1 steps before it (the ego may be absent at
-    earlier steps: its track may start later, at a gap or where cleaning removed rows). The rows
-    without such a track are counted (`ScriptRows.unmatched`). Columns and order as
-    `ego_windows`, plus s.SPLIT.
-    """
-    rows, kept, too_short = script_rows(raw, dataset_id, config)
-    ego = nodes.lazy().select(
-        s.VEHICLE_ID,
-        s.STEP,
-        pl.col(s.TRACK_ID).alias(s.EGO_TRACK_ID),
-        pl.col(s.X_M).alias(s.ORIGIN_X_M),
-        pl.col(s.Y_M).alias(s.ORIGIN_Y_M),
-    )
-    windows = (
-        rows.lazy()
-        .join(ego, on=[s.VEHICLE_ID, s.STEP], how="inner")
-        .select(
-            s.EGO_TRACK_ID,
-            pl.col(s.VEHICLE_ID).alias(s.EGO_VEHICLE_ID),
-            (pl.col(s.STEP) - (config.history_steps - 1)).cast(pl.Int32).alias(s.START_STEP),
-            pl.col(s.STEP).alias(s.PRESENT_STEP),
-            s.ORIGIN_X_M,
-            s.ORIGIN_Y_M,
-            s.SPLIT,
-        )
-        .collect(engine="streaming")
-        .sort(s.EGO_TRACK_ID, s.START_STEP)
-    )
-    counts = ScriptRows(kept, too_short, rows.height, rows.height - windows.height)
-    return windows, counts
+
+def _takes_every_recording(key: RecordingKey) -> str | None:
+    return None
+
+
+def _no_reason(script_rows: ScriptRows | None, rows: int, config: BuildConfig) -> str | None:
+    return None
+
+
+AIGEM = SampleProtocol(aigem_windows, _takes_every_recording, _no_reason)

@@ -1,6 +1,6 @@
 """Tiny NGSIM inputs written in code, in each of the three formats.
 
-A row is a dict of canonical column names (schema.TXT_COLUMNS) to numbers in NGSIM units. The
+A row is a dict of canonical column names (ns.TXT_COLUMNS) to numbers in NGSIM units. The
 writers produce the bytes a real export would, with optional quirks.
 """
 
@@ -14,6 +14,7 @@ import pytest
 from aigem_fixtures import tiny_build, tiny_run, two_recording_build  # noqa: F401  (shared)
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 US101_FIRST = OFFICIAL_RECORDINGS[0]  # us-101 0750am-0805am
@@ -35,22 +36,22 @@ def make_row(
     row: dict[str, float] = {
         s.VEHICLE_ID: vehicle_id,
         s.FRAME_ID: frame_id,
-        s.TOTAL_FRAMES: 100,
+        ns.TOTAL_FRAMES: 100,
         s.GLOBAL_TIME: start_ms + FRAME0_OFFSET_MS + 100 * frame_id,
-        s.LOCAL_X: local_x_ft,
-        s.LOCAL_Y: local_y_ft,
-        s.GLOBAL_X: 6451000.0 + local_x_ft,
-        s.GLOBAL_Y: 1873000.0 + local_y_ft,
-        s.V_LENGTH: 15.0,
-        s.V_WIDTH: 6.0,
+        ns.LOCAL_X: local_x_ft,
+        ns.LOCAL_Y: local_y_ft,
+        ns.GLOBAL_X: 6451000.0 + local_x_ft,
+        ns.GLOBAL_Y: 1873000.0 + local_y_ft,
+        ns.V_LENGTH: 15.0,
+        ns.V_WIDTH: 6.0,
         s.V_CLASS: 2,
-        s.V_VEL: v_vel_fps,
-        s.V_ACC: 0.0,
+        ns.V_VEL: v_vel_fps,
+        ns.V_ACC: 0.0,
         s.LANE_ID: 2,
         s.PRECEDING: 0,
         s.FOLLOWING: 0,
-        s.SPACE_HEADWAY: 0.0,
-        s.TIME_HEADWAY: s.NO_LEADER_TIME_HEADWAY_S,
+        ns.SPACE_HEADWAY: 0.0,
+        ns.TIME_HEADWAY: ns.NO_LEADER_TIME_HEADWAY_S,
     }
     row.update(overrides)
     return row
@@ -88,7 +89,7 @@ def _text(value: float | str | None, thousands: bool) -> str:
 def write_txt(path: Path, rows: list[dict], final_newline: bool = False) -> Path:
     """Original whitespace text: padded fields, leading/trailing spaces, no final newline."""
     lines = [
-        "   " + "  ".join(_text(r[c], False).rjust(6) for c in s.TXT_COLUMNS) + "  " for r in rows
+        "   " + "  ".join(_text(r[c], False).rjust(6) for c in ns.TXT_COLUMNS) + "  " for r in rows
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + ("\n" if final_newline else ""))
@@ -104,7 +105,7 @@ def _csv_bytes(header: list[str], rows: list[list[str]], bom: bool, crlf: bool) 
 
 
 def write_period_csv(
-    path: Path, rows: list[dict], header: tuple[str, ...] = s.PERIOD_CSV_HEADER, crlf: bool = False
+    path: Path, rows: list[dict], header: tuple[str, ...] = ns.PERIOD_CSV_HEADER, crlf: bool = False
 ) -> Path:
     """Per-period CSV with a header (spelling as given), the portal's columns without Location."""
     canonical = [name.lower() for name in header]
@@ -119,13 +120,13 @@ def write_portal(
 ) -> Path:
     """Combined portal CSV; with quirks: BOM, CRLF and quoted thousands separators."""
     names = [locations] * len(rows) if isinstance(locations, str) else locations
-    canonical = [name.lower() for name in s.PORTAL_HEADER]
+    canonical = [name.lower() for name in ns.PORTAL_HEADER]
     body = [
         [name if c == s.LOCATION else _text(r.get(c), quirks) for c in canonical]
         for r, name in zip(rows, names, strict=True)
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(_csv_bytes(list(s.PORTAL_HEADER), body, bom=quirks, crlf=quirks))
+    path.write_bytes(_csv_bytes(list(ns.PORTAL_HEADER), body, bom=quirks, crlf=quirks))
     return path
 
 

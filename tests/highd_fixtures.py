@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-from ngsim_graphs import schema as s
+from ngsim_graphs.sources.highd import schema as hs
 
 UPPER_MARKINGS = (8.0, 11.5, 15.0)
 LOWER_MARKINGS = (18.0, 21.5, 25.0)
@@ -22,10 +22,10 @@ def track_rows(
     """Rows of one vehicle moving at a constant xVelocity (m/s): x = x0 at frames[0]."""
     rows = []
     for frame in frames:
-        row = dict.fromkeys(s.HIGHD_TRACKS_HEADER, 0)
-        row.update({s.HIGHD_FRAME: frame, s.HIGHD_ID: vehicle_id, s.HIGHD_WIDTH: 4.0, s.HIGHD_HEIGHT: 2.0,
-                    s.HIGHD_X: round(x0 + x_velocity * (frame - frames[0]) / 25, 6), s.HIGHD_Y: y,
-                    s.HIGHD_X_VELOCITY: x_velocity, s.HIGHD_LANE_ID: 5})  # fmt: skip
+        row = dict.fromkeys(hs.HIGHD_TRACKS_HEADER, 0)
+        row.update({hs.HIGHD_FRAME: frame, hs.HIGHD_ID: vehicle_id, hs.HIGHD_WIDTH: 4.0, hs.HIGHD_HEIGHT: 2.0,
+                    hs.HIGHD_X: round(x0 + x_velocity * (frame - frames[0]) / 25, 6), hs.HIGHD_Y: y,
+                    hs.HIGHD_X_VELOCITY: x_velocity, hs.HIGHD_LANE_ID: 5})  # fmt: skip
         row.update(fields)
         rows.append(row)
     return rows
@@ -49,20 +49,20 @@ def write_recording(
     folder.mkdir(parents=True, exist_ok=True)
     prefix = f"{number:02d}"
     tracks = folder / f"{prefix}_tracks.csv"
-    tracks.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
-    frames = Counter(row[s.HIGHD_ID] for row in rows)  # numFrames: the track's rows
-    meta_rows = [{s.HIGHD_ID: vid, s.HIGHD_WIDTH: 4.0, s.HIGHD_HEIGHT: 2.0, s.HIGHD_CLASS: cls,
-                  s.HIGHD_DRIVING_DIRECTION: direction, s.HIGHD_NUM_FRAMES: frames[vid]}
+    tracks.write_text(csv_text(hs.HIGHD_TRACKS_HEADER, rows))
+    frames = Counter(row[hs.HIGHD_ID] for row in rows)  # numFrames: the track's rows
+    meta_rows = [{hs.HIGHD_ID: vid, hs.HIGHD_WIDTH: 4.0, hs.HIGHD_HEIGHT: 2.0, hs.HIGHD_CLASS: cls,
+                  hs.HIGHD_DRIVING_DIRECTION: direction, hs.HIGHD_NUM_FRAMES: frames[vid]}
                  for vid, (cls, direction) in vehicles.items()]  # fmt: skip
     (folder / f"{prefix}_tracksMeta.csv").write_text(
-        csv_text(s.HIGHD_TRACKS_META_HEADER, meta_rows)
+        csv_text(hs.HIGHD_TRACKS_META_HEADER, meta_rows)
     )
-    recording = {s.HIGHD_ID: number, s.HIGHD_FRAME_RATE: frame_rate, s.HIGHD_LOCATION_ID: location_id,
+    recording = {hs.HIGHD_ID: number, hs.HIGHD_FRAME_RATE: frame_rate, hs.HIGHD_LOCATION_ID: location_id,
                  "speedLimit": -1, "month": "09.2017", "weekDay": "Tue", "startTime": "08:38",
-                 s.HIGHD_UPPER_LANE_MARKINGS: ";".join(map(str, UPPER_MARKINGS)),
-                 s.HIGHD_LOWER_LANE_MARKINGS: ";".join(map(str, LOWER_MARKINGS))}  # fmt: skip
+                 hs.HIGHD_UPPER_LANE_MARKINGS: ";".join(map(str, UPPER_MARKINGS)),
+                 hs.HIGHD_LOWER_LANE_MARKINGS: ";".join(map(str, LOWER_MARKINGS))}  # fmt: skip
     (folder / f"{prefix}_recordingMeta.csv").write_text(
-        csv_text(s.HIGHD_RECORDING_META_HEADER, [recording])
+        csv_text(hs.HIGHD_RECORDING_META_HEADER, [recording])
     )
     return tracks
 

@@ -13,6 +13,7 @@ from test_cli_ngsim import assert_failed_cleanly, invoke, snapshot
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 N_VEHICLES, N_FRAMES = 10, 100
@@ -70,12 +71,12 @@ def test_stray_rows_beyond_the_share_fail_the_build(tmp_path: Path, rows: list[d
 
 
 def test_implausible_rows_are_counted_per_reason(tmp_path: Path, rows: list[dict]) -> None:
-    rows[120] = {**rows[120], s.V_VEL: 1e308}
-    rows[230] = {**rows[230], s.V_VEL: -3.0}
-    rows[340] = {**rows[340], s.V_ACC: 400.0}
-    rows[450] = {**rows[450], s.LOCAL_Y: rows[450][s.LOCAL_Y] + 3_280.0}  # a kilometre away
+    rows[120] = {**rows[120], ns.V_VEL: 1e308}
+    rows[230] = {**rows[230], ns.V_VEL: -3.0}
+    rows[340] = {**rows[340], ns.V_ACC: 400.0}
+    rows[450] = {**rows[450], ns.LOCAL_Y: rows[450][ns.LOCAL_Y] + 3_280.0}  # a kilometre away
     rows[560] = make_row(6, -2, local_x_ft=18.0)  # a negative Frame_ID (an IndexError on main)
-    rows[670] = {**rows[670], s.LOCAL_X: 1e7}
+    rows[670] = {**rows[670], ns.LOCAL_X: 1e7}
     path, out = (
         write_period_csv(tmp_path / "trajectories-0750am-0805am.csv", rows),
         tmp_path / "out",
@@ -127,11 +128,11 @@ def test_impossible_values_beside_the_motion_never_reach_the_tracks(
     # On main these five rows reached the tracks table: length 3e307 m, width -1.5 m, lane -3,
     # class 9, a time headway of -1e300 s.
     edits = {
-        120: {s.V_LENGTH: 1e308},
-        230: {s.V_WIDTH: -5.0},
+        120: {ns.V_LENGTH: 1e308},
+        230: {ns.V_WIDTH: -5.0},
         340: {s.LANE_ID: -3},
         450: {s.V_CLASS: 9},
-        560: {s.TIME_HEADWAY: -1e300},
+        560: {ns.TIME_HEADWAY: -1e300},
     }
     for i, edit in edits.items():
         rows[i] = {**rows[i], **edit}
@@ -162,13 +163,13 @@ def _i80(rows: list[dict]) -> list[dict]:
 
 
 def _swap_position_and_acceleration(row: dict) -> dict:
-    return {**row, s.GLOBAL_X: row[s.V_ACC], s.V_ACC: row[s.GLOBAL_X]}
+    return {**row, ns.GLOBAL_X: row[ns.V_ACC], ns.V_ACC: row[ns.GLOBAL_X]}
 
 
 @pytest.mark.parametrize(
     ("damage", "fragment"),
     [
-        (lambda row: {**row, s.V_VEL: 300.0}, "1,000 v_Vel negative or above the speed limit"),
+        (lambda row: {**row, ns.V_VEL: 300.0}, "1,000 v_Vel negative or above the speed limit"),
         (lambda row: {**row, s.FRAME_ID: row[s.FRAME_ID] + 80_000}, "1,000 Frame_ID out of range"),
         (lambda row: {**row, s.VEHICLE_ID: 0}, "1,000 Vehicle_ID below 1"),
         (_swap_position_and_acceleration, "1,000 v_Acc above the acceleration limit"),
@@ -244,8 +245,8 @@ def test_a_group_of_whole_vehicles_on_its_own_clock_is_a_recording(tmp_path: Pat
 
 
 def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict]) -> None:
-    rows[340] = {**rows[340], s.V_ACC: 400.0}
-    rows[450] = {**rows[450], s.LOCAL_Y: rows[450][s.LOCAL_Y] + 3_280.0}
+    rows[340] = {**rows[340], ns.V_ACC: 400.0}
+    rows[450] = {**rows[450], ns.LOCAL_Y: rows[450][ns.LOCAL_Y] + 3_280.0}
     path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
     assert invoke("build", path, "--out", out).exit_code == 0  # without --strict: dropped
     before = snapshot(out)
@@ -253,7 +254,7 @@ def test_strict_fails_on_the_first_dropped_row(tmp_path: Path, rows: list[dict])
     assert_failed_cleanly(
         result, out, before, path, "line 341: v_Acc above the acceleration limit (--strict"
     )
-    rows[340] = {**rows[340], s.V_ACC: 0.0}  # only the position outlier is left
+    rows[340] = {**rows[340], ns.V_ACC: 0.0}  # only the position outlier is left
     write_txt(path, rows)
     result = invoke("build", path, "--out", out, "--overwrite", "--strict")
     assert_failed_cleanly(result, out, before, path, "line 451: position jumps away")
@@ -282,7 +283,7 @@ def test_all_odd_frame_ids_are_an_error_that_says_why(tmp_path: Path, rows: list
         }
         for r in rows
     ]
-    odd = [{**r, s.LOCAL_Y: r[s.LOCAL_Y] + 3.5 * (r[s.FRAME_ID] // 2 + 1)} for r in odd]
+    odd = [{**r, ns.LOCAL_Y: r[ns.LOCAL_Y] + 3.5 * (r[s.FRAME_ID] // 2 + 1)} for r in odd]
     path, out = write_txt(tmp_path / "a.txt", odd), tmp_path / "out"
     assert_failed_cleanly(
         invoke("build", path, "--out", out), out, {}, path, "no samples", "none of the 1,000 rows kept",
@@ -439,7 +440,7 @@ def test_a_displaced_burst_is_dropped_and_a_displaced_stretch_is_said(
 ) -> None:
     # Vehicle 6 (rows 500..599): frames 40 and 41 displaced 500 ft, frames 70..99 displaced too.
     for i in (540, 541, *range(570, 600)):
-        rows[i] = {**rows[i], s.LOCAL_Y: rows[i][s.LOCAL_Y] + 500.0}
+        rows[i] = {**rows[i], ns.LOCAL_Y: rows[i][ns.LOCAL_Y] + 500.0}
     path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
@@ -461,7 +462,7 @@ def test_files_of_locations_left_out_are_not_checked(tmp_path: Path, rows: list[
         for v in (1, 2)
         for f in range(100)
     ]
-    i80[30] = {**i80[30], s.V_VEL: -5.0}  # implausible, but of i-80
+    i80[30] = {**i80[30], ns.V_VEL: -5.0}  # implausible, but of i-80
     i80[60] = {**i80[60], s.GLOBAL_TIME: i80[60][s.GLOBAL_TIME] + 100}  # a stray, of i-80 too
     raw = tmp_path / "raw"
     write_txt(raw / "trajectories-0750am-0805am.txt", rows)

@@ -21,6 +21,7 @@ from typer.testing import CliRunner, Result
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.synth.formats import write_synthetic
 
 # A wide terminal so that table cells are not cut; errors are checked on a narrow one (they must
@@ -102,7 +103,7 @@ def _rewrite_csv(path: Path, edit: Callable[[list[list[str]]], None]) -> Path:
 
 
 def test_missing_column(tmp_path: Path, rows: list[dict]) -> None:
-    header = tuple(name for name in s.PERIOD_CSV_HEADER if name != "Local_Y")
+    header = tuple(name for name in ns.PERIOD_CSV_HEADER if name != "Local_Y")
     path = write_period_csv(tmp_path / "a.csv", rows, header=header)
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out, env=NARROW)
@@ -112,14 +113,14 @@ def test_missing_column(tmp_path: Path, rows: list[dict]) -> None:
 def test_missing_column_hint_does_not_suggest_another_required_column(
     tmp_path: Path, rows: list[dict]
 ) -> None:
-    header = tuple(name for name in s.PERIOD_CSV_HEADER if name != "Local_Y")
+    header = tuple(name for name in ns.PERIOD_CSV_HEADER if name != "Local_Y")
     path = write_period_csv(tmp_path / "a.csv", rows, header=header)
     line = error_line(invoke("build", path, "--out", tmp_path / "out"))
     assert "local_x" not in line.lower()
 
 
 def test_misspelled_column_names_the_found_header(tmp_path: Path, rows: list[dict]) -> None:
-    header = tuple("Lcal_Y" if name == "Local_Y" else name for name in s.PERIOD_CSV_HEADER)
+    header = tuple("Lcal_Y" if name == "Local_Y" else name for name in ns.PERIOD_CSV_HEADER)
     path = write_period_csv(tmp_path / "a.csv", rows, header=header)
     out = tmp_path / "out"
     result = invoke("build", path, "--out", out, env=NARROW)
@@ -128,7 +129,7 @@ def test_misspelled_column_names_the_found_header(tmp_path: Path, rows: list[dic
 
 
 def test_misspelled_column_hint_keeps_the_file_spelling(tmp_path: Path, rows: list[dict]) -> None:
-    header = tuple("Lcal_Y" if name == "Local_Y" else name for name in s.PERIOD_CSV_HEADER)
+    header = tuple("Lcal_Y" if name == "Local_Y" else name for name in ns.PERIOD_CSV_HEADER)
     path = write_period_csv(tmp_path / "a.csv", rows, header=header)
     assert "'Lcal_Y'" in error_line(invoke("build", path, "--out", tmp_path / "out"))
 
@@ -137,7 +138,7 @@ def test_misspelled_column_hint_keeps_the_file_spelling(tmp_path: Path, rows: li
 def test_non_numeric_value_names_line_and_column(
     tmp_path: Path, rows: list[dict], fmt: str
 ) -> None:
-    rows[6] = {**rows[6], s.LOCAL_Y: "abc"}  # data row 7
+    rows[6] = {**rows[6], ns.LOCAL_Y: "abc"}  # data row 7
     if fmt == "txt":
         path, line_no = write_txt(tmp_path / "a.txt", rows), 7
     elif fmt == "csv":
@@ -152,7 +153,7 @@ def test_non_numeric_value_names_line_and_column(
 
 
 def test_non_numeric_value_line_counts_blank_lines(tmp_path: Path, rows: list[dict]) -> None:
-    rows[6] = {**rows[6], s.LOCAL_Y: "abc"}
+    rows[6] = {**rows[6], ns.LOCAL_Y: "abc"}
     path = write_period_csv(tmp_path / "a.csv", rows)
     lines = path.read_text().split("\n")
     lines.insert(3, "")  # a blank line 4 moves the bad row from line 8 to line 9

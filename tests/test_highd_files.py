@@ -19,10 +19,9 @@ from highd_fixtures import (
 )
 from test_cli_ngsim import assert_failed_cleanly, invoke
 
-from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.schema import HighdFile
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import (
     find_highd_files,
     read_recording_meta,
@@ -30,6 +29,7 @@ from ngsim_graphs.sources.highd.files import (
     read_tracks_meta,
     sniff_highd,
 )
+from ngsim_graphs.sources.highd.schema import HighdFile
 
 
 def test_the_header_tells_the_three_files_apart(tmp_path: Path) -> None:
@@ -80,9 +80,9 @@ def test_a_tracks_file_needs_its_recording_number_in_its_name(tmp_path: Path) ->
 
 
 def test_a_missing_column_is_named_with_a_hint(tmp_path: Path) -> None:
-    header = tuple("xVelocty" if c == s.HIGHD_X_VELOCITY else c for c in s.HIGHD_TRACKS_HEADER)
+    header = tuple("xVelocty" if c == hs.HIGHD_X_VELOCITY else c for c in hs.HIGHD_TRACKS_HEADER)
     path = tmp_path / "01_tracks.csv"
-    path.write_text(csv_text(header, [{s.HIGHD_FRAME: 1, s.HIGHD_ID: 1}]))
+    path.write_text(csv_text(header, [{hs.HIGHD_FRAME: 1, hs.HIGHD_ID: 1}]))
     with pytest.raises(
         NgsimInputError,
         match=r"line 1: missing column xVelocity \(found 'xVelocty': misspelled\?\)",
@@ -92,16 +92,16 @@ def test_a_missing_column_is_named_with_a_hint(tmp_path: Path) -> None:
 
 def test_a_bad_number_names_the_file_the_line_and_the_column(tmp_path: Path) -> None:
     rows = track_rows(1, range(1, 6), x0=100.0, y=19.0, x_velocity=25.0)
-    rows[3][s.HIGHD_X] = "10O.5"  # a letter O: line 5 (the header is line 1)
+    rows[3][hs.HIGHD_X] = "10O.5"  # a letter O: line 5 (the header is line 1)
     path = tmp_path / "01_tracks.csv"
-    path.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
+    path.write_text(csv_text(hs.HIGHD_TRACKS_HEADER, rows))
     with pytest.raises(
         NgsimInputError, match=r"01_tracks\.csv, line 5: column x: '10O\.5' is not a number"
     ):
         read_tracks(path)
-    rows[3][s.HIGHD_X] = 100.0
-    rows[1][s.HIGHD_FRAME] = 2.5
-    path.write_text(csv_text(s.HIGHD_TRACKS_HEADER, rows))
+    rows[3][hs.HIGHD_X] = 100.0
+    rows[1][hs.HIGHD_FRAME] = 2.5
+    path.write_text(csv_text(hs.HIGHD_TRACKS_HEADER, rows))
     with pytest.raises(
         NgsimInputError, match=r"line 3: column frame: '2\.5' is not a whole number"
     ):
@@ -113,11 +113,11 @@ def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> Non
     path.write_text("")
     with pytest.raises(NgsimInputError, match="empty file"):
         read_tracks(path)
-    path.write_text(",".join(s.HIGHD_TRACKS_HEADER) + "\n")
+    path.write_text(",".join(hs.HIGHD_TRACKS_HEADER) + "\n")
     with pytest.raises(NgsimInputError, match="no data rows"):
         read_tracks(path)
     text = csv_text(
-        s.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
+        hs.HIGHD_TRACKS_HEADER, track_rows(1, range(1, 4), x0=100.0, y=19.0, x_velocity=25.0)
     )
     short = text[: text.rindex(",", 0, len(text) - 12)]  # the last line cut short
     path.write_text(short + "\n")
@@ -189,11 +189,11 @@ def test_tracks_meta_maps_classes_to_ngsim_codes(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("column", "markings", "problem"),
     [
-        (s.HIGHD_LOWER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
-        (s.HIGHD_LOWER_LANE_MARKINGS, "nan;1;2", "'nan' is not a finite number"),
-        (s.HIGHD_LOWER_LANE_MARKINGS, "-inf;0;1", "'-inf' is not a finite number"),
-        (s.HIGHD_UPPER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
-        (s.HIGHD_UPPER_LANE_MARKINGS, "8.0;11.5;19.0", "upperLaneMarkings end at image y 19"),
+        (hs.HIGHD_LOWER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
+        (hs.HIGHD_LOWER_LANE_MARKINGS, "nan;1;2", "'nan' is not a finite number"),
+        (hs.HIGHD_LOWER_LANE_MARKINGS, "-inf;0;1", "'-inf' is not a finite number"),
+        (hs.HIGHD_UPPER_LANE_MARKINGS, "1e308;2e308", "'1e308' lies beyond the position limit"),
+        (hs.HIGHD_UPPER_LANE_MARKINGS, "8.0;11.5;19.0", "upperLaneMarkings end at image y 19"),
     ],
 )
 def test_build_refuses_implausible_lane_markings(
@@ -221,10 +221,10 @@ def _damage_header(path: Path, column: str) -> None:
 @pytest.mark.parametrize(
     ("kind", "column"),
     [
-        (HighdFile.TRACKS, s.HIGHD_X_VELOCITY),
-        (HighdFile.TRACKS, s.HIGHD_LANE_ID),
-        (HighdFile.TRACKS_META, s.HIGHD_DRIVING_DIRECTION),
-        (HighdFile.RECORDING_META, s.HIGHD_FRAME_RATE),
+        (HighdFile.TRACKS, hs.HIGHD_X_VELOCITY),
+        (HighdFile.TRACKS, hs.HIGHD_LANE_ID),
+        (HighdFile.TRACKS_META, hs.HIGHD_DRIVING_DIRECTION),
+        (HighdFile.RECORDING_META, hs.HIGHD_FRAME_RATE),
     ],
 )
 @pytest.mark.parametrize("with_ngsim", [False, True])
@@ -260,7 +260,7 @@ def test_a_file_cut_inside_its_last_field_is_refused(
 ) -> None:
     # On earlier versions each built (exit 0): the cut keeps the number of fields.
     rows = two_directions_rows(LONG)
-    rows[-1][s.HIGHD_LANE_ID] = 12
+    rows[-1][hs.HIGHD_LANE_ID] = 12
     write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
     path = tmp_path / "raw" / f"01_{kind.value}.csv"
     text = path.read_bytes()

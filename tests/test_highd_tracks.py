@@ -26,10 +26,11 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.cleaning import DESCRIPTIONS
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.tracks import build_tracks, read_file
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
-from ngsim_graphs.sources.ngsim.plausibility import DESCRIPTIONS
-from ngsim_graphs.sources.registry import choose_source
+from ngsim_graphs.sources.registry import check_locations, choose_source
 
 KEY = ("highd-2", "01")
 DEFAULT = BuildConfig()
@@ -69,8 +70,8 @@ def test_a_left_lane_change_lowers_x_in_both_directions(tmp_path: Path) -> None:
     lower = track_rows(1, range(1, 101), x0=100.0, y=22.0, x_velocity=25.0, laneId=6)
     upper = track_rows(2, range(1, 101), x0=400.0, y=9.0, x_velocity=-25.0, laneId=2)
     for i, (a, b) in enumerate(zip(lower, upper, strict=True)):
-        a[s.HIGHD_Y] = 22.0 - 0.02 * i  # up the image: towards the median above the lower lanes
-        b[s.HIGHD_Y] = 9.0 + 0.02 * i  # down the image: towards the median below the upper lanes
+        a[hs.HIGHD_Y] = 22.0 - 0.02 * i  # up the image: towards the median above the lower lanes
+        b[hs.HIGHD_Y] = 9.0 + 0.02 * i  # down the image: towards the median below the upper lanes
     tracks, _ = tracks_of(write_recording(tmp_path, lower + upper, {1: ("Car", 2), 2: ("Car", 1)}))
     for vehicle in (1, 2):
         one = tracks.filter(pl.col(s.VEHICLE_ID) == vehicle)
@@ -121,8 +122,8 @@ def test_duplicates_are_dropped_and_counted(tmp_path: Path) -> None:
 
 def test_rows_beyond_the_limits_are_dropped_counted_and_reported(tmp_path: Path) -> None:
     rows = track_rows(1, range(1, 201), x0=100.0, y=19.0, x_velocity=25.0)
-    rows[9][s.HIGHD_X_VELOCITY] = 90.0  # line 11: beyond 70 m/s
-    rows[19][s.HIGHD_X] = ""  # line 21: an empty required field
+    rows[9][hs.HIGHD_X_VELOCITY] = 90.0  # line 11: beyond 70 m/s
+    rows[19][hs.HIGHD_X] = ""  # line 21: an empty required field
     path = write_recording(tmp_path, rows, {1: ("Car", 2)})
     report = read_file(path, BuildConfig(), 0, False).report
     assert report.rows_dropped[DropReason.SPEED.value] == 1
@@ -130,7 +131,7 @@ def test_rows_beyond_the_limits_are_dropped_counted_and_reported(tmp_path: Path)
     assert (report.rows_read, report.rows_missing_values, report.first_missing_line) == (200, 1, 21)
     with pytest.raises(NgsimInputError, match=r"01_tracks\.csv, line 11: .*--strict"):
         read_file(path, BuildConfig(), 0, True)
-    rows[29][s.HIGHD_X_VELOCITY] = 90.0  # 2 of 199 rows: more than 1 %
+    rows[29][hs.HIGHD_X_VELOCITY] = 90.0  # 2 of 199 rows: more than 1 %
     with pytest.raises(NgsimInputError, match=r"2 of 199 rows \(1\.0%\) are implausible"):
         read_file(write_recording(tmp_path, rows, {1: ("Car", 2)}), BuildConfig(), 0, False)
 
@@ -158,8 +159,11 @@ def test_the_location_filter_names_highd_locations_or_keeps_them_all(tmp_path: P
         other.recordings == {}
         and other.report.rows_other_locations == other.report.rows_read == 600
     )
-    with pytest.raises(ValueError, match="unknown location"):
-        BuildConfig(locations=("highd-x",))
+    with pytest.raises(
+        ValueError, match=r"unknown location\(s\) \['highd-x'\]; choose from us-101"
+    ):
+        check_locations(("us-101", "highd-x"))
+    check_locations(("us-101", "highd-7"))  # each a location of some source
 
 
 def test_detection_from_content(tmp_path: Path) -> None:
@@ -204,7 +208,7 @@ def test_positions_in_other_units_than_the_speeds_fail_the_build(tmp_path: Path)
     # x in feet: the positions move 3.28 times as fast as xVelocity says (built on earlier
     # versions, exit 0).
     rows = [
-        {**row, s.HIGHD_X: round(row[s.HIGHD_X] / FEET_TO_M, 3)}
+        {**row, hs.HIGHD_X: round(row[hs.HIGHD_X] / FEET_TO_M, 3)}
         for row in two_directions_rows(LONG)
     ]
     path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
@@ -269,15 +273,15 @@ def test_every_column_that_reaches_the_tracks_table_is_checked(tmp_path: Path) -
     # On earlier versions each of these reached the tracks table (a length of 1e308 m, lane -3).
     rows = two_directions_rows(LONG)
     bad = {
-        10: {s.HIGHD_WIDTH: 1e308},  # line 12 (row i is on line i + 2): 1e308 m long
-        20: {s.HIGHD_HEIGHT: -5.0},
-        30: {s.HIGHD_LANE_ID: -3},  # line 32
-        40: {s.HIGHD_LANE_ID: 300},
-        50: {s.HIGHD_DHW: -1.0, s.HIGHD_PRECEDING_ID: 2},  # line 52
-        60: {s.HIGHD_THW: 1e300, s.HIGHD_PRECEDING_ID: 2},
-        70: {s.HIGHD_PRECEDING_ID: -2},
-        80: {s.HIGHD_FOLLOWING_ID: -1},
-        90: {s.HIGHD_DHW: 30.0},  # a headway, but precedingId 0: no leader
+        10: {hs.HIGHD_WIDTH: 1e308},  # line 12 (row i is on line i + 2): 1e308 m long
+        20: {hs.HIGHD_HEIGHT: -5.0},
+        30: {hs.HIGHD_LANE_ID: -3},  # line 32
+        40: {hs.HIGHD_LANE_ID: 300},
+        50: {hs.HIGHD_DHW: -1.0, hs.HIGHD_PRECEDING_ID: 2},  # line 52
+        60: {hs.HIGHD_THW: 1e300, hs.HIGHD_PRECEDING_ID: 2},
+        70: {hs.HIGHD_PRECEDING_ID: -2},
+        80: {hs.HIGHD_FOLLOWING_ID: -1},
+        90: {hs.HIGHD_DHW: 30.0},  # a headway, but precedingId 0: no leader
     }
     for index, values in bad.items():
         rows[index].update(values)

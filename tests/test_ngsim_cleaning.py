@@ -7,17 +7,18 @@ import pytest
 from conftest import make_row
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.sources.cleaning import drop_duplicate_rows, split_at_gaps
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
+    CONFLICT_ORDER,
     FEET_TO_M,
-    drop_duplicate_rows,
     is_complete,
-    split_at_gaps,
     to_si_units,
 )
 
 
 def raw(rows: list[dict]) -> pl.DataFrame:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
     return frame.with_columns(pl.lit("us-101").alias(s.LOCATION), pl.lit("p").alias(s.PERIOD))
 
 
@@ -36,9 +37,9 @@ def test_exact_and_conflicting_duplicates() -> None:
         make_row(2, 0, local_y_ft=10.0, local_x_ft=20.0),
         make_row(2, 0, local_y_ft=10.0, local_x_ft=19.0),  # conflicts: tie on y, smaller x wins
     ]
-    kept, exact, conflicting = drop_duplicate_rows(raw(rows))
+    kept, exact, conflicting = drop_duplicate_rows(raw(rows), CONFLICT_ORDER)
     assert (exact, conflicting) == (1, 2)
-    assert kept.select(s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_Y, s.LOCAL_X).rows() == [
+    assert kept.select(s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_Y, ns.LOCAL_X).rows() == [
         (1, 0, 49.0, 18.0),
         (1, 1, 100.0, 18.0),
         (2, 0, 10.0, 19.0),
@@ -52,11 +53,13 @@ def test_duplicate_rule_does_not_depend_on_row_order() -> None:
         for f in range(5)
         for d in (0.0, 0.7, 0.3)
     ]
-    forward = drop_duplicate_rows(raw(rows))[0]
-    backward = drop_duplicate_rows(raw(rows[::-1]))[0]
-    shuffled = drop_duplicate_rows(raw(rows).sample(fraction=1.0, shuffle=True, seed=3))[0]
+    forward = drop_duplicate_rows(raw(rows), CONFLICT_ORDER)[0]
+    backward = drop_duplicate_rows(raw(rows[::-1]), CONFLICT_ORDER)[0]
+    shuffled = drop_duplicate_rows(
+        raw(rows).sample(fraction=1.0, shuffle=True, seed=3), CONFLICT_ORDER
+    )[0]
     assert forward.equals(backward) and forward.equals(shuffled)
-    assert forward[s.LOCAL_Y].to_list() == [0.0, 10.0, 20.0, 30.0, 40.0] * 2
+    assert forward[ns.LOCAL_Y].to_list() == [0.0, 10.0, 20.0, 30.0, 40.0] * 2
 
 
 def test_tracks_split_at_frame_gaps() -> None:

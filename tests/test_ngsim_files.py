@@ -11,7 +11,9 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim import files
-from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file, sniff_format
+from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.sources.ngsim.files import ROW, read_raw_file
+from ngsim_graphs.sources.ngsim.formats import find_raw_files, sniff_format
 
 US = ("us-101", "i-80")
 
@@ -54,7 +56,7 @@ def test_three_formats_parse_to_the_same_values(tmp_path: Path) -> None:
     text = values(write_txt(tmp_path / "t.txt", rows))
     assert portal == period == text
     assert text[-1][:2] == (8, 2)
-    assert text[-1][s.TXT_COLUMNS.index(s.LOCAL_Y)] == 1156.25
+    assert text[-1][ns.TXT_COLUMNS.index(ns.LOCAL_Y)] == 1156.25
 
 
 def test_portal_quirks_bom_crlf_and_quoted_thousands(tmp_path: Path) -> None:
@@ -62,23 +64,23 @@ def test_portal_quirks_bom_crlf_and_quoted_thousands(tmp_path: Path) -> None:
     raw = path.read_bytes()
     assert raw.startswith(b"\xef\xbb\xbf") and b"\r\n" in raw and b'"1,156"' in raw
     frame = read_raw_file(path, US).frame.collect()
-    assert frame[s.LOCAL_Y].to_list() == [1156.0]
-    assert frame[s.TIME_HEADWAY].to_list() == [9999.99]  # was "9,999.99"
-    assert frame[s.GLOBAL_TIME].dtype == s.RAW_SCHEMA[s.GLOBAL_TIME]
+    assert frame[ns.LOCAL_Y].to_list() == [1156.0]
+    assert frame[ns.TIME_HEADWAY].to_list() == [9999.99]  # was "9,999.99"
+    assert frame[s.GLOBAL_TIME].dtype == ns.RAW_SCHEMA[s.GLOBAL_TIME]
     assert frame[s.LOCATION].to_list() == ["us-101"]
 
 
 def test_header_spelling_and_case_variants(tmp_path: Path) -> None:
     header = tuple(
         {"v_length": "v_Length", "Vehicle_ID": "VEHICLE_ID", "Local_Y": "local_y"}.get(h, h)
-        for h in s.PERIOD_CSV_HEADER
+        for h in ns.PERIOD_CSV_HEADER
     )
     path = write_period_csv(
         tmp_path / "c.csv", straight_track(3, range(2)), header=header, crlf=True
     )
     frame = read_raw_file(path, US).frame.collect()
     assert frame[s.VEHICLE_ID].to_list() == [3, 3]
-    assert frame[s.V_LENGTH].to_list() == [15.0, 15.0]
+    assert frame[ns.V_LENGTH].to_list() == [15.0, 15.0]
 
 
 def test_text_with_padding_blank_lines_and_no_final_newline(tmp_path: Path) -> None:
@@ -117,8 +119,8 @@ def test_chunks_that_start_with_blank_lines_keep_line_numbers_true(
 def test_empty_fields_become_null(tmp_path: Path) -> None:
     rows = [make_row(1, 0), make_row(1, 1, v_acc=None, local_x=None)]
     frame = read_raw_file(write_portal(tmp_path / "p.csv", rows), US).frame.collect()
-    assert frame[s.V_ACC].to_list() == [0.0, None]
-    assert frame[s.LOCAL_X].to_list() == [18.0, None]
+    assert frame[ns.V_ACC].to_list() == [0.0, None]
+    assert frame[ns.LOCAL_X].to_list() == [18.0, None]
 
 
 def test_location_filter_counts_and_keeps_chosen(tmp_path: Path) -> None:
@@ -140,7 +142,7 @@ def test_file_without_chosen_locations_names_those_it_holds(tmp_path: Path) -> N
 
 def test_malformed_number_names_line_and_column(tmp_path: Path) -> None:
     rows = straight_track(1, range(4))
-    rows[2][s.V_VEL] = "3O.5"  # letter O for zero
+    rows[2][ns.V_VEL] = "3O.5"  # letter O for zero
     for path, line in (
         (write_portal(tmp_path / "p.csv", rows), 4),
         (write_txt(tmp_path / "t.txt", rows), 3),
@@ -174,7 +176,7 @@ def test_more_fields_than_header_is_an_error(tmp_path: Path) -> None:
 
 
 def test_missing_and_misspelled_columns(tmp_path: Path) -> None:
-    header = tuple("Lcal_Y" if h == "Local_Y" else h for h in s.PERIOD_CSV_HEADER)
+    header = tuple("Lcal_Y" if h == "Local_Y" else h for h in ns.PERIOD_CSV_HEADER)
     path = write_period_csv(tmp_path / "c.csv", [make_row(1, 0)], header=header)
     with pytest.raises(NgsimInputError, match=r"line 1: missing column Local_Y \(found 'Lcal_Y'"):
         read_raw_file(path, US)

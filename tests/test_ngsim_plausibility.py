@@ -2,23 +2,18 @@
 
 from __future__ import annotations
 
-import numpy as np
 import polars as pl
-import pytest
 from conftest import make_row, straight_track
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig, PhysicalLimits
-from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import DropReason
-from ngsim_graphs.sources.ngsim import plausibility
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.plausibility import (
-    check_dropped,
     jump_rows,
     outlier_rows,
     passes_row_checks,
     row_drop_reason,
-    speed_medians,
 )
 from ngsim_graphs.sources.ngsim.tracks import build_tracks
 
@@ -27,7 +22,7 @@ LIMITS = PhysicalLimits()
 
 
 def reasons(rows: list[dict]) -> list[str | None]:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
     found = frame.select(row_drop_reason(LIMITS)).to_series().to_list()
     passes = frame.select(passes_row_checks(LIMITS)).to_series().to_list()
     assert passes == [reason is None for reason in found]  # the cheap test, row by row
@@ -102,14 +97,14 @@ def test_a_row_counts_under_its_first_failed_check() -> None:
 
 
 def _flags(rows: list[dict]) -> tuple[list[bool], list[bool]]:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA).sort(s.VEHICLE_ID, s.FRAME_ID)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA).sort(s.VEHICLE_ID, s.FRAME_ID)
     return outlier_rows(frame, LIMITS).to_list(), jump_rows(frame, LIMITS).to_list()
 
 
 def test_one_displaced_row_is_an_outlier_wherever_it_is() -> None:
     for bad in (0, 4, 9):  # first, middle, last frame
         rows = straight_track(1, range(10))
-        rows[bad] = {**rows[bad], s.LOCAL_Y: rows[bad][s.LOCAL_Y] + 3_280.0}  # 1 km away
+        rows[bad] = {**rows[bad], ns.LOCAL_Y: rows[bad][ns.LOCAL_Y] + 3_280.0}  # 1 km away
         outlier, _ = _flags(rows)
         assert outlier == [i == bad for i in range(10)], bad
 
@@ -125,7 +120,7 @@ def test_a_short_displaced_burst_is_an_outlier_a_long_one_a_jump() -> None:
         outlier, jump = _flags(rows)
         assert [f for f in range(30) if outlier[f]] == outliers
         assert [f for f in range(30) if jump[f]] == [10, last + 1]  # before any row is dropped
-        frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+        frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
         _, report = build_tracks(frame, ("us-101", "0750am-0805am"), BuildConfig(), 0)
         assert (report.position_outliers, report.position_jumps) == (
             len(outliers),
@@ -159,9 +154,9 @@ def test_tracks_drop_outliers_and_split_at_jumps() -> None:
     # Vehicle 1, frames 0..19 at 3 ft per frame; frame 8 displaced 1 km (an outlier); from frame
     # 14 on the whole record is 1 km further (a jump): tracks [0..7], [9..13], [14..19].
     rows = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if f >= 14 else 0.0)) for f in range(20)]
-    rows[8] = {**rows[8], s.LOCAL_Y: 9_999.0}
+    rows[8] = {**rows[8], ns.LOCAL_Y: 9_999.0}
     key = ("us-101", "0750am-0805am")
-    tracks, report = build_tracks(pl.DataFrame(rows, schema=s.RAW_SCHEMA), key, BuildConfig(), 0)
+    tracks, report = build_tracks(pl.DataFrame(rows, schema=ns.RAW_SCHEMA), key, BuildConfig(), 0)
     assert (report.rows, report.position_outliers, report.position_jumps, report.gaps) == (
         20,
         1,
@@ -175,69 +170,3 @@ def test_tracks_drop_outliers_and_split_at_jumps() -> None:
         (2, [14, 16, 18]),
     ]
     assert report.first_outlier is None  # rows without provenance columns
-
-
-def test_check_dropped_share_and_strict() -> None:
-    reason = DropReason.SPEED.value
-    check_dropped("f.txt", {reason: 1}, {reason: 7}, 100, LIMITS, strict=False)  # 1 %: allowed
-    check_dropped("f.txt", {reason: 0}, {}, 100, LIMITS, strict=True)  # nothing dropped
-    with pytest.raises(
-        NgsimInputError, match=r"^f\.txt: 2 of 100 rows \(2\.0%\) are implausible.*line 7"
-    ):
-        check_dropped("f.txt", {reason: 2}, {reason: 7}, 100, LIMITS, strict=False)
-    with pytest.raises(NgsimInputError, match=r"^f\.txt, line 7: v_Vel negative .*--strict"):
-        check_dropped("f.txt", {reason: 1}, {reason: 7}, 100, LIMITS, strict=True)
-
-
-def sample_values(kind: str, rng: np.random.Generator, n: int) -> np.ndarray:
-    if kind == "normal":
-        return rng.normal(0, 1, n)
-    if kind == "few values":
-        return rng.integers(0, 4, n).astype(float)
-    if kind == "wide":
-        return np.exp(rng.normal(0, 20, n))
-    if kind == "huge":
-        return rng.uniform(-1e300, 1e300, n)
-    return np.round(rng.normal(30, 10, n), 2)  # feet per second, as NGSIM writes them
-
-
-@pytest.mark.parametrize("kind", ["normal", "few values", "wide", "huge", "cents"])
-def test_a_streamed_median_is_polars_median_exactly(
-    kind: str, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Against Polars' median of all the values at once, to the bit: even and odd counts, many
-    equal values, ranges of 1e-40 to 1e40 and of 2e300 (no bins narrow it), with at most 50
-    values held and histograms of 8 bins (the narrowing runs many rounds)."""
-    monkeypatch.setattr(plausibility, "MEDIAN_HELD_VALUES", 50)
-    monkeypatch.setattr(plausibility, "MEDIAN_BINS", 8)
-    rng = np.random.default_rng(len(kind))
-    for n in [1, 2, 3, 51, 400, 1_001, 2_000]:
-        column = pl.Series("x", sample_values(kind, rng, n))
-        assert plausibility.streamed_median(column.to_frame().lazy()) == column.median()
-
-
-def test_a_streamed_median_leaves_nulls_out_and_takes_nan_and_float32_as_polars_does() -> None:
-    frame = pl.DataFrame({"x": [3.0, None, 1.0, None, 2.0, 10.0]})
-    assert plausibility.streamed_median(frame.lazy()) == 2.5
-    assert (
-        plausibility.streamed_median(
-            pl.DataFrame({"x": [None, None]}, schema={"x": pl.Float64}).lazy()
-        )
-        is None
-    )
-    single = pl.Series("x", np.random.default_rng(3).normal(0, 1, 1_000), dtype=pl.Float32)
-    assert plausibility.streamed_median(single.to_frame().lazy()) == single.median()
-    with_nan = pl.DataFrame({"x": [3.0, float("nan"), 1.0]})
-    assert plausibility.streamed_median(with_nan.lazy()) == with_nan["x"].median() == 3.0
-
-
-def test_speed_medians_of_a_lazy_table_are_polars_medians() -> None:
-    rng = np.random.default_rng(9)
-    compared = pl.DataFrame({"shown": rng.uniform(0, 90, 3_001), "vel": rng.uniform(0, 90, 3_001)})
-    mismatch, shown, rows = speed_medians(compared.lazy())
-    expected = (compared["vel"] - compared["shown"]).abs().median()
-    assert (mismatch, shown, rows) == (
-        expected * FT,
-        compared["shown"].median() * FT,
-        3_001,
-    )

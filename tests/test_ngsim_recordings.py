@@ -10,6 +10,7 @@ from conftest import I80_FIRST, US101_FIRST, US101_SECOND, make_row
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import (
     MIN_CLOCK_VEHICLES,
     OFFICIAL_RECORDINGS,
@@ -22,7 +23,7 @@ from ngsim_graphs.sources.ngsim.recordings import (
 
 
 def frame_of(rows: list[dict], locations: list[str | None]) -> pl.DataFrame:
-    frame = pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    frame = pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
     return frame.with_columns(pl.Series(s.LOCATION, locations, dtype=pl.String))
 
 

@@ -13,18 +13,20 @@ from polars.testing import assert_frame_equal
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.sources.ngsim import files
+from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.ngsim.tracks import (
     build_tracks,
-    joined_report,
     read_file_recordings,
     vehicle_tracks,
 )
+from ngsim_graphs.sources.speeds import joined_report
 
 KEY = ("us-101", "0750am-0805am")
 
 
 def raw(rows: list[dict]) -> pl.DataFrame:
-    return pl.DataFrame(rows, schema=s.RAW_SCHEMA)
+    return pl.DataFrame(rows, schema=ns.RAW_SCHEMA)
 
 
 def test_tracks_of_one_recording_by_hand() -> None:
@@ -64,7 +66,7 @@ def test_file_rows_split_by_recording(tmp_path: Path) -> None:
     report = read.report
     assert sorted(read.recordings) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
     first = read.recording_rows(("us-101", "0750am-0805am")).collect()
-    assert first.columns == [*s.RAW_SCHEMA.names(), *s.PROVENANCE_SCHEMA.names()]
+    assert first.columns == [*ns.RAW_SCHEMA.names(), *s.PROVENANCE_SCHEMA.names()]
     assert first.height == 4
     assert read.recording_rows(("us-101", "0805am-0820am")).collect().height == 2
     assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")
@@ -101,9 +103,9 @@ def test_a_recording_cleaned_a_part_of_its_vehicles_at_a_time_is_cleaned_alike()
     {1, 2}, {3} (numbered on from the first part's tracks) the tracks and every count of the
     report are those of all three at once, the medians too."""
     v1 = [make_row(1, f, local_y_ft=3.0 * f + (3_280.0 if f >= 20 else 0.0)) for f in range(30)]
-    v1[8] = {**v1[8], s.LOCAL_Y: 9_999.0}
+    v1[8] = {**v1[8], ns.LOCAL_Y: 9_999.0}
     v2 = [make_row(2, f, local_x_ft=30.0, local_y_ft=2.5 * f) for f in (*range(12), *range(15, 27))]
-    v2 += [v2[3], {**v2[5], s.V_VEL: 31.0}]
+    v2 += [v2[3], {**v2[5], ns.V_VEL: 31.0}]
     v3 = [make_row(3, f, local_y_ft=4.0 * f, v_vel_fps=39.0 + f % 3) for f in range(23)]
     rows = raw(v1 + v2 + v3).with_columns(
         pl.lit(0, pl.UInt16).alias(s.SOURCE_FILE),
@@ -121,5 +123,5 @@ def test_a_recording_cleaned_a_part_of_its_vehicles_at_a_time_is_cleaned_alike()
     first = vehicle_tracks(pl.concat([by_vehicle[(2,)], by_vehicle[(1,)]]), KEY, config, 0)
     second = vehicle_tracks(by_vehicle[(3,)], KEY, config, first.report.tracks)
     assert (first.report.tracks, second.report.tracks) == (5, 1)
-    assert joined_report([first, second], KEY) == report
+    assert joined_report([first, second], KEY, FEET_TO_M) == report
     assert_frame_equal(pl.concat([first.tracks, second.tracks]), whole)

@@ -30,6 +30,7 @@ from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.lock import lock_path, partial_path
 from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.synth.formats import write_synthetic
 
 FT = 0.3048
@@ -71,8 +72,8 @@ def portal_rows() -> list[dict]:
     v1 = straight_track(1, [f for f in range(10, 40) if f not in (20, 21)], x_ft=6.0, lane_id=1)
     v2 = straight_track(2, range(10, 40), x_ft=18.0, speed_fps=40.0)
     exact = dict(v2[5])
-    conflicting = {**v2[6], s.LOCAL_Y: v2[6][s.LOCAL_Y] + 1000.0}
-    empty = make_row(3, 10, **{s.LOCAL_Y: None})  # type: ignore[arg-type]
+    conflicting = {**v2[6], ns.LOCAL_Y: v2[6][ns.LOCAL_Y] + 1000.0}
+    empty = make_row(3, 10, **{ns.LOCAL_Y: None})  # type: ignore[arg-type]
     other = make_row(9, 10)
     rows = v1 + v2 + [exact, conflicting, empty, other]
     return [*zip(rows, ["us-101"] * (len(rows) - 1) + ["lankershim"], strict=True)]

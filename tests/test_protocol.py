@@ -24,6 +24,7 @@ from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.graphs import induce_graphs
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.tracks import read_file_recordings
 from ngsim_graphs.synth.formats import write_synthetic
 
@@ -62,11 +63,11 @@ def script_recording() -> list[dict]:
         rows += _vehicle(vehicle, list(range(first, first + 90)), lane, y0)
     rows += _vehicle(3, [f for f in range(10, 100) if not 50 <= f < 55], 3, 170)
     four = _vehicle(4, list(range(80)), 2, 140)
-    four[60] = {**four[60], s.LOCAL_Y: four[60][s.LOCAL_Y] + 200.0}
+    four[60] = {**four[60], ns.LOCAL_Y: four[60][ns.LOCAL_Y] + 200.0}
     rows += four
     five = _vehicle(5, list(range(90)), 1, 260)
     for frame in (0, 2, 40):
-        five.append({**five[frame], s.LOCAL_Y: five[frame][s.LOCAL_Y] + 2.5})
+        five.append({**five[frame], ns.LOCAL_Y: five[frame][ns.LOCAL_Y] + 2.5})
     rows += five
     rows += _vehicle(6, list(range(20, 40)), 3, 300)
     return rows
@@ -91,7 +92,7 @@ def reference_population(table: np.ndarray) -> tuple[set[tuple[int, int, str]], 
 
 
 def _table(rows: list[dict]) -> np.ndarray:
-    columns = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
+    columns = (s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_X, ns.LOCAL_Y, s.LANE_ID)
     return np.array([[r[c] for c in columns] for r in rows], dtype=np.float64)
 
 
@@ -219,7 +220,7 @@ def test_a_quirky_synthetic_recording_gives_the_reference_population(tmp_path: P
     [path] = sorted((tmp_path / "raw").glob("*.csv"))
     read = read_file_recordings(path, CSLSTM)
     rows = read.recording_rows((US101_FIRST.location, US101_FIRST.period)).collect()
-    columns = (s.VEHICLE_ID, s.FRAME_ID, s.LOCAL_X, s.LOCAL_Y, s.LANE_ID)
+    columns = (s.VEHICLE_ID, s.FRAME_ID, ns.LOCAL_X, ns.LOCAL_Y, s.LANE_ID)
     population, kept = reference_population(rows.select(columns).to_numpy().astype(np.float64))
     tracked = track_frames(tmp_path / "build")
     samples = {row for row in population if row[:2] in tracked}

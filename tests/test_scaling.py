@@ -20,6 +20,7 @@ from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.scaling import SCALED, TARGET_RANGES, MinMaxScaler
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 
 NAMES = ("x_m", "y_m", "heading_rad", "speed_mps", "distance_m")
@@ -235,7 +236,7 @@ def test_the_scaler_ignores_the_val_and_test_graphs(tmp_path: Path) -> None:
     for vehicle in (*range(1, 9), 10):
         speed_fps, first = (20.0 + vehicle if vehicle < 8 else 60.0), 100 * vehicle
         for row in straight_track(vehicle, range(first, first + 82), speed_fps=speed_fps):
-            rows.append({**row, s.LOCAL_Y: row[s.LOCAL_Y] - speed_fps * 0.1 * first})
+            rows.append({**row, ns.LOCAL_Y: row[ns.LOCAL_Y] - speed_fps * 0.1 * first})
     run_build([write_txt(tmp_path / "a.txt", rows)], tmp_path / "build", BuildConfig())
     build = open_build(tmp_path / "build")
     assert dict(build.manifest.splits) == {"train": 7, "val": 1, "test": 1}

@@ -24,6 +24,7 @@ from ngsim_cli.ngsim import app
 from ngsim_graphs import schema
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
 from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.marker import MARKER_NAME
@@ -84,10 +85,10 @@ def test_txt_plain_round_trips(tmp_path: Path) -> None:
     assert all(line.startswith(" ") and line.endswith(" ") for line in lines)
     assert all(len(line.split()) == 18 for line in lines)
     assert "  " in lines[0].strip()  # fields padded with several spaces
-    parsed = pl.DataFrame([line.split() for line in lines], schema=list(schema.TXT_COLUMNS),
-                          orient="row").cast(dict(schema.RAW_SCHEMA))  # fmt: skip
+    parsed = pl.DataFrame([line.split() for line in lines], schema=list(ns.TXT_COLUMNS),
+                          orient="row").cast(dict(ns.RAW_SCHEMA))  # fmt: skip
     expected = simulate_recording(OFFICIAL_RECORDINGS[1], MINUTES, 5)
-    assert parsed.equals(expected.select(schema.TXT_COLUMNS))
+    assert parsed.equals(expected.select(ns.TXT_COLUMNS))
 
 
 def test_txt_quirks_gaps_and_no_final_newline(tmp_path: Path) -> None:
@@ -105,7 +106,7 @@ def test_csv_plain_header_and_values(tmp_path: Path) -> None:
     data = path.read_bytes()
     assert b"\r" not in data and data.endswith(b"\n") and b'"' not in data
     header, rows = _csv_rows(path)
-    assert tuple(header) == schema.PERIOD_CSV_HEADER
+    assert tuple(header) == ns.PERIOD_CSV_HEADER
     assert all(len(row) == 24 for row in rows)
     assert all(row[14:20] == [""] * 6 for row in rows)  # O_Zone .. Movement empty
     expected = simulate_recording(OFFICIAL_RECORDINGS[0], MINUTES, 5)
@@ -119,7 +120,7 @@ def test_csv_quirks_header_variants_crlf_and_gaps(tmp_path: Path) -> None:
     assert data.count(b"\r\n") == data.count(b"\n") > 100
     header, rows = _csv_rows(path)
     assert header[0] == "vehicle_id" and header[5] == "LOCAL_Y" and header[8] == "v_Length"
-    assert [name.lower() for name in header] == [n.lower() for n in schema.PERIOD_CSV_HEADER]
+    assert [name.lower() for name in header] == [n.lower() for n in ns.PERIOD_CSV_HEADER]
     by_vehicle = Counter(int(row[0]) for row in rows)
     total = {int(row[0]): int(row[2]) for row in rows}
     assert any(by_vehicle[v] < total[v] for v in by_vehicle)  # Total_Frames kept across the gap
@@ -140,7 +141,7 @@ def test_portal_plain(tmp_path: Path) -> None:
     data = path.read_bytes()
     assert data.startswith(b"Vehicle_ID,") and b"\r" not in data and b'"' not in data
     header, rows = _csv_rows(path)
-    assert tuple(header) == schema.PORTAL_HEADER
+    assert tuple(header) == ns.PORTAL_HEADER
     assert Counter(row[-1] for row in rows).keys() == {"us-101", "i-80"}
     assert all(len(row) == 25 and row[14:20] == [""] * 6 and row[4] != "" for row in rows)
     assert len({tuple(row) for row in rows}) == len(rows)

@@ -22,7 +22,10 @@ from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.pipeline import run_build
-from ngsim_graphs.schema import HighdFile, RawFormat
+from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.highd import schema as hs
+from ngsim_graphs.sources.highd.schema import HighdFile
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.synth.formats import write_synthetic
 from ngsim_graphs.synth.highd import LOWER, UPPER, image_layout, tracks_table
 
@@ -39,27 +42,27 @@ def test_tracks_table_by_hand() -> None:
     rows = pl.DataFrame(
         [make_row(1, n, local_x_ft=6.0, local_y_ft=100.0 + 3.0 * n, lane_id=1, v_length=15.0, v_width=6.0)
          for n in range(3)]
-    ).cast(dict(s.RAW_SCHEMA))  # fmt: skip
+    ).cast(dict(ns.RAW_SCHEMA))  # fmt: skip
     layout = image_layout("us-101")
     assert (layout.upper_markings_m[-1], layout.lower_markings_m[0]) == (29.946, 32.946)
     lower = tracks_table(rows, layout, LOWER)
-    assert lower[s.HIGHD_FRAME].to_list() == [5, 6, 7, 8, 9, 10]
+    assert lower[hs.HIGHD_FRAME].to_list() == [5, 6, 7, 8, 9, 10]
     # Local_Y at frame f is 100 + 3 * (f - 5) / 2.5 ft; the box's rear is 15 ft behind it, 25 m in.
     expected_x = [25 + (100 + 1.2 * (f - 5) - 15) * FT for f in range(5, 11)]
-    assert lower[s.HIGHD_X].to_list() == pytest.approx(expected_x, abs=1e-9)
+    assert lower[hs.HIGHD_X].to_list() == pytest.approx(expected_x, abs=1e-9)
     # centre 6 ft = 1.8288 m below the median marking; the box 6 ft wide, its top 0.9144 m higher
-    assert lower[s.HIGHD_Y].to_list() == pytest.approx([32.946 + 0.9144] * 6)
+    assert lower[hs.HIGHD_Y].to_list() == pytest.approx([32.946 + 0.9144] * 6)
     assert lower.select(
-        s.HIGHD_WIDTH, s.HIGHD_HEIGHT, s.HIGHD_LANE_ID, s.HIGHD_X_VELOCITY
+        hs.HIGHD_WIDTH, hs.HIGHD_HEIGHT, hs.HIGHD_LANE_ID, hs.HIGHD_X_VELOCITY
     ).unique().rows() == [
         (pytest.approx(15 * FT), pytest.approx(6 * FT), 9, pytest.approx(30 * FT))  # lane 1 + 6 + 2
     ]
     upper = tracks_table(rows, layout, UPPER)
     # driving towards -x: the box's left edge is the front, 25 m + 640.08 m - Local_Y from x = 0
     expected_x = [25 + 640.08 - (100 + 1.2 * (f - 5)) * FT for f in range(5, 11)]
-    assert upper[s.HIGHD_X].to_list() == pytest.approx(expected_x, abs=1e-9)
-    assert upper[s.HIGHD_Y].to_list() == pytest.approx([29.946 - 1.8288 - 0.9144] * 6)
-    assert upper.select(s.HIGHD_LANE_ID, s.HIGHD_X_VELOCITY).unique().rows() == [
+    assert upper[hs.HIGHD_X].to_list() == pytest.approx(expected_x, abs=1e-9)
+    assert upper[hs.HIGHD_Y].to_list() == pytest.approx([29.946 - 1.8288 - 0.9144] * 6)
+    assert upper.select(hs.HIGHD_LANE_ID, hs.HIGHD_X_VELOCITY).unique().rows() == [
         (7, pytest.approx(-30 * FT))
     ]
 
@@ -73,7 +76,7 @@ def test_synth_highd_is_deterministic_and_lists_its_files(tmp_path: Path) -> Non
     marker = (tmp_path / "a" / "SYNTHETIC.md").read_text()
     assert "NOT real highD" in marker and "- 02_recordingMeta.csv" in marker
     meta = [pl.read_csv(tmp_path / "a" / f"0{n}_tracksMeta.csv") for n in (1, 2)]
-    assert [m[s.HIGHD_DRIVING_DIRECTION].unique().to_list() for m in meta] == [[LOWER], [UPPER]]
+    assert [m[hs.HIGHD_DRIVING_DIRECTION].unique().to_list() for m in meta] == [[LOWER], [UPPER]]
 
 
 # Tolerances of the round trip, from the highD files' 3 decimals (rounding by at most 0.0005):

@@ -7,6 +7,7 @@ import polars as pl
 import pytest
 
 from ngsim_graphs import schema
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, Recording
 from ngsim_graphs.synth.road import ROADWAYS
 from ngsim_graphs.synth.traffic import simulate_recording
@@ -31,7 +32,7 @@ def rows(request: pytest.FixtureRequest) -> pl.DataFrame:
 
 
 def test_schema_sort_and_frames(rows: pl.DataFrame) -> None:
-    assert rows.schema == schema.RAW_SCHEMA
+    assert rows.schema == ns.RAW_SCHEMA
     assert rows.equals(rows.sort(schema.VEHICLE_ID, schema.FRAME_ID))
     assert rows[schema.FRAME_ID].min() == 0
     assert rows[schema.FRAME_ID].max() in (299, 599)
@@ -61,7 +62,7 @@ def test_frames_contiguous_and_total_frames(rows: pl.DataFrame) -> None:
     spans = rows.group_by(schema.VEHICLE_ID).agg(
         pl.len().alias("n"),
         (pl.col(schema.FRAME_ID).max() - pl.col(schema.FRAME_ID).min() + 1).alias("span"),
-        pl.col(schema.TOTAL_FRAMES).unique().alias("total"),
+        pl.col(ns.TOTAL_FRAMES).unique().alias("total"),
     )
     assert (spans["n"] == spans["span"]).all()
     assert (spans["total"].list.len() == 1).all()
@@ -81,7 +82,7 @@ def test_preceding_and_following_agree(rows: pl.DataFrame) -> None:
         pl.col(schema.VEHICLE_ID).alias(schema.PRECEDING),
         schema.FRAME_ID,
         pl.col(schema.LANE_ID).alias("lead_lane"),
-        pl.col(schema.LOCAL_Y).alias("lead_y"),
+        pl.col(ns.LOCAL_Y).alias("lead_y"),
         pl.col(schema.FOLLOWING).alias("lead_following"),
     )
     pairs = rows.filter(pl.col(schema.PRECEDING) != 0).join(
@@ -90,14 +91,14 @@ def test_preceding_and_following_agree(rows: pl.DataFrame) -> None:
     assert len(pairs) > 1000
     assert pairs["lead_lane"].null_count() == 0  # the leader is in view at that frame
     assert (pairs[schema.LANE_ID] == pairs["lead_lane"]).all()
-    assert (pairs["lead_y"] >= pairs[schema.LOCAL_Y]).all()
+    assert (pairs["lead_y"] >= pairs[ns.LOCAL_Y]).all()
     assert (pairs["lead_following"] == pairs[schema.VEHICLE_ID]).all()
-    expected = (pairs["lead_y"] - pairs[schema.LOCAL_Y]).round(2)
-    assert ((pairs[schema.SPACE_HEADWAY] - expected).abs() < 0.011).all()
+    expected = (pairs["lead_y"] - pairs[ns.LOCAL_Y]).round(2)
+    assert ((pairs[ns.SPACE_HEADWAY] - expected).abs() < 0.011).all()
 
 
 def test_following_is_the_nearest_behind_in_lane(rows: pl.DataFrame) -> None:
-    frame = rows.filter(pl.col(schema.FRAME_ID) == 100).sort(schema.LANE_ID, schema.LOCAL_Y)
+    frame = rows.filter(pl.col(schema.FRAME_ID) == 100).sort(schema.LANE_ID, ns.LOCAL_Y)
     for lane in frame.partition_by(schema.LANE_ID):
         ids = lane[schema.VEHICLE_ID].to_list()
         assert lane[schema.FOLLOWING].to_list() == [0, *ids[:-1]]
@@ -107,39 +108,39 @@ def test_following_is_the_nearest_behind_in_lane(rows: pl.DataFrame) -> None:
 def test_headway_sentinels(rows: pl.DataFrame) -> None:
     alone = rows.filter(pl.col(schema.PRECEDING) == 0)
     assert len(alone) > 0
-    assert (alone[schema.SPACE_HEADWAY] == 0).all()
-    assert (alone[schema.TIME_HEADWAY] == schema.NO_LEADER_TIME_HEADWAY_S).all()
+    assert (alone[ns.SPACE_HEADWAY] == 0).all()
+    assert (alone[ns.TIME_HEADWAY] == ns.NO_LEADER_TIME_HEADWAY_S).all()
     led = rows.filter(pl.col(schema.PRECEDING) != 0)
-    stopped = led.filter(pl.col(schema.V_VEL) == 0)
-    assert (stopped[schema.TIME_HEADWAY] == schema.NO_LEADER_TIME_HEADWAY_S).all()
-    moving = led.filter(pl.col(schema.V_VEL) > 1)
-    expected = (moving[schema.SPACE_HEADWAY] / moving[schema.V_VEL]).clip(upper_bound=9999.99)
-    assert ((moving[schema.TIME_HEADWAY] - expected).abs() < 0.02).all()
+    stopped = led.filter(pl.col(ns.V_VEL) == 0)
+    assert (stopped[ns.TIME_HEADWAY] == ns.NO_LEADER_TIME_HEADWAY_S).all()
+    moving = led.filter(pl.col(ns.V_VEL) > 1)
+    expected = (moving[ns.SPACE_HEADWAY] / moving[ns.V_VEL]).clip(upper_bound=9999.99)
+    assert ((moving[ns.TIME_HEADWAY] - expected).abs() < 0.02).all()
 
 
 def test_speeds_and_accelerations_plausible(rows: pl.DataFrame) -> None:
-    speed = rows[schema.V_VEL]
+    speed = rows[ns.V_VEL]
     assert speed.min() >= 0.0
     assert speed.max() <= MAX_SPEED_FPS
-    assert rows[schema.V_ACC].abs().max() < 40.0
+    assert rows[ns.V_ACC].abs().max() < 40.0
     # v_Acc is as noisy as NGSIM's: about 9 % of the rows beyond 3 m/s² (raw US-101: 8.99 %).
-    hard = (rows[schema.V_ACC].abs() > 3.0 / 0.3048).mean()
+    hard = (rows[ns.V_ACC].abs() > 3.0 / 0.3048).mean()
     assert 0.06 < hard < 0.13
 
 
 def test_congested_recordings_are_slower() -> None:
     early = simulate_recording(OFFICIAL_RECORDINGS[1], 0.2, seed=1)  # i-80 0400-0415
     late = simulate_recording(OFFICIAL_RECORDINGS[5], 0.2, seed=1)  # i-80 0515-0530
-    assert early[schema.V_VEL].mean() > 1.5 * late[schema.V_VEL].mean()
-    assert (late[schema.V_VEL] < 3.0).any()  # stop-and-go
-    assert early[schema.V_VEL].quantile(0.95) > 60.0  # about free flow
+    assert early[ns.V_VEL].mean() > 1.5 * late[ns.V_VEL].mean()
+    assert (late[ns.V_VEL] < 3.0).any()  # stop-and-go
+    assert early[ns.V_VEL].quantile(0.95) > 60.0  # about free flow
 
 
 def test_lanes_positions_and_lane_changes(rows: pl.DataFrame) -> None:
     lanes = 6 if rows[schema.LANE_ID].max() == 6 else 7
     assert rows[schema.LANE_ID].min() == 1
     assert rows[schema.LANE_ID].max() == lanes
-    from_x = (rows[schema.LOCAL_X] // 12).cast(pl.Int16) + 1
+    from_x = (rows[ns.LOCAL_X] // 12).cast(pl.Int16) + 1
     assert (from_x == rows[schema.LANE_ID]).all()  # Lane_ID is where the front centre is
     changes = rows.select(
         (pl.col(schema.LANE_ID).diff().over(schema.VEHICLE_ID).fill_null(0) != 0).sum()
@@ -148,7 +149,7 @@ def test_lanes_positions_and_lane_changes(rows: pl.DataFrame) -> None:
 
 
 def test_jitter_is_a_few_tenths_of_a_foot(rows: pl.DataFrame) -> None:
-    steps = rows.select(pl.col(schema.LOCAL_X).diff().over(schema.VEHICLE_ID).abs()).to_series()
+    steps = rows.select(pl.col(ns.LOCAL_X).diff().over(schema.VEHICLE_ID).abs()).to_series()
     assert 0.05 < steps.median() < 0.5
 
 
@@ -157,8 +158,8 @@ def test_entries_and_exits_us101(us101: pl.DataFrame) -> None:
     spans = us101.group_by(schema.VEHICLE_ID).agg(
         pl.col(schema.FRAME_ID).min().alias("first_frame"),
         pl.col(schema.FRAME_ID).max().alias("last_frame"),
-        pl.col(schema.LOCAL_Y).first().alias("first_y"),
-        pl.col(schema.LOCAL_Y).last().alias("last_y"),
+        pl.col(ns.LOCAL_Y).first().alias("first_y"),
+        pl.col(ns.LOCAL_Y).last().alias("last_y"),
         pl.col(schema.LANE_ID).first().alias("first_lane"),
         pl.col(schema.LANE_ID).last().alias("last_lane"),
     )
@@ -177,7 +178,7 @@ def test_entries_and_exits_us101(us101: pl.DataFrame) -> None:
 def test_density_sizes_and_classes(rows: pl.DataFrame) -> None:
     in_view = rows.group_by(schema.FRAME_ID).len()["len"]
     assert 70 < in_view.mean() < 320
-    sizes = rows.group_by(schema.V_CLASS).agg(pl.col(schema.V_LENGTH).mean(), pl.len())
+    sizes = rows.group_by(schema.V_CLASS).agg(pl.col(ns.V_LENGTH).mean(), pl.len())
     by_class = {row[0]: row[1] for row in sizes.iter_rows()}
     assert set(by_class) <= {1, 2, 3} and 2 in by_class
     assert 13.0 < by_class[2] < 18.0
@@ -185,8 +186,8 @@ def test_density_sizes_and_classes(rows: pl.DataFrame) -> None:
 
 
 def test_global_coordinates_rotate_local_ones(us101: pl.DataFrame) -> None:
-    assert 6_440_000 < us101[schema.GLOBAL_X].mean() < 6_460_000
-    assert 1_860_000 < us101[schema.GLOBAL_Y].mean() < 1_880_000
+    assert 6_440_000 < us101[ns.GLOBAL_X].mean() < 6_460_000
+    assert 1_860_000 < us101[ns.GLOBAL_Y].mean() < 1_880_000
     a, b = us101.row(0, named=True), us101.row(len(us101) // 2, named=True)
     local = np.hypot(a["local_x"] - b["local_x"], a["local_y"] - b["local_y"])
     world = np.hypot(a["global_x"] - b["global_x"], a["global_y"] - b["global_y"])
@@ -194,6 +195,6 @@ def test_global_coordinates_rotate_local_ones(us101: pl.DataFrame) -> None:
 
 
 def test_ngsim_rounding(rows: pl.DataFrame) -> None:
-    for name, decimals in ((schema.LOCAL_X, 3), (schema.GLOBAL_Y, 3), (schema.V_LENGTH, 1),
-                           (schema.V_VEL, 2), (schema.TIME_HEADWAY, 2)):  # fmt: skip
+    for name, decimals in ((ns.LOCAL_X, 3), (ns.GLOBAL_Y, 3), (ns.V_LENGTH, 1),
+                           (ns.V_VEL, 2), (ns.TIME_HEADWAY, 2)):  # fmt: skip
         assert (rows[name] - rows[name].round(decimals)).abs().max() < 1e-9

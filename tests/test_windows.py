@@ -8,7 +8,7 @@ from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.windows import ego_windows
+from ngsim_graphs.windows import AIGEM, ego_windows
 
 
 def nodes_of(tracks: dict[int, tuple[int, int]]) -> pl.DataFrame:
@@ -84,3 +84,15 @@ def test_a_lazy_table_of_nodes_in_any_order_gives_the_same_windows() -> None:
     expected = ego_windows(nodes, config)
     assert expected.height > 20
     assert_frame_equal(ego_windows(shuffled, config), expected)
+
+
+def test_the_aigem_protocol_splits_the_windows_by_vehicle_and_never_reads_raw_rows() -> None:
+    """Tracks 1..10 (vehicles 101..110) of 41 steps: one window each. The vehicle split cuts at
+    round(0.7 * 110) = 77 and round(0.8 * 110) = 88: every vehicle id is above both (test)."""
+    nodes = nodes_of(dict.fromkeys(range(1, 11), (0, 41)))
+    unread = pl.LazyFrame({"never": [1]}).select(pl.col("missing"))  # fails if collected
+    made = AIGEM.recording_windows(nodes, unread, ("us-101", "p"), 0, BuildConfig())
+    assert made.windows[s.EGO_VEHICLE_ID].to_list() == list(range(101, 111))
+    assert made.windows[s.SPLIT].unique().to_list() == ["test"]
+    assert (made.vehicle_ids.largest, made.script_rows) == (110, None)
+    assert AIGEM.refuses(("anywhere", "any time")) is None

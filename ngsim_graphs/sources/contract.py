@@ -130,9 +130,18 @@ class TracksPart:
     evidence: pl.DataFrame | pl.LazyFrame
 
 
+def _claims_no_file(path: Path) -> bool:
+    return False
+
+
+def _knows_no_location(name: str) -> bool:
+    return False
+
+
 @dataclass(frozen=True)
 class Source:
-    """A dataset behind the contract: four functions, and the name the manifest records.
+    """A dataset behind the contract: four functions, the name the manifest records, and how the
+    registry (`sources/registry.py`) tells its files and its locations.
 
     find_files(paths) -> (files to read, files skipped in the directories searched)
     read_file(path, config, file_index, strict, scratch) -> FileRows, after the file's own
@@ -144,6 +153,9 @@ class Source:
     recording_report(parts, key, config, files, strict) -> RecordingReport: the report of the
         recording whose vehicles are those of `parts` (TracksParts, their tracks let go), after
         the recording's checks
+    claims(path) -> whether the file is one of this dataset's, told from its content; may raise
+        NgsimInputError for a damaged file that is still its own (the build refuses it at once)
+    is_location(name) -> whether `name` names one of its locations (BuildConfig.locations)
     """
 
     name: str
@@ -153,6 +165,11 @@ class Source:
     recording_report: Callable[
         [list[TracksPart], RecordingKey, BuildConfig, list[FileReport], bool], RecordingReport
     ]
+    label: str = ""  # the name a person reads: "NGSIM", "highD"
+    suffixes: tuple[str, ...] = ()  # of the files it reads, lower case: a folder search's
+    claims: Callable[[Path], bool] = _claims_no_file
+    is_location: Callable[[str], bool] = _knows_no_location
+    locations_help: str = ""  # its location names, as an error lists them
 
 
 # Every count of a RecordingReport: a new one is summed over the parts too. (A field's type is

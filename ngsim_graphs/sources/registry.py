@@ -1,10 +1,12 @@
 """Which source reads the given inputs: every dataset the pipeline knows, by name.
 
-Without a forced dataset the inputs' content decides: a file whose header is one of highD's
-three is highD's, one that NGSIM's reader recognises is NGSIM's. A highD file whose header is
-damaged (`highd.files.sniff_highd` still tells its kind) is refused at once, naming the column,
-whatever lies beside it. Inputs holding both are an error that asks for `--dataset`; inputs
-holding neither go to NGSIM, whose reader says why they are no use.
+A new source is its folder and one line in SOURCES. Without a forced dataset the inputs' content
+decides (each source's `claims`): a file a source claims is that source's, the fallback's
+(NGSIM's) last. A file whose source refuses it while claiming it (a highD file whose header is
+damaged) is refused at once, naming the column, whatever lies beside it. Inputs holding the
+files of more than one are an error that asks for `--dataset`; inputs holding none go to the
+fallback, whose reader says why they are no use. A build's locations are checked here too:
+each must be a location of some source.
 """
 
 from __future__ import annotations
@@ -13,14 +15,37 @@ from pathlib import Path
 
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.contract import Source
-from ngsim_graphs.sources.highd.files import check_header, sniff_highd
 from ngsim_graphs.sources.highd.tracks import SOURCE as HIGHD
-from ngsim_graphs.sources.ngsim.files import CANDIDATE_SUFFIXES, NotNgsimFileError, sniff_format
+from ngsim_graphs.sources.inputs import files_in
 from ngsim_graphs.sources.ngsim.tracks import SOURCE as NGSIM
 
 SOURCES: dict[str, Source] = {NGSIM.name: NGSIM, HIGHD.name: HIGHD}
-DISPLAY_NAMES: dict[str, str] = {NGSIM.name: "NGSIM", HIGHD.name: "highD"}
-DATASET_NAMES: tuple[str, ...] = tuple(SOURCES)
+FALLBACK = NGSIM.name  # the source of inputs no source claims: its reader says why
+
+
+def dataset_names() -> tuple[str, ...]:
+    """The names of the registered sources, in registry order (`--dataset`'s choices)."""
+    return tuple(SOURCES)
+
+
+def label(dataset: str) -> str:
+    """The name a person reads of `dataset` ("NGSIM", "highD")."""
+    return SOURCES[dataset].label or dataset
+
+
+def check_locations(locations: tuple[str, ...]) -> None:
+    """Raise ValueError unless every one of `locations` (at least one) is a location of some
+    source (a source's filter is the names of its own locations; none named: all, for highD)."""
+    unknown = sorted(
+        name
+        for name in set(locations)
+        if not any(source.is_location(name) for source in SOURCES.values())
+    )
+    if unknown or not locations:
+        known = " or ".join(
+            source.locations_help for source in SOURCES.values() if source.locations_help
+        )
+        raise ValueError(f"unknown location(s) {unknown}; choose from {known}")
 
 
 def choose_source(
@@ -29,33 +54,30 @@ def choose_source(
     """(the source, its files to read, files skipped) for `paths`; `dataset` forces the source."""
     if dataset is not None and dataset not in SOURCES:
         raise NgsimInputError(
-            paths[0], f"unknown dataset {dataset!r}; choose from {', '.join(DATASET_NAMES)}"
+            paths[0], f"unknown dataset {dataset!r}; choose from {', '.join(SOURCES)}"
         )
     source = SOURCES[dataset or detect_dataset(paths)]
     files, skipped = source.find_files(paths)
     return source, files, skipped
 
 
+def _claimants() -> list[Source]:
+    """The sources in the order they are asked whether a file is theirs: the fallback last."""
+    return sorted(SOURCES.values(), key=lambda source: source.name == FALLBACK)
+
+
 def _dataset_of(path: Path, named: bool) -> str | None:
-    """The dataset whose file `path` is, by content; None for a file of neither found in a
-    folder. A named file that is not highD's is NGSIM's: its reader says what is wrong."""
-    highd = sniff_highd(path)
-    if highd is not None:
-        check_header(path, highd)  # a damaged highD header: refused here, naming its column
-        return HIGHD.name
-    if named:
-        return NGSIM.name
-    try:
-        sniff_format(path)
-    except NotNgsimFileError:
-        return None
-    except NgsimInputError:
-        pass  # NGSIM's, but unreadable: its reader will say why
-    return NGSIM.name
+    """The dataset whose file `path` is, by content; None for a file of none found in a folder.
+    A named file that no other source claims is the fallback's: its reader says what is wrong."""
+    for source in _claimants():
+        if (named and source.name == FALLBACK) or source.claims(path):
+            return source.name
+    return None
 
 
 def detect_dataset(paths: list[Path]) -> str:
-    """The name of the dataset the files under `paths` belong to (NGSIM when none is found).
+    """The name of the dataset the files under `paths` belong to (the fallback when none is
+    found).
 
     Raises NgsimInputError when they hold files of more than one dataset.
     """
@@ -64,10 +86,8 @@ def detect_dataset(paths: list[Path]) -> str:
         if path.is_file():
             candidates = [(path, True)]
         elif path.is_dir():
-            found = (
-                p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in CANDIDATE_SUFFIXES
-            )
-            candidates = [(p, False) for p in sorted(found)]
+            suffixes = tuple({s for source in SOURCES.values() for s in source.suffixes})
+            candidates = [(p, False) for p in files_in(path, suffixes) or []]
         else:
             continue  # missing: the source's find_files says so
         for candidate, named in candidates:
@@ -76,12 +96,26 @@ def detect_dataset(paths: list[Path]) -> str:
                 first.setdefault(name, candidate)
     if len(first) > 1:
         held = " and ".join(
-            f"{DISPLAY_NAMES[name]} files ({first[name]})"
-            for name in DATASET_NAMES
-            if name in first
+            f"{label(name)} files ({first[name]})" for name in SOURCES if name in first
         )
         raise NgsimInputError(
             paths[0] if len(paths) == 1 else ", ".join(map(str, paths)),
-            f"the inputs hold {held}; choose one with --dataset {' or --dataset '.join(DATASET_NAMES)}",
+            f"the inputs hold {held}; choose one with --dataset {' or --dataset '.join(SOURCES)}",
         )
-    return next(iter(first), NGSIM.name)
+    return next(iter(first), FALLBACK)
+
+
+def is_source_file(path: Path) -> bool:
+    """Whether `path` is a file that some source reads, told from its suffix and content (a
+    damaged file that its source still claims is one)."""
+    for source in _claimants():
+        if path.suffix.lower() not in source.suffixes:
+            continue
+        try:
+            if source.claims(path):
+                return True
+        except NgsimInputError:
+            return True
+        except OSError:
+            return False
+    return False

@@ -13,6 +13,7 @@ import numpy as np
 import polars as pl
 
 from ngsim_graphs import schema
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.synth.road import Roadway, lane_of_ft
 
 WHITE_NOISE_FT = (0.05, 0.15)  # (Local_X, Local_Y) uncorrelated part of the measurement error
@@ -59,7 +60,7 @@ def observed_rows(
     """NGSIM rows of a recording: ids by entry, jitter, lanes, neighbours, headways, rounding.
 
     `vehicles` is a structured array with fields length, width (ft) and v_class, indexed by uid.
-    Returns `schema.RAW_SCHEMA` rows sorted by (vehicle_id, frame_id).
+    Returns `ns.RAW_SCHEMA` rows sorted by (vehicle_id, frame_id).
     """
     vehicle_id = _ids_by_entry(seen.uid, seen.frame, seen.y_ft)
     order = np.lexsort((seen.frame, vehicle_id))
@@ -67,8 +68,8 @@ def observed_rows(
     local_x, local_y, speed, accel = _measure(seen, roadway, rng)
     lane = lane_of_ft(local_x, roadway)
     preceding, following, space = _neighbours_in_view(vehicle_id, seen.frame, lane, local_y)
-    timed = (preceding != schema.NO_NEIGHBOUR_ID) & (speed > 0)
-    no_leader = schema.NO_LEADER_TIME_HEADWAY_S
+    timed = (preceding != ns.NO_NEIGHBOUR_ID) & (speed > 0)
+    no_leader = ns.NO_LEADER_TIME_HEADWAY_S
     headway_s = np.minimum(space / np.where(timed, speed, 1.0), no_leader)
     time_headway = np.where(timed, headway_s, no_leader)
     global_x, global_y = to_global_ft(local_x, local_y, roadway)
@@ -77,24 +78,24 @@ def observed_rows(
     columns = {
         schema.VEHICLE_ID: vehicle_id,
         schema.FRAME_ID: seen.frame,
-        schema.TOTAL_FRAMES: np.repeat(counts, counts),
+        ns.TOTAL_FRAMES: np.repeat(counts, counts),
         schema.GLOBAL_TIME: frame0_ms + 100 * seen.frame.astype(np.int64),
-        schema.LOCAL_X: local_x,
-        schema.LOCAL_Y: local_y,
-        schema.GLOBAL_X: np.round(global_x, 3),
-        schema.GLOBAL_Y: np.round(global_y, 3),
-        schema.V_LENGTH: np.round(size["length"], 1),
-        schema.V_WIDTH: np.round(size["width"], 1),
+        ns.LOCAL_X: local_x,
+        ns.LOCAL_Y: local_y,
+        ns.GLOBAL_X: np.round(global_x, 3),
+        ns.GLOBAL_Y: np.round(global_y, 3),
+        ns.V_LENGTH: np.round(size["length"], 1),
+        ns.V_WIDTH: np.round(size["width"], 1),
         schema.V_CLASS: size["v_class"],
-        schema.V_VEL: speed,
-        schema.V_ACC: accel,
+        ns.V_VEL: speed,
+        ns.V_ACC: accel,
         schema.LANE_ID: lane,
         schema.PRECEDING: preceding,
         schema.FOLLOWING: following,
-        schema.SPACE_HEADWAY: np.round(space, 2),
-        schema.TIME_HEADWAY: np.round(time_headway, 2),
+        ns.SPACE_HEADWAY: np.round(space, 2),
+        ns.TIME_HEADWAY: np.round(time_headway, 2),
     }
-    return pl.DataFrame(columns).cast(dict(schema.RAW_SCHEMA))
+    return pl.DataFrame(columns).cast(dict(ns.RAW_SCHEMA))
 
 
 def _measure(
@@ -133,7 +134,7 @@ def _neighbours_in_view(
     ids, ys = vehicle_id[order], local_y[order]
     preceding, following = np.zeros(len(order), np.int64), np.zeros(len(order), np.int64)
     space = np.zeros(len(order))
-    preceding[order[:-1]] = np.where(same, ids[1:], schema.NO_NEIGHBOUR_ID)
-    following[order[1:]] = np.where(same, ids[:-1], schema.NO_NEIGHBOUR_ID)
+    preceding[order[:-1]] = np.where(same, ids[1:], ns.NO_NEIGHBOUR_ID)
+    following[order[1:]] = np.where(same, ids[:-1], ns.NO_NEIGHBOUR_ID)
     space[order[:-1]] = np.where(same, ys[1:] - ys[:-1], 0.0)
     return preceding, following, space

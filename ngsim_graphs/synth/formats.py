@@ -30,6 +30,7 @@ from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import entries_beyond, some_names
 from ngsim_graphs.partial_files import create_exclusive
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT, Recording
 from ngsim_graphs.synth.highd import DECIMALS as HIGHD_DECIMALS
 from ngsim_graphs.synth.highd import highd_paths, highd_tables
@@ -56,7 +57,7 @@ _DIGEST_LINE = re.compile(r"    ([0-9a-f]{64})  (\S+)")  # a marker's sha256 of 
 
 # Header spellings of per-period CSVs in the wild: case and `v_Length` vary.
 CSV_HEADER_VARIANTS = {"Vehicle_ID": "vehicle_id", "Local_Y": "LOCAL_Y", "v_length": "v_Length"}
-# Decimals and field width of each text-file column, in schema.TXT_COLUMNS order.
+# Decimals and field width of each text-file column, in ns.TXT_COLUMNS order.
 TXT_DECIMALS = (0, 0, 0, 0, 3, 3, 3, 3, 1, 1, 0, 2, 2, 0, 0, 0, 2, 2)
 TXT_WIDTHS = (6, 7, 7, 16, 10, 11, 14, 14, 7, 7, 4, 9, 9, 4, 7, 7, 10, 10)
 
@@ -291,7 +292,7 @@ def _new_file(path: Path) -> Iterator[BinaryIO]:
 
 def _header_columns(header: tuple[str, ...]) -> list[pl.Expr]:
     """Expressions giving the columns of `header` in order; unknown NGSIM columns stay empty."""
-    known = set(schema.RAW_SCHEMA.names()) | {schema.LOCATION}
+    known = set(ns.RAW_SCHEMA.names()) | {schema.LOCATION}
     return [
         pl.col(name.lower()) if name.lower() in known else pl.lit(None, pl.String).alias(name)
         for name in header
@@ -300,12 +301,12 @@ def _header_columns(header: tuple[str, ...]) -> list[pl.Expr]:
 
 def _write_period_csv(handle: BinaryIO, rows: pl.DataFrame, quirks: bool) -> None:
     """A per-period CSV; with quirks, header spelling variants and CRLF line ends."""
-    header = schema.PERIOD_CSV_HEADER
+    header = ns.PERIOD_CSV_HEADER
     if quirks:
         header = tuple(CSV_HEADER_VARIANTS.get(name, name) for name in header)
     end = "\r\n" if quirks else "\n"
     handle.write((",".join(header) + end).encode())
-    table = rows.select(_header_columns(schema.PERIOD_CSV_HEADER))
+    table = rows.select(_header_columns(ns.PERIOD_CSV_HEADER))
     table.write_csv(handle, include_header=False, line_terminator=end)
 
 
@@ -324,7 +325,7 @@ def _write_txt(handle: BinaryIO, rows: pl.DataFrame, quirks: bool) -> None:
     """Fixed-width, space-padded lines with leading and trailing spaces, like the original files."""
     fields = [
         _fixed(name, decimals).str.pad_start(width)
-        for name, decimals, width in zip(schema.TXT_COLUMNS, TXT_DECIMALS, TXT_WIDTHS, strict=True)
+        for name, decimals, width in zip(ns.TXT_COLUMNS, TXT_DECIMALS, TXT_WIDTHS, strict=True)
     ]
     for start in range(0, len(rows), CHUNK_ROWS):  # bounded memory: lines are wide strings
         lines = rows.slice(start, CHUNK_ROWS).select(pl.concat_str([*fields, pl.lit("  ")]))
@@ -346,13 +347,11 @@ def _write_portal(
             _write_quirky_portal(handle, recordings, config, report)
         return path
     with _new_file(path) as handle:
-        handle.write((",".join(schema.PORTAL_HEADER) + "\n").encode())
+        handle.write((",".join(ns.PORTAL_HEADER) + "\n").encode())
         for index, recording in enumerate(recordings):
             rows = simulated_rows(recording, index, config)
             table = rows.with_columns(pl.lit(recording.location).alias(schema.LOCATION))
-            table.select(_header_columns(schema.PORTAL_HEADER)).write_csv(
-                handle, include_header=False
-            )
+            table.select(_header_columns(ns.PORTAL_HEADER)).write_csv(handle, include_header=False)
             report(f"{recording.location} {recording.period}: {len(rows):,} rows")
     return path
 
@@ -378,18 +377,18 @@ def _write_quirky_portal(
     del parts
     order = table.select(
         pl.arg_sort_by(
-            [schema.GLOBAL_Y, "rec", schema.VEHICLE_ID, schema.FRAME_ID], maintain_order=True
+            [ns.GLOBAL_Y, "rec", schema.VEHICLE_ID, schema.FRAME_ID], maintain_order=True
         )
     ).to_series()
-    handle.write(BOM + (",".join(schema.PORTAL_HEADER) + "\r\n").encode())
+    handle.write(BOM + (",".join(ns.PORTAL_HEADER) + "\r\n").encode())
     location = pl.col("rec").replace_strict(dict(enumerate(locations)), return_dtype=pl.String)
     for start in range(0, len(order), CHUNK_ROWS):
         chunk = table.select(pl.all().gather(order.slice(start, CHUNK_ROWS)))
         formatted = chunk.select(
-            *[_with_thousands(name) for name in schema.RAW_SCHEMA.names()],
+            *[_with_thousands(name) for name in ns.RAW_SCHEMA.names()],
             location.alias(schema.LOCATION),
         )
-        formatted.select(_header_columns(schema.PORTAL_HEADER)).write_csv(
+        formatted.select(_header_columns(ns.PORTAL_HEADER)).write_csv(
             handle, include_header=False, quote_style="never", line_terminator="\r\n"
         )
 
@@ -405,8 +404,8 @@ def _duplicate_rows(rows: pl.DataFrame, rng: np.random.Generator) -> pl.DataFram
     exact = pick(EXACT_DUPLICATE_SHARE)
     conflict = pick(CONFLICT_SHARE)
     shift = rng.uniform(0.5, 3.0, len(conflict))
-    conflict = conflict.with_columns((pl.col(schema.LOCAL_Y) + shift).round(3))
-    empty = pick(EMPTY_LOCAL_X_SHARE).with_columns(pl.lit(None, pl.Float64).alias(schema.LOCAL_X))
+    conflict = conflict.with_columns((pl.col(ns.LOCAL_Y) + shift).round(3))
+    empty = pick(EMPTY_LOCAL_X_SHARE).with_columns(pl.lit(None, pl.Float64).alias(ns.LOCAL_X))
     return pl.concat([exact, conflict, empty])
 
 

@@ -38,8 +38,10 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.schema import HighdFile
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ
+from ngsim_graphs.sources.highd.schema import HighdFile
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.ngsim.recordings import PACIFIC_DAYLIGHT, Recording
 from ngsim_graphs.synth.road import LANE_WIDTH_FT, ROADWAYS
@@ -50,7 +52,7 @@ MEDIAN_M = 3.0  # between the two carriageways
 IMAGE_MARGIN_M = 25.0  # along x, beyond each end of the section: more than any vehicle is long
 LOCATION_IDS = {"us-101": 1, "i-80": 2}  # the highD locationId of each simulated section
 UPPER, LOWER = 1, 2  # drivingDirection
-_INTERPOLATED = (s.LOCAL_X, s.LOCAL_Y, s.V_VEL, s.V_ACC)
+_INTERPOLATED = (ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, ns.V_ACC)
 
 
 @dataclass(frozen=True)
@@ -96,11 +98,11 @@ def _metric(rows: pl.DataFrame) -> pl.DataFrame:
     """NGSIM rows (sorted by vehicle, frame) in metres, with the leader's speed (m/s, 0: none)."""
     feet = [
         pl.col(c) * FEET_TO_M
-        for c in (s.LOCAL_X, s.LOCAL_Y, s.V_VEL, s.V_ACC, s.V_LENGTH, s.V_WIDTH)
+        for c in (ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, ns.V_ACC, ns.V_LENGTH, ns.V_WIDTH)
     ]
-    metric = rows.with_columns(*feet, (pl.col(s.SPACE_HEADWAY) * FEET_TO_M).alias(s.HIGHD_DHW))
+    metric = rows.with_columns(*feet, (pl.col(ns.SPACE_HEADWAY) * FEET_TO_M).alias(hs.HIGHD_DHW))
     leader = metric.select(
-        s.FRAME_ID, pl.col(s.VEHICLE_ID).alias(s.PRECEDING), pl.col(s.V_VEL).alias("leader_v")
+        s.FRAME_ID, pl.col(s.VEHICLE_ID).alias(s.PRECEDING), pl.col(ns.V_VEL).alias("leader_v")
     )
     joined = metric.join(leader, on=[s.FRAME_ID, s.PRECEDING], how="left", maintain_order="left")
     return joined.with_columns(pl.col("leader_v").fill_null(0.0))
@@ -129,52 +131,54 @@ def _on_25_hz(rows: pl.DataFrame) -> pl.DataFrame:
         .otherwise(pl.col(c) + weight * (pl.col(f"next_{c}") - pl.col(c)))
         for c in _INTERPOLATED
     ]
-    return exploded.with_columns(frame.cast(pl.Int32).alias(s.HIGHD_FRAME), *between)
+    return exploded.with_columns(frame.cast(pl.Int32).alias(hs.HIGHD_FRAME), *between)
 
 
 def tracks_table(rows: pl.DataFrame, layout: ImageLayout, direction: int) -> pl.DataFrame:
     """The NN_tracks.csv table (HIGHD_TRACKS_HEADER) of one recording's NGSIM rows."""
     frames = _on_25_hz(_metric(rows.sort(s.VEHICLE_ID, s.FRAME_ID)))
     sign = 1.0 if direction == LOWER else -1.0
-    length, width = pl.col(s.V_LENGTH), pl.col(s.V_WIDTH)
+    length, width = pl.col(ns.V_LENGTH), pl.col(ns.V_WIDTH)
     if direction == LOWER:
-        x = IMAGE_MARGIN_M + pl.col(s.LOCAL_Y) - length
-        y = layout.lower_markings_m[0] + pl.col(s.LOCAL_X) - width / 2
+        x = IMAGE_MARGIN_M + pl.col(ns.LOCAL_Y) - length
+        y = layout.lower_markings_m[0] + pl.col(ns.LOCAL_X) - width / 2
         lane = layout.lanes + 2 + pl.col(s.LANE_ID)
     else:
-        x = IMAGE_MARGIN_M + layout.section_m - pl.col(s.LOCAL_Y)
-        y = layout.upper_markings_m[-1] - pl.col(s.LOCAL_X) - width / 2
+        x = IMAGE_MARGIN_M + layout.section_m - pl.col(ns.LOCAL_Y)
+        y = layout.upper_markings_m[-1] - pl.col(ns.LOCAL_X) - width / 2
         lane = layout.lanes + 2 - pl.col(s.LANE_ID)
-    ahead = pl.col(s.PRECEDING) != s.NO_NEIGHBOUR_ID
-    closing = ahead & (pl.col(s.V_VEL) > pl.col("leader_v"))
-    timed = ahead & (pl.col(s.TIME_HEADWAY) < s.NO_LEADER_TIME_HEADWAY_S)
+    ahead = pl.col(s.PRECEDING) != ns.NO_NEIGHBOUR_ID
+    closing = ahead & (pl.col(ns.V_VEL) > pl.col("leader_v"))
+    timed = ahead & (pl.col(ns.TIME_HEADWAY) < ns.NO_LEADER_TIME_HEADWAY_S)
     zero = pl.lit(0.0)
     front_gap = layout.image_length_m - x - length
     table = frames.with_columns(
-        x.alias(s.HIGHD_X),
-        y.alias(s.HIGHD_Y),
-        length.alias(s.HIGHD_WIDTH),
-        width.alias(s.HIGHD_HEIGHT),
-        (sign * pl.col(s.V_VEL) + 0.0).alias(s.HIGHD_X_VELOCITY),
-        zero.alias(s.HIGHD_Y_VELOCITY),
-        (sign * pl.col(s.V_ACC) + 0.0).alias(s.HIGHD_X_ACCELERATION),
-        zero.alias(s.HIGHD_Y_ACCELERATION),
+        x.alias(hs.HIGHD_X),
+        y.alias(hs.HIGHD_Y),
+        length.alias(hs.HIGHD_WIDTH),
+        width.alias(hs.HIGHD_HEIGHT),
+        (sign * pl.col(ns.V_VEL) + 0.0).alias(hs.HIGHD_X_VELOCITY),
+        zero.alias(hs.HIGHD_Y_VELOCITY),
+        (sign * pl.col(ns.V_ACC) + 0.0).alias(hs.HIGHD_X_ACCELERATION),
+        zero.alias(hs.HIGHD_Y_ACCELERATION),
         (front_gap if direction == LOWER else x).alias("frontSightDistance"),
         (x if direction == LOWER else front_gap).alias("backSightDistance"),
-        pl.when(ahead).then(pl.col(s.HIGHD_DHW)).otherwise(zero).alias(s.HIGHD_DHW),
-        pl.when(timed).then(pl.col(s.TIME_HEADWAY)).otherwise(zero).alias(s.HIGHD_THW),
+        pl.when(ahead).then(pl.col(hs.HIGHD_DHW)).otherwise(zero).alias(hs.HIGHD_DHW),
+        pl.when(timed).then(pl.col(ns.TIME_HEADWAY)).otherwise(zero).alias(hs.HIGHD_THW),
         pl.when(closing)
-        .then(pl.col(s.HIGHD_DHW) / (pl.col(s.V_VEL) - pl.col("leader_v")))
+        .then(pl.col(hs.HIGHD_DHW) / (pl.col(ns.V_VEL) - pl.col("leader_v")))
         .otherwise(zero)
-        .alias(s.HIGHD_TTC),
-        (sign * pl.col("leader_v") + 0.0).alias(s.HIGHD_PRECEDING_X_VELOCITY),  # + 0.0: no -0.0
-        pl.col(s.PRECEDING).alias(s.HIGHD_PRECEDING_ID),
-        pl.col(s.FOLLOWING).alias(s.HIGHD_FOLLOWING_ID),
-        lane.cast(pl.Int16).alias(s.HIGHD_LANE_ID),
-        pl.col(s.VEHICLE_ID).alias(s.HIGHD_ID),
+        .alias(hs.HIGHD_TTC),
+        (sign * pl.col("leader_v") + 0.0).alias(hs.HIGHD_PRECEDING_X_VELOCITY),  # + 0.0: no -0.0
+        pl.col(s.PRECEDING).alias(hs.HIGHD_PRECEDING_ID),
+        pl.col(s.FOLLOWING).alias(hs.HIGHD_FOLLOWING_ID),
+        lane.cast(pl.Int16).alias(hs.HIGHD_LANE_ID),
+        pl.col(s.VEHICLE_ID).alias(hs.HIGHD_ID),
     )
-    others = [pl.lit(0).alias(c) for c in s.HIGHD_TRACKS_HEADER if c not in table.columns]
-    return table.with_columns(*others).select(s.HIGHD_TRACKS_HEADER).sort(s.HIGHD_ID, s.HIGHD_FRAME)
+    others = [pl.lit(0).alias(c) for c in hs.HIGHD_TRACKS_HEADER if c not in table.columns]
+    return (
+        table.with_columns(*others).select(hs.HIGHD_TRACKS_HEADER).sort(hs.HIGHD_ID, hs.HIGHD_FRAME)
+    )
 
 
 def _positive_min(column: str) -> pl.Expr:
@@ -187,32 +191,32 @@ def tracks_meta_table(tracks: pl.DataFrame, rows: pl.DataFrame, direction: int) 
     classes = (
         rows.group_by(s.VEHICLE_ID)
         .agg(pl.col(s.V_CLASS).first())
-        .rename({s.VEHICLE_ID: s.HIGHD_ID})
+        .rename({s.VEHICLE_ID: hs.HIGHD_ID})
     )
-    speed = pl.col(s.HIGHD_X_VELOCITY).abs()
-    per_vehicle = tracks.group_by(s.HIGHD_ID).agg(
-        pl.col(s.HIGHD_WIDTH).first(),
-        pl.col(s.HIGHD_HEIGHT).first(),
-        pl.col(s.HIGHD_FRAME).min().alias("initialFrame"),
-        pl.col(s.HIGHD_FRAME).max().alias("finalFrame"),
-        pl.len().alias(s.HIGHD_NUM_FRAMES),
-        (pl.col(s.HIGHD_X).last() - pl.col(s.HIGHD_X).first()).abs().alias("traveledDistance"),
+    speed = pl.col(hs.HIGHD_X_VELOCITY).abs()
+    per_vehicle = tracks.group_by(hs.HIGHD_ID).agg(
+        pl.col(hs.HIGHD_WIDTH).first(),
+        pl.col(hs.HIGHD_HEIGHT).first(),
+        pl.col(hs.HIGHD_FRAME).min().alias("initialFrame"),
+        pl.col(hs.HIGHD_FRAME).max().alias("finalFrame"),
+        pl.len().alias(hs.HIGHD_NUM_FRAMES),
+        (pl.col(hs.HIGHD_X).last() - pl.col(hs.HIGHD_X).first()).abs().alias("traveledDistance"),
         speed.min().alias("minXVelocity"),
         speed.max().alias("maxXVelocity"),
         speed.mean().alias("meanXVelocity"),
-        _positive_min(s.HIGHD_DHW).alias("minDHW"),
-        _positive_min(s.HIGHD_THW).alias("minTHW"),
-        _positive_min(s.HIGHD_TTC).alias("minTTC"),
-        (pl.col(s.HIGHD_LANE_ID).diff() != 0).sum().alias("numLaneChanges"),
+        _positive_min(hs.HIGHD_DHW).alias("minDHW"),
+        _positive_min(hs.HIGHD_THW).alias("minTHW"),
+        _positive_min(hs.HIGHD_TTC).alias("minTTC"),
+        (pl.col(hs.HIGHD_LANE_ID).diff() != 0).sum().alias("numLaneChanges"),
     )
-    named = per_vehicle.join(classes, on=s.HIGHD_ID).with_columns(
+    named = per_vehicle.join(classes, on=hs.HIGHD_ID).with_columns(
         pl.when(pl.col(s.V_CLASS) == 3)
         .then(pl.lit("Truck"))
         .otherwise(pl.lit("Car"))
-        .alias(s.HIGHD_CLASS),
-        pl.lit(direction).alias(s.HIGHD_DRIVING_DIRECTION),
+        .alias(hs.HIGHD_CLASS),
+        pl.lit(direction).alias(hs.HIGHD_DRIVING_DIRECTION),
     )
-    return named.select(s.HIGHD_TRACKS_META_HEADER).sort(s.HIGHD_ID)
+    return named.select(hs.HIGHD_TRACKS_META_HEADER).sort(hs.HIGHD_ID)
 
 
 def _markings(values: tuple[float, ...]) -> str:
@@ -224,7 +228,7 @@ def recording_meta_table(
 ) -> pl.DataFrame:
     """The NN_recordingMeta.csv table (one row) of a recording, from its tracksMeta table."""
     start = datetime.fromtimestamp(recording.start_epoch_ms / 1000, PACIFIC_DAYLIGHT)
-    trucks = int((meta[s.HIGHD_CLASS] == "Truck").sum())
+    trucks = int((meta[hs.HIGHD_CLASS] == "Truck").sum())
     values = [
         recording_id,
         FRAME_RATE_HZ,
@@ -235,14 +239,14 @@ def recording_meta_table(
         f"{start:%H:%M}",
         float(minutes * 60),
         float(meta["traveledDistance"].sum()),
-        float(meta[s.HIGHD_NUM_FRAMES].sum()) / FRAME_RATE_HZ,
+        float(meta[hs.HIGHD_NUM_FRAMES].sum()) / FRAME_RATE_HZ,
         meta.height,
         meta.height - trucks,
         trucks,
         _markings(layout.upper_markings_m),
         _markings(layout.lower_markings_m),
     ]
-    return pl.DataFrame([values], schema=list(s.HIGHD_RECORDING_META_HEADER), orient="row")
+    return pl.DataFrame([values], schema=list(hs.HIGHD_RECORDING_META_HEADER), orient="row")
 
 
 def highd_tables(

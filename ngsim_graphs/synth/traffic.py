@@ -97,7 +97,7 @@ class _Simulation:
 
 
 def simulate_recording(recording: Recording, minutes: float, seed: int) -> pl.DataFrame:
-    """The clean raw rows of one synthetic recording, `schema.RAW_SCHEMA`, NGSIM units.
+    """The clean raw rows of one synthetic recording, `ns.RAW_SCHEMA`, NGSIM units.
 
     Frame_ID runs from 0 at 10 Hz for `minutes`; Global_Time = frame0 + 100 * Frame_ID, frame0 being
     the recording's nominal start minus a seeded 0..30 s. Rows are sorted by (vehicle_id, frame_id).

@@ -21,9 +21,11 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.schema import HighdFile
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ, parse_file_name, sibling
-from ngsim_graphs.sources.ngsim.faults import (
+from ngsim_graphs.sources.highd.schema import HighdFile
+from ngsim_graphs.sources.inputs import files_in
+from ngsim_graphs.sources.text import (
     EXTRA,
     LINE,
     ROW,
@@ -40,24 +42,24 @@ _BAD = "__bad"
 # Header columns that tell each kind of file (lower case); the kinds share no such set.
 SIGNATURES: dict[HighdFile, frozenset[str]] = {
     HighdFile.TRACKS: frozenset(
-        c.lower() for c in (s.HIGHD_FRAME, s.HIGHD_X_VELOCITY, s.HIGHD_LANE_ID)
+        c.lower() for c in (hs.HIGHD_FRAME, hs.HIGHD_X_VELOCITY, hs.HIGHD_LANE_ID)
     ),
     HighdFile.TRACKS_META: frozenset(
-        c.lower() for c in ("initialFrame", s.HIGHD_DRIVING_DIRECTION)
+        c.lower() for c in ("initialFrame", hs.HIGHD_DRIVING_DIRECTION)
     ),
     HighdFile.RECORDING_META: frozenset(
-        c.lower() for c in (s.HIGHD_FRAME_RATE, s.HIGHD_LOCATION_ID)
+        c.lower() for c in (hs.HIGHD_FRAME_RATE, hs.HIGHD_LOCATION_ID)
     ),
 }
 HEADERS = {
-    HighdFile.TRACKS: s.HIGHD_TRACKS_HEADER,
-    HighdFile.TRACKS_META: s.HIGHD_TRACKS_META_HEADER,
-    HighdFile.RECORDING_META: s.HIGHD_RECORDING_META_HEADER,
+    HighdFile.TRACKS: hs.HIGHD_TRACKS_HEADER,
+    HighdFile.TRACKS_META: hs.HIGHD_TRACKS_META_HEADER,
+    HighdFile.RECORDING_META: hs.HIGHD_RECORDING_META_HEADER,
 }
 SCHEMAS = {
-    HighdFile.TRACKS: s.HIGHD_TRACKS_SCHEMA,
-    HighdFile.TRACKS_META: s.HIGHD_TRACKS_META_SCHEMA,
-    HighdFile.RECORDING_META: s.HIGHD_RECORDING_META_SCHEMA,
+    HighdFile.TRACKS: hs.HIGHD_TRACKS_SCHEMA,
+    HighdFile.TRACKS_META: hs.HIGHD_TRACKS_META_SCHEMA,
+    HighdFile.RECORDING_META: hs.HIGHD_RECORDING_META_SCHEMA,
 }
 
 
@@ -96,6 +98,15 @@ def sniff_highd(path: Path) -> HighdFile | None:
             return kind
     named = parse_file_name(path)
     return None if named is None else named[1]
+
+
+def is_highd_file(path: Path) -> bool:
+    """Whether `path` is a highD file (`sniff_highd`); a highD file whose header is damaged
+    raises NgsimInputError naming the column (`check_header`)."""
+    kind = sniff_highd(path)
+    if kind is not None:
+        check_header(path, kind)
+    return kind is not None
 
 
 def recording_files(path: Path) -> list[Path]:
@@ -140,14 +151,10 @@ def find_highd_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     found: list[Path] = []
     skipped: list[Path] = []
     for path in paths:
-        if not path.exists():
-            raise NgsimInputError(path, "no such file or directory")
-        if path.is_file():
+        candidates = files_in(path, (".csv", ".txt"))
+        if candidates is None:  # named: its recording's three files
             found.extend(recording_files(path))
             continue
-        candidates = sorted(
-            p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in (".csv", ".txt")
-        )
         tracks = [p for p in candidates if sniff_highd(p) is HighdFile.TRACKS]
         if not tracks:
             raise NgsimInputError(path, "no highD tracks files (NN_tracks.csv) in this directory")
@@ -289,24 +296,24 @@ def read_recording_meta(path: Path, limits: PhysicalLimits) -> RecordingMeta:
     """The one row of a recordingMeta file; its frame rate must be highD's 25 Hz, its lane
     markings plausible (finite, within `limits`' position limit, increasing, the upper
     carriageway's above the lower's)."""
-    frame = read_columns(path, HighdFile.RECORDING_META, s.HIGHD_RECORDING_META_SCHEMA)
+    frame = read_columns(path, HighdFile.RECORDING_META, hs.HIGHD_RECORDING_META_SCHEMA)
     if frame.height != 1:
         raise NgsimInputError(path, f"holds {frame.height} rows; a recordingMeta file holds one")
     row = frame.row(0, named=True)
-    for column in (s.HIGHD_ID, s.HIGHD_FRAME_RATE, s.HIGHD_LOCATION_ID):
+    for column in (hs.HIGHD_ID, hs.HIGHD_FRAME_RATE, hs.HIGHD_LOCATION_ID):
         if row[column] is None or row[column] < 1:
             raise NgsimInputError(
                 path, f"column {column}: {row[column]!r} is not a positive number", line=FIRST_LINE
             )
-    if row[s.HIGHD_FRAME_RATE] != FRAME_RATE_HZ:
+    if row[hs.HIGHD_FRAME_RATE] != FRAME_RATE_HZ:
         raise NgsimInputError(
             path,
-            f"frameRate {row[s.HIGHD_FRAME_RATE]}: highD recordings run at {FRAME_RATE_HZ} Hz",
+            f"frameRate {row[hs.HIGHD_FRAME_RATE]}: highD recordings run at {FRAME_RATE_HZ} Hz",
             line=FIRST_LINE,
         )
     upper, lower = (
         _markings(path, column, row[column], limits.max_abs_position_m)
-        for column in (s.HIGHD_UPPER_LANE_MARKINGS, s.HIGHD_LOWER_LANE_MARKINGS)
+        for column in (hs.HIGHD_UPPER_LANE_MARKINGS, hs.HIGHD_LOWER_LANE_MARKINGS)
     )
     if upper[-1] > lower[0]:
         raise NgsimInputError(
@@ -316,8 +323,8 @@ def read_recording_meta(path: Path, limits: PhysicalLimits) -> RecordingMeta:
             line=FIRST_LINE,
         )
     return RecordingMeta(
-        recording_id=row[s.HIGHD_ID],
-        location_id=row[s.HIGHD_LOCATION_ID],
+        recording_id=row[hs.HIGHD_ID],
+        location_id=row[hs.HIGHD_LOCATION_ID],
         upper_markings_m=upper,
         lower_markings_m=lower,
     )
@@ -330,30 +337,33 @@ def read_tracks_meta(path: Path) -> pl.DataFrame:
     Raises for an empty field, a class other than Car or Truck, a direction other than 1 or 2,
     or an id that appears twice.
     """
-    frame = read_columns(path, HighdFile.TRACKS_META, s.HIGHD_TRACKS_META_SCHEMA)
+    frame = read_columns(path, HighdFile.TRACKS_META, hs.HIGHD_TRACKS_META_SCHEMA)
     code = (
-        pl.col(s.HIGHD_CLASS).str.to_lowercase().replace_strict(s.HIGHD_CLASS_CODES, default=None)
+        pl.col(hs.HIGHD_CLASS).str.to_lowercase().replace_strict(hs.HIGHD_CLASS_CODES, default=None)
     )
     checked = frame.with_columns(code.cast(pl.Int8).alias(s.V_CLASS))
     problems = (
-        (pl.any_horizontal(pl.col(s.HIGHD_TRACKS_META_SCHEMA.names()).is_null()), "an empty field"),
+        (
+            pl.any_horizontal(pl.col(hs.HIGHD_TRACKS_META_SCHEMA.names()).is_null()),
+            "an empty field",
+        ),
         (pl.col(s.V_CLASS).is_null(), "a class other than Car or Truck"),
-        (~pl.col(s.HIGHD_DRIVING_DIRECTION).is_in([1, 2]), "a drivingDirection other than 1 or 2"),
-        (pl.col(s.HIGHD_ID).is_duplicated(), "an id that appears twice"),
-        (pl.col(s.HIGHD_ID) < 1, "an id below 1"),
+        (~pl.col(hs.HIGHD_DRIVING_DIRECTION).is_in([1, 2]), "a drivingDirection other than 1 or 2"),
+        (pl.col(hs.HIGHD_ID).is_duplicated(), "an id that appears twice"),
+        (pl.col(hs.HIGHD_ID) < 1, "an id below 1"),
     )
     for condition, what in problems:
         found = checked.filter(condition.fill_null(True))
         if found.height:
             raise NgsimInputError(path, f"holds {what}", line=int(found[ROW].min()) + FIRST_LINE)
     return checked.select(
-        pl.col(s.HIGHD_ID).alias(s.VEHICLE_ID),
+        pl.col(hs.HIGHD_ID).alias(s.VEHICLE_ID),
         s.V_CLASS,
-        s.HIGHD_DRIVING_DIRECTION,
-        s.HIGHD_NUM_FRAMES,
+        hs.HIGHD_DRIVING_DIRECTION,
+        hs.HIGHD_NUM_FRAMES,
     )
 
 
 def read_tracks(path: Path) -> pl.DataFrame:
     """The parsed HIGHD_TRACKS_SCHEMA columns of a tracks file, with ROW; empty fields null."""
-    return read_columns(path, HighdFile.TRACKS, s.HIGHD_TRACKS_SCHEMA)
+    return read_columns(path, HighdFile.TRACKS, hs.HIGHD_TRACKS_SCHEMA)

@@ -36,14 +36,15 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import RecordingMeta
 from ngsim_graphs.sources.highd.recordings import max_frame
 
 UPPER_ORIGIN_M = 2_000.0  # direction 1: y_m = UPPER_ORIGIN_M - image x of the front
 UPPER, LOWER = 1, 2  # drivingDirection
-# thw's bound: NGSIM's (its "no leader" value, 2.8 hours); at a standstill thw = dhw / speed is
+# thw's bound: 2.8 hours, NGSIM's (its "no leader" value); at a standstill thw = dhw / speed is
 # large but finite.
-MAX_TIME_HEADWAY_S = s.NO_LEADER_TIME_HEADWAY_S
+MAX_TIME_HEADWAY_S = 9_999.99
 # A vehicle whose front ends its record this far behind where it began drives against its
 # drivingDirection (highD's tracker jitters by centimetres; no one reverses on a motorway).
 MAX_BACKWARDS_M = 1.0
@@ -77,13 +78,13 @@ def _norm(x: str, y: str) -> pl.Expr:
 def _bad_headway(limits: PhysicalLimits) -> pl.Expr:
     """dhw (m) or thw (s) out of range, a neighbour id below 0, or a headway without a leader:
     highD writes dhw = thw = 0 where precedingId is 0 (none)."""
-    no_leader = pl.col(s.HIGHD_PRECEDING_ID) == s.HIGHD_NO_NEIGHBOUR
-    headway = (pl.col(s.HIGHD_DHW) != 0) | (pl.col(s.HIGHD_THW) != 0)
+    no_leader = pl.col(hs.HIGHD_PRECEDING_ID) == hs.HIGHD_NO_NEIGHBOUR
+    headway = (pl.col(hs.HIGHD_DHW) != 0) | (pl.col(hs.HIGHD_THW) != 0)
     return (
-        ~pl.col(s.HIGHD_DHW).is_between(0, limits.max_abs_position_m)
-        | ~pl.col(s.HIGHD_THW).is_between(0, MAX_TIME_HEADWAY_S)
-        | (pl.col(s.HIGHD_PRECEDING_ID) < 0)
-        | (pl.col(s.HIGHD_FOLLOWING_ID) < 0)
+        ~pl.col(hs.HIGHD_DHW).is_between(0, limits.max_abs_position_m)
+        | ~pl.col(hs.HIGHD_THW).is_between(0, MAX_TIME_HEADWAY_S)
+        | (pl.col(hs.HIGHD_PRECEDING_ID) < 0)
+        | (pl.col(hs.HIGHD_FOLLOWING_ID) < 0)
         | (no_leader & headway)
     )
 
@@ -91,22 +92,22 @@ def _bad_headway(limits: PhysicalLimits) -> pl.Expr:
 def _checks(limits: PhysicalLimits) -> tuple[tuple[DropReason, pl.Expr], ...]:
     """(reason, True where a raw tracks row breaks its limit), in the order they are tried."""
     far = limits.max_abs_position_m
-    frame = pl.col(s.HIGHD_FRAME)
+    frame = pl.col(hs.HIGHD_FRAME)
     return (
         (DropReason.FRAME_ID, (frame < 0) | (frame > max_frame(limits.max_frame_id))),
-        (DropReason.VEHICLE_ID, pl.col(s.HIGHD_ID) < 1),
-        (DropReason.POSITION, (pl.col(s.HIGHD_X).abs() > far) | (pl.col(s.HIGHD_Y).abs() > far)),
-        (DropReason.SPEED, _norm(s.HIGHD_X_VELOCITY, s.HIGHD_Y_VELOCITY) > limits.max_speed_mps),
+        (DropReason.VEHICLE_ID, pl.col(hs.HIGHD_ID) < 1),
+        (DropReason.POSITION, (pl.col(hs.HIGHD_X).abs() > far) | (pl.col(hs.HIGHD_Y).abs() > far)),
+        (DropReason.SPEED, _norm(hs.HIGHD_X_VELOCITY, hs.HIGHD_Y_VELOCITY) > limits.max_speed_mps),
         (
             DropReason.ACCELERATION,
-            _norm(s.HIGHD_X_ACCELERATION, s.HIGHD_Y_ACCELERATION) > limits.max_abs_accel_mps2,
+            _norm(hs.HIGHD_X_ACCELERATION, hs.HIGHD_Y_ACCELERATION) > limits.max_abs_accel_mps2,
         ),
         (
             DropReason.VEHICLE_SIZE,  # the box's width is the vehicle's length, height its width
-            ~pl.col(s.HIGHD_WIDTH).is_between(0, limits.max_vehicle_length_m, closed="right")
-            | ~pl.col(s.HIGHD_HEIGHT).is_between(0, limits.max_vehicle_width_m, closed="right"),
+            ~pl.col(hs.HIGHD_WIDTH).is_between(0, limits.max_vehicle_length_m, closed="right")
+            | ~pl.col(hs.HIGHD_HEIGHT).is_between(0, limits.max_vehicle_width_m, closed="right"),
         ),
-        (DropReason.LANE, ~pl.col(s.HIGHD_LANE_ID).is_between(0, limits.max_lane_id)),
+        (DropReason.LANE, ~pl.col(hs.HIGHD_LANE_ID).is_between(0, limits.max_lane_id)),
         (DropReason.HEADWAY, _bad_headway(limits)),
     )
 
@@ -132,7 +133,7 @@ def moves_backwards() -> pl.Expr:
 
 
 def _none_if_zero(column: str) -> pl.Expr:
-    return pl.when(pl.col(column) != s.HIGHD_NO_NEIGHBOUR).then(pl.col(column))
+    return pl.when(pl.col(column) != hs.HIGHD_NO_NEIGHBOUR).then(pl.col(column))
 
 
 def to_road_frame(rows: pl.DataFrame, meta: RecordingMeta) -> pl.DataFrame:
@@ -141,8 +142,8 @@ def to_road_frame(rows: pl.DataFrame, meta: RecordingMeta) -> pl.DataFrame:
     `rows` hold HIGHD_TRACKS_SCHEMA columns and, per row, its vehicle's V_CLASS and
     HIGHD_DRIVING_DIRECTION (from the tracksMeta file).
     """
-    upper = pl.col(s.HIGHD_DRIVING_DIRECTION) == UPPER
-    centre_y = pl.col(s.HIGHD_Y) + pl.col(s.HIGHD_HEIGHT) / 2
+    upper = pl.col(hs.HIGHD_DRIVING_DIRECTION) == UPPER
+    centre_y = pl.col(hs.HIGHD_Y) + pl.col(hs.HIGHD_HEIGHT) / 2
     x_m = (
         pl.when(upper)
         .then(meta.upper_markings_m[-1] - centre_y)
@@ -150,30 +151,32 @@ def to_road_frame(rows: pl.DataFrame, meta: RecordingMeta) -> pl.DataFrame:
     )
     y_m = (
         pl.when(upper)
-        .then(UPPER_ORIGIN_M - pl.col(s.HIGHD_X))
-        .otherwise(pl.col(s.HIGHD_X) + pl.col(s.HIGHD_WIDTH))
+        .then(UPPER_ORIGIN_M - pl.col(hs.HIGHD_X))
+        .otherwise(pl.col(hs.HIGHD_X) + pl.col(hs.HIGHD_WIDTH))
     )
     along = pl.when(upper).then(-1.0).otherwise(1.0)
-    no_leader = pl.col(s.HIGHD_PRECEDING_ID).fill_null(s.HIGHD_NO_NEIGHBOUR) == s.HIGHD_NO_NEIGHBOUR
+    no_leader = (
+        pl.col(hs.HIGHD_PRECEDING_ID).fill_null(hs.HIGHD_NO_NEIGHBOUR) == hs.HIGHD_NO_NEIGHBOUR
+    )
     provenance = [c for c in rows.columns if c in s.PROVENANCE_SCHEMA]
     staged = rows.select(
-        pl.col(s.HIGHD_ID).alias(s.VEHICLE_ID),
-        pl.col(s.HIGHD_FRAME).alias(s.FRAME_ID),
+        pl.col(hs.HIGHD_ID).alias(s.VEHICLE_ID),
+        pl.col(hs.HIGHD_FRAME).alias(s.FRAME_ID),
         x_m.alias(s.X_M),
         y_m.alias(s.Y_M),
-        _norm(s.HIGHD_X_VELOCITY, s.HIGHD_Y_VELOCITY).alias(s.SPEED_MPS),
-        (along * pl.col(s.HIGHD_X_ACCELERATION) + 0.0).alias(s.ACCEL_MPS2),  # + 0.0: no -0.0
-        pl.col(s.HIGHD_LANE_ID).alias(s.LANE_ID),
+        _norm(hs.HIGHD_X_VELOCITY, hs.HIGHD_Y_VELOCITY).alias(s.SPEED_MPS),
+        (along * pl.col(hs.HIGHD_X_ACCELERATION) + 0.0).alias(s.ACCEL_MPS2),  # + 0.0: no -0.0
+        pl.col(hs.HIGHD_LANE_ID).alias(s.LANE_ID),
         s.V_CLASS,
-        pl.col(s.HIGHD_WIDTH).alias(s.LENGTH_M),
-        pl.col(s.HIGHD_HEIGHT).alias(s.WIDTH_M),
-        _none_if_zero(s.HIGHD_PRECEDING_ID).alias(s.PRECEDING),
-        _none_if_zero(s.HIGHD_FOLLOWING_ID).alias(s.FOLLOWING),
+        pl.col(hs.HIGHD_WIDTH).alias(s.LENGTH_M),
+        pl.col(hs.HIGHD_HEIGHT).alias(s.WIDTH_M),
+        _none_if_zero(hs.HIGHD_PRECEDING_ID).alias(s.PRECEDING),
+        _none_if_zero(hs.HIGHD_FOLLOWING_ID).alias(s.FOLLOWING),
         pl.when(no_leader)
         .then(None)
-        .otherwise(_none_if_zero(s.HIGHD_DHW))
+        .otherwise(_none_if_zero(hs.HIGHD_DHW))
         .alias(s.SPACE_HEADWAY_M),
-        _none_if_zero(s.HIGHD_THW).alias(s.TIME_HEADWAY_S),
+        _none_if_zero(hs.HIGHD_THW).alias(s.TIME_HEADWAY_S),
         *provenance,
     )
     return staged.cast(dict(STAGED_SCHEMA))

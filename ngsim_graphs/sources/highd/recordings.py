@@ -14,7 +14,7 @@ import re
 from pathlib import Path
 
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.schema import HighdFile
+from ngsim_graphs.sources.highd.schema import HighdFile
 
 FRAME_RATE_HZ = 25  # every highD recording
 FRAME_PERIOD_S = 1 / FRAME_RATE_HZ  # 0.04 s

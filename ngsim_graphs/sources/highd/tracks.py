@@ -8,11 +8,11 @@ are inputs in their own right (listed in the manifest with size and checksum); t
 rows, so their reports say `rows_read` 0. Per recording: exact duplicates dropped, conflicting
 ones resolved, each vehicle's record split at frame gaps, the 0.2 s grid kept by frame number
 (`frame % 5 == 0`), time from the 25 Hz frame number, tracks numbered and the heading derived;
-then NGSIM's speed check (`plausibility.check_speed_column`): the speeds must be those the
+then the speed check (`sources.speeds.check_speed_column`): the speeds must be those the
 positions show.
 
-Not done for highD, whose trajectories come smoothed from its own tracker: NGSIM's position
-outlier and jump checks (the reports' counts are 0).
+Not done for highD, whose trajectories come smoothed from its own tracker: the position
+outlier and jump checks of NGSIM (the reports' counts are 0).
 """
 
 from __future__ import annotations
@@ -25,22 +25,16 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
-from ngsim_graphs.schema import DropReason, HighdFile
-from ngsim_graphs.sources.contract import (
-    FileReport,
-    FileRows,
-    RecordingKey,
-    RecordingReport,
-    Source,
-    TracksPart,
-    finish_tracks,
-)
+from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources import cleaning, contract, speeds
+from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
     ROW,
     RecordingMeta,
     count_data_rows,
     find_highd_files,
+    is_highd_file,
     read_recording_meta,
     read_tracks,
     read_tracks_meta,
@@ -57,24 +51,16 @@ from ngsim_graphs.sources.highd.recordings import (
     FRAME_RATE_HZ,
     chosen_locations,
     frames_per_step,
+    is_highd_location,
     location_name,
     parse_file_name,
     period_name,
     sibling,
 )
-from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M, split_at_gaps
-from ngsim_graphs.sources.ngsim.plausibility import (
-    check_dropped,
-    check_speed_column,
-    speed_comparison,
-)
-from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
-from ngsim_graphs.sources.ngsim.tracks import joined_report
+from ngsim_graphs.sources.highd.schema import HighdFile
 
-FILE_REASONS: tuple[DropReason, ...] = tuple(
-    r for r in DropReason if r is not DropReason.POSITION_OUTLIER
-)
-TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's FileReport.raw_format
+METRES = 1.0  # highD's unit of length, in metres (the speed check's evidence is in it)
+TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's contract.FileReport.raw_format
 # Conflicting duplicates (one vehicle and frame, different values) keep the row that sorts first
 # by these columns (the smallest y_m, then x_m, ...): a rule of the values alone, never of the
 # order of the file.
@@ -85,7 +71,9 @@ CONFLICT_ORDER: tuple[str, ...] = (
 )
 
 
-def _recording(path: Path, config: BuildConfig) -> tuple[HighdFile, RecordingMeta, RecordingKey]:
+def _recording(
+    path: Path, config: BuildConfig
+) -> tuple[HighdFile, RecordingMeta, contract.RecordingKey]:
     """The kind of file `path` is (by name), its recording's meta and key."""
     named = parse_file_name(path)
     if named is None:
@@ -108,20 +96,22 @@ def _recording(path: Path, config: BuildConfig) -> tuple[HighdFile, RecordingMet
     return kind, meta, (location_name(meta.location_id), period_name(meta.recording_id))
 
 
-def _report(path: Path, key: RecordingKey, chosen: bool, **counts: object) -> FileReport:
+def _report(
+    path: Path, key: contract.RecordingKey, chosen: bool, **counts: object
+) -> contract.FileReport:
     """A file's report; `counts` fill in what reading its rows found (a meta file has none)."""
     fields: dict[str, object] = {
         "rows_read": 0,
         "rows_other_locations": 0,
         "rows_missing_values": 0,
         "first_missing_line": None,
-        "rows_dropped": {r.value: 0 for r in FILE_REASONS},
+        "rows_dropped": {r.value: 0 for r in cleaning.FILE_REASONS},
         "first_dropped_line": {},
         "rows_checked": 0,
     }
     fields.update(counts)
     kind = parse_file_name(path)
-    return FileReport(
+    return contract.FileReport(
         path=str(path),
         raw_format=f"highd-{kind[1].value if kind else HighdFile.TRACKS.value}",
         size_bytes=path.stat().st_size,
@@ -136,15 +126,15 @@ def _check_whole_tracks(path: Path, raw: pl.DataFrame, vehicles: pl.DataFrame) -
     """Raise when a track has fewer rows in the tracks file than its numFrames in the
     tracksMeta file: a file cut short at a line end (which keeps every line whole) loses the
     end of one track and every track after it."""
-    counts = raw.filter(pl.col(s.HIGHD_ID).is_not_null()).group_by(s.HIGHD_ID).len("rows")
+    counts = raw.filter(pl.col(hs.HIGHD_ID).is_not_null()).group_by(hs.HIGHD_ID).len("rows")
     short = (
-        vehicles.join(counts, left_on=s.VEHICLE_ID, right_on=s.HIGHD_ID, how="left")
+        vehicles.join(counts, left_on=s.VEHICLE_ID, right_on=hs.HIGHD_ID, how="left")
         .with_columns(pl.col("rows").fill_null(0))
-        .filter(pl.col("rows") < pl.col(s.HIGHD_NUM_FRAMES))
+        .filter(pl.col("rows") < pl.col(hs.HIGHD_NUM_FRAMES))
         .sort(s.VEHICLE_ID)
     )
     if short.height:
-        track, rows, frames = short.select(s.VEHICLE_ID, "rows", s.HIGHD_NUM_FRAMES).row(0)
+        track, rows, frames = short.select(s.VEHICLE_ID, "rows", hs.HIGHD_NUM_FRAMES).row(0)
         others = short.height - 1
         more = f" (and {others:,} more track{'s' * (others > 1)})" if others else ""
         meta_name = sibling(path, parse_file_name(path)[0], HighdFile.TRACKS_META).name  # type: ignore[index]
@@ -163,17 +153,17 @@ def _road_rows(
     know it."""
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     joined = usable.join(
-        vehicles.select(s.VEHICLE_ID, s.V_CLASS, s.HIGHD_DRIVING_DIRECTION),
-        left_on=s.HIGHD_ID,
+        vehicles.select(s.VEHICLE_ID, s.V_CLASS, hs.HIGHD_DRIVING_DIRECTION),
+        left_on=hs.HIGHD_ID,
         right_on=s.VEHICLE_ID,
         how="left",
         maintain_order="left",
     )
-    unknown = joined.filter(pl.col(s.HIGHD_DRIVING_DIRECTION).is_null())
+    unknown = joined.filter(pl.col(hs.HIGHD_DRIVING_DIRECTION).is_null())
     if unknown.height:
         raise NgsimInputError(
             path,
-            f"track id {unknown[s.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
+            f"track id {unknown[hs.HIGHD_ID][0]} has no row in {prefix}_tracksMeta.csv",
             line=int(unknown[s.SOURCE_LINE][0]),
         )
     return to_road_frame(
@@ -192,7 +182,7 @@ def _staged_rows(
     prefix = parse_file_name(path)[0]  # type: ignore[index]
     vehicles = read_tracks_meta(sibling(path, prefix, HighdFile.TRACKS_META))
     _check_whole_tracks(path, raw, vehicles)
-    complete = pl.all_horizontal(pl.col(s.HIGHD_REQUIRED_COLUMNS).is_not_null())
+    complete = pl.all_horizontal(pl.col(hs.HIGHD_REQUIRED_COLUMNS).is_not_null())
     checked = raw.with_columns(
         pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
         complete.alias("complete"),
@@ -215,7 +205,7 @@ def _staged_rows(
         "rows_read": raw.height,
         "rows_missing_values": missing.height,
         "first_missing_line": int(missing[s.SOURCE_LINE].min()) if missing.height else None,
-        "rows_dropped": {r.value: counts.get(r.value, 0) for r in FILE_REASONS},
+        "rows_dropped": {r.value: counts.get(r.value, 0) for r in cleaning.FILE_REASONS},
         "first_dropped_line": {r: first for r, _, first in sorted(dropped.iter_rows())},
         "rows_checked": raw.height - missing.height,
     }
@@ -224,7 +214,7 @@ def _staged_rows(
 
 def read_file(
     path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
-) -> FileRows:
+) -> contract.FileRows:
     """Read one highD file: a tracks file gives its recording's rows (STAGED_SCHEMA, with
     RECORDING_INDEX and provenance); a meta file is checked and gives none. (A recording's file
     is read in memory: `scratch` is not used.)"""
@@ -238,69 +228,35 @@ def read_file(
     if kind is HighdFile.TRACKS_META:
         read_tracks_meta(path)  # its recording's meta was read above
     if kind is not HighdFile.TRACKS:
-        return FileRows(empty, {}, _report(path, key, chosen))
+        return contract.FileRows(empty, {}, _report(path, key, chosen))
     if not chosen:
         n = count_data_rows(path)
-        return FileRows(empty, {}, _report(path, key, chosen, rows_read=n, rows_other_locations=n))
+        return contract.FileRows(
+            empty, {}, _report(path, key, chosen, rows_read=n, rows_other_locations=n)
+        )
     rows, counts = _staged_rows(path, meta, config, file_index)
     report = _report(path, key, chosen, **counts)
-    check_dropped(
-        report.path,
-        report.rows_dropped,
-        report.first_dropped_line,
-        report.rows_checked,
-        config.limits,
-        strict,
-    )
+    cleaning.check_file_drops(report, config.limits, strict)
     staged = rows.with_columns(pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX))
-    return FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
-
-
-def drop_duplicate_rows(frame: pl.DataFrame) -> tuple[pl.DataFrame, int, int]:
-    """Drop exact duplicates, then keep one row per (vehicle, frame) by CONFLICT_ORDER.
-
-    Returns (rows sorted by vehicle and frame, exact duplicates dropped, conflicting duplicates
-    dropped). Provenance columns are not values: two rows alike but for their line are exact.
-    """
-    keys = [s.VEHICLE_ID, s.FRAME_ID]
-    repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
-    multi = frame.filter(repeated)
-    values = [c for c in frame.columns if c not in s.PROVENANCE_SCHEMA]
-    unique = multi.unique(subset=values, keep="first", maintain_order=True)
-    ordered = unique.sort([*keys, *CONFLICT_ORDER], nulls_last=True)
-    kept = ordered.unique(subset=keys, keep="first", maintain_order=True)
-    cleaned = pl.concat([frame.filter(~repeated), kept]).sort(keys)
-    return cleaned, multi.height - unique.height, unique.height - kept.height
-
-
-def _in_feet(rows: pl.DataFrame) -> pl.DataFrame:
-    """Staged rows (sorted by vehicle and frame) as NGSIM's speed check reads them: positions
-    and speed in its units (feet, feet per second) and names."""
-    return rows.select(
-        s.VEHICLE_ID,
-        s.FRAME_ID,
-        (pl.col(s.X_M) / FEET_TO_M).alias(s.LOCAL_X),
-        (pl.col(s.Y_M) / FEET_TO_M).alias(s.LOCAL_Y),
-        (pl.col(s.SPEED_MPS) / FEET_TO_M).alias(s.V_VEL),
-    )
+    return contract.FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
 
 
 def vehicle_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
-) -> TracksPart:
+    raw: pl.DataFrame, key: contract.RecordingKey, config: BuildConfig, first_track_id: int
+) -> contract.TracksPart:
     """The tracks of the vehicles of `raw` in recording `key` (all the rows of each, from its
     staged rows: any order, duplicates allowed), what cleaning them counted, and the evidence
-    of the speed check (NGSIM's `speed_comparison` of their 25 Hz rows).
+    of the speed check (`speeds.speed_comparison` of their 25 Hz rows, in metres).
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
     by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
     (ms since the recording's frame 0; highD's frames start at 1).
     """
-    unique, exact, conflicting = drop_duplicate_rows(raw)
-    compared = speed_comparison(_in_feet(unique), FRAME_PERIOD_S)
-    segmented, gaps = split_at_gaps(unique)
+    unique, exact, conflicting = cleaning.drop_duplicate_rows(raw, CONFLICT_ORDER)
+    compared = speeds.speed_comparison(unique, s.X_M, s.Y_M, s.SPEED_MPS, FRAME_PERIOD_S)
+    segmented, gaps = cleaning.split_at_gaps(unique)
     location, period = key
-    on_grid = downsample_to_grid(
+    on_grid = cleaning.downsample_to_grid(
         segmented, frames_per_step(config.time_step_s, Path(f"{location}/{period}"))
     )
     grid = on_grid.with_columns(
@@ -309,61 +265,47 @@ def vehicle_tracks(
         (pl.col(s.FRAME_ID) / FRAME_RATE_HZ).alias(s.TIME_S),
         (pl.col(s.FRAME_ID).cast(pl.Int64) * FRAME_PERIOD_MS).alias(s.GLOBAL_TIME),
     )
-    tracks = finish_tracks(grid, first_track_id, config)
-    report = RecordingReport(
-        location=location,
-        period=period,
-        rows=raw.height,
-        exact_duplicates=exact,
-        conflicting_duplicates=conflicting,
-        position_outliers=0,
-        position_jumps=0,
-        gaps=gaps,
-        vehicles=unique[s.VEHICLE_ID].n_unique(),
-        tracks=tracks[s.TRACK_ID].n_unique(),
-        grid_rows=tracks.height,
-    )
-    return TracksPart(tracks, report, compared)
+    tracks = contract.finish_tracks(grid, first_track_id, config)
+    report = cleaning.cleaned_report(key, raw.height, unique, tracks, (exact, conflicting), gaps)
+    return contract.TracksPart(tracks, report, compared)
 
 
 def build_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
-) -> tuple[pl.DataFrame, RecordingReport]:
+    raw: pl.DataFrame, key: contract.RecordingKey, config: BuildConfig, first_track_id: int
+) -> tuple[pl.DataFrame, contract.RecordingReport]:
     """The tracks table and report of recording `key` from all its staged rows at once: the
     tests' reference; a build cleans parts (vehicle_tracks)."""
     part = vehicle_tracks(raw, key, config, first_track_id)
-    return part.tracks, joined_report([part], key)
+    return part.tracks, speeds.joined_report([part], key, METRES)
 
 
 def recording_report(
-    parts: list[TracksPart],
-    key: RecordingKey,
+    parts: list[contract.TracksPart],
+    key: contract.RecordingKey,
     config: BuildConfig,
-    files: list[FileReport],
+    files: list[contract.FileReport],
     strict: bool,
-) -> RecordingReport:
-    """The parts' counts summed and the speed check's medians (NGSIM's `joined_report`), after
+) -> contract.RecordingReport:
+    """The parts' counts summed and the speed check's medians (`speeds.joined_report`), after
     the recording's one check: xVelocity and yVelocity must be the speed the positions show
     (its rows were checked as read, read_file)."""
-    report = joined_report(parts, key)
+    report = speeds.joined_report(parts, key, METRES)
     name = f"{report.location}/{report.period}"
     tracks_files = [f.path for f in files if name in f.recordings and f.raw_format == TRACKS_FORMAT]
-    check_speed_column(
-        ", ".join(tracks_files),
-        report.speed_mismatch_mps,
-        report.shown_speed_mps,
-        report.speed_rows_compared,
-        config.limits,
-        column="xVelocity",
-        units="metres per second (x and y: metres)",
-    )
+    units = "metres per second (x and y: metres)"
+    speeds.check_speed_column(", ".join(tracks_files), report, config.limits, "xVelocity", units)
     return report
 
 
-SOURCE = Source(
-    name="highd",
-    find_files=find_highd_files,
-    read_file=read_file,
-    vehicle_tracks=vehicle_tracks,
-    recording_report=recording_report,
+SOURCE = contract.Source(  # the contract's four functions in its order, then how it is told
+    "highd",
+    find_highd_files,
+    read_file,
+    vehicle_tracks,
+    recording_report,
+    label="highD",
+    suffixes=(".csv",),
+    claims=is_highd_file,
+    is_location=is_highd_location,
+    locations_help="highd-N (a highD locationId)",
 )

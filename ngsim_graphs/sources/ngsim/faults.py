@@ -1,188 +1,43 @@
-"""Finding the line and field at fault once a raw NGSIM file failed to read fast.
+"""Naming the NGSIM line and field at fault once a raw file failed to read fast.
 
-The reader (`reading`) parses a whole file in one streaming pass and only counts what is odd;
-when something is, these functions look again, line by line, for the first line at fault and
-say what is wrong there in one line: a wrong number of fields, a quote left open or misplaced, a
-control character, a field that is not a number (or not finite, or not whole, or out of range).
+The reader (`files`) parses a whole file in one streaming pass and only counts what is odd; when
+something is, these functions look again for the first line at fault, with the line scans of
+`sources.text`: a wrong number of fields, a field that is not a number of its column's dtype.
 """
 
 from __future__ import annotations
 
-import math
-import re
 from pathlib import Path
-from typing import IO
 
-import numpy as np
 import polars as pl
 
-from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.sources.text import (
+    CONTROL,
+    EXTRA,
+    ROW,
+    check_csv_field_counts,
+    number_problem,
+    raise_control_character,
+)
 
-ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
 PRESENT = "__present"  # non-empty fields of a row
 ODD = "__odd"  # the row may have a wrong number of fields
-EXTRA = "__extra"  # the first surplus field of a CSV row
 N_FIELDS = "__n_fields"  # fields of a text line
-LINE = "__line"
-CONTROL = "__control"  # what follows a 0x1F byte in a line (see scan_lines)
-_CUT = "\x1f"
-
-
-def scan_lines(path: Path | IO[bytes], skip_rows: int = 1) -> pl.LazyFrame:
-    """Every line after the first `skip_rows` as one text column (LINE), quotes untouched (of a
-    file, or of a range of its bytes).
-
-    Lines are cut at a byte no NGSIM file holds (0x1F, the unit separator); a line that holds it
-    anyway has the rest in CONTROL, so that it is reported rather than read as more columns.
-    """
-    return pl.scan_csv(
-        path,
-        has_header=False,
-        skip_rows=skip_rows,
-        separator=_CUT,
-        quote_char=None,
-        schema={LINE: pl.String, CONTROL: pl.String},
-        missing_columns="insert",
-        truncate_ragged_lines=True,
-        encoding="utf8-lossy",
-    )
-
-
-def scan_csv_fields(
-    path: Path | IO[bytes], names: list[str], skip_rows: int = 1, first_row: int = 0
-) -> pl.LazyFrame:
-    """A CSV's data rows as text columns `names` (the header, lower-cased), with ROW from
-    `first_row` (of a file, or of a range of its bytes: `skip_rows` 0 but in the first); blank
-    lines dropped. Polars drops a row's surplus fields silently: the one spare column EXTRA
-    keeps the first of them, so that ragged rows can be found."""
-    frame = pl.scan_csv(
-        path,
-        has_header=False,
-        skip_rows=skip_rows,
-        schema=dict.fromkeys([*names, EXTRA], pl.String),
-        missing_columns="insert",
-        truncate_ragged_lines=True,
-        quote_char='"',
-        encoding="utf8-lossy",
-    )
-    # Blank lines read as all-null rows: neither data nor another location.
-    not_blank = pl.any_horizontal(pl.col(names).is_not_null())
-    return frame.with_row_index(ROW, offset=first_row).filter(not_blank)
-
-
-def raise_control_character(path: Path, row: int, first_line: int) -> None:
-    raise NgsimInputError(
-        path, "holds a control character (0x1F): not NGSIM text", line=row + first_line
-    )
-
-
-# A CSV line whose quoting is well formed: fields unquoted (no quote in them) or quoted whole.
-_FIELD = r'(?:[^",]*|"(?:[^"]|"")*")'
-_QUOTED_CSV_LINE = rf"^{_FIELD}(?:,{_FIELD})*\r?$"
-
-
-def raise_bad_quoting(path: Path) -> None:
-    """Raise for the first line with an odd number of double quotes (a truncated quoted field),
-    or a control character, or quoting that is not well formed (the CSV parser's own error
-    names no line).
-
-    NGSIM fields never hold a line break, so a quote left open on one line is an error there,
-    not a field that goes on: the CSV parser would read on into the next lines.
-    """
-    odd = pl.col(LINE).str.count_matches('"', literal=True) % 2 == 1
-    scan = scan_lines(path).with_row_index(ROW).filter(odd | pl.col(CONTROL).is_not_null())
-    found = scan.select(ROW, CONTROL).head(1).collect(engine="streaming")
-    if found.height:
-        row, control = found.row(0)
-        if control is not None:
-            raise_control_character(path, row, 2)
-        raise NgsimInputError(path, "a quoted field is not closed (truncated line?)", line=row + 2)
-    well_formed = pl.col(LINE).str.contains(_QUOTED_CSV_LINE)
-    bad = scan_lines(path).with_row_index(ROW).filter(~well_formed).select(ROW).head(1)
-    found = bad.collect(engine="streaming")
-    if found.height:
-        raise NgsimInputError(
-            path,
-            'malformed quoting: a quote inside a field, or text after a closing "',
-            line=int(found.item()) + 2,
-        )
-
-
-def check_csv_field_counts(path: Path, n_columns: int) -> None:
-    """Raise for the first non-blank line whose field count differs from the header's.
-
-    The exact check behind _odd_csv_shape: counts the commas outside quotes of every line in
-    one streaming pass. It runs only for files where a row looked odd.
-    """
-    lines = scan_lines(path)
-    unquoted = pl.col(LINE).str.replace_all(r'"[^"]*"', "")
-    n_fields = unquoted.str.count_matches(",", literal=True) + 1
-    wrong = (
-        lines.with_row_index(ROW)
-        .filter(pl.col(LINE).str.strip_chars() != "")
-        .select(ROW, n_fields.alias("n"), CONTROL)
-        .filter((pl.col("n") != n_columns) | pl.col(CONTROL).is_not_null())
-        .head(1)
-        .collect(engine="streaming")
-    )
-    if wrong.height:
-        row, n, control = wrong.row(0)
-        if control is not None:
-            raise_control_character(path, row, 2)
-        cause = "truncated line?" if n < n_columns else "an unquoted comma?"
-        raise NgsimInputError(
-            path, f"{n} fields where the header has {n_columns} ({cause})", line=row + 2
-        )
 
 
 def raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) -> None:
     """Name the first field of data row `row` that is not a number (re-reading that row only)."""
-    fields = text.filter(pl.col(ROW) == row).select(s.TXT_COLUMNS).collect().row(0, named=True)
-    official = {name.lower(): name for name in s.PORTAL_HEADER}
+    fields = text.filter(pl.col(ROW) == row).select(ns.TXT_COLUMNS).collect().row(0, named=True)
+    official = {name.lower(): name for name in ns.PORTAL_HEADER}
     for column, value in fields.items():
-        problem = number_problem((value or "").replace(",", ""), s.RAW_SCHEMA[column])
+        problem = number_problem((value or "").replace(",", ""), ns.RAW_SCHEMA[column])
         if problem:
             message = f"column {official[column]}: {value!r} {problem}"
             raise NgsimInputError(path, message, line=row + first_line)
     raise NgsimInputError(path, "a value is out of range", line=row + first_line)
-
-
-# A decimal number as the reader parses it. Python's float() accepts more ("1_000", "\x1f1"),
-# so it is not the judge of what the reader could not parse.
-_DECIMAL = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-_NOT_FINITE = ("inf", "infinity", "nan")
-_RUST_WHITESPACE = (
-    " \t\n\v\f\r\x85\xa0\u1680\u2000\u2001\u2002\u2003\u2004\u2005\u2006\u2007\u2008\u2009"
-    "\u200a\u2028\u2029\u202f\u205f\u3000"
-)
-
-
-def number_problem(text: str, dtype: pl.DataType) -> str | None:
-    """What is wrong with one field's text as a value of `dtype`; None when it is fine or empty.
-
-    `text` is stripped as polars' `strip_chars()` strips (Unicode white space, no control codes).
-    """
-    text = text.strip(_RUST_WHITESPACE)
-    if text == "":
-        return None
-    if not _DECIMAL.fullmatch(text):
-        return (
-            "is not a finite number"
-            if text.lower().lstrip("+-") in _NOT_FINITE
-            else "is not a number"
-        )
-    value = float(text)
-    if not math.isfinite(value):
-        return "is not a finite number"
-    if dtype != pl.Float64:
-        if value != math.floor(value):
-            return "is not a whole number"
-        info = np.iinfo(str(dtype).lower())  # polars Int32 -> "int32"
-        if not info.min <= value <= info.max:
-            return f"is out of range ({info.min:,} to {info.max:,})"
-    return None
 
 
 def raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> None:
@@ -192,7 +47,7 @@ def raise_odd_shape(path: Path, raw_format: RawFormat, text: pl.LazyFrame) -> No
         row, n_fields, control = odd
         if control is not None:
             raise_control_character(path, row, 1)
-        expected = len(s.TXT_COLUMNS)
+        expected = len(ns.TXT_COLUMNS)
         cause = "truncated line?" if n_fields < expected else "more fields than NGSIM's"
         raise NgsimInputError(
             path, f"{n_fields} fields where {expected} were expected ({cause})", line=row + 1

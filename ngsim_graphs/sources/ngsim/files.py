@@ -1,14 +1,13 @@
 """Reading raw NGSIM files of all three formats into one parsed raw table per file.
 
-The format is told from the content (the first line), never from the file name. Every value is
-read as text first and parsed here, so that quoted thousands separators (`"1,156"`) parse and a
-malformed number is reported with its file, line and column. Units stay NGSIM's (feet, ms).
+The format is told from the content (`formats.sniff_format`: the first lines), never from the
+file name. Every value is read as text first and parsed here, so that quoted thousands
+separators (`"1,156"`) parse and a malformed number is reported with its file, line and column
+(`faults`). Units stay NGSIM's (feet, ms).
 """
 
 from __future__ import annotations
 
-import csv
-import difflib
 import io
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -19,30 +18,32 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.faults import (
-    CONTROL,
-    EXTRA,
-    LINE,
     N_FIELDS,
     ODD,
     PRESENT,
-    ROW,
     raise_bad_number,
-    raise_bad_quoting,
     raise_odd_shape,
+)
+from ngsim_graphs.sources.ngsim.formats import (
+    check_csv_columns,
+    check_not_cut,
+    first_line,
+    header_names,
+    sniff_format,
+)
+from ngsim_graphs.sources.text import (
+    CONTROL,
+    EXTRA,
+    LINE,
+    ROW,
+    raise_bad_quoting,
     scan_csv_fields,
     scan_lines,
 )
 
-SNIFF_BYTES = 64 * 1024
-CANDIDATE_SUFFIXES = (".csv", ".txt")
-
-
 _POINTED = "__pointed"  # an integer field of the row has a point or an exponent
-
-
-class NotNgsimFileError(NgsimInputError):
-    """The file is empty or of another kind: a folder search skips it, a named file fails."""
 
 
 # Where a build gives it a scratch folder, the parsed rows of a file are written there, a chunk
@@ -65,153 +66,6 @@ class RawFile:
     frame: pl.LazyFrame
 
 
-def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
-    """Expand files and directories into NGSIM files; returns (files, skipped non-NGSIM files).
-
-    A named file is always taken (reading it reports what is wrong with it). A directory is
-    searched recursively for .csv/.txt files whose first line looks like NGSIM data.
-    """
-    found: list[Path] = []
-    skipped: list[Path] = []
-    for path in paths:
-        if not path.exists():
-            raise NgsimInputError(path, "no such file or directory")
-        if path.is_file():
-            found.append(path)
-            continue
-        candidates = sorted(
-            p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in CANDIDATE_SUFFIXES
-        )
-        inside = []
-        for candidate in candidates:
-            try:
-                sniff_format(candidate)
-                inside.append(candidate)
-            except NotNgsimFileError:
-                skipped.append(candidate)
-        if not inside:
-            raise NgsimInputError(
-                path, "no NGSIM trajectory files (.csv or .txt) in this directory"
-            )
-        found.extend(inside)
-    unique = list(dict.fromkeys(p.resolve() for p in found))
-    return unique, skipped
-
-
-def _head_lines(path: Path) -> list[str]:
-    """The non-blank lines of the file's first SNIFF_BYTES (a byte-order mark dropped; the last
-    one may be cut short)."""
-    with path.open("rb") as handle:
-        head = handle.read(SNIFF_BYTES)
-    text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
-    return [line for line in text.splitlines() if line.strip()]
-
-
-def _first_line(path: Path) -> str:
-    lines = _head_lines(path)
-    if not lines:
-        raise NotNgsimFileError(path, "empty file: no header and no data")
-    return lines[0]
-
-
-def _has_cr_only_line_ends(path: Path) -> bool:
-    with path.open("rb") as handle:
-        head = handle.read(SNIFF_BYTES)
-    return b"\r" in head.rstrip(b"\r") and b"\n" not in head
-
-
-def _header_names(line: str) -> list[str]:
-    """Header fields as spelled in the file, stripped."""
-    return [name.strip() for name in next(csv.reader([line]))]
-
-
-def _is_number(token: str) -> bool:
-    try:
-        float(token.replace(",", ""))
-    except ValueError:
-        return False
-    return True
-
-
-def sniff_format(path: Path) -> RawFormat:
-    """Tell the format from the first line: a CSV header with Vehicle_ID, or 18 numbers."""
-    raw_format = _format_of_first_line(path)
-    if _has_cr_only_line_ends(path):
-        # Polars splits lines at LF only: the whole file would read as one line.
-        raise NgsimInputError(
-            path, "lines end in CR alone (classic Mac OS); convert them to LF or CRLF", line=1
-        )
-    return raw_format
-
-
-# Whether the lines after a first line that is neither a header nor a row look like NGSIM's: a
-# file is skipped as "not NGSIM" only when none of these does.
-SNIFF_LINES = 20
-
-
-def _is_txt_row(line: str) -> bool:
-    tokens = line.split()
-    return len(tokens) == len(s.TXT_COLUMNS) and all(_is_number(t) for t in tokens)
-
-
-def _is_csv_row(line: str) -> bool:
-    """Whether a line is a row of one of NGSIM's CSV files: as many fields as a header of
-    theirs (the portal file's 25, a per-period file's 24 or 18), most of them numbers."""
-    fields = next(csv.reader([line]), [])
-    numbers = sum(_is_number(f) for f in fields if f.strip())
-    widths = (len(s.TXT_COLUMNS), len(s.PORTAL_HEADER) - 1, len(s.PORTAL_HEADER))
-    return len(fields) in widths and numbers >= len(s.TXT_COLUMNS) - 2
-
-
-def _format_of_first_line(path: Path) -> RawFormat:
-    lines = _head_lines(path)
-    if not lines:
-        raise NotNgsimFileError(path, "empty file: no header and no data")
-    line = lines[0]
-    if "," in line:
-        header = [name.lower() for name in _header_names(line)]
-        if s.VEHICLE_ID in header or sum(c in header for c in s.TXT_COLUMNS) >= 9:
-            return RawFormat.PORTAL if s.LOCATION in header else RawFormat.CSV
-    if _is_txt_row(line):
-        return RawFormat.TXT
-    # A damaged first line does not make a file of NGSIM rows another kind of file: it is read
-    # (its first line is then reported) or refused, never skipped with its recording.
-    after = lines[1 : SNIFF_LINES + 1]
-    if any(_is_txt_row(other) for other in after):
-        return RawFormat.TXT
-    if any(_is_csv_row(other) for other in after):
-        raise NgsimInputError(
-            path,
-            "the first line is no header of NGSIM's columns (Vehicle_ID, Frame_ID, ...), yet the "
-            "lines after it hold NGSIM rows: is the header damaged or missing?",
-            line=1,
-        )
-    raise NotNgsimFileError(
-        path,
-        "not an NGSIM trajectory file: the first line is neither a CSV header with Vehicle_ID, "
-        f"Frame_ID, ... nor {len(s.TXT_COLUMNS)} whitespace-separated numbers, and neither are "
-        "the lines after it",
-        line=1,
-    )
-
-
-def _check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> None:
-    lowered = [name.lower() for name in header]
-    twice = next((name for i, name in enumerate(header) if lowered[i] in lowered[:i]), None)
-    if twice is not None:
-        raise NgsimInputError(path, f"column {twice} appears twice in the header", line=1)
-    required = s.TXT_COLUMNS + ((s.LOCATION,) if raw_format is RawFormat.PORTAL else ())
-    official = {name.lower(): name for name in s.PORTAL_HEADER}
-    present = {name.lower() for name in header}
-    # Only a name that matches no known column can be a misspelling of the missing one.
-    unknown = {name.lower(): name for name in header if name.lower() not in official}
-    for column in required:
-        if column not in present:
-            close = difflib.get_close_matches(column, list(unknown), n=1, cutoff=0.75)
-            hint = f" (found '{unknown[close[0]]}': misspelled?)" if close else ""
-            raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
-
-
 def _scan_csv_text(path: Path, chunk: TextChunk | None = None) -> tuple[pl.LazyFrame, list[str]]:
     """CSV as text columns named by the lower-cased header, plus EXTRA for surplus fields (of
     the whole file, or of one chunk of it).
@@ -219,7 +73,7 @@ def _scan_csv_text(path: Path, chunk: TextChunk | None = None) -> tuple[pl.LazyF
     Returns (frame with ROW and ODD, header as spelled). Polars drops a row's surplus fields
     silently; the one spare column keeps the first of them, so that such rows can be found.
     """
-    header = _header_names(_first_line(path))
+    header = header_names(first_line(path))
     names = [name.lower() for name in header]
     # A short row reads as empty trailing fields, which cannot be told apart here from fields
     # left empty; an empty last field marks the row as odd, and the exact check decides.
@@ -245,10 +99,10 @@ def _scan_txt_text(path: Path, chunk: TextChunk | None = None) -> pl.LazyFrame:
         (pl.col(LINE).list.len() > 0) | pl.col(CONTROL).is_not_null()
     )
     columns = [
-        pl.col(LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(s.TXT_COLUMNS)
+        pl.col(LINE).list.get(i, null_on_oob=True).alias(c) for i, c in enumerate(ns.TXT_COLUMNS)
     ]
     n_fields = pl.col(LINE).list.len().alias(N_FIELDS)
-    odd = (pl.col(N_FIELDS) != len(s.TXT_COLUMNS)) | pl.col(CONTROL).is_not_null()
+    odd = (pl.col(N_FIELDS) != len(ns.TXT_COLUMNS)) | pl.col(CONTROL).is_not_null()
     return split.select(ROW, *columns, n_fields, CONTROL).with_columns(odd.alias(ODD))
 
 
@@ -272,7 +126,7 @@ def _number_exprs(
     for column in columns:
         text = pl.col(column)
         tidied.append(text.str.strip_chars().str.replace_all(",", "", literal=True))
-        dtype = s.RAW_SCHEMA[column]
+        dtype = ns.RAW_SCHEMA[column]
         parsed.append(text.cast(pl.Float64, strict=False).cast(dtype, strict=False))
         present.append((text != "").fill_null(False).cast(pl.Int8))
         if dtype != pl.Float64:
@@ -284,7 +138,7 @@ def _number_exprs(
 def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
     """The first of `rows` (ROW numbers, rows with a pointed integer field) whose integer field
     is not whole; re-reads those rows only."""
-    integers = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] != pl.Float64]
+    integers = [c for c in ns.TXT_COLUMNS if ns.RAW_SCHEMA[c] != pl.Float64]
     fields = text.filter(pl.col(ROW).is_in(rows.implode())).select(ROW, *integers)
     real = [
         pl.col(c)
@@ -300,8 +154,8 @@ def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
 
 def _bad_number() -> pl.Expr:
     """Whether a parsed row has a field that did not parse as a finite number."""
-    parsed = pl.sum_horizontal(pl.col(s.TXT_COLUMNS).is_not_null().cast(pl.Int8))
-    floats = [c for c in s.TXT_COLUMNS if s.RAW_SCHEMA[c] == pl.Float64]
+    parsed = pl.sum_horizontal(pl.col(ns.TXT_COLUMNS).is_not_null().cast(pl.Int8))
+    floats = [c for c in ns.TXT_COLUMNS if ns.RAW_SCHEMA[c] == pl.Float64]
     not_finite = pl.any_horizontal(~pl.col(floats).is_finite()).fill_null(False)
     return (parsed != pl.col(PRESENT)) | not_finite
 
@@ -359,60 +213,31 @@ def _parsed(
 # A file without a final line end may have been cut inside its last field, which then still
 # parses ("97.6" of "97.68", "us-10" of "us-101"): its last field is compared with the same field
 # of the lines before it, this many of them.
-CUT_CHECK_LINES = 20
-_TAIL_BYTES = 64 * 1024
-
-
-def _fields(line: str, raw_format: RawFormat) -> list[str]:
-    if raw_format is RawFormat.TXT:
-        return line.split()
-    return [field.strip() for field in next(csv.reader([line]), [])]
-
-
-def _decimals(text: str) -> int | None:
-    """Digits after the point of a plain decimal number (0 without a point); None otherwise."""
-    if not _is_number(text) or any(c in text for c in "eEnN"):
-        return None
-    return len(text.split(".")[1]) if "." in text else 0
-
-
-def _looks_cut(last: str, before: list[str]) -> bool:
-    """Whether `last` reads as a field of the same column as `before` cut short: empty where
-    they are not, fewer decimals than every one of them has, or the start of a name of theirs."""
-    if not last:
-        return all(before)
-    places = {_decimals(value) for value in before}
-    if len(places) == 1 and (fixed := places.pop()) is not None:
-        written = _decimals(last)
-        return written is None or written < fixed or last.endswith(".")
-    return last not in before and any(value.startswith(last) for value in before)
-
-
-def check_not_cut(path: Path, raw_format: RawFormat) -> None:
-    """Refuse a file that ends inside its last field (no final line end, and its last field
-    cut short against the lines before it, `_looks_cut`): a truncated copy."""
-    size = path.stat().st_size
-    with path.open("rb") as handle:
-        handle.seek(max(0, size - _TAIL_BYTES))
-        tail = handle.read()
-    if not tail or tail.endswith(b"\n"):
-        return
-    lines = [line for line in tail.decode("utf-8", errors="replace").splitlines() if line.strip()]
-    lines = lines[1:] if size > _TAIL_BYTES else lines  # the first may be a part of a line
-    rows = [_fields(line, raw_format) for line in lines[-CUT_CHECK_LINES - 1 :]]
-    if len(rows) < 2 or len(rows[-1]) != len(rows[-2]):  # a line cut short: the parser says
-        return
-    fields = [row[-1] if row else "" for row in rows]
-    if not _looks_cut(fields[-1], fields[:-1]):
-        return
-    with path.open("rb") as handle:
-        line = 1 + sum(chunk.count(b"\n") for chunk in iter(lambda: handle.read(1 << 24), b""))
-    raise NgsimInputError(
-        path,
-        f"the file ends inside its last field ({fields[-1]!r} where the lines before it hold "
-        f"values like {fields[-2]!r}) and without a line end: is it truncated?",
-        line=line,
-    )
+def _check_fields(
+    path: Path,
+    raw_format: RawFormat,
+    text: pl.LazyFrame,
+    frame: pl.LazyFrame,
+    summary: pl.DataFrame,
+    by_location: pl.DataFrame,
+    first_line: int,
+) -> None:
+    """Raise for a file without data rows, a row with a wrong number of fields, or a field that
+    is not a value of its column (a whole number's column with a fraction too), naming the first
+    such line of the whole file (`text`); `frame` is its parsed rows, `summary` and `by_location`
+    what read_raw_file counted of them."""
+    if int(by_location["rows"].sum()) == 0:
+        raise NgsimInputError(path, "no data rows")
+    if by_location["odd"].sum():
+        raise_odd_shape(path, raw_format, text)
+    bad = summary["bad"][0]
+    if bad is not None:
+        raise_bad_number(path, text, int(bad), first_line)
+    if summary["pointed"][0]:
+        pointed_rows = frame.filter(_POINTED).select(ROW).collect(engine="streaming")[ROW]
+        fraction = _first_fraction(text, pointed_rows)
+        if fraction is not None:
+            raise_bad_number(path, text, fraction, first_line)
 
 
 def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None = None) -> RawFile:
@@ -429,7 +254,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
         scan, first_line = (lambda chunk: _scan_txt_text(path, chunk)), 1
     else:
         header = _scan_csv_text(path)[1]
-        _check_csv_columns(path, header, raw_format)
+        check_csv_columns(path, header, raw_format)
         scan, first_line = (lambda chunk: _scan_csv_text(path, chunk)[0]), 2
     is_portal = raw_format is RawFormat.PORTAL
     location = (
@@ -437,7 +262,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
         if is_portal
         else pl.lit(None, dtype=pl.String)
     )
-    tidied, parsed, present, pointed = _number_exprs(s.TXT_COLUMNS)
+    tidied, parsed, present, pointed = _number_exprs(ns.TXT_COLUMNS)
 
     def parse(chunk: TextChunk | None) -> pl.LazyFrame:
         text = scan(chunk).with_columns(location.alias(s.LOCATION))
@@ -467,19 +292,8 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
             raise_bad_quoting(path)
         message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise NgsimInputError(path, f"cannot parse as CSV: {message}") from None
-    rows_read = int(by_location["rows"].sum())
-    if rows_read == 0:
-        raise NgsimInputError(path, "no data rows")
-    if by_location["odd"].sum():
-        raise_odd_shape(path, raw_format, text)
-    height, bad = int(summary["rows"][0]), summary["bad"][0]
-    if bad is not None:
-        raise_bad_number(path, text, int(bad), first_line)
-    if summary["pointed"][0]:
-        pointed_rows = frame.filter(_POINTED).select(ROW).collect(engine="streaming")[ROW]
-        fraction = _first_fraction(text, pointed_rows)
-        if fraction is not None:
-            raise_bad_number(path, text, fraction, first_line)
+    _check_fields(path, raw_format, text, frame, summary, by_location, first_line)
+    rows_read, height = int(by_location["rows"].sum()), int(summary["rows"][0])
     found = tuple(sorted(str(x) for x in by_location[s.LOCATION].drop_nulls())) if is_portal else ()
     if height == 0:
         unnamed = (

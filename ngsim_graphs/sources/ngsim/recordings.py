@@ -53,6 +53,11 @@ OFFICIAL_RECORDINGS: tuple[Recording, ...] = (
 )
 
 
+def is_ngsim_location(name: str) -> bool:
+    """Whether `name` is one of NGSIM's locations (KNOWN_LOCATION_NAMES)."""
+    return name in KNOWN_LOCATION_NAMES
+
+
 def find_official_recording(frame0_epoch_ms: int, location: str | None = None) -> Recording | None:
     """The official recording whose nominal start is nearest to frame 0's time, if within 10 min.
 

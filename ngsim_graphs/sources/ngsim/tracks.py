@@ -10,16 +10,25 @@ the speed column. Every dropped row is counted per reason, with the first line i
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.config import FRAME_STEP_S, BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources.cleaning import (
+    DESCRIPTIONS,
+    FILE_REASONS,
+    check_dropped,
+    check_file_drops,
+    cleaned_report,
+    downsample_to_grid,
+    drop_duplicate_rows,
+    split_at_gaps,
+)
 from ngsim_graphs.sources.contract import (
     FileReport,
     FileRows,
@@ -28,35 +37,33 @@ from ngsim_graphs.sources.contract import (
     Source,
     TracksPart,
     finish_tracks,
-    joined_counts,
 )
+from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
-    drop_duplicate_rows,
+    CONFLICT_ORDER,
+    FEET_TO_M,
     is_complete,
-    split_at_gaps,
     to_si_units,
 )
-from ngsim_graphs.sources.ngsim.files import ROW, find_raw_files, read_raw_file
+from ngsim_graphs.sources.ngsim.files import read_raw_file
+from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_files, is_ngsim_file
 from ngsim_graphs.sources.ngsim.plausibility import (
-    DESCRIPTIONS,
-    check_dropped,
-    check_speed_column,
     jump_rows,
     outlier_rows,
     passes_row_checks,
     row_drop_reason,
-    speed_comparison,
-    speed_medians,
 )
-from ngsim_graphs.sources.ngsim.recordings import recording_index
-from ngsim_graphs.sources.ngsim.resampling import downsample_to_grid
+from ngsim_graphs.sources.ngsim.recordings import (
+    KNOWN_LOCATION_NAMES,
+    is_ngsim_location,
+    recording_index,
+)
+from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
+from ngsim_graphs.sources.text import ROW
 
 # The required columns as NGSIM's header spells them, for messages.
 REQUIRED_NAMES = tuple(
-    next(h for h in s.PORTAL_HEADER if h.lower() == column) for column in s.REQUIRED_VALUE_COLUMNS
-)
-FILE_REASONS: tuple[DropReason, ...] = tuple(
-    r for r in DropReason if r is not DropReason.POSITION_OUTLIER
+    next(h for h in ns.PORTAL_HEADER if h.lower() == column) for column in ns.REQUIRED_VALUE_COLUMNS
 )
 
 
@@ -94,7 +101,7 @@ def read_file_recordings(
     )
     line = pl.col(ROW) + raw.first_line
     rows = raw.frame.select(
-        *s.RAW_SCHEMA.names(),
+        *ns.RAW_SCHEMA.names(),
         pl.when(usable & in_chosen).then(index).alias(s.RECORDING_INDEX),
         pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
         line.alias(s.SOURCE_LINE),
@@ -176,11 +183,11 @@ def vehicle_tracks(
     by track and frame, columns as TRACKS_SCHEMA. Every step looks at one vehicle's rows at a
     time; the evidence is the rows `speed_comparison` compares, for the recording's median.
     """
-    unique, exact, conflicting = drop_duplicate_rows(raw)
+    unique, exact, conflicting = drop_duplicate_rows(raw, CONFLICT_ORDER)
     outlier = outlier_rows(unique, config.limits)
     cleaned = unique.filter(~outlier)
     jumps = jump_rows(cleaned, config.limits)
-    compared = speed_comparison(cleaned)
+    compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_STEP_S)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
     on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
@@ -188,34 +195,18 @@ def vehicle_tracks(
     )
     grid = to_si_units(on_grid)
     tracks = finish_tracks(grid, first_track_id, config)
-    report = RecordingReport(
-        location=location,
-        period=period,
-        rows=raw.height,
-        exact_duplicates=exact,
-        conflicting_duplicates=conflicting,
-        position_outliers=int(outlier.sum()),
-        position_jumps=int(jumps.sum()),
-        gaps=gaps,
-        vehicles=unique[s.VEHICLE_ID].n_unique(),
-        tracks=tracks[s.TRACK_ID].n_unique(),
-        grid_rows=tracks.height,
+    report = cleaned_report(
+        key,
+        raw.height,
+        unique,
+        tracks,
+        (exact, conflicting),
+        gaps,
+        outliers=int(outlier.sum()),
+        jumps=int(jumps.sum()),
         first_outlier=_first_source(unique.filter(outlier)),
     )
     return TracksPart(tracks, report, compared)
-
-
-def joined_report(parts: list[TracksPart], key: RecordingKey) -> RecordingReport:
-    """The report of the recording made of `parts`, before its checks: summed counts, and the
-    medians of the speed comparison over all its rows (streamed where the parts' evidence is
-    lazy, as a build stages it)."""
-    mismatch, shown, compared = speed_medians(pl.concat([p.evidence.lazy() for p in parts]))
-    return replace(
-        joined_counts(parts, key),
-        speed_mismatch_mps=mismatch,
-        shown_speed_mps=shown,
-        speed_rows_compared=compared,
-    )
 
 
 def build_tracks(
@@ -224,23 +215,15 @@ def build_tracks(
     """The tracks table and report of recording `key` from all its raw rows at once, without
     the recording's checks (see vehicle_tracks): the tests' reference; a build cleans parts."""
     part = vehicle_tracks(raw, key, config, first_track_id)
-    return part.tracks, joined_report([part], key)
+    return part.tracks, joined_report([part], key, FEET_TO_M)
 
 
 def read_file(
     path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
 ) -> FileRows:
-    """read_file_recordings, then the rule of dropped rows (plausibility.check_dropped)."""
+    """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
     read = read_file_recordings(path, config, file_index, scratch)
-    report = read.report
-    check_dropped(
-        report.path,
-        report.rows_dropped,
-        report.first_dropped_line,
-        report.rows_checked,
-        config.limits,
-        strict,
-    )
+    check_file_drops(read.report, config.limits, strict)
     return read
 
 
@@ -253,16 +236,10 @@ def recording_report(
 ) -> RecordingReport:
     """joined_report, then the recording's checks: the speed column must be a speed; position
     outliers follow the rule of every dropped row (see plausibility)."""
-    report = joined_report(parts, key)
+    report = joined_report(parts, key, FEET_TO_M)
     name = f"{report.location}/{report.period}"
     sources = ", ".join(f.path for f in files if name in f.recordings)
-    check_speed_column(
-        sources,
-        report.speed_mismatch_mps,
-        report.shown_speed_mps,
-        report.speed_rows_compared,
-        config.limits,
-    )
+    check_speed_column(sources, report, config.limits)
     if report.first_outlier is not None:
         file_index, line = report.first_outlier
         reason = DropReason.POSITION_OUTLIER.value
@@ -283,4 +260,9 @@ SOURCE = Source(
     read_file=read_file,
     vehicle_tracks=vehicle_tracks,
     recording_report=recording_report,
+    label="NGSIM",
+    suffixes=CANDIDATE_SUFFIXES,
+    claims=is_ngsim_file,
+    is_location=is_ngsim_location,
+    locations_help=", ".join(KNOWN_LOCATION_NAMES),
 )
