@@ -56,8 +56,6 @@ RESUME_FIXED = (
     "clip_grad_norm",
     "seed",
 )
-# How runs of aigem before these options trained: their checkpoints do not name them.
-BEFORE_SCHEDULES = {"lr_schedule": "constant", "warmup_epochs": 0.0, "clip_grad_norm": None}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -149,28 +147,40 @@ def check_info(info: object, path: Path) -> None:
     if not isinstance(info["build_config"], dict):
         raise NgsimInputError(path, "not an aigem run: build_config is not a mapping")
     model_config(info, path)
+    train_config(info, path)
+
+
+def _recorded_values(info: dict[str, Any], key: str, known: type, path: Path) -> dict[str, Any]:
+    """The settings of config `known` that run info records under `key`. A setting it lacks was
+    added to aigem after the run was written and takes its default, which keeps what runs did
+    before it (a new field's default keeps the paper's model); a setting this aigem does not
+    know (a newer aigem's) is an error."""
+    values = info.get(key)
+    if not isinstance(values, dict):
+        raise NgsimInputError(path, f"no {key} config")
+    unknown = sorted(set(values) - {f.name for f in fields(known)})
+    if unknown:
+        raise NgsimInputError(
+            path,
+            f"a {key} config this aigem does not know: unknown {', '.join(map(str, unknown))} "
+            "(written by a newer aigem?)",
+        )
+    return values
+
+
+def train_config(info: dict[str, Any], path: Path) -> TrainConfig:
+    """The train config a run recorded, settings it lacks at their defaults (_recorded_values)."""
+    values = _recorded_values(info, "train", TrainConfig, path)
     try:
-        TrainConfig(**info["train"])
+        return TrainConfig(**values)
     except (TypeError, ValueError) as err:
-        raise NgsimInputError(path, f"unknown train config: {err}") from None
-
-
-# Model settings added after the first runs were written, as those runs had them.
-ADDED_MODEL_SETTINGS = {"cv_residual": False}
+        raise NgsimInputError(path, f"a train config this aigem cannot use: {err}") from None
 
 
 def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
-    """The model config a run recorded; an error for settings or types this aigem does not know."""
-    values, defaults = info.get("model"), ModelConfig()
-    if not isinstance(values, dict):
-        raise NgsimInputError(path, "no model config")
-    known = {f.name for f in fields(ModelConfig)}
-    values = {**ADDED_MODEL_SETTINGS, **values}
-    unknown, missing = sorted(set(values) - known), sorted(known - set(values))
-    if unknown or missing:
-        raise NgsimInputError(
-            path, f"a model config this aigem does not know (unknown {unknown}, missing {missing})"
-        )
+    """The model config a run recorded, settings it lacks at their defaults (_recorded_values);
+    an error for a value of another type than the setting's."""
+    values, defaults = _recorded_values(info, "model", ModelConfig, path), ModelConfig()
     for name, value in values.items():
         default = getattr(defaults, name)
         if type(value) is not type(default) and not (type(default) is float and type(value) is int):
@@ -277,24 +287,25 @@ def check_resume(
             f"not the build that run {run_dir} was trained on ({why}); a run resumes on its own "
             "build only",
         )
-    if saved["model"] != info["model"]:
-        changed = sorted(k for k in info["model"] if saved["model"].get(k) != info["model"][k])
+    saved_model = model_config(saved, run_dir / LAST).to_dict()
+    if saved_model != info["model"]:
+        changed = sorted(k for k in info["model"] if saved_model[k] != info["model"][k])
         raise NgsimInputError(
             run_dir,
             f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
         )
-    before = BEFORE_SCHEDULES | saved["train"]
+    before = train_config(saved, run_dir / LAST).to_dict()
     changed = [
-        f"{k} {before.get(k)} -> {info['train'][k]}"
+        f"{k} {before[k]} -> {info['train'][k]}"
         for k in RESUME_FIXED
-        if before.get(k) != info["train"][k]
+        if before[k] != info["train"][k]
     ]
     if changed:
         raise NgsimInputError(
             run_dir,
             f"cannot resume with another {', '.join(changed)}: it changes what the run learns",
         )
-    schedule, epochs = info["train"]["lr_schedule"], before.get("epochs")
+    schedule, epochs = info["train"]["lr_schedule"], before["epochs"]
     if schedule != "constant" and epochs != info["train"]["epochs"]:
         raise NgsimInputError(
             run_dir,

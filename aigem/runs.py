@@ -55,7 +55,6 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     BASELINE,
-    BEFORE_SCHEDULES,
     BEST,
     CURVES,
     HORIZONS,
