@@ -19,7 +19,7 @@ class LrSchedule(str, Enum):
 
 
 class DeviceChoice(str, Enum):
-    """Where a model runs: `auto` takes CUDA when present (aigem.training.pick_device)."""
+    """Where a model runs: `auto` takes CUDA when present (aigem.devices.pick_device)."""
 
     AUTO = "auto"
     CPU = "cpu"

@@ -32,8 +32,9 @@ from aigem.baseline import record_baselines
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset, check_covered, xy_to_metres
+from aigem.devices import pick_device, to_device
 from aigem.model import AiGem, count_parameters
-from aigem.records import check_splits
+from aigem.refusals import check_splits
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
@@ -68,19 +69,6 @@ class FitResult:
     device: str
 
 
-class DeviceUnavailableError(ValueError):
-    """The device asked for is not on this machine."""
-
-
-def pick_device(choice: str) -> torch.device:
-    """'auto' takes CUDA when present; 'cuda' without a GPU is an error."""
-    if choice == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if choice == "cuda" and not torch.cuda.is_available():
-        raise DeviceUnavailableError("--device cuda: no CUDA device is available")
-    return torch.device(choice)
-
-
 def make_optimizer(model: nn.Module, train: TrainConfig, device: torch.device) -> torch.optim.Adam:
     """The paper's Adam; fused (one operator for all parameters instead of ~9 per parameter
     tensor, 576 for AiGem) where PyTorch has the fused kernel: the CPU and CUDA."""
@@ -103,11 +91,6 @@ def masked_mse_m2(
     mask = batch["target_mask"][:, :steps].to(predicted.dtype)
     squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
     return squared.sum() / mask.sum().clamp(min=1.0)
-
-
-def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
-    """The batch's tensors and plan on `device` (copies from pinned memory do not wait)."""
-    return {k: v.to(device, non_blocking=True) if hasattr(v, "to") else v for k, v in batch.items()}
 
 
 def _distributed() -> tuple[int, int]:

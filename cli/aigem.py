@@ -34,7 +34,7 @@ from ngsim_graphs.schema import Split
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 if TYPE_CHECKING:
-    from aigem.evaluation import Evaluation, HorizonsEvaluation
+    from aigem.results import Evaluation, HorizonsEvaluation
     from aigem.training import FitResult
 
 app = typer.Typer(
@@ -196,7 +196,7 @@ def fit(
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     several = len(horizons_s) > 1
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import check_fit
+        from aigem.refusals import check_fit
 
         with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
             check_fit(data, out, horizons_s if several else None, model_config, train, resume)
@@ -217,7 +217,8 @@ def _train(
 ) -> tuple[FitResult, ...]:
     """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
     from aigem.cores import busy_cores_warning
-    from aigem.training import DeviceUnavailableError, NonFiniteLossError, fit_horizons, pick_device
+    from aigem.devices import DeviceUnavailableError, pick_device
+    from aigem.training import NonFiniteLossError, fit_horizons
     from ngsim_cli.console import progress_bar
 
     try:
@@ -408,14 +409,16 @@ def evaluate(
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import check_evaluate, read_horizons
+        from aigem.records import read_horizons
+        from aigem.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
             several = read_horizons(run) is not None
-        from aigem.evaluation import PAPER_TABLE, as_dict, evaluate_horizons
+        from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
-        from aigem.training import DeviceUnavailableError
+        from aigem.evaluation import evaluate_horizons
+        from aigem.results import PAPER_TABLE, as_dict
 
     left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
     with exit_on_interrupt(left), exit_on_error():

@@ -17,7 +17,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import runs
+from aigem import records, runs
 from aigem.baseline import constant_velocity_loss_m2
 from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem, count_parameters
@@ -169,13 +169,13 @@ def test_fit_records_constant_velocitys_validation_loss(
         "constant_velocity_val_loss_m2": expected,
         "steps": 5,
     }
-    assert runs.read_baseline(trained_run) == expected
+    assert records.read_baseline(trained_run) == expected
     # A run of an older aigem has none (or a damaged one): resuming it records it.
     run = _copy(trained_run, tmp_path)
     (run / runs.BASELINE).write_text("{")
-    assert runs.read_baseline(run) is None
+    assert records.read_baseline(run) is None
     fit(tiny_build, run, ModelConfig(), TrainConfig(**{**FAST.to_dict(), "epochs": 2}), "cpu", True)
-    assert runs.read_baseline(run) == expected
+    assert records.read_baseline(run) == expected
 
 
 def test_a_directory_that_is_not_a_run(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
