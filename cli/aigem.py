@@ -218,7 +218,8 @@ def _train(
     """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
     from aigem.cores import busy_cores_warning
     from aigem.devices import DeviceUnavailableError, pick_device
-    from aigem.training import NonFiniteLossError, fit_horizons
+    from aigem.epochs import NonFiniteLossError
+    from aigem.training import fit_horizons
     from ngsim_cli.console import progress_bar
 
     try:
