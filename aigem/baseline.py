@@ -2,7 +2,7 @@
 
 Constant velocity carries each target actor on from its present position at its present speed
 and heading. `constant_velocity_loss_m2` is its validation loss in the definition of fit's
-`val_loss_m2` (aigem.training): the squared Euclidean error in metres^2, pooled over every valid
+`val_loss_m2` (aigem.epochs): the squared Euclidean error in metres^2, pooled over every valid
 (target, step) of the split up to the horizon. `aigem fit` records it per run at its start
 (`record_baselines`; baseline.json, aigem.records) and draws it into curves.png as the line a model
 has to get below.

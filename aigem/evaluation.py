@@ -22,7 +22,7 @@ from torch.utils.data import DataLoader
 from aigem.baseline import constant_velocity
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.devices import pick_device, to_device
-from aigem.metrics import ErrorTotals, step_errors, summarize_errors
+from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
 from aigem.records import BEST, member_dir, read_horizons
 from aigem.refusals import check_build, resolve_build
@@ -178,16 +178,16 @@ def evaluate(
 
 def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str, str]]:
     """(model rows, constant-velocity rows, sources) of one model per horizon, given ascending by
-    horizon: RMSE at s seconds (and its count) from the first model that reaches s, ADE and FDE
-    from the last."""
+    horizon: a per-second metric at s seconds (RMSE, its count) from the first model that reaches
+    s, a metric of the whole horizon (ADE, FDE) from the last."""
     longest = list(members)[-1]
 
     def first(key: str) -> str:
         return next(name for name, result in members.items() if key in result.model["all"])
 
+    whole = whole_horizon_keys()
     sources = {
-        key: longest if key in ("ade_m", "fde_m") else first(key)
-        for key in members[longest].model["all"]
+        key: longest if key in whole else first(key) for key in members[longest].model["all"]
     }
 
     def rows(kind: str) -> Rows:  # kind: "model" or "constant_velocity"

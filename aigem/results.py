@@ -36,6 +36,17 @@ PAPER_TABLE = {
 }
 
 
+def paper_rows() -> dict[str, dict[str, float | None]]:
+    """PAPER_TABLE in the keys of evaluate's rows: its RMSE as rmse_1s_m .. rmse_5s_m."""
+    return {
+        name: {
+            **{key: value for key, value in row.items() if key != "rmse_m"},
+            **{f"rmse_{s}s_m": value for s, value in enumerate(row["rmse_m"], start=1)},
+        }
+        for name, row in PAPER_TABLE.items()
+    }
+
+
 @dataclass(frozen=True)
 class FinalErrors:
     """The final displacement error (metres) of each target valid at the last predicted step, of
