@@ -66,6 +66,7 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     STARTED,
     STARTED_LINE,
     member_dir,
+    model_config,
     read_baseline,
     read_horizons,
     read_run_info,
@@ -95,12 +96,16 @@ class RunState:
 
 
 def _check_same_run(checkpoint_info: dict[str, Any], run: dict[str, Any], path: Path) -> None:
-    """A checkpoint from another run (another build, model or horizon) is not this run's."""
-    for key in (*IDENTITY, "model"):
+    """A checkpoint from another run (another build, model or horizon) is not this run's. The
+    model configs are compared as read (aigem.records.model_config): a best.pt kept before a
+    resume rewrote run.json may lack settings that run.json names at their defaults."""
+    for key in IDENTITY:
         if checkpoint_info[key] != run[key]:
             raise NgsimInputError(
                 path, f"belongs to another run: its {key} differs from {RUN_INFO}'s"
             )
+    if model_config(checkpoint_info, path) != model_config(run, path.parent / RUN_INFO):
+        raise NgsimInputError(path, f"belongs to another run: its model differs from {RUN_INFO}'s")
     if checkpoint_info["train"].get("horizon_s") != run["train"].get("horizon_s"):
         raise NgsimInputError(
             path, f"belongs to another run: its horizon differs from {RUN_INFO}'s"

@@ -25,6 +25,7 @@ from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs import partial_files
 from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import write_manifest_json
 from ngsim_graphs.partial_files import create_exclusive, partial_of
 from ngsim_graphs.pipeline import run_build
@@ -582,3 +583,18 @@ def test_a_setting_of_a_newer_aigem_is_one_error_line(
         result = CliRunner().invoke(app, ["evaluate", str(run), *args])
         line = _one_error_line(result, run / runs.RUN_INFO)
         assert f"a {key} config this aigem does not know: unknown new_knob" in line
+
+
+def test_a_best_model_kept_before_a_resume_of_an_older_run_still_loads(tmp_path: Path) -> None:
+    """Resuming an older run rewrites run.json with every setting; its best.pt, kept before,
+    lacks the settings added since: the same model config, read with their defaults."""
+    run = _copy(RUN_0_1_0, tmp_path)
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    del checkpoint["info"]["model"]["cv_residual"]
+    torch.save(checkpoint, run / runs.BEST)
+    model, info = runs.load_model(run)
+    assert model.config == ModelConfig() and "cv_residual" not in info["model"]
+    checkpoint["info"]["model"]["hidden"] = 32  # another model: still refused
+    torch.save(checkpoint, run / runs.BEST)
+    with pytest.raises(NgsimInputError, match="belongs to another run: its model differs"):
+        runs.load_model(run)
