@@ -2,9 +2,9 @@
 
 Constant velocity carries each target actor on from its present position at its present speed
 and heading. `constant_velocity_loss_m2` is its validation loss in the definition of fit's
-`val_loss_m2` (aigem.training): the squared Euclidean error in metres^2, pooled over every valid
+`val_loss_m2` (aigem.epochs): the squared Euclidean error in metres^2, pooled over every valid
 (target, step) of the split up to the horizon. `aigem fit` records it per run at its start
-(`record_baselines`; aigem.runs, baseline.json) and draws it into curves.png as the line a model
+(`record_baselines`; baseline.json, aigem.records) and draws it into curves.png as the line a model
 has to get below.
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aigem import runs
+from aigem.records import read_baseline, write_baseline
 from ngsim_graphs.build import open_build
 from ngsim_graphs.schema import Split
 
@@ -60,10 +60,10 @@ def constant_velocity_loss_m2(
 
 def record_baselines(build_dir: Path, models: Sequence[tuple[Path, int]]) -> None:
     """Record constant velocity's validation loss in each (run directory, future steps) that has
-    none yet (aigem.runs, baseline.json), in one pass over the validation split: a fresh run's,
+    none yet (baseline.json, aigem.records), in one pass over the validation split: a fresh run's,
     or a resumed run's of an older aigem; a resumed run keeps its own."""
-    missing = [(run_dir, steps) for run_dir, steps in models if runs.read_baseline(run_dir) is None]
+    missing = [(run_dir, steps) for run_dir, steps in models if read_baseline(run_dir) is None]
     if missing:
         losses = constant_velocity_loss_m2(build_dir, Split.VAL, [steps for _, steps in missing])
         for run_dir, steps in missing:
-            runs.write_baseline(run_dir, losses[steps], steps)
+            write_baseline(run_dir, losses[steps], steps)

@@ -19,7 +19,7 @@ class LrSchedule(str, Enum):
 
 
 class DeviceChoice(str, Enum):
-    """Where a model runs: `auto` takes CUDA when present (aigem.training.pick_device)."""
+    """Where a model runs: `auto` takes CUDA when present (aigem.devices.pick_device)."""
 
     AUTO = "auto"
     CPU = "cpu"
@@ -119,7 +119,7 @@ def check_horizons_s(horizons_s: Sequence[float]) -> tuple[float, ...]:
     for horizon_s in horizons_s:
         if not (math.isfinite(horizon_s) and 0 < horizon_s <= MAX_HORIZON_S):
             raise ValueError(f"{horizon_s:g} s is not a horizon in (0, {MAX_HORIZON_S:g}] s")
-    names = [f"{h:g}" for h in horizons_s]  # as a run names its members (aigem.runs.member_dir)
+    names = [f"{h:g}" for h in horizons_s]  # as a run names its members (aigem.records.member_dir)
     twice = sorted({name for name in names if names.count(name) > 1}, key=float)
     if twice:
         raise ValueError(f"{', '.join(twice)} s given more than once")

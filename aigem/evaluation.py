@@ -13,9 +13,7 @@ that each number of the baseline is on the same targets as the model's beside it
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -23,38 +21,18 @@ from torch.utils.data import DataLoader
 
 from aigem.baseline import constant_velocity
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.metrics import ErrorTotals, step_errors, summarize_errors
+from aigem.devices import pick_device, to_device
+from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
-from aigem.records import check_build, resolve_build
-from aigem.runs import BEST, load_model, member_dir, read_horizons
-from aigem.training import pick_device, to_device
+from aigem.records import BEST, member_dir, read_horizons
+from aigem.refusals import check_build, resolve_build
+from aigem.results import Evaluation, FinalErrors, HorizonsEvaluation, Rows, Scores
+from aigem.runs import load_model
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import Protocol, Split
 from ngsim_graphs.synth.marker import synthetic_build
-
-# The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
-PAPER_TABLE = {
-    "AiGem (paper)": {
-        "ade_m": 1.42,
-        "fde_m": 2.57,
-        "rmse_m": (0.61, 1.02, 1.27, 1.84, 1.95),
-        "params_k": 74.5,
-    },
-    "CS-LSTM (paper)": {
-        "ade_m": 2.29,
-        "fde_m": 3.34,
-        "rmse_m": (0.61, 1.27, 2.09, 3.10, 4.37),
-        "params_k": 192,
-    },
-    "GSTCN (paper)": {
-        "ade_m": 1.52,
-        "fde_m": None,
-        "rmse_m": (0.44, 0.83, 1.33, 2.01, 2.98),
-        "params_k": 49.8,
-    },
-}
 
 
 def describe_protocol(config: BuildConfig) -> str:
@@ -69,68 +47,6 @@ def describe_protocol(config: BuildConfig) -> str:
         f"AiGem's samples: ego windows every {config.stride_s:g} s, {ego}the actors within "
         f"{config.d_sense_m:g} m of the ego at the present as targets"
     )
-
-
-@dataclass(frozen=True)
-class FinalErrors:
-    """The final displacement error (metres) of each target valid at the last predicted step, of
-    the model and of constant velocity, and the target's sample (its index in the split)."""
-
-    sample: np.ndarray  # (T,) int64
-    model_m: np.ndarray  # (T,) float64
-    constant_velocity_m: np.ndarray  # (T,) float64
-
-
-@dataclass(frozen=True)
-class Scores:
-    """What `score_targets` accumulates over a split (metres)."""
-
-    model: ErrorTotals
-    constant_velocity: ErrorTotals
-    final: FinalErrors
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    split: str
-    horizon_steps: int
-    samples: int
-    parameters: int  # of the model
-    model: dict[str, dict[str, float | None]]
-    constant_velocity: dict[str, dict[str, float | None]]
-    build_dir: str
-    same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
-    synthetic: bool  # the build is of `ngsim-graphs synth`'s data (ngsim_graphs.synth.marker)
-    time_step_s: float
-    protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
-    protocol_description: str  # describe_protocol of the build
-    # "model" / "constant_velocity" -> region -> rmse_m, mean_error_m, n: a list of K (None
-    # where no target counts), at future steps 1..K (metrics.step_errors)
-    steps: dict[str, dict[str, dict[str, list]]]
-    final: FinalErrors | None = field(default=None, repr=False, compare=False)  # not in --json
-
-
-Rows = dict[str, dict[str, float | None]]  # region -> metric -> metres (or a count)
-
-
-@dataclass(frozen=True)
-class HorizonsEvaluation:
-    """A multi-horizon run on one split, as the paper reports it; `sources` names the member each
-    metric comes from, `members` holds each member's own evaluation."""
-
-    split: str
-    horizons_s: tuple[float, ...]
-    samples: int
-    parameters: int  # of each model
-    model: Rows
-    constant_velocity: Rows
-    sources: dict[str, str]  # metric -> member (its run directory's name)
-    members: dict[str, Evaluation]
-    build_dir: str
-    same_build: bool
-    synthetic: bool
-    protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
-    protocol_description: str  # describe_protocol of the build
 
 
 class NonFinitePredictionError(ValueError):
@@ -262,16 +178,16 @@ def evaluate(
 
 def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str, str]]:
     """(model rows, constant-velocity rows, sources) of one model per horizon, given ascending by
-    horizon: RMSE at s seconds (and its count) from the first model that reaches s, ADE and FDE
-    from the last."""
+    horizon: a per-second metric at s seconds (RMSE, its count) from the first model that reaches
+    s, a metric of the whole horizon (ADE, FDE) from the last."""
     longest = list(members)[-1]
 
     def first(key: str) -> str:
         return next(name for name, result in members.items() if key in result.model["all"])
 
+    whole = whole_horizon_keys()
     sources = {
-        key: longest if key in ("ade_m", "fde_m") else first(key)
-        for key in members[longest].model["all"]
+        key: longest if key in whole else first(key) for key in members[longest].model["all"]
     }
 
     def rows(kind: str) -> Rows:  # kind: "model" or "constant_velocity"
@@ -328,16 +244,3 @@ def evaluate_horizons(
         protocol=longest.protocol,
         protocol_description=longest.protocol_description,
     )
-
-
-def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
-    """One JSON-ready document; a multi-horizon run's holds each member's evaluation too."""
-    document = _public(result)
-    if isinstance(result, HorizonsEvaluation):
-        document["members"] = {name: _public(m) for name, m in result.members.items()}
-    return {**document, "paper": PAPER_TABLE}
-
-
-def _public(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
-    """The fields of --json: all but the per-target final errors (arrays, for pictures)."""
-    return {key: value for key, value in result.__dict__.items() if key != "final"}

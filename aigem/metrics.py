@@ -6,10 +6,15 @@
 - ADE: mean Euclidean error over all valid (sample, actor, step); FDE: mean over valid pairs at
   the last predicted step. Masked steps (the actor left the section) count nowhere.
 - Breakdown by the actor's present position: front (y > 15 m), rear (y < -15 m), mid.
+
+METRICS lists what `aigem evaluate` reports, each with its label and unit: a new metric is an
+entry there (and, if it needs sums of its own, their accumulation in ErrorTotals); its rows,
+--json and the printed table follow.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -52,24 +57,89 @@ class ErrorTotals:
         self.actors += len(error)
 
 
+Value = Callable[[ErrorTotals, int, int], float | int | None]
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A number per region that `aigem evaluate` reports. `key` names it in summarize_errors'
+    rows and in --json; a key with "{s}" stands for one number per whole second s of the horizon.
+    `label` heads its column in the printed table ("{s}" likewise); `unit` is "m" (or another
+    unit) for a column, "" for a count, which gets none. `value(totals, region, k)` computes it
+    from the totals of REGIONS[region] at future step index k: second s's step for a per-second
+    metric, else the last predicted step."""
+
+    key: str
+    label: str
+    unit: str
+    value: Value
+
+    @property
+    def per_second(self) -> bool:
+        return "{s}" in self.key
+
+
+def _ratio(numerator: float, denominator: float) -> float | None:
+    return float(numerator / denominator) if denominator else None
+
+
+def _ade_m(totals: ErrorTotals, region: int, k: int) -> float | None:
+    return _ratio(totals.error_m[region].sum(), totals.count[region].sum())
+
+
+def _mean_error_m(totals: ErrorTotals, region: int, k: int) -> float | None:
+    return _ratio(totals.error_m[region, k], totals.count[region, k])
+
+
+def _rmse_m(totals: ErrorTotals, region: int, k: int) -> float | None:
+    mean_sq = _ratio(totals.squared_m2[region, k], totals.count[region, k])
+    return None if mean_sq is None else float(np.sqrt(mean_sq))
+
+
+def _count(totals: ErrorTotals, region: int, k: int) -> int:
+    return int(totals.count[region, k])
+
+
+# What evaluate reports, in the order of its rows, its --json and its table's columns.
+METRICS: tuple[Metric, ...] = (
+    Metric("ade_m", "ADE", "m", _ade_m),
+    Metric("fde_m", "FDE", "m", _mean_error_m),
+    Metric("rmse_{s}s_m", "RMSE {s} s", "m", _rmse_m),
+    Metric("n_{s}s", "n {s} s", "", _count),  # the targets that count at second s
+)
+
+
 def summarize_errors(totals: ErrorTotals, time_step_s: float) -> dict[str, dict[str, float | None]]:
-    """ADE, FDE and RMSE at each whole second, per region, in metres (None where nothing counts)."""
+    """Each metric of METRICS per region, in metres (None where nothing counts): the whole
+    horizon's first, then each whole second's (rmse_1s_m, n_1s, rmse_2s_m, ...)."""
     steps_per_s = round(1.0 / time_step_s)
+    last = totals.steps - 1
     result: dict[str, dict[str, float | None]] = {}
-    for index, region in enumerate(REGIONS):
-        count, last = totals.count[index], totals.steps - 1
-        ratio = lambda num, den: float(num / den) if den else None  # noqa: E731
-        row: dict[str, float | None] = {
-            "ade_m": ratio(totals.error_m[index].sum(), count.sum()),
-            "fde_m": ratio(totals.error_m[index, last], count[last]),
-        }
+    for region_index, region in enumerate(REGIONS):
+        row = {m.key: m.value(totals, region_index, last) for m in METRICS if not m.per_second}
         for second in range(1, totals.steps // steps_per_s + 1):
             k = second * steps_per_s - 1
-            mean_sq = ratio(totals.squared_m2[index, k], count[k])
-            row[f"rmse_{second}s_m"] = None if mean_sq is None else float(np.sqrt(mean_sq))
-            row[f"n_{second}s"] = int(count[k])
+            for metric in (m for m in METRICS if m.per_second):
+                row[metric.key.format(s=second)] = metric.value(totals, region_index, k)
         result[region] = row
     return result
+
+
+def table_columns(seconds: int) -> list[tuple[str, str]]:
+    """(key, label) of the evaluate table's columns over `seconds` whole seconds: every metric of
+    METRICS with a unit, a per-second one once per second."""
+    return [
+        (metric.key.format(s=second), metric.label.format(s=second))
+        for metric in METRICS
+        if metric.unit
+        for second in (range(1, seconds + 1) if metric.per_second else (0,))
+    ]
+
+
+def whole_horizon_keys() -> set[str]:
+    """The keys of the metrics over the whole horizon (ADE, FDE): a multi-horizon run takes them
+    from its longest model, the per-second ones from the first model that reaches the second."""
+    return {metric.key for metric in METRICS if not metric.per_second}
 
 
 def step_errors(totals: ErrorTotals) -> dict[str, dict[str, np.ndarray]]:

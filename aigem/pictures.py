@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aigem.evaluation import Evaluation, HorizonsEvaluation, scene_choice
+from aigem.evaluation import scene_choice
 from aigem.plots import (
     error_by_horizon,
     error_by_region,
@@ -30,9 +30,10 @@ from aigem.plots import (
     longest,
     png_bytes,
 )
-from aigem.runs import write_atomic
+from aigem.results import Evaluation, HorizonsEvaluation
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.partial_files import write_atomic
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
 
 FIGURES = {

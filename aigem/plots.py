@@ -29,8 +29,8 @@ from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogFormatter, MaxNLocator
 
-from aigem.evaluation import PAPER_TABLE, Evaluation, HorizonsEvaluation
 from aigem.metrics import FRONT_Y_M, REGIONS
+from aigem.results import PAPER_TABLE, Evaluation, HorizonsEvaluation
 from ngsim_graphs.plotting import mark_synthetic
 
 OURS, BASELINE = "tab:blue", "tab:orange"

@@ -16,9 +16,10 @@ import torch
 
 from aigem.baseline import constant_velocity
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.records import check_build, member_dir, read_horizons, resolve_build
-from aigem.runs import BEST, load_model
-from aigem.training import pick_device, to_device
+from aigem.devices import pick_device, to_device
+from aigem.records import BEST, member_dir, read_horizons
+from aigem.refusals import check_build, resolve_build
+from aigem.runs import load_model
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.schema import Split

@@ -24,7 +24,7 @@ put in the run is never written through, and a failed write (a full disk) remove
 and is one error naming the file. The log is appended to, never through a link.
 
 A fresh fit writes only into a new or empty folder, or into one that a fit left before its first
-checkpoint: such a folder carries fit's marker `RUN/.fit-started` (aigem.records.STARTED), written
+checkpoint: such a folder carries fit's marker `RUN/.fit-started` (aigem.unfinished), written
 before anything else and removed once the first last.pt is kept, and nothing else but a run's
 files. A folder that only looks like a run (run.json and best.pt kept without last.pt, a copy)
 is refused, never emptied; `--resume` continues a run whose last.pt is its own.
@@ -55,7 +55,6 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     BASELINE,
-    BEFORE_SCHEDULES,
     BEST,
     CURVES,
     HORIZONS,
@@ -66,20 +65,21 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     RUN_INFO,
     STARTED,
     STARTED_LINE,
+    member_dir,
+    model_config,
+    read_baseline,
+    read_horizons,
+    read_run_info,
+    run_info,
+)
+from aigem.refusals import (
     check_fresh_group,
     check_fresh_out,
     check_group_start,
     check_resume,
     check_single_start,
-    mark_started,
-    member_dir,
-    read_horizons,
-    read_run_info,
-    run_info,
-    unfinished_group,
-    unfinished_start,
-    unmark_started,
 )
+from aigem.unfinished import mark_started, unfinished_group, unfinished_start, unmark_started
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.partial_files import leftover_partials, write_atomic, write_failure
 
@@ -96,12 +96,16 @@ class RunState:
 
 
 def _check_same_run(checkpoint_info: dict[str, Any], run: dict[str, Any], path: Path) -> None:
-    """A checkpoint from another run (another build, model or horizon) is not this run's."""
-    for key in (*IDENTITY, "model"):
+    """A checkpoint from another run (another build, model or horizon) is not this run's. The
+    model configs are compared as read (aigem.records.model_config): a best.pt kept before a
+    resume rewrote run.json may lack settings that run.json names at their defaults."""
+    for key in IDENTITY:
         if checkpoint_info[key] != run[key]:
             raise NgsimInputError(
                 path, f"belongs to another run: its {key} differs from {RUN_INFO}'s"
             )
+    if model_config(checkpoint_info, path) != model_config(run, path.parent / RUN_INFO):
+        raise NgsimInputError(path, f"belongs to another run: its model differs from {RUN_INFO}'s")
     if checkpoint_info["train"].get("horizon_s") != run["train"].get("horizon_s"):
         raise NgsimInputError(
             path, f"belongs to another run: its horizon differs from {RUN_INFO}'s"
@@ -374,27 +378,11 @@ def read_metrics(run_dir: Path) -> list[dict[str, float]]:
     return rows
 
 
-def write_baseline(run_dir: Path, val_loss_m2: float, steps: int) -> None:
-    """Record constant velocity's validation loss (metres^2) over `steps` future steps."""
-    text = json.dumps({"constant_velocity_val_loss_m2": val_loss_m2, "steps": steps}) + "\n"
-    write_atomic(run_dir / BASELINE, text.encode())
-
-
-def read_baseline(run_dir: Path) -> float | None:
-    """Constant velocity's validation loss (metres^2) as fit recorded it; None when the run has
-    none (a run of an older aigem) or it is unreadable: a missing baseline only costs the line."""
-    try:
-        value = json.loads((run_dir / BASELINE).read_text())["constant_velocity_val_loss_m2"]
-    except (OSError, ValueError, TypeError, KeyError):
-        return None
-    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
-
-
 def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
     """Training and validation loss per epoch, the best epoch and constant velocity's validation
     loss as a PNG (aigem.plots), marked SYNTHETIC where the run's build is of synthetic data;
     None before the first epoch."""
-    from aigem.plots import curves_png  # matplotlib, imported only when drawing
+    from aigem.plots import curves_png  # matplotlib (a second to import), only when drawing
 
     rows = read_metrics(run_dir)
     if not rows:
@@ -422,7 +410,7 @@ def discard_unfinished(run_dir: Path, horizons_s: tuple[float, ...] | None, crea
     directories left empty, horizons.json for a multi-horizon run, and `run_dir` itself where
     the fit `created` it and it is left empty (`horizons_s`: those of a multi-horizon run, None
     for a run of one model). Only a folder that is, beyond doubt, what a fit
-    left before its first checkpoint (records.unfinished_start, unfinished_group) is touched:
+    left before its first checkpoint (unfinished.unfinished_start, unfinished_group) is touched:
     files of these names in any other folder stay."""
     members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
     for member in members:

@@ -1,9 +1,10 @@
 """`aigem fit`: train AiGem on a build's train split, keep the best checkpoint by validation loss.
 
-The loss is the mean squared error in metres^2 over the valid (unmasked) future steps up to the
-horizon: predictions are made in scaled coordinates and mapped back to metres before the loss,
-so x and y weigh alike. Checkpoints are written atomically after every epoch; `resume` restarts
-from the last one. Under `torchrun` (WORLD_SIZE > 1) it trains with DistributedDataParallel.
+Here a fit is set up: the device, the loaders, each model with its optimizer and its run
+directory (new or resumed), constant velocity's validation loss; aigem.epochs runs the epochs
+(the loss, the steps, a checkpoint per epoch). Checkpoints are written atomically after every
+epoch; `resume` restarts from the last one. Under `torchrun` (WORLD_SIZE > 1) it trains with
+DistributedDataParallel.
 
 `fit_horizons` trains one model per horizon, as the paper does, in one loop over one loader: each
 batch, moved to the device once, trains every model. Each model is the one `fit` would train for
@@ -13,14 +14,10 @@ with its own optimizer, checkpoints, log and early stopping.
 
 from __future__ import annotations
 
-import math
 import os
 import random
-import time
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -31,28 +28,15 @@ from aigem import runs
 from aigem.baseline import record_baselines
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
-from aigem.data import Collate, GraphDataset, check_covered, xy_to_metres
+from aigem.data import Collate, GraphDataset
+from aigem.devices import pick_device
+from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, train_epochs
 from aigem.model import AiGem, count_parameters
-from aigem.records import check_splits
-from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
+from aigem.refusals import check_splits
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
-from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Split
 from ngsim_graphs.synth.marker import synthetic_build
-
-READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
-# (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
-# for a model not training in this epoch): the CLI draws a bar from it.
-TrainProgress = Callable[[int, int, int, tuple[float, ...]], None]
-# (the model's horizon in s, the row of its metrics.jsonl written at the end of an epoch): the CLI
-# prints it.
-EpochCallback = Callable[[float, dict[str, float]], None]
-RngState = tuple[torch.Tensor, torch.Tensor | None]  # the CPU generator's state, and CUDA's
-
-
-class NonFiniteLossError(RuntimeError):
-    """The loss became NaN or infinite: training stops rather than save a broken model."""
 
 
 @dataclass(frozen=True)
@@ -68,19 +52,6 @@ class FitResult:
     device: str
 
 
-class DeviceUnavailableError(ValueError):
-    """The device asked for is not on this machine."""
-
-
-def pick_device(choice: str) -> torch.device:
-    """'auto' takes CUDA when present; 'cuda' without a GPU is an error."""
-    if choice == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if choice == "cuda" and not torch.cuda.is_available():
-        raise DeviceUnavailableError("--device cuda: no CUDA device is available")
-    return torch.device(choice)
-
-
 def make_optimizer(model: nn.Module, train: TrainConfig, device: torch.device) -> torch.optim.Adam:
     """The paper's Adam; fused (one operator for all parameters instead of ~9 per parameter
     tensor, 576 for AiGem) where PyTorch has the fused kernel: the CPU and CUDA."""
@@ -92,22 +63,6 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-
-
-def masked_mse_m2(
-    model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler, steps: int
-) -> torch.Tensor:
-    """Mean squared error in metres^2 over valid steps; (A, steps, 2) scaled predictions."""
-    predicted = xy_to_metres(scaler, model_out)
-    truth = batch["target_xy"][:, :steps]
-    mask = batch["target_mask"][:, :steps].to(predicted.dtype)
-    squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
-    return squared.sum() / mask.sum().clamp(min=1.0)
-
-
-def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
-    """The batch's tensors and plan on `device` (copies from pinned memory do not wait)."""
-    return {k: v.to(device, non_blocking=True) if hasattr(v, "to") else v for k, v in batch.items()}
 
 
 def _distributed() -> tuple[int, int]:
@@ -157,93 +112,6 @@ def _loaders(
     return train_set, train_loader, val_loader, sampler, generator
 
 
-def evaluate_losses(
-    models: Sequence[tuple[nn.Module, int]],
-    loader: DataLoader,
-    scaler: MinMaxScaler,
-    device: torch.device,
-) -> list[float]:
-    """Mean validation loss in metres^2 of each (model, steps), weighted by valid steps; one pass
-    over `loader` for all of them."""
-    totals = torch.zeros(len(models), dtype=torch.float64, device=device)  # read once, at the end
-    counts = torch.zeros(len(models), dtype=torch.float64, device=device)
-    for model, _ in models:
-        model.eval()
-    with torch.no_grad():
-        for batch in loader:
-            batch = to_device(batch, device)
-            for index, (model, steps) in enumerate(models):
-                valid = batch["target_mask"][:, :steps].sum()
-                loss = masked_mse_m2(model(batch, steps), batch, scaler, steps)
-                totals[index] += loss.double() * valid
-                counts[index] += valid
-    for model, _ in models:
-        model.train()
-    return [t / c if c else math.nan for t, c in zip(totals.tolist(), counts.tolist(), strict=True)]
-
-
-def _read_loss(
-    running: torch.Tensor, batches: int, epoch: int, first: int, last: int, who: str = ""
-) -> float:
-    """The mean training loss so far (one read from the device); refuses a non-finite one, which
-    appeared in batches first + 1..last of the epoch. `who` names the model in the message."""
-    mean = float(running) / batches
-    if not math.isfinite(mean):
-        where = f"batch {last}" if last == first + 1 else f"batches {first + 1}-{last}"
-        raise NonFiniteLossError(
-            f"{who}non-finite training loss ({mean}) at epoch {epoch + 1}, {where}"
-        )
-    return mean
-
-
-def _rng_state(device: torch.device) -> RngState:
-    cuda = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
-    return torch.get_rng_state(), cuda
-
-
-def _set_rng_state(state: RngState, device: torch.device) -> None:
-    torch.set_rng_state(state[0])
-    if state[1] is not None:
-        torch.cuda.set_rng_state(state[1], device)
-
-
-@dataclass(frozen=True)
-class _Loop:
-    """What the models of a fit share: the device, this process's rank, the data."""
-
-    device: torch.device
-    rank: int
-    world: int
-    scaler: MinMaxScaler
-    train_loader: DataLoader
-    val_loader: DataLoader
-    sampler: DistributedSampler | None
-    generator: torch.Generator  # the shuffle's
-    threads: ThreadChooser
-    synthetic: bool  # the build is of synthetic data: the curves say so
-    manifest: Path  # the build's, named when its scaler does not cover a train batch
-
-
-@dataclass(eq=False)
-class _Member:
-    """One model of a fit and how far it has come: the training loop's state, hence mutable."""
-
-    run_dir: Path
-    train: TrainConfig  # its horizon_s is this model's
-    steps: int  # future steps predicted and scored
-    model: AiGem
-    net: nn.Module  # the model, or DistributedDataParallel around it
-    optimizer: torch.optim.Optimizer
-    info: dict[str, Any]  # what its checkpoints carry
-    state: runs.RunState
-    who: str  # how errors name it: "" when it trains alone
-    stopped: str | None  # why it trains no more: epochs, early stopping, time limit
-    rng: RngState | None = None  # its dropout stream, between its steps
-    running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
-    shown: float = math.nan  # its mean training loss of the epoch, as last read
-    group: Path | None = None  # the multi-horizon run it is a member of
-
-
 def _start_members(
     build_dir: Path,
     run_dir: Path,
@@ -252,8 +120,8 @@ def _start_members(
     train: TrainConfig,
     resume: bool,
     time_step_s: float,
-    loop: _Loop,
-) -> list[_Member]:
+    loop: Loop,
+) -> list[Member]:
     """The models of a fit, new or resumed: one in `run_dir` (horizons_s None), or one per horizon
     in its member directory, where a resume starts over a member that has no checkpoint yet."""
     if horizons_s is None:
@@ -289,7 +157,7 @@ def _start_members(
         net = nn.parallel.DistributedDataParallel(model) if loop.world > 1 else model
         steps = member_train.horizon_steps(time_step_s)
         members.append(
-            _Member(
+            Member(
                 member_dir,
                 member_train,
                 steps,
@@ -315,151 +183,6 @@ def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
     if state.next_epoch > 0 and patience is not None and waited >= patience:
         return "early stopping"
     return None
-
-
-def _step(
-    member: _Member,
-    batch: dict[str, Any],
-    scaler: MinMaxScaler,
-    device: torch.device,
-    learning_rate: float,
-) -> None:
-    """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
-    _set_rng_state(member.rng, device)
-    loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
-    member.optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    clip_gradients(member.model.parameters(), member.train.clip_grad_norm)
-    set_learning_rate(member.optimizer, learning_rate)
-    member.optimizer.step()
-    member.running += loss.detach()
-    member.rng = _rng_state(device)
-
-
-def _train_epoch(
-    loop: _Loop,
-    members: list[_Member],
-    active: list[_Member],
-    epoch: int,
-    report: TrainProgress,
-    deadline: float,
-) -> tuple[int, bool]:
-    """One pass over the train loader, each batch (moved to the device once) training every model
-    of `active`; returns the graphs seen and whether the time limit cut the epoch short. The
-    losses are summed on the device and read every READ_LOSS_EVERY_S (and at the end of the
-    epoch): a step never waits for the device."""
-    batches, graphs, read_batches, read_at, cut = 0, 0, 0, time.monotonic(), False
-    total = len(loop.train_loader)
-    for index, batch in enumerate(loop.train_loader):
-        check_covered(batch, loop.scaler, loop.manifest)  # on the CPU: the step never waits
-        batch = to_device(batch, loop.device)
-        for member in active:
-            rate = learning_rate_at(member.train, epoch, index, total)
-            _step(member, batch, loop.scaler, loop.device, rate)
-        batches, graphs = batches + 1, graphs + batch["graphs"]
-        if index + 1 == total or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
-            for member in active:
-                member.shown = _read_loss(
-                    member.running, batches, epoch, read_batches, batches, member.who
-                )
-            read_at, read_batches = time.monotonic(), batches
-            loop.threads.look()
-        shown = tuple(m.shown if m in active else math.nan for m in members)
-        report(epoch + 1, batches, total, shown)
-        cut = time.monotonic() > deadline
-        if cut:
-            break
-    for member in active:  # the mean of the epoch (a time limit may have cut it)
-        member.shown = _read_loss(
-            member.running, max(batches, 1), epoch, read_batches, batches, member.who
-        )
-    return graphs, cut
-
-
-def _end_epoch(
-    member: _Member, epoch: int, val_loss: float, timing: dict[str, float], loop: _Loop
-) -> dict[str, float]:
-    """Check the validation loss, log and checkpoint the epoch, stop early when the patience is
-    out; returns the metrics row."""
-    if not math.isfinite(val_loss):
-        raise NonFiniteLossError(
-            f"{member.who}non-finite validation loss ({val_loss}) at epoch {epoch + 1}: the model "
-            f"diverged, or no validation target has a recorded step within {member.train.horizon_s} s"
-        )
-    member.state, row = runs.end_epoch(
-        member.run_dir,
-        member.state,
-        member.info,
-        epoch,
-        member.shown,
-        val_loss,
-        member.model,
-        member.optimizer,
-        loop.rank == 0,
-        timing,
-    )
-    if loop.rank == 0:  # after every epoch: a long run shows its course
-        if member.group is not None:  # a checkpoint is kept: not a group a fit may start over
-            runs.unmark_started(member.group)
-        runs.plot_curves(member.run_dir, loop.synthetic)
-    patience = member.train.patience_epochs
-    if patience is not None and epoch - member.state.best_epoch >= patience:
-        member.stopped = "early stopping"
-    return row
-
-
-def _train(
-    loop: _Loop,
-    members: list[_Member],
-    train: TrainConfig,
-    report: TrainProgress,
-    on_epoch: EpochCallback | None,
-) -> tuple[float, bool]:
-    """The epochs, each training the models due for it (a resumed model may be ahead of the
-    others); returns the graphs/s in training and whether the time limit ended it."""
-    graphs_seen, train_seconds, timed_out = 0, 0.0, False
-    deadline = time.monotonic() + 60 * (
-        train.max_minutes if train.max_minutes is not None else math.inf
-    )
-    first = min((m.state.next_epoch for m in members if m.stopped is None), default=train.epochs)
-    for epoch in range(first, train.epochs):
-        if all(m.stopped for m in members):
-            break
-        active = [m for m in members if m.stopped is None and m.state.next_epoch == epoch]
-        if not active:
-            continue
-        # The shuffle depends on the epoch alone, so a resumed run sees the batches it would have;
-        # every model's dropout stream starts from the same seed, as when it trains alone.
-        loop.generator.manual_seed(train.seed + epoch)
-        torch.manual_seed(train.seed + loop.rank + 1000 * epoch)
-        for member in active:
-            member.rng = _rng_state(loop.device)
-            member.running = torch.zeros((), dtype=torch.float64, device=loop.device)
-        if loop.sampler is not None:
-            loop.sampler.set_epoch(epoch)
-        epoch_start = time.monotonic()
-        epoch_graphs, timed_out = _train_epoch(loop, members, active, epoch, report, deadline)
-        epoch_seconds = time.monotonic() - epoch_start
-        train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
-        models = [(m.model, m.steps) for m in active]
-        val_losses = evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
-        timing = {
-            # fewer than the split's if the time ran out (under DDP each rank's share is padded)
-            "train_graphs": epoch_graphs * loop.world,
-            "train_seconds": round(epoch_seconds, 1),
-            "train_graphs_per_s": round(epoch_graphs * loop.world / epoch_seconds, 1),
-            "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
-        }
-        for member, val_loss in zip(active, val_losses, strict=True):
-            rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
-            row = _end_epoch(member, epoch, val_loss, timing | rate, loop)
-            if on_epoch is not None and loop.rank == 0:
-                on_epoch(member.train.horizon_s, row)
-        if timed_out:
-            for member in active:
-                member.stopped = "time limit"
-            break
-    return (graphs_seen * loop.world / train_seconds if train_seconds else math.nan), timed_out
 
 
 def fit(
@@ -507,7 +230,7 @@ def fit_horizons(
         build_dir, model_config, train, rank, world, device, workers
     )
     synthetic = synthetic_build(open_build(build_dir).manifest)
-    loop = _Loop(
+    loop = Loop(
         device,
         rank,
         world,
@@ -532,7 +255,9 @@ def fit_horizons(
     )
     if rank == 0:  # constant velocity's validation loss at each horizon, once per run
         record_baselines(build_dir, [(m.run_dir, m.steps) for m in members])
-    graphs_per_s, timed_out = _train(loop, members, train, progress or (lambda *_: None), on_epoch)
+    graphs_per_s, timed_out = train_epochs(
+        loop, members, train, progress or (lambda *_: None), on_epoch
+    )
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
         if rank == 0 and not (member.run_dir / runs.CURVES).exists():

@@ -33,10 +33,11 @@ from pathlib import Path
 
 import torch
 
-from aigem import runs
+from aigem import records, runs
 from aigem.config import ModelConfig, TrainConfig
+from aigem.devices import pick_device
 from aigem.pictures import describe_build
-from aigem.training import fit, pick_device
+from aigem.training import fit
 
 # The settings compared by default: the paper's rate at batch 32, constant and decayed, and at batch
 # 256; then batch 256 and 1024 with the rate scaled by about sqrt(batch / 32) and by batch / 32,
@@ -223,7 +224,7 @@ def main() -> None:
             f"last {item['last_val_m2']:.3f}  target: {reached}\n    val MSE by epoch: {curve}",
             flush=True,
         )
-    baseline = runs.read_baseline(run_dir_of(args.out, settings[0]))
+    baseline = records.read_baseline(run_dir_of(args.out, settings[0]))
     model = f"the {args.horizon_s:g} s model"
     title = f"validation MSE of {model} on {device}; {describe_build(args.build)}"
     draw(outcomes, args.target_m2, baseline, title, args.out / "accuracy.png")

@@ -66,8 +66,10 @@ from torch.utils.data import DataLoader
 from aigem import model as aigem_model
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
+from aigem.devices import to_device
+from aigem.epochs import masked_mse_m2
 from aigem.model import AiGem
-from aigem.training import fit, make_optimizer, masked_mse_m2, to_device
+from aigem.training import fit, make_optimizer
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
 SYNC_OPS = {

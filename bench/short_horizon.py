@@ -34,8 +34,9 @@ from torch.utils.data import DataLoader
 from aigem.baseline import constant_velocity
 from aigem.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.model import AiGem, edge_inputs
-from aigem.records import resolve_build
-from aigem.runs import BEST, load_model
+from aigem.records import BEST
+from aigem.refusals import resolve_build
+from aigem.runs import load_model
 from ngsim_graphs.scaling import FEATURES, MinMaxScaler
 
 FIRST_STEPS = 5  # 0.2 s .. 1 s

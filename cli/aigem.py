@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.table import Table
 
 from aigem import __version__
 from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, parse_horizons_s
@@ -24,17 +23,15 @@ from ngsim_cli.console import (
     exit_on_interrupt,
     in_option_words,
     option_names,
-    print_table,
     print_warning,
     stderr,
     stdout,
 )
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.schema import Split
-from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 if TYPE_CHECKING:
-    from aigem.evaluation import Evaluation, HorizonsEvaluation
+    from aigem.results import Evaluation, HorizonsEvaluation
     from aigem.training import FitResult
 
 app = typer.Typer(
@@ -196,7 +193,7 @@ def fit(
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     several = len(horizons_s) > 1
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import check_fit
+        from aigem.refusals import check_fit
 
         with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
             check_fit(data, out, horizons_s if several else None, model_config, train, resume)
@@ -217,7 +214,9 @@ def _train(
 ) -> tuple[FitResult, ...]:
     """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
     from aigem.cores import busy_cores_warning
-    from aigem.training import DeviceUnavailableError, NonFiniteLossError, fit_horizons, pick_device
+    from aigem.devices import DeviceUnavailableError, pick_device
+    from aigem.epochs import NonFiniteLossError
+    from aigem.training import fit_horizons
     from ngsim_cli.console import progress_bar
 
     try:
@@ -342,29 +341,6 @@ def _print_epoch(row: dict[str, float], who: str = "") -> None:
     )
 
 
-def _metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
-    table = Table(title=title)
-    for column in (
-        "model",
-        "ADE",
-        "FDE",
-        *(f"RMSE {s} s" for s in range(1, seconds + 1)),
-        "params",
-    ):
-        table.add_column(column, justify="left" if column == "model" else "right")
-    fmt = lambda v: "-" if v is None else f"{v:.2f}"
-    for name, row in rows.items():
-        rmse = row.get("rmse_m") or [row.get(f"rmse_{s}s_m") for s in range(1, seconds + 1)]
-        table.add_row(
-            name,
-            fmt(row["ade_m"]),
-            fmt(row["fde_m"]),
-            *(fmt(v) for v in rmse[:seconds]),
-            str(row.get("params_k", "")),
-        )
-    return table
-
-
 @app.command(short_help="Score a run against constant velocity and the paper.")
 def evaluate(
     run: Annotated[
@@ -408,14 +384,17 @@ def evaluate(
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import check_evaluate, read_horizons
+        from aigem.records import read_horizons
+        from aigem.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
             several = read_horizons(run) is not None
-        from aigem.evaluation import PAPER_TABLE, as_dict, evaluate_horizons
+        from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
-        from aigem.training import DeviceUnavailableError
+        from aigem.evaluation import evaluate_horizons
+        from aigem.results import as_dict
+        from ngsim_cli.evaluation_view import print_evaluation
 
     left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
     with exit_on_interrupt(left), exit_on_error():
@@ -429,49 +408,7 @@ def evaluate(
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))
         return
-    seconds = sum(key.startswith("rmse_") for key in result.model["all"])
-    empty = [
-        region
-        for region in ("front", "mid", "rear")
-        if not any(result.model[region][f"n_{s}s"] for s in range(1, seconds + 1))
-    ]
-    for region in ("all", "front", "mid", "rear"):
-        if region in empty:
-            continue
-        ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
-        rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
-        title = f"{split.value} split, {region} actors (metres)"
-        print_table(_metrics_table(title, rows, seconds))
-    if empty:
-        stdout.print(f"No {' or '.join(empty)} actors among the targets: no table for them.")
-    counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
-    stdout.print(f"{counted(result.samples, 'sample')}; evaluated actors per horizon: {counts}")
-    stdout.print(
-        f"Protocol: {result.protocol} ({result.protocol_description})",
-        markup=False,
-        highlight=False,
-        soft_wrap=True,
-    )
-    if several:
-        rmse = ", ".join(
-            f"{s} s from {result.sources[f'rmse_{s}s_m']}" for s in range(1, seconds + 1)
-        )
-        longest, horizon_s = result.sources["ade_m"], result.horizons_s[-1]
-        paper = "" if horizon_s == 5 else " (the paper's over 5 s)"
-        stdout.print(
-            f"One model per horizon: RMSE at {rmse}; ADE and FDE from {longest}, over "
-            f"{horizon_s:g} s{paper}. Constant velocity likewise, on the same targets."
-        )
-    print_table(_metrics_table("the paper's table (NGSIM US-101 + I-80)", PAPER_TABLE, 5))
-    other = (
-        "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"
-    )
-    kind = (
-        f", a build of {SYNTHETIC_LABEL}: synthetic results, not comparable to the paper's NGSIM numbers"
-        if result.synthetic
-        else ""
-    )
-    stdout.print(f"These numbers come from {result.build_dir}{other}{kind}.")
+    print_evaluation(result)
     if drawn:
         scenes = "" if result.same_build else " (no scenes: drawn on the run's own build only)"
         stdout.print(f"Plots in {plots}: {', '.join(path.name for path in drawn)}{scenes}")

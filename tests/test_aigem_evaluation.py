@@ -15,7 +15,8 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
-from aigem.evaluation import as_dict, evaluate, scene_choice, score_targets
+from aigem.evaluation import evaluate, scene_choice, score_targets
+from aigem.results import as_dict
 from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig

@@ -13,7 +13,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import runs, training
+from aigem import epochs, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.evaluation import evaluate
 from aigem.training import fit, fit_horizons
@@ -106,7 +106,7 @@ def test_one_member_stopping_early_leaves_the_others_training(
 ) -> None:
     """The 1 s model's validation loss rises (1, 2, ...): with patience 1 it stops after epoch 2;
     the 2 s model trains on, exactly as it would have."""
-    real, rising = training.evaluate_losses, (float(i) for i in count(1))
+    real, rising = epochs.evaluate_losses, (float(i) for i in count(1))
 
     def rising_for_1s(models: list[tuple[torch.nn.Module, int]], *args: object) -> list[float]:
         losses = real(models, *args)
@@ -115,7 +115,7 @@ def test_one_member_stopping_early_leaves_the_others_training(
             for (_, steps), loss in zip(models, losses, strict=False)
         ]
 
-    monkeypatch.setattr(training, "evaluate_losses", rising_for_1s)
+    monkeypatch.setattr(epochs, "evaluate_losses", rising_for_1s)
     run = tmp_path / "run"
     train = TrainConfig(**{**TRAIN.to_dict(), "epochs": 3, "patience_epochs": 1})
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")

@@ -1,13 +1,25 @@
-"""Metric functions against hand-computed cases."""
+"""Metric functions against hand-computed cases; what evaluate reports follows METRICS."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
-from aigem.metrics import ErrorTotals, region_of, step_errors, summarize_errors
+from aigem import metrics
+from aigem.metrics import (
+    ErrorTotals,
+    Metric,
+    region_of,
+    step_errors,
+    summarize_errors,
+    table_columns,
+)
+from ngsim_cli.aigem import app
 
 
 def test_hand_computed_two_actors() -> None:
@@ -73,3 +85,45 @@ def test_step_errors_by_hand() -> None:
     table = summarize_errors(totals, 0.2)["all"]
     assert curves["all"]["rmse_m"][4] == pytest.approx(table["rmse_1s_m"])
     assert curves["all"]["mean_error_m"][-1] == pytest.approx(table["fde_m"])
+
+
+def test_the_rows_and_the_tables_columns_follow_metrics() -> None:
+    totals = ErrorTotals(steps=10)  # 2 s at 0.2 s
+    out = summarize_errors(totals, 0.2)
+    assert list(out["all"]) == ["ade_m", "fde_m", "rmse_1s_m", "n_1s", "rmse_2s_m", "n_2s"]
+    assert out["all"]["ade_m"] is None and out["all"]["n_2s"] == 0  # nothing counted yet
+    assert table_columns(2) == [
+        ("ade_m", "ADE"),
+        ("fde_m", "FDE"),
+        ("rmse_1s_m", "RMSE 1 s"),
+        ("rmse_2s_m", "RMSE 2 s"),
+    ]
+
+
+def test_a_new_metric_reaches_evaluates_json_and_table(
+    tiny_run: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A metric added to METRICS alone (here a toy: 1.5 m plus its region's index) is in every
+    row of --json and a column of the printed table; the paper's rows have none ("-")."""
+    toy = Metric("toy_m", "TOY", "m", lambda totals, region, k: 1.5 + region)
+    monkeypatch.setattr(metrics, "METRICS", (*metrics.METRICS, toy))
+    args = ["evaluate", str(tiny_run), "--device", "cpu"]
+    document = json.loads(CliRunner().invoke(app, [*args, "--json"]).stdout)
+    assert [document["model"][r]["toy_m"] for r in metrics.REGIONS] == [1.5, 2.5, 3.5, 4.5]
+    assert document["constant_velocity"]["all"]["toy_m"] == 1.5
+    assert "toy_m" not in document["paper"]["AiGem (paper)"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    headers = [_cells(line, "┃") for line in result.stdout.splitlines() if "┃ model" in line]
+    assert [header[-2:] for header in headers] == [["TOY", "params"]] * 3  # all, mid; the paper
+    rows = [_cells(line, "│") for line in result.stdout.splitlines() if line.startswith("│")]
+    toy = {(row[0], index): row[-2] for index, row in enumerate(rows)}
+    # the tables of all actors and of mid actors (this run has no front or rear targets)
+    assert [toy[("AiGem (this run)", 0)], toy[("AiGem (this run)", 2)]] == ["1.50", "3.50"]
+    assert toy[("constant velocity", 1)] == "1.50"
+    assert {toy[(name, index)] for name, index in toy if "(paper)" in name} == {"-"}
+
+
+def _cells(line: str, bar: str) -> list[str]:
+    """The cells of one line of a printed table (rich's box drawing)."""
+    return [cell.strip() for cell in line.split(bar)[1:-1]]

@@ -13,7 +13,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
-from aigem import runs
+from aigem import records, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.evaluation import evaluate, evaluate_horizons
 from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
@@ -83,8 +83,8 @@ def test_curves_draw_a_scheduled_learning_rate_on_a_second_axis() -> None:
 def test_fit_draws_each_members_curves_with_its_baseline(run: Path) -> None:
     for member in ("h1s", "h2s"):
         assert _is_png(run / member / runs.CURVES)
-        assert runs.read_baseline(run / member) is not None
-    assert runs.read_baseline(run / "h1s") < runs.read_baseline(run / "h2s")
+        assert records.read_baseline(run / member) is not None
+    assert records.read_baseline(run / "h1s") < records.read_baseline(run / "h2s")
 
 
 def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:

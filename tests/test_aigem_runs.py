@@ -17,15 +17,19 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import runs
+from aigem import records, runs
 from aigem.baseline import constant_velocity_loss_m2
 from aigem.config import ModelConfig, TrainConfig
-from aigem.model import AiGem
+from aigem.model import AiGem, count_parameters
 from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs import partial_files
+from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import write_manifest_json
 from ngsim_graphs.partial_files import create_exclusive, partial_of
+from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.synth.formats import write_synthetic
 
 FAST = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
 FIT = ["--epochs", "1", "--batch-size", "8", "--horizon-s", "1.0", "--seed", "3", "--device", "cpu"]
@@ -152,7 +156,7 @@ def test_a_damaged_or_foreign_checkpoint_is_one_error_line(
         "random bytes": "unreadable checkpoint: truncated, damaged or not a torch file",
         "bare state dict": "not an aigem checkpoint: expected info, model",
         "missing keys": "not an aigem checkpoint: expected info, model",
-        "unknown model config": "a model config this aigem does not know (unknown ['new_knob'], missing [])",
+        "unknown model config": "a model config this aigem does not know: unknown new_knob",
         "other shapes": "its weights do not fit its model config: other shape ['encoder.0.spatial.att_src'",
     }
     assert expected[kind] in line
@@ -166,13 +170,13 @@ def test_fit_records_constant_velocitys_validation_loss(
         "constant_velocity_val_loss_m2": expected,
         "steps": 5,
     }
-    assert runs.read_baseline(trained_run) == expected
+    assert records.read_baseline(trained_run) == expected
     # A run of an older aigem has none (or a damaged one): resuming it records it.
     run = _copy(trained_run, tmp_path)
     (run / runs.BASELINE).write_text("{")
-    assert runs.read_baseline(run) is None
+    assert records.read_baseline(run) is None
     fit(tiny_build, run, ModelConfig(), TrainConfig(**{**FAST.to_dict(), "epochs": 2}), "cpu", True)
-    assert runs.read_baseline(run) == expected
+    assert records.read_baseline(run) == expected
 
 
 def test_a_directory_that_is_not_a_run(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
@@ -497,3 +501,100 @@ def test_fit_with_cv_residual_records_it_and_starts_near_constant_velocity(
         scores["constant_velocity"]["all"]["rmse_1s_m"],
     )
     assert abs(model - baseline) < 1.0
+
+
+# A run that aigem 0.1.0 wrote (`aigem fit BUILD --out RUN --epochs 1` on the build below; its
+# last.pt and curves.png left out): every later aigem loads and evaluates it.
+RUN_0_1_0 = Path(__file__).parent / "fixtures" / "run-0.1.0"
+
+
+@pytest.fixture(scope="module")
+def build_of_run_0_1_0(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The build RUN_0_1_0 was trained on, made again (the digest test's small build): the same
+    config hash; its manifest names other paths, so evaluating takes --other-build."""
+    root = tmp_path_factory.mktemp("build-0.1.0")
+    write_synthetic(root / "raw", SynthConfig(recordings=1, minutes=0.5, seed=3))
+    run_build([root / "raw"], root / "build", BuildConfig(), jobs=1)
+    return root / "build"
+
+
+def _evaluate_json(run: Path, build: Path) -> dict:
+    args = ["evaluate", str(run), "--data", str(build), "--other-build", "--device", "cpu"]
+    result = CliRunner().invoke(app, [*args, "--json"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def test_a_run_of_aigem_0_1_0_loads_and_evaluates(build_of_run_0_1_0: Path, tmp_path: Path) -> None:
+    run = _copy(RUN_0_1_0, tmp_path)
+    model, info = runs.load_model(run)
+    assert count_parameters(model) == 74_242 and model.config == ModelConfig()
+    assert info["train"]["horizon_s"] == 5.0 and info["train"]["epochs"] == 1
+    assert (
+        info["build_config"]["time_step_s"] == 0.2 and info["build_config"]["history_steps"] == 16
+    )
+    manifest = json.loads((build_of_run_0_1_0 / "manifest.json").read_text())
+    assert info["build_config_hash"] == manifest["config_hash"]
+    scores = _evaluate_json(run, build_of_run_0_1_0)
+    assert (scores["samples"], scores["parameters"], scores["horizon_steps"]) == (22, 74_242, 25)
+    assert scores["same_build"] is False and scores["synthetic"] is True
+    ours, baseline = scores["model"]["all"], scores["constant_velocity"]["all"]
+    assert ours["n_5s"] == baseline["n_5s"] == 302
+    # As measured when the run was written (one epoch: far from constant velocity yet).
+    assert ours["ade_m"] == pytest.approx(35.2097, rel=1e-3)
+    assert ours["rmse_1s_m"] == pytest.approx(5.5169, rel=1e-3)
+    assert baseline["ade_m"] == pytest.approx(2.53975, rel=1e-4)
+    assert baseline["rmse_5s_m"] == pytest.approx(7.37091, rel=1e-4)
+
+
+def _edit_info(run: Path, edit) -> None:
+    """Apply `edit` to the run info of run.json and of best.pt alike."""
+    document = json.loads((run / runs.RUN_INFO).read_text())
+    edit(document)
+    (run / runs.RUN_INFO).write_text(json.dumps(document))
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    edit(checkpoint["info"])
+    torch.save(checkpoint, run / runs.BEST)
+
+
+def test_settings_a_run_lacks_take_their_defaults(build_of_run_0_1_0: Path, tmp_path: Path) -> None:
+    run = _copy(RUN_0_1_0, tmp_path)
+    before = _evaluate_json(run, build_of_run_0_1_0)
+
+    def older(info: dict) -> None:  # as an aigem before these settings wrote it
+        del info["model"]["cv_residual"], info["model"]["concat_position"]
+        del info["train"]["compile"], info["train"]["clip_grad_norm"]
+
+    _edit_info(run, older)
+    assert "cv_residual" not in json.loads((run / runs.RUN_INFO).read_text())["model"]
+    model, _ = runs.load_model(run)
+    assert model.config == ModelConfig()  # cv_residual False, concat_position True
+    after = _evaluate_json(run, build_of_run_0_1_0)
+    assert after["model"] == before["model"]
+
+
+def test_a_setting_of_a_newer_aigem_is_one_error_line(
+    build_of_run_0_1_0: Path, tmp_path: Path
+) -> None:
+    for key in ("model", "train"):
+        run = _copy(RUN_0_1_0, tmp_path / key)
+        _edit_info(run, lambda info: info[key].update(new_knob=1))  # noqa: B023
+        args = ["--data", str(build_of_run_0_1_0), "--other-build", "--device", "cpu"]
+        result = CliRunner().invoke(app, ["evaluate", str(run), *args])
+        line = _one_error_line(result, run / runs.RUN_INFO)
+        assert f"a {key} config this aigem does not know: unknown new_knob" in line
+
+
+def test_a_best_model_kept_before_a_resume_of_an_older_run_still_loads(tmp_path: Path) -> None:
+    """Resuming an older run rewrites run.json with every setting; its best.pt, kept before,
+    lacks the settings added since: the same model config, read with their defaults."""
+    run = _copy(RUN_0_1_0, tmp_path)
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    del checkpoint["info"]["model"]["cv_residual"]
+    torch.save(checkpoint, run / runs.BEST)
+    model, info = runs.load_model(run)
+    assert model.config == ModelConfig() and "cv_residual" not in info["model"]
+    checkpoint["info"]["model"]["hidden"] = 32  # another model: still refused
+    torch.save(checkpoint, run / runs.BEST)
+    with pytest.raises(NgsimInputError, match="belongs to another run: its model differs"):
+        runs.load_model(run)

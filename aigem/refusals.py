@@ -1,0 +1,314 @@
+"""Every refusal that `aigem fit` and `evaluate` can make before they load a model: the build
+(finished, with train and validation samples; the run's own, or one that fits its model), the run
+directory (a fresh start, a resume, a finished run). The CLI calls these first, so that a mistake
+costs a fraction of a second (importing PyTorch takes seconds); aigem.runs and aigem.training
+call the same ones.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from aigem.config import ModelConfig, TrainConfig
+from aigem.records import (
+    BEST,
+    EARLY_FILES,
+    HORIZONS,
+    LAST,
+    RUN_INFO,
+    build_identity,
+    identity_difference,
+    member_dir,
+    model_config,
+    read_horizons,
+    read_run_info,
+    run_info,
+    train_config,
+)
+from aigem.unfinished import is_started, refuse_other_contents, unfinished_group, unfinished_start
+from ngsim_graphs.build import open_build
+from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
+from ngsim_graphs.layout import MANIFEST_NAME
+from ngsim_graphs.schema import N_TARGETS, Split
+
+# Train settings that a resumed run must keep: they change what it learns. Epochs (unless the
+# schedule decays over them), time limit, patience, workers and threads may change.
+RESUME_FIXED = (
+    "horizon_s",
+    "batch_size",
+    "learning_rate",
+    "lr_schedule",
+    "warmup_epochs",
+    "clip_grad_norm",
+    "seed",
+)
+
+
+def check_splits(build_dir: Path) -> None:
+    """Refuse a build whose train or validation split has no samples, or no target actors: one
+    gives nothing to train on (nor a scaler), the other no validation loss, which picks the best
+    checkpoint and stops early; training on would only log a validation MSE of NaN."""
+    build = open_build(build_dir)
+    why = {
+        Split.TRAIN: ("train", "there is nothing to train on (and the scaler is fitted on it)"),
+        Split.VAL: (
+            "validation",
+            "`aigem fit` keeps the best checkpoint and stops early by validation loss",
+        ),
+    }
+    for split, (name, reason) in why.items():
+        samples = int(build.manifest.splits.get(split.value, 0))
+        if samples == 0:
+            raise NgsimInputError(
+                build_dir,
+                f"the {name} split ({split.value}) is empty: {reason}; "
+                "rebuild with other split fractions or more data",
+            )
+        if int(build.samples(split)[N_TARGETS].sum()) == 0:
+            raise NgsimInputError(
+                build_dir,
+                f"the {name} split ({split.value}) has {samples} samples "
+                f"but no target actors: {reason}",
+            )
+
+
+# ------------------------------------------------------------------------------------------------
+# `fit`: a fresh start or a resume.
+
+
+def _seconds(horizons_s: tuple[float, ...]) -> str:
+    return ",".join(f"{h:g}" for h in horizons_s)
+
+
+def check_single_start(run_dir: Path, resume: bool) -> None:
+    """A single-horizon fit into `run_dir`: a resume needs a last.pt; a fresh start needs a
+    directory without one (`check_fresh_out` says which directories it may write into)."""
+    if (horizons_s := read_horizons(run_dir)) is not None:
+        raise NgsimInputError(
+            run_dir,
+            f"holds a multi-horizon run ({_seconds(horizons_s)} s): give "
+            f"--horizon-s {_seconds(horizons_s)} to resume it, or choose another --out",
+        )
+    if resume and not (run_dir / LAST).is_file():
+        raise NgsimInputError(run_dir, f"nothing to resume: no {LAST}")
+    if not resume and (run_dir / LAST).exists():
+        raise NgsimInputError(
+            run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
+        )
+
+
+def check_group_start(run_dir: Path, horizons_s: tuple[float, ...], resume: bool) -> None:
+    """A multi-horizon fit into `run_dir`: a resume needs the same horizons and a last.pt in at
+    least one member (a member without one, killed before its first checkpoint, starts over); a
+    fresh start, no member with one."""
+    members = tuple(member_dir(run_dir, h) for h in horizons_s)
+    recorded = read_horizons(run_dir)
+    if resume:
+        if recorded is None:
+            raise NgsimInputError(
+                run_dir, f"nothing to resume: no {HORIZONS} (not a multi-horizon run)"
+            )
+        if recorded != horizons_s:
+            raise NgsimInputError(
+                run_dir,
+                f"cannot resume with other horizons ({_seconds(recorded)} -> "
+                f"{_seconds(horizons_s)} s): it changes what the run learns",
+            )
+        if not any((member / LAST).is_file() for member in members):
+            raise NgsimInputError(run_dir, f"nothing to resume: no member has a {LAST}")
+        return
+    if recorded is not None and any((member_dir(run_dir, h) / LAST).exists() for h in recorded):
+        raise NgsimInputError(
+            run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
+        )
+
+
+def check_resume(
+    run_dir: Path, build_dir: Path, saved: dict[str, Any], info: dict[str, Any]
+) -> None:
+    """Refuse to resume a run that recorded `saved` (its run info) as `info` (run_info of this
+    call): another build, another model config, another setting of RESUME_FIXED, or other epochs
+    under a decaying schedule."""
+    why = identity_difference(saved, info)
+    if why:
+        raise NgsimInputError(
+            build_dir,
+            f"not the build that run {run_dir} was trained on ({why}); a run resumes on its own "
+            "build only",
+        )
+    saved_model = model_config(saved, run_dir / LAST).to_dict()
+    if saved_model != info["model"]:
+        changed = sorted(k for k in info["model"] if saved_model[k] != info["model"][k])
+        raise NgsimInputError(
+            run_dir,
+            f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
+        )
+    before = train_config(saved, run_dir / LAST).to_dict()
+    changed = [
+        f"{k} {before[k]} -> {info['train'][k]}"
+        for k in RESUME_FIXED
+        if before[k] != info["train"][k]
+    ]
+    if changed:
+        raise NgsimInputError(
+            run_dir,
+            f"cannot resume with another {', '.join(changed)}: it changes what the run learns",
+        )
+    schedule, epochs = info["train"]["lr_schedule"], before["epochs"]
+    if schedule != "constant" and epochs != info["train"]["epochs"]:
+        raise NgsimInputError(
+            run_dir,
+            f"cannot resume with another epochs {epochs} -> {info['train']['epochs']}: the "
+            f"{schedule} schedule decays over the run's epochs; resume with --epochs {epochs}",
+        )
+
+
+def check_fit(
+    build_dir: Path,
+    run_dir: Path,
+    horizons_s: tuple[float, ...] | None,
+    model: ModelConfig,
+    train: TrainConfig,
+    resume: bool,
+) -> None:
+    """Everything `fit_horizons` would refuse before its first checkpoint is read: the build (a
+    finished one, with train and validation samples), the run directory (check_single_start,
+    check_group_start, check_fresh_out) and, to resume, run.json against this call's settings."""
+    check_splits(build_dir)
+    plans = [(run_dir, train.horizon_s)]
+    if horizons_s is None:
+        check_single_start(run_dir, resume)
+    else:
+        check_group_start(run_dir, horizons_s, resume)
+        if not resume:
+            check_fresh_group(run_dir, horizons_s, read_horizons(run_dir))
+        plans = [(member_dir(run_dir, h), h) for h in horizons_s]
+    for member, horizon_s in plans:
+        if resume and (member / LAST).is_file():
+            member_train = TrainConfig(**{**train.to_dict(), "horizon_s": horizon_s})
+            info = run_info(build_dir, model, member_train)
+            check_resume(member, build_dir, read_run_info(member), info)
+        else:  # a fresh start, or a member that never finished an epoch starting over
+            check_fresh_out(member)
+
+
+def check_fresh_group(
+    run_dir: Path, horizons_s: tuple[float, ...], recorded: tuple[float, ...] | None
+) -> None:
+    """A fresh multi-horizon run goes into a new or empty directory, or one that a fit of the
+    same horizons left before any of its models kept a checkpoint (`unfinished_group`); each
+    member is checked by `check_fresh_out`."""
+    if not os.path.lexists(run_dir):
+        return
+    if not run_dir.is_dir():
+        raise NgsimOutputError(run_dir, "exists and is not a directory")
+    if recorded is not None and recorded != horizons_s:
+        raise NgsimOutputError(
+            run_dir,
+            f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
+            "that never finished an epoch; choose another --out, or delete it",
+        )
+    if not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
+        return
+    members = {member_dir(run_dir, h).name for h in horizons_s}
+    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, *members})
+
+
+def check_fresh_out(run_dir: Path) -> None:
+    """A fresh run goes into a new or empty directory, or one that a fit left before its first
+    checkpoint (`unfinished_start`): never into another folder, whose files it would replace,
+    even one that holds a run's files (a run kept without its last.pt, a copy)."""
+    if not os.path.lexists(run_dir):
+        return
+    if not run_dir.is_dir():
+        raise NgsimOutputError(run_dir, "exists and is not a directory")
+    if not any(run_dir.iterdir()) or unfinished_start(run_dir):
+        return
+    if (run_dir / RUN_INFO).is_file():
+        read_run_info(run_dir)  # an error naming run.json unless it is an aigem run's
+    if (run_dir / RUN_INFO).is_file() and not is_started(run_dir):
+        raise NgsimOutputError(
+            run_dir,
+            f"holds an aigem run with no {LAST} to resume, which no fit left unfinished here (a "
+            "run kept without its checkpoint, or a copy): its files are not fit's to replace; "
+            "choose a new or empty --out",
+        )
+    refuse_other_contents(run_dir, "an aigem run", EARLY_FILES)
+
+
+# ------------------------------------------------------------------------------------------------
+# `evaluate`: a finished run, and the build to evaluate on.
+
+
+def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
+    """The build to evaluate on: `data`, else the run's own (the absolute path recorded by fit)."""
+    if data is not None:
+        return data
+    recorded = Path(info["build_dir"])
+    if not (recorded / MANIFEST_NAME).is_file():
+        raise NgsimInputError(
+            recorded, "the run's build is gone (or unfinished); pass --data to name it"
+        )
+    return recorded
+
+
+def check_build(
+    info: dict[str, Any],
+    build_dir: Path,
+    run_dir: Path,
+    model: ModelConfig,
+    other_build: bool,
+    refusal: str = "pass --other-build to evaluate on another build",
+) -> bool:
+    """Whether `build_dir` is the run's own build. Refuses another build unless `other_build`,
+    and, even then, one whose time step or history and future lengths do not fit the run's model
+    and horizon."""
+    _, identity = build_identity(build_dir)
+    why = identity_difference(info, identity)
+    if why and not other_build:
+        raise NgsimInputError(
+            build_dir,
+            f"not the build that run {run_dir} was trained on ({why}); {refusal}",
+        )
+    config = open_build(build_dir).config
+    time_step_s = float(info["build_config"].get("time_step_s", math.nan))
+    if not math.isclose(config.time_step_s, time_step_s):
+        raise NgsimInputError(
+            build_dir,
+            f"its time step is {config.time_step_s} s; the run was "
+            f"trained on {time_step_s} s steps",
+        )
+    steps = round(info["train"]["horizon_s"] / time_step_s)
+    if config.history_steps < model.history_steps_read or config.future_steps < steps:
+        raise NgsimInputError(
+            build_dir,
+            f"its graphs have {config.history_steps} history and "
+            f"{config.future_steps} future steps; the run's model reads "
+            f"{model.history_steps_read} and predicts {steps}",
+        )
+    return why is None
+
+
+def check_evaluate(
+    run_dir: Path, build_dir: Path | None, split: Split | str, other_build: bool
+) -> None:
+    """Everything `evaluate` (or `evaluate_horizons`) would refuse before it loads a model: a
+    directory that is not a run, or not a finished one; the run's build gone; another build
+    without `other_build`, or one that does not fit the model (check_build); an empty split."""
+    horizons_s = read_horizons(run_dir)
+    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
+    for member in members:
+        info = read_run_info(member)
+        if not (member / BEST).is_file():
+            raise NgsimInputError(
+                member, f"not a finished run: no {BEST} (no epoch has finished yet)"
+            )
+        build = resolve_build(info, build_dir)
+        check_build(info, build, member, model_config(info, member / RUN_INFO), other_build)
+        if int(open_build(build).manifest.splits.get(Split(split).value, 0)) == 0:
+            raise NgsimInputError(
+                build, f"its {Split(split).value} split is empty: nothing to evaluate"
+            )

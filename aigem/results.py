@@ -1,0 +1,122 @@
+"""What `aigem evaluate` finds, as data: a run's scores on one split (Evaluation), a multi-horizon
+run's as the paper reports them (HorizonsEvaluation), their JSON form, and the paper's table
+beside which they are read. aigem.evaluation computes them; aigem.plots draws them; the CLI
+prints them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aigem.metrics import ErrorTotals
+
+# The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
+PAPER_TABLE = {
+    "AiGem (paper)": {
+        "ade_m": 1.42,
+        "fde_m": 2.57,
+        "rmse_m": (0.61, 1.02, 1.27, 1.84, 1.95),
+        "params_k": 74.5,
+    },
+    "CS-LSTM (paper)": {
+        "ade_m": 2.29,
+        "fde_m": 3.34,
+        "rmse_m": (0.61, 1.27, 2.09, 3.10, 4.37),
+        "params_k": 192,
+    },
+    "GSTCN (paper)": {
+        "ade_m": 1.52,
+        "fde_m": None,
+        "rmse_m": (0.44, 0.83, 1.33, 2.01, 2.98),
+        "params_k": 49.8,
+    },
+}
+
+
+def paper_rows() -> dict[str, dict[str, float | None]]:
+    """PAPER_TABLE in the keys of evaluate's rows: its RMSE as rmse_1s_m .. rmse_5s_m."""
+    return {
+        name: {
+            **{key: value for key, value in row.items() if key != "rmse_m"},
+            **{f"rmse_{s}s_m": value for s, value in enumerate(row["rmse_m"], start=1)},
+        }
+        for name, row in PAPER_TABLE.items()
+    }
+
+
+@dataclass(frozen=True)
+class FinalErrors:
+    """The final displacement error (metres) of each target valid at the last predicted step, of
+    the model and of constant velocity, and the target's sample (its index in the split)."""
+
+    sample: np.ndarray  # (T,) int64
+    model_m: np.ndarray  # (T,) float64
+    constant_velocity_m: np.ndarray  # (T,) float64
+
+
+@dataclass(frozen=True)
+class Scores:
+    """What `score_targets` accumulates over a split (metres)."""
+
+    model: ErrorTotals
+    constant_velocity: ErrorTotals
+    final: FinalErrors
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    split: str
+    horizon_steps: int
+    samples: int
+    parameters: int  # of the model
+    model: dict[str, dict[str, float | None]]
+    constant_velocity: dict[str, dict[str, float | None]]
+    build_dir: str
+    same_build: bool  # False: another build than the run's (--other-build), scaled as the run's
+    synthetic: bool  # the build is of `ngsim-graphs synth`'s data (ngsim_graphs.synth.marker)
+    time_step_s: float
+    protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
+    protocol_description: str  # describe_protocol of the build
+    # "model" / "constant_velocity" -> region -> rmse_m, mean_error_m, n: a list of K (None
+    # where no target counts), at future steps 1..K (metrics.step_errors)
+    steps: dict[str, dict[str, dict[str, list]]]
+    final: FinalErrors | None = field(default=None, repr=False, compare=False)  # not in --json
+
+
+Rows = dict[str, dict[str, float | None]]  # region -> metric -> metres (or a count)
+
+
+@dataclass(frozen=True)
+class HorizonsEvaluation:
+    """A multi-horizon run on one split, as the paper reports it; `sources` names the member each
+    metric comes from, `members` holds each member's own evaluation."""
+
+    split: str
+    horizons_s: tuple[float, ...]
+    samples: int
+    parameters: int  # of each model
+    model: Rows
+    constant_velocity: Rows
+    sources: dict[str, str]  # metric -> member (its run directory's name)
+    members: dict[str, Evaluation]
+    build_dir: str
+    same_build: bool
+    synthetic: bool
+    protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
+    protocol_description: str  # describe_protocol of the build
+
+
+def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
+    """One JSON-ready document; a multi-horizon run's holds each member's evaluation too."""
+    document = _public(result)
+    if isinstance(result, HorizonsEvaluation):
+        document["members"] = {name: _public(m) for name, m in result.members.items()}
+    return {**document, "paper": PAPER_TABLE}
+
+
+def _public(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
+    """The fields of --json: all but the per-target final errors (arrays, for pictures)."""
+    return {key: value for key, value in result.__dict__.items() if key != "final"}

@@ -1,0 +1,77 @@
+"""How `aigem evaluate` prints its result: a table per region whose columns are the metrics that
+aigem.metrics reports (METRICS), the targets counted, the protocol, and the paper's table."""
+
+from __future__ import annotations
+
+from rich.table import Table
+
+from aigem.metrics import REGIONS, table_columns
+from aigem.results import Evaluation, HorizonsEvaluation, paper_rows
+from ngsim_cli.console import counted, print_table, stdout
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
+
+
+def metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
+    """One row per model of `rows` (name -> metric key -> value, metres; "params_k"), a column
+    per metric of aigem.metrics over `seconds` whole seconds; "-" where a row has no value."""
+    columns = table_columns(seconds)
+    table = Table(title=title)
+    table.add_column("model", justify="left")
+    for _, label in columns:
+        table.add_column(label, justify="right")
+    table.add_column("params", justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    for name, row in rows.items():
+        values = (fmt(row.get(key)) for key, _ in columns)
+        table.add_row(name, *values, str(row.get("params_k", "")))
+    return table
+
+
+def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
+    """The tables and lines of `aigem evaluate` without --json."""
+    seconds = sum(key.startswith("rmse_") for key in result.model["all"])
+    empty = [
+        region
+        for region in REGIONS[1:]
+        if not any(result.model[region][f"n_{s}s"] for s in range(1, seconds + 1))
+    ]
+    for region in REGIONS:
+        if region in empty:
+            continue
+        ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
+        rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
+        title = f"{result.split} split, {region} actors (metres)"
+        print_table(metrics_table(title, rows, seconds))
+    if empty:
+        stdout.print(f"No {' or '.join(empty)} actors among the targets: no table for them.")
+    counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
+    stdout.print(f"{counted(result.samples, 'sample')}; evaluated actors per horizon: {counts}")
+    stdout.print(
+        f"Protocol: {result.protocol} ({result.protocol_description})",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
+    if isinstance(result, HorizonsEvaluation):
+        _print_sources(result, seconds)
+    print_table(metrics_table("the paper's table (NGSIM US-101 + I-80)", paper_rows(), 5))
+    other = (
+        "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"
+    )
+    kind = (
+        f", a build of {SYNTHETIC_LABEL}: synthetic results, not comparable to the paper's NGSIM numbers"
+        if result.synthetic
+        else ""
+    )
+    stdout.print(f"These numbers come from {result.build_dir}{other}{kind}.")
+
+
+def _print_sources(result: HorizonsEvaluation, seconds: int) -> None:
+    """Which member of a multi-horizon run each number comes from."""
+    rmse = ", ".join(f"{s} s from {result.sources[f'rmse_{s}s_m']}" for s in range(1, seconds + 1))
+    longest, horizon_s = result.sources["ade_m"], result.horizons_s[-1]
+    paper = "" if horizon_s == 5 else " (the paper's over 5 s)"
+    stdout.print(
+        f"One model per horizon: RMSE at {rmse}; ADE and FDE from {longest}, over "
+        f"{horizon_s:g} s{paper}. Constant velocity likewise, on the same targets."
+    )

@@ -1,0 +1,58 @@
+"""What a run records: configs read back from run info, settings a run lacks at their defaults,
+a newer aigem's setting refused in one line; baseline.json written and read back."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from aigem.config import ModelConfig, TrainConfig
+from aigem.records import (
+    BASELINE,
+    model_config,
+    read_baseline,
+    train_config,
+    write_baseline,
+)
+from ngsim_graphs.errors import NgsimInputError
+
+
+def test_settings_a_run_lacks_take_their_defaults(tmp_path: Path) -> None:
+    path = tmp_path / "run.json"
+    assert model_config({"model": {}}, path) == ModelConfig()
+    assert model_config({"model": {"hidden": 32}}, path) == ModelConfig(hidden=32)
+    assert train_config({"train": {"epochs": 3}}, path) == TrainConfig(epochs=3)
+
+
+@pytest.mark.parametrize("key", ["model", "train"])
+def test_a_setting_this_aigem_does_not_know_is_an_error(tmp_path: Path, key: str) -> None:
+    path = tmp_path / "run.json"
+    read = {"model": model_config, "train": train_config}[key]
+    with pytest.raises(NgsimInputError) as error:
+        read({key: {"zeta": 1, "alpha": 2}}, path)
+    assert str(error.value) == (
+        f"{path}: a {key} config this aigem does not know: unknown alpha, zeta "
+        "(written by a newer aigem?)"
+    )
+
+
+def test_a_recorded_value_of_another_type_or_out_of_range_is_an_error(tmp_path: Path) -> None:
+    path = tmp_path / "run.json"
+    with pytest.raises(NgsimInputError, match="model config hidden = '64': expected a int"):
+        model_config({"model": {"hidden": "64"}}, path)
+    with pytest.raises(NgsimInputError, match="a train config this aigem cannot use: epochs"):
+        train_config({"train": {"epochs": 0}}, path)
+
+
+def test_baseline_round_trip(tmp_path: Path) -> None:
+    assert read_baseline(tmp_path) is None  # a run without one (an older aigem's)
+    write_baseline(tmp_path, 12.5, 25)
+    assert json.loads((tmp_path / BASELINE).read_text()) == {
+        "constant_velocity_val_loss_m2": 12.5,
+        "steps": 25,
+    }
+    assert read_baseline(tmp_path) == 12.5
+    (tmp_path / BASELINE).write_text('{"constant_velocity_val_loss_m2": true}')
+    assert read_baseline(tmp_path) is None  # damaged: only the line is missing

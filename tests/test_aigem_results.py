@@ -1,0 +1,24 @@
+"""An evaluation's results as data: the paper's table in the rows' keys."""
+
+from __future__ import annotations
+
+from aigem.metrics import table_columns
+from aigem.results import PAPER_TABLE, paper_rows
+
+
+def test_paper_rows_hold_the_papers_numbers_in_the_keys_of_evaluates_rows() -> None:
+    rows = paper_rows()
+    assert list(rows) == list(PAPER_TABLE)
+    assert rows["AiGem (paper)"] == {
+        "ade_m": 1.42,
+        "fde_m": 2.57,
+        "params_k": 74.5,
+        "rmse_1s_m": 0.61,
+        "rmse_2s_m": 1.02,
+        "rmse_3s_m": 1.27,
+        "rmse_4s_m": 1.84,
+        "rmse_5s_m": 1.95,
+    }
+    assert rows["GSTCN (paper)"]["fde_m"] is None
+    # every column of the table over 5 s finds its number
+    assert all(key in rows["CS-LSTM (paper)"] for key, _ in table_columns(5))
