@@ -47,7 +47,7 @@ from ngsim_graphs.tasks import (
     read_file,
 )
 from ngsim_graphs.windows import SampleProtocol
-from ngsim_graphs.workers import Processes, Workers, available_cores, one_malloc_arena
+from ngsim_graphs.workers import Workers, available_cores, one_malloc_arena
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 BuildProgress = Callable[[str, int, int], None]
@@ -82,10 +82,8 @@ def _stage_inputs(
 
     reading(0)
     tasks = [(source, path, config, i, root, strict) for i, path in enumerate(files)]
-    # A new process for each file: reading in one kept from an earlier file peaked higher, and
-    # in one whose allocator gives memory back at once (FRUGAL) took half as long again.
     sizes = [path.stat().st_size for path in files]
-    read = workers.map(read_file, tasks, reading, sizes, processes=Processes.FRESH)
+    read = workers.map(read_file, tasks, reading, sizes)
     reports = [report for report, _ in read]
     staged: dict[RecordingKey, StagedParts] = {}
     for _, paths in read:  # in file order: a part's files in the order they were read
@@ -131,9 +129,8 @@ def _build_recordings(
         (key, i, reports[i], first_ids[i], staged[key], config, root, protocol)
         for i, key in enumerate(keys)
     ]
-    # The build's peak is here: freed memory given back at once, which costs building no time.
     progress_of = stage("building recordings")
-    return workers.map(build_recording, building, progress_of, sizes, processes=Processes.FRUGAL)
+    return workers.map(build_recording, building, progress_of, sizes)
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:

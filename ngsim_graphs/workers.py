@@ -5,8 +5,8 @@ pool, which Polars warns against) and their results come back in task order, so 
 made with N jobs is the build made with one, byte for byte. Each worker holds one task's data at
 a time, so peak memory grows with the number of jobs, never with the number of tasks; the cores
 are shared out among the workers for Polars' own threads (unless POLARS_MAX_THREADS says). A
-worker keeps to one malloc arena and gives back what a task freed when it ends (glibc); where
-peak memory counts more than speed, its Polars allocator gives freed memory back at once.
+worker keeps to one malloc arena with fixed thresholds and gives back what a task freed when
+it ends (glibc's documented tunables and `malloc_trim`; elsewhere nothing is set).
 
 Workers end with their parent. They start with Ctrl-C blocked (`interrupts`), so that the one a
 terminal sends to the whole process group reaches only the parent, which then stops them at
@@ -27,7 +27,6 @@ import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from enum import Enum
 from multiprocessing import connection, get_context
 from types import FrameType
 from typing import Any, TypeVar
@@ -37,16 +36,6 @@ from ngsim_graphs.interrupts import children_deaf_to_ctrl_c
 
 Result = TypeVar("Result")
 POLARS_THREADS = "POLARS_MAX_THREADS"
-# Polars' allocator (jemalloc) reads its options from this variable when Polars is imported;
-# Polars puts its own first (POLARS_JEMALLOC_DEFAULTS, then the user's, if any), and the last
-# setting of an option wins. Its defaults keep freed pages resident for a second and more (dirty,
-# then "muzzy"), so that the tables a build task had freed stayed in its worker's resident memory
-# through the rest of the task and into its next. Given back at once (FRUGAL_JEMALLOC_CONF), a
-# task's pages must be faulted in anew each time it allocates: reading and cleaning, which
-# allocate and free much, took half as long again and twice as long, building no longer.
-JEMALLOC_CONF = "_RJEM_MALLOC_CONF"
-POLARS_JEMALLOC_DEFAULTS = "dirty_decay_ms:500,muzzy_decay_ms:1000"
-FRUGAL_JEMALLOC_CONF = "dirty_decay_ms:0,muzzy_decay_ms:0"
 # glibc's malloc (numpy's) reads this when a process starts: see `one_malloc_arena`.
 MALLOC_ARENAS = "MALLOC_ARENA_MAX"
 # And these: blocks this large and under come from the heap, and as much freed at its top is
@@ -95,29 +84,16 @@ def available_cores() -> int:
     return os.cpu_count() or 1
 
 
-def worker_environment(environment: dict[str, str], size: int, frugal: bool) -> dict[str, str]:
+def worker_environment(environment: dict[str, str], size: int) -> dict[str, str]:
     """What a pool of `size` workers adds to `environment` for its processes: the cores shared
-    out among them for Polars' threads, one malloc arena each with fixed thresholds
-    (MALLOC_THRESHOLDS), and if `frugal`, Polars' allocator giving freed pages back at once (the
-    user's own settings win)."""
+    out among them for Polars' threads, and one malloc arena each with fixed thresholds
+    (MALLOC_THRESHOLDS; glibc's documented tunables). The user's own settings win."""
     settings = {}
     if POLARS_THREADS not in environment:
         settings[POLARS_THREADS] = str(max(1, available_cores() // size))
     if MALLOC_ARENAS not in environment:
         settings[MALLOC_ARENAS] = "1"
-    settings |= {k: v for k, v in MALLOC_THRESHOLDS.items() if k not in environment}
-    allocator = environment.get(JEMALLOC_CONF, "")
-    if frugal and "decay_ms" not in allocator.removeprefix(POLARS_JEMALLOC_DEFAULTS):
-        settings[JEMALLOC_CONF] = ",".join(filter(None, [allocator, FRUGAL_JEMALLOC_CONF]))
-    return settings
-
-
-class Processes(Enum):
-    """What the processes of a `Workers.map` keep of the memory a task freed."""
-
-    KEPT = "kept"  # processes kept from task to task, Polars' allocator as it comes: fastest
-    FRUGAL = "frugal"  # kept, their Polars allocator giving freed pages back at once
-    FRESH = "fresh"  # a new process for each task: nothing a task held outlives it
+    return settings | {k: v for k, v in MALLOC_THRESHOLDS.items() if k not in environment}
 
 
 def _releasing(function: Callable[..., Result], *args: Any) -> Result:
@@ -179,8 +155,7 @@ def _failed(future: Future) -> bool:
 
 
 class Workers:
-    """Up to `jobs` worker processes, kept from one `map` to the next while as many of the same
-    kind (`Processes`) are needed.
+    """Up to `jobs` worker processes, kept from one `map` to the next while as many are needed.
 
     Use as a context manager; the processes end with it. With jobs == 1, or a single task, the
     tasks run in this process.
@@ -191,7 +166,7 @@ class Workers:
             raise ValueError(f"jobs must be at least 1, got {jobs}")
         self.jobs = jobs
         self._pool: ProcessPoolExecutor | None = None
-        self._shape = (0, Processes.KEPT)  # the running pool's size and kind
+        self._size = 0  # the running pool's
         self._saved_environment: dict[str, str | None] = {}
         # The processes this one had started before the running pool: not its workers.
         self._others: set[multiprocessing.process.BaseProcess] | None = None
@@ -223,11 +198,11 @@ class Workers:
                     os.environ[name] = value
             self._saved_environment = {}
 
-    def _start(self, size: int, processes: Processes) -> ProcessPoolExecutor:
+    def _start(self, size: int) -> ProcessPoolExecutor:
         """A pool of `size` processes, the cores shared out among them for Polars' threads (the
         environment is read when each process starts; see `worker_environment`)."""
         self._close()
-        settings = worker_environment(dict(os.environ), size, processes is Processes.FRUGAL)
+        settings = worker_environment(dict(os.environ), size)
         self._saved_environment = {name: os.environ.get(name) for name in settings}
         os.environ.update(settings)
         self._others = set(multiprocessing.active_children())
@@ -235,10 +210,8 @@ class Workers:
             size,
             mp_context=get_context("spawn"),
             initializer=start_worker,
-            # 1 or None only: CPython 3.11-3.13 can hang with more (gh-115634).
-            max_tasks_per_child=1 if processes is Processes.FRESH else None,
         )
-        self._shape = (size, processes)
+        self._size = size
         return self._pool
 
     def map(
@@ -247,18 +220,13 @@ class Workers:
         tasks: Sequence[tuple[Any, ...]],
         finished: Callable[[int], None] = lambda _done: None,
         sizes: Sequence[float] | None = None,
-        *,
-        processes: Processes = Processes.KEPT,
     ) -> list[Result]:
         """[function(*task) for task in tasks], spread over the processes.
 
         `finished(n)` is called in this process after each of the n tasks done so far. A failure
         stops the tasks after it; the earliest failure in task order is raised here, as the task
         raised it, the one a single job would have met. `sizes`, a guess of each task's work,
-        starts the largest first: no large task is left to run alone at the end. `processes`:
-        what the processes keep of a task's freed memory (`Processes`; new ones are started
-        where the running ones are of another kind): for tasks whose peak memory counts more
-        than their speed, FRUGAL or FRESH, whichever costs less time.
+        starts the largest first: no large task is left to run alone at the end.
         """
         size = min(self.jobs, len(tasks))
         if size <= 1:
@@ -272,10 +240,10 @@ class Workers:
             if sizes is None
             else sorted(range(len(tasks)), key=sizes.__getitem__, reverse=True)
         )
-        same = self._pool is not None and self._shape == (size, processes)
-        pool = self._pool if same else self._start(size, processes)
-        # The processes start as the tasks are submitted, or later from the pool's own thread,
-        # which starts at the first submit: both with Ctrl-C blocked from here. Not from before
+        same = self._pool is not None and self._size == size
+        pool = self._pool if same else self._start(size)
+        # The processes start as the tasks are submitted, or later from the pool's own thread
+        # (which starts at the first submit) after a worker died: both with Ctrl-C blocked here. Not from before
         # the pool is made: its queue starts multiprocessing's resource tracker, which unblocks
         # SIGINT in the thread it was started from (test_workers checks that workers start with
         # SIGINT blocked).

@@ -13,19 +13,14 @@ import sys
 import time
 from pathlib import Path
 
-import polars as pl
 import pytest
 
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.workers import (
-    FRUGAL_JEMALLOC_CONF,
-    JEMALLOC_CONF,
     MALLOC_ARENAS,
     MALLOC_THRESHOLDS,
-    POLARS_JEMALLOC_DEFAULTS,
     POLARS_THREADS,
     STOP_GRACE_S,
-    Processes,
     Workers,
     available_cores,
     worker_environment,
@@ -45,8 +40,8 @@ def polars_threads(_: int) -> str | None:
     return os.environ.get(POLARS_THREADS)
 
 
-def allocator_settings(_: int) -> tuple[str | None, str | None]:
-    return os.environ.get(JEMALLOC_CONF), os.environ.get(MALLOC_ARENAS)
+def allocator_settings(_: int) -> tuple[str | None, ...]:
+    return tuple(os.environ.get(name) for name in (MALLOC_ARENAS, *MALLOC_THRESHOLDS))
 
 
 def sigint_blocked(_: int) -> bool:
@@ -71,18 +66,17 @@ def fail_last(index: int) -> int:
     return index
 
 
-# Failed maps of fresh processes, one after the other: when task 2 fails, the processes that
-# ran tasks 0 and 1 have been replaced by new ones, which wait for a task.
+# Failed maps, one after the other: when task 2 fails, the process that ran it waits for a task.
 FAILING_MAPS = """
 import sys
 sys.path.insert(0, {tests!r})
 from test_workers import fail_last
-from ngsim_graphs.workers import Processes, Workers
+from ngsim_graphs.workers import Workers
 for _ in range({runs}):
     try:
         with Workers(2) as workers:
             tasks = [(i,) for i in range(3)]
-            workers.map(fail_last, tasks, sizes=[3, 2, 1], processes=Processes.FRESH)
+            workers.map(fail_last, tasks, sizes=[3, 2, 1])
     except ValueError:
         pass
 print("done")
@@ -128,20 +122,6 @@ def test_a_worker_that_sigterm_does_not_end_is_killed() -> None:
     assert time.monotonic() - start < STOP_GRACE_S + 10
 
 
-def resident_bytes() -> int:
-    with open("/proc/self/statm") as statm:
-        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
-def resident_after_a_freed_table(_: int) -> tuple[int, int, int]:
-    """Resident bytes before, with and after an 80 MB Polars table."""
-    before = resident_bytes()
-    table = pl.DataFrame({"x": pl.int_range(0, 10_000_000, eager=True)})
-    held = resident_bytes()
-    del table
-    return before, held, resident_bytes()
-
-
 def fail_on(value: int, bad: int) -> int:
     if value == bad:
         raise NgsimInputError("input.txt", f"value {value} is bad", line=value)
@@ -171,91 +151,30 @@ def test_workers_share_the_cores_and_leave_the_environment_as_it_was() -> None:
     before = dict(os.environ)
     with Workers(2) as workers:
         threads = workers.map(polars_threads, [(0,), (1,)])
-        workers.map(polars_threads, [(0,), (1,)], processes=Processes.FRUGAL)
     assert threads == [str(max(1, available_cores() // 2))] * 2
     assert dict(os.environ) == before
 
 
 def test_worker_environment_shares_cores_and_lets_the_users_settings_win() -> None:
     cores = str(max(1, available_cores() // 2))
-    polars = POLARS_JEMALLOC_DEFAULTS  # what importing Polars leaves in the environment
     malloc = {MALLOC_ARENAS: "1", **MALLOC_THRESHOLDS}
-    assert worker_environment({}, 2, frugal=False) == {POLARS_THREADS: cores, **malloc}
-    assert worker_environment({JEMALLOC_CONF: polars}, 2, frugal=True) == {
-        POLARS_THREADS: cores,
-        **malloc,
-        JEMALLOC_CONF: f"{polars},{FRUGAL_JEMALLOC_CONF}",  # later options win
+    assert worker_environment({}, 2) == {POLARS_THREADS: cores, **malloc}
+    users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", "MALLOC_TRIM_THRESHOLD_": "0"}
+    assert worker_environment(users, 2) == {
+        "MALLOC_MMAP_THRESHOLD_": MALLOC_THRESHOLDS["MALLOC_MMAP_THRESHOLD_"]
     }
-    users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", JEMALLOC_CONF: f"{polars},narenas:2"}
-    users |= {"MALLOC_TRIM_THRESHOLD_": "0"}
-    assert worker_environment(users, 2, frugal=True) == {
-        JEMALLOC_CONF: f"{polars},narenas:2,{FRUGAL_JEMALLOC_CONF}",
-        "MALLOC_MMAP_THRESHOLD_": MALLOC_THRESHOLDS["MALLOC_MMAP_THRESHOLD_"],
-    }
-    # The user's own decay wins, and so does the user's environment wholly.
-    users = {POLARS_THREADS: "3", MALLOC_ARENAS: "4", JEMALLOC_CONF: f"{polars},dirty_decay_ms:9"}
-    assert worker_environment(users | MALLOC_THRESHOLDS, 2, frugal=True) == {}
-    assert worker_environment({}, 2, frugal=True) == {
-        POLARS_THREADS: cores,
-        **malloc,
-        JEMALLOC_CONF: FRUGAL_JEMALLOC_CONF,
-    }
+    assert worker_environment(users | MALLOC_THRESHOLDS, 2) == {}
 
 
-def test_polars_puts_the_allocator_defaults_that_frugal_processes_expect() -> None:
-    """worker_environment tells a user's own decay from Polars' defaults by their text: a Polars
-    whose defaults differ would leave frugal processes as they are, and fail here."""
-    environment = {k: v for k, v in os.environ.items() if k not in (JEMALLOC_CONF, "POLARS_THP")}
-    code = "import os, polars; print(os.environ['_RJEM_MALLOC_CONF'])"
-    shown = subprocess.run(
-        [sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=True
-    )
-    assert shown.stdout.strip() == POLARS_JEMALLOC_DEFAULTS
-
-
-USERS_ALLOCATOR = pytest.mark.skipif(
-    MALLOC_ARENAS in os.environ or os.environ.get(JEMALLOC_CONF) != POLARS_JEMALLOC_DEFAULTS,
+@pytest.mark.skipif(
+    MALLOC_ARENAS in os.environ or any(name in os.environ for name in MALLOC_THRESHOLDS),
     reason="the user's own allocator settings are kept",
 )
-
-
-@USERS_ALLOCATOR
-def test_frugal_tasks_run_in_their_own_processes_with_the_allocators_settings() -> None:
-    tasks = [(0.2,)] * 4
+def test_workers_start_with_the_allocators_settings() -> None:
     with Workers(2) as workers:
-        plain = workers.map(allocator_settings, [(0,), (1,)])
-        pids = set(workers.map(pid_after, tasks))
-        frugal = workers.map(allocator_settings, [(0,), (1,)], processes=Processes.FRUGAL)
-        frugal_pids = set(workers.map(pid_after, tasks, processes=Processes.FRUGAL))
-        pool = workers._pool
-        workers.map(pid_after, tasks, processes=Processes.FRUGAL)
-        kept = workers._pool is pool
-    # Polars puts its defaults first in each process, before what it was given.
-    assert plain == [(f"{POLARS_JEMALLOC_DEFAULTS},{POLARS_JEMALLOC_DEFAULTS}", "1")] * 2
-    given = f"{POLARS_JEMALLOC_DEFAULTS},{POLARS_JEMALLOC_DEFAULTS},{FRUGAL_JEMALLOC_CONF}"
-    assert frugal == [(given, "1")] * 2
-    assert not pids & frugal_pids, "new processes for frugal tasks"
-    assert kept, "kept while the tasks are as frugal"
-
-
-def test_fresh_processes_run_one_task_each() -> None:
-    with Workers(2) as workers:
-        kept = workers.map(pid_after, [(0.2,)] * 4)
-        fresh = workers.map(pid_after, [(0.2,)] * 4, processes=Processes.FRESH)
-    assert len(set(kept)) <= 2  # a process is started when no other is idle
-    assert len(set(fresh)) == 4 and not set(fresh) & set(kept)
-
-
-@USERS_ALLOCATOR
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_a_frugal_worker_gives_a_freed_table_back_at_once() -> None:
-    with Workers(2) as workers:
-        tasks = [(0,), (1,)]
-        (before, held, after), _ = workers.map(
-            resident_after_a_freed_table, tasks, processes=Processes.FRUGAL
-        )
-    assert held - before > 60e6, "the table was resident"
-    assert after - before < 20e6, "and went back when freed"
+        settings = workers.map(allocator_settings, [(0,), (1,)])
+    assert settings == [("1", *MALLOC_THRESHOLDS.values())] * 2
+    assert allocator_settings(0) == (None, None, None)  # this process's environment as it was
 
 
 def test_a_worker_error_comes_back_whole() -> None:
@@ -335,13 +254,9 @@ def gone_within(pids: list[int], seconds: float) -> bool:
     return not any(alive(pid) for pid in pids)
 
 
-@pytest.mark.parametrize("processes", [Processes.KEPT, Processes.FRESH])
-def test_workers_start_with_ctrl_c_blocked(processes: Processes) -> None:
-    """FRESH processes are started by the pool's own thread too, as tasks end."""
+def test_workers_start_with_ctrl_c_blocked() -> None:
     with Workers(2) as workers:
-        assert (
-            workers.map(sigint_blocked, [(i,) for i in range(4)], processes=processes) == [True] * 4
-        )
+        assert workers.map(sigint_blocked, [(i,) for i in range(4)]) == [True] * 4
     assert not sigint_blocked(0)  # this process takes its Ctrl-C as before
 
 
