@@ -31,7 +31,7 @@ LR_SCHEDULES = tuple(schedule.value for schedule in LrSchedule)
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """AiGem's shape (SPEC section 5). The default has 74,242 parameters (the paper: 74.5 K)."""
+    """AiGem's shape (docs/aigem.md). The default has 74,242 parameters (the paper: 74.5 K)."""
 
     node_features: int = 4  # [x, y, heading, speed]
     hidden: int = 64  # encoder and GRU width

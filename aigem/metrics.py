@@ -1,4 +1,4 @@
-"""Trajectory metrics in metres (SPEC section 6), accumulated batch by batch.
+"""Trajectory metrics in metres (docs/conventions.md), accumulated batch by batch.
 
 - RMSE at h s: sqrt of the mean squared Euclidean error over all valid (sample, actor) pairs at
   future step 5h, pooled over the whole split (the CS-LSTM / PiP convention; DeepTrack instead

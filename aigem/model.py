@@ -1,4 +1,4 @@
-"""AiGem (SPEC section 5): a GAT + linear graph encoder, a GRU decoder, an MLP output.
+"""AiGem (docs/aigem.md): a GAT + linear graph encoder, a GRU decoder, an MLP output.
 
 Shapes: N nodes in a batch of graphs, A target actors, H = hidden width, K = future steps,
 E edges of one type.

@@ -1,5 +1,5 @@
 """Benchmark: time to a validation loss, per training setting (batch size, learning rate, schedule,
-warm-up, clipping), the figure that chooses each device's defaults (SPEC section 5).
+warm-up, clipping), the figure that chooses each device's defaults (docs/aigem.md).
 
     python bench/bench_accuracy.py bench/out/graphs-txt-r6-m15 --out bench/out/accuracy-r6 \\
         --target-m2 3.0 --epochs 20

@@ -12,7 +12,8 @@ FRAME_STEP_S = 0.1  # NGSIM's 10 Hz frame period
 
 @dataclass(frozen=True)
 class PhysicalLimits:
-    """What a raw row may hold; rows beyond a limit are dropped and counted per reason (SPEC 1).
+    """What a raw row may hold; rows beyond a limit are dropped and counted per reason
+    (docs/trust.md).
 
     Generous for highway traffic: real NGSIM rows stay far inside them (v_Acc within 3.4 m/s²,
     speeds under 40 m/s, study areas under 1 km long), so a row beyond one is a damaged value, a
@@ -177,7 +178,7 @@ class SynthConfig:
     recordings: int = 6  # 1..6, taken in order from the six official (location, period) pairs
     minutes: float = 15.0  # length of each recording
     seed: int = 0
-    quirks: bool = False  # inject the format quirks of real exports (SPEC section 1)
+    quirks: bool = False  # inject the format quirks of real exports (docs/conventions.md)
 
     def __post_init__(self) -> None:
         if not 1 <= self.recordings <= 6:

@@ -1,4 +1,4 @@
-"""Every edge type of a sample's graph (SPEC section 3), each rule written once.
+"""Every edge type of a sample's graph (docs/conventions.md), each rule written once.
 
 An edge type says which pairs of a sample's nodes it links, at which steps, and with which
 attribute, twice over the same decisions:

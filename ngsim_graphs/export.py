@@ -1,10 +1,11 @@
 """Graphs of chosen samples as explicit Parquet-ready tables with sample-local node indices.
 
 The build stores graphs compactly (grid nodes and proximity pairs, once per step); these tables
-are the per-sample form of SPEC section 4, for any subset a researcher wants to look at or feed
-to another tool. They are written as a whole into a hidden folder beside the target and renamed
-into place when complete, with EXPORT_MARKER listing them and their sha256; a target that holds
-anything but the tables its marker lists, as they were written, is never replaced.
+are the per-sample form of the build's graphs (docs/build-format.md), for any subset a researcher
+wants to look at or feed to another tool. They are written as a whole into a hidden folder
+beside the target and renamed into place when complete, with EXPORT_MARKER listing them and
+their sha256; a target that holds anything but the tables its marker lists, as they were
+written, is never replaced.
 """
 
 from __future__ import annotations

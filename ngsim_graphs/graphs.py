@@ -1,4 +1,4 @@
-"""The graph of a sample (SPEC section 3), induced from its recording's frame arrays.
+"""The graph of a sample (docs/conventions.md), induced from its recording's frame arrays.
 
 For history steps k = 0..K_H-1 (k = K_H-1 is the present) of the window of ego track e that
 starts at grid step s0:

@@ -1,4 +1,4 @@
-"""Heading from lightly smoothed positions, with a hold at low speed (SPEC section 2)."""
+"""Heading from lightly smoothed positions, with a hold at low speed (docs/conventions.md)."""
 
 from __future__ import annotations
 

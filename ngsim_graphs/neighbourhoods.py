@@ -1,4 +1,4 @@
-"""What every sample's graph holds, counted without inducing it (SPEC section 3).
+"""What every sample's graph holds, counted without inducing it (docs/conventions.md).
 
 A sample's graph is, step by step, the neighbourhood of its ego's row: the rows within d_sense
 of it (the nodes), and what each edge type's rule (`ngsim_graphs.edges`) gives from them. So

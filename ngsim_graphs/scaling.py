@@ -1,4 +1,4 @@
-"""MinMax scaling fitted on the train split only (SPEC section 3): one type, both directions.
+"""MinMax scaling fitted on the train split only (docs/conventions.md): one type, both directions.
 
 x, y and heading map to (-1, 1); speed and the scaled edge attributes (the spatial edges'
 distance) to (0, 1); an edge type that is not `scaled` (temporal: t_s) keeps its attribute. Stored

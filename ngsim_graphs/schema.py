@@ -15,8 +15,8 @@ import polars as pl
 
 
 class RawFormat(str, Enum):
-    """The file formats of raw trajectories: NGSIM's three (SPEC section 1), which the NGSIM
-    reader tells apart, and highD's (SPEC section 8), which only the highD source reads."""
+    """The file formats of raw trajectories: NGSIM's three (docs/conventions.md), which the NGSIM
+    reader tells apart, and highD's (docs/highd.md), which only the highD source reads."""
 
     PORTAL = "portal"  # combined CSV of all locations, with a Location column
     CSV = "csv"  # one period, CSV with a header
@@ -25,7 +25,7 @@ class RawFormat(str, Enum):
 
 
 class SplitMode(str, Enum):
-    """How ego windows are divided into train, validation and test (SPEC section 3)."""
+    """How ego windows are divided into train, validation and test (docs/conventions.md)."""
 
     VEHICLE = "vehicle"  # by Vehicle_ID within each recording (CS-LSTM's convention)
     TIME = "time"  # contiguous blocks of present time per recording, one window apart
@@ -40,7 +40,7 @@ class Protocol(str, Enum):
 
 
 class DropReason(str, Enum):
-    """Why a raw row was dropped one by one (SPEC section 1); counted per reason in the manifest.
+    """Why a raw row was dropped one by one (docs/trust.md); counted per reason in the manifest.
 
     Rows with an empty required field are counted apart (`rows_missing_values`): empty fields
     are a known quirk of real exports, these are not.

@@ -1,4 +1,4 @@
-"""Dividing ego windows into train, validation and test (SPEC section 3).
+"""Dividing ego windows into train, validation and test (docs/conventions.md).
 
 Splits are decided per ego window; actor nodes are never filtered by split: an ego's neighbours
 are whoever was there.

@@ -1,6 +1,6 @@
 """The fast graph builder (`induce_graphs`) against a deliberately simple brute-force reference.
 
-`brute_force_graph` applies the rules of SPEC section 3 (and of graphs.py's docstring) to one
+`brute_force_graph` applies the rules of docs/conventions.md (and of graphs.py's docstring) to one
 window with plain Python loops over a grid-node table: no RecordingArrays, no sweep, no CSR
 index. The fast path must give the same nodes in the same order, the same edge sets and the
 same targets, on a hand-computed scene and on many random scenes that include vehicles at

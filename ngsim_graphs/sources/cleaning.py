@@ -1,5 +1,5 @@
 """The cleaning every source shares, over rows keyed by (vehicle, frame): duplicates, frame
-gaps, the grid, and the rule of dropped rows (SPEC section 1).
+gaps, the grid, and the rule of dropped rows (docs/conventions.md).
 
 Every function is pure over a polars frame and returns what it removed, for the build report.
 """

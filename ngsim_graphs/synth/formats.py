@@ -1,5 +1,5 @@
 """Synthetic NGSIM files behind `ngsim-graphs synth`: simulated recordings written in one of the
-three raw formats (SPEC section 1), optionally with the quirks of real exports.
+three raw formats (docs/conventions.md), optionally with the quirks of real exports.
 
 The folder lands whole (`landing.output_directory`): its files are written into a hidden partial
 folder beside it, each created exclusively and never through a link, and the finished folder is

@@ -1,1 +1,1 @@
-"""highD (SPEC section 8): three CSV files per drone recording, 25 Hz, metres, both directions."""
+"""highD (docs/highd.md): three CSV files per drone recording, 25 Hz, metres, both directions."""

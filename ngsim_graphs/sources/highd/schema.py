@@ -1,4 +1,4 @@
-"""highD's raw columns and dtypes (SPEC section 8), imported as `hs`. No logic lives here.
+"""highD's raw columns and dtypes (docs/highd.md), imported as `hs`. No logic lives here.
 
 Every name as highD's header spells it; readers match them case-insensitively. Each recording NN
 is three CSV files: NN_tracks.csv (one row per vehicle and 25 Hz frame), NN_tracksMeta.csv (one

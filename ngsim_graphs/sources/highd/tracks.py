@@ -1,4 +1,4 @@
-"""highD files to the tracks table (SPEC section 8): the highD `Source`.
+"""highD files to the tracks table (docs/highd.md): the highD `Source`.
 
 Per input file: a tracks file is parsed, its rows beyond the physical limits or with an empty
 required field are dropped and counted, the rest are mapped to the road frame (`geometry`)

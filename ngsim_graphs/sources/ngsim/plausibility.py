@@ -1,4 +1,4 @@
-"""Physical plausibility of raw rows: which are impossible, and why (SPEC section 1).
+"""Physical plausibility of raw rows: which are impossible, and why (docs/conventions.md).
 
 Real exports hold stray rows: a damaged number, a swapped column, a vehicle that jumps a
 kilometre in a frame. Each such row is dropped on its own and counted per reason; it never costs

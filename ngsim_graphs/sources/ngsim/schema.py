@@ -1,4 +1,4 @@
-"""NGSIM's raw columns and dtypes (SPEC section 1), imported as `ns`. No logic lives here.
+"""NGSIM's raw columns and dtypes (docs/conventions.md), imported as `ns`. No logic lives here.
 
 Raw rows keep NGSIM's own units (feet, feet/s, feet/s^2, milliseconds). Readers match headers
 case-insensitively, so `v_Length` and `v_length` both map to `v_length`; the columns the tracks
