@@ -33,6 +33,12 @@ stderr = Console(stderr=True, soft_wrap=True)
 stdout = Console(soft_wrap=True)
 
 
+def usage_error(message: str) -> typer.Exit:
+    """One line on stderr; the caller raises the returned exit (status 2: a bad option)."""
+    stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
+    return typer.Exit(2)
+
+
 def print_table(table: Table) -> None:
     """A table on stdout at its natural width where the terminal (or a pipe's 80 columns) is
     narrower: rich would squeeze its columns and cut their values ("52…")."""

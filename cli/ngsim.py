@@ -10,8 +10,8 @@ from typing import Annotated
 import numpy as np
 import polars as pl
 import typer
-from rich.table import Table
 
+from ngsim_cli.build_view import print_build_report
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
@@ -25,17 +25,18 @@ from ngsim_cli.console import (
     progress_bar,
     stderr,
     stdout,
+    usage_error,
 )
 from ngsim_cli.cslstm import export_cslstm
-from ngsim_cli.stats_view import SPLIT_NAMES, STATS_TABLES
+from ngsim_cli.show import show
+from ngsim_cli.stats_view import STATS_TABLES
 from ngsim_graphs import __version__
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
-from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
-from ngsim_graphs.pipeline import BuildResult, run_build
-from ngsim_graphs.schema import DropReason, Protocol, RawFormat, Split, SplitMode
-from ngsim_graphs.sources.cleaning import DESCRIPTIONS
-from ngsim_graphs.sources.registry import check_locations, dataset_names, label
+from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
+from ngsim_graphs.sources.registry import check_locations, dataset_names
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
 from ngsim_graphs.workers import available_cores
@@ -51,12 +52,6 @@ app = typer.Typer(
 add_version_option(app, "ngsim-graphs", __version__)
 
 
-def _usage_error(message: str) -> typer.Exit:
-    """One line on stderr; the caller raises the returned exit (status 2: a bad option)."""
-    stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
-    return typer.Exit(2)
-
-
 # Config fields set by an option of another name.
 RENAMED_OPTIONS = {"ego_is_target": "--ego-target", "raw_format": "--format"}
 
@@ -68,7 +63,7 @@ def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
         return factory(**kwargs)
     except ValueError as err:
         options = option_names(kwargs, RENAMED_OPTIONS)
-        raise _usage_error(in_option_words(str(err), options)) from None
+        raise usage_error(in_option_words(str(err), options)) from None
 
 
 @app.command(short_help="Write synthetic NGSIM- or highD-format trajectories.")
@@ -117,64 +112,6 @@ def synth(
             paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
-
-
-def _summary_table(result: BuildResult) -> Table:
-    table = Table(title=f"build {result.out_dir}")
-    table.add_column("location", no_wrap=True)
-    table.add_column("period", no_wrap=True)
-    for column in ("rows", "dups", "conflicts", "gaps", "tracks", "grid rows", *SPLIT_NAMES):
-        table.add_column(column, justify="right")
-    samples = {(r.location, r.period): r.samples for r in result.manifest.recordings}
-    for r in result.recordings:
-        per_split = samples.get((r.location, r.period), {})
-        table.add_row(
-            r.location,
-            r.period,
-            *(
-                f"{v:,}"
-                for v in (
-                    r.rows,
-                    r.exact_duplicates,
-                    r.conflicting_duplicates,
-                    r.gaps,
-                    r.tracks,
-                    r.grid_rows,
-                )
-            ),
-            *(f"{per_split.get(split, 0):,}" for split in SPLIT_NAMES),
-        )
-    return table
-
-
-def _dropped_lines(result: BuildResult) -> list[str]:
-    """One line per reason rows were dropped for, with the first place it happened."""
-    lines = []
-    for reason, n in result.manifest.counts.rows_dropped.items():
-        if not n:
-            continue
-        if reason == DropReason.POSITION_OUTLIER.value:
-            first = min(
-                f"{r.first_outlier.file}, line {r.first_outlier.line}"
-                for r in result.manifest.recordings
-                if r.first_outlier
-            )
-        else:
-            first = next(
-                f"{f.path}, line {f.first_dropped_line[reason]}"
-                for f in result.files
-                if reason in f.first_dropped_line
-            )
-        noun = "row" if n == 1 else "rows"
-        lines.append(f"dropped {n:,} {noun}: {DESCRIPTIONS[DropReason(reason)]} (first: {first}).")
-    jumps = result.manifest.counts.position_jumps
-    if jumps:
-        limit = result.manifest.config.limits.max_jump_m
-        noun = "jump" if jumps == 1 else "jumps"
-        lines.append(
-            f"split tracks at {jumps:,} position {noun} of more than {limit:g} m between frames."
-        )
-    return lines
 
 
 # `build --dataset`: told from the files (auto), or forced: the registry's sources.
@@ -322,47 +259,7 @@ def build(
             dataset=chosen,
             jobs=jobs or available_cores(),
         )
-    for skipped in result.skipped_files:
-        stdout.print(f"skipped (not {label(result.manifest.dataset)}): {skipped}")
-    print_table(_summary_table(result))
-    counts, splits = result.manifest.counts, result.manifest.splits
-    stdout.print(
-        f"{counted(counts.rows_read, 'row')} read, {counts.rows_other_locations:,} of other locations, "
-        f"{counts.rows_missing_values:,} with empty required fields dropped."
-    )
-    for line in _dropped_lines(result):
-        stdout.print(line, markup=False, highlight=False, soft_wrap=True)
-    script = counts.cslstm_rows
-    if script is not None:
-        stdout.print(
-            f"cs-lstm protocol: CS-LSTM's script keeps {counted(script.kept, 'row')}, {script.on_grid:,} "
-            f"on the {config.time_step_s:g} s grid (one per vehicle and even frame); "
-            f"{script.unmatched:,} of those "
-            "have no track at their step (cleaning removed the row) and give no sample; "
-            f"{counted(script.too_short, 'row')} of vehicles under 31 rows left out (the script stops on "
-            "them).",
-            markup=False,
-            highlight=False,
-            soft_wrap=True,
-        )
-    for warning in result.warnings:
-        stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
-    shares = " / ".join(
-        f"{splits.get(name, 0) / max(1, counts.samples):.0%}" for name in SPLIT_NAMES
-    )
-    stdout.print(
-        "samples: "
-        + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
-        + f" ({counts.samples:,} in all; shares {shares}"
-        + (
-            ", the vehicle split cutting at Vehicle_IDs"
-            if config.split is SplitMode.VEHICLE
-            else ""
-        )
-        + ").",
-        markup=False,
-        highlight=False,
-    )
+    print_build_report(result)
 
 
 def _write_plots(values, folder: Path, synthetic: bool) -> list[Path]:  # type: ignore[no-untyped-def]
@@ -467,11 +364,9 @@ def _sample_ids(text: str, available: int) -> np.ndarray:
         else:
             ids = np.array([int(part) for part in text.split(",") if part.strip()])
     except ValueError:
-        raise _usage_error(
-            f"--samples {text!r}: give START:END or a comma-separated list"
-        ) from None
+        raise usage_error(f"--samples {text!r}: give START:END or a comma-separated list") from None
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= available:
-        raise _usage_error(f"--samples {text!r}: the split has samples 0..{available - 1}")
+        raise usage_error(f"--samples {text!r}: the split has samples 0..{available - 1}")
     return ids
 
 
@@ -512,100 +407,7 @@ def export(
         stdout.print(f"{path}  {counted(table.height, 'row')}")
 
 
-def _scene_range(text: str, max_panels: int) -> tuple[int, int]:
-    """`--sample` N or START:END (END excluded) -> (START, END); a usage error otherwise."""
-    first, colon, last = text.partition(":")
-    try:
-        start = int(first)
-        end = int(last) if colon else start + 1
-    except ValueError:
-        raise _usage_error(f"--sample {text!r}: give N or START:END (END excluded)") from None
-    if not 0 <= start < end:
-        raise _usage_error(f"--sample {text!r}: START:END needs 0 <= START < END")
-    if end - start > max_panels:
-        raise _usage_error(f"--sample {text!r}: at most {max_panels} samples in one picture")
-    return start, end
-
-
-def _show_name(split: str, start: int, end: int, run: Path | None) -> Path:
-    """The default --out: show-test-0.png, show-test-0-7.png, show-test-0-7-RUNNAME.png."""
-    samples = f"{start}" if end == start + 1 else f"{start}-{end - 1}"
-    return Path(f"show-{split}-{samples}" + (f"-{run.resolve().name}" if run else "") + ".png")
-
-
-@app.command(short_help="Draw samples' graphs in the road frame as a PNG.")
-def show(
-    build_dir: Annotated[Path, typer.Argument(metavar="DIR", help="A finished build directory.")],
-    split: Annotated[Split, typer.Option(help="Split of the samples.")] = Split.TEST,
-    sample: Annotated[
-        str,
-        typer.Option(
-            metavar="N|START:END", help="Sample id, or ids START..END-1: one panel each (<= 64)."
-        ),
-    ] = "0",
-    out: Annotated[
-        Path | None,
-        typer.Option(
-            "--out",
-            help="PNG to write [default: show-SPLIT-SAMPLES.png here, -RUN added with --run].",
-        ),
-    ] = None,
-    run: Annotated[
-        Path | None,
-        typer.Option(
-            "--run",
-            help="An aigem run of this build: also draw its predictions and constant "
-            "velocity's (a multi-horizon run's longest-horizon model).",
-        ),
-    ] = None,
-    columns: Annotated[int, typer.Option(min=1, help="Panels per row.")] = 4,
-    overwrite: Annotated[bool, typer.Option(help="Replace --out if it exists.")] = False,
-) -> None:
-    """Draw samples' graphs as one PNG, a panel per sample, in the sample frame (x lateral, y
-    along the road, the ego at (0, 0) at the present step, metres): history nodes (older:
-    fainter), temporal edges as each vehicle's history, the present step's spatial edges, the
-    d_sense circle, and the targets' recorded futures.
-    """
-    from ngsim_graphs.scenes import MAX_PANELS, scene_titles, write_scenes  # loads matplotlib
-
-    start, end = _scene_range(sample, MAX_PANELS)
-    out = out if out is not None else _show_name(split.value, start, end, run)
-    with exit_on_error():
-        if out.exists() and not overwrite:
-            raise NgsimOutputError(out, "exists; pass --overwrite to replace it")
-        opened = open_build(build_dir)
-        size = int(opened.manifest.splits[split.value])
-        if size == 0:
-            raise NgsimInputError(build_dir, f"its {split.value} split is empty: nothing to draw")
-        if end > size:
-            raise _usage_error(
-                f"--sample {sample!r}: the {split.value} split has samples 0..{size - 1}"
-            )
-        ids = np.arange(start, end)
-        predictions = None
-        if run is None:
-            batch = opened.graphs(split.value, ids)
-        else:
-            from aigem.prediction import predict_samples  # torch loads only when asked
-
-            batch, predictions = predict_samples(run, build_dir, split, ids)
-        titles = scene_titles(opened.samples(split.value), split.value, ids)
-        synthetic = synthetic_build(opened.manifest)
-        scenes = write_scenes(
-            out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite, synthetic
-        )
-    what = f"sample {start}" if end == start + 1 else f"samples {start}..{end - 1}"
-    drawn = f"{counted(sum(s.nodes for s in scenes), 'node')}, {counted(sum(s.targets for s in scenes), 'target')}"
-    also = f"; dashed: {' and '.join(predictions)} of {run}" if predictions else ""
-    kind = f"; {SYNTHETIC_LABEL}" if synthetic else ""
-    stdout.print(
-        f"wrote {out}: {split.value} {what} of {build_dir} ({drawn}){also}{kind}",
-        markup=False,
-        highlight=False,
-        soft_wrap=True,
-    )
-
-
+app.command(short_help="Draw samples' graphs in the road frame as a PNG.")(show)
 app.command("export-cslstm", short_help="Write CS-LSTM's TrainSet/ValSet/TestSet.mat files.")(
     export_cslstm
 )

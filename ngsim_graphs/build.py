@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import integrity, layout
+from ngsim_graphs import integrity, layout, storage
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, concat_batches, induce_graphs
@@ -46,7 +46,7 @@ class OpenBuild:
         """Memory-mapped arrays of `folder`, each checked against its record in the manifest."""
         for name in names:
             self._listed(folder / f"{name}.npy")
-        arrays = layout.open_arrays(folder, names)
+        arrays = storage.open_arrays(folder, names)
         records = self.manifest.files
         for name, array in arrays.items():
             path = folder / f"{name}.npy"

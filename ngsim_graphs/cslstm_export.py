@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import __version__, landing, layout, matfile
+from ngsim_graphs import __version__, landing, matfile, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.cslstm import (
     DATASET_IDS,
@@ -371,7 +371,7 @@ def export_cslstm(
                     f"MATLAB 5.0 MAT-file, written by ngsim-graphs {__version__} export-cslstm: "
                     f"CS-LSTM's {FILE_NAMES[name]}"
                 )
-                with layout.writing(folder / FILE_NAMES[name]):  # a full disk names the file
+                with storage.writing(folder / FILE_NAMES[name]):  # a full disk names the file
                     write_mat(folder / FILE_NAMES[name], tables.pop(name), description)
         except ValueError as err:  # a table the MAT format cannot hold
             raise NgsimOutputError(out, f"cannot write the export: {err}") from None

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import edges, landing, layout
+from ngsim_graphs import edges, landing, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import GraphBatch
@@ -143,7 +143,7 @@ def write_tables(tables: dict[str, pl.DataFrame], out: Path, overwrite: bool) ->
     check = partial(check_export_target, overwrite=overwrite)
     with landing.output_directory(out, check) as folder:
         for name, table in tables.items():
-            layout.write_parquet(table, folder / f"{name}.parquet")
+            storage.write_parquet(table, folder / f"{name}.parquet")
         sums = {f"{name}.parquet": file_sha256(folder / f"{name}.parquet") for name in tables}
         document = {"program": EXPORT_PROGRAM, "tables": sums}
         (folder / EXPORT_MARKER).write_text(json.dumps(document, indent=2) + "\n")

@@ -21,8 +21,9 @@ from pathlib import Path, PurePosixPath
 from ngsim_graphs import integrity
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.interrupts import interrupts_held
-from ngsim_graphs.layout import MANIFEST_NAME, STAGING_DIR, manifest_path, os_errno
+from ngsim_graphs.layout import MANIFEST_NAME, STAGING_DIR, manifest_path
 from ngsim_graphs.lock import partial_path, release_lock, retired_path, take_lock
+from ngsim_graphs.storage import os_errno
 
 # Errors only a write can cause: reported as a failed write of the output, even unnamed.
 WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import polars as pl
 
-from ngsim_graphs import __version__, landing, layout
+from ngsim_graphs import __version__, landing, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
@@ -152,13 +152,13 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
         in_split = pl.col(s.SPLIT) == split.value
         windows = pl.concat([pl.scan_parquet(o.windows).filter(in_split) for o in outputs])
         table = windows.with_row_index(s.SAMPLE_ID).select(s.SAMPLES_TABLE_SCHEMA.names())
-        layout.sink_parquet(
+        storage.sink_parquet(
             table.cast(dict(s.SAMPLES_TABLE_SCHEMA)), layout.samples_path(root, split.value)
         )
     with ExitStack() as stack:
         arrays = {
             split: stack.enter_context(
-                layout.ArrayAppender(
+                storage.ArrayAppender(
                     layout.sample_arrays_dir(root, split.value), layout.SAMPLE_ARRAYS
                 )
             )

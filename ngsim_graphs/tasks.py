@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import layout
+from ngsim_graphs import layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.grid import (
@@ -79,7 +79,7 @@ GRID_ROWS = 262_144
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
 # Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
 PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
-# Maps a recording's ROW_ARRAYS anew (`layout.open_arrays`): what a range of steps read of them
+# Maps a recording's ROW_ARRAYS anew (`storage.open_arrays`): what a range of steps read of them
 # is let go with the maps, and the grid rows are never all in memory at once.
 RowArrays = Callable[[], dict[str, np.ndarray]]
 
@@ -195,7 +195,7 @@ def stage_rows(
     part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
     staged: dict[RecordingKey, dict[int, Path]] = {key: {} for key in keys.values()}
     with contextlib.ExitStack() as files:
-        writers: dict[tuple[int, int], layout.TableAppender] = {}
+        writers: dict[tuple[int, int], storage.TableAppender] = {}
         batch_rows = BATCH_ROWS * max(1, len(keys))
         for offset in itertools.count(0, batch_rows):
             batch = read.rows.slice(offset, batch_rows).collect(engine="streaming")
@@ -211,7 +211,7 @@ def stage_rows(
                     target = layout.staged_raw_path(root, *keys[index], part, file_index)
                     staged[keys[index]][part] = target
                     writers[index, part] = files.enter_context(
-                        layout.TableAppender(target, schema, compression="lz4")
+                        storage.TableAppender(target, schema, compression="lz4")
                     )
                 writers[index, part].append(rows.select(schema.names()))
             if batch.height < batch_rows:
@@ -219,7 +219,7 @@ def stage_rows(
     for key, parts in staged.items():
         if not parts:
             parts[0] = layout.staged_raw_path(root, *key, 0, file_index)
-            layout.write_staged(pl.DataFrame(schema=schema), parts[0])
+            storage.write_staged(pl.DataFrame(schema=schema), parts[0])
     return {key: dict(sorted(staged[key].items())) for key in sorted(staged)}
 
 
@@ -242,7 +242,7 @@ def clean_recording(
     for part in sorted(staged):
         raw = pl.scan_parquet(staged[part])
         target = layout.staged_tracks_path(root, *key, part)
-        with layout.TableAppender(target, s.TRACKS_SCHEMA, compression="lz4") as tracks:
+        with storage.TableAppender(target, s.TRACKS_SCHEMA, compression="lz4") as tracks:
             for group, vehicles in enumerate(vehicle_groups(raw, CLEAN_ROWS)):
                 rows = raw.filter(vehicles).collect()
                 cleaned = source.vehicle_tracks(rows, key, config, first_track_id)
@@ -252,7 +252,7 @@ def clean_recording(
                 if evidence.collect_schema().len():  # staged: the checks stream it
                     path = layout.staged_evidence_path(root, *key, part, group)
                     lazy = isinstance(evidence, pl.LazyFrame)
-                    layout.write_staged(evidence.collect() if lazy else evidence, path)
+                    storage.write_staged(evidence.collect() if lazy else evidence, path)
                     evidence = pl.scan_parquet(path)
                 parts.append(replace(cleaned, tracks=cleaned.tracks.clear(), evidence=evidence))
                 del rows, cleaned  # before the next group is read
@@ -298,7 +298,7 @@ def build_recording(
     tracks = pl.scan_parquet(parts).with_columns(
         (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
     )
-    layout.sink_parquet(tracks, layout.tracks_path(root, *key))
+    storage.sink_parquet(tracks, layout.tracks_path(root, *key))
     tracks = pl.scan_parquet(layout.tracks_path(root, *key))
     nodes = grid_node_rows(tracks, config.time_step_s)  # each use streams them from the file
     # The staged rows before cleaning, scanned: a protocol that reads them takes what it needs.
@@ -307,23 +307,23 @@ def build_recording(
     windows, vehicle_ids, script = made.windows, made.vehicle_ids, made.script_rows
     del made, raw  # the windows are all the rest needs of the raw rows
     folder = layout.recording_arrays_dir(root, *key)
-    with layout.ArrayAppender(folder, ROW_ARRAYS) as row_files:
+    with storage.ArrayAppender(folder, ROW_ARRAYS) as row_files:
         arrays = write_node_arrays(tracks, config.time_step_s, GRID_ROWS, row_files.append)
     with (
-        layout.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
-        layout.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,
+        storage.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
+        storage.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,
     ):
 
         def write_pairs(pairs: pl.DataFrame, piece: RecordingArrays) -> None:
             table.append(pairs)
             pair_files.append({name: getattr(piece, name) for name in PAIR_ARRAYS})
 
-        row_arrays = functools.partial(layout.open_arrays, folder, ROW_ARRAYS)
+        row_arrays = functools.partial(storage.open_arrays, folder, ROW_ARRAYS)
         samples = recording_samples(arrays, windows, config, write_pairs, row_arrays)
     del arrays, windows  # the samples' own, with the pairs' index and the counts, follow
     arrays = samples.arrays
     written = (*PAIR_ARRAYS, *ROW_ARRAYS)
-    layout.write_arrays(
+    storage.write_arrays(
         folder, {name: getattr(arrays, name) for name in ARRAY_NAMES if name not in written}
     )
     # Staged in the samples tables' order, not returned: the build streams the tables from them.
@@ -333,7 +333,7 @@ def build_recording(
         pl.lit(index).alias(s.RECORDING_INDEX),
     )
     windows_path = layout.staged_windows_path(root, *key)
-    layout.write_staged(windows, windows_path)
+    storage.write_staged(windows, windows_path)
     split_of = windows[s.SPLIT]
     per_split = {split.value: int((split_of == split.value).sum()) for split in Split}
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0

@@ -19,7 +19,7 @@ import pytest
 from polars.testing import assert_frame_equal
 from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
 
-from ngsim_graphs import layout, tasks
+from ngsim_graphs import layout, storage, tasks
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -275,7 +275,7 @@ def test_tables_streamed_in_small_row_groups_hold_the_same_rows(
     from such tracks tables (each range reads the row groups of its times), and every other
     file of the build are the same, byte for byte."""
     raw, first = synthetic_build(tmp_path_factory)
-    monkeypatch.setattr(layout, "SINK_ROW_GROUP_ROWS", 100)
+    monkeypatch.setattr(storage, "SINK_ROW_GROUP_ROWS", 100)
     monkeypatch.setattr(tasks, "GRID_ROWS", 3_000)  # grid rows of many row groups' times
     run_build([raw], tmp_path / "streamed", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "streamed")

@@ -19,7 +19,7 @@ from conftest import straight_track, write_txt
 from typer.testing import CliRunner, Result
 
 from ngsim_cli.ngsim import app
-from ngsim_graphs import layout, lock
+from ngsim_graphs import lock, storage
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.export import EXPORT_MARKER, EXPORT_TABLES
 from ngsim_graphs.synth import formats as synthesis
@@ -275,7 +275,7 @@ def _fail_parquet(
 ) -> None:
     """Tables written whole (`write_parquet`) and streamed (`sink_parquet`: the samples)."""
     for name in ("write_parquet", "sink_parquet"):
-        real = getattr(layout, name)
+        real = getattr(storage, name)
 
         def write(table: pl.DataFrame | pl.LazyFrame, path: Path, real: Callable = real) -> None:
             real(table, path)
@@ -283,7 +283,7 @@ def _fail_parquet(
                 path.write_bytes(path.read_bytes()[:20])
                 raise error(path)
 
-        monkeypatch.setattr(layout, name, write)
+        monkeypatch.setattr(storage, name, write)
 
 
 def _save_fails(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -294,7 +294,7 @@ def _save_fails(monkeypatch: pytest.MonkeyPatch) -> None:
             raise OSError("100000 requested and 32752 written")  # what np.save says
         real(file, array, allow_pickle=allow_pickle)
 
-    monkeypatch.setattr(layout.np, "save", save)
+    monkeypatch.setattr(storage.np, "save", save)
 
 
 def _manifest_fails(monkeypatch: pytest.MonkeyPatch) -> None:

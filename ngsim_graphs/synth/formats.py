@@ -24,7 +24,7 @@ from typing import BinaryIO
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import landing, layout, schema
+from ngsim_graphs import landing, schema, storage
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
@@ -286,7 +286,7 @@ def _new_file(path: Path) -> Iterator[BinaryIO]:
     """A new file of the partial folder, its folder made: created exclusively, never through a
     link; a failed write (a full disk, which polars does not name) names it."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with layout.writing(path), create_exclusive(path) as handle:
+    with storage.writing(path), create_exclusive(path) as handle:
         yield handle
 
 
