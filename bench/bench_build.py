@@ -27,9 +27,9 @@ from memory import TreeMemory, process_peaks_gb  # noqa: E402
 
 from ngsim_graphs import layout  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
+from ngsim_graphs.engine.workers import available_cores  # noqa: E402
 from ngsim_graphs.pipeline import run_build  # noqa: E402
 from ngsim_graphs.schema import Protocol  # noqa: E402
-from ngsim_graphs.workers import available_cores  # noqa: E402
 
 
 def folder_bytes(folder: Path) -> dict[str, int]:

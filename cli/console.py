@@ -173,7 +173,7 @@ def exit_on_interrupt(left: str) -> Iterator[None]:
     says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`.
 
     The work cleans up as it unwinds; the worker processes of a build never see the Ctrl-C
-    that a terminal sends to them too (`ngsim_graphs.workers`). An interrupt that lands in a
+    that a terminal sends to them too (`ngsim_graphs.engine.workers`). An interrupt that lands in a
     library's callback may come out as the library's own error (Polars reports the
     KeyboardInterrupt as "Exception ignored" and raises a TypeError): once a signal has come,
     the error that ends the block is the interrupt, and Python's report of the ignored

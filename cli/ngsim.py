@@ -33,13 +33,13 @@ from ngsim_cli.stats_view import STATS_TABLES
 from ngsim_graphs import __version__
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.engine.workers import available_cores
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
 from ngsim_graphs.sources.registry import check_locations, dataset_names
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
-from ngsim_graphs.workers import available_cores
 
 app = typer.Typer(
     help="NGSIM US-101 / I-80 trajectories to spatial-temporal graph datasets.",

@@ -20,6 +20,7 @@ import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.engine import budget
 from ngsim_graphs.graphs import concat_ranges
 from ngsim_graphs.manifest import ScriptRows
 from ngsim_graphs.sources.contract import RecordingKey
@@ -36,7 +37,6 @@ LATERAL_WINDOW_ROWS = 40
 HISTORY_WINDOW_ROWS, FUTURE_WINDOW_ROWS = 30, 50  # of the longitudinal maneuver
 BRAKING_RATIO = 0.8
 HISTORY_ROWS = 30  # the edge filter: a row needs 30 rows of its vehicle before it
-GRID_CHUNK_ROWS = 200_000  # rows whose neighbours are found at once: about 200 MB of pairs
 _LANE_BASE = {-1: 1, 0: 14, 1: 27}  # first cell (1-based) of the left, own and right lane
 # The script's dataset ids, by our recording key (location, period).
 DATASET_IDS: dict[tuple[str, str], int] = {
@@ -190,9 +190,10 @@ def _lane_pairs(
     return row[near], neighbour[near], dy[near]
 
 
-def grid(rows: RecordingRows, lane: np.ndarray, chunk_rows: int = GRID_CHUNK_ROWS) -> np.ndarray:
+def grid(rows: RecordingRows, lane: np.ndarray, chunk_rows: int | None = None) -> np.ndarray:
     """(n, 39) float32 neighbour Vehicle_IDs by cell, 0 where empty; of several rows in one cell
     the last in row order. Rows are taken `chunk_rows` at a time to bound the memory."""
+    chunk_rows = chunk_rows or budget.BUDGET.cslstm_grid_rows
     n = len(rows.vehicle)
     cells = np.zeros((n, GRID_CELLS), dtype=np.float32)
     ordered = _sorted_rows(rows, lane)

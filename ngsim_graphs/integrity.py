@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from ngsim_graphs.engine.workers import available_cores
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.workers import available_cores
 
 CHECKSUM_KEY = "manifest_sha256"  # sha256 of the manifest's canonical JSON without this key
 FILES_KEY = "files"  # relative path -> {"bytes", "sha256", "sampled_sha256"[, "dtype", "shape"]}

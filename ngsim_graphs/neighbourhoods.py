@@ -25,12 +25,10 @@ import polars as pl
 
 from ngsim_graphs import edges
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.engine import budget
 from ngsim_graphs.graphs import NonFiniteStateError
 from ngsim_graphs.grid import STATE_COLUMNS, RecordingArrays, pair_search_key, y_window
 from ngsim_graphs.schema import Protocol
-
-ROWS_PER_CHUNK = 1_024  # ego rows looked at together: their pair candidates stay ~25 MB
-SAMPLES_PER_CHUNK = 65_536  # samples summed up together (cs-lstm: a million in a recording)
 
 
 @dataclass(frozen=True)
@@ -77,8 +75,9 @@ def history_rows(
 
 
 def sample_chunks(n_samples: int) -> list[slice]:
-    """Samples SAMPLES_PER_CHUNK at a time: (chunk, K_H) temporaries stay small."""
-    return [slice(i, i + SAMPLES_PER_CHUNK) for i in range(0, n_samples, SAMPLES_PER_CHUNK)]
+    """Samples `budget.Budget.samples_per_chunk` at a time: (chunk, K_H) temporaries stay small."""
+    size = budget.BUDGET.samples_per_chunk
+    return [slice(i, i + size) for i in range(0, n_samples, size)]
 
 
 def _near_rows(
@@ -172,7 +171,7 @@ def neighbourhoods(
 def neighbourhoods_of_rows(
     rec: RecordingArrays, rows: np.ndarray, by_y: tuple[np.ndarray, np.ndarray], config: BuildConfig
 ) -> Neighbourhoods:
-    """The neighbourhoods of the given ego `rows` (ascending), ROWS_PER_CHUNK at a time.
+    """The neighbourhoods of the given ego `rows` (ascending), `budget.Budget.ego_rows_per_chunk` at a time.
 
     `rec` needs the pairs of the rows' steps only (`grid.with_pairs` of a range of steps);
     `by_y` is `rows_by_y(rec)`."""
@@ -197,7 +196,8 @@ def neighbourhoods_of_rows(
 
     # numpy lets go of the GIL in its loops over large arrays: chunks run in parallel on as many
     # threads as Polars may use in this process (a build worker's share of the cores).
-    parts = [slice(i, i + ROWS_PER_CHUNK) for i in range(0, n, ROWS_PER_CHUNK)]
+    size = budget.BUDGET.ego_rows_per_chunk
+    parts = [slice(i, i + size) for i in range(0, n, size)]
     with ThreadPoolExecutor(max(1, min(pl.thread_pool_size(), len(parts)))) as threads:
         list(threads.map(fill, parts))
     return hood

@@ -30,6 +30,14 @@ import polars as pl
 from ngsim_graphs import __version__, landing, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.engine.tasks import (
+    RecordingOutput,
+    StagedParts,
+    build_recording,
+    clean_recording,
+    read_file,
+)
+from ngsim_graphs.engine.workers import Workers, available_cores, one_malloc_arena
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, ScriptRows, SourceLine
 from ngsim_graphs.protocols import PROTOCOLS
@@ -39,15 +47,7 @@ from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingRep
 from ngsim_graphs.sources.registry import check_locations, choose_source
 from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
 from ngsim_graphs.synth.marker import mixed_inputs_warning, synthetic_inputs
-from ngsim_graphs.tasks import (
-    RecordingOutput,
-    StagedParts,
-    build_recording,
-    clean_recording,
-    read_file,
-)
 from ngsim_graphs.windows import SampleProtocol
-from ngsim_graphs.workers import Workers, available_cores, one_malloc_arena
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 BuildProgress = Callable[[str, int, int], None]

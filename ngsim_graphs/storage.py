@@ -209,10 +209,3 @@ def sink_parquet(table: pl.LazyFrame, path: Path) -> None:
             row_group_size=SINK_ROW_GROUP_ROWS,
             maintain_order=True,
         )
-
-
-def write_staged(frame: pl.DataFrame, path: Path) -> None:
-    """Write an intermediate table that lives only while building: fast, lightly compressed."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with writing(path):
-        frame.write_parquet(path, compression="lz4", statistics=False)

@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import csv
 import io
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from aigem_fixtures import tiny_build, tiny_run, two_recording_build  # noqa: F401  (shared)
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.engine import budget
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
@@ -136,3 +138,9 @@ def two_vehicle_rows() -> list[dict[str, float]]:
     return straight_track(1, range(10, 40), x_ft=6.0, lane_id=1) + straight_track(
         2, range(10, 40), x_ft=18.0, speed_fps=40.0
     )
+
+
+def set_budget(monkeypatch: pytest.MonkeyPatch, **sizes: int) -> None:
+    """Build in smaller pieces than the engine's own (`engine.budget`): tests cut a tiny build
+    into many, whose outputs must be those of one piece."""
+    monkeypatch.setattr(budget, "BUDGET", replace(budget.BUDGET, **sizes))

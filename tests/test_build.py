@@ -16,13 +16,15 @@ import numpy as np
 import polars as pl
 import pyarrow.parquet as pq
 import pytest
+from conftest import set_budget
 from polars.testing import assert_frame_equal
 from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
 
-from ngsim_graphs import layout, storage, tasks
+from ngsim_graphs import layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.engine import tasks
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.pipeline import run_build
@@ -231,8 +233,8 @@ def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
     and count of the build is the same, the proximity tables hold the same rows in more row
     groups."""
     raw, first = synthetic_build(tmp_path_factory)
-    monkeypatch.setattr(tasks, "PIECE_ROWS", 2_000)
-    monkeypatch.setattr(tasks, "GRID_ROWS", 3_000)
+    set_budget(monkeypatch, piece_rows=2_000)
+    set_budget(monkeypatch, grid_rows=3_000)
     run_build([raw], tmp_path / "pieces", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "pieces")
     proximity = [name for name in before if name.startswith(layout.PROXIMITY_DIR)]
@@ -259,7 +261,7 @@ def test_a_recording_cleaned_a_few_vehicles_at_a_time_is_the_recording_cleaned_a
         groups.append(vehicle_groups(raw, most_rows))
         return groups[-1]
 
-    monkeypatch.setattr(tasks, "CLEAN_ROWS", 300)
+    set_budget(monkeypatch, clean_rows=300)
     monkeypatch.setattr(tasks, "vehicle_groups", counted)
     run_build([raw], tmp_path / "groups", BuildConfig(), jobs=1)
     assert sum(len(g) for g in groups) > 10 * len(groups) > 10  # 10 groups a part and more
@@ -276,7 +278,7 @@ def test_tables_streamed_in_small_row_groups_hold_the_same_rows(
     file of the build are the same, byte for byte."""
     raw, first = synthetic_build(tmp_path_factory)
     monkeypatch.setattr(storage, "SINK_ROW_GROUP_ROWS", 100)
-    monkeypatch.setattr(tasks, "GRID_ROWS", 3_000)  # grid rows of many row groups' times
+    set_budget(monkeypatch, grid_rows=3_000)  # grid rows of many row groups' times
     run_build([raw], tmp_path / "streamed", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "streamed")
     samples = [name for name in before if name.startswith(layout.SAMPLES_DIR)]
@@ -302,7 +304,7 @@ def test_recordings_cleaned_a_few_vehicles_at_a_time_are_the_recordings_cleaned_
     same build, byte for byte, manifest included; its duplicates, outliers, jumps and gaps are
     counted over parts, the speed column's medians taken over all of them."""
     raw, first = synthetic_build(tmp_path_factory)
-    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 8)
+    set_budget(monkeypatch, vehicles_per_part=8)
     run_build([raw], tmp_path / "parts", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "parts")
     assert before.keys() == after.keys()

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 import pytest
+from conftest import set_budget
 from test_graphs import SCENE_CONFIGS, TINY, all_windows, random_scene, tiny_scene
 
-from ngsim_graphs import neighbourhoods as neighbourhoods_module
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, induce_graphs
@@ -131,8 +131,8 @@ def test_random_scenes_match_the_induced_graphs(
     config: BuildConfig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # Tiny chunks, filled by two threads: every chunk boundary of a scene is crossed.
-    monkeypatch.setattr(neighbourhoods_module, "ROWS_PER_CHUNK", 7)
-    monkeypatch.setattr(neighbourhoods_module, "SAMPLES_PER_CHUNK", 5)
+    set_budget(monkeypatch, ego_rows_per_chunk=7)
+    set_budget(monkeypatch, samples_per_chunk=5)
     monkeypatch.setattr(pl, "thread_pool_size", lambda: 2)
     rng = np.random.default_rng(91)
     checked = shared = 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import make_row, straight_track, write_period_csv, write_portal, write_txt
+from conftest import make_row, set_budget, straight_track, write_period_csv, write_portal, write_txt
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
@@ -24,7 +24,7 @@ def reading(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch, tmp
     its text at a time into a scratch folder; 100-byte chunks, shorter than a line, make a
     chunk of each line (and of the header): the same rows, line numbers and errors."""
     if request.param != "in memory":
-        monkeypatch.setattr(files, "CHUNK_BYTES", 100)
+        set_budget(monkeypatch, text_chunk_bytes=100)
         scratch = tmp_path / "scratch"
         monkeypatch.setitem(
             globals(),
@@ -111,7 +111,7 @@ def test_chunks_that_start_with_blank_lines_keep_line_numbers_true(
     blank_starts = [i + 2 for i in range(len(data)) if data.startswith(b"\r\n\r\n", i)]
     assert len(blank_starts) == 4  # after rows 0, 2 and 4, and one at the end
     for size in blank_starts:
-        monkeypatch.setattr(files, "CHUNK_BYTES", size)
+        set_budget(monkeypatch, text_chunk_bytes=size)
         scratch = tmp_path / f"scratch-{size}"
         assert files.read_raw_file(path, US, scratch).frame.collect().equals(whole)
 

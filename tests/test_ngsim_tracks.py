@@ -7,7 +7,7 @@ from pathlib import Path
 
 import polars as pl
 import pytest
-from conftest import US101_FIRST, US101_SECOND, make_row, straight_track, write_portal
+from conftest import US101_FIRST, US101_SECOND, make_row, set_budget, straight_track, write_portal
 from polars.testing import assert_frame_equal
 
 from ngsim_graphs import schema as s
@@ -79,7 +79,7 @@ def test_rows_read_through_a_scratch_file_are_the_rows_read_in_memory(
     """With a scratch folder the text is parsed a chunk at a time (here of 300 bytes: a few
     lines) into files there, scanned back: the same rows of each recording, in the same order,
     and the same report, dropped rows and all."""
-    monkeypatch.setattr(files, "CHUNK_BYTES", 300)
+    set_budget(monkeypatch, text_chunk_bytes=300)
     first = straight_track(3, range(4), start_ms=US101_FIRST.start_epoch_ms)
     second = straight_track(5, range(3), start_ms=US101_SECOND.start_epoch_ms)
     bad = [make_row(3, 9, local_x=None), make_row(4, 2, v_vel_fps=-5.0)]

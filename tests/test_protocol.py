@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
-from conftest import US101_FIRST, make_row, write_txt
+from conftest import US101_FIRST, make_row, set_budget, write_txt
 from cslstm_reference import reference_kept, reference_split
 from test_cli_ngsim import assert_failed_cleanly, error_line, invoke
 from typer.testing import CliRunner
 
-from ngsim_graphs import layout, tasks
+from ngsim_graphs import layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -241,7 +241,7 @@ def test_a_cs_lstm_build_cleaned_in_parts_is_the_build_cleaned_at_once(
         SynthConfig(raw_format=RawFormat.PORTAL, recordings=1, minutes=0.2, seed=4, quirks=True),
     )
     run_build([tmp_path / "raw"], tmp_path / "whole", CSLSTM)
-    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    set_budget(monkeypatch, vehicles_per_part=4)
     run_build([tmp_path / "raw"], tmp_path / "parts", CSLSTM)
     files = sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole").rglob("*.*"))
     assert len(files) > 10 and (tmp_path / "whole" / "manifest.json").exists()

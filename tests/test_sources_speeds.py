@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 import pytest
+from conftest import set_budget
 
 from ngsim_graphs.sources import speeds
 from ngsim_graphs.sources.speeds import speed_medians
@@ -31,8 +32,8 @@ def test_a_streamed_median_is_polars_median_exactly(
     """Against Polars' median of all the values at once, to the bit: even and odd counts, many
     equal values, ranges of 1e-40 to 1e40 and of 2e300 (no bins narrow it), with at most 50
     values held and histograms of 8 bins (the narrowing runs many rounds)."""
-    monkeypatch.setattr(speeds, "MEDIAN_HELD_VALUES", 50)
-    monkeypatch.setattr(speeds, "MEDIAN_BINS", 8)
+    set_budget(monkeypatch, median_held_values=50)
+    set_budget(monkeypatch, median_bins=8)
     rng = np.random.default_rng(len(kind))
     for n in [1, 2, 3, 51, 400, 1_001, 2_000]:
         column = pl.Series("x", sample_values(kind, rng, n))

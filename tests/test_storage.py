@@ -12,6 +12,7 @@ import polars as pl
 import pytest
 
 from ngsim_graphs import storage
+from ngsim_graphs.engine import staging
 
 
 def _full_disk(*_args: object, **_kwargs: object) -> None:
@@ -174,7 +175,7 @@ def test_a_sunk_table_is_the_same_bytes_whatever_the_threads(tmp_path: Path) -> 
         for n in (1_700, 0, 2_600)
     ]
     for i, part in enumerate(parts):
-        storage.write_staged(part, tmp_path / f"part-{i}.parquet")
+        staging.write_staged(part, tmp_path / f"part-{i}.parquet")
     for threads in (1, 4):
         env = {**os.environ, "POLARS_MAX_THREADS": str(threads)}
         subprocess.run(

@@ -12,12 +12,11 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
-from conftest import make_row
+from conftest import make_row, set_budget
 from typer.testing import CliRunner
 
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
-from ngsim_graphs import tasks
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.graphs import GraphBatch
@@ -245,7 +244,7 @@ def test_a_highd_build_cleaned_in_parts_is_the_build_cleaned_at_once(
     raw = tmp_path / "raw"
     write_synthetic(raw, SynthConfig(raw_format=RawFormat.HIGHD, recordings=1, minutes=0.5, seed=5))
     run_build([raw], tmp_path / "whole", BuildConfig())
-    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    set_budget(monkeypatch, vehicles_per_part=4)
     run_build([raw], tmp_path / "parts", BuildConfig())
     files = sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole").rglob("*.*"))
     assert len(files) > 10 and (tmp_path / "whole" / "manifest.json").exists()

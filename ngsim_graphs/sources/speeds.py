@@ -16,6 +16,7 @@ import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
+from ngsim_graphs.engine import budget
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.contract import RecordingKey, RecordingReport, TracksPart, joined_counts
 
@@ -97,15 +98,9 @@ def joined_report(
     )
 
 
-# A median is found among at most this many values held at once (`streamed_median`), narrowed
-# down a histogram of this many bins at a time.
-MEDIAN_HELD_VALUES = 65_536
-MEDIAN_BINS = 1_024
-
-
 def streamed_median(values: pl.LazyFrame) -> float | None:
     """Polars' median of the one column of `values` (nulls left out; None if all are), exactly,
-    with no more than MEDIAN_HELD_VALUES of them in memory at once where no value is NaN.
+    with no more than `budget.Budget.median_held_values` of them in memory at once where no value is NaN.
 
     The middle values (one, or two of an even count) are found by counting the values in bins
     of a histogram over the range they are in, keeping the bin they fall in, until it holds few
@@ -132,10 +127,11 @@ def _kth_smallest(values: pl.LazyFrame, column: pl.Expr, k: int) -> float:
         )
         if low == high:
             return low
-        if count <= MEDIAN_HELD_VALUES:
+        if count <= budget.BUDGET.median_held_values:
             return values.collect(engine="streaming").to_series().sort()[k]
         # The same expression in every pass: a value falls in the same bin each time.
-        bins = ((column - low) / (high - low) * MEDIAN_BINS).floor().clip(0, MEDIAN_BINS - 1)
+        n_bins = budget.BUDGET.median_bins
+        bins = ((column - low) / (high - low) * n_bins).floor().clip(0, n_bins - 1)
         per_bin = values.group_by(bins.alias("bin")).len().sort("bin").collect(engine="streaming")
         if per_bin.height == 1:  # a range too wide for its bins: no narrowing, every value held
             return values.collect(engine="streaming").to_series().sort()[k]

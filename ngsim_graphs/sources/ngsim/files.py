@@ -16,6 +16,7 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.engine import budget
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim import schema as ns
@@ -160,12 +161,6 @@ def _bad_number() -> pl.Expr:
     return (parsed != pl.col(PRESENT)) | not_finite
 
 
-# With a scratch folder, a file's text is parsed this many bytes at a time (cut at line ends):
-# Polars' CSV reader then holds about 0.2 GB whatever the size of the file (0.3 GB and more for
-# a whole 300 MB file), and parses no slower.
-CHUNK_BYTES = 16 * 1024 * 1024
-
-
 @dataclass(frozen=True)
 class TextChunk:
     """Whole lines of a file's text: its lines from `first_line` (0-based, the header included)."""
@@ -198,13 +193,13 @@ def _parsed(
     path: Path, parse: Callable[[TextChunk | None], pl.LazyFrame], scratch: Path | None
 ) -> pl.LazyFrame:
     """The parsed rows (`parse` of the whole file or of a chunk of it): collected (scratch
-    None), or parsed a chunk at a time (CHUNK_BYTES) into `scratch` and scanned from there:
+    None), or parsed a chunk at a time (`budget.Budget.text_chunk_bytes`) into `scratch` and scanned from there:
     a file's text and rows are then never all in memory at once."""
     if scratch is None:
         return parse(None).collect(engine="streaming").lazy()
     scratch.mkdir(parents=True, exist_ok=True)
     parts = []  # one at least: `sniff_format` let no empty file through
-    for chunk in text_chunks(path, CHUNK_BYTES):
+    for chunk in text_chunks(path, budget.BUDGET.text_chunk_bytes):
         parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.parquet")
         parse(chunk).sink_parquet(parts[-1], compression="lz4", statistics=False)
     return pl.scan_parquet(parts)

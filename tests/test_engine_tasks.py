@@ -6,10 +6,12 @@ from pathlib import Path
 
 import polars as pl
 import pytest
+from conftest import set_budget
 
-from ngsim_graphs import layout, tasks
+from ngsim_graphs import layout
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.engine import staging, tasks
 from ngsim_graphs.sources.contract import FileRows, Source
 
 KEY = ("us-101", "0750am-0805am")
@@ -35,11 +37,11 @@ def test_rows_are_staged_by_recording_and_part_of_their_vehicle_ids(
 ) -> None:
     """Parts of 4 ids: 3 -> 0, 4 and 7 -> 1, 9 -> 2; the other recording has no rows, and is
     staged all the same (one empty part), to be built with no sample."""
-    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    set_budget(monkeypatch, vehicles_per_part=4)
     source = source_of([7, 3, 9, 4, 3], [0, 0, 0, 0, 0])
     _, staged = tasks.read_file(source, Path("f.txt"), BuildConfig(), 5, tmp_path, False)
     assert staged_ids(staged[KEY]) == {0: [3, 3], 1: [7, 4], 2: [9]}
-    assert staged[KEY][1] == layout.staged_raw_path(tmp_path, *KEY, 1, 5)
+    assert staged[KEY][1] == staging.staged_raw_path(tmp_path, *KEY, 1, 5)
     assert staged_ids(staged[OTHER]) == {0: []}
 
 
@@ -48,7 +50,7 @@ def test_a_part_holds_only_its_own_recording_rows(
 ) -> None:
     """Both recordings have vehicle 3 in part 0: each part file holds its recording's rows only,
     and rows of no recording (null index) are staged nowhere."""
-    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    set_budget(monkeypatch, vehicles_per_part=4)
     source = source_of([3, 3, 9, 2, 5], [0, 1, 0, None, 1])
     _, staged = tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
     assert staged_ids(staged[KEY]) == {0: [3], 2: [9]}
@@ -61,12 +63,12 @@ def test_rows_staged_a_batch_at_a_time_are_staged_in_the_order_read(
 ) -> None:
     """Batches of 1 and 3 rows: each part's file holds its rows of every batch, in the order
     they were read, as one batch of all of them stages them (and nothing else is left)."""
-    monkeypatch.setattr(tasks, "VEHICLES_PER_PART", 4)
+    set_budget(monkeypatch, vehicles_per_part=4)
     ids, recording = [7, 3, 9, 4, 3, 5, 7, 1], [0, 0, 1, 0, None, 1, 0, 0]
     _, whole = tasks.read_file(
         source_of(ids, recording), Path("f.txt"), BuildConfig(), 1, tmp_path / "a", False
     )
-    monkeypatch.setattr(tasks, "BATCH_ROWS", batch_rows)
+    set_budget(monkeypatch, batch_rows=batch_rows)
     _, batched = tasks.read_file(
         source_of(ids, recording), Path("f.txt"), BuildConfig(), 1, tmp_path / "b", False
     )
@@ -99,7 +101,7 @@ def test_a_source_scratch_folder_is_removed_after_staging_and_after_an_error(
     tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
     with pytest.raises(ValueError, match="a bad file"):
         tasks.read_file(source, Path("g.txt"), BuildConfig(), 1, tmp_path, False)
-    assert seen == [layout.staged_scratch_dir(tmp_path, i) for i in (0, 1)]
+    assert seen == [staging.staged_scratch_dir(tmp_path, i) for i in (0, 1)]
     assert not any(path.exists() for path in seen)
 
 

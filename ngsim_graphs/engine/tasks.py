@@ -10,11 +10,11 @@ docs/build-format.md: the dataset induces them from the frame arrays).
 No task holds a whole file's or recording's rows, so that its memory does not grow with the
 size of the recording (NGSIM's largest is twice its smallest):
 - a reading task streams its file's parsed rows into a scratch file and stages them a batch at
-  a time (BATCH_ROWS), per part of the recording's vehicles (VEHICLES_PER_PART);
-- a cleaning task holds a group of whole vehicles of a part (CLEAN_ROWS raw rows or so), and
+  a time, per part of the recording's vehicles;
+- a cleaning task holds a group of whole vehicles of a part (some 65,536 raw rows), and
   stages the evidence of the recording's checks, which stream it;
 - a build task holds its samples' windows and counts and the indexes of its grid rows by step
-  and by track (a number or two per row), and a range of steps at a time (PIECE_ROWS) the rest:
+  and by track (a number or two per row), and a range of steps at a time the rest:
   the grid rows are made of the tracks table and written a range at a time, then mapped back
   from their files a range at a time, and the range's proximity pairs, ten a grid row in a dense
   recording, found, written and used (under cs-lstm it also holds its raw rows' five columns
@@ -37,6 +37,7 @@ import polars as pl
 from ngsim_graphs import layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.engine import budget, staging
 from ngsim_graphs.grid import (
     ARRAY_NAMES,
     ROW_ARRAYS,
@@ -69,13 +70,6 @@ from ngsim_graphs.sources.contract import (
 from ngsim_graphs.splits import VehicleIds
 from ngsim_graphs.windows import SampleProtocol
 
-# A recording's grid rows are made, and its proximity pairs found, written and used, a range of
-# steps at a time, about this many grid rows each: the rows and their pairs, ten a row in a dense
-# recording, then take memory by this number, not by the size of the recording.
-PIECE_ROWS = 32_768  # with 1,024-row chunks: the largest task 0.25 -> 0.21 GB, no slower
-# The grid rows are made in larger ranges: each reads the tracks table's row groups of its
-# times anew, and its rows alone take little memory (about 10 MB).
-GRID_ROWS = 262_144
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
 # Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
 PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
@@ -104,7 +98,7 @@ def recording_samples(
     """Proximity edges, and the counts and the scaler's ranges of the split ego `windows`
     (`SampleProtocol.recording_windows`), of one recording's frame arrays (`node_arrays`).
 
-    A range of steps at a time (PIECE_ROWS): its pairs go to `write_pairs`, the neighbourhoods
+    A range of steps at a time (`budget.Budget.piece_rows`): its pairs go to `write_pairs`, the neighbourhoods
     of its ego rows are found with them, and what those add to each sample that has history rows
     in the range is summed up; then the range's pairs and neighbourhoods are let go. Given
     `row_arrays`, the ROW_ARRAYS of `arrays` are not used: each range maps them anew.
@@ -118,7 +112,7 @@ def recording_samples(
     train = MinMaxScaler.empty()
     pair_ptr, n_pairs = np.zeros_like(arrays.pair_ptr), 0
     # A recording without grid rows is one empty piece: its pair files are still written.
-    for first, end in step_pieces(arrays.step_ptr, PIECE_ROWS) or [(0, 0)]:
+    for first, end in step_pieces(arrays.step_ptr, budget.BUDGET.piece_rows) or [(0, 0)]:
         rec = arrays if row_arrays is None else replace(arrays, **row_arrays())
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
         pairs = proximity_pairs(nodes_of_steps(rec, first, end), config.d_min_m)
@@ -156,11 +150,6 @@ class RecordingOutput:
     train_ranges: MinMaxScaler  # what its train samples observed
 
 
-# A recording is cleaned a part of its vehicles at a time: those whose Vehicle_ID // this is the
-# same (NGSIM: a few hundred rows a vehicle, 50,000 to 120,000 rows a part; with 256 a part, the
-# largest recording's cleaning task held 0.1 GB more). Each input file's rows are staged by
-# part, so that a part is read whole from its own files.
-VEHICLES_PER_PART = 128
 StagedParts = dict[int, list[Path]]  # a recording's staged raw files, by part
 
 
@@ -168,7 +157,7 @@ def read_file(
     source: Source, path: Path, config: BuildConfig, file_index: int, root: Path, strict: bool
 ) -> tuple[FileReport, dict[RecordingKey, dict[int, Path]]]:
     """Read one input file and stage its rows per recording and part (a worker's task)."""
-    scratch = layout.staged_scratch_dir(root, file_index)
+    scratch = staging.staged_scratch_dir(root, file_index)
     try:
         read = source.read_file(path, config, file_index, strict, scratch)
         return read.report, stage_rows(read, path, root, file_index)
@@ -176,11 +165,6 @@ def read_file(
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-# A file's rows are staged this many at a time for each recording it holds (one, but in the
-# portal file), each batch's rows appended to the files of their recordings' parts: never a
-# whole file's or recording's rows at once, and each part's rows in pieces about as large in
-# every kind of file.
-BATCH_ROWS = 65_536  # half of 131,072: a reading task 0.27 -> 0.22 GB, 0.3 s slower
 _PART = "__part"
 
 
@@ -192,11 +176,11 @@ def stage_rows(
     empty): it is built, with no sample."""
     keys = {index: key for key, index in read.recordings.items()}
     schema = read.rows.drop(s.RECORDING_INDEX).collect_schema()
-    part_of = (pl.col(s.VEHICLE_ID) // VEHICLES_PER_PART).alias(_PART)
+    part_of = (pl.col(s.VEHICLE_ID) // budget.BUDGET.vehicles_per_part).alias(_PART)
     staged: dict[RecordingKey, dict[int, Path]] = {key: {} for key in keys.values()}
     with contextlib.ExitStack() as files:
         writers: dict[tuple[int, int], storage.TableAppender] = {}
-        batch_rows = BATCH_ROWS * max(1, len(keys))
+        batch_rows = budget.BUDGET.batch_rows * max(1, len(keys))
         for offset in itertools.count(0, batch_rows):
             batch = read.rows.slice(offset, batch_rows).collect(engine="streaming")
             mine = batch.filter(pl.col(s.RECORDING_INDEX).is_in(list(keys)))
@@ -208,7 +192,7 @@ def stage_rows(
             )
             for (index, part), rows in groups.items():
                 if (index, part) not in writers:
-                    target = layout.staged_raw_path(root, *keys[index], part, file_index)
+                    target = staging.staged_raw_path(root, *keys[index], part, file_index)
                     staged[keys[index]][part] = target
                     writers[index, part] = files.enter_context(
                         storage.TableAppender(target, schema, compression="lz4")
@@ -218,8 +202,8 @@ def stage_rows(
                 break
     for key, parts in staged.items():
         if not parts:
-            parts[0] = layout.staged_raw_path(root, *key, 0, file_index)
-            storage.write_staged(pl.DataFrame(schema=schema), parts[0])
+            parts[0] = staging.staged_raw_path(root, *key, 0, file_index)
+            staging.write_staged(pl.DataFrame(schema=schema), parts[0])
     return {key: dict(sorted(staged[key].items())) for key in sorted(staged)}
 
 
@@ -233,7 +217,7 @@ def clean_recording(
     strict: bool,
 ) -> RecordingReport:
     """One recording's tracks, numbered from 0, staged a part of its vehicles at a time, and
-    cleaned a group of whole vehicles of a part at a time (`vehicle_groups`, CLEAN_ROWS; a
+    cleaned a group of whole vehicles of a part at a time (`vehicle_groups`, `budget.Budget.clean_rows`; a
     worker's task); its report, after the recording's checks.
 
     The build numbers tracks over all recordings; a recording's first track id is known once
@@ -241,27 +225,22 @@ def clean_recording(
     parts, first_track_id = [], 0
     for part in sorted(staged):
         raw = pl.scan_parquet(staged[part])
-        target = layout.staged_tracks_path(root, *key, part)
+        target = staging.staged_tracks_path(root, *key, part)
         with storage.TableAppender(target, s.TRACKS_SCHEMA, compression="lz4") as tracks:
-            for group, vehicles in enumerate(vehicle_groups(raw, CLEAN_ROWS)):
+            for group, vehicles in enumerate(vehicle_groups(raw, budget.BUDGET.clean_rows)):
                 rows = raw.filter(vehicles).collect()
                 cleaned = source.vehicle_tracks(rows, key, config, first_track_id)
                 tracks.append(cleaned.tracks)
                 first_track_id += cleaned.report.tracks
                 evidence = cleaned.evidence
                 if evidence.collect_schema().len():  # staged: the checks stream it
-                    path = layout.staged_evidence_path(root, *key, part, group)
+                    path = staging.staged_evidence_path(root, *key, part, group)
                     lazy = isinstance(evidence, pl.LazyFrame)
-                    storage.write_staged(evidence.collect() if lazy else evidence, path)
+                    staging.write_staged(evidence.collect() if lazy else evidence, path)
                     evidence = pl.scan_parquet(path)
                 parts.append(replace(cleaned, tracks=cleaned.tracks.clear(), evidence=evidence))
                 del rows, cleaned  # before the next group is read
     return source.recording_report(parts, key, config, files, strict)
-
-
-# A part is cleaned at most about this many of its raw rows at a time: a part of 128 vehicles
-# held twice the rows in dense traffic, and its cleaning took twice the memory.
-CLEAN_ROWS = 65_536
 
 
 def vehicle_groups(raw: pl.LazyFrame, most_rows: int) -> list[pl.Expr]:
@@ -292,7 +271,7 @@ def build_recording(
     worker's task): its grid rows streamed from its tracks table (windows, largest vehicle
     ids) and made a range of steps at a time (`grid.write_node_arrays`), then read back from
     their files a range at a time (`recording_samples`)."""
-    parts = [layout.staged_tracks_path(root, *key, part) for part in sorted(staged)]
+    parts = [staging.staged_tracks_path(root, *key, part) for part in sorted(staged)]
     # Streamed, never held whole, in row groups of a fixed size: the bytes written do not
     # depend on the parts it was cleaned in. The grid nodes read back what they need of it.
     tracks = pl.scan_parquet(parts).with_columns(
@@ -308,7 +287,9 @@ def build_recording(
     del made, raw  # the windows are all the rest needs of the raw rows
     folder = layout.recording_arrays_dir(root, *key)
     with storage.ArrayAppender(folder, ROW_ARRAYS) as row_files:
-        arrays = write_node_arrays(tracks, config.time_step_s, GRID_ROWS, row_files.append)
+        arrays = write_node_arrays(
+            tracks, config.time_step_s, budget.BUDGET.grid_rows, row_files.append
+        )
     with (
         storage.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
         storage.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,
@@ -332,8 +313,8 @@ def build_recording(
         pl.lit(key[1]).alias(s.PERIOD),
         pl.lit(index).alias(s.RECORDING_INDEX),
     )
-    windows_path = layout.staged_windows_path(root, *key)
-    storage.write_staged(windows, windows_path)
+    windows_path = staging.staged_windows_path(root, *key)
+    staging.write_staged(windows, windows_path)
     split_of = windows[s.SPLIT]
     per_split = {split.value: int((split_of == split.value).sum()) for split in Split}
     longest = int(np.diff(arrays.track_ptr).max()) if len(arrays.track_ptr) > 1 else 0

@@ -15,8 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.workers import (
+from ngsim_graphs.engine.workers import (
     MALLOC_ARENAS,
     MALLOC_THRESHOLDS,
     POLARS_THREADS,
@@ -25,6 +24,7 @@ from ngsim_graphs.workers import (
     available_cores,
     worker_environment,
 )
+from ngsim_graphs.errors import NgsimInputError
 
 
 def square_with_pid(value: int) -> tuple[int, int]:
@@ -70,8 +70,8 @@ def fail_last(index: int) -> int:
 FAILING_MAPS = """
 import sys
 sys.path.insert(0, {tests!r})
-from test_workers import fail_last
-from ngsim_graphs.workers import Workers
+from test_engine_workers import fail_last
+from ngsim_graphs.engine.workers import Workers
 for _ in range({runs}):
     try:
         with Workers(2) as workers:
@@ -213,8 +213,8 @@ def test_jobs_must_be_positive() -> None:
 TWO_WORKERS = """
 import sys
 sys.path.insert(0, {tests!r})
-from test_workers import pid_file_then_work
-from ngsim_graphs.workers import Workers
+from test_engine_workers import pid_file_then_work
+from ngsim_graphs.engine.workers import Workers
 try:
     with Workers(2) as workers:
         workers.map(pid_file_then_work, [({folder!r}, 0, 60), ({folder!r}, 1, 0)])

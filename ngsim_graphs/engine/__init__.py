@@ -1,0 +1,2 @@
+"""The build engine: the tasks a build runs, the worker processes they run in, where they stage
+what they hand on, and the sizes that bound each task's memory (docs/design.md)."""

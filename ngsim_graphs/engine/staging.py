@@ -1,0 +1,52 @@
+"""Where a build task stages what it makes for a later one, inside the build's `_staging` folder
+(`layout.STAGING_DIR`), removed before the build lands: parsed raw rows by part, the cleaned
+tracks of a part, the evidence of a recording's checks, a recording's samples.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import polars as pl
+
+from ngsim_graphs.layout import STAGING_DIR, recording_name
+from ngsim_graphs.storage import writing
+
+
+def staged_raw_path(root: Path, location: str, period: str, part: int, file_index: int) -> Path:
+    """Parsed raw rows of one part of a recording's vehicles from one input file, kept only
+    while building."""
+    name = f"raw-{part:05d}-{file_index:04d}.parquet"
+    return root / STAGING_DIR / recording_name(location, period) / name
+
+
+def staged_scratch_dir(root: Path, file_index: int) -> Path:
+    """A folder for what a source writes while reading one input file (its parsed rows), kept
+    only until the file's rows are staged."""
+    return root / STAGING_DIR / f"_read-{file_index:04d}"
+
+
+def staged_tracks_path(root: Path, location: str, period: str, part: int) -> Path:
+    """The tracks of one part of a recording's vehicles, numbered from 0 in the recording,
+    kept only while building."""
+    return root / STAGING_DIR / recording_name(location, period) / f"tracks-{part:05d}.parquet"
+
+
+def staged_evidence_path(root: Path, location: str, period: str, part: int, group: int) -> Path:
+    """What the source's recording checks need of one group of vehicles of a part of a
+    recording (`sources.contract.TracksPart.evidence`), kept only while building."""
+    name = f"evidence-{part:05d}-{group:04d}.parquet"
+    return root / STAGING_DIR / recording_name(location, period) / name
+
+
+def staged_windows_path(root: Path, location: str, period: str) -> Path:
+    """The samples (ego windows, split and counts) of one recording, kept only while building:
+    the samples tables are streamed from them."""
+    return root / STAGING_DIR / recording_name(location, period) / "windows.parquet"
+
+
+def write_staged(frame: pl.DataFrame, path: Path) -> None:
+    """Write an intermediate table that lives only while building: fast, lightly compressed."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with writing(path):
+        frame.write_parquet(path, compression="lz4", statistics=False)
