@@ -26,8 +26,8 @@ from bench_ingest import ensure_input, parse_input_args  # noqa: E402
 from memory import TreeMemory, process_peaks_gb  # noqa: E402
 
 from ngsim_graphs import layout  # noqa: E402
+from ngsim_graphs.budget import available_cores  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
-from ngsim_graphs.engine.workers import available_cores  # noqa: E402
 from ngsim_graphs.pipeline import run_build  # noqa: E402
 from ngsim_graphs.schema import Protocol  # noqa: E402
 

@@ -31,9 +31,9 @@ from ngsim_cli.cslstm import export_cslstm
 from ngsim_cli.show import show
 from ngsim_cli.stats_view import STATS_TABLES
 from ngsim_graphs import __version__
+from ngsim_graphs.budget import available_cores
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
-from ngsim_graphs.engine.workers import available_cores
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
+from ngsim_graphs import budget
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.engine import budget
 from ngsim_graphs.graphs import concat_ranges
 from ngsim_graphs.manifest import ScriptRows
 from ngsim_graphs.sources.contract import RecordingKey

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ngsim_graphs.engine.workers import available_cores
+from ngsim_graphs.budget import available_cores
 from ngsim_graphs.errors import NgsimInputError
 
 CHECKSUM_KEY = "manifest_sha256"  # sha256 of the manifest's canonical JSON without this key

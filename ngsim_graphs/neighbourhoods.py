@@ -23,9 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import edges
+from ngsim_graphs import budget, edges
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.engine import budget
 from ngsim_graphs.graphs import NonFiniteStateError
 from ngsim_graphs.grid import STATE_COLUMNS, RecordingArrays, pair_search_key, y_window
 from ngsim_graphs.schema import Protocol

@@ -29,6 +29,7 @@ import polars as pl
 
 from ngsim_graphs import __version__, landing, layout, storage
 from ngsim_graphs import schema as s
+from ngsim_graphs.budget import available_cores
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.engine.tasks import (
     RecordingOutput,
@@ -37,7 +38,7 @@ from ngsim_graphs.engine.tasks import (
     clean_recording,
     read_file,
 )
-from ngsim_graphs.engine.workers import Workers, available_cores, one_malloc_arena
+from ngsim_graphs.engine.workers import Workers, one_malloc_arena
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, ScriptRows, SourceLine
 from ngsim_graphs.protocols import PROTOCOLS

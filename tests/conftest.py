@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from aigem_fixtures import tiny_build, tiny_run, two_recording_build  # noqa: F401  (shared)
 
+from ngsim_graphs import budget
 from ngsim_graphs import schema as s
-from ngsim_graphs.engine import budget
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
@@ -141,6 +141,6 @@ def two_vehicle_rows() -> list[dict[str, float]]:
 
 
 def set_budget(monkeypatch: pytest.MonkeyPatch, **sizes: int) -> None:
-    """Build in smaller pieces than the engine's own (`engine.budget`): tests cut a tiny build
+    """Build in smaller pieces than the engine's own (`budget.BUDGET`): tests cut a tiny build
     into many, whose outputs must be those of one piece."""
     monkeypatch.setattr(budget, "BUDGET", replace(budget.BUDGET, **sizes))

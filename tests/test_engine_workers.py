@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 
+from ngsim_graphs.budget import available_cores
 from ngsim_graphs.engine.workers import (
     MALLOC_ARENAS,
     MALLOC_THRESHOLDS,
     POLARS_THREADS,
     STOP_GRACE_S,
     Workers,
-    available_cores,
     worker_environment,
 )
 from ngsim_graphs.errors import NgsimInputError

@@ -34,10 +34,10 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import layout, storage
+from ngsim_graphs import budget, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.engine import budget, staging
+from ngsim_graphs.engine import staging
 from ngsim_graphs.grid import (
     ARRAY_NAMES,
     ROW_ARRAYS,

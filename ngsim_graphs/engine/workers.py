@@ -31,6 +31,7 @@ from multiprocessing import connection, get_context
 from types import FrameType
 from typing import Any, TypeVar
 
+from ngsim_graphs.budget import available_cores
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.interrupts import children_deaf_to_ctrl_c
 
@@ -75,13 +76,6 @@ def one_malloc_arena() -> None:
     libc = _glibc()
     if libc is not None:
         libc.mallopt(_M_ARENA_MAX, 1)
-
-
-def available_cores() -> int:
-    """The cores this process may run on (its CPU affinity where the system has one)."""
-    if hasattr(os, "sched_getaffinity"):
-        return max(1, len(os.sched_getaffinity(0)))
-    return os.cpu_count() or 1
 
 
 def worker_environment(environment: dict[str, str], size: int) -> dict[str, str]:

@@ -14,9 +14,9 @@ from dataclasses import replace
 
 import polars as pl
 
+from ngsim_graphs import budget
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
-from ngsim_graphs.engine import budget
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.contract import RecordingKey, RecordingReport, TracksPart, joined_counts
 

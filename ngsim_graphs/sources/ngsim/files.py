@@ -15,8 +15,8 @@ from pathlib import Path
 
 import polars as pl
 
+from ngsim_graphs import budget
 from ngsim_graphs import schema as s
-from ngsim_graphs.engine import budget
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim import schema as ns

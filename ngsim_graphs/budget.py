@@ -1,4 +1,5 @@
-"""The sizes that bound a build task's memory: every one in one place (docs/design.md).
+"""The sizes that bound a build task's memory, every one in one place (docs/design.md), and the
+cores a build may use.
 
 No task holds a whole input file or recording; it holds a piece of one, of these sizes, so that
 its peak does not grow with the size of the recording and `--jobs` multiplies a bounded figure.
@@ -9,6 +10,7 @@ module at call time, so that a test may replace it (`dataclasses.replace`).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 
@@ -44,3 +46,10 @@ class Budget:
 
 
 BUDGET = Budget()
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
