@@ -3,6 +3,7 @@ synchronisations of a step.
 
     OMP_NUM_THREADS=2 python bench/bench_train.py bench/out/graphs-txt-r6-m15
     python bench/bench_train.py BUILD --batch-sizes 32,256,1024 --device auto --workers 0 --steps 10
+    python bench/bench_train.py BUILD --batch-sizes 32 --models 1,5,10   # several models a step
 
 Devices: the CPU, then CUDA when torch.cuda.is_available() (`--device auto`; `cpu` or `cuda` for
 one). Graphs are cut to the history steps the model reads (`ModelConfig().history_steps_read`), as
@@ -205,22 +206,32 @@ def measure_step(
     device: torch.device,
     args: argparse.Namespace,
     compiled: bool = False,
+    models: int = 1,
 ) -> dict[str, object]:
     """The model step alone on prepared batches: --warmup, --steps timed, --profile-steps counted.
-    `compiled`: the decoder through torch.compile (compiled in the warm-up steps)."""
+    `compiled`: the decoder through torch.compile (compiled in the warm-up steps). `models`: that
+    many models, each with its own optimizer, stepped on every batch one after the other, as
+    `aigem fit --horizon-s 1,2,3,4,5` trains its five (the k-th model's horizon is 1 + k % 5 s);
+    graphs/s counts a graph once, through all of them."""
     torch.manual_seed(0)
-    model = AiGem(ModelConfig()).to(device)
+    nets = [AiGem(ModelConfig()).to(device) for _ in range(models)]
     if compiled:
-        model.compile_decoder()
-    optimizer = make_optimizer(model, TrainConfig(), device)
-    steps = TrainConfig().horizon_steps(dataset.config.time_step_s)  # fit's default horizon
+        for net in nets:
+            net.compile_decoder()
+    optimizers = [make_optimizer(net, TrainConfig(), device) for net in nets]
+    step_s = dataset.config.time_step_s
+    horizons = [  # fit's default horizon for one model; 1..5 s for several
+        TrainConfig().horizon_steps(step_s) if models == 1 else round((1 + k % 5) / step_s)
+        for k in range(models)
+    ]
     on_device = [to_device(batch, device) for batch in batches]
 
     def step(batch: Batch) -> None:
-        loss = masked_mse_m2(model(batch, steps), batch, dataset.scaler, steps)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
+        for net, optimizer, steps in zip(nets, optimizers, horizons, strict=True):
+            loss = masked_mse_m2(net(batch, steps), batch, dataset.scaler, steps)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
 
     warmup = on_device[: args.warmup] * (4 if compiled else 1)  # compiles a few variants first
     timed = on_device[args.warmup : args.warmup + args.steps]
@@ -346,6 +357,12 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
     parser.add_argument("--profile-steps", type=int, default=2, help="steps the profiler counts")
     parser.add_argument(
+        "--models",
+        default="1",
+        help="comma-separated numbers of models stepped on each batch (e.g. 1,5,10: the model "
+        "step of several models, one after the other, as a multi-horizon fit trains them)",
+    )
+    parser.add_argument(
         "--compile",
         action="store_true",
         help="also the step with the decoder compiled (a minute or two to compile on the CPU)",
@@ -378,6 +395,14 @@ def main() -> None:
                 row = measure_step(batches, dataset, device, args)
                 aigem_model.CPU_SPARSE = True
                 _row(device.type, size, "gpu path", row | {"threads": torch.get_num_threads()})
+            for models in (int(n) for n in args.models.split(",") if int(n) > 1):
+                row = measure_step(batches, dataset, device, args, models=models)
+                _row(
+                    device.type,
+                    size,
+                    f"{models} models",
+                    row | {"threads": torch.get_num_threads()},
+                )
             if args.compile:
                 row = measure_step(batches, dataset, device, args, compiled=True)
                 _row(device.type, size, "compiled", row | {"threads": torch.get_num_threads()})

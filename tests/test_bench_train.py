@@ -13,7 +13,8 @@ SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "bench_train.py"
 
 def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
     command = [sys.executable, str(SCRIPT), str(tiny_build), "--batch-sizes", "2,4",
-               "--device", "cpu", "--steps", "2", "--warmup", "1", "--profile-steps", "1"]  # fmt: skip
+               "--device", "cpu", "--steps", "2", "--warmup", "1", "--profile-steps", "1",
+               "--models", "1,2"]  # fmt: skip
     env = {**os.environ, "OMP_NUM_THREADS": "1"}  # quick on a busy machine too
     result = subprocess.run(
         command, capture_output=True, text=True, timeout=300, check=True, env=env
@@ -27,6 +28,7 @@ def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
             ("host", "loader"),
             ("cpu", "model step"),
             ("cpu", "gpu path"),
+            ("cpu", "2 models"),
             ("cpu", "fit loop"),
         )
     ]
