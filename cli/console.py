@@ -149,16 +149,23 @@ def print_error(message: str) -> None:
 @contextmanager
 def exit_on_error() -> Iterator[None]:
     """Turn the project's errors, and any OS error (a full disk, a permission), into one line on
-    stderr naming the file, and exit status 1."""
+    stderr naming the file, and exit status 1. Inside `exit_on_interrupt`, once a signal has
+    come, the error is left to it: an interrupt that a library turned into an error of its own."""
     try:
         yield
-    except NgsimError as err:
-        print_error(str(err))
+    except (NgsimError, OSError) as err:
+        if any(_SIGNALS_CAME):
+            raise
+        if isinstance(err, NgsimError):
+            print_error(str(err))
+        else:
+            where = f"{err.filename}: " if err.filename else ""
+            print_error(f"{where}{err.strerror or err}")
         raise typer.Exit(1) from None
-    except OSError as err:
-        where = f"{err.filename}: " if err.filename else ""
-        print_error(f"{where}{err.strerror or err}")
-        raise typer.Exit(1) from None
+
+
+# The signals that came in each running `exit_on_interrupt` block (innermost last).
+_SIGNALS_CAME: list[list[int]] = []
 
 
 class Terminated(KeyboardInterrupt):
@@ -197,6 +204,7 @@ def exit_on_interrupt(left: str) -> Iterator[None]:
             report_unraisable(info)
 
     sys.unraisablehook = unraisable
+    _SIGNALS_CAME.append(came)
     try:
         yield
     except (typer.Exit, SystemExit):
@@ -209,6 +217,7 @@ def exit_on_interrupt(left: str) -> Iterator[None]:
         stderr.print(f"{what}; {left}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(128 + (signal.SIGTERM if terminated else signal.SIGINT)) from None
     finally:
+        _SIGNALS_CAME.pop()  # this block's: the blocks nest
         sys.unraisablehook = report_unraisable
         for signum, handler in handlers.items():
             signal.signal(signum, handler)

@@ -267,7 +267,7 @@ def kept_by_edge_filter(rows: RecordingRows) -> tuple[np.ndarray, np.ndarray]:
 def script_rows(
     raw: pl.DataFrame, dataset_id: int, config: BuildConfig
 ) -> tuple[pl.DataFrame, int, int]:
-    """The rows of one recording that CS-LSTM's `preprocess_data.m` keeps (docs/md), on
+    """The rows of one recording that CS-LSTM's `preprocess_data.m` keeps (docs/cslstm.md), on
     the grid: (table, kept, too_short). The table has one row per (vehicle, step) with its split
     (VEHICLE_ID, STEP, SPLIT), in the script's row order; `kept` counts every kept row, on the
     grid or not; `too_short` the rows of vehicles under 31 rows (the script stops on them).

@@ -54,17 +54,21 @@ def children_deaf_to_ctrl_c() -> Iterator[None]:
 
     Another thread of this process may still take the SIGINT, and Python then runs its handler
     in the main thread: the handlers are held off too (`interrupts_held`), and a signal that came
-    is raised again once the block ends. A KeyboardInterrupt between starting a process and
-    handing it its work had left the process to die with a traceback of its own.
+    is raised again once the block ends, also where it ended in an error. A KeyboardInterrupt
+    between starting a process and handing it its work had left the process to die with a
+    traceback of its own.
     """
     if not hasattr(signal, "pthread_sigmask"):  # not POSIX: nothing to inherit
         yield
         return
-    with interrupts_held() as came:
-        before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-        try:
-            yield
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, before)
-    for signum in came:
-        signal.raise_signal(signum)
+    came: list[int] = []
+    try:
+        with interrupts_held() as came:
+            before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                yield
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, before)
+    finally:  # also after an error in the block: the interrupt is what the user asked for
+        for signum in came:
+            signal.raise_signal(signum)

@@ -8,7 +8,7 @@ import signal
 import pytest
 import typer
 
-from ngsim_cli.console import exit_on_interrupt
+from ngsim_cli.console import exit_on_error, exit_on_interrupt
 
 
 class _Callback:
@@ -54,3 +54,22 @@ def test_an_ignored_ctrl_c_stays_ignored() -> None:
             signal.raise_signal(signal.SIGINT)
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_an_interrupt_a_library_made_an_os_error_is_the_interrupt_not_an_error(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """The commands nest exit_on_error inside exit_on_interrupt: once a signal has come, the
+    error is the interrupt's."""
+    with pytest.raises(typer.Exit) as stop, exit_on_interrupt("nothing written"), exit_on_error():
+        _Callback()
+        raise OSError(5, "Input/output error", "raw.txt")
+    assert stop.value.exit_code == 130
+    assert capfd.readouterr().err == "interrupted; nothing written\n"
+
+
+def test_an_os_error_with_no_signal_is_one_error_line(capfd: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(typer.Exit) as stop, exit_on_interrupt("nothing written"), exit_on_error():
+        raise OSError(5, "Input/output error", "raw.txt")
+    assert stop.value.exit_code == 1
+    assert capfd.readouterr().err == "error: raw.txt: Input/output error\n"

@@ -78,3 +78,13 @@ def test_a_ctrl_c_another_thread_takes_comes_once_the_block_has_ended() -> None:
         steps.append("end of the block")
     assert steps[-1] == "end of the block"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_ctrl_c_held_while_the_block_failed_is_not_lost() -> None:
+    go = threading.Event()
+    other = threading.Thread(target=lambda: go.wait() and signal.raise_signal(signal.SIGINT))
+    other.start()
+    with pytest.raises(KeyboardInterrupt), children_deaf_to_ctrl_c():
+        go.set()
+        other.join()
+        raise OSError("a worker could not be started")

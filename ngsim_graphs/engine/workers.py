@@ -237,10 +237,10 @@ class Workers:
         same = self._pool is not None and self._size == size
         pool = self._pool if same else self._start(size)
         # The processes start as the tasks are submitted, or later from the pool's own thread
-        # (which starts at the first submit) after a worker died: both with Ctrl-C blocked here. Not from before
-        # the pool is made: its queue starts multiprocessing's resource tracker, which unblocks
-        # SIGINT in the thread it was started from (test_workers checks that workers start with
-        # SIGINT blocked).
+        # (which starts at the first submit) after a worker died: both with Ctrl-C blocked here.
+        # Not from before the pool is made: its queue starts multiprocessing's resource tracker,
+        # which unblocks SIGINT in the thread it was started from (test_engine_workers checks
+        # that workers start with SIGINT blocked).
         with children_deaf_to_ctrl_c():
             submitted = {i: pool.submit(_releasing, function, *tasks[i]) for i in order}
         futures = [submitted[i] for i in range(len(tasks))]

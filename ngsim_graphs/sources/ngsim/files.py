@@ -205,9 +205,6 @@ def _parsed(
     return pl.scan_parquet(parts)
 
 
-# A file without a final line end may have been cut inside its last field, which then still
-# parses ("97.6" of "97.68", "us-10" of "us-101"): its last field is compared with the same field
-# of the lines before it, this many of them.
 def _check_fields(
     path: Path,
     raw_format: RawFormat,

@@ -88,7 +88,7 @@ def _is_number(token: str) -> bool:
 
 def sniff_format(path: Path) -> RawFormat:
     """Tell the format from the first line: a CSV header with Vehicle_ID, or 18 numbers."""
-    raw_format = _format_offirst_line(path)
+    raw_format = _format_of_first_line(path)
     if _has_cr_only_line_ends(path):
         # Polars splits lines at LF only: the whole file would read as one line.
         raise NgsimInputError(
@@ -128,7 +128,7 @@ def _is_csv_row(line: str) -> bool:
     return len(fields) in widths and numbers >= len(ns.TXT_COLUMNS) - 2
 
 
-def _format_offirst_line(path: Path) -> RawFormat:
+def _format_of_first_line(path: Path) -> RawFormat:
     lines = _head_lines(path)
     if not lines:
         raise NotNgsimFileError(path, "empty file: no header and no data")
@@ -177,6 +177,9 @@ def check_csv_columns(path: Path, header: list[str], raw_format: RawFormat) -> N
             raise NgsimInputError(path, f"missing column {official[column]}{hint}", line=1)
 
 
+# A file without a final line end may have been cut inside its last field, which then still
+# parses ("97.6" of "97.68", "us-10" of "us-101"): its last field is compared with the same field
+# of the lines before it, this many of them.
 CUT_CHECK_LINES = 20
 _TAIL_BYTES = 64 * 1024
 
