@@ -29,7 +29,6 @@ def export_tables() -> tuple[str, ...]:
     return ("nodes", *(edge.table for edge in edges.EDGE_TYPES), "targets", "samples")
 
 
-EXPORT_TABLES = export_tables()  # those of the edge types this package defines
 EXPORT_MARKER = "export.json"  # the tables an export wrote, with their sha256
 EXPORT_PROGRAM = "ngsim-graphs export"
 

@@ -21,12 +21,12 @@ from typer.testing import CliRunner, Result
 from ngsim_cli.ngsim import app
 from ngsim_graphs import lock, storage
 from ngsim_graphs.config import SynthConfig
-from ngsim_graphs.export import EXPORT_MARKER, EXPORT_TABLES
+from ngsim_graphs.export import EXPORT_MARKER, export_tables
 from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.formats import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
 
 NGSIM_FILE = "trajectories-0750am-0805am.txt"
-EXPORT_FILES = sorted([EXPORT_MARKER, *(f"{name}.parquet" for name in EXPORT_TABLES)])
+EXPORT_FILES = sorted([EXPORT_MARKER, *(f"{name}.parquet" for name in export_tables())])
 
 
 def invoke(*args: object) -> Result:

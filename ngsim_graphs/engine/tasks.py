@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import budget, layout, storage
+from ngsim_graphs import budget, edges, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.engine import staging
@@ -84,7 +84,7 @@ class RecordingSamples:
 
     arrays: RecordingArrays  # pair_rows, pair_dist and pair_key empty: they went to the sink
     proximity_edges: int
-    windows: pl.DataFrame  # ego windows with s.SPLIT and the s.COUNT_COLUMNS
+    windows: pl.DataFrame  # ego windows with s.SPLIT and the count columns (edges.count_columns)
     train_ranges: MinMaxScaler  # what this recording's train samples observed
 
 
@@ -108,7 +108,8 @@ def recording_samples(
     rows = ego_rows(history, int(arrays.step_ptr[-1]))
     first_row, last_row = row_bounds(history)
     is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
-    counts = np.zeros((len(history), len(s.COUNT_COLUMNS)), np.int64)
+    columns = edges.count_columns()  # the edge types' count columns, as sample_counts gives them
+    counts = np.zeros((len(history), len(columns)), np.int64)
     train = MinMaxScaler.empty()
     pair_ptr, n_pairs = np.zeros_like(arrays.pair_ptr), 0
     # A recording without grid rows is one empty piece: its pair files are still written.
@@ -127,7 +128,7 @@ def recording_samples(
         train = train.joined(train_ranges(piece, hood, history[touched], is_train[touched]))
         del rec, pairs, piece, hood  # before the next piece is made
     windows = windows.with_columns(
-        pl.Series(name, counts[:, i], dtype=pl.Int32) for i, name in enumerate(s.COUNT_COLUMNS)
+        pl.Series(name, counts[:, i], dtype=pl.Int32) for i, name in enumerate(columns)
     )
     arrays = replace(arrays, pair_ptr=pair_ptr)
     return RecordingSamples(arrays, n_pairs, windows, train)
