@@ -294,6 +294,15 @@ def test_synth_never_writes_through_a_link(tmp_path: Path) -> None:
     assert victim.read_text() == "mine\n"
 
 
+def _second_file_begun(folder: Path) -> bool:
+    """Whether synth writes its second file, wherever it writes it (a folder it renames while
+    it is looked into: not yet)."""
+    try:
+        return any(SECOND in p.name for p in folder.parent.rglob("*"))
+    except FileNotFoundError:
+        return False
+
+
 def _run_synth_until_second_file(folder: Path) -> subprocess.Popen:
     """`ngsim-graphs synth` in a process of its own, stopped once its first file is written
     whole (the second is being written, wherever that is)."""
@@ -303,7 +312,7 @@ def _run_synth_until_second_file(folder: Path) -> subprocess.Popen:
         [sys.executable, "-c", program, *arguments], stderr=subprocess.PIPE, text=True
     )
     deadline = time.monotonic() + 120
-    while not any(SECOND in p.name for p in folder.parent.rglob("*")):
+    while not _second_file_begun(folder):
         assert process.poll() is None, process.stderr.read()
         assert time.monotonic() < deadline
         time.sleep(0.005)
