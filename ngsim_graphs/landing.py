@@ -31,6 +31,17 @@ _SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")  # how numpy reports
 _NAMES_SHOWN = 3
 
 
+def _overlap(target: Path, other: Path) -> str | None:
+    """How the resolved path `target` overlaps the resolved `other`, or None where apart."""
+    if target == other:
+        return "is"
+    if target.is_relative_to(other):
+        return "lies inside"
+    if other.is_relative_to(target):
+        return "contains"
+    return None
+
+
 def check_outside_inputs(out: Path, inputs: list[Path]) -> None:
     """Refuse an output that is, contains or lies inside an input (a file or a folder).
 
@@ -39,18 +50,27 @@ def check_outside_inputs(out: Path, inputs: list[Path]) -> None:
     """
     target = out.resolve()
     for raw in inputs:
-        source = raw.resolve()
-        if target == source:
-            relation = "is"
-        elif target.is_relative_to(source):
-            relation = "lies inside"
-        elif source.is_relative_to(target):
-            relation = "contains"
-        else:
-            continue
-        raise NgsimOutputError(
-            out, f"--out {relation} the input {raw}; choose an --out outside the inputs"
-        )
+        relation = _overlap(target, raw.resolve())
+        if relation is not None:
+            raise NgsimOutputError(
+                out, f"--out {relation} the input {raw}; choose an --out outside the inputs"
+            )
+
+
+def check_apart(outs: list[Path]) -> None:
+    """Refuse outputs of builds made together where one is, contains or lies inside another:
+    each is replaced whole, and one inside another would be deleted with it or read as its
+    stray files. Resolved paths are compared, as `check_outside_inputs` does."""
+    resolved = [out.resolve() for out in outs]
+    for i, out in enumerate(outs):
+        for other, target in zip(outs[:i], resolved[:i], strict=True):
+            relation = _overlap(resolved[i], target)
+            if relation is not None:
+                raise NgsimOutputError(
+                    out,
+                    f"--out {relation} the --out {other} of another build made with it; "
+                    "each build needs a folder of its own, apart from the others",
+                )
 
 
 def some_names(entries: list[str]) -> str:

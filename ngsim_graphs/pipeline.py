@@ -18,7 +18,7 @@ recording only its counts and scaler ranges.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from functools import reduce
@@ -27,10 +27,11 @@ from pathlib import Path
 
 import polars as pl
 
-from ngsim_graphs import __version__, landing, layout, storage
+from ngsim_graphs import landing, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.engine import summary
 from ngsim_graphs.engine.tasks import (
     RecordingOutput,
     StagedParts,
@@ -40,18 +41,28 @@ from ngsim_graphs.engine.tasks import (
 )
 from ngsim_graphs.engine.workers import Workers, one_malloc_arena
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.manifest import BuildCounts, Manifest, RecordingEntry, ScriptRows, SourceLine
+from ngsim_graphs.manifest import Manifest
 from ngsim_graphs.protocols import PROTOCOLS
 from ngsim_graphs.scaling import MinMaxScaler
-from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import check_locations, choose_source
-from ngsim_graphs.splits import SPLIT_ORDER, split_warnings
+from ngsim_graphs.splits import SPLIT_ORDER
 from ngsim_graphs.synth.marker import mixed_inputs_warning, synthetic_inputs
 from ngsim_graphs.windows import SampleProtocol
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 BuildProgress = Callable[[str, int, int], None]
+BuildTarget = tuple[Path, BuildConfig]  # an output folder and the config of its build
+# The fields of BuildConfig that reading and cleaning read (the sources' read_file,
+# vehicle_tracks and recording_report, with the properties they use: frames_per_step,
+# smoothing_window_steps): builds alike in these share those stages (`run_builds`).
+SHARED_FIELDS = (
+    "locations",
+    "time_step_s",
+    "heading_smoothing_s",
+    "min_heading_speed_mps",
+    "limits",
+)
 
 
 @dataclass(frozen=True)
@@ -102,7 +113,13 @@ def _stage_inputs(
     return reports, staged
 
 
-def _build_recordings(
+def _stage_of(progress: BuildProgress, what: str, total: int) -> Callable[[int], None]:
+    """A stage's progress, started at 0 of `total`: called with the steps done."""
+    progress(what, 0, total)
+    return lambda done: progress(what, done, total)
+
+
+def _clean_recordings(
     source: Source,
     staged: dict[RecordingKey, StagedParts],
     config: BuildConfig,
@@ -111,27 +128,42 @@ def _build_recordings(
     progress: BuildProgress,
     strict: bool,
     workers: Workers,
-) -> list[RecordingOutput]:
-    """Every recording cleaned, then built, in key order, one recording per job at a time."""
+) -> list[RecordingReport]:
+    """Every recording cleaned, in key order, one recording per job at a time."""
     keys = sorted(staged)
-
-    def stage(what: str) -> Callable[[int], None]:
-        progress(what, 0, len(keys))
-        return lambda done: progress(what, done, len(keys))
-
     cleaning = [(source, key, staged[key], config, root, files, strict) for key in keys]
-    sizes = [
-        sum(path.stat().st_size for paths in staged[key].values() for path in paths) for key in keys
-    ]
-    reports = workers.map(clean_recording, cleaning, stage("cleaning recordings"), sizes)
+    stage = _stage_of(progress, "cleaning recordings", len(keys))
+    return workers.map(clean_recording, cleaning, stage, _staged_sizes(staged))
+
+
+def _build_recordings(
+    staged: dict[RecordingKey, StagedParts],
+    reports: list[RecordingReport],
+    scratch: Path,
+    config: BuildConfig,
+    root: Path,
+    progress: BuildProgress,
+    workers: Workers,
+) -> list[RecordingOutput]:
+    """Every cleaned recording (its tracks staged under `scratch`) built into `root`, in key
+    order, one recording per job at a time."""
+    keys = sorted(staged)
     first_ids = [0, *accumulate(report.tracks for report in reports)]
     protocol = PROTOCOLS[config.protocol]
     building = [
-        (key, i, reports[i], first_ids[i], staged[key], config, root, protocol)
+        (key, i, reports[i], first_ids[i], staged[key], scratch, config, root, protocol)
         for i, key in enumerate(keys)
     ]
-    progress_of = stage("building recordings")
-    return workers.map(build_recording, building, progress_of, sizes)
+    stage = _stage_of(progress, "building recordings", len(keys))
+    return workers.map(build_recording, building, stage, _staged_sizes(staged))
+
+
+def _staged_sizes(staged: dict[RecordingKey, StagedParts]) -> list[int]:
+    """The bytes of each recording's staged raw rows, in key order: a guess of its work."""
+    return [
+        sum(p.stat().st_size for paths in staged[key].values() for p in paths)
+        for key in sorted(staged)
+    ]
 
 
 def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
@@ -181,72 +213,6 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
     return counts
 
 
-def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
-    """Why the chosen recordings gave no sample at all, as a user can act on it."""
-    rows = sum(o.report.rows for o in outputs)
-    why = PROTOCOLS[config.protocol].why_no_samples(_script_total(outputs), rows, config)
-    if why is not None:
-        return why
-    if sum(o.report.grid_rows for o in outputs) == 0:
-        return (
-            f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
-            f"the frames whose Frame_ID is a multiple of {config.frames_per_step} (are they all odd?)"
-        )
-    longest = max(o.longest_track_steps for o in outputs)
-    if longest < config.window_steps:
-        return (
-            f"no track spans a whole window of {config.window_steps} grid steps "
-            f"({config.window_steps * config.time_step_s:g} s of history and future); the longest "
-            f"has {longest} steps"
-        )
-    return f"every window falls in a gap between the blocks of the {config.split.value} split"
-
-
-def _check_some_samples(
-    outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]
-) -> None:
-    if sum(sum(o.samples.values()) for o in outputs) == 0:
-        more = f" (and {len(raw_paths) - 1} more)" if len(raw_paths) > 1 else ""
-        raise NgsimInputError(
-            f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}"
-        )
-
-
-def _warnings(
-    outputs: list[RecordingOutput], config: BuildConfig, files: list[FileReport]
-) -> list[str]:
-    """What the reading said of its files' recordings, then of the splits."""
-    samples = {f"{o.report.location}/{o.report.period}": o.samples for o in outputs}
-    ids = {f"{o.report.location}/{o.report.period}": o.vehicle_ids for o in outputs}
-    notes = [f"{file.path}: {note}" for file in files for note in file.notes]
-    return notes + split_warnings(samples, ids, config)
-
-
-def _recording_entry(
-    o: RecordingOutput, samples: dict[str, dict[str, int]], files: list[FileReport]
-) -> RecordingEntry:
-    """The manifest's entry of one recording; its first outlier by input path, not index."""
-    name = layout.recording_name(o.report.location, o.report.period)
-    first = o.report.first_outlier
-    return RecordingEntry(
-        report=replace(o.report, first_outlier=None),
-        index=o.index,
-        name=name,
-        first_track_id=o.first_track_id,
-        n_steps=o.n_steps,
-        proximity_edges=o.proximity_edges,
-        samples={split: samples[split].get(name, 0) for split in samples},
-        first_outlier=None if first is None else SourceLine(files[first[0]].path, first[1]),
-        cslstm_rows=o.script_rows,
-    )
-
-
-def _script_total(outputs: list[RecordingOutput]) -> ScriptRows | None:
-    """The cs-lstm protocol's rows over the recordings (None: the aigem protocol)."""
-    parts = [o.script_rows for o in outputs if o.script_rows is not None]
-    return reduce(ScriptRows.plus, parts) if parts else None
-
-
 def _check_recordings(
     staged: dict[RecordingKey, StagedParts], files: list[FileReport], protocol: SampleProtocol
 ) -> None:
@@ -259,62 +225,134 @@ def _check_recordings(
             raise NgsimInputError(path, why)
 
 
-def _counts(
-    files: list[FileReport], outputs: list[RecordingOutput], samples: dict[str, dict[str, int]]
-) -> BuildCounts:
-    """The build's totals over its input files and recordings."""
-
-    def total(key: str) -> int:
-        return sum(getattr(o.report, key) for o in outputs)
-
-    dropped = {
-        reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files)
-        for reason in DropReason
-    }
-    dropped[DropReason.POSITION_OUTLIER.value] = total("position_outliers")
-    return BuildCounts(
-        rows_read=sum(f.rows_read for f in files),
-        rows_other_locations=sum(f.rows_other_locations for f in files),
-        rows_missing_values=sum(f.rows_missing_values for f in files),
-        rows_dropped=dropped,
-        rows=total("rows"),
-        exact_duplicates=total("exact_duplicates"),
-        conflicting_duplicates=total("conflicting_duplicates"),
-        position_jumps=total("position_jumps"),
-        gaps=total("gaps"),
-        tracks=total("tracks"),
-        grid_rows=total("grid_rows"),
-        proximity_edges=sum(o.proximity_edges for o in outputs),
-        samples=sum(sum(per.values()) for per in samples.values()),
-        cslstm_rows=_script_total(outputs),
-    )
-
-
-def _manifest(
-    dataset: str,
-    config: BuildConfig,
-    files: list[FileReport],
+def _finish(
+    target: BuildTarget,
+    root: Path,
+    source: Source,
+    file_reports: list[FileReport],
     outputs: list[RecordingOutput],
-    samples: dict[str, dict[str, int]],
-    scaler: MinMaxScaler,
-    warnings: list[str],
     skipped: list[Path],
-) -> Manifest:
-    """What the build is, to be written last (`layout.write_manifest` adds the file records)."""
-    return Manifest(
-        format_version=layout.FORMAT_VERSION,
-        software={"ngsim_graphs": __version__, "polars": pl.__version__},
-        dataset=dataset,
-        config=config,
-        config_hash=layout.config_hash(config.to_dict()),
-        inputs=tuple(files),
-        recordings=tuple(_recording_entry(o, samples, files) for o in outputs),
-        splits={split: sum(per.values()) for split, per in samples.items()},
-        scaler=scaler,
-        warnings=tuple(warnings),
-        counts=_counts(files, outputs, samples),
-        skipped_files=tuple(str(path) for path in skipped),
+    progress: BuildProgress,
+) -> BuildResult:
+    """A built target's samples tables and manifest written into `root`, the manifest last."""
+    out_dir, config = target
+    scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
+    progress("writing samples", len(outputs), len(outputs))
+    samples = _write_samples(root, outputs)
+    synthetic = synthetic_inputs(file.path for file in file_reports)  # told now: files move
+    mixed = mixed_inputs_warning([file.path for file in file_reports], synthetic)
+    warnings = summary.warnings(outputs, config, file_reports) + ([mixed] if mixed else [])
+    manifest = summary.manifest(
+        source.name, config, file_reports, outputs, samples, scaler, warnings, skipped
     )
+    manifest = replace(
+        manifest, synthetic=len(synthetic) == len(file_reports), synthetic_inputs=synthetic
+    )
+    manifest = layout.write_manifest(root, manifest)
+    return BuildResult(
+        out_dir=out_dir,
+        files=tuple(file_reports),
+        skipped_files=tuple(str(p) for p in skipped),
+        recordings=tuple(o.report for o in outputs),
+        manifest=manifest,
+        warnings=tuple(warnings),
+    )
+
+
+def _check_targets(raw_paths: list[Path], targets: list[BuildTarget]) -> None:
+    """Refuse builds that cannot share their reading and cleaning (a config that differs in a
+    field of SHARED_FIELDS), or whose outputs overlap each other or an input."""
+    if not targets:
+        raise ValueError("no build to make: name at least one output folder and config")
+    first_out, first = targets[0]
+    for out_dir, config in targets[1:]:
+        for name in SHARED_FIELDS:
+            if getattr(config, name) != getattr(first, name):
+                raise ValueError(
+                    f"{name} differs between the builds for {first_out} ({getattr(first, name)}) "
+                    f"and {out_dir} ({getattr(config, name)}): builds made together share the "
+                    f"reading and cleaning of the inputs, which read it; build them apart"
+                )
+    check_locations(first.locations)
+    for out_dir, _ in targets:
+        landing.check_outside_inputs(out_dir, raw_paths)
+    landing.check_apart([out_dir for out_dir, _ in targets])
+
+
+def _labelled(progress: BuildProgress, out_dir: Path, several: bool) -> BuildProgress:
+    """`progress` with each stage named by its build's `out_dir` where builds are made together."""
+    if not several:
+        return progress
+    label = f" ({out_dir.name})"
+    return lambda what, done, total: progress(f"{what}{label}", done, total)
+
+
+def run_builds(
+    raw_paths: list[Path],
+    targets: Sequence[BuildTarget],
+    overwrite: bool = False,
+    progress: BuildProgress | None = None,
+    strict: bool = False,
+    dataset: str | None = None,
+    jobs: int | None = 1,
+) -> list[BuildResult]:
+    """Read every raw file under `raw_paths` and write a finished build into each target's
+    out_dir, as `run_build` does for each (byte for byte its output), reading and cleaning the
+    inputs once for all.
+
+    The targets' configs may differ only in the fields that reading and cleaning do not read
+    (not in SHARED_FIELDS: d_min_m, d_sense_m, the windows, the split, the protocol); their
+    out_dirs must be apart from each other and from the inputs. Every out_dir is checked and
+    locked before anything is read; the files are read and staged and the recordings cleaned
+    into the first target's staging, which every target's build reads. Each target then lands
+    on its own once its samples and manifest are written, in the order given: a failure or
+    Ctrl-C leaves the targets landed before it finished and the others as they were. Raises
+    ValueError for configs that cannot share the reading (naming the field), and as
+    `run_build` does.
+    """
+    targets = list(targets)
+    _check_targets(raw_paths, targets)  # before anything is read or written
+    workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
+    if workers.jobs == 1:  # the tasks run in this process
+        one_malloc_arena()
+    report_progress = progress or (lambda _what, _done, _total: None)
+    several = len(targets) > 1
+    source, found, skipped = choose_source(raw_paths, dataset)
+    # The build depends on the set of inputs, not on the order they were named in: the files
+    # (resolved paths) are read in path order, which numbers them and lists them in the manifest.
+    files = sorted(found)
+    shared = targets[0][1]  # its SHARED_FIELDS are every target's
+    with ExitStack() as landings:
+        # One stack per target, closed when it lands; the outer one removes those left.
+        stacks = [landings.enter_context(ExitStack()) for _ in targets]
+        roots = [
+            stack.enter_context(landing.build_directory(out_dir, overwrite))
+            for stack, (out_dir, _) in zip(stacks, targets, strict=True)
+        ]
+        scratch = roots[0]
+        with workers:  # the workers end here: what they held goes back before the writing
+            file_reports, staged = _stage_inputs(
+                source, files, shared, scratch, report_progress, strict, workers
+            )
+            for _, config in targets:
+                _check_recordings(staged, file_reports, PROTOCOLS[config.protocol])
+            reports = _clean_recordings(
+                source, staged, shared, scratch, file_reports, report_progress, strict, workers
+            )
+            built = []  # each target's recordings, built from the same cleaned tracks
+            for (out_dir, config), root in zip(targets, roots, strict=True):
+                labelled = _labelled(report_progress, out_dir, several)
+                built.append(
+                    _build_recordings(staged, reports, scratch, config, root, labelled, workers)
+                )
+        for (_, config), outputs in zip(targets, built, strict=True):
+            summary.check_some_samples(outputs, config, raw_paths)
+        results = []
+        for target, root, outputs, stack in zip(targets, roots, built, stacks, strict=True):
+            labelled = _labelled(report_progress, target[0], several)
+            results.append(_finish(target, root, source, file_reports, outputs, skipped, labelled))
+            stack.close()  # lands this target's out_dir
+    return results
 
 
 def run_build(
@@ -343,46 +381,7 @@ def run_build(
     not be written (an input, another program's folder, another build's) or cannot be (a full
     disk); `out_dir` is then left as it was.
     """
-    check_locations(config.locations)
-    landing.check_outside_inputs(out_dir, raw_paths)  # before anything is read or written
-    workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
-    if workers.jobs == 1:  # the tasks run in this process
-        one_malloc_arena()
-    report_progress = progress or (lambda _what, _done, _total: None)
-    source, found, skipped = choose_source(raw_paths, dataset)
-    # The build depends on the set of inputs, not on the order they were named in: the files
-    # (resolved paths) are read in path order, which numbers them and lists them in the manifest.
-    files = sorted(found)
-    with landing.build_directory(out_dir, overwrite) as root:
-        with workers:  # the workers end here: what they held goes back before the writing
-            file_reports, staged = _stage_inputs(
-                source, files, config, root, report_progress, strict, workers
-            )
-            _check_recordings(staged, file_reports, PROTOCOLS[config.protocol])
-            outputs = _build_recordings(
-                source, staged, config, root, file_reports, report_progress, strict, workers
-            )
-        scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
-        _check_some_samples(outputs, config, raw_paths)
-        report_progress("writing samples", len(staged), len(staged))
-        samples = _write_samples(root, outputs)
-        synthetic = synthetic_inputs(file.path for file in file_reports)  # told now: files move
-        mixed = mixed_inputs_warning([file.path for file in file_reports], synthetic)
-        warnings = _warnings(outputs, config, file_reports) + ([mixed] if mixed else [])
-        manifest = _manifest(
-            source.name, config, file_reports, outputs, samples, scaler, warnings, skipped
-        )
-        manifest = replace(
-            manifest,
-            synthetic=len(synthetic) == len(file_reports),
-            synthetic_inputs=synthetic,
-        )
-        manifest = layout.write_manifest(root, manifest)
-    return BuildResult(
-        out_dir=out_dir,
-        files=tuple(file_reports),
-        skipped_files=tuple(str(p) for p in skipped),
-        recordings=tuple(o.report for o in outputs),
-        manifest=manifest,
-        warnings=tuple(warnings),
+    [result] = run_builds(
+        raw_paths, [(out_dir, config)], overwrite, progress, strict, dataset, jobs
     )
+    return result

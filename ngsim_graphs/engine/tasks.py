@@ -264,15 +264,19 @@ def build_recording(
     report: RecordingReport,
     first_track_id: int,
     staged: StagedParts,
+    scratch: Path,
     config: BuildConfig,
     root: Path,
     protocol: SampleProtocol,
 ) -> RecordingOutput:
-    """Tracks, proximity edges, frame arrays and split windows of one recording, written (a
-    worker's task): its grid rows streamed from its tracks table (windows, largest vehicle
-    ids) and made a range of steps at a time (`grid.write_node_arrays`), then read back from
-    their files a range at a time (`recording_samples`)."""
-    parts = [staging.staged_tracks_path(root, *key, part) for part in sorted(staged)]
+    """Tracks, proximity edges, frame arrays and split windows of one recording, written into
+    the build at `root` (a worker's task): its grid rows streamed from its tracks table
+    (windows, largest vehicle ids) and made a range of steps at a time
+    (`grid.write_node_arrays`), then read back from their files a range at a time
+    (`recording_samples`). Its cleaned tracks are read from the staging of the build at
+    `scratch` (`clean_recording`'s root): `root` itself, or the build that builds made
+    together share them from; they are only read, never changed."""
+    parts = [staging.staged_tracks_path(scratch, *key, part) for part in sorted(staged)]
     # Streamed, never held whole, in row groups of a fixed size: the bytes written do not
     # depend on the parts it was cleaned in. The grid nodes read back what they need of it.
     tracks = pl.scan_parquet(parts).with_columns(
