@@ -8,6 +8,11 @@ scaler's ranges (`tasks`). The files and then the recordings go to `--jobs` work
 the manifest) is decided here, between the stages, so that any number of jobs gives the same
 build.
 
+Several builds of the same files (`run_builds`: the paper's d_min of 0, 25 and 50 m) share
+the reading and the cleaning, which read only the config's SHARED_FIELDS: the files are staged
+and the recordings cleaned once, into the first build's staging, and each build's recordings
+are built from those cleaned tracks into its own directory, which then lands on its own.
+
 Memory stays bounded per job, whatever the size of a file or recording: a task holds a batch of
 a file's rows, a group of a recording's vehicles, or a range of a recording's grid rows and
 proximity pairs, and of a whole recording only its samples and an index or two per grid row

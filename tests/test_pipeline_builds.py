@@ -15,6 +15,7 @@ from ngsim_graphs import layout, pipeline
 from ngsim_graphs.config import BuildConfig, PhysicalLimits, SynthConfig
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.pipeline import SHARED_FIELDS, run_build, run_builds
+from ngsim_graphs.schema import Protocol, SplitMode
 from ngsim_graphs.synth.formats import write_synthetic
 
 D_MIN_M = (0.0, 25.0, 50.0)
@@ -60,6 +61,23 @@ def test_each_build_is_the_one_made_alone(
     # The builds differ where d_min makes them: no pair is closer than 0 m, more within 50 m.
     assert edges[0] == 0 < edges[1] < edges[2]
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # no staging left
+
+
+def test_builds_may_differ_in_all_but_the_shared_fields(raw: Path, tmp_path: Path) -> None:
+    """The protocol, the windows, the split and d_sense too: each build the one made alone."""
+    configs = {
+        "cs-lstm": BuildConfig(protocol=Protocol.CS_LSTM, d_min_m=10.0),
+        "aigem": BuildConfig(
+            d_sense_m=30.0, history_steps=10, stride_s=4.0, split=SplitMode.RANDOM, seed=2
+        ),
+    }
+    for name, config in configs.items():
+        run_build([raw], tmp_path / "alone" / name, config)
+    run_builds([raw], [(tmp_path / "together" / name, c) for name, c in configs.items()])
+    for name in configs:
+        assert snapshot(tmp_path / "together" / name) == snapshot(tmp_path / "alone" / name)
+    cslstm = layout.read_manifest(tmp_path / "together" / "cs-lstm").counts.cslstm_rows
+    assert cslstm is not None and cslstm.kept > 0  # the cs-lstm protocol's own samples
 
 
 def _changed(name: str) -> Any:
