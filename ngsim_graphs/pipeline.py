@@ -309,9 +309,10 @@ def run_builds(
     (not in SHARED_FIELDS: d_min_m, d_sense_m, the windows, the split, the protocol); their
     out_dirs must be apart from each other and from the inputs. Every out_dir is checked and
     locked before anything is read; the files are read and staged and the recordings cleaned
-    into the first target's staging, which every target's build reads. Each target then lands
-    on its own once its samples and manifest are written, in the order given: a failure or
-    Ctrl-C leaves the targets landed before it finished and the others as they were. Raises
+    into the first target's staging, which every target's build reads. Once every target's
+    recordings are built, and each has samples, each target lands on its own as soon as its
+    samples and manifest are written, in the order given: a failure or Ctrl-C leaves the
+    targets that had landed as finished builds and every other out_dir as it was. Raises
     ValueError for configs that cannot share the reading (naming the field), and as
     `run_build` does.
     """
