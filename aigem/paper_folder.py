@@ -63,13 +63,14 @@ def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
 
 def paper_document(raw_paths: Sequence[Path], config: PaperConfig) -> dict[str, Any]:
     """paper.json: the marker that the folder is ours, and what defines its work."""
-    return {
+    document = {
         "written_by": WRITTEN_BY,
         "inputs": list_inputs(raw_paths),
         "config": config.to_dict(),
         "build_config": BuildConfig().to_dict(),  # but d_min_m, set per build
         "horizons_s": list(HORIZONS_S),
     }
+    return json.loads(json.dumps(document))  # as a later call reads it back: lists, not tuples
 
 
 def differences(before: dict[str, Any], now: dict[str, Any]) -> list[str]:
@@ -91,8 +92,8 @@ def differences(before: dict[str, Any], now: dict[str, Any]) -> list[str]:
 def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
     """Make `out` ours for `document`'s work: new or empty (paper.json written first), or ours
     with the same settings; ours with others only with `overwrite` (runs discarded first, then
-    paper.json rewritten). Whatever the case, a report of an earlier call goes first: no
-    report.json is there until this call has finished."""
+    paper.json rewritten). An earlier call's report.json and report.md go once the settings are
+    accepted: none is there until this call has finished."""
     marker = out / PAPER_JSON
     before = json_object(marker)
     if out.exists() and not out.is_dir():
@@ -107,16 +108,17 @@ def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
         out.mkdir(parents=True, exist_ok=True)
         write_atomic(marker, _json_bytes(document))
         return
-    (out / REPORT_JSON).unlink(missing_ok=True)
     changed = differences(before, document)
-    if not changed:
-        return
-    if not overwrite:
+    if changed and not overwrite:
         raise NgsimOutputError(
             out,
             f"holds `aigem paper`'s work with other settings ({'; '.join(changed)}); run it "
             "with those to continue, or add --overwrite to start over with these",
         )
+    for name in (REPORT_JSON, REPORT_MD):  # an earlier call's report: none until this one ends
+        (out / name).unlink(missing_ok=True)
+    if not changed:
+        return
     for run_dir in sorted((out / RUNS).glob("dmin-*")):
         discard_run(run_dir)
     write_atomic(marker, _json_bytes(document))
