@@ -89,24 +89,23 @@ def differences(before: dict[str, Any], now: dict[str, Any]) -> list[str]:
     return said
 
 
-def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
-    """Make `out` ours for `document`'s work: new or empty (paper.json written first), or ours
-    with the same settings; ours with others only with `overwrite` (runs discarded first, then
-    paper.json rewritten). An earlier call's report.json and report.md go once the settings are
-    accepted: none is there until this call has finished."""
-    marker = out / PAPER_JSON
-    before = json_object(marker)
+def _ours(document: dict[str, Any] | None) -> bool:
+    return document is not None and document.get("written_by") == WRITTEN_BY
+
+
+def check_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
+    """Refuse, writing nothing, an `out` that claim_folder must not take: a file, a folder that
+    is not empty and not ours, or ours with other settings (without `overwrite`), naming them."""
     if out.exists() and not out.is_dir():
         raise NgsimOutputError(out, "is a file, not a folder; choose another --out")
-    if before is None or before.get("written_by") != WRITTEN_BY:
+    before = json_object(out / PAPER_JSON)
+    if not _ours(before):
         if out.is_dir() and any(out.iterdir()):
             raise NgsimOutputError(
                 out,
                 f"folder is not empty and was not written by `aigem paper` (no {PAPER_JSON} of "
                 "its own); choose a new or empty --out",
             )
-        out.mkdir(parents=True, exist_ok=True)
-        write_atomic(marker, _json_bytes(document))
         return
     changed = differences(before, document)
     if changed and not overwrite:
@@ -115,9 +114,23 @@ def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
             f"holds `aigem paper`'s work with other settings ({'; '.join(changed)}); run it "
             "with those to continue, or add --overwrite to start over with these",
         )
-    for name in (REPORT_JSON, REPORT_MD):  # an earlier call's report: none until this one ends
+
+
+def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
+    """Make `out` ours for `document`'s work (check_folder first): new or empty, paper.json
+    written first; ours with the same settings, as it is; ours with others (`overwrite`), the
+    runs discarded, then paper.json rewritten. An earlier call's report.json and report.md go:
+    none is there until this call has finished."""
+    check_folder(out, document, overwrite)
+    marker = out / PAPER_JSON
+    before = json_object(marker)
+    if not _ours(before):
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(marker, _json_bytes(document))
+        return
+    for name in (REPORT_JSON, REPORT_MD):
         (out / name).unlink(missing_ok=True)
-    if not changed:
+    if not differences(before, document):
         return
     for run_dir in sorted((out / RUNS).glob("dmin-*")):
         discard_run(run_dir)

@@ -105,6 +105,7 @@ def paper(
     Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
     """
     from aigem.paper import parse_parts  # light: no PyTorch yet
+    from aigem.paper_folder import PaperConfig, check_folder, paper_document
 
     try:
         parts = parse_parts(only)
@@ -112,6 +113,9 @@ def paper(
         raise usage_error(f"--only {only}: {err}") from None
     if max_hours is not None and not max_hours > 0:
         raise usage_error(f"--max-hours {max_hours:g}: must be > 0")
+    config = PaperConfig(epochs, patience, seed, batch_size)
+    with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
+        check_folder(out, paper_document(raw_paths, config), overwrite)
     left = (
         f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
         "run the same command again to continue"
@@ -120,7 +124,7 @@ def paper(
         from aigem.cores import busy_cores_warning
         from aigem.devices import DeviceUnavailableError, pick_device
         from aigem.epochs import NonFiniteLossError
-        from aigem.paper import PaperCall, PaperConfig, run_paper
+        from aigem.paper import PaperCall, run_paper
         from ngsim_graphs.budget import available_cores
     try:
         pick_device(device.value)
@@ -129,7 +133,6 @@ def paper(
         raise typer.Exit(1) from None
     if threads is not None and (warning := busy_cores_warning(threads)):
         print_warning(warning)
-    config = PaperConfig(epochs, patience, seed, batch_size)
     call = PaperCall(parts, device.value, threads, max_hours, jobs or available_cores(), overwrite)
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         try:
