@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,7 @@ from aigem.paper_folder import (
     build_name,
     build_state,
     claim_folder,
+    discard_run,
     epochs_left,
     fit_record,
     paper_document,
@@ -157,7 +159,8 @@ def _builds(
     raw_paths: list[Path], out: Path, inputs: list[dict[str, Any]], call: PaperCall, show: Progress
 ) -> dict[float, Path]:
     """The builds the parts need: each reused where finished and of the right config and
-    inputs, else built (one with another config or inputs only with --overwrite)."""
+    inputs, else built (one with another config or inputs only with --overwrite, which
+    discards the runs trained on it)."""
     targets, replace_them = [], False
     builds = {d: out / BUILDS / build_name(d) for d in plan_builds(call.parts)}
     for d_min_m, build_dir in builds.items():
@@ -166,7 +169,11 @@ def _builds(
             continue
         if state is not None and not call.overwrite:
             raise NgsimOutputError(build_dir, f"{state}; add --overwrite to rebuild it")
-        replace_them = replace_them or state is not None
+        if state is not None:  # rebuilt: the runs trained on it start over
+            replace_them = True
+            for plan in FITS:
+                if plan.d_min_m == d_min_m:
+                    discard_run(out / RUNS / plan.name)
         targets.append((build_dir, build_config(d_min_m)))
     if targets:
         (out / BUILDS).mkdir(exist_ok=True)
@@ -335,22 +342,16 @@ def _curves(run_dir: Path) -> dict[str, list[dict[str, Any]]]:
     return {member_dir(run_dir, h).name: read_metrics(member_dir(run_dir, h)) for h in HORIZONS_S}
 
 
-class _threads:
+@contextmanager
+def _threads(threads: int | None) -> Iterator[None]:
     """torch's intra-op threads set to `threads` in the block (None: left as they are), so that
     the evaluations of a call that trained and of one that reused its fits compute alike."""
+    import torch
 
-    def __init__(self, threads: int | None) -> None:
-        self.threads, self.before = threads, None
-
-    def __enter__(self) -> None:
-        import torch
-
-        if self.threads is not None:
-            self.before = torch.get_num_threads()
-            torch.set_num_threads(self.threads)
-
-    def __exit__(self, *_: object) -> None:
-        import torch
-
-        if self.before is not None:
-            torch.set_num_threads(self.before)
+    before = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

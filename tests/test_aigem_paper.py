@@ -19,14 +19,17 @@ from aigem.paper_folder import (
     PAPER_JSON,
     REPORT_JSON,
     PaperConfig,
+    build_state,
     claim_folder,
     differences,
     discard_run,
+    list_inputs,
     paper_document,
 )
 from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
 from ngsim_cli.aigem import app
-from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.build import open_build
+from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.synth.formats import write_synthetic
 
@@ -162,6 +165,20 @@ def test_the_command_refuses_a_foreign_folder_and_a_bad_part_in_one_line(
     result = runner.invoke(app, ["paper", str(raw), "--out", str(tmp_path / "o"), "--only", "x"])
     assert result.exit_code == 2 and "--only x: x: not a part of the report" in result.output
     assert not (tmp_path / "o").exists()
+
+
+def test_a_build_is_reused_only_with_its_config_and_inputs(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    manifest = open_build(tiny_build).manifest
+    raw = [Path(f.path).parent for f in manifest.inputs]
+    inputs = list_inputs(raw)
+    assert build_state(tiny_build, manifest.config, inputs) == ""  # reuse
+    other = build_state(tiny_build, BuildConfig(d_sense_m=12.0, d_min_m=25.0), inputs)
+    assert other == "is a build of another config (d_min_m 6.0 -> 25.0)"
+    grown = [{**f, "size_bytes": f["size_bytes"] + 1} for f in inputs]
+    assert build_state(tiny_build, manifest.config, grown).startswith("was built from other inputs")
+    assert build_state(tmp_path, manifest.config, inputs) is None  # no build there
 
 
 # ------------------------------------------------------------------------------------------------
