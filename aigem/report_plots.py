@@ -115,7 +115,8 @@ def _curve_panel(axes: Axes, name: str, curve: dict[str, list]) -> None:
         axes.plot([best], [value], "*", ms=12, color="tab:green", zorder=1.5, label="best epoch")
     axes.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
     axes.set_xlim(0.5, max(epochs, default=1) + 0.5)
-    axes.set(title=f"{name} model", xlabel="epoch")
+    horizon = name.removeprefix("h").removesuffix("s")  # a member's name: h1s .. h5s
+    axes.set(title=f"the {horizon} s model", xlabel="epoch")
     axes.grid(alpha=0.3)
 
 

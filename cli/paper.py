@@ -99,8 +99,8 @@ def paper(
     published rows, the d_min and concatenation ablations, the training curves and front / mid /
     rear. Every table and figure says SYNTHETIC where the inputs came from `ngsim-graphs synth`.
 
-    Time: about 6 minutes with --epochs 2 on the README's demo input on 2 CPU cores; the real
-    NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).
+    Time: about 5 minutes with --epochs 2 on the README's demo input (2 recordings of 2 minutes)
+    on 2 CPU cores; the real NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).
 
     Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
     """
