@@ -289,8 +289,7 @@ def run_paper(
     meter = _Meter(show, _work_units(out, fits, to_train, config))
     for index, plan in enumerate(to_train):
         began = time.monotonic()
-        share_min = (deadline - began) / 60 / (len(to_train) - index)
-        max_minutes = None if math.isinf(share_min) else max(share_min, 1 / 60)
+        max_minutes = fit_minutes(deadline - began, len(to_train) - index)
         _fit(plan, out, config, _train_config(config, call, max_minutes), call.device, meter)
         timings[f"fit {plan.name}"] = time.monotonic() - began
     evaluations = {}
@@ -319,6 +318,15 @@ def run_paper(
     timings["total"] = time.monotonic() - start
     report = write_report(out, report, {k: round(v, 1) for k, v in timings.items()})
     return PaperResult(out, report, timings)
+
+
+def fit_minutes(left_s: float, fits_left: int) -> float | None:
+    """A fit's time limit (TrainConfig.max_minutes): its equal share of the time left to the
+    fits still to train, at least a second (a model to evaluate: one step, then validation);
+    None without a limit (left_s infinite)."""
+    if math.isinf(left_s):
+        return None
+    return max(left_s / 60 / fits_left, 1 / 60)
 
 
 def _work_units(

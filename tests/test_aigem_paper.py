@@ -4,6 +4,7 @@ command on a tiny input, uninterrupted and killed half-way then run again: the s
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from aigem.paper import PARTS, parse_parts, plan_builds, plan_fits
+from aigem.paper import PARTS, fit_minutes, parse_parts, plan_builds, plan_fits
 from aigem.paper_folder import (
     PAPER_JSON,
     REPORT_JSON,
@@ -61,6 +62,13 @@ def test_the_fits_are_the_papers_settings() -> None:
     assert (plans["dmin-25m"].d_min_m, plans["dmin-25m"].concat_position) == (25.0, True)
     assert not plans["dmin-25m-no-concat"].concat_position
     assert plans["dmin-0m"].build_name == "dmin-0m" and plans["dmin-50m"].d_min_m == 50.0
+
+
+def test_each_fit_gets_an_equal_share_of_the_time_left() -> None:
+    assert fit_minutes(math.inf, 4) is None  # no --max-hours
+    assert fit_minutes(3600.0, 4) == 15.0  # an hour left, four fits to train
+    assert fit_minutes(600.0, 1) == 10.0
+    assert fit_minutes(-5.0, 2) == 1 / 60  # the time is out: one step and validation each
 
 
 def test_parts_are_kept_in_the_reports_order_and_unknown_ones_refused() -> None:
