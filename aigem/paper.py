@@ -14,7 +14,7 @@ inputs are checked, a finished fit is reused, an interrupted one resumes from it
 checkpoint (a fit killed before its first starts over: aigem.unfinished), and the evaluations
 are redone. Other settings against a folder of ours are refused unless `overwrite`, which
 discards the runs (and the builds whose config or inputs differ); a folder that is not ours and
-not empty is refused.
+not empty is refused (aigem.paper_folder). The report is aigem.report's.
 """
 
 from __future__ import annotations
