@@ -34,10 +34,13 @@ from aigem.results import PAPER_TABLE, Evaluation, HorizonsEvaluation
 from ngsim_graphs.plotting import mark_synthetic
 
 OURS, BASELINE = "tab:blue", "tab:orange"
-PAPER_MARKERS = {
-    "AiGem": ("o", "tab:blue"),
+PAPER_MARKERS = {  # each row of the paper's table (results.PAPER_TABLE)
     "CS-LSTM": ("s", "tab:green"),
+    "GRIP++": ("v", "tab:purple"),
+    "STA-LSTM": ("P", "tab:brown"),
+    "DeepTrack": ("X", "tab:olive"),
     "GSTCN": ("^", "tab:red"),
+    "AiGem": ("o", "tab:blue"),
 }
 FOOTER_CHARS_PER_IN = 14  # characters of 8-point text per inch of figure width, with room
 REGION_TITLES = {

@@ -13,19 +13,32 @@ import numpy as np
 
 from aigem.metrics import ErrorTotals
 
-# The paper's table (NGSIM US-101 + I-80, metres), for comparison only.
+# The paper's Table 1 (NGSIM US-101 + I-80, metres), every row as published, in its order; for
+# comparison only. None: not reported.
 PAPER_TABLE = {
-    "AiGem (paper)": {
-        "ade_m": 1.42,
-        "fde_m": 2.57,
-        "rmse_m": (0.61, 1.02, 1.27, 1.84, 1.95),
-        "params_k": 74.5,
-    },
     "CS-LSTM (paper)": {
         "ade_m": 2.29,
         "fde_m": 3.34,
         "rmse_m": (0.61, 1.27, 2.09, 3.10, 4.37),
         "params_k": 192,
+    },
+    "GRIP++ (paper)": {
+        "ade_m": 1.61,
+        "fde_m": None,
+        "rmse_m": (0.38, 0.89, 1.45, 2.14, 2.94),
+        "params_k": 496,
+    },
+    "STA-LSTM (paper)": {
+        "ade_m": 1.89,
+        "fde_m": 3.16,
+        "rmse_m": (0.37, 0.98, 1.71, 2.63, 3.78),
+        "params_k": 125,
+    },
+    "DeepTrack (paper)": {
+        "ade_m": 2.01,
+        "fde_m": 3.25,
+        "rmse_m": (0.47, 1.08, 1.83, 2.75, 3.89),
+        "params_k": 109,
     },
     "GSTCN (paper)": {
         "ade_m": 1.52,
@@ -33,7 +46,22 @@ PAPER_TABLE = {
         "rmse_m": (0.44, 0.83, 1.33, 2.01, 2.98),
         "params_k": 49.8,
     },
+    "AiGem (paper)": {
+        "ade_m": 1.42,
+        "fde_m": 2.57,
+        "rmse_m": (0.61, 1.02, 1.27, 1.84, 1.95),
+        "params_k": 74.5,
+    },
 }
+# The paper's footnotes to its table, by row.
+PAPER_NOTES = {
+    "GRIP++ (paper)": "parameters not reported by GRIP++'s authors; the AiGem paper extracted "
+    "the number from their shared code",
+}
+PAPER_CITATION = (
+    "Samiuddin, Boulet, Wu: Trajectory Prediction for Autonomous Driving using Agent-Interaction "
+    "Graph Embedding, arXiv:2410.23298, Table 1"
+)
 
 
 def paper_rows() -> dict[str, dict[str, float | None]]:

@@ -27,6 +27,7 @@ from ngsim_cli.console import (
     stderr,
     stdout,
 )
+from ngsim_cli.paper import paper
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.schema import Split
 
@@ -421,6 +422,9 @@ def _draw(
     from aigem.pictures import write_evaluation_plots
 
     return write_evaluation_plots(result, folder, run, device)
+
+
+app.command(short_help="The paper's experiments: builds, fits, evaluations, report.")(paper)
 
 
 def main() -> None:

@@ -9,6 +9,18 @@ from aigem.results import PAPER_TABLE, paper_rows
 def test_paper_rows_hold_the_papers_numbers_in_the_keys_of_evaluates_rows() -> None:
     rows = paper_rows()
     assert list(rows) == list(PAPER_TABLE)
+    # every row of the paper's Table 1, in its order
+    assert [name.removesuffix(" (paper)") for name in rows] == [
+        "CS-LSTM",
+        "GRIP++",
+        "STA-LSTM",
+        "DeepTrack",
+        "GSTCN",
+        "AiGem",
+    ]
+    assert rows["GRIP++ (paper)"]["params_k"] == 496 and rows["GRIP++ (paper)"]["fde_m"] is None
+    assert rows["STA-LSTM (paper)"]["rmse_5s_m"] == 3.78
+    assert rows["DeepTrack (paper)"]["ade_m"] == 2.01
     assert rows["AiGem (paper)"] == {
         "ade_m": 1.42,
         "fde_m": 2.57,

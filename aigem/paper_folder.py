@@ -1,0 +1,219 @@
+"""The folder of `aigem paper` (aigem.paper): whether it is ours, the settings of its work
+(paper.json), and what an earlier call left that this one reuses: a finished build of the right
+config and inputs, each fit's kept epochs.
+
+paper.json is written first into a new or empty folder and names the work: the inputs (resolved
+paths and sizes), PaperConfig, the builds' config and the horizons. A folder that holds another
+program's files is never written into; one of ours with other settings only with `overwrite`,
+which discards the runs (only the files a fit writes) before paper.json is rewritten.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
+from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
+from ngsim_graphs.landing import json_object, some_names
+from ngsim_graphs.layout import manifest_path
+from ngsim_graphs.partial_files import leftover_partials, write_atomic
+
+HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
+PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
+BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
+WRITTEN_BY = "aigem paper"
+
+
+@dataclass(frozen=True)
+class PaperConfig:
+    """What defines the work (paper.json): a later call with other values is refused."""
+
+    epochs: int = 100  # the paper's
+    patience_epochs: int | None = None
+    seed: int = 0
+    batch_size: int = 32
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def build_name(d_min_m: float) -> str:
+    return f"dmin-{d_min_m:g}m"
+
+
+def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
+    """Every file under `raw_paths` (a file, or a folder searched; hidden names skipped), with
+    its resolved path and size: what a later call compares."""
+    files: set[Path] = set()
+    for raw in raw_paths:
+        path = raw.resolve()
+        if path.is_file():
+            files.add(path)
+        elif path.is_dir():
+            files.update(p for p in path.rglob("*") if p.is_file() and not p.name.startswith("."))
+        else:
+            raise NgsimInputError(raw, "no such file or folder")
+    return [{"path": str(p), "size_bytes": p.stat().st_size} for p in sorted(files)]
+
+
+def paper_document(raw_paths: Sequence[Path], config: PaperConfig) -> dict[str, Any]:
+    """paper.json: the marker that the folder is ours, and what defines its work."""
+    document = {
+        "written_by": WRITTEN_BY,
+        "inputs": list_inputs(raw_paths),
+        "config": config.to_dict(),
+        "build_config": BuildConfig().to_dict(),  # but d_min_m, set per build
+        "horizons_s": list(HORIZONS_S),
+    }
+    return json.loads(json.dumps(document))  # as a later call reads it back: lists, not tuples
+
+
+def differences(before: dict[str, Any], now: dict[str, Any]) -> list[str]:
+    """What differs between two paper.json documents, in words ("epochs 2 -> 100")."""
+    said = []
+    if before.get("inputs") != now["inputs"]:
+        old = {(f["path"], f["size_bytes"]) for f in before.get("inputs") or []}
+        new = {(f["path"], f["size_bytes"]) for f in now["inputs"]}
+        changed = sorted({p for p, _ in old ^ new})
+        said.append(f"inputs ({some_names(changed)})")
+    for key in ("config", "build_config"):
+        old, new = before.get(key) or {}, now[key]
+        said += [f"{k} {old.get(k)} -> {new[k]}" for k in new if old.get(k) != new[k]]
+    if before.get("horizons_s") != now["horizons_s"]:
+        said.append("horizons")
+    return said
+
+
+def _ours(document: dict[str, Any] | None) -> bool:
+    return document is not None and document.get("written_by") == WRITTEN_BY
+
+
+def check_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
+    """Refuse, writing nothing, an `out` that claim_folder must not take: a file, a folder that
+    is not empty and not ours, or ours with other settings (without `overwrite`), naming them."""
+    if out.exists() and not out.is_dir():
+        raise NgsimOutputError(out, "is a file, not a folder; choose another --out")
+    before = json_object(out / PAPER_JSON)
+    if not _ours(before):
+        if out.is_dir() and any(out.iterdir()):
+            raise NgsimOutputError(
+                out,
+                f"folder is not empty and was not written by `aigem paper` (no {PAPER_JSON} of "
+                "its own); choose a new or empty --out",
+            )
+        return
+    changed = differences(before, document)
+    if changed and not overwrite:
+        raise NgsimOutputError(
+            out,
+            f"holds `aigem paper`'s work with other settings ({'; '.join(changed)}); run it "
+            "with those to continue, or add --overwrite to start over with these",
+        )
+
+
+def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
+    """Make `out` ours for `document`'s work (check_folder first): new or empty, paper.json
+    written first; ours with the same settings, as it is; ours with others (`overwrite`), the
+    runs discarded, then paper.json rewritten. An earlier call's report.json and report.md go:
+    none is there until this call has finished."""
+    check_folder(out, document, overwrite)
+    marker = out / PAPER_JSON
+    before = json_object(marker)
+    if not _ours(before):
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(marker, _json_bytes(document))
+        return
+    for name in (REPORT_JSON, REPORT_MD):
+        (out / name).unlink(missing_ok=True)
+    if not differences(before, document):
+        return
+    for run_dir in sorted((out / RUNS).glob("dmin-*")):
+        discard_run(run_dir)
+    write_atomic(marker, _json_bytes(document))
+
+
+def _json_bytes(document: dict[str, Any]) -> bytes:
+    return (json.dumps(document, indent=2) + "\n").encode()
+
+
+def discard_run(run_dir: Path) -> None:
+    """Remove a multi-horizon run's files (only the names a fit writes) and the folders they
+    leave empty; anything else stays, and a later fit refuses the folder naming it."""
+    if not run_dir.is_dir() or run_dir.is_symlink():
+        return
+    for horizon_s in HORIZONS_S:
+        member = member_dir(run_dir, horizon_s)
+        if member.is_dir() and not member.is_symlink():
+            _remove_names(member, (*RUN_FILES, STARTED))
+    _remove_names(run_dir, (HORIZONS, STARTED))
+
+
+def _remove_names(folder: Path, names: Sequence[str]) -> None:
+    for path in leftover_partials(folder, names):
+        path.unlink(missing_ok=True)
+    for name in names:
+        path = folder / name
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+    if not any(folder.iterdir()):
+        folder.rmdir()
+
+
+def build_config(d_min_m: float) -> BuildConfig:
+    return BuildConfig(d_min_m=d_min_m)
+
+
+def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any]]) -> str | None:
+    """ "" for a finished build in `build_dir` to reuse (of `config`, its inputs among `inputs`
+    with their sizes); None where there is none (no manifest); else why it cannot be reused."""
+    from ngsim_graphs.build import open_build
+
+    if not manifest_path(build_dir).is_file():
+        return None
+    manifest = open_build(build_dir).manifest
+    if manifest.config != config:
+        ours, theirs = config.to_dict(), manifest.config.to_dict()
+        changed = [f"{k} {theirs.get(k)} -> {v}" for k, v in ours.items() if theirs.get(k) != v]
+        return f"is a build of another config ({'; '.join(changed)})"
+    sizes = {f["path"]: f["size_bytes"] for f in inputs}
+    stale = [
+        f.path for f in manifest.inputs if sizes.get(str(Path(f.path).resolve())) != f.size_bytes
+    ]
+    return f"was built from other inputs ({some_names(stale)})" if stale else ""
+
+
+def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], bool]:
+    """(epochs kept in its last.pt, their metrics rows, whether it has nothing left to train)."""
+    from aigem.runs import epochs_kept, read_metrics
+
+    kept = epochs_kept(member) if (member / LAST).is_file() else 0
+    rows = [row for row in read_metrics(member) if row["epoch"] <= kept] if kept else []
+    patience = config.patience_epochs
+    waited = rows[-1]["epoch"] - rows[-1]["best_epoch"] if rows else 0
+    done = kept >= config.epochs or (patience is not None and bool(rows) and waited >= patience)
+    return kept, rows, done
+
+
+def epochs_left(run_dir: Path, config: PaperConfig) -> int:
+    """Epochs a five-horizon fit still runs (0: every model is done): from the epoch of its
+    least advanced model still training (early stopping may end it sooner)."""
+    states = [_member_progress(member_dir(run_dir, h), config) for h in HORIZONS_S]
+    training = [kept for kept, _, done in states if not done]
+    return config.epochs - min(training) if training else 0
+
+
+def fit_record(run_dir: Path, config: PaperConfig) -> dict[str, dict[str, Any]]:
+    """Each model's course, from its kept epochs: epochs done, best epoch, why it stopped."""
+    record = {}
+    for horizon_s in HORIZONS_S:
+        member = member_dir(run_dir, horizon_s)
+        kept, rows, done = _member_progress(member, config)
+        stopped = "epochs" if kept >= config.epochs else "early stopping" if done else "time limit"
+        best = int(rows[-1]["best_epoch"]) if rows else None
+        record[member.name] = {"epochs_done": kept, "best_epoch": best, "stopped": stopped}
+    return record

@@ -1,0 +1,341 @@
+"""The report of `aigem paper`: its numbers as one JSON document (report.json), the same as
+Markdown (report.md), and the figures (aigem.report_plots), from the fits' evaluations on the
+test split and the paper's model's metrics logs.
+
+    table1    AiGem's RMSE at 1..5 s (each from its own horizon's model), ADE and FDE (the 5 s
+              model) and parameters; constant velocity on the same targets; the paper's Table 1
+    dmin      RMSE per horizon of the fits with the output concatenation, by d_min
+    concat    RMSE per horizon of the d_min 25 m fits with and without it
+    curves    train and validation RMSE per epoch of each horizon's model of the paper's fit
+              (the square root of the logged MSE, metres)
+    regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
+
+Where the builds are of synthetic data every table and figure says SYNTHETIC. The time each
+stage took is kept apart, under `timings` in report.json and the last section of report.md, so
+that two calls on the same inputs give the same report but for it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from aigem.metrics import FRONT_Y_M, REGIONS
+from aigem.results import PAPER_CITATION, PAPER_NOTES, HorizonsEvaluation, paper_rows
+from ngsim_graphs.partial_files import write_atomic
+from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
+
+SECONDS = (1, 2, 3, 4, 5)
+PAPER_D_MIN_M = 25.0
+TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
+FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")
+Fit = dict[str, Any]  # d_min_m, concat_position, models (each model's course)
+
+
+def rmse_series(evaluation: HorizonsEvaluation, region: str = "all") -> list[float | None]:
+    """RMSE (m) at 1..5 s, each from its own horizon's model (the paper's protocol)."""
+    return [evaluation.model[region].get(f"rmse_{s}s_m") for s in SECONDS]
+
+
+def _row(values: dict[str, Any], parameters: int | None = None) -> dict[str, Any]:
+    row = {key: values.get(key) for key in ("ade_m", "fde_m")}
+    row.update({f"rmse_{s}s_m": values.get(f"rmse_{s}s_m") for s in SECONDS})
+    if parameters is not None:
+        row["params_k"] = round(parameters / 1000, 1)
+    return row
+
+
+def table1(evaluation: HorizonsEvaluation) -> dict[str, Any]:
+    """Ours and constant velocity on the same targets, beside the paper's rows as published."""
+    return {
+        "ours": {
+            "AiGem (this run)": _row(evaluation.model["all"], evaluation.parameters),
+            "constant velocity": _row(evaluation.constant_velocity["all"]),
+        },
+        "targets": [evaluation.model["all"].get(f"n_{s}s") for s in SECONDS],
+        "published": paper_rows(),
+        "published_notes": PAPER_NOTES,
+        "published_source": PAPER_CITATION + " (NGSIM US-101 and I-80)",
+    }
+
+
+def curves(rows_by_model: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, list]]:
+    """Per model: its epochs, train and validation RMSE (sqrt of the logged MSE, m)."""
+    return {
+        name: {
+            "epoch": [int(row["epoch"]) for row in rows],
+            "train_rmse_m": [math.sqrt(row["train_loss_m2"]) for row in rows],
+            "val_rmse_m": [math.sqrt(row["val_loss_m2"]) for row in rows],
+            "best_epoch": int(rows[-1]["best_epoch"]) if rows else None,
+        }
+        for name, rows in rows_by_model.items()
+    }
+
+
+def regions(evaluation: HorizonsEvaluation) -> dict[str, Any]:
+    """RMSE at 1..5 s and the targets counted, by the actor's present position."""
+    return {
+        "front_y_m": FRONT_Y_M,
+        "rmse_m": {region: rmse_series(evaluation, region) for region in REGIONS[1:]},
+        "targets": {
+            region: [evaluation.model[region].get(f"n_{s}s") for s in SECONDS]
+            for region in REGIONS[1:]
+        },
+    }
+
+
+def paper_report(
+    settings: dict[str, Any],
+    parts: Sequence[str],
+    fits: dict[str, Fit],
+    evaluations: dict[str, HorizonsEvaluation],
+    curve_rows: dict[str, list[dict[str, Any]]],
+) -> dict[str, Any]:
+    """report.json's numbers (its figures and timings are added by write_report). `fits` and
+    `evaluations` by run name; the paper's fit is the one of d_min 25 m with the output
+    concatenation; `curve_rows`: its models' metrics rows, by model name."""
+    synthetic = any(e.synthetic for e in evaluations.values())
+    by_setting = {(f["d_min_m"], f["concat_position"]): name for name, f in fits.items()}
+    paper = evaluations.get(by_setting.get((PAPER_D_MIN_M, True), ""))
+    document: dict[str, Any] = {
+        "written_by": "aigem paper",
+        "synthetic": synthetic,
+        "data": SYNTHETIC_LABEL if synthetic else "the inputs' recordings",
+        "split": "test",
+        "parts": list(parts),
+        "settings": {"inputs": settings["inputs"], **settings["config"]},
+        "fits": {
+            name: {
+                **fit,
+                "test_samples": evaluations[name].samples,
+                "parameters": evaluations[name].parameters,
+            }
+            for name, fit in fits.items()
+        },
+    }
+    if "table" in parts and paper is not None:
+        document["table1"] = table1(paper)
+    if "dmin" in parts:
+        with_concat = sorted((d, n) for (d, concat), n in by_setting.items() if concat)
+        document["dmin"] = {f"{d:g}": rmse_series(evaluations[n]) for d, n in with_concat}
+    if "concat" in parts:
+        document["concat"] = {
+            ("with" if concat else "without"): rmse_series(evaluations[name])
+            for (d, concat), name in sorted(by_setting.items(), reverse=True)
+            if d == PAPER_D_MIN_M
+        }
+    if "curves" in parts:
+        document["curves"] = curves(curve_rows)
+    if "regions" in parts and paper is not None:
+        document["regions"] = regions(paper)
+    return document
+
+
+# ------------------------------------------------------------------------------------------------
+# report.md
+
+
+def _m(value: float | None) -> str:
+    return "–" if value is None else f"{value:.2f}"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def _rmse_header(first: str) -> list[str]:
+    return [first, *(f"RMSE {s} s (m)" for s in SECONDS)]
+
+
+def _mark(document: dict[str, Any]) -> str:
+    return " (SYNTHETIC)" if document["synthetic"] else ""
+
+
+def _table1_lines(document: dict[str, Any]) -> list[str]:
+    part = document["table1"]
+    header = ["model", "ADE (m)", "FDE (m)", *(f"RMSE {s} s (m)" for s in SECONDS), "params (K)"]
+    header.append("numbers")
+    ours = "this call" + (", SYNTHETIC data" if document["synthetic"] else "")
+    rows = []
+    for source, table in ((ours, part["ours"]), ("published, NGSIM", part["published"])):
+        for name, row in table.items():
+            params = row.get("params_k")
+            rows.append(
+                [
+                    name,
+                    _m(row["ade_m"]),
+                    _m(row["fde_m"]),
+                    *(_m(row[f"rmse_{s}s_m"]) for s in SECONDS),
+                    "–" if params is None else f"{params:g}",
+                    source,
+                ]
+            )
+    notes = [f"- {name}: {note}." for name, note in part["published_notes"].items()]
+    return [
+        f"## Table 1: AiGem beside constant velocity and the published models{_mark(document)}",
+        "",
+        *_table(header, rows),
+        "",
+        "AiGem's RMSE at h s comes from the model trained for h s, its ADE and FDE from the 5 s "
+        "model (the paper's protocol); constant velocity is scored on the same targets. Targets "
+        "at 1..5 s: " + ", ".join(f"{n:,}" for n in part["targets"] if n is not None) + ".",
+        f"Published rows: {part['published_source']}.",
+        *notes,
+        "",
+        "![Table 1 as a figure](figures/table1.png)",
+        "",
+    ]
+
+
+def _series_lines(
+    document: dict[str, Any], key: str, title: str, first: str, name: str
+) -> list[str]:
+    rows = [[label, *map(_m, values)] for label, values in document[key].items()]
+    return [
+        f"## {title}{_mark(document)}",
+        "",
+        *_table(_rmse_header(first), rows),
+        "",
+        f"![{title}](figures/{name}.png)",
+        "",
+    ]
+
+
+def _curves_lines(document: dict[str, Any]) -> list[str]:
+    rows = []
+    for name, curve in document["curves"].items():
+        best = curve["best_epoch"]
+        at = curve["epoch"].index(best) if best in curve["epoch"] else None
+        rows.append(
+            [
+                name,
+                str(len(curve["epoch"])),
+                "–" if best is None else str(best),
+                "–" if at is None else _m(curve["train_rmse_m"][at]),
+                "–" if at is None else _m(curve["val_rmse_m"][at]),
+            ]
+        )
+    header = ["model", "epochs", "best epoch", "train RMSE (m)", "validation RMSE (m)"]
+    return [
+        f"## Training curves of the paper's model (d_min 25 m){_mark(document)}",
+        "",
+        *_table(header, rows),
+        "",
+        "RMSE here is the square root of the logged MSE over the valid future steps; the best "
+        "epoch (lowest validation loss) is the model kept.",
+        "",
+        "![Training curves](figures/curves.png)",
+        "",
+    ]
+
+
+def _regions_lines(document: dict[str, Any]) -> list[str]:
+    part = document["regions"]
+    y = f"{part['front_y_m']:g}"
+    words = {
+        "front": f"front (y > {y} m)",
+        "mid": f"mid (-{y} m ≤ y ≤ {y} m)",
+        "rear": f"rear (y < -{y} m)",
+    }
+    rows = [
+        [words[region], *map(_m, values), f"{(part['targets'][region][-1] or 0):,}"]
+        for region, values in part["rmse_m"].items()
+    ]
+    return [
+        f"## Front / mid / rear: RMSE by the actor's present position{_mark(document)}",
+        "",
+        *_table([*_rmse_header("region"), "targets at 5 s"], rows),
+        "",
+        "![RMSE by region](figures/regions.png)",
+        "",
+    ]
+
+
+def _courses(models: dict[str, dict[str, Any]]) -> str:
+    """Each model's epochs and best epoch, and why they stopped (once where alike)."""
+    stops = {m["stopped"] for m in models.values()}
+    each = "; ".join(
+        f"{name}: {m['epochs_done']} (best {m['best_epoch']}"
+        + ("" if len(stops) == 1 else f", {m['stopped']}")
+        + ")"
+        for name, m in models.items()
+    )
+    return f"{each}; stopped by {stops.pop()}" if len(stops) == 1 else each
+
+
+def _fits_lines(document: dict[str, Any]) -> list[str]:
+    rows = [
+        [
+            name,
+            f"{fit['d_min_m']:g}",
+            "yes" if fit["concat_position"] else "no",
+            f"{fit['test_samples']:,}",
+            _courses(fit["models"]),
+        ]
+        for name, fit in document["fits"].items()
+    ]
+    header = ["run", "d_min (m)", "concatenation", "test samples", "epochs of each model"]
+    return ["## Runs", "", *_table(header, rows), ""]
+
+
+def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
+    """report.md: the report's tables, its figures, and the time each stage took (last)."""
+    settings = document["settings"]
+    patience = settings["patience_epochs"]
+    size = sum(f["size_bytes"] for f in settings["inputs"])
+    lines = [
+        f"# AiGem: the paper's experiments{_mark(document)}",
+        "",
+        (
+            f"**SYNTHETIC**: every number of this call comes from {document['data']}; only the "
+            "rows marked published are NGSIM results."
+            if document["synthetic"]
+            else f"Every number of this call comes from {document['data']}."
+        ),
+        "",
+        f"Inputs: {len(settings['inputs'])} files, {size:,} bytes. Training: up to "
+        f"{settings['epochs']} epochs, batch {settings['batch_size']}, seed {settings['seed']}, "
+        f"patience {'none' if patience is None else patience}. Scored on the "
+        f"{document['split']} split.",
+        "",
+    ]
+    if "table1" in document:
+        lines += _table1_lines(document)
+    if "dmin" in document:
+        lines += _series_lines(document, "dmin", "d_min ablation", "d_min (m)", "dmin")
+    if "concat" in document:
+        title = "Output concatenation ablation (d_min 25 m)"
+        lines += _series_lines(document, "concat", title, "previous position at the MLP", "concat")
+    if "curves" in document:
+        lines += _curves_lines(document)
+    if "regions" in document:
+        lines += _regions_lines(document)
+    lines += _fits_lines(document)
+    lines += [TIME_HEADING, "", *(f"- {stage}: {s:,.1f} s" for stage, s in timings.items()), ""]
+    return "\n".join(lines)
+
+
+def write_report(out: Path, document: dict[str, Any], timings: dict[str, float]) -> dict[str, Any]:
+    """The figures into out/figures (those of earlier calls that this one does not draw go),
+    report.md, and report.json last of all: its presence says the call finished. Each file is
+    written aside and renamed. Returns report.json's document."""
+    from aigem.report_plots import report_figures
+
+    folder = out / "figures"
+    folder.mkdir(exist_ok=True)
+    figures = report_figures(document)
+    for name in FIGURE_NAMES:
+        path = folder / f"{name}.png"
+        if name in figures:
+            write_atomic(path, figures[name])
+        elif path.is_file() and not path.is_symlink():
+            path.unlink()
+    document = {**document, "figures": [f"figures/{name}.png" for name in figures]}
+    write_atomic(out / "report.md", report_markdown(document, timings).encode())
+    finished = {**document, "timings": timings}
+    write_atomic(out / "report.json", (json.dumps(finished, indent=2) + "\n").encode())
+    return finished

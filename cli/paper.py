@@ -1,0 +1,162 @@
+"""`aigem paper`: the paper's experimental section in one command (aigem.paper does the work)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from aigem.config import DeviceChoice
+from ngsim_cli.console import (
+    exit_on_error,
+    exit_on_interrupt,
+    print_error,
+    print_warning,
+    progress_bar,
+    stdout,
+    usage_error,
+)
+
+PARTS_HELP = "table,dmin,concat,curves,regions"
+
+
+def paper(
+    raw_paths: Annotated[
+        list[Path],
+        # Said in the docstring: typer would show its type as "<list[Path]>".
+        typer.Argument(metavar="RAW_PATH", hidden=True),
+    ],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Folder of the whole work: new or empty, or one an earlier call with the same "
+            "settings left (it continues).",
+        ),
+    ],
+    epochs: Annotated[
+        int, typer.Option(min=1, help="Epochs of each model (the paper's: 100).")
+    ] = 100,
+    patience: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="Stop a model after this many epochs without a better validation loss."
+        ),
+    ] = None,
+    batch_size: Annotated[int, typer.Option(min=1, help="Graphs (samples) per batch.")] = 32,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the initialisation, shuffling and dropout.")
+    ] = 0,
+    only: Annotated[
+        str,
+        typer.Option(
+            metavar="PART[,PART...]",
+            help="The parts of the report, and so the builds and fits they need: table, curves "
+            "and regions the paper's model (d_min 25 m); dmin also the fits of d_min 0 and 50 m; "
+            "concat also the d_min 25 m fit without the output concatenation.",
+        ),
+    ] = PARTS_HELP,
+    max_hours: Annotated[
+        float | None,
+        typer.Option(
+            help="Time for the whole command: each fit still to train gets an equal share of what "
+            "is left; a fit stopped by it resumes when the command is run again."
+        ),
+    ] = None,
+    device: Annotated[
+        DeviceChoice, typer.Option(help="auto (CUDA when present), cpu or cuda.")
+    ] = DeviceChoice.AUTO,
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="CPU threads of the model step and the evaluations (default: the idle cores, as "
+            "`aigem fit`); a number gives bit-reproducible results.",
+        ),
+    ] = None,
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Worker processes of the builds (default: one per core this process may use).",
+            show_default=False,
+        ),
+    ] = None,
+    overwrite: Annotated[
+        bool,
+        typer.Option(
+            "--overwrite",
+            help="Start over in an --out that an earlier call with other settings left (its runs "
+            "go, and the builds whose config or inputs differ); never a folder not of `aigem paper`.",
+        ),
+    ] = False,
+) -> None:
+    """Run the paper's experiments on RAW_PATH... (NGSIM files, or folders to search for them):
+    3 builds (d_min 0, 25, 50 m), 4 fits of 5 models each (1..5 s;
+    d_min 25 m with and without the output concatenation, d_min 0 and 50 m), their evaluations
+    on the test split, and OUT/report.md, OUT/report.json and OUT/figures/: Table 1 beside the
+    published rows, the d_min and concatenation ablations, the training curves and front / mid /
+    rear. Every table and figure says SYNTHETIC where the inputs came from `ngsim-graphs synth`.
+
+    Time: about 5 minutes with --epochs 2 on the README's demo input (2 recordings of 2 minutes)
+    on 2 CPU cores; the real NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).
+
+    Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
+    """
+    from aigem.paper import parse_parts  # light: no PyTorch yet
+    from aigem.paper_folder import PaperConfig, check_folder, paper_document
+
+    try:
+        parts = parse_parts(only)
+    except ValueError as err:
+        raise usage_error(f"--only {only}: {err}") from None
+    if max_hours is not None and not max_hours > 0:
+        raise usage_error(f"--max-hours {max_hours:g}: must be > 0")
+    config = PaperConfig(epochs, patience, seed, batch_size)
+    with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
+        check_folder(out, paper_document(raw_paths, config), overwrite)
+    left = (
+        f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
+        "run the same command again to continue"
+    )
+    with exit_on_interrupt(left):  # PyTorch loads (seconds)
+        from aigem.cores import busy_cores_warning
+        from aigem.devices import DeviceUnavailableError, pick_device
+        from aigem.epochs import NonFiniteLossError
+        from aigem.paper import PaperCall, run_paper
+        from ngsim_graphs.budget import available_cores
+    try:
+        pick_device(device.value)
+    except DeviceUnavailableError as err:
+        print_error(str(err))
+        raise typer.Exit(1) from None
+    if threads is not None and (warning := busy_cores_warning(threads)):
+        print_warning(warning)
+    call = PaperCall(parts, device.value, threads, max_hours, jobs or available_cores(), overwrite)
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
+        try:
+            result = run_paper(raw_paths, out, config, call, progress)
+        except (NonFiniteLossError, DeviceUnavailableError) as err:
+            print_error(str(err))
+            raise typer.Exit(1) from None
+    _print_summary(result.report, out)
+
+
+def _print_summary(report: dict, out: Path) -> None:
+    """Where the report is, and the paper's model's RMSE beside the paper's."""
+    kind = (
+        " (SYNTHETIC data: not comparable to the paper's NGSIM numbers)"
+        if report["synthetic"]
+        else ""
+    )
+    if "table1" in report:
+        ours = report["table1"]["ours"]["AiGem (this run)"]
+        paper = report["table1"]["published"]["AiGem (paper)"]
+        shown = lambda row: ", ".join(  # noqa: E731
+            "-" if row[f"rmse_{s}s_m"] is None else f"{row[f'rmse_{s}s_m']:.2f}"
+            for s in range(1, 6)
+        )
+        stdout.print(f"AiGem RMSE at 1..5 s (m): {shown(ours)}{kind}; the paper: {shown(paper)}")
+    figures = ", ".join(Path(name).name for name in report.get("figures", []))
+    stdout.print(f"Report: {out / 'report.md'} and {out / 'report.json'}; figures: {figures}")

@@ -1,0 +1,251 @@
+"""`aigem paper`: the plan of each --only, the folder (ours or not, its settings), and the whole
+command on a tiny input, uninterrupted and killed half-way then run again: the same report."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from aigem.paper import PARTS, fit_minutes, parse_parts, plan_builds, plan_fits
+from aigem.paper_folder import (
+    PAPER_JSON,
+    REPORT_JSON,
+    PaperConfig,
+    build_state,
+    claim_folder,
+    differences,
+    discard_run,
+    list_inputs,
+    paper_document,
+)
+from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
+from ngsim_cli.aigem import app
+from ngsim_graphs.build import open_build
+from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.synth.formats import write_synthetic
+
+
+@pytest.mark.parametrize(
+    ("only", "fits", "builds"),
+    [
+        ("table", ["dmin-25m"], [25.0]),
+        ("curves,regions", ["dmin-25m"], [25.0]),
+        ("concat", ["dmin-25m", "dmin-25m-no-concat"], [25.0]),
+        ("dmin", ["dmin-25m", "dmin-0m", "dmin-50m"], [0.0, 25.0, 50.0]),
+        (
+            ",".join(PARTS),
+            ["dmin-25m", "dmin-25m-no-concat", "dmin-0m", "dmin-50m"],
+            [0.0, 25.0, 50.0],
+        ),
+    ],
+)
+def test_each_part_selects_the_builds_and_fits_it_needs(
+    only: str, fits: list[str], builds: list[float]
+) -> None:
+    parts = parse_parts(only)
+    assert [plan.name for plan in plan_fits(parts)] == fits
+    assert list(plan_builds(parts)) == builds
+
+
+def test_the_fits_are_the_papers_settings() -> None:
+    plans = {plan.name: plan for plan in plan_fits(PARTS)}
+    assert (plans["dmin-25m"].d_min_m, plans["dmin-25m"].concat_position) == (25.0, True)
+    assert not plans["dmin-25m-no-concat"].concat_position
+    assert plans["dmin-0m"].build_name == "dmin-0m" and plans["dmin-50m"].d_min_m == 50.0
+
+
+def test_each_fit_gets_an_equal_share_of_the_time_left() -> None:
+    assert fit_minutes(math.inf, 4) is None  # no --max-hours
+    assert fit_minutes(3600.0, 4) == 15.0  # an hour left, four fits to train
+    assert fit_minutes(600.0, 1) == 10.0
+    assert fit_minutes(-5.0, 2) == 1 / 60  # the time is out: one step and validation each
+
+
+def test_parts_are_kept_in_the_reports_order_and_unknown_ones_refused() -> None:
+    assert parse_parts(" Regions,table ") == ("table", "regions")
+    with pytest.raises(ValueError, match="tabel: not a part of the report"):
+        parse_parts("tabel,dmin")
+    with pytest.raises(ValueError, match="none given"):
+        parse_parts(",")
+
+
+@pytest.fixture
+def raw(tmp_path: Path) -> Path:
+    folder = tmp_path / "raw"
+    folder.mkdir()
+    (folder / "a.txt").write_text("rows")
+    return folder
+
+
+def test_a_new_folder_gets_paper_json_first_and_the_same_settings_continue(
+    tmp_path: Path, raw: Path
+) -> None:
+    out = tmp_path / "out"
+    document = paper_document([raw], PaperConfig(epochs=2))
+    claim_folder(out, document, overwrite=False)
+    on_disk = json.loads((out / PAPER_JSON).read_text())
+    assert on_disk["config"]["epochs"] == 2 and on_disk["written_by"] == "aigem paper"
+    assert on_disk["inputs"] == [{"path": str((raw / "a.txt").resolve()), "size_bytes": 4}]
+    (out / REPORT_JSON).write_text("{}")
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False)
+    assert not (out / REPORT_JSON).exists()  # none until this call has finished
+
+
+def test_other_settings_are_refused_naming_them_and_the_earlier_report_stays(
+    tmp_path: Path, raw: Path
+) -> None:
+    out = tmp_path / "out"
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False)
+    (out / REPORT_JSON).write_text("{}")
+    (raw / "a.txt").write_text("more rows")
+    later = paper_document([raw], PaperConfig(epochs=3, seed=1))
+    with pytest.raises(NgsimOutputError) as caught:
+        claim_folder(out, later, overwrite=False)
+    message = str(caught.value)
+    assert "epochs 2 -> 3" in message and "seed 0 -> 1" in message and "a.txt" in message
+    assert "--overwrite" in message and "\n" not in message
+    assert (out / REPORT_JSON).exists()
+    assert differences(json.loads((out / PAPER_JSON).read_text()), later) == [
+        f"inputs ({(raw / 'a.txt').resolve()})",
+        "epochs 2 -> 3",
+        "seed 0 -> 1",
+    ]
+
+
+def fake_run(run_dir: Path) -> None:
+    """The names a five-horizon fit writes (their content does not matter here)."""
+    run_dir.mkdir(parents=True)
+    (run_dir / HORIZONS).write_text("{}")
+    for s in range(1, 6):
+        member = run_dir / f"h{s}s"
+        member.mkdir()
+        for name in (LAST, METRICS, ".last.pt.partial-0123456789abcdef"):
+            (member / name).write_text("x")
+        (member / STARTED).write_bytes(STARTED_LINE)
+
+
+def test_overwrite_discards_the_runs_files_and_nothing_else(tmp_path: Path, raw: Path) -> None:
+    out = tmp_path / "out"
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False)
+    fake_run(out / "runs" / "dmin-25m")
+    fake_run(out / "runs" / "dmin-0m")
+    (out / "runs" / "dmin-0m" / "h3s" / "notes.txt").write_text("a user's")
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=3)), overwrite=True)
+    assert not (out / "runs" / "dmin-25m").exists()
+    left = sorted(p.relative_to(out).as_posix() for p in (out / "runs").rglob("*"))
+    assert left == ["runs/dmin-0m", "runs/dmin-0m/h3s", "runs/dmin-0m/h3s/notes.txt"]
+    assert json.loads((out / PAPER_JSON).read_text())["config"]["epochs"] == 3
+    discard_run(out / "runs" / "missing")  # nothing there: nothing to do
+
+
+def test_a_folder_not_of_aigem_paper_is_refused_unless_empty(tmp_path: Path, raw: Path) -> None:
+    document = paper_document([raw], PaperConfig())
+    (tmp_path / "empty").mkdir()
+    claim_folder(tmp_path / "empty", document, overwrite=False)
+    assert (tmp_path / "empty" / PAPER_JSON).is_file()
+    (tmp_path / "theirs").mkdir()
+    (tmp_path / "theirs" / "thesis.tex").write_text("mine")
+    for overwrite in (False, True):
+        with pytest.raises(NgsimOutputError, match="not written by `aigem paper`"):
+            claim_folder(tmp_path / "theirs", document, overwrite)
+    assert sorted(p.name for p in (tmp_path / "theirs").iterdir()) == ["thesis.tex"]
+
+
+def test_the_command_refuses_a_foreign_folder_and_a_bad_part_in_one_line(
+    tmp_path: Path, raw: Path
+) -> None:
+    (tmp_path / "theirs").mkdir()
+    (tmp_path / "theirs" / "x").write_text("")
+    runner = CliRunner()
+    result = runner.invoke(app, ["paper", str(raw), "--out", str(tmp_path / "theirs")])
+    assert result.exit_code == 1, result.output
+    assert result.output.count("\n") == 1 and "not written by `aigem paper`" in result.output
+    result = runner.invoke(app, ["paper", str(raw), "--out", str(tmp_path / "o"), "--only", "x"])
+    assert result.exit_code == 2 and "--only x: x: not a part of the report" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_build_is_reused_only_with_its_config_and_inputs(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    manifest = open_build(tiny_build).manifest
+    raw = [Path(f.path).parent for f in manifest.inputs]
+    inputs = list_inputs(raw)
+    assert build_state(tiny_build, manifest.config, inputs) == ""  # reuse
+    other = build_state(tiny_build, BuildConfig(d_sense_m=12.0, d_min_m=25.0), inputs)
+    assert other == "is a build of another config (d_min_m 6.0 -> 25.0)"
+    grown = [{**f, "size_bytes": f["size_bytes"] + 1} for f in inputs]
+    assert build_state(tiny_build, manifest.config, grown).startswith("was built from other inputs")
+    assert build_state(tmp_path, manifest.config, inputs) is None  # no build there
+
+
+# ------------------------------------------------------------------------------------------------
+# The whole command, killed half-way and run again
+
+PROGRAM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
+
+
+@pytest.fixture(scope="module")
+def tiny_raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One recording of 24 s: some 200 train samples, a fit of a few seconds."""
+    folder = tmp_path_factory.mktemp("paper") / "raw"
+    write_synthetic(folder, SynthConfig(recordings=1, minutes=0.4, seed=5))
+    return folder
+
+
+def paper_command(raw: Path, out: Path) -> list[str]:
+    options = ["--epochs", "1", "--batch-size", "64", "--threads", "1", "--jobs", "1"]
+    return [sys.executable, "-c", PROGRAM, "paper", str(raw), "--out", str(out), *options]
+
+
+def comparable(out: Path) -> tuple[dict, str]:
+    """report.json without its timings, report.md without its last section (the time taken)."""
+    document = json.loads((out / "report.json").read_text())
+    del document["timings"]
+    text = (out / "report.md").read_text()
+    return document, text[: text.index("## Time taken")]
+
+
+def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
+    tiny_raw: Path, tmp_path: Path
+) -> None:
+    whole = tmp_path / "whole"
+    done = subprocess.run(paper_command(tiny_raw, whole), capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    killed = tmp_path / "killed"
+    program = subprocess.Popen(
+        paper_command(tiny_raw, killed),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    second_fit = killed / "runs" / "dmin-25m-no-concat"
+    deadline = time.monotonic() + 300
+    while not second_fit.exists():  # the first fit is finished, the second has started
+        assert program.poll() is None, program.stderr.read()
+        assert time.monotonic() < deadline, "the second fit never started"
+        time.sleep(0.01)
+    os.killpg(program.pid, signal.SIGINT)
+    _, stderr = program.communicate(timeout=120)
+    assert program.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1].startswith(f"interrupted; {killed} keeps")
+    assert "Traceback" not in stderr
+    assert not (killed / "report.json").exists() and not (killed / "report.md").exists()
+    again = subprocess.run(paper_command(tiny_raw, killed), capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    assert comparable(killed) == comparable(whole)
+    timings = json.loads((killed / "report.json").read_text())["timings"]
+    assert "fit dmin-25m" not in timings and "fit dmin-25m-no-concat" in timings  # reused
+    figures = sorted(p.name for p in (killed / "figures").iterdir())
+    assert figures == ["concat.png", "curves.png", "dmin.png", "regions.png", "table1.png"]

@@ -1,0 +1,163 @@
+"""`aigem paper`'s report from hand-made evaluations: which number lands where, SYNTHETIC on
+every table and figure of synthetic data, the timings apart, report.json written last."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from aigem.report import TIME_HEADING, paper_report, report_markdown, write_report
+from aigem.results import HorizonsEvaluation, paper_rows
+
+SETTINGS = {
+    "inputs": [{"path": "/data/a.txt", "size_bytes": 1000}],
+    "config": {"epochs": 3, "patience_epochs": None, "seed": 0, "batch_size": 32},
+}
+MODELS = {f"h{s}s": {"epochs_done": 3, "best_epoch": 2, "stopped": "epochs"} for s in range(1, 6)}
+
+
+def rows(rmse: list[float], ade: float, fde: float, n: int = 10) -> dict[str, float]:
+    row = {"ade_m": ade, "fde_m": fde}
+    for s, value in enumerate(rmse, start=1):
+        row[f"rmse_{s}s_m"] = value
+        row[f"n_{s}s"] = n
+    return row
+
+
+def evaluation(base: float, synthetic: bool = True) -> HorizonsEvaluation:
+    """RMSE base + s at s seconds overall, base + s + 0.1/0.2/0.3 front/mid/rear; constant
+    velocity's 10 times base + s; ADE base, FDE 2 * base."""
+    rmse = [base + s for s in range(1, 6)]
+    model = {"all": rows(rmse, base, 2 * base, n=12)}
+    for shift, region in ((0.1, "front"), (0.2, "mid"), (0.3, "rear")):
+        model[region] = rows([v + shift for v in rmse], base, 2 * base, n=4)
+    cv = {"all": rows([10 * v for v in rmse], 10 * base, 20 * base, n=12)}
+    return HorizonsEvaluation(
+        split="test",
+        horizons_s=(1.0, 2.0, 3.0, 4.0, 5.0),
+        samples=7,
+        parameters=74_242,
+        model=model,
+        constant_velocity=cv,
+        sources={},
+        members={},
+        build_dir="/somewhere/builds/dmin-25m",
+        same_build=True,
+        synthetic=synthetic,
+        protocol="aigem",
+        protocol_description="",
+    )
+
+
+FITS = {
+    "dmin-25m": {"d_min_m": 25.0, "concat_position": True, "models": MODELS},
+    "dmin-25m-no-concat": {"d_min_m": 25.0, "concat_position": False, "models": MODELS},
+    "dmin-0m": {"d_min_m": 0.0, "concat_position": True, "models": MODELS},
+    "dmin-50m": {"d_min_m": 50.0, "concat_position": True, "models": MODELS},
+}
+BASES = {"dmin-25m": 1.0, "dmin-25m-no-concat": 2.0, "dmin-0m": 3.0, "dmin-50m": 4.0}
+CURVE_ROWS = {
+    "h1s": [
+        {"epoch": 1, "train_loss_m2": 4.0, "val_loss_m2": 9.0, "best_epoch": 1, "train_seconds": 5},
+        {"epoch": 2, "train_loss_m2": 1.0, "val_loss_m2": 16.0, "best_epoch": 1},
+    ]
+}
+PARTS = ("table", "dmin", "concat", "curves", "regions")
+
+
+def report(synthetic: bool = True, parts: tuple[str, ...] = PARTS) -> dict:
+    evaluations = {name: evaluation(base, synthetic) for name, base in BASES.items()}
+    return paper_report(SETTINGS, parts, FITS, evaluations, CURVE_ROWS)
+
+
+def test_table1_holds_the_paper_fits_numbers_constant_velocity_and_every_published_row() -> None:
+    table = report()["table1"]
+    assert table["ours"]["AiGem (this run)"] == {
+        "ade_m": 1.0,
+        "fde_m": 2.0,
+        **{f"rmse_{s}s_m": 1.0 + s for s in range(1, 6)},
+        "params_k": 74.2,
+    }
+    assert table["ours"]["constant velocity"]["rmse_5s_m"] == 60.0
+    assert table["ours"]["constant velocity"]["ade_m"] == 10.0
+    assert table["targets"] == [12] * 5
+    assert table["published"] == paper_rows()
+    names = list(table["published"])
+    assert names == [
+        "CS-LSTM (paper)",
+        "GRIP++ (paper)",
+        "STA-LSTM (paper)",
+        "DeepTrack (paper)",
+        "GSTCN (paper)",
+        "AiGem (paper)",
+    ]
+    assert table["published"]["STA-LSTM (paper)"]["rmse_1s_m"] == 0.37
+    assert "GRIP++ (paper)" in table["published_notes"]
+
+
+def test_the_ablations_are_told_by_each_fits_settings() -> None:
+    document = report()
+    assert document["dmin"] == {
+        "0": [4.0, 5.0, 6.0, 7.0, 8.0],
+        "25": [2.0, 3.0, 4.0, 5.0, 6.0],
+        "50": [5.0, 6.0, 7.0, 8.0, 9.0],
+    }
+    assert document["concat"] == {
+        "with": [2.0, 3.0, 4.0, 5.0, 6.0],
+        "without": [3.0, 4.0, 5.0, 6.0, 7.0],
+    }
+    assert document["regions"]["rmse_m"]["front"] == pytest.approx([2.1, 3.1, 4.1, 5.1, 6.1])
+    assert document["regions"]["rmse_m"]["rear"] == pytest.approx([2.3, 3.3, 4.3, 5.3, 6.3])
+    assert document["regions"]["targets"]["mid"] == [4] * 5
+    assert document["fits"]["dmin-0m"]["test_samples"] == 7
+
+
+def test_curves_are_the_square_root_of_the_logged_mse() -> None:
+    curve = report()["curves"]["h1s"]
+    assert curve == {
+        "epoch": [1, 2],
+        "train_rmse_m": [2.0, 1.0],
+        "val_rmse_m": [3.0, 4.0],
+        "best_epoch": 1,
+    }
+
+
+def test_only_the_parts_asked_for_are_reported() -> None:
+    document = report(parts=("concat",))
+    assert "concat" in document and not {"table1", "dmin", "curves", "regions"} & set(document)
+
+
+def test_markdown_says_synthetic_on_every_table_and_keeps_the_time_last() -> None:
+    text = report_markdown(report(), {"builds": 1.25, "total": 9.0})
+    headings = [line for line in text.splitlines() if line.startswith("## ")]
+    parts = [h for h in headings if h not in ("## Runs", TIME_HEADING)]
+    assert len(parts) == 5 and all(h.endswith("(SYNTHETIC)") for h in parts)
+    assert text.splitlines()[0].endswith("(SYNTHETIC)")
+    assert headings[-1] == TIME_HEADING and text.rstrip().endswith("- total: 9.0 s")
+    assert "| AiGem (this run) | 1.00 | 2.00 | 2.00 | 3.00 | 4.00 | 5.00 | 6.00 | 74.2 |" in text
+    assert "| GRIP++ (paper) | 1.61 | – | 0.38 |" in text  # no FDE published
+    assert "| 0 | 4.00 | 5.00 | 6.00 | 7.00 | 8.00 |" in text
+    assert "| h1s | 2 | 1 | 2.00 | 3.00 |" in text  # the best epoch's RMSE
+    plain = report_markdown(report(synthetic=False), {})
+    assert "SYNTHETIC" not in plain
+
+
+def test_write_report_writes_the_figures_and_report_json_last_with_the_timings(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "figures").mkdir()
+    (tmp_path / "figures" / "curves.png").write_bytes(b"an earlier call's")
+    written = write_report(tmp_path, report(parts=("table", "dmin")), {"total": 2.5})
+    figures = sorted(p.name for p in (tmp_path / "figures").iterdir())
+    assert figures == ["dmin.png", "table1.png"]  # curves.png: of a part this call did not draw
+    assert all((tmp_path / "figures" / f).read_bytes()[:4] == b"\x89PNG" for f in figures)
+    on_disk = json.loads((tmp_path / "report.json").read_text())
+    assert on_disk == written and on_disk["timings"] == {"total": 2.5}
+    assert on_disk["figures"] == ["figures/table1.png", "figures/dmin.png"]
+    assert (tmp_path / "report.json").stat().st_mtime_ns >= (
+        tmp_path / "report.md"
+    ).stat().st_mtime_ns
+    assert math.isclose(on_disk["table1"]["ours"]["AiGem (this run)"]["rmse_1s_m"], 2.0)
