@@ -43,7 +43,6 @@ from aigem.paper_folder import (
     paper_document,
 )
 from aigem.records import LAST, member_dir, read_horizons
-from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
@@ -127,40 +126,14 @@ class PaperResult:
     timings_s: dict[str, float] = field(default_factory=dict)
 
 
-def _run_builds(
-    raw_paths: list[Path],
-    targets: Sequence[tuple[Path, BuildConfig]],
-    overwrite: bool = False,
-    progress: Progress | None = None,
-    strict: bool = False,
-    dataset: str | None = None,
-    jobs: int = 1,
-) -> list[Any]:
-    """Each target built by `pipeline.run_build`, one after the other (the raw files read once per
-    target); the signature of `pipeline.run_builds`, which reads and cleans them once."""
-    from ngsim_graphs.pipeline import run_build
-
-    results = []
-    for out_dir, config in targets:
-        report = _prefixed(progress, f"d_min {config.d_min_m:g} m: ")
-        results.append(
-            run_build(raw_paths, out_dir, config, overwrite, report, strict, dataset, jobs)
-        )
-    return results
-
-
-def _prefixed(progress: Progress | None, words: str) -> Progress | None:
-    if progress is None:
-        return None
-    return lambda what, done, total: progress(words + what, done, total)
-
-
 def _builds(
     raw_paths: list[Path], out: Path, inputs: list[dict[str, Any]], call: PaperCall, show: Progress
 ) -> dict[float, Path]:
     """The builds the parts need: each reused where finished and of the right config and
     inputs, else built (one with another config or inputs only with --overwrite, which
-    discards the runs trained on it)."""
+    discards the runs trained on it). The raw files are read and cleaned once for all of them."""
+    from ngsim_graphs.pipeline import run_builds
+
     targets, replace_them = [], False
     builds = {d: out / BUILDS / build_name(d) for d in plan_builds(call.parts)}
     for d_min_m, build_dir in builds.items():
@@ -179,7 +152,7 @@ def _builds(
         (out / BUILDS).mkdir(exist_ok=True)
         show(f"building {len(targets)} of {len(builds)} builds", 0, 0)
         building = lambda what, done, total: show(f"building {what}", done, total)
-        _run_builds(list(raw_paths), targets, replace_them, building, jobs=call.jobs)
+        run_builds(list(raw_paths), targets, replace_them, building, jobs=call.jobs)
     return builds
 
 
