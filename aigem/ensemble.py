@@ -92,11 +92,10 @@ class Ensemble:
         if sorted(self.names) != sorted(params):
             raise ValueError("the stacked parameters are not AiGem's")
         device = next(iter(params.values())).device
-        if streams is None:
+        if streams is None:  # the global generator's state, for every member
             cuda = device.type == "cuda"
-            streams = [torch.cuda.get_rng_state(device) if cuda else torch.get_rng_state()] * len(
-                steps
-            )
+            state = torch.cuda.get_rng_state(device) if cuda else torch.get_rng_state()
+            streams = [state] * len(steps)
         self._set_streams(streams, device)
         arange = torch.arange(max(steps), device=device)
         scored = arange < torch.tensor(steps, device=device).unsqueeze(1)  # (M, K)
