@@ -187,3 +187,22 @@ def test_members_that_differ_are_refused() -> None:
             optimizer.step()
     with pytest.raises(ValueError, match="differ in 'step'"):
         ensemble.stack_optimizer(ensemble.stack(models, (5, 5)), optimizers)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        ModelConfig(concat_position=False),
+        ModelConfig(cv_residual=True),
+        ModelConfig(heads=2, layers=2),
+    ],
+    ids=["no-concat", "cv-residual", "two-heads"],
+)
+def test_each_member_computes_its_model_of_any_shape(
+    data: tuple[dict, GraphDataset], config: ModelConfig
+) -> None:
+    batch, _ = data
+    models = [model.eval() for model in _models(2, config)]
+    out = ensemble.stack(models, (5, 10)).eval()(batch)  # a plan of 4 layers: made again for 2
+    for index, (model, steps) in enumerate(zip(models, (5, 10), strict=True)):
+        torch.testing.assert_close(out[index, :, :steps], model(batch, steps), rtol=1e-5, atol=1e-5)
