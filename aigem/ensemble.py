@@ -84,7 +84,8 @@ class Ensemble:
             raise ValueError(f"an ensemble's members' steps must be ascending, not {list(steps)}")
         self.params, self.config, self.steps = params, config, tuple(steps)
         self.training = True
-        template = AiGem(config)  # the convs' settings and the parameters' names and order
+        with torch.device("meta"):  # the convs' settings, the parameters' names and order;
+            template = AiGem(config)  # on no memory, drawing nothing from the global stream
         conv: GATConv = template.encoder[0].convs()[0]
         self.negative_slope = conv.negative_slope
         self.edge_names = template.encoder[0].edge_names

@@ -152,8 +152,10 @@ def test_stack_and_unstack_round_trip(data: tuple[dict, GraphDataset]) -> None:
     for model, optimizer in zip(models, optimizers, strict=True):
         masked_mse_m2(model(batch, 5), batch, dataset.scaler, 5).backward()
         optimizer.step()
+    state = torch.get_rng_state()
     stacked = ensemble.stack(models, (5, 5, 5))
     optimizer = ensemble.stack_optimizer(stacked, optimizers)
+    assert torch.equal(torch.get_rng_state(), state)  # stacking draws nothing
     assert stacked.params["decoder.weight_ih"].shape == (3, 3 * 64, 64)
     assert optimizer.state_dict()["state"][0]["exp_avg"].shape[0] == 3
     fresh = _models(3, ModelConfig())
