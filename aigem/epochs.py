@@ -3,6 +3,13 @@ once) training every model of a fit on its own dropout stream, the validation lo
 epoch, a checkpoint and a log row per epoch (aigem.runs), early stopping and the time limit.
 aigem.training sets up the models and the data and calls `train_epochs`.
 
+Models that share a ModelConfig, a TrainConfig but for the horizon and their optimisers' step
+count (a multi-horizon fit's, epoch after epoch) train through each epoch as one ensemble
+(aigem.ensemble): stacked at the start of the epoch (parameters, Adam states, dropout streams),
+stepped together, and unstacked into each model and its optimiser at the end, before each is
+validated and checkpointed as a model trained alone. A model alone, or under DDP, steps alone.
+The ensemble runs eagerly: a compiled decoder (`TrainConfig.compile`) serves a model alone.
+
 The loss is the mean squared error in metres^2 over the valid (unmasked) future steps up to the
 horizon: predictions are made in scaled coordinates and mapped back to metres before the loss,
 so x and y weigh alike.
@@ -13,7 +20,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +28,12 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
-from aigem import runs
+from aigem import ensemble, runs
 from aigem.config import TrainConfig
 from aigem.cores import ThreadChooser
 from aigem.data import check_covered, xy_to_metres
 from aigem.devices import to_device
+from aigem.ensemble import Ensemble
 from aigem.model import AiGem
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.scaling import MinMaxScaler
@@ -142,6 +150,63 @@ class Member:
     group: Path | None = None  # the multi-horizon run it is a member of
 
 
+@dataclass(eq=False)
+class Together:
+    """Members trained through an epoch as one ensemble, in ascending order of their steps."""
+
+    members: list[Member]
+    ensemble: Ensemble
+    optimizer: torch.optim.Optimizer
+    running: torch.Tensor  # (M,) the members' training losses of the epoch; member.running views
+
+    @property
+    def train(self) -> TrainConfig:  # the members' own, but for the horizon
+        return self.members[0].train
+
+
+def _steps_taken(optimizer: torch.optim.Optimizer) -> float:
+    state = optimizer.state_dict()["state"]
+    return float(next(iter(state.values()))["step"]) if state else 0.0
+
+
+def _group(active: list[Member], loop: Loop) -> list[Member | Together]:
+    """The active members as they train this epoch: those that share a ModelConfig, a
+    TrainConfig but for the horizon and a step count stacked into one ensemble each (at the
+    start of the epoch, their dropout streams set), the others alone."""
+    if loop.world > 1:
+        return list(active)
+    groups: dict[tuple, list[Member]] = {}
+    for member in active:
+        key = (
+            member.model.config,
+            replace(member.train, horizon_s=1.0),
+            type(member.optimizer),
+            _steps_taken(member.optimizer),
+        )
+        groups.setdefault(key, []).append(member)
+    return [_stack(group, loop.device) if len(group) > 1 else group[0] for group in groups.values()]
+
+
+def _stack(group: list[Member], device: torch.device) -> Together:
+    group = sorted(group, key=lambda member: member.steps)
+    streams = [member.rng[1] if device.type == "cuda" else member.rng[0] for member in group]
+    models = [member.model for member in group]
+    stacked = ensemble.stack(models, [member.steps for member in group], streams)
+    optimizer = ensemble.stack_optimizer(stacked, [member.optimizer for member in group])
+    running = torch.zeros(len(group), dtype=torch.float64, device=device)
+    for index, member in enumerate(group):
+        member.running = running[index]  # a view: the group's sums are the member's
+    return Together(group, stacked, optimizer, running)
+
+
+def _unstack(together: Together, device: torch.device) -> None:
+    """Each member's parameters, optimiser state and dropout stream back into it."""
+    ensemble.unstack(together.ensemble, [member.model for member in together.members])
+    ensemble.unstack_optimizer(together.optimizer, [m.optimizer for m in together.members])
+    for member, stream in zip(together.members, together.ensemble.streams(), strict=True):
+        member.rng = (member.rng[0], stream) if device.type == "cuda" else (stream, member.rng[1])
+
+
 def _step(
     member: Member,
     batch: dict[str, Any],
@@ -161,6 +226,21 @@ def _step(
     member.rng = _rng_state(device)
 
 
+def _step_together(
+    together: Together, batch: dict[str, Any], scaler: MinMaxScaler, learning_rate: float
+) -> None:
+    """One optimiser step of an ensemble: its members' loss summed, each member's gradient its
+    own loss's; clipped per member."""
+    stacked = together.ensemble
+    losses = stacked.member_losses(stacked(batch), batch, scaler)  # (M,)
+    together.optimizer.zero_grad(set_to_none=True)
+    losses.sum().backward()
+    stacked.clip_gradients(together.train.clip_grad_norm)
+    set_learning_rate(together.optimizer, learning_rate)
+    together.optimizer.step()
+    together.running += losses.detach()
+
+
 def _train_epoch(
     loop: Loop,
     members: list[Member],
@@ -170,17 +250,21 @@ def _train_epoch(
     deadline: float,
 ) -> tuple[int, bool]:
     """One pass over the train loader, each batch (moved to the device once) training every model
-    of `active`; returns the graphs seen and whether the time limit cut the epoch short. The
-    losses are summed on the device and read every READ_LOSS_EVERY_S (and at the end of the
-    epoch): a step never waits for the device."""
+    of `active` (in ensembles where they can, unstacked at the end); returns the graphs seen and
+    whether the time limit cut the epoch short. The losses are summed on the device and read
+    every READ_LOSS_EVERY_S (and at the end of the epoch): a step never waits for the device."""
     batches, graphs, read_batches, read_at, cut = 0, 0, 0, time.monotonic(), False
     total = len(loop.train_loader)
+    trainers = _group(active, loop)
     for index, batch in enumerate(loop.train_loader):
         check_covered(batch, loop.scaler, loop.manifest)  # on the CPU: the step never waits
         batch = to_device(batch, loop.device)
-        for member in active:
-            rate = learning_rate_at(member.train, epoch, index, total)
-            _step(member, batch, loop.scaler, loop.device, rate)
+        for trainer in trainers:
+            rate = learning_rate_at(trainer.train, epoch, index, total)
+            if isinstance(trainer, Together):
+                _step_together(trainer, batch, loop.scaler, rate)
+            else:
+                _step(trainer, batch, loop.scaler, loop.device, rate)
         batches, graphs = batches + 1, graphs + batch["graphs"]
         if index + 1 == total or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
             for member in active:
@@ -194,6 +278,9 @@ def _train_epoch(
         cut = time.monotonic() > deadline
         if cut:
             break
+    for trainer in trainers:
+        if isinstance(trainer, Together):
+            _unstack(trainer, loop.device)
     for member in active:  # the mean of the epoch (a time limit may have cut it)
         member.shown = _read_loss(
             member.running, max(batches, 1), epoch, read_batches, batches, member.who

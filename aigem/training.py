@@ -7,9 +7,11 @@ epoch; `resume` restarts from the last one. Under `torchrun` (WORLD_SIZE > 1) it
 DistributedDataParallel.
 
 `fit_horizons` trains one model per horizon, as the paper does, in one loop over one loader: each
-batch, moved to the device once, trains every model. Each model is the one `fit` would train for
-its horizon with the same seed and settings (the same initialisation, batches and dropout stream),
-with its own optimizer, checkpoints, log and early stopping.
+batch, moved to the device once, trains every model, the models of an epoch as one ensemble
+(aigem.epochs, aigem.ensemble). Each model is the one `fit` would train for its horizon with the
+same seed and settings (the same initialisation, batches and dropout stream; to float rounding,
+which the ensemble's other order of summation changes), with its own optimizer, checkpoints, log
+and early stopping.
 """
 
 from __future__ import annotations

@@ -15,6 +15,11 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
 - model step: forward, `masked_mse_m2`, zero_grad, backward and Adam's step on batches loaded
   beforehand and already on the device (no loading, no host-to-device copy): --warmup steps, then
   --steps timed (CUDA synchronised at both ends).
+- M models (--models): the model step of M models of horizons 1..5 s (the k-th model's is
+  1 + k % 5 s) as `aigem fit --horizon-s` trains them, as one ensemble (aigem.ensemble: the
+  members' losses summed, one backward, one fused Adam); `M apart`: the same M models stepped
+  one after the other, each with its own optimizer. graphs/s counts a graph once, through all
+  of them.
 - fit loop: `aigem.training.fit` itself (1 epoch at this batch size, --workers, a temporary run
   directory) watched through its `progress` callback: the clock starts at the report of batch
   --warmup and stops at the first report --steps batches later; the profiler then watches
@@ -22,6 +27,8 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
   state (loading, host-to-device copy, step, its loss checks and read-outs, bookkeeping) without
   start-up or validation, which a full epoch of 89,000 graphs would take minutes to reach. The
   windows count the batches that fit reports done, so they hold if fit reports less often.
+- fit M h (for each M of --models from 2 to 5): the same for `aigem.training.fit_horizons` with
+  the horizons 1..M s, its M models trained as one ensemble.
 
 Per step, over --profile-steps untimed steps after the timed ones (torch.profiler with
 ProfilerActivity.CPU, plus CUDA on a GPU, and a TorchFunctionMode), divided by the steps:
@@ -64,13 +71,14 @@ from torch.overrides import TorchFunctionMode
 from torch.profiler import ProfilerActivity
 from torch.utils.data import DataLoader
 
+from aigem import ensemble
 from aigem import model as aigem_model
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.devices import to_device
 from aigem.epochs import masked_mse_m2
 from aigem.model import AiGem
-from aigem.training import fit, make_optimizer
+from aigem.training import fit_horizons, make_optimizer
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
 SYNC_OPS = {
@@ -207,12 +215,13 @@ def measure_step(
     args: argparse.Namespace,
     compiled: bool = False,
     models: int = 1,
+    together: bool = True,
 ) -> dict[str, object]:
     """The model step alone on prepared batches: --warmup, --steps timed, --profile-steps counted.
     `compiled`: the decoder through torch.compile (compiled in the warm-up steps). `models`: that
-    many models, each with its own optimizer, stepped on every batch one after the other, as
-    `aigem fit --horizon-s 1,2,3,4,5` trains its five (the k-th model's horizon is 1 + k % 5 s);
-    graphs/s counts a graph once, through all of them."""
+    many models of horizons 1..5 s (the k-th model's is 1 + k % 5 s), as one ensemble
+    (`together`) or one after the other, each with its own optimizer; graphs/s counts a graph
+    once, through all of them."""
     torch.manual_seed(0)
     nets = [AiGem(ModelConfig()).to(device) for _ in range(models)]
     if compiled:
@@ -220,18 +229,29 @@ def measure_step(
             net.compile_decoder()
     optimizers = [make_optimizer(net, TrainConfig(), device) for net in nets]
     step_s = dataset.config.time_step_s
-    horizons = [  # fit's default horizon for one model; 1..5 s for several
+    horizons = sorted(  # fit's default horizon for one model; 1..5 s for several
         TrainConfig().horizon_steps(step_s) if models == 1 else round((1 + k % 5) / step_s)
         for k in range(models)
-    ]
+    )
     on_device = [to_device(batch, device) for batch in batches]
 
-    def step(batch: Batch) -> None:
+    def apart(batch: Batch) -> None:
         for net, optimizer, steps in zip(nets, optimizers, horizons, strict=True):
             loss = masked_mse_m2(net(batch, steps), batch, dataset.scaler, steps)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
+
+    step = apart
+    if models > 1 and together:
+        stacked = ensemble.stack(nets, horizons)
+        stacked_optimizer = ensemble.stack_optimizer(stacked, optimizers)
+
+        def step(batch: Batch) -> None:
+            losses = stacked.member_losses(stacked(batch), batch, dataset.scaler)
+            stacked_optimizer.zero_grad(set_to_none=True)
+            losses.sum().backward()
+            stacked_optimizer.step()
 
     warmup = on_device[: args.warmup] * (4 if compiled else 1)  # compiles a few variants first
     timed = on_device[args.warmup : args.warmup + args.steps]
@@ -288,9 +308,14 @@ class _FitProbe:
 
 
 def measure_fit(
-    build: Path, batch_size: int, device: torch.device, args: argparse.Namespace
+    build: Path,
+    batch_size: int,
+    device: torch.device,
+    args: argparse.Namespace,
+    horizons_s: tuple[float, ...] | None = None,
 ) -> dict[str, object]:
-    """The whole fit loop at this batch size (see the docstring); empty where the epoch ran out."""
+    """The whole fit loop at this batch size (see the docstring), of one model or of a
+    multi-horizon fit of `horizons_s`; empty where the epoch ran out."""
     probe = _FitProbe(device, args)
     train = TrainConfig(
         epochs=1,
@@ -301,7 +326,8 @@ def measure_fit(
     )
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            fit(build, Path(tmp) / "run", ModelConfig(), train, device.type, progress=probe)
+            run = Path(tmp) / "run"
+            fit_horizons(build, run, horizons_s, ModelConfig(), train, device.type, progress=probe)
         except _Enough:
             pass
         finally:
@@ -360,7 +386,8 @@ def main() -> None:
         "--models",
         default="1",
         help="comma-separated numbers of models stepped on each batch (e.g. 1,5,10: the model "
-        "step of several models, one after the other, as a multi-horizon fit trains them)",
+        "step of several models as one ensemble, as a multi-horizon fit trains them, and one "
+        "after the other; and for 2 to 5 models a multi-horizon fit's loop)",
     )
     parser.add_argument(
         "--compile",
@@ -395,19 +422,25 @@ def main() -> None:
                 row = measure_step(batches, dataset, device, args)
                 aigem_model.CPU_SPARSE = True
                 _row(device.type, size, "gpu path", row | {"threads": torch.get_num_threads()})
-            for models in (int(n) for n in args.models.split(",") if int(n) > 1):
-                row = measure_step(batches, dataset, device, args, models=models)
-                _row(
-                    device.type,
-                    size,
-                    f"{models} models",
-                    row | {"threads": torch.get_num_threads()},
-                )
+            several = [int(n) for n in args.models.split(",") if int(n) > 1]
+            for models in several:
+                for together, what in ((True, "models"), (False, "apart")):
+                    row = measure_step(
+                        batches, dataset, device, args, models=models, together=together
+                    )
+                    threads = {"threads": torch.get_num_threads()}
+                    _row(device.type, size, f"{models} {what}", row | threads)
             if args.compile:
                 row = measure_step(batches, dataset, device, args, compiled=True)
                 _row(device.type, size, "compiled", row | {"threads": torch.get_num_threads()})
             row = measure_fit(args.build, size, device, args)
             _row(device.type, size, "fit loop", row | {"threads": torch.get_num_threads()})
+            for models in (m for m in several if m <= 5):
+                horizons = tuple(float(h) for h in range(1, models + 1))
+                row = measure_fit(args.build, size, device, args, horizons)
+                _row(
+                    device.type, size, f"fit {models} h", row | {"threads": torch.get_num_threads()}
+                )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 """One model per horizon in one fit (the paper's protocol): each member is the single-horizon fit
-of its horizon, bit for bit; members stop and resume on their own; `aigem evaluate RUN` takes
-RMSE at h s from the h s model and ADE/FDE from the longest."""
+of its horizon (to float tolerance: the members train as one ensemble, whose products sum in
+another order, see `_close_run`; a fit repeated is the same bit for bit); members stop and resume
+on their own; `aigem evaluate RUN` takes RMSE at h s from the h s model and ADE/FDE from the
+longest."""
 
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ from aigem.evaluation import evaluate
 from aigem.training import fit, fit_horizons
 from ngsim_cli.aigem import app
 
-# threads=1: bit-reproducible, so that a member can be compared with a fit of its horizon alone
+# threads=1: bit-reproducible, so that a run can be compared with a run of the same models
 TRAIN = TrainConfig(epochs=2, batch_size=8, seed=3, threads=1)
 ARGS = ["--epochs", "2", "--batch-size", "8", "--seed", "3", "--threads", "1", "--device", "cpu"]
 TIMING = ("train_seconds", "train_graphs_per_s", "val_seconds")
@@ -50,6 +52,36 @@ def _same_weights(a: Path, b: Path) -> bool:
     return one.keys() == other.keys() and all(torch.equal(one[k], other[k]) for k in one)
 
 
+def _close_weights(a: Path, b: Path) -> bool:
+    """Within 2% of each other in L2 (all tensors as one vector). A member trained in an
+    ensemble is about 0.5% away from the model trained alone: float32 rounding (the ensemble sums
+    in another order) grows through Adam, whose step divides each gradient by its own size, over
+    the fit's 66 steps. The other horizon's model is some 6% away. tests/test_aigem_ensemble.py
+    checks the steps themselves in float64, to 1e-7."""
+    one, other = _weights(a), _weights(b)
+    flat = [torch.cat([w[k].flatten() for k in one]) for w in (one, other)]
+    return one.keys() == other.keys() and float((flat[0] - flat[1]).norm() / flat[1].norm()) < 0.02
+
+
+def _close_run(a: Path, b: Path) -> bool:
+    """The same run as `_same_run` says, to float tolerance: best and last weights within 2%
+    (`_close_weights`), the same log but for the losses, which agree to 5% (the horizons' differ
+    several-fold)."""
+    rows, others = _rows(a), _rows(b)
+    losses = ("train_loss_m2", "val_loss_m2")
+    return (
+        _close_weights(a / runs.BEST, b / runs.BEST)
+        and _close_weights(a / runs.LAST, b / runs.LAST)
+        and [{k: v for k, v in r.items() if k not in losses} for r in rows]
+        == [{k: v for k, v in r.items() if k not in losses} for r in others]
+        and all(
+            r[k] == pytest.approx(o[k], rel=0.05)
+            for r, o in zip(rows, others, strict=True)
+            for k in losses
+        )
+    )
+
+
 def _same_run(a: Path, b: Path) -> bool:
     """The same best and last weights and the same log (timings aside)."""
     return (
@@ -75,7 +107,7 @@ def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
     assert "2 models trained together" in out
 
 
-def test_a_member_is_the_single_horizon_fit_bit_for_bit(
+def test_a_member_is_the_single_horizon_fit(
     fitted: tuple[Path, str], tiny_build: Path, tmp_path: Path
 ) -> None:
     run, _ = fitted
@@ -87,9 +119,11 @@ def test_a_member_is_the_single_horizon_fit_bit_for_bit(
         TrainConfig(**{**TRAIN.to_dict(), "horizon_s": 1.0}),
         "cpu",
     )
-    assert _same_run(run / "h1s", alone)
+    assert _close_run(run / "h1s", alone)
+    assert not _close_run(run / "h2s", alone)  # the test tells the horizons apart
     assert (run / "h1s" / runs.RUN_INFO).read_text() == (alone / runs.RUN_INFO).read_text()
-    assert result.best_val_loss_m2 == min(r["val_loss_m2"] for r in runs.read_metrics(run / "h1s"))
+    best = min(r["val_loss_m2"] for r in runs.read_metrics(run / "h1s"))
+    assert result.best_val_loss_m2 == pytest.approx(best, rel=0.05)
 
 
 def test_each_member_keeps_its_own_best_model(fitted: tuple[Path, str]) -> None:
@@ -139,19 +173,19 @@ def test_a_resumed_run_ends_as_an_uninterrupted_one(
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
     assert _same_run(run / "h1s", straight / "h1s") and _same_run(run / "h2s", straight / "h2s")
     # Killed in epoch 2 between the members' checkpoints: the 2 s model's row of epoch 2 is
-    # logged, its last.pt is still epoch 1's. Only the 2 s model trains again.
+    # logged, its last.pt is still epoch 1's. Only the 2 s model trains again, alone.
     (run / "h2s" / runs.LAST).write_bytes(after_one)
     h1s_last = (run / "h1s" / runs.LAST).read_bytes()
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)  # fmt: skip
     assert (short.epochs_done, short.stopped_because, long.epochs_done) == (2, "epochs", 2)
     assert (run / "h1s" / runs.LAST).read_bytes() == h1s_last
-    assert _same_run(run / "h2s", straight / "h2s")
+    assert _close_run(run / "h2s", straight / "h2s")
     # A member without any checkpoint (killed before its first: its marker is there) starts over.
     for name in (runs.LAST, runs.BEST, runs.METRICS):
         (run / "h1s" / name).unlink()
     (run / "h1s" / runs.STARTED).write_bytes(runs.STARTED_LINE)
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
-    assert _same_run(run / "h1s", straight / "h1s")
+    assert _close_run(run / "h1s", straight / "h1s")  # trained alone
 
 
 def test_evaluate_takes_each_metric_from_its_model(fitted: tuple[Path, str]) -> None:

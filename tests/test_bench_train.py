@@ -28,8 +28,10 @@ def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
             ("host", "loader"),
             ("cpu", "model step"),
             ("cpu", "gpu path"),
-            ("cpu", "2 models"),
+            ("cpu", "2 models"),  # as one ensemble
+            ("cpu", "2 apart"),  # one after the other
             ("cpu", "fit loop"),
+            ("cpu", "fit 2 h"),  # fit_horizons of 1 and 2 s
         )
     ]
     for row in rows:  # graphs/s and ms/batch measured; ops and syncs counted for the steps
