@@ -30,6 +30,7 @@ from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 SECONDS = (1, 2, 3, 4, 5)
 PAPER_D_MIN_M = 25.0
+UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
 TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
 FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")
 Fit = dict[str, Any]  # d_min_m, concat_position, models (each model's course)
@@ -93,15 +94,20 @@ def paper_report(
     fits: dict[str, Fit],
     evaluations: dict[str, HorizonsEvaluation],
     curve_rows: dict[str, list[dict[str, Any]]],
+    unfinished: Sequence[str] = (),
 ) -> dict[str, Any]:
     """report.json's numbers (its figures and timings are added by write_report). `fits` and
     `evaluations` by run name; the paper's fit is the one of d_min 25 m with the output
-    concatenation; `curve_rows`: its models' metrics rows, by model name."""
+    concatenation; `curve_rows`: its models' metrics rows, by model name; `unfinished`: the
+    fits that --max-hours stopped before their last epoch ("finished" false, and every table
+    and figure says UNFINISHED)."""
     synthetic = any(e.synthetic for e in evaluations.values())
     by_setting = {(f["d_min_m"], f["concat_position"]): name for name, f in fits.items()}
     paper = evaluations.get(by_setting.get((PAPER_D_MIN_M, True), ""))
     document: dict[str, Any] = {
         "written_by": "aigem paper",
+        "finished": not unfinished,
+        "unfinished_fits": list(unfinished),
         "synthetic": synthetic,
         "data": SYNTHETIC_LABEL if synthetic else "the inputs' recordings",
         "split": "test",
@@ -152,7 +158,9 @@ def _rmse_header(first: str) -> list[str]:
 
 
 def _mark(document: dict[str, Any]) -> str:
-    return " (SYNTHETIC)" if document["synthetic"] else ""
+    """What a heading says of the whole report: SYNTHETIC data, UNFINISHED training."""
+    marks = ["SYNTHETIC"] * document["synthetic"] + ["UNFINISHED"] * (not document["finished"])
+    return f" ({', '.join(marks)})" if marks else ""
 
 
 def _table1_lines(document: dict[str, Any]) -> list[str]:
@@ -303,6 +311,9 @@ def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
         f"{document['split']} split.",
         "",
     ]
+    if not document["finished"]:
+        fits = ", ".join(document["unfinished_fits"])
+        lines[2:2] = [f"**{UNFINISHED}** (unfinished fits: {fits}).", ""]
     if "table1" in document:
         lines += _table1_lines(document)
     if "dmin" in document:

@@ -7,7 +7,8 @@
     curves.png    train and validation RMSE per epoch, one panel per horizon's model
     regions.png   RMSE per horizon for front, mid and rear actors
 
-A figure of synthetic data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic).
+A figure of synthetic data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic),
+one of an unfinished report UNFINISHED in its title.
 Figures are made as aigem.plots makes them: a Figure on an Agg canvas, no pyplot.
 """
 
@@ -25,6 +26,7 @@ from aigem.plots import BASELINE, OURS, PAPER_MARKERS, png_bytes
 from ngsim_graphs.plotting import mark_synthetic
 
 SECONDS = np.arange(1, 6)
+UNFINISHED_PICTURE = "UNFINISHED (training stopped by --max-hours)"
 
 
 def _values(values: Sequence[float | None]) -> np.ndarray:
@@ -32,6 +34,10 @@ def _values(values: Sequence[float | None]) -> np.ndarray:
 
 
 def _finish(figure: Figure, document: dict[str, Any]) -> bytes:
+    if not document["finished"]:  # a constrained layout makes room for the suptitle
+        title = figure.get_suptitle()
+        words = f"{UNFINISHED_PICTURE}: {title}" if title else UNFINISHED_PICTURE
+        figure.suptitle(words, color="tab:red", fontweight="bold")
     if document["synthetic"]:
         mark_synthetic(figure)
     return png_bytes(figure)

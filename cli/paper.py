@@ -52,16 +52,18 @@ def paper(
         str,
         typer.Option(
             metavar="PART[,PART...]",
-            help="The parts of the report, and so the builds and fits they need: table, curves "
-            "and regions the paper's model (d_min 25 m); dmin also the fits of d_min 0 and 50 m; "
-            "concat also the d_min 25 m fit without the output concatenation.",
+            help="The parts of the report (it then holds only those), and so the builds and "
+            "fits they need: table, curves and regions the paper's model (d_min 25 m); dmin also "
+            "the fits of d_min 0 and 50 m; concat also the d_min 25 m fit without the output "
+            "concatenation.",
         ),
     ] = PARTS_HELP,
     max_hours: Annotated[
         float | None,
         typer.Option(
-            help="Time for the whole command: each fit still to train gets an equal share of what "
-            "is left; a fit stopped by it resumes when the command is run again."
+            help="Time for the training (the builds and the evaluations come on top): each fit "
+            "still to train gets an equal share of what is left and keeps its last whole epoch; "
+            "the report then says UNFINISHED, and the same command again continues.",
         ),
     ] = None,
     device: Annotated[
@@ -103,6 +105,8 @@ def paper(
     on 2 CPU cores; the real NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).
 
     Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
+    --max-hours bounds the training only (builds and evaluations come on top); a report of fits
+    it stopped says UNFINISHED, and the same command again continues them.
     """
     from aigem.paper import parse_parts  # light: no PyTorch yet
     from aigem.paper_folder import PaperConfig, check_folder, paper_document
@@ -124,7 +128,7 @@ def paper(
         from aigem.cores import busy_cores_warning
         from aigem.devices import DeviceUnavailableError, pick_device
         from aigem.epochs import NonFiniteLossError
-        from aigem.paper import PaperCall, run_paper
+        from aigem.paper import PaperCall, TimeLimitError, run_paper
         from ngsim_graphs.budget import available_cores
     try:
         pick_device(device.value)
@@ -137,14 +141,17 @@ def paper(
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         try:
             result = run_paper(raw_paths, out, config, call, progress)
-        except (NonFiniteLossError, DeviceUnavailableError) as err:
+        except (NonFiniteLossError, DeviceUnavailableError, TimeLimitError) as err:
             print_error(str(err))
             raise typer.Exit(1) from None
     _print_summary(result.report, out)
 
 
 def _print_summary(report: dict, out: Path) -> None:
-    """Where the report is, and the paper's model's RMSE beside the paper's."""
+    """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
+    left a fit unfinished, that the report is unfinished (last)."""
+    from aigem.report import UNFINISHED
+
     kind = (
         " (SYNTHETIC data: not comparable to the paper's NGSIM numbers)"
         if report["synthetic"]
@@ -160,3 +167,6 @@ def _print_summary(report: dict, out: Path) -> None:
         stdout.print(f"AiGem RMSE at 1..5 s (m): {shown(ours)}{kind}; the paper: {shown(paper)}")
     figures = ", ".join(Path(name).name for name in report.get("figures", []))
     stdout.print(f"Report: {out / 'report.md'} and {out / 'report.json'}; figures: {figures}")
+    if not report["finished"]:
+        fits = ", ".join(report["unfinished_fits"])
+        stdout.print(f"{UNFINISHED} (unfinished fits: {fits})", markup=False, highlight=False)

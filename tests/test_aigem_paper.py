@@ -3,9 +3,11 @@ command on a tiny input, uninterrupted and killed half-way then run again: the s
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -13,9 +15,10 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import straight_track, write_txt
 from typer.testing import CliRunner
 
-from aigem.paper import PARTS, fit_minutes, parse_parts, plan_builds, plan_fits
+from aigem.paper import FITS, PARTS, fit_share_s, parse_parts, plan_builds, plan_fits
 from aigem.paper_folder import (
     PAPER_JSON,
     REPORT_JSON,
@@ -65,10 +68,10 @@ def test_the_fits_are_the_papers_settings() -> None:
 
 
 def test_each_fit_gets_an_equal_share_of_the_time_left() -> None:
-    assert fit_minutes(math.inf, 4) is None  # no --max-hours
-    assert fit_minutes(3600.0, 4) == 15.0  # an hour left, four fits to train
-    assert fit_minutes(600.0, 1) == 10.0
-    assert fit_minutes(-5.0, 2) == 1 / 60  # the time is out: one step and validation each
+    assert fit_share_s(math.inf, 4) == math.inf  # no --max-hours
+    assert fit_share_s(3600.0, 4) == 900.0  # an hour left, four fits to train
+    assert fit_share_s(600.0, 1) == 600.0
+    assert fit_share_s(-5.0, 2) < 0  # the time is out: the fit does not start
 
 
 def test_parts_are_kept_in_the_reports_order_and_unknown_ones_refused() -> None:
@@ -79,12 +82,20 @@ def test_parts_are_kept_in_the_reports_order_and_unknown_ones_refused() -> None:
         parse_parts(",")
 
 
+RUN_NAMES = [plan.name for plan in FITS]
+
+
 @pytest.fixture
 def raw(tmp_path: Path) -> Path:
+    """A folder of one NGSIM file, a.txt (three rows), and a readme that is not an input."""
     folder = tmp_path / "raw"
-    folder.mkdir()
-    (folder / "a.txt").write_text("rows")
+    write_txt(folder / "a.txt", straight_track(1, range(3)))
+    (folder / "README.md").write_text("not a recording")
     return folder
+
+
+def sha256_of(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def test_a_new_folder_gets_paper_json_first_and_the_same_settings_continue(
@@ -92,12 +103,16 @@ def test_a_new_folder_gets_paper_json_first_and_the_same_settings_continue(
 ) -> None:
     out = tmp_path / "out"
     document = paper_document([raw], PaperConfig(epochs=2))
-    claim_folder(out, document, overwrite=False)
+    claim_folder(out, document, overwrite=False, run_names=RUN_NAMES)
     on_disk = json.loads((out / PAPER_JSON).read_text())
     assert on_disk["config"]["epochs"] == 2 and on_disk["written_by"] == "aigem paper"
-    assert on_disk["inputs"] == [{"path": str((raw / "a.txt").resolve()), "size_bytes": 4}]
+    a = raw / "a.txt"  # the readme is no input
+    size, digest = a.stat().st_size, sha256_of(a)
+    assert on_disk["inputs"] == [{"name": "a.txt", "size_bytes": size, "sha256": digest}]
     (out / REPORT_JSON).write_text("{}")
-    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False)
+    claim_folder(
+        out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False, run_names=RUN_NAMES
+    )
     assert not (out / REPORT_JSON).exists()  # none until this call has finished
 
 
@@ -105,18 +120,20 @@ def test_other_settings_are_refused_naming_them_and_the_earlier_report_stays(
     tmp_path: Path, raw: Path
 ) -> None:
     out = tmp_path / "out"
-    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False)
+    claim_folder(
+        out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False, run_names=RUN_NAMES
+    )
     (out / REPORT_JSON).write_text("{}")
-    (raw / "a.txt").write_text("more rows")
+    write_txt(raw / "a.txt", straight_track(1, range(4)))
     later = paper_document([raw], PaperConfig(epochs=3, seed=1))
     with pytest.raises(NgsimOutputError) as caught:
-        claim_folder(out, later, overwrite=False)
+        claim_folder(out, later, overwrite=False, run_names=RUN_NAMES)
     message = str(caught.value)
     assert "epochs 2 -> 3" in message and "seed 0 -> 1" in message and "a.txt" in message
     assert "--overwrite" in message and "\n" not in message
     assert (out / REPORT_JSON).exists()
     assert differences(json.loads((out / PAPER_JSON).read_text()), later) == [
-        f"inputs ({(raw / 'a.txt').resolve()})",
+        "inputs (a.txt)",
         "epochs 2 -> 3",
         "seed 0 -> 1",
     ]
@@ -136,28 +153,51 @@ def fake_run(run_dir: Path) -> None:
 
 def test_overwrite_discards_the_runs_files_and_nothing_else(tmp_path: Path, raw: Path) -> None:
     out = tmp_path / "out"
-    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), overwrite=False)
-    fake_run(out / "runs" / "dmin-25m")
-    fake_run(out / "runs" / "dmin-0m")
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), False, RUN_NAMES)
+    for name in ("dmin-25m", "dmin-0m", "dmin-7m"):  # dmin-7m: not a run of aigem paper
+        fake_run(out / "runs" / name)
     (out / "runs" / "dmin-0m" / "h3s" / "notes.txt").write_text("a user's")
-    claim_folder(out, paper_document([raw], PaperConfig(epochs=3)), overwrite=True)
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2, seed=1)), True, RUN_NAMES)
     assert not (out / "runs" / "dmin-25m").exists()
-    left = sorted(p.relative_to(out).as_posix() for p in (out / "runs").rglob("*"))
-    assert left == ["runs/dmin-0m", "runs/dmin-0m/h3s", "runs/dmin-0m/h3s/notes.txt"]
-    assert json.loads((out / PAPER_JSON).read_text())["config"]["epochs"] == 3
+    left = sorted(p.relative_to(out).as_posix() for p in (out / "runs" / "dmin-0m").rglob("*"))
+    assert left == ["runs/dmin-0m/h3s", "runs/dmin-0m/h3s/notes.txt"]
+    assert (
+        len(list((out / "runs" / "dmin-7m").rglob("*"))) == 26
+    )  # 5 members of 4 files, horizons.json
+    assert json.loads((out / PAPER_JSON).read_text())["config"]["seed"] == 1
     discard_run(out / "runs" / "missing")  # nothing there: nothing to do
+
+
+@pytest.mark.parametrize(
+    ("later", "kept"),
+    [
+        (PaperConfig(epochs=3), True),  # more epochs continue the runs
+        (PaperConfig(epochs=1), False),  # fewer: a model may have trained past them
+        (PaperConfig(epochs=2, batch_size=8), False),
+        (PaperConfig(epochs=2, patience_epochs=4), False),
+    ],
+)
+def test_overwrite_keeps_the_runs_unless_the_models_would_differ(
+    tmp_path: Path, raw: Path, later: PaperConfig, kept: bool
+) -> None:
+    out = tmp_path / "out"
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), False, RUN_NAMES)
+    fake_run(out / "runs" / "dmin-25m")
+    claim_folder(out, paper_document([raw], later), True, RUN_NAMES)
+    assert (out / "runs" / "dmin-25m" / "h1s" / LAST).exists() == kept
+    assert json.loads((out / PAPER_JSON).read_text())["config"] == later.to_dict()
 
 
 def test_a_folder_not_of_aigem_paper_is_refused_unless_empty(tmp_path: Path, raw: Path) -> None:
     document = paper_document([raw], PaperConfig())
     (tmp_path / "empty").mkdir()
-    claim_folder(tmp_path / "empty", document, overwrite=False)
+    claim_folder(tmp_path / "empty", document, overwrite=False, run_names=RUN_NAMES)
     assert (tmp_path / "empty" / PAPER_JSON).is_file()
     (tmp_path / "theirs").mkdir()
     (tmp_path / "theirs" / "thesis.tex").write_text("mine")
     for overwrite in (False, True):
         with pytest.raises(NgsimOutputError, match="not written by `aigem paper`"):
-            claim_folder(tmp_path / "theirs", document, overwrite)
+            claim_folder(tmp_path / "theirs", document, overwrite, RUN_NAMES)
     assert sorted(p.name for p in (tmp_path / "theirs").iterdir()) == ["thesis.tex"]
 
 
@@ -179,14 +219,35 @@ def test_a_build_is_reused_only_with_its_config_and_inputs(
     tiny_build: Path, tmp_path: Path
 ) -> None:
     manifest = open_build(tiny_build).manifest
-    raw = [Path(f.path).parent for f in manifest.inputs]
-    inputs = list_inputs(raw)
-    assert build_state(tiny_build, manifest.config, inputs) == ""  # reuse
-    other = build_state(tiny_build, BuildConfig(d_sense_m=12.0, d_min_m=25.0), inputs)
+    (built_from,) = {Path(f.path).parent for f in manifest.inputs}
+    raw = shutil.copytree(built_from, tmp_path / "moved")  # another folder, the same files
+    (raw / "README.md").write_text("not a recording")  # skipped by the source: no input
+    assert build_state(tiny_build, manifest.config, list_inputs([raw])) == ""  # reuse
+    other = build_state(tiny_build, BuildConfig(d_sense_m=12.0, d_min_m=25.0), list_inputs([raw]))
     assert other == "is a build of another config (d_min_m 6.0 -> 25.0)"
-    grown = [{**f, "size_bytes": f["size_bytes"] + 1} for f in inputs]
-    assert build_state(tiny_build, manifest.config, grown).startswith("was built from other inputs")
-    assert build_state(tmp_path, manifest.config, inputs) is None  # no build there
+    assert build_state(tmp_path, manifest.config, list_inputs([raw])) is None  # no build there
+
+    (recording,) = [p for p in raw.iterdir() if p.suffix == ".txt"]
+    added = write_txt(raw / "b.txt", straight_track(1, range(3)))
+    stale = build_state(tiny_build, manifest.config, list_inputs([raw]))
+    assert stale == "was built from other inputs (b.txt)"
+    added.unlink()
+    text = recording.read_bytes()
+    at = text.index(b"1", len(text) // 2)  # a digit changed: the same size, other content
+    recording.write_bytes(text[:at] + b"2" + text[at + 1 :])
+    stale = build_state(tiny_build, manifest.config, list_inputs([raw]))
+    assert stale == f"was built from other inputs ({recording.name})"
+
+
+def test_a_moved_folder_holds_the_same_inputs_and_a_changed_file_others(
+    tmp_path: Path, raw: Path
+) -> None:
+    before = paper_document([raw], PaperConfig())
+    moved = raw.rename(tmp_path / "elsewhere")
+    assert differences(before, paper_document([moved], PaperConfig())) == []
+    a = moved / "a.txt"
+    a.write_bytes(a.read_bytes().replace(b"100", b"200"))  # the same size
+    assert differences(before, paper_document([moved], PaperConfig())) == ["inputs (a.txt)"]
 
 
 # ------------------------------------------------------------------------------------------------
