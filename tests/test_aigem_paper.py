@@ -31,6 +31,8 @@ from aigem.paper_folder import (
     paper_document,
 )
 from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
+from aigem.report import UNFINISHED
+from aigem.runs import epochs_kept
 from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -251,22 +253,36 @@ def test_a_moved_folder_holds_the_same_inputs_and_a_changed_file_others(
 
 
 # ------------------------------------------------------------------------------------------------
-# The whole command, killed half-way and run again
+# The whole command: uninterrupted; killed and run again; stopped by --max-hours and run again
 
 PROGRAM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
+FIGURES = ["concat.png", "curves.png", "dmin.png", "regions.png", "table1.png"]
 
 
 @pytest.fixture(scope="module")
 def tiny_raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One recording of 24 s: some 200 train samples, a fit of a few seconds."""
+    """One recording of 24 s: some 200 train samples, an epoch of a second or two."""
     folder = tmp_path_factory.mktemp("paper") / "raw"
     write_synthetic(folder, SynthConfig(recordings=1, minutes=0.4, seed=5))
     return folder
 
 
-def paper_command(raw: Path, out: Path) -> list[str]:
-    options = ["--epochs", "1", "--batch-size", "64", "--threads", "1", "--jobs", "1"]
-    return [sys.executable, "-c", PROGRAM, "paper", str(raw), "--out", str(out), *options]
+def paper_command(raw: Path, out: Path, *more: str) -> list[str]:
+    options = ["--batch-size", "64", "--threads", "1", "--jobs", "1", "--device", "cpu"]
+    return [sys.executable, "-c", PROGRAM, "paper", str(raw), "--out", str(out), *options, *more]
+
+
+def run_paper_command(raw: Path, out: Path, *more: str) -> subprocess.CompletedProcess:
+    return subprocess.run(paper_command(raw, out, *more), capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def whole(tiny_raw: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An uninterrupted call of 2 epochs: what the calls stopped and run again must give."""
+    out = tmp_path_factory.mktemp("whole") / "out"
+    done = run_paper_command(tiny_raw, out, "--epochs", "2")
+    assert done.returncode == 0, done.stderr
+    return out
 
 
 def comparable(out: Path) -> tuple[dict, str]:
@@ -278,14 +294,11 @@ def comparable(out: Path) -> tuple[dict, str]:
 
 
 def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
-    tiny_raw: Path, tmp_path: Path
+    tiny_raw: Path, whole: Path, tmp_path: Path
 ) -> None:
-    whole = tmp_path / "whole"
-    done = subprocess.run(paper_command(tiny_raw, whole), capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
     killed = tmp_path / "killed"
     program = subprocess.Popen(
-        paper_command(tiny_raw, killed),
+        paper_command(tiny_raw, killed, "--epochs", "2"),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -293,9 +306,9 @@ def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
     )
     second_fit = killed / "runs" / "dmin-25m-no-concat"
     deadline = time.monotonic() + 300
-    while not second_fit.exists():  # the first fit is finished, the second has started
+    while not (second_fit / "h1s" / LAST).exists():  # the second fit's first epoch is kept
         assert program.poll() is None, program.stderr.read()
-        assert time.monotonic() < deadline, "the second fit never started"
+        assert time.monotonic() < deadline, "the second fit never kept an epoch"
         time.sleep(0.01)
     os.killpg(program.pid, signal.SIGINT)
     _, stderr = program.communicate(timeout=120)
@@ -303,10 +316,47 @@ def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
     assert stderr.strip().splitlines()[-1].startswith(f"interrupted; {killed} keeps")
     assert "Traceback" not in stderr
     assert not (killed / "report.json").exists() and not (killed / "report.md").exists()
-    again = subprocess.run(paper_command(tiny_raw, killed), capture_output=True, text=True)
+    kept = [epochs_kept(second_fit / f"h{s}s") for s in range(1, 6)]
+    assert kept[0] == max(kept) == 1  # to resume (the models killed before theirs start over)
+    again = run_paper_command(tiny_raw, killed, "--epochs", "2")
     assert again.returncode == 0, again.stderr
     assert comparable(killed) == comparable(whole)
     timings = json.loads((killed / "report.json").read_text())["timings"]
     assert "fit dmin-25m" not in timings and "fit dmin-25m-no-concat" in timings  # reused
-    figures = sorted(p.name for p in (killed / "figures").iterdir())
-    assert figures == ["concat.png", "curves.png", "dmin.png", "regions.png", "table1.png"]
+    assert sorted(p.name for p in (killed / "figures").iterdir()) == FIGURES
+
+
+def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupted_report(
+    tiny_raw: Path, whole: Path, tmp_path: Path
+) -> None:
+    out, table = tmp_path / "out", ["--only", "table"]  # the paper's model alone
+    no_time = ["--max-hours", "1e-9"]  # every fit stops after its first batch
+    nothing = run_paper_command(tiny_raw, out, *table, "--epochs", "1", *no_time)
+    assert nothing.returncode == 1 and not (out / "report.json").exists()
+    assert nothing.stderr.splitlines()[-1] == (
+        "error: --max-hours ended the training before a whole epoch of dmin-25m (d_min 25 m): "
+        "no report; run the same command again to continue (with more time: a fit's epoch that "
+        "its share of --max-hours cuts is redone)"
+    )
+    assert not (out / "runs" / "dmin-25m").exists()  # no epoch kept: its files went
+    one = run_paper_command(tiny_raw, out, *table, "--epochs", "1")
+    assert one.returncode == 0, one.stderr
+    assert json.loads((out / "report.json").read_text())["finished"]
+    # More epochs continue the runs (--overwrite: paper.json's epochs change); the time limit
+    # cuts the second epoch, which is not kept: the models of the first are reported.
+    cut = run_paper_command(tiny_raw, out, *table, "--epochs", "2", "--overwrite", *no_time)
+    assert cut.returncode == 0, cut.stderr
+    assert cut.stdout.strip().splitlines()[-1] == f"{UNFINISHED} (unfinished fits: dmin-25m)"
+    document = json.loads((out / "report.json").read_text())
+    assert not document["finished"] and document["unfinished_fits"] == ["dmin-25m"]
+    assert {m["epochs_done"] for m in document["fits"]["dmin-25m"]["models"].values()} == {1}
+    markdown = (out / "report.md").read_text()
+    assert markdown.splitlines()[2].startswith(f"**{UNFINISHED}**")
+    assert markdown.count("(SYNTHETIC, UNFINISHED)") == 2  # the title and Table 1's heading
+    finished = run_paper_command(tiny_raw, out, *table, "--epochs", "2")
+    assert finished.returncode == 0, finished.stderr
+    assert "UNFINISHED" not in finished.stdout + (out / "report.md").read_text()
+    ours, theirs = comparable(out)[0], comparable(whole)[0]
+    assert ours["finished"] and ours["fits"] == {"dmin-25m": theirs["fits"]["dmin-25m"]}
+    for key in ("table1", "settings"):
+        assert ours[key] == theirs[key], key
