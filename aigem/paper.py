@@ -41,6 +41,7 @@ from aigem.config import ModelConfig
 from aigem.paper_folder import (
     BUILDS,
     HORIZONS_S,
+    PAPER_D_MIN_M,
     RUNS,
     PaperConfig,
     build_config,
@@ -52,12 +53,13 @@ from aigem.paper_folder import (
     epochs_left,
     fit_record,
     paper_document,
+    partly_synthetic,
 )
 from aigem.records import LAST, member_dir, read_horizons
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
-PAPER_FIT = "dmin-25m"  # the paper's model: d_min 25 m, the output concatenation
+PAPER_FIT = build_name(PAPER_D_MIN_M)  # the paper's model: d_min 25 m, the output concatenation
 
 
 @dataclass(frozen=True)
@@ -79,15 +81,15 @@ class FitPlan:
 
 
 FITS = (
-    FitPlan(PAPER_FIT, 25.0),
-    FitPlan("dmin-25m-no-concat", 25.0, concat_position=False),
+    FitPlan(PAPER_FIT, PAPER_D_MIN_M),
+    FitPlan(f"{PAPER_FIT}-no-concat", PAPER_D_MIN_M, concat_position=False),
     FitPlan("dmin-0m", 0.0),
     FitPlan("dmin-50m", 50.0),
 )
 NEEDS = {  # the fits each part of the report reads
     "table": (PAPER_FIT,),
     "dmin": ("dmin-0m", PAPER_FIT, "dmin-50m"),
-    "concat": (PAPER_FIT, "dmin-25m-no-concat"),
+    "concat": (PAPER_FIT, f"{PAPER_FIT}-no-concat"),
     "curves": (PAPER_FIT,),
     "regions": (PAPER_FIT,),
 }
@@ -121,7 +123,7 @@ class PaperCall:
     parts: tuple[str, ...] = PARTS
     device: str = "auto"
     threads: int | None = None  # the model step's CPU threads (a number: bit-reproducible)
-    max_hours: float | None = None  # for the whole call; each fit gets its share of what is left
+    max_hours: float | None = None  # for the training; each fit gets its share of what is left
     jobs: int = 1  # the builds' worker processes
     overwrite: bool = False
 
@@ -299,16 +301,35 @@ def run_paper(
 ) -> PaperResult:
     """The paper's experiments into `out` (see the module's docstring); returns the report,
     whose "finished" is false where --max-hours left a fit unfinished. Raises TimeLimitError
-    where it left a fit without a whole epoch (nothing to report)."""
-    from aigem.report import paper_report, write_report
+    where it left a fit without a whole epoch (nothing to report). A second call into the same
+    `out` at once is refused (ngsim_graphs.lock, `.OUT.lock` beside it)."""
     from ngsim_graphs.landing import check_outside_inputs
+    from ngsim_graphs.lock import output_lock
 
-    show = progress or (lambda _what, _done, _total: None)
     start = time.monotonic()
-    timings: dict[str, float] = {}
     check_outside_inputs(out, list(raw_paths))
     document = paper_document(raw_paths, config)
-    check_folder(out, document, call.overwrite)  # every check before the folder is touched
+    check_folder(out, document, call.overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
+    with output_lock(out):
+        show = progress or (lambda _what, _done, _total: None)
+        return _run(raw_paths, out, document, config, call, show, start)
+
+
+def _run(
+    raw_paths: Sequence[Path],
+    out: Path,
+    document: dict[str, Any],
+    config: PaperConfig,
+    call: PaperCall,
+    show: Progress,
+    start: float,
+) -> PaperResult:
+    """run_paper's work, `out` locked: every check (claim_folder's again, another call may have
+    come before) before the folder is touched."""
+    from aigem.report import paper_report, write_report
+
+    timings: dict[str, float] = {}
     builds = _plan_builds(out, document["inputs"], call)
     claim_folder(out, document, call.overwrite, [plan.name for plan in FITS])
     _builds(list(raw_paths), out, builds, call, show)
@@ -341,6 +362,7 @@ def run_paper(
         evaluations,
         _curves(out / RUNS / PAPER_FIT) if PAPER_FIT in evaluations else {},
         [plan.name for plan in unfinished],
+        partly_synthetic([out / BUILDS / plan.build_name for plan in fits]),
     )
     timings["report"] = time.monotonic() - began
     timings["total"] = time.monotonic() - start

@@ -29,6 +29,7 @@ from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.partial_files import leftover_partials, write_atomic
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
+PAPER_D_MIN_M = 25.0  # the d_min of the paper's model (the others: the d_min ablation)
 PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
 BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
 WRITTEN_BY = "aigem paper"
@@ -223,6 +224,15 @@ def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any
     built = sorted((Path(f.path).name, f.sha256) for f in manifest.inputs)
     now = _contents(inputs)
     return f"was built from other inputs ({_named(built, now)})" if built != now else ""
+
+
+def partly_synthetic(build_dirs: Sequence[Path]) -> bool:
+    """Whether a build in `build_dirs` mixes synth's files with others (its manifest's record)."""
+    from ngsim_graphs.build import open_build
+    from ngsim_graphs.synth.marker import synthetic_build, synthetic_inputs_of
+
+    manifests = [open_build(build_dir).manifest for build_dir in build_dirs]
+    return any(synthetic_inputs_of(m) and not synthetic_build(m) for m in manifests)
 
 
 def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], bool]:

@@ -150,13 +150,10 @@ def paper(
 def _print_summary(report: dict, out: Path) -> None:
     """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
     left a fit unfinished, that the report is unfinished (last)."""
-    from aigem.report import UNFINISHED
+    from aigem.report import UNFINISHED, data_mark
 
-    kind = (
-        " (SYNTHETIC data: not comparable to the paper's NGSIM numbers)"
-        if report["synthetic"]
-        else ""
-    )
+    mark = data_mark(report)
+    kind = f" ({mark} data: not comparable to the paper's NGSIM numbers)" if mark else ""
     if "table1" in report:
         ours = report["table1"]["ours"]["AiGem (this run)"]
         paper = report["table1"]["published"]["AiGem (paper)"]

@@ -12,13 +12,23 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 from conftest import straight_track, write_txt
 from typer.testing import CliRunner
 
-from aigem.paper import FITS, PARTS, fit_share_s, parse_parts, plan_builds, plan_fits
+from aigem.paper import (
+    FITS,
+    PARTS,
+    PaperCall,
+    fit_share_s,
+    parse_parts,
+    plan_builds,
+    plan_fits,
+    run_paper,
+)
 from aigem.paper_folder import (
     PAPER_JSON,
     REPORT_JSON,
@@ -37,6 +47,7 @@ from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.lock import output_lock
 from ngsim_graphs.synth.formats import write_synthetic
 
 
@@ -252,8 +263,25 @@ def test_a_moved_folder_holds_the_same_inputs_and_a_changed_file_others(
     assert differences(before, paper_document([moved], PaperConfig())) == ["inputs (a.txt)"]
 
 
+def test_a_refused_call_leaves_the_earlier_report_and_a_second_call_at_once_is_refused(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    (raw,) = {Path(f.path).parent for f in open_build(tiny_build).manifest.inputs}
+    out, config = tmp_path / "out", PaperConfig(epochs=1)
+    claim_folder(out, paper_document([raw], config), False, RUN_NAMES)
+    (out / REPORT_JSON).write_text("{}")  # an earlier call's
+    shutil.copytree(tiny_build, out / "builds" / "dmin-25m")  # replaced by hand: d_min 6 m
+    call = PaperCall(parts=("table",))
+    with pytest.raises(NgsimOutputError, match="is a build of another config .* --overwrite"):
+        run_paper([raw], out, config, call)
+    assert (out / REPORT_JSON).read_text() == "{}"
+    with output_lock(out), pytest.raises(NgsimOutputError, match="another process is writing"):
+        run_paper([raw], out, config, call)
+    assert (out / REPORT_JSON).read_text() == "{}"
+
+
 # ------------------------------------------------------------------------------------------------
-# The whole command: uninterrupted; killed and run again; stopped by --max-hours and run again
+# The whole command: uninterrupted; stopped by --max-hours and run again; killed and run again
 
 PROGRAM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
 FIGURES = ["concat.png", "curves.png", "dmin.png", "regions.png", "table1.png"]
@@ -277,12 +305,26 @@ def run_paper_command(raw: Path, out: Path, *more: str) -> subprocess.CompletedP
 
 
 @pytest.fixture(scope="module")
-def whole(tiny_raw: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """An uninterrupted call of 2 epochs: what the calls stopped and run again must give."""
+def whole(tiny_raw: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[], Path]]:
+    """An uninterrupted call of 2 epochs, what the calls stopped and run again must give: started
+    at once, in the background beside the tests (one core each); called, it waits for it."""
     out = tmp_path_factory.mktemp("whole") / "out"
-    done = run_paper_command(tiny_raw, out, "--epochs", "2")
-    assert done.returncode == 0, done.stderr
-    return out
+    program = subprocess.Popen(
+        paper_command(tiny_raw, out, "--epochs", "2"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+    def finished() -> Path:
+        _, stderr = program.communicate(timeout=600)
+        assert program.returncode == 0, stderr
+        return out
+
+    yield finished
+    if program.poll() is None:
+        program.kill()
+        program.communicate()
 
 
 def comparable(out: Path) -> tuple[dict, str]:
@@ -293,41 +335,8 @@ def comparable(out: Path) -> tuple[dict, str]:
     return document, text[: text.index("## Time taken")]
 
 
-def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
-    tiny_raw: Path, whole: Path, tmp_path: Path
-) -> None:
-    killed = tmp_path / "killed"
-    program = subprocess.Popen(
-        paper_command(tiny_raw, killed, "--epochs", "2"),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-    second_fit = killed / "runs" / "dmin-25m-no-concat"
-    deadline = time.monotonic() + 300
-    while not (second_fit / "h1s" / LAST).exists():  # the second fit's first epoch is kept
-        assert program.poll() is None, program.stderr.read()
-        assert time.monotonic() < deadline, "the second fit never kept an epoch"
-        time.sleep(0.01)
-    os.killpg(program.pid, signal.SIGINT)
-    _, stderr = program.communicate(timeout=120)
-    assert program.returncode == 130, stderr
-    assert stderr.strip().splitlines()[-1].startswith(f"interrupted; {killed} keeps")
-    assert "Traceback" not in stderr
-    assert not (killed / "report.json").exists() and not (killed / "report.md").exists()
-    kept = [epochs_kept(second_fit / f"h{s}s") for s in range(1, 6)]
-    assert kept[0] == max(kept) == 1  # to resume (the models killed before theirs start over)
-    again = run_paper_command(tiny_raw, killed, "--epochs", "2")
-    assert again.returncode == 0, again.stderr
-    assert comparable(killed) == comparable(whole)
-    timings = json.loads((killed / "report.json").read_text())["timings"]
-    assert "fit dmin-25m" not in timings and "fit dmin-25m-no-concat" in timings  # reused
-    assert sorted(p.name for p in (killed / "figures").iterdir()) == FIGURES
-
-
 def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupted_report(
-    tiny_raw: Path, whole: Path, tmp_path: Path
+    tiny_raw: Path, whole: Callable[[], Path], tmp_path: Path
 ) -> None:
     out, table = tmp_path / "out", ["--only", "table"]  # the paper's model alone
     no_time = ["--max-hours", "1e-9"]  # every fit stops after its first batch
@@ -356,7 +365,40 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
     finished = run_paper_command(tiny_raw, out, *table, "--epochs", "2")
     assert finished.returncode == 0, finished.stderr
     assert "UNFINISHED" not in finished.stdout + (out / "report.md").read_text()
-    ours, theirs = comparable(out)[0], comparable(whole)[0]
+    ours, theirs = comparable(out)[0], comparable(whole())[0]
     assert ours["finished"] and ours["fits"] == {"dmin-25m": theirs["fits"]["dmin-25m"]}
     for key in ("table1", "settings"):
         assert ours[key] == theirs[key], key
+
+
+def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
+    tiny_raw: Path, whole: Callable[[], Path], tmp_path: Path
+) -> None:
+    killed = tmp_path / "killed"
+    program = subprocess.Popen(
+        paper_command(tiny_raw, killed, "--epochs", "2"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    second_fit = killed / "runs" / "dmin-25m-no-concat"
+    deadline = time.monotonic() + 300
+    while not (second_fit / "h1s" / LAST).exists():  # the second fit's first epoch is kept
+        assert program.poll() is None, program.stderr.read()
+        assert time.monotonic() < deadline, "the second fit never kept an epoch"
+        time.sleep(0.01)
+    os.killpg(program.pid, signal.SIGINT)
+    _, stderr = program.communicate(timeout=120)
+    assert program.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1].startswith(f"interrupted; {killed} keeps")
+    assert "Traceback" not in stderr
+    assert not (killed / "report.json").exists() and not (killed / "report.md").exists()
+    kept = [epochs_kept(second_fit / f"h{s}s") for s in range(1, 6)]
+    assert kept[0] == max(kept) == 1  # to resume (the models killed before theirs start over)
+    again = run_paper_command(tiny_raw, killed, "--epochs", "2")
+    assert again.returncode == 0, again.stderr
+    assert comparable(killed) == comparable(whole())
+    timings = json.loads((killed / "report.json").read_text())["timings"]
+    assert "fit dmin-25m" not in timings and "fit dmin-25m-no-concat" in timings  # reused
+    assert sorted(p.name for p in (killed / "figures").iterdir()) == FIGURES
