@@ -311,7 +311,7 @@ def run_paper(
     document = paper_document(raw_paths, config)
     check_folder(out, document, call.overwrite)
     out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
-    with output_lock(out):
+    with output_lock(out.resolve()):  # resolved: `--out .` has a name
         show = progress or (lambda _what, _done, _total: None)
         return _run(raw_paths, out, document, config, call, show, start)
 

@@ -80,8 +80,11 @@ def _sha256(path: str, size_bytes: int, mtime_ns: int) -> str:
 
 def _contents(inputs: Sequence[dict[str, Any]] | None) -> list[tuple[str, str]]:
     """(name, sha256) of each input, sorted: two lists of inputs are the same inputs when these
-    are equal (a paper.json of another shape gives Nones: other inputs)."""
-    return sorted((str(f.get("name")), str(f.get("sha256"))) for f in inputs or [])
+    are equal (an entry without them, of an older paper.json, is another input)."""
+    return sorted(
+        (str(f.get("name") or Path(str(f.get("path"))).name), str(f.get("sha256")))
+        for f in inputs or []
+    )
 
 
 def _named(old: list[tuple[str, str]], new: list[tuple[str, str]]) -> str:

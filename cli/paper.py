@@ -89,8 +89,10 @@ def paper(
         bool,
         typer.Option(
             "--overwrite",
-            help="Start over in an --out that an earlier call with other settings left (its runs "
-            "go, and the builds whose config or inputs differ); never a folder not of `aigem paper`.",
+            help="Continue in an --out that an earlier call with other settings left: the builds "
+            "whose config or inputs differ are rebuilt and their runs start over; all runs start "
+            "over for another seed, batch size or patience, or fewer epochs (more continue them); "
+            "never a folder not of `aigem paper`.",
         ),
     ] = False,
 ) -> None:
@@ -99,7 +101,8 @@ def paper(
     d_min 25 m with and without the output concatenation, d_min 0 and 50 m), their evaluations
     on the test split, and OUT/report.md, OUT/report.json and OUT/figures/: Table 1 beside the
     published rows, the d_min and concatenation ablations, the training curves and front / mid /
-    rear. Every table and figure says SYNTHETIC where the inputs came from `ngsim-graphs synth`.
+    rear. Every table and figure says SYNTHETIC (PARTLY SYNTHETIC) where all (some) inputs came
+    from `ngsim-graphs synth`.
 
     Time: about 5 minutes with --epochs 2 on the README's demo input (2 recordings of 2 minutes)
     on 2 CPU cores; the real NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).

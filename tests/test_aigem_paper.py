@@ -261,6 +261,8 @@ def test_a_moved_folder_holds_the_same_inputs_and_a_changed_file_others(
     a = moved / "a.txt"
     a.write_bytes(a.read_bytes().replace(b"100", b"200"))  # the same size
     assert differences(before, paper_document([moved], PaperConfig())) == ["inputs (a.txt)"]
+    older = {**before, "inputs": [{"path": "/old/a.txt", "size_bytes": 4}]}  # no sha256
+    assert differences(older, before) == ["inputs (a.txt)"]
 
 
 def test_a_refused_call_leaves_the_earlier_report_and_a_second_call_at_once_is_refused(
