@@ -10,9 +10,11 @@ test split and the paper's model's metrics logs.
               (the square root of the logged MSE, metres)
     regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
 
-Where the builds are of synthetic data every table and figure says SYNTHETIC. The time each
-stage took is kept apart, under `timings` in report.json and the last section of report.md, so
-that two calls on the same inputs give the same report but for it.
+Where the builds are of synthetic data every table and figure says SYNTHETIC, where some of
+their inputs are PARTLY SYNTHETIC; where --max-hours left a fit unfinished, UNFINISHED (and
+report.json's "finished" is false). The time each stage took is kept apart, under `timings` in
+report.json and the last section of report.md, so that two calls on the same inputs give the
+same report but for it.
 """
 
 from __future__ import annotations
