@@ -10,11 +10,21 @@
 
 `--only` selects the parts of the report (PARTS) and so the builds and fits they need (NEEDS).
 A second call with the same settings continues: a finished build is reused once its config and
-inputs are checked, a finished fit is reused, an interrupted one resumes from its last
-checkpoint (a fit killed before its first starts over: aigem.unfinished), and the evaluations
-are redone. Other settings against a folder of ours are refused unless `overwrite`, which
-discards the runs (and the builds whose config or inputs differ); a folder that is not ours and
-not empty is refused (aigem.paper_folder). The report is aigem.report's.
+inputs (the trajectory files, by name and sha256) are checked, a finished fit is reused, an
+interrupted one resumes from its last checkpoint (a fit killed before its first starts over:
+aigem.unfinished), and the evaluations are redone. Other settings against a folder of ours are
+refused unless `overwrite`: it rebuilds the builds whose config or inputs differ and discards
+the runs trained on them, and all runs where the training settings make other models (more
+epochs continue them: paper_folder.retrains); a folder that is not ours and not empty is
+refused (aigem.paper_folder). Every check is made before the folder is touched: a refused call
+leaves it, an earlier report included, as it was.
+
+`max_hours` bounds the training (the builds and the evaluations come on top): each fit still to
+train gets an equal share of the time left, and stops at the first batch past it, keeping its
+models' last whole epochs, so that the next call redoes the epoch cut and ends with the models
+of a call without a limit. A report with a fit left unfinished says so (its "finished" is
+false); a fit without a whole epoch cannot be evaluated: no report (TimeLimitError). The report
+is aigem.report's.
 """
 
 from __future__ import annotations
@@ -31,22 +41,25 @@ from aigem.config import ModelConfig
 from aigem.paper_folder import (
     BUILDS,
     HORIZONS_S,
+    PAPER_D_MIN_M,
     RUNS,
     PaperConfig,
     build_config,
     build_name,
     build_state,
+    check_folder,
     claim_folder,
     discard_run,
     epochs_left,
     fit_record,
     paper_document,
+    partly_synthetic,
 )
 from aigem.records import LAST, member_dir, read_horizons
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
-PAPER_FIT = "dmin-25m"  # the paper's model: d_min 25 m, the output concatenation
+PAPER_FIT = build_name(PAPER_D_MIN_M)  # the paper's model: d_min 25 m, the output concatenation
 
 
 @dataclass(frozen=True)
@@ -68,15 +81,15 @@ class FitPlan:
 
 
 FITS = (
-    FitPlan(PAPER_FIT, 25.0),
-    FitPlan("dmin-25m-no-concat", 25.0, concat_position=False),
+    FitPlan(PAPER_FIT, PAPER_D_MIN_M),
+    FitPlan(f"{PAPER_FIT}-no-concat", PAPER_D_MIN_M, concat_position=False),
     FitPlan("dmin-0m", 0.0),
     FitPlan("dmin-50m", 50.0),
 )
 NEEDS = {  # the fits each part of the report reads
     "table": (PAPER_FIT,),
     "dmin": ("dmin-0m", PAPER_FIT, "dmin-50m"),
-    "concat": (PAPER_FIT, "dmin-25m-no-concat"),
+    "concat": (PAPER_FIT, f"{PAPER_FIT}-no-concat"),
     "curves": (PAPER_FIT,),
     "regions": (PAPER_FIT,),
 }
@@ -110,7 +123,7 @@ class PaperCall:
     parts: tuple[str, ...] = PARTS
     device: str = "auto"
     threads: int | None = None  # the model step's CPU threads (a number: bit-reproducible)
-    max_hours: float | None = None  # for the whole call; each fit gets its share of what is left
+    max_hours: float | None = None  # for the training; each fit gets its share of what is left
     jobs: int = 1  # the builds' worker processes
     overwrite: bool = False
 
@@ -126,34 +139,48 @@ class PaperResult:
     timings_s: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class _BuildPlan:
+    """The builds the parts need (by d_min), and of them those missing and those to replace."""
+
+    dirs: dict[float, Path]
+    missing: tuple[float, ...]
+    stale: tuple[float, ...]  # of another config or other inputs: rebuilt with --overwrite
+
+
+def _plan_builds(out: Path, inputs: list[dict[str, Any]], call: PaperCall) -> _BuildPlan:
+    """Which builds to reuse, build and rebuild (build_state); refuses a build of another config
+    or other inputs without --overwrite, naming it. Writes nothing."""
+    dirs = {d: out / BUILDS / build_name(d) for d in plan_builds(call.parts)}
+    missing, stale = [], []
+    for d_min_m, build_dir in dirs.items():
+        state = build_state(build_dir, build_config(d_min_m), inputs)
+        if state and not call.overwrite:
+            raise NgsimOutputError(build_dir, f"{state}; add --overwrite to rebuild it")
+        if state is None:
+            missing.append(d_min_m)
+        elif state:
+            stale.append(d_min_m)
+    return _BuildPlan(dirs, tuple(missing), tuple(stale))
+
+
 def _builds(
-    raw_paths: list[Path], out: Path, inputs: list[dict[str, Any]], call: PaperCall, show: Progress
-) -> dict[float, Path]:
-    """The builds the parts need: each reused where finished and of the right config and
-    inputs, else built (one with another config or inputs only with --overwrite, which
-    discards the runs trained on it). The raw files are read and cleaned once for all of them."""
+    raw_paths: list[Path], out: Path, plan: _BuildPlan, call: PaperCall, show: Progress
+) -> None:
+    """Build the missing builds and rebuild the stale ones, discarding first the runs trained on
+    a stale one (they start over). The raw files are read and cleaned once for all of them."""
     from ngsim_graphs.pipeline import run_builds
 
-    targets, replace_them = [], False
-    builds = {d: out / BUILDS / build_name(d) for d in plan_builds(call.parts)}
-    for d_min_m, build_dir in builds.items():
-        state = build_state(build_dir, build_config(d_min_m), inputs)
-        if state == "":
-            continue
-        if state is not None and not call.overwrite:
-            raise NgsimOutputError(build_dir, f"{state}; add --overwrite to rebuild it")
-        if state is not None:  # rebuilt: the runs trained on it start over
-            replace_them = True
-            for plan in FITS:
-                if plan.d_min_m == d_min_m:
-                    discard_run(out / RUNS / plan.name)
-        targets.append((build_dir, build_config(d_min_m)))
-    if targets:
+    for fit in FITS:
+        if fit.d_min_m in plan.stale:
+            discard_run(out / RUNS / fit.name)
+    todo = sorted(plan.missing + plan.stale)
+    if todo:
         (out / BUILDS).mkdir(exist_ok=True)
-        show(f"building {len(targets)} of {len(builds)} builds", 0, 0)
+        show(f"building {len(todo)} of {len(plan.dirs)} builds", 0, 0)
         building = lambda what, done, total: show(f"building {what}", done, total)
-        run_builds(list(raw_paths), targets, replace_them, building, jobs=call.jobs)
-    return builds
+        targets = [(plan.dirs[d], build_config(d)) for d in todo]
+        run_builds(raw_paths, targets, bool(plan.stale), building, jobs=call.jobs)
 
 
 class _Meter:
@@ -172,7 +199,9 @@ class _Meter:
         self.offset += units
 
 
-def _train_config(config: PaperConfig, call: PaperCall, max_minutes: float | None):  # noqa: ANN202
+def _train_config(config: PaperConfig, call: PaperCall):  # noqa: ANN202
+    """The fits' TrainConfig: no max_minutes (a time limit of its own would checkpoint the epoch
+    it cuts as a whole one); _fit ends a fit at its share of --max-hours."""
     from aigem.config import TrainConfig
 
     return TrainConfig(
@@ -181,7 +210,6 @@ def _train_config(config: PaperConfig, call: PaperCall, max_minutes: float | Non
         patience_epochs=config.patience_epochs,
         seed=config.seed,
         threads=call.threads,
-        max_minutes=max_minutes,
     )
 
 
@@ -191,6 +219,11 @@ def _batches(build_dir: Path, split: str, batch_size: int) -> int:
     return math.ceil(open_build(build_dir).manifest.splits.get(split, 0) / batch_size)
 
 
+class _TimeUp(Exception):
+    """A fit's share of --max-hours has passed: raised by its progress callback, it ends the fit
+    as Ctrl-C does, its models keeping their last whole epoch."""
+
+
 def _fit(
     plan: FitPlan,
     out: Path,
@@ -198,8 +231,13 @@ def _fit(
     train: Any,
     device: str,
     meter: _Meter,
+    deadline: float,
 ) -> None:
-    """One five-horizon fit: resumed where a model kept a checkpoint, else started (over)."""
+    """One five-horizon fit: resumed where a model kept a checkpoint, else started (over). Past
+    `deadline` (time.monotonic()) it stops at the next batch: each model keeps the checkpoint of
+    its last whole epoch (the next call redoes the epoch cut: the same models as without a limit),
+    and a fit that kept none takes its files away (runs.discard_unfinished), as `aigem fit` does."""
+    from aigem.runs import discard_unfinished
     from aigem.training import fit_horizons
 
     run_dir, build_dir = out / RUNS / plan.name, out / BUILDS / plan.build_name
@@ -215,11 +253,24 @@ def _fit(
             f"{words}, epoch {epoch}/{config.epochs}",
             _Meter.TRAIN_UNITS * ((epoch - 1 - first) * total + done),
         )
+        if time.monotonic() > deadline:
+            raise _TimeUp
 
     (out / RUNS).mkdir(exist_ok=True)
+    created = not run_dir.exists()
     model = ModelConfig(concat_position=plan.concat_position)
-    fit_horizons(build_dir, run_dir, HORIZONS_S, model, train, device, resume, progress)
+    try:
+        fit_horizons(build_dir, run_dir, HORIZONS_S, model, train, device, resume, progress)
+    except _TimeUp:
+        if not any(_epochs_done(run_dir, config)):
+            discard_unfinished(run_dir, HORIZONS_S, created)
+        return
     meter.advance(_Meter.TRAIN_UNITS * left * batches)
+
+
+def _epochs_done(run_dir: Path, config: PaperConfig) -> list[int]:
+    """Each model's epochs kept (its last checkpoint's), 0 for a model with none."""
+    return [model["epochs_done"] for model in fit_record(run_dir, config).values()]
 
 
 def _evaluate(plan: FitPlan, out: Path, device: str, meter: _Meter) -> Any:
@@ -237,6 +288,10 @@ def _evaluate(plan: FitPlan, out: Path, device: str, meter: _Meter) -> Any:
     return result
 
 
+class TimeLimitError(RuntimeError):
+    """--max-hours ended the training before a fit the report needs kept an epoch: no report."""
+
+
 def run_paper(
     raw_paths: Sequence[Path],
     out: Path,
@@ -244,27 +299,47 @@ def run_paper(
     call: PaperCall,
     progress: Progress | None = None,
 ) -> PaperResult:
-    """The paper's experiments into `out` (see the module's docstring); returns the report."""
-    from aigem.report import paper_report, write_report
+    """The paper's experiments into `out` (see the module's docstring); returns the report,
+    whose "finished" is false where --max-hours left a fit unfinished. Raises TimeLimitError
+    where it left a fit without a whole epoch (nothing to report). A second call into the same
+    `out` at once is refused (ngsim_graphs.lock, `.OUT.lock` beside it)."""
     from ngsim_graphs.landing import check_outside_inputs
+    from ngsim_graphs.lock import output_lock
 
-    show = progress or (lambda _what, _done, _total: None)
     start = time.monotonic()
-    deadline = start + 3600 * call.max_hours if call.max_hours is not None else math.inf
-    timings: dict[str, float] = {}
     check_outside_inputs(out, list(raw_paths))
     document = paper_document(raw_paths, config)
-    claim_folder(out, document, call.overwrite)
-    _builds(list(raw_paths), out, document["inputs"], call, show)
+    check_folder(out, document, call.overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
+    with output_lock(out.resolve()):  # resolved: `--out .` has a name
+        show = progress or (lambda _what, _done, _total: None)
+        return _run(raw_paths, out, document, config, call, show, start)
+
+
+def _run(
+    raw_paths: Sequence[Path],
+    out: Path,
+    document: dict[str, Any],
+    config: PaperConfig,
+    call: PaperCall,
+    show: Progress,
+    start: float,
+) -> PaperResult:
+    """run_paper's work, `out` locked: every check (claim_folder's again, another call may have
+    come before) before the folder is touched."""
+    from aigem.report import paper_report, write_report
+
+    timings: dict[str, float] = {}
+    builds = _plan_builds(out, document["inputs"], call)
+    claim_folder(out, document, call.overwrite, [plan.name for plan in FITS])
+    _builds(list(raw_paths), out, builds, call, show)
     timings["builds"] = time.monotonic() - start
     fits = plan_fits(call.parts)
     to_train = [plan for plan in fits if epochs_left(out / RUNS / plan.name, config)]
     meter = _Meter(show, _work_units(out, fits, to_train, config))
-    for index, plan in enumerate(to_train):
-        began = time.monotonic()
-        max_minutes = fit_minutes(deadline - began, len(to_train) - index)
-        _fit(plan, out, config, _train_config(config, call, max_minutes), call.device, meter)
-        timings[f"fit {plan.name}"] = time.monotonic() - began
+    timings |= _train(out, to_train, config, call, meter)
+    unfinished = [plan for plan in fits if epochs_left(out / RUNS / plan.name, config)]
+    _check_reportable(out, unfinished, config)
     evaluations = {}
     with _threads(call.threads):
         for plan in fits:
@@ -286,6 +361,8 @@ def run_paper(
         },
         evaluations,
         _curves(out / RUNS / PAPER_FIT) if PAPER_FIT in evaluations else {},
+        [plan.name for plan in unfinished],
+        partly_synthetic([out / BUILDS / plan.build_name for plan in fits]),
     )
     timings["report"] = time.monotonic() - began
     timings["total"] = time.monotonic() - start
@@ -293,13 +370,42 @@ def run_paper(
     return PaperResult(out, report, timings)
 
 
-def fit_minutes(left_s: float, fits_left: int) -> float | None:
-    """A fit's time limit (TrainConfig.max_minutes): its equal share of the time left to the
-    fits still to train, at least a second (a model to evaluate: one step, then validation);
-    None without a limit (left_s infinite)."""
-    if math.isinf(left_s):
-        return None
-    return max(left_s / 60 / fits_left, 1 / 60)
+def _train(
+    out: Path, to_train: Sequence[FitPlan], config: PaperConfig, call: PaperCall, meter: _Meter
+) -> dict[str, float]:
+    """The fits still to train, one after the other, each until its share of --max-hours
+    (counted from here: the builds and the evaluations come on top); a fit that finds no time
+    left does not start. Returns the time each took."""
+    timings = {}
+    deadline = time.monotonic() + (
+        3600 * call.max_hours if call.max_hours is not None else math.inf
+    )
+    train = _train_config(config, call)
+    for index, plan in enumerate(to_train):
+        began = time.monotonic()
+        share_s = fit_share_s(deadline - began, len(to_train) - index)
+        if share_s > 0:
+            _fit(plan, out, config, train, call.device, meter, began + share_s)
+            timings[f"fit {plan.name}"] = time.monotonic() - began
+    return timings
+
+
+def fit_share_s(left_s: float, fits_left: int) -> float:
+    """A fit's time (s): its equal share of the time left to the fits still to train (a fit
+    that ends sooner leaves its time to those after it); infinite without --max-hours."""
+    return left_s / fits_left
+
+
+def _check_reportable(out: Path, unfinished: Sequence[FitPlan], config: PaperConfig) -> None:
+    """Refuse a report where --max-hours left a fit the parts need without a whole epoch."""
+    empty = [plan for plan in unfinished if 0 in _epochs_done(out / RUNS / plan.name, config)]
+    if empty:
+        which = ", ".join(f"{plan.name} ({plan.describe()})" for plan in empty)
+        raise TimeLimitError(
+            f"--max-hours ended the training before a whole epoch of {which}: no report; run "
+            "the same command again to continue (with more time: a fit's epoch that its share "
+            "of --max-hours cuts is redone)"
+        )
 
 
 def _work_units(

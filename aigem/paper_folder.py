@@ -2,10 +2,13 @@
 (paper.json), and what an earlier call left that this one reuses: a finished build of the right
 config and inputs, each fit's kept epochs.
 
-paper.json is written first into a new or empty folder and names the work: the inputs (resolved
-paths and sizes), PaperConfig, the builds' config and the horizons. A folder that holds another
-program's files is never written into; one of ours with other settings only with `overwrite`,
-which discards the runs (only the files a fit writes) before paper.json is rewritten.
+paper.json is written first into a new or empty folder and names the work: the inputs (the
+trajectory files read, by name, size and sha256: list_inputs), PaperConfig, the builds' config
+and the horizons. A folder that holds another program's files is never written into; one of ours
+with other settings only with `overwrite`, which discards the runs (only the files a fit writes)
+where the training settings make other models (`retrains`) before paper.json is rewritten; more
+epochs continue them. A build of another config or other inputs is rebuilt, and the runs
+trained on it discarded, by aigem.paper.
 """
 
 from __future__ import annotations
@@ -13,20 +16,24 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
 from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
+from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import json_object, some_names
 from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.partial_files import leftover_partials, write_atomic
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
+PAPER_D_MIN_M = 25.0  # the d_min of the paper's model (the others: the d_min ablation)
 PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
 BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
 WRITTEN_BY = "aigem paper"
+RETRAIN = ("seed", "batch_size", "patience_epochs")  # PaperConfig's: other models
 
 
 @dataclass(frozen=True)
@@ -47,18 +54,42 @@ def build_name(d_min_m: float) -> str:
 
 
 def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
-    """Every file under `raw_paths` (a file, or a folder searched; hidden names skipped), with
-    its resolved path and size: what a later call compares."""
-    files: set[Path] = set()
-    for raw in raw_paths:
-        path = raw.resolve()
-        if path.is_file():
-            files.add(path)
-        elif path.is_dir():
-            files.update(p for p in path.rglob("*") if p.is_file() and not p.name.startswith("."))
-        else:
-            raise NgsimInputError(raw, "no such file or folder")
-    return [{"path": str(p), "size_bytes": p.stat().st_size} for p in sorted(files)]
+    """The trajectory files a build reads under `raw_paths` (the source's choice: a readme or
+    another file that is not a recording is skipped), each by name, size and sha256, in that
+    order: what a later call and a build's manifest are compared by. A moved folder holds the
+    same inputs; a file changed, added or taken away makes other inputs."""
+    from ngsim_graphs.sources.registry import choose_source
+
+    _, files, _ = choose_source(list(raw_paths))
+    found = [_identity(path) for path in files]
+    return sorted(found, key=lambda f: (f["name"], f["sha256"]))
+
+
+def _identity(path: Path) -> dict[str, Any]:
+    stat = path.stat()
+    digest = _sha256(str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    return {"name": path.name, "size_bytes": stat.st_size, "sha256": digest}
+
+
+@cache
+def _sha256(path: str, size_bytes: int, mtime_ns: int) -> str:
+    """A file's sha256, hashed once per process while its size and mtime stay (the command
+    checks the folder before PyTorch loads, then again as it starts: 1.5 GB is hashed once)."""
+    return file_sha256(Path(path))
+
+
+def _contents(inputs: Sequence[dict[str, Any]] | None) -> list[tuple[str, str]]:
+    """(name, sha256) of each input, sorted: two lists of inputs are the same inputs when these
+    are equal (an entry without them, of an older paper.json, is another input)."""
+    return sorted(
+        (str(f.get("name") or Path(str(f.get("path"))).name), str(f.get("sha256")))
+        for f in inputs or []
+    )
+
+
+def _named(old: list[tuple[str, str]], new: list[tuple[str, str]]) -> str:
+    """The names of the inputs that differ between two _contents, for a one-line message."""
+    return some_names(sorted({name for name, _ in set(old) ^ set(new)}))
 
 
 def paper_document(raw_paths: Sequence[Path], config: PaperConfig) -> dict[str, Any]:
@@ -76,11 +107,9 @@ def paper_document(raw_paths: Sequence[Path], config: PaperConfig) -> dict[str, 
 def differences(before: dict[str, Any], now: dict[str, Any]) -> list[str]:
     """What differs between two paper.json documents, in words ("epochs 2 -> 100")."""
     said = []
-    if before.get("inputs") != now["inputs"]:
-        old = {(f["path"], f["size_bytes"]) for f in before.get("inputs") or []}
-        new = {(f["path"], f["size_bytes"]) for f in now["inputs"]}
-        changed = sorted({p for p, _ in old ^ new})
-        said.append(f"inputs ({some_names(changed)})")
+    old, new = _contents(before.get("inputs")), _contents(now["inputs"])
+    if old != new:
+        said.append(f"inputs ({_named(old, new)})")
     for key in ("config", "build_config"):
         old, new = before.get(key) or {}, now[key]
         said += [f"{k} {old.get(k)} -> {new[k]}" for k in new if old.get(k) != new[k]]
@@ -116,11 +145,24 @@ def check_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
         )
 
 
-def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
+def retrains(before: dict[str, Any], now: dict[str, Any]) -> bool:
+    """Whether `now`'s training settings make other models than `before`'s: another seed, batch
+    size or patience, or fewer epochs. More epochs continue the runs (the paper's constant
+    learning rate does not depend on them), as the same command would after a time limit."""
+    old, new = before.get("config") or {}, now["config"]
+    if any(old.get(key) != new[key] for key in RETRAIN):
+        return True
+    return not isinstance(old.get("epochs"), int) or old["epochs"] > new["epochs"]
+
+
+def claim_folder(
+    out: Path, document: dict[str, Any], overwrite: bool, run_names: Sequence[str]
+) -> None:
     """Make `out` ours for `document`'s work (check_folder first): new or empty, paper.json
-    written first; ours with the same settings, as it is; ours with others (`overwrite`), the
-    runs discarded, then paper.json rewritten. An earlier call's report.json and report.md go:
-    none is there until this call has finished."""
+    written first; ours with the same settings, as it is; ours with others (`overwrite`): the
+    runs named `run_names` discarded where the models would differ (`retrains`), then paper.json
+    rewritten. An earlier call's report.json and report.md go: none is there until this call
+    has finished."""
     check_folder(out, document, overwrite)
     marker = out / PAPER_JSON
     before = json_object(marker)
@@ -132,8 +174,9 @@ def claim_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
         (out / name).unlink(missing_ok=True)
     if not differences(before, document):
         return
-    for run_dir in sorted((out / RUNS).glob("dmin-*")):
-        discard_run(run_dir)
+    if retrains(before, document):
+        for name in run_names:
+            discard_run(out / RUNS / name)
     write_atomic(marker, _json_bytes(document))
 
 
@@ -169,8 +212,9 @@ def build_config(d_min_m: float) -> BuildConfig:
 
 
 def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any]]) -> str | None:
-    """ "" for a finished build in `build_dir` to reuse (of `config`, its inputs among `inputs`
-    with their sizes); None where there is none (no manifest); else why it cannot be reused."""
+    """ "" for a finished build in `build_dir` to reuse (of `config`, read from exactly `inputs`:
+    list_inputs's, compared by name and sha256); None where there is none (no manifest); else
+    why it cannot be reused."""
     from ngsim_graphs.build import open_build
 
     if not manifest_path(build_dir).is_file():
@@ -180,11 +224,18 @@ def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any
         ours, theirs = config.to_dict(), manifest.config.to_dict()
         changed = [f"{k} {theirs.get(k)} -> {v}" for k, v in ours.items() if theirs.get(k) != v]
         return f"is a build of another config ({'; '.join(changed)})"
-    sizes = {f["path"]: f["size_bytes"] for f in inputs}
-    stale = [
-        f.path for f in manifest.inputs if sizes.get(str(Path(f.path).resolve())) != f.size_bytes
-    ]
-    return f"was built from other inputs ({some_names(stale)})" if stale else ""
+    built = sorted((Path(f.path).name, f.sha256) for f in manifest.inputs)
+    now = _contents(inputs)
+    return f"was built from other inputs ({_named(built, now)})" if built != now else ""
+
+
+def partly_synthetic(build_dirs: Sequence[Path]) -> bool:
+    """Whether a build in `build_dirs` mixes synth's files with others (its manifest's record)."""
+    from ngsim_graphs.build import open_build
+    from ngsim_graphs.synth.marker import synthetic_build, synthetic_inputs_of
+
+    manifests = [open_build(build_dir).manifest for build_dir in build_dirs]
+    return any(synthetic_inputs_of(m) and not synthetic_build(m) for m in manifests)
 
 
 def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], bool]:

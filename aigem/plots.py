@@ -195,8 +195,9 @@ def _marked(figure: Figure, result: Evaluation | HorizonsEvaluation) -> Figure:
     return figure
 
 
-def _paper_points(axes: Axes, key: str) -> None:
-    """The paper's table as markers: RMSE at 1..5 s (key "rmse_m"), or FDE at 5 s ("fde_m")."""
+def paper_points(axes: Axes, key: str) -> None:
+    """The paper's table as markers: RMSE at 1..5 s (key "rmse_m"), or FDE at 5 s ("fde_m");
+    also aigem.report_plots' Table 1."""
     for name, row in PAPER_TABLE.items():
         model = name.removesuffix(" (paper)")
         marker, colour = PAPER_MARKERS[model]
@@ -275,7 +276,7 @@ def error_by_horizon(result: Evaluation | HorizonsEvaluation, label: str) -> Fig
             lw=2,
             label="constant velocity",
         )
-        _paper_points(axes, "rmse_m" if key == "rmse_m" else "fde_m")
+        paper_points(axes, "rmse_m" if key == "rmse_m" else "fde_m")
         axes.set(xlabel="horizon (s)", ylabel=f"{title.split(' (')[0]} (m)", title=title)
         axes.set_xlim(0, max(5.0, times[-1]) + 0.2)
         axes.set_ylim(bottom=0)

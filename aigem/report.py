@@ -10,9 +10,11 @@ test split and the paper's model's metrics logs.
               (the square root of the logged MSE, metres)
     regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
 
-Where the builds are of synthetic data every table and figure says SYNTHETIC. The time each
-stage took is kept apart, under `timings` in report.json and the last section of report.md, so
-that two calls on the same inputs give the same report but for it.
+Where the builds are of synthetic data every table and figure says SYNTHETIC, where some of
+their inputs are PARTLY SYNTHETIC; where --max-hours left a fit unfinished, UNFINISHED (and
+report.json's "finished" is false). The time each stage took is kept apart, under `timings` in
+report.json and the last section of report.md, so that two calls on the same inputs give the
+same report but for it.
 """
 
 from __future__ import annotations
@@ -24,12 +26,17 @@ from pathlib import Path
 from typing import Any
 
 from aigem.metrics import FRONT_Y_M, REGIONS
+from aigem.paper_folder import HORIZONS_S, PAPER_D_MIN_M
 from aigem.results import PAPER_CITATION, PAPER_NOTES, HorizonsEvaluation, paper_rows
 from ngsim_graphs.partial_files import write_atomic
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
-SECONDS = (1, 2, 3, 4, 5)
-PAPER_D_MIN_M = 25.0
+SECONDS = tuple(round(h) for h in HORIZONS_S)  # 1..5: the keys' rmse_{s}s_m
+PARTLY_SYNTHETIC_LABEL = (
+    "the inputs' recordings, PARTLY SYNTHETIC: some of them written by `ngsim-graphs synth` "
+    "(each build's manifest names them: synthetic_inputs)"
+)
+UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
 TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
 FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")
 Fit = dict[str, Any]  # d_min_m, concat_position, models (each model's course)
@@ -87,23 +94,37 @@ def regions(evaluation: HorizonsEvaluation) -> dict[str, Any]:
     }
 
 
+def _data_words(synthetic: bool, partly_synthetic: bool) -> str:
+    if synthetic:
+        return SYNTHETIC_LABEL
+    return PARTLY_SYNTHETIC_LABEL if partly_synthetic else "the inputs' recordings"
+
+
 def paper_report(
     settings: dict[str, Any],
     parts: Sequence[str],
     fits: dict[str, Fit],
     evaluations: dict[str, HorizonsEvaluation],
     curve_rows: dict[str, list[dict[str, Any]]],
+    unfinished: Sequence[str] = (),
+    partly_synthetic: bool = False,
 ) -> dict[str, Any]:
     """report.json's numbers (its figures and timings are added by write_report). `fits` and
     `evaluations` by run name; the paper's fit is the one of d_min 25 m with the output
-    concatenation; `curve_rows`: its models' metrics rows, by model name."""
+    concatenation; `curve_rows`: its models' metrics rows, by model name; `unfinished`: the
+    fits that --max-hours stopped before their last epoch ("finished" false, and every table
+    and figure says UNFINISHED); `partly_synthetic`: some inputs, not all, are synth's (every
+    table and figure says PARTLY SYNTHETIC)."""
     synthetic = any(e.synthetic for e in evaluations.values())
     by_setting = {(f["d_min_m"], f["concat_position"]): name for name, f in fits.items()}
     paper = evaluations.get(by_setting.get((PAPER_D_MIN_M, True), ""))
     document: dict[str, Any] = {
         "written_by": "aigem paper",
+        "finished": not unfinished,
+        "unfinished_fits": list(unfinished),
         "synthetic": synthetic,
-        "data": SYNTHETIC_LABEL if synthetic else "the inputs' recordings",
+        "partly_synthetic": partly_synthetic and not synthetic,
+        "data": _data_words(synthetic, partly_synthetic),
         "split": "test",
         "parts": list(parts),
         "settings": {"inputs": settings["inputs"], **settings["config"]},
@@ -142,6 +163,10 @@ def _m(value: float | None) -> str:
     return "–" if value is None else f"{value:.2f}"
 
 
+def _count(value: int | None) -> str:
+    return "–" if value is None else f"{value:,}"
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
@@ -151,15 +176,26 @@ def _rmse_header(first: str) -> list[str]:
     return [first, *(f"RMSE {s} s (m)" for s in SECONDS)]
 
 
+def data_mark(document: dict[str, Any]) -> str | None:
+    """What the report says of its data: SYNTHETIC, PARTLY SYNTHETIC, or nothing (None)."""
+    if document["synthetic"]:
+        return "SYNTHETIC"
+    return "PARTLY SYNTHETIC" if document["partly_synthetic"] else None
+
+
 def _mark(document: dict[str, Any]) -> str:
-    return " (SYNTHETIC)" if document["synthetic"] else ""
+    """What a heading says of the whole report: (PARTLY) SYNTHETIC data, UNFINISHED training."""
+    marks = [data_mark(document)] + ["UNFINISHED"] * (not document["finished"])
+    shown = [mark for mark in marks if mark]
+    return f" ({', '.join(shown)})" if shown else ""
 
 
 def _table1_lines(document: dict[str, Any]) -> list[str]:
     part = document["table1"]
     header = ["model", "ADE (m)", "FDE (m)", *(f"RMSE {s} s (m)" for s in SECONDS), "params (K)"]
     header.append("numbers")
-    ours = "this call" + (", SYNTHETIC data" if document["synthetic"] else "")
+    mark = data_mark(document)
+    ours = "this call" + (f", {mark} data" if mark else "")
     rows = []
     for source, table in ((ours, part["ours"]), ("published, NGSIM", part["published"])):
         for name, row in table.items():
@@ -182,7 +218,7 @@ def _table1_lines(document: dict[str, Any]) -> list[str]:
         "",
         "AiGem's RMSE at h s comes from the model trained for h s, its ADE and FDE from the 5 s "
         "model (the paper's protocol); constant velocity is scored on the same targets. Targets "
-        "at 1..5 s: " + ", ".join(f"{n:,}" for n in part["targets"] if n is not None) + ".",
+        "at 1..5 s: " + ", ".join(_count(n) for n in part["targets"]) + ".",
         f"Published rows: {part['published_source']}.",
         *notes,
         "",
@@ -242,7 +278,7 @@ def _regions_lines(document: dict[str, Any]) -> list[str]:
         "rear": f"rear (y < -{y} m)",
     }
     rows = [
-        [words[region], *map(_m, values), f"{(part['targets'][region][-1] or 0):,}"]
+        [words[region], *map(_m, values), _count(part["targets"][region][-1])]
         for region, values in part["rmse_m"].items()
     ]
     return [
@@ -291,9 +327,9 @@ def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
         f"# AiGem: the paper's experiments{_mark(document)}",
         "",
         (
-            f"**SYNTHETIC**: every number of this call comes from {document['data']}; only the "
-            "rows marked published are NGSIM results."
-            if document["synthetic"]
+            f"**{data_mark(document)}**: every number of this call comes from "
+            f"{document['data']}; only the rows marked published are NGSIM results."
+            if data_mark(document)
             else f"Every number of this call comes from {document['data']}."
         ),
         "",
@@ -303,6 +339,9 @@ def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
         f"{document['split']} split.",
         "",
     ]
+    if not document["finished"]:
+        fits = ", ".join(document["unfinished_fits"])
+        lines[2:2] = [f"**{UNFINISHED}** (unfinished fits: {fits}).", ""]
     if "table1" in document:
         lines += _table1_lines(document)
     if "dmin" in document:

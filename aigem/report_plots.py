@@ -7,7 +7,9 @@
     curves.png    train and validation RMSE per epoch, one panel per horizon's model
     regions.png   RMSE per horizon for front, mid and rear actors
 
-A figure of synthetic data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic).
+A figure of synthetic data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic);
+one of partly synthetic data PARTLY SYNTHETIC, one of an unfinished report UNFINISHED, in its
+title.
 Figures are made as aigem.plots makes them: a Figure on an Agg canvas, no pyplot.
 """
 
@@ -21,10 +23,13 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from aigem.plots import BASELINE, OURS, PAPER_MARKERS, png_bytes
+from aigem import report
+from aigem.plots import BASELINE, OURS, paper_points, png_bytes
 from ngsim_graphs.plotting import mark_synthetic
 
-SECONDS = np.arange(1, 6)
+SECONDS = np.array(report.SECONDS)
+UNFINISHED_PICTURE = "UNFINISHED (training stopped by --max-hours)"
+PARTLY_SYNTHETIC_PICTURE = "PARTLY SYNTHETIC data"
 
 
 def _values(values: Sequence[float | None]) -> np.ndarray:
@@ -32,13 +37,20 @@ def _values(values: Sequence[float | None]) -> np.ndarray:
 
 
 def _finish(figure: Figure, document: dict[str, Any]) -> bytes:
+    marks = [PARTLY_SYNTHETIC_PICTURE] * document["partly_synthetic"]
+    marks += [UNFINISHED_PICTURE] * (not document["finished"])
+    if marks:  # in the suptitle: a constrained layout makes room for it
+        title = figure.get_suptitle()
+        words = ", ".join(marks) + (f": {title}" if title else "")
+        figure.suptitle(words, color="tab:red", fontweight="bold")
     if document["synthetic"]:
         mark_synthetic(figure)
     return png_bytes(figure)
 
 
 def _source(document: dict[str, Any]) -> str:
-    return "SYNTHETIC data" if document["synthetic"] else "this call's data"
+    mark = report.data_mark(document)
+    return f"{mark} data" if mark else "this call's data"
 
 
 def table1_figure(document: dict[str, Any]) -> Figure:
@@ -52,14 +64,7 @@ def table1_figure(document: dict[str, Any]) -> Figure:
         axes.plot(
             SECONDS, values, color=colour, lw=2, marker="D", label=f"{name}, {_source(document)}"
         )
-    for name, row in part["published"].items():
-        model = name.removesuffix(" (paper)")
-        marker, colour = PAPER_MARKERS.get(model, ("o", "tab:gray"))
-        values = _values([row[f"rmse_{s}s_m"] for s in SECONDS])
-        axes.plot(
-            SECONDS, values, ls="none", marker=marker, ms=7, mfc="none", mec=colour, mew=1.5,
-            label=f"{model} (published, NGSIM)",
-        )  # fmt: skip
+    paper_points(axes, "rmse_m")  # part["published"]'s rows, as aigem evaluate draws them
     axes.set(
         xlabel="horizon (s)",
         ylabel="RMSE (m)",

@@ -52,16 +52,18 @@ def paper(
         str,
         typer.Option(
             metavar="PART[,PART...]",
-            help="The parts of the report, and so the builds and fits they need: table, curves "
-            "and regions the paper's model (d_min 25 m); dmin also the fits of d_min 0 and 50 m; "
-            "concat also the d_min 25 m fit without the output concatenation.",
+            help="The parts of the report (it then holds only those), and so the builds and "
+            "fits they need: table, curves and regions the paper's model (d_min 25 m); dmin also "
+            "the fits of d_min 0 and 50 m; concat also the d_min 25 m fit without the output "
+            "concatenation.",
         ),
     ] = PARTS_HELP,
     max_hours: Annotated[
         float | None,
         typer.Option(
-            help="Time for the whole command: each fit still to train gets an equal share of what "
-            "is left; a fit stopped by it resumes when the command is run again."
+            help="Time for the training (the builds and the evaluations come on top): each fit "
+            "still to train gets an equal share of what is left and keeps its last whole epoch; "
+            "the report then says UNFINISHED, and the same command again continues.",
         ),
     ] = None,
     device: Annotated[
@@ -87,8 +89,10 @@ def paper(
         bool,
         typer.Option(
             "--overwrite",
-            help="Start over in an --out that an earlier call with other settings left (its runs "
-            "go, and the builds whose config or inputs differ); never a folder not of `aigem paper`.",
+            help="Continue in an --out that an earlier call with other settings left: the builds "
+            "whose config or inputs differ are rebuilt and their runs start over; all runs start "
+            "over for another seed, batch size or patience, or fewer epochs (more continue them); "
+            "never a folder not of `aigem paper`.",
         ),
     ] = False,
 ) -> None:
@@ -97,12 +101,15 @@ def paper(
     d_min 25 m with and without the output concatenation, d_min 0 and 50 m), their evaluations
     on the test split, and OUT/report.md, OUT/report.json and OUT/figures/: Table 1 beside the
     published rows, the d_min and concatenation ablations, the training curves and front / mid /
-    rear. Every table and figure says SYNTHETIC where the inputs came from `ngsim-graphs synth`.
+    rear. Every table and figure says SYNTHETIC (PARTLY SYNTHETIC) where all (some) inputs came
+    from `ngsim-graphs synth`.
 
     Time: about 5 minutes with --epochs 2 on the README's demo input (2 recordings of 2 minutes)
     on 2 CPU cores; the real NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).
 
     Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
+    --max-hours bounds the training only (builds and evaluations come on top); a report of fits
+    it stopped says UNFINISHED, and the same command again continues them.
     """
     from aigem.paper import parse_parts  # light: no PyTorch yet
     from aigem.paper_folder import PaperConfig, check_folder, paper_document
@@ -124,7 +131,7 @@ def paper(
         from aigem.cores import busy_cores_warning
         from aigem.devices import DeviceUnavailableError, pick_device
         from aigem.epochs import NonFiniteLossError
-        from aigem.paper import PaperCall, run_paper
+        from aigem.paper import PaperCall, TimeLimitError, run_paper
         from ngsim_graphs.budget import available_cores
     try:
         pick_device(device.value)
@@ -137,19 +144,19 @@ def paper(
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         try:
             result = run_paper(raw_paths, out, config, call, progress)
-        except (NonFiniteLossError, DeviceUnavailableError) as err:
+        except (NonFiniteLossError, DeviceUnavailableError, TimeLimitError) as err:
             print_error(str(err))
             raise typer.Exit(1) from None
     _print_summary(result.report, out)
 
 
 def _print_summary(report: dict, out: Path) -> None:
-    """Where the report is, and the paper's model's RMSE beside the paper's."""
-    kind = (
-        " (SYNTHETIC data: not comparable to the paper's NGSIM numbers)"
-        if report["synthetic"]
-        else ""
-    )
+    """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
+    left a fit unfinished, that the report is unfinished (last)."""
+    from aigem.report import UNFINISHED, data_mark
+
+    mark = data_mark(report)
+    kind = f" ({mark} data: not comparable to the paper's NGSIM numbers)" if mark else ""
     if "table1" in report:
         ours = report["table1"]["ours"]["AiGem (this run)"]
         paper = report["table1"]["published"]["AiGem (paper)"]
@@ -160,3 +167,6 @@ def _print_summary(report: dict, out: Path) -> None:
         stdout.print(f"AiGem RMSE at 1..5 s (m): {shown(ours)}{kind}; the paper: {shown(paper)}")
     figures = ", ".join(Path(name).name for name in report.get("figures", []))
     stdout.print(f"Report: {out / 'report.md'} and {out / 'report.json'}; figures: {figures}")
+    if not report["finished"]:
+        fits = ", ".join(report["unfinished_fits"])
+        stdout.print(f"{UNFINISHED} (unfinished fits: {fits})", markup=False, highlight=False)

@@ -9,7 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from aigem.report import TIME_HEADING, paper_report, report_markdown, write_report
+from aigem.report import (
+    TIME_HEADING,
+    UNFINISHED,
+    paper_report,
+    report_markdown,
+    write_report,
+)
+from aigem.report_plots import report_figures
 from aigem.results import HorizonsEvaluation, paper_rows
 
 SETTINGS = {
@@ -68,9 +75,14 @@ CURVE_ROWS = {
 PARTS = ("table", "dmin", "concat", "curves", "regions")
 
 
-def report(synthetic: bool = True, parts: tuple[str, ...] = PARTS) -> dict:
+def report(
+    synthetic: bool = True,
+    parts: tuple[str, ...] = PARTS,
+    unfinished: tuple[str, ...] = (),
+    partly: bool = False,
+) -> dict:
     evaluations = {name: evaluation(base, synthetic) for name, base in BASES.items()}
-    return paper_report(SETTINGS, parts, FITS, evaluations, CURVE_ROWS)
+    return paper_report(SETTINGS, parts, FITS, evaluations, CURVE_ROWS, unfinished, partly)
 
 
 def test_table1_holds_the_paper_fits_numbers_constant_velocity_and_every_published_row() -> None:
@@ -143,6 +155,52 @@ def test_markdown_says_synthetic_on_every_table_and_keeps_the_time_last() -> Non
     assert "| h1s | 2 | 1 | 2.00 | 3.00 |" in text  # the best epoch's RMSE
     plain = report_markdown(report(synthetic=False), {})
     assert "SYNTHETIC" not in plain
+
+
+def test_a_report_of_fits_the_time_limit_stopped_says_unfinished_everywhere() -> None:
+    assert report()["finished"] and report()["unfinished_fits"] == []
+    document = report(synthetic=False, unfinished=("dmin-0m", "dmin-50m"))
+    assert not document["finished"] and document["unfinished_fits"] == ["dmin-0m", "dmin-50m"]
+    text = report_markdown(document, {})
+    lines = text.splitlines()
+    assert lines[0].endswith("(UNFINISHED)")
+    assert lines[2] == f"**{UNFINISHED}** (unfinished fits: dmin-0m, dmin-50m)."
+    headings = [line for line in lines if line.startswith("## ")]
+    parts = [h for h in headings if h not in ("## Runs", TIME_HEADING)]
+    assert len(parts) == 5 and all(h.endswith("(UNFINISHED)") for h in parts)
+    both = report_markdown(report(unfinished=("dmin-0m",)), {})
+    assert both.splitlines()[0].endswith("(SYNTHETIC, UNFINISHED)")
+    assert "UNFINISHED" not in report_markdown(report(), {})
+    figures = report_figures(document)
+    plain = report_figures(report(synthetic=False))
+    assert sorted(figures) == sorted(plain)
+    assert all(figures[name] != plain[name] for name in figures)  # each says it
+
+
+def test_inputs_partly_synthetic_are_said_on_every_table_and_figure() -> None:
+    document = report(synthetic=False, partly=True)
+    assert document["partly_synthetic"] and not document["synthetic"]
+    assert "PARTLY SYNTHETIC" in document["data"]
+    text = report_markdown(document, {})
+    assert text.splitlines()[2].startswith("**PARTLY SYNTHETIC**: every number of this call")
+    headings = [line for line in text.splitlines() if line.startswith(("# ", "## "))]
+    parts = [h for h in headings if h not in ("## Runs", TIME_HEADING)]
+    assert len(parts) == 6 and all(h.endswith("(PARTLY SYNTHETIC)") for h in parts)
+    assert "| AiGem (this run) |" in text and "| this call, PARTLY SYNTHETIC data |" in text
+    plain = report_figures(report(synthetic=False))
+    assert all(png != plain[name] for name, png in report_figures(document).items())
+    assert not report(synthetic=True, partly=True)["partly_synthetic"]  # all synthetic: SYNTHETIC
+
+
+def test_a_horizon_without_targets_is_shown_as_a_dash_not_dropped() -> None:
+    document = report()
+    document["table1"]["targets"][2] = None
+    document["regions"]["targets"]["rear"][-1] = None
+    text = report_markdown(document, {})
+    assert "Targets at 1..5 s: 12, 12, –, 12, 12." in text
+    assert "| rear (y < -" in text and text.split("| rear (y < -")[1].split("\n")[0].endswith(
+        "| – |"
+    )
 
 
 def test_write_report_writes_the_figures_and_report_json_last_with_the_timings(
