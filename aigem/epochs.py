@@ -18,6 +18,7 @@ so x and y weigh alike.
 from __future__ import annotations
 
 import math
+import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -36,6 +37,7 @@ from aigem.devices import to_device
 from aigem.ensemble import Ensemble
 from aigem.model import AiGem
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
+from ngsim_graphs.interrupts import interrupts_held
 from ngsim_graphs.scaling import MinMaxScaler
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
@@ -320,6 +322,31 @@ def _end_epoch(
     return row
 
 
+def _end_epochs(
+    active: list[Member],
+    epoch: int,
+    val_losses: list[float],
+    timing: dict[str, float],
+    loop: Loop,
+    on_epoch: EpochCallback | None,
+) -> None:
+    """Each model's epoch logged and checkpointed, with Ctrl-C and SIGTERM held off until all are
+    (then raised): the models of a fit keep the same epoch, so a resumed fit trains them in the
+    same ensembles as an uninterrupted one (an ensemble's sums depend on its members at float
+    rounding)."""
+    came: list[int] = []
+    try:
+        with interrupts_held() as came:
+            for member, val_loss in zip(active, val_losses, strict=True):
+                rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
+                row = _end_epoch(member, epoch, val_loss, timing | rate, loop)
+                if on_epoch is not None and loop.rank == 0:
+                    on_epoch(member.train.horizon_s, row)
+    finally:  # also after an error: the interrupt is what the user asked for
+        for signum in came:
+            signal.raise_signal(signum)
+
+
 def train_epochs(
     loop: Loop,
     members: list[Member],
@@ -362,11 +389,7 @@ def train_epochs(
             "train_graphs_per_s": round(epoch_graphs * loop.world / epoch_seconds, 1),
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
         }
-        for member, val_loss in zip(active, val_losses, strict=True):
-            rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
-            row = _end_epoch(member, epoch, val_loss, timing | rate, loop)
-            if on_epoch is not None and loop.rank == 0:
-                on_epoch(member.train.horizon_s, row)
+        _end_epochs(active, epoch, val_losses, timing, loop, on_epoch)
         if timed_out:
             for member in active:
                 member.stopped = "time limit"

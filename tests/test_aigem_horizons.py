@@ -7,7 +7,9 @@ longest."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 from itertools import count
 from pathlib import Path
 
@@ -186,6 +188,31 @@ def test_a_resumed_run_ends_as_an_uninterrupted_one(
     (run / "h1s" / runs.STARTED).write_bytes(runs.STARTED_LINE)
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
     assert _close_run(run / "h1s", straight / "h1s")  # trained alone
+
+
+def test_a_ctrl_c_at_an_epochs_end_comes_once_every_model_kept_that_epoch(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """The models of a fit keep the same epoch, so that a resumed fit stacks them as an
+    uninterrupted one does: a Ctrl-C while the first model's epoch is written waits for all."""
+    run = tmp_path / "run"
+
+    def ctrl_c_at_the_first(horizon_s: float, row: dict[str, float]) -> None:
+        if horizon_s == 1.0:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    train = TrainConfig(**{**TRAIN.to_dict(), "epochs": 1})
+    with pytest.raises(KeyboardInterrupt):
+        fit_horizons(
+            tiny_build,
+            run,
+            (1.0, 2.0, 3.0),
+            ModelConfig(),
+            train,
+            "cpu",
+            on_epoch=ctrl_c_at_the_first,
+        )
+    assert [runs.epochs_kept(run / f"h{h}s") for h in (1, 2, 3)] == [1, 1, 1]
 
 
 def test_evaluate_takes_each_metric_from_its_model(fitted: tuple[Path, str]) -> None:
