@@ -328,6 +328,7 @@ def _run(
     """run_paper's work, `out` locked: every check (claim_folder's again, another call may have
     come before) before the folder is touched."""
     from aigem.report import paper_report, write_report
+    from aigem.report_plots import report_figures
 
     timings: dict[str, float] = {}
     builds = _plan_builds(out, document["inputs"], call)
@@ -366,7 +367,8 @@ def _run(
     )
     timings["report"] = time.monotonic() - began
     timings["total"] = time.monotonic() - start
-    report = write_report(out, report, {k: round(v, 1) for k, v in timings.items()})
+    timings = {k: round(v, 1) for k, v in timings.items()}
+    report = write_report(out, report, report_figures(report), timings)
     return PaperResult(out, report, timings)
 
 

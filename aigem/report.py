@@ -358,15 +358,15 @@ def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
     return "\n".join(lines)
 
 
-def write_report(out: Path, document: dict[str, Any], timings: dict[str, float]) -> dict[str, Any]:
-    """The figures into out/figures (those of earlier calls that this one does not draw go),
-    report.md, and report.json last of all: its presence says the call finished. Each file is
-    written aside and renamed. Returns report.json's document."""
-    from aigem.report_plots import report_figures
-
+def write_report(
+    out: Path, document: dict[str, Any], figures: dict[str, bytes], timings: dict[str, float]
+) -> dict[str, Any]:
+    """The figures (name -> PNG, `aigem.report_plots.report_figures` of the document) into
+    out/figures (those of earlier calls that this one does not draw go), report.md, and
+    report.json last of all: its presence says the call finished. Each file is written aside and
+    renamed. Returns report.json's document."""
     folder = out / "figures"
     folder.mkdir(exist_ok=True)
-    figures = report_figures(document)
     for name in FIGURE_NAMES:
         path = folder / f"{name}.png"
         if name in figures:

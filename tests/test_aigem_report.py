@@ -208,7 +208,8 @@ def test_write_report_writes_the_figures_and_report_json_last_with_the_timings(
 ) -> None:
     (tmp_path / "figures").mkdir()
     (tmp_path / "figures" / "curves.png").write_bytes(b"an earlier call's")
-    written = write_report(tmp_path, report(parts=("table", "dmin")), {"total": 2.5})
+    document = report(parts=("table", "dmin"))
+    written = write_report(tmp_path, document, report_figures(document), {"total": 2.5})
     figures = sorted(p.name for p in (tmp_path / "figures").iterdir())
     assert figures == ["dmin.png", "table1.png"]  # curves.png: of a part this call did not draw
     assert all((tmp_path / "figures" / f).read_bytes()[:4] == b"\x89PNG" for f in figures)
