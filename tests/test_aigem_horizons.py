@@ -20,7 +20,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import epochs, runs
+from aigem import epochs, runs, training
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.devices import to_device
 from aigem.ensemble import Ensemble
@@ -410,3 +410,14 @@ def test_a_horizon_is_at_least_one_time_step() -> None:
     assert TrainConfig(horizon_s=1.0).horizon_steps(0.2) == 5
     with pytest.raises(ValueError, match=r"^a 0.2 s horizon is less than one time step \(0.5 s\)$"):
         TrainConfig(horizon_s=0.2).horizon_steps(0.5)  # a build on a coarser grid
+
+
+def test_a_horizon_shorter_than_the_builds_time_step_is_refused_before_any_directory(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """On a build of 0.5 s steps 0.2 s rounds to 0 steps: refused, and no run directory made."""
+    run = tmp_path / "run"
+    with pytest.raises(ValueError, match=r"^a 0.2 s horizon is less than one time step"):
+        arguments = (tiny_build, run, (0.2, 1.0), ModelConfig(), TRAIN)
+        training._start_members(*arguments, resume=False, time_step_s=0.5, loop=None)
+    assert not run.exists()
