@@ -9,6 +9,7 @@ from enum import Enum
 from typing import Any
 
 MAX_HORIZON_S = 5.0  # the builds' 25 future steps at 0.2 s
+MIN_HORIZON_S = 0.2  # one step of the builds' 0.2 s grid: a model predicts at least one step
 
 
 class LrSchedule(str, Enum):
@@ -75,6 +76,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if not 0 < self.horizon_s <= MAX_HORIZON_S:
             raise ValueError("horizon_s must be in (0, 5]")
+        if self.horizon_s < MIN_HORIZON_S:
+            raise ValueError(f"horizon_s must be at least one time step ({MIN_HORIZON_S:g} s)")
         if self.epochs < 1:
             raise ValueError("epochs must be >= 1")
         if self.batch_size < 1:
@@ -105,20 +108,29 @@ class TrainConfig:
         return self.compile if self.compile is not None else device_type == "cuda"
 
     def horizon_steps(self, time_step_s: float) -> int:
-        """Future steps predicted and scored: 5 per second at 0.2 s."""
-        return round(self.horizon_s / time_step_s)
+        """Future steps predicted and scored: 5 per second at 0.2 s; at least one (a build on a
+        coarser grid than 0.2 s may make a short horizon less than one of its steps)."""
+        steps = round(self.horizon_s / time_step_s)
+        if steps < 1:
+            raise ValueError(
+                f"a {self.horizon_s:g} s horizon is less than one time step ({time_step_s:g} s)"
+            )
+        return steps
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
 def check_horizons_s(horizons_s: Sequence[float]) -> tuple[float, ...]:
-    """Horizons of a multi-horizon fit, ascending: at least one, each in (0, 5] s, none twice."""
+    """Horizons of a multi-horizon fit, ascending: at least one, each in (0, 5] s and at least one
+    time step (0.2 s), none twice."""
     if not horizons_s:
         raise ValueError("no horizon given")
     for horizon_s in horizons_s:
         if not (math.isfinite(horizon_s) and 0 < horizon_s <= MAX_HORIZON_S):
             raise ValueError(f"{horizon_s:g} s is not a horizon in (0, {MAX_HORIZON_S:g}] s")
+        if horizon_s < MIN_HORIZON_S:
+            raise ValueError(f"{horizon_s:g} s is shorter than one time step ({MIN_HORIZON_S:g} s)")
     names = [f"{h:g}" for h in horizons_s]  # as a run names its members (aigem.records.member_dir)
     twice = sorted({name for name in names if names.count(name) > 1}, key=float)
     if twice:

@@ -5,7 +5,7 @@ The M members' parameters are stacked along a leading member dimension under AiG
 members instead of once per member: linear layers are batched matrix products, the attention
 scores and the segment softmax are computed per member over the shared edges, the aggregation is
 one block-diagonal sparse product (member m's rows and columns offset by m times the layer's
-sizes) through `aigem.model._aggregate`, and the GRU cell and the MLP are batched matrix products.
+sizes) through `aigem.model.aggregate`, and the GRU cell and the MLP are batched matrix products.
 What the members share (the batch, its plan, the edges) is read once.
 
 Member m computes what `AiGem.forward(batch, steps[m])` computes, to float rounding:
@@ -39,7 +39,7 @@ from torch_geometric.nn import GATConv
 
 from aigem.config import ModelConfig
 from aigem.data import xy_to_metres
-from aigem.model import AiGem, _aggregate, _segment_softmax, edge_inputs, make_plan
+from aigem.model import AiGem, aggregate, edge_inputs, make_plan, segment_softmax
 from ngsim_graphs.scaling import MinMaxScaler
 
 Params = dict[str, torch.Tensor]
@@ -90,6 +90,10 @@ class Ensemble:
         self.negative_slope = conv.negative_slope
         self.edge_names = template.encoder[0].edge_names
         self.names = [name for name, _ in template.named_parameters()]
+        if any(name.endswith(".lin.bias") for name in params):  # PyG's GATConv.lin has none
+            raise ValueError(
+                "a GATConv's lin with a bias: the ensemble's scores z . (W^T a) omit it"
+            )
         if sorted(self.names) != sorted(params):
             raise ValueError("the stacked parameters are not AiGem's")
         device = next(iter(params.values())).device
@@ -192,11 +196,11 @@ class Ensemble:
                 edge_scores = torch.matmul(attr.to(h.dtype), edge_att)
             scores = scores + edge_scores.view(-1, heads)
         alpha = F.leaky_relu(scores, self.negative_slope)
-        alpha = _segment_softmax(alpha, big_dst, members * n_dst)
+        alpha = segment_softmax(alpha, big_dst, members * n_dst)
         alpha = self._dropout(alpha.view(members, -1, heads)).view(-1, heads)
         x = h.view(members * n_src, heads, channels)
         per_head = [
-            _aggregate(alpha[:, k].contiguous(), x[:, k], big_crow, big_col, big_dst)
+            aggregate(alpha[:, k].contiguous(), x[:, k], big_crow, big_col, big_dst)
             for k in range(heads)
         ]
         out = per_head[0] if heads == 1 else torch.stack(per_head, 1).mean(1)
@@ -208,10 +212,9 @@ class Ensemble:
         p, total = self.params, None
         for name, edge_adjacency in zip(self.edge_names, adjacency, strict=True):
             conv = f"encoder.{index}.{name}"
-            h = _linear(z, p[f"{conv}.lin.weight"], p.get(f"{conv}.lin.bias"))
+            h = _linear(z, p[f"{conv}.lin.weight"], None)  # no bias: Ensemble.__init__
             gat = self._gat(conv, z, h, *edge_adjacency.prefix(n_dst))
-            bias = p.get(f"{conv}.bias")
-            gat = gat + bias.unsqueeze(1) if bias is not None else gat
+            gat = gat + p[f"{conv}.bias"].unsqueeze(1)
             total = gat if total is None else total + gat
         own = z[:n_dst] if z.dim() == 2 else z[:, :n_dst]
         linear = f"encoder.{index}.linear"
@@ -271,7 +274,8 @@ class Ensemble:
             hidden = self._gru(gru_in, hidden, w_ih, w_hh, b_ih, b_hh)  # g_k, (M', A, H)
             before_g, previous_g = previous_g, hidden
             mlp_in = torch.cat([hidden, position], -1) if self.config.concat_position else hidden
-            position = position + torch.baddbmm(b_2, torch.relu(torch.baddbmm(b_1, mlp_in, w_1)), w_2)  # fmt: skip
+            mlp_hidden = torch.relu(torch.baddbmm(b_1, mlp_in, w_1))
+            position = position + torch.baddbmm(b_2, mlp_hidden, w_2)
             if cv_step is not None:
                 position = position + cv_step
             outputs.append(position)
@@ -307,6 +311,7 @@ class Ensemble:
         grads = [p.grad for p in self.parameters() if p.grad is not None]
         norms = torch.stack([torch.linalg.vector_norm(g.flatten(1), dim=1) for g in grads])
         total = torch.linalg.vector_norm(norms, dim=0)  # (M,)
+        # clip_grad_norm_'s own 1e-6: the clipped steps are a model's alone (test_aigem_ensemble)
         scale = torch.clamp(max_norm / (total + 1e-6), max=1.0)
         for grad in grads:
             grad.mul_(scale.view(-1, *[1] * (grad.dim() - 1)))
@@ -340,12 +345,20 @@ def stack_optimizer(
     ensemble: Ensemble, optimizers: Sequence[torch.optim.Optimizer]
 ) -> torch.optim.Optimizer:
     """One optimiser of the members' kind and settings over the ensemble's parameters, holding
-    their states stacked. The members' optimisers have one parameter group each and have taken
-    the same number of steps: a step count, a 0-d state, is shared."""
+    their states stacked. The members' optimisers are of one kind, have one parameter group each,
+    with the same settings but for the learning rate (which the training loop sets before each
+    step), and have taken the same number of steps: a step count, a 0-d state, is shared."""
     saved = [optimizer.state_dict() for optimizer in optimizers]
     groups = saved[0]["param_groups"]
     if any(len(s["param_groups"]) != 1 for s in saved):
         raise ValueError("an ensemble's members' optimisers have one parameter group each")
+    if len({type(optimizer) for optimizer in optimizers}) != 1:
+        raise ValueError("an ensemble's members' optimisers are of one kind")
+    first = groups[0]
+    for other in (s["param_groups"][0] for s in saved[1:]):
+        for key in sorted((first.keys() | other.keys()) - {"params", "lr"}):
+            if first.get(key) != other.get(key):
+                raise ValueError(f"the members' optimisers differ in {key!r}")
     state = {}
     for index in saved[0]["state"]:
         entries = [s["state"][index] for s in saved]
@@ -363,7 +376,9 @@ def stack_optimizer(
     return optimizer
 
 
-def unstack_optimizer(stacked: torch.optim.Optimizer, optimizers: Sequence[torch.optim.Optimizer]):  # noqa: ANN201
+def unstack_optimizer(
+    stacked: torch.optim.Optimizer, optimizers: Sequence[torch.optim.Optimizer]
+) -> None:
     """Load each member's share of the ensemble's optimiser state into its own optimiser."""
     saved = stacked.state_dict()
     for member, optimizer in enumerate(optimizers):

@@ -220,11 +220,12 @@ class _AttentionSpMM(torch.autograd.Function):
 CPU_SPARSE = True  # False: the accelerators' path on the CPU too (bench/bench_train.py counts it)
 
 
-def _aggregate(values, x, crow, col, dst) -> torch.Tensor:  # noqa: ANN001
+def aggregate(values, x, crow, col, dst) -> torch.Tensor:  # noqa: ANN001
     """(n_dst, C): out[i] = sum over the edges e = (j -> i) of values[e] * x[j].
 
     On the CPU a CSR product; elsewhere PyG's own gather -> multiply -> scatter, which
-    accelerators run well.
+    accelerators run well. aigem.ensemble aggregates its members through it (and
+    `segment_softmax`) over one block-diagonal graph.
     """
     if x.device.type == "cpu" and CPU_SPARSE:
         return _AttentionSpMM.apply(values, x, crow, col)
@@ -232,12 +233,12 @@ def _aggregate(values, x, crow, col, dst) -> torch.Tensor:  # noqa: ANN001
 
 
 def _gather_scatter(values, x, n_dst: int, col, dst) -> torch.Tensor:  # noqa: ANN001
-    """`_aggregate` as PyG computes it: (E, C) messages values[e] * x[col[e]], summed at dst[e]."""
+    """`aggregate` as PyG computes it: (E, C) messages values[e] * x[col[e]], summed at dst[e]."""
     messages = values.unsqueeze(-1) * x.index_select(0, col)  # (E, C)
     return x.new_zeros(n_dst, x.shape[1]).index_add_(0, dst, messages)
 
 
-def _segment_softmax(scores: torch.Tensor, dst: torch.Tensor, n_dst: int) -> torch.Tensor:
+def segment_softmax(scores: torch.Tensor, dst: torch.Tensor, n_dst: int) -> torch.Tensor:
     """PyG's `softmax(scores, dst)`: softmax of (E, heads) scores over each destination's edges."""
     index = dst[:, None].expand_as(scores)
     size = (n_dst, scores.shape[1])
@@ -268,12 +269,12 @@ def _gat(conv: GATConv, h: torch.Tensor, crow, col, attr, dst) -> torch.Tensor: 
         edge_att = (weight * conv.att_edge.view(heads, channels, 1)).sum(1).t()
         scores = scores + attr.to(h.dtype) @ edge_att
     alpha = F.leaky_relu(scores, conv.negative_slope)
-    alpha = _segment_softmax(alpha, dst, n_dst)
+    alpha = segment_softmax(alpha, dst, n_dst)
     alpha = F.dropout(alpha, p=conv.dropout, training=conv.training)
     if heads == 1:
-        return _aggregate(alpha[:, 0].contiguous(), h, crow, col, dst)
+        return aggregate(alpha[:, 0].contiguous(), h, crow, col, dst)
     per_head = [
-        _aggregate(alpha[:, k].contiguous(), hv[:, k].contiguous(), crow, col, dst)
+        aggregate(alpha[:, k].contiguous(), hv[:, k].contiguous(), crow, col, dst)
         for k in range(heads)
     ]
     return torch.cat(per_head, 1) if conv.concat else torch.stack(per_head, 1).mean(1)

@@ -8,10 +8,12 @@ DistributedDataParallel.
 
 `fit_horizons` trains one model per horizon, as the paper does, in one loop over one loader: each
 batch, moved to the device once, trains every model, the models of an epoch as one ensemble
-(aigem.epochs, aigem.ensemble). Each model is the one `fit` would train for its horizon with the
-same seed and settings (the same initialisation, batches and dropout stream; to float rounding,
-which the ensemble's other order of summation changes), with its own optimizer, checkpoints, log
-and early stopping.
+(aigem.epochs, aigem.ensemble), each with its own optimizer, checkpoints, log and early stopping. On
+the CPU each model is the one `fit` would train for its horizon with the same seed and settings
+(the same initialisation, batches and dropout masks), to float rounding, which the ensemble's
+other order of summation changes. On CUDA its dropout masks are other, equally random ones (the
+ensemble draws them with `bernoulli_` from each member's stream, `F.dropout` with its fused
+kernel), and the ensemble runs eagerly: `--compile` applies to a model trained alone.
 """
 
 from __future__ import annotations
@@ -125,7 +127,10 @@ def _start_members(
     loop: Loop,
 ) -> list[Member]:
     """The models of a fit, new or resumed: one in `run_dir` (horizons_s None), or one per horizon
-    in its member directory, where a resume starts over a member that has no checkpoint yet."""
+    in its member directory, where a resume starts over a member that has no checkpoint yet. A
+    horizon of less than one of the build's time steps is refused before any directory is made."""
+    for horizon_s in horizons_s or (train.horizon_s,):
+        replace(train, horizon_s=horizon_s).horizon_steps(time_step_s)
     if horizons_s is None:
         plans = [(run_dir, train, resume, "")]
     else:

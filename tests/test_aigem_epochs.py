@@ -1,4 +1,5 @@
-"""The training loop's loss: metres^2 over the valid future steps, falling as the model learns."""
+"""The training loop: its loss (metres^2 over the valid future steps, falling as the model
+learns) and which models train as one ensemble."""
 
 from __future__ import annotations
 
@@ -8,10 +9,13 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aigem.config import ModelConfig
+from aigem import epochs
+from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset, xy_to_metres
-from aigem.epochs import masked_mse_m2
+from aigem.epochs import Loop, Member, Together, masked_mse_m2
 from aigem.model import AiGem
+from aigem.runs import RunState
+from aigem.training import make_optimizer
 
 
 def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:
@@ -40,3 +44,61 @@ def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:
     batch["target_xy"][:, 0] += 100.0
     batch["target_mask"][:, 0] = False
     assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
+
+
+def _member(steps: int, config: ModelConfig, seed: int) -> Member:
+    """A model of a fit with `steps` future steps, new (no optimiser step taken)."""
+    torch.manual_seed(seed)
+    model = AiGem(config)
+    train = TrainConfig(horizon_s=steps / 5)
+    optimizer = make_optimizer(model, train, torch.device("cpu"))
+    return Member(
+        Path(f"h{steps}"),
+        train,
+        steps,
+        model,
+        model,
+        optimizer,
+        info={},
+        state=RunState(),
+        who="",
+        stopped=None,
+        rng=(torch.get_rng_state(), None),
+    )
+
+
+def _loop(world: int) -> Loop:
+    """A Loop of `world` processes; `_group` reads its device and world size only."""
+    return Loop(
+        torch.device("cpu"),
+        rank=0,
+        world=world,
+        scaler=None,
+        train_loader=None,
+        val_loader=None,
+        sampler=None,
+        generator=torch.Generator(),
+        threads=None,
+        synthetic=True,
+        manifest=Path("manifest.json"),
+    )
+
+
+def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_only() -> None:
+    paper, two_heads = ModelConfig(), ModelConfig(heads=2)
+    middle, short, other, long = (
+        _member(10, paper, seed=1),
+        _member(5, paper, seed=2),
+        _member(5, two_heads, seed=3),
+        _member(25, paper, seed=4),
+    )
+    members = [middle, short, other, long]
+    together, alone = epochs._group(members, _loop(world=1))
+    assert isinstance(together, Together) and alone is other
+    assert together.members == [short, middle, long]  # ascending steps
+    assert together.ensemble.steps == (5, 10, 25)
+    stacked = together.ensemble.params["decoder.weight_ih"]
+    for index, member in enumerate(together.members):
+        assert torch.equal(stacked[index], member.model.decoder.weight_ih)
+    # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked.
+    assert all(a is b for a, b in zip(epochs._group(members, _loop(world=2)), members, strict=True))
