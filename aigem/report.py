@@ -159,6 +159,10 @@ def paper_report(
 # report.md
 
 
+def _counted(count: int, noun: str) -> str:
+    return f"{count:,} {noun}{'' if count == 1 else 's'}"
+
+
 def _m(value: float | None) -> str:
     return "–" if value is None else f"{value:.2f}"
 
@@ -333,8 +337,8 @@ def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
             else f"Every number of this call comes from {document['data']}."
         ),
         "",
-        f"Inputs: {len(settings['inputs'])} files, {size:,} bytes. Training: up to "
-        f"{settings['epochs']} epochs, batch {settings['batch_size']}, seed {settings['seed']}, "
+        f"Inputs: {_counted(len(settings['inputs']), 'file')}, {size:,} bytes. Training: up to "
+        f"{_counted(settings['epochs'], 'epoch')}, batch {settings['batch_size']}, seed {settings['seed']}, "
         f"patience {'none' if patience is None else patience}. Scored on the "
         f"{document['split']} split.",
         "",

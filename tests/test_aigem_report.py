@@ -151,6 +151,7 @@ def test_markdown_says_synthetic_on_every_table_and_keeps_the_time_last() -> Non
     assert headings[-1] == TIME_HEADING and text.rstrip().endswith("- total: 9.0 s")
     assert "| AiGem (this run) | 1.00 | 2.00 | 2.00 | 3.00 | 4.00 | 5.00 | 6.00 | 74.2 |" in text
     assert "| GRIP++ (paper) | 1.61 | – | 0.38 |" in text  # no FDE published
+    assert "Inputs: 1 file, 1,000 bytes. Training: up to 3 epochs, batch 32, seed 0," in text
     assert "| 0 | 4.00 | 5.00 | 6.00 | 7.00 | 8.00 |" in text
     assert "| h1s | 2 | 1 | 2.00 | 3.00 |" in text  # the best epoch's RMSE
     plain = report_markdown(report(synthetic=False), {})
