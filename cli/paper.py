@@ -104,8 +104,10 @@ def paper(
     rear. Every table and figure says SYNTHETIC (PARTLY SYNTHETIC) where all (some) inputs came
     from `ngsim-graphs synth`.
 
-    Time: about 5 minutes with --epochs 2 on the README's demo input (2 recordings of 2 minutes)
-    on 2 CPU cores; the real NGSIM files at 100 epochs take days on a CPU (docs/reproduce.md).
+    Time, on 2 CPU cores: about 3 minutes with --epochs 2 on the README's demo input (2
+    recordings of 2 minutes); 13 minutes with --epochs 1 on two synthetic 15-minute recordings;
+    NGSIM's six recordings at the paper's 100 epochs some 70 hours (extrapolated from synthetic
+    data: docs/reproduce.md).
 
     Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
     --max-hours bounds the training only (builds and evaluations come on top); a report of fits
