@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aigem.model import edge_inputs, make_plan
+from aigem.plan import edge_inputs, make_plan
 from ngsim_graphs import edges
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError

@@ -160,6 +160,7 @@ class Together:
     ensemble: Ensemble
     optimizer: torch.optim.Optimizer
     running: torch.Tensor  # (M,) the members' training losses of the epoch; member.running views
+    rng: RngState  # the members' one dropout stream, between their steps
 
     @property
     def train(self) -> TrainConfig:  # the members' own, but for the horizon
@@ -173,8 +174,8 @@ def _steps_taken(optimizer: torch.optim.Optimizer) -> float:
 
 def _group(active: list[Member], loop: Loop) -> list[Member | Together]:
     """The active members as they train this epoch: those that share a ModelConfig, a
-    TrainConfig but for the horizon and a step count stacked into one ensemble each (at the
-    start of the epoch, their dropout streams set), the others alone."""
+    TrainConfig but for the horizon, a step count and a dropout stream stacked into one ensemble
+    each (at the start of the epoch), the others alone."""
     if loop.world > 1:
         return list(active)
     groups: dict[tuple, list[Member]] = {}
@@ -184,6 +185,7 @@ def _group(active: list[Member], loop: Loop) -> list[Member | Together]:
             replace(member.train, horizon_s=1.0),
             type(member.optimizer),
             _steps_taken(member.optimizer),
+            tuple(bytes(state.numpy()) for state in member.rng if state is not None),
         )
         groups.setdefault(key, []).append(member)
     return [_stack(group, loop.device) if len(group) > 1 else group[0] for group in groups.values()]
@@ -191,22 +193,21 @@ def _group(active: list[Member], loop: Loop) -> list[Member | Together]:
 
 def _stack(group: list[Member], device: torch.device) -> Together:
     group = sorted(group, key=lambda member: member.steps)
-    streams = [member.rng[1] if device.type == "cuda" else member.rng[0] for member in group]
     models = [member.model for member in group]
-    stacked = ensemble.stack(models, [member.steps for member in group], streams)
+    stacked = ensemble.stack(models, [member.steps for member in group])
     optimizer = ensemble.stack_optimizer(stacked, [member.optimizer for member in group])
     running = torch.zeros(len(group), dtype=torch.float64, device=device)
     for index, member in enumerate(group):
         member.running = running[index]  # a view: the group's sums are the member's
-    return Together(group, stacked, optimizer, running)
+    return Together(group, stacked, optimizer, running, group[0].rng)
 
 
-def _unstack(together: Together, device: torch.device) -> None:
+def _unstack(together: Together) -> None:
     """Each member's parameters, optimiser state and dropout stream back into it."""
     ensemble.unstack(together.ensemble, [member.model for member in together.members])
     ensemble.unstack_optimizer(together.optimizer, [m.optimizer for m in together.members])
-    for member, stream in zip(together.members, together.ensemble.streams(), strict=True):
-        member.rng = (member.rng[0], stream) if device.type == "cuda" else (stream, member.rng[1])
+    for member in together.members:
+        member.rng = together.rng
 
 
 def _step(
@@ -229,10 +230,15 @@ def _step(
 
 
 def _step_together(
-    together: Together, batch: dict[str, Any], scaler: MinMaxScaler, learning_rate: float
+    together: Together,
+    batch: dict[str, Any],
+    scaler: MinMaxScaler,
+    device: torch.device,
+    learning_rate: float,
 ) -> None:
     """One optimiser step of an ensemble: its members' loss summed, each member's gradient its
-    own loss's; clipped per member."""
+    own loss's; clipped per member; on the members' one dropout stream."""
+    _set_rng_state(together.rng, device)
     stacked = together.ensemble
     losses = stacked.member_losses(stacked(batch), batch, scaler)  # (M,)
     together.optimizer.zero_grad(set_to_none=True)
@@ -241,6 +247,7 @@ def _step_together(
     set_learning_rate(together.optimizer, learning_rate)
     together.optimizer.step()
     together.running += losses.detach()
+    together.rng = _rng_state(device)
 
 
 def _train_epoch(
@@ -264,7 +271,7 @@ def _train_epoch(
         for trainer in trainers:
             rate = learning_rate_at(trainer.train, epoch, index, total)
             if isinstance(trainer, Together):
-                _step_together(trainer, batch, loop.scaler, rate)
+                _step_together(trainer, batch, loop.scaler, loop.device, rate)
             else:
                 _step(trainer, batch, loop.scaler, loop.device, rate)
         batches, graphs = batches + 1, graphs + batch["graphs"]
@@ -282,7 +289,7 @@ def _train_epoch(
             break
     for trainer in trainers:
         if isinstance(trainer, Together):
-            _unstack(trainer, loop.device)
+            _unstack(trainer)
     for member in active:  # the mean of the epoch (a time limit may have cut it)
         member.shown = _read_loss(
             member.running, max(batches, 1), epoch, read_batches, batches, member.who

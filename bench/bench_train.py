@@ -72,7 +72,7 @@ from torch.profiler import ProfilerActivity
 from torch.utils.data import DataLoader
 
 from aigem import ensemble
-from aigem import model as aigem_model
+from aigem import plan as aigem_plan
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.devices import to_device
@@ -418,9 +418,9 @@ def main() -> None:
             row = measure_step(batches, dataset, device, args)
             _row(device.type, size, "model step", row | {"threads": torch.get_num_threads()})
             if device.type == "cpu":  # the accelerator's aggregation, run on the CPU
-                aigem_model.CPU_SPARSE = False
+                aigem_plan.CPU_SPARSE = False
                 row = measure_step(batches, dataset, device, args)
-                aigem_model.CPU_SPARSE = True
+                aigem_plan.CPU_SPARSE = True
                 _row(device.type, size, "gpu path", row | {"threads": torch.get_num_threads()})
             several = [int(n) for n in args.models.split(",") if int(n) > 1]
             for models in several:

@@ -33,7 +33,7 @@ from torch.utils.data import DataLoader
 
 from aigem.baseline import constant_velocity
 from aigem.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.model import AiGem, edge_inputs
+from aigem.model import AiGem
 from aigem.records import BEST
 from aigem.refusals import resolve_build
 from aigem.runs import load_model
@@ -72,7 +72,7 @@ def targets_of(
         for batch in loader:
             target = batch["target_node"]
             # the present-step embeddings the decoder starts from
-            z = model._encode(batch["x"], edge_inputs(batch), target, batch["plan"])
+            z = model.encode(batch)
             predicted = xy_to_metres(scaler, model(batch, steps)).numpy().astype(np.float64)
             state = batch["target_state"].numpy().astype(np.float64)
             cv = constant_velocity(state, steps, dt)

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
 from aigem import ensemble
-from aigem import model as aigem_model
+from aigem import plan as aigem_plan
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
 from aigem.epochs import masked_mse_m2
@@ -67,22 +67,19 @@ def test_each_member_computes_its_model(
     data: tuple[dict, GraphDataset], sparse: bool, training: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     batch, _ = data
-    monkeypatch.setattr(aigem_model, "CPU_SPARSE", sparse)
+    monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
     config = ModelConfig(dropout=0.3)
     models = _models(len(STEPS), config)
-    streams = []
-    for seed in (7, 7, 8, 9):  # two members on one stream, which they share
-        torch.manual_seed(seed)
-        streams.append(torch.get_rng_state())
-    stacked = ensemble.stack(models, STEPS, streams).train(training)
+    stacked = ensemble.stack(models, STEPS).train(training)
+    torch.manual_seed(7)
     out = stacked(batch)
     assert out.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
     for index, (model, steps) in enumerate(zip(models, STEPS, strict=True)):
-        torch.set_rng_state(streams[index])
+        torch.manual_seed(7)  # the members' one stream: each draws the masks it draws alone
         alone = model.train(training)(batch, steps)
         torch.testing.assert_close(out[index, :, :steps], alone, rtol=1e-5, atol=1e-5)
         assert not out[index, :, steps:].any()  # not predicted
-    if training:  # the masks are the members' own: another stream, another output
+    if training:  # another stream, other masks, another output
         torch.manual_seed(11)
         assert not torch.allclose(models[1].train()(batch, 10), out[1, :, :10])
 
@@ -112,28 +109,27 @@ def test_steps_of_the_ensemble_are_steps_of_each_model(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Three Adam steps with dropout on (and clipping) in float64: the stacked parameters, the
-    Adam states and the losses are each model's trained alone on its own dropout stream (two
-    members share one, the others have their own)."""
+    Adam states and the losses are each model's trained alone on the members' dropout stream."""
     batch, dataset = data
     batch = _as(batch, torch.float64)
-    monkeypatch.setattr(aigem_model, "CPU_SPARSE", sparse)
+    monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
     models = _models(len(STEPS), config, torch.float64)
     alone_models = _models(len(STEPS), config, torch.float64)
     optimizers = [torch.optim.Adam(m.parameters(), lr=1e-2, fused=True) for m in models]
     alone_optimizers = [torch.optim.Adam(m.parameters(), lr=1e-2, fused=True) for m in alone_models]
-    streams = []
-    for seed in (21, 21, 22, 23):
-        torch.manual_seed(seed)
-        streams.append(torch.get_rng_state())
-    stacked = ensemble.stack(models, STEPS, streams)
+    torch.manual_seed(21)
+    streams = [torch.get_rng_state()] * len(STEPS)
+    stacked = ensemble.stack(models, STEPS)
     optimizer = ensemble.stack_optimizer(stacked, optimizers)
     alone_losses = []
     for _ in range(3):
+        torch.set_rng_state(streams[0])
         losses = stacked.member_losses(stacked(batch), batch, dataset.scaler)
         optimizer.zero_grad()
         losses.sum().backward()
         stacked.clip_gradients(clip)
         optimizer.step()
+        after = torch.get_rng_state()
         row = []
         for index, (model, steps) in enumerate(zip(alone_models, STEPS, strict=True)):
             torch.set_rng_state(streams[index])
@@ -155,9 +151,9 @@ def test_steps_of_the_ensemble_are_steps_of_each_model(
         torch.testing.assert_close(model.state_dict(), alone.state_dict(), rtol=1e-7, atol=1e-7)
     for mine, theirs in zip(optimizers, alone_optimizers, strict=True):
         torch.testing.assert_close(mine.state_dict(), theirs.state_dict(), rtol=1e-7, atol=1e-12)
+        for stream in streams:
+            assert torch.equal(after, stream)  # the stream moved on as each model's own
     assert float(alone_losses[-1][0]) != float(alone_losses[0][0])  # it did learn
-    for state, stream in zip(stacked.streams(), streams, strict=True):
-        assert torch.equal(state, stream)  # the streams moved on as each model's own
 
 
 def test_stack_and_unstack_round_trip(data: tuple[dict, GraphDataset]) -> None:
@@ -230,13 +226,13 @@ def test_members_optimisers_of_other_settings_are_refused() -> None:
 
 
 def test_a_gat_whose_lin_has_a_bias_is_refused() -> None:
-    """The ensemble scores attention as z . (lin.weight^T att), which leaves out a bias of lin
-    (PyG's GATConv has none): such a model is refused, not computed without it."""
+    """The forward scores attention as z . (lin.weight^T att), which leaves out a bias of lin
+    (PyG's GATConv has none): a model given one is refused, not computed without it."""
     models = _models(2, ModelConfig(layers=2))
     for model in models:
         conv = model.encoder[1].convs()[0]
         conv.lin.bias = torch.nn.Parameter(torch.ones(conv.lin.weight.shape[0]))
-    with pytest.raises(ValueError, match="a GATConv's lin with a bias"):
+    with pytest.raises(ValueError, match="not AiGem's"):
         ensemble.stack(models, (5, 10))
 
 

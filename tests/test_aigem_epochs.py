@@ -63,7 +63,7 @@ def _member(steps: int, config: ModelConfig, seed: int) -> Member:
         state=RunState(),
         who="",
         stopped=None,
-        rng=(torch.get_rng_state(), None),
+        rng=(torch.Generator().manual_seed(0).get_state(), None),  # every epoch starts one seed
     )
 
 
@@ -100,5 +100,9 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
     stacked = together.ensemble.params["decoder.weight_ih"]
     for index, member in enumerate(together.members):
         assert torch.equal(stacked[index], member.model.decoder.weight_ih)
+    # A member on another dropout stream steps alone (none is, in a fit: one seed an epoch)
+    long.rng = (torch.Generator().manual_seed(1).get_state(), None)
+    together, *alone = epochs._group(members, _loop(world=1))
+    assert together.members == [short, middle] and alone == [other, long]
     # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked.
     assert all(a is b for a, b in zip(epochs._group(members, _loop(world=2)), members, strict=True))
