@@ -71,7 +71,10 @@ class TrainConfig:
     seed: int = 0
     workers: int | None = None  # DataLoader worker processes (None: aigem.cores.default_workers)
     threads: int | None = None  # intra-op CPU threads (None: the idle usable cores, aigem.cores)
-    compile: bool | None = None  # the decoder through torch.compile (None: on CUDA only)
+    compile: bool | None = None  # the decoder through torch.compile (None: on CUDA, eager steps)
+    # The splits on the device, static batches, captured steps (aigem.engine); None: on CUDA,
+    # where the splits fit its free memory; False: the DataLoader's batches.
+    resident: bool | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.horizon_s <= MAX_HORIZON_S:
@@ -106,6 +109,12 @@ class TrainConfig:
         saves ~2,000 kernel launches a step; on the CPU compiling costs a minute and the step is
         no faster)."""
         return self.compile if self.compile is not None else device_type == "cuda"
+
+    def resident_on(self, device_type: str) -> bool:
+        """Whether a fit on this device asks for its splits on the device (`resident`, else on
+        CUDA only: there a step of the loader's batches waits on ~2,000 kernel launches; on
+        the CPU the loader's batches with their CSR plans are as fast, bench/bench_train.py)."""
+        return self.resident if self.resident is not None else device_type == "cuda"
 
     def horizon_steps(self, time_step_s: float) -> int:
         """Future steps predicted and scored: 5 per second at 0.2 s; at least one (a build on a

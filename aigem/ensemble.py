@@ -81,7 +81,7 @@ class Ensemble:
     def member_losses(
         self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
     ) -> torch.Tensor:
-        """(M,) each member's `aigem.epochs.masked_mse_m2` over its own steps, in metres^2."""
+        """(M,) each member's `aigem.trainers.masked_mse_m2` over its own steps, in metres^2."""
         steps = model_out.shape[2]
         predicted = xy_to_metres(scaler, model_out)  # (M, A, K, 2)
         truth = batch["target_xy"][:, :steps]
@@ -126,12 +126,14 @@ def unstack(ensemble: Ensemble, models: Sequence[AiGem]) -> None:
 
 
 def stack_optimizer(
-    ensemble: Ensemble, optimizers: Sequence[torch.optim.Optimizer]
+    ensemble: Ensemble, optimizers: Sequence[torch.optim.Optimizer], capturable: bool = False
 ) -> torch.optim.Optimizer:
     """One optimiser of the members' kind and settings over the ensemble's parameters, holding
     their states stacked. The members' optimisers are of one kind, have one parameter group each,
     with the same settings but for the learning rate (which the training loop sets before each
-    step), and have taken the same number of steps: a step count, a 0-d state, is shared."""
+    step), and have taken the same number of steps: a step count, a 0-d state, is shared.
+    `capturable`: an optimiser whose step a CUDA graph can capture (Adam's `capturable`, its
+    learning rate a device tensor: aigem.engine)."""
     saved = [optimizer.state_dict() for optimizer in optimizers]
     groups = saved[0]["param_groups"]
     if any(len(s["param_groups"]) != 1 for s in saved):
@@ -155,7 +157,13 @@ def stack_optimizer(
                 state[index][key] = value.clone()
             else:
                 raise ValueError(f"the members' optimisers differ in {key!r}")
-    optimizer = type(optimizers[0])(ensemble.parameters(), **optimizers[0].defaults)
+    settings = dict(optimizers[0].defaults)
+    if capturable:
+        device = ensemble.parameters()[0].device
+        lr = torch.tensor(float(groups[0]["lr"]), dtype=torch.float32, device=device)
+        settings |= {"capturable": True, "lr": lr}
+        groups = [{**groups[0], "capturable": True, "lr": lr}]
+    optimizer = type(optimizers[0])(ensemble.parameters(), **settings)
     optimizer.load_state_dict({"state": state, "param_groups": groups})
     return optimizer
 
@@ -163,8 +171,10 @@ def stack_optimizer(
 def unstack_optimizer(
     stacked: torch.optim.Optimizer, optimizers: Sequence[torch.optim.Optimizer]
 ) -> None:
-    """Load each member's share of the ensemble's optimiser state into its own optimiser."""
+    """Load each member's share of the ensemble's optimiser state into its own optimiser, which
+    keeps its own settings but for the learning rate of the last step (a number)."""
     saved = stacked.state_dict()
+    rate = float(stacked.param_groups[0]["lr"])
     for member, optimizer in enumerate(optimizers):
         state = {
             index: {
@@ -173,4 +183,5 @@ def unstack_optimizer(
             }
             for index, entry in saved["state"].items()
         }
-        optimizer.load_state_dict({"state": state, "param_groups": saved["param_groups"]})
+        groups = [{**optimizer.state_dict()["param_groups"][0], "lr": rate}]
+        optimizer.load_state_dict({"state": state, "param_groups": groups})

@@ -1,18 +1,12 @@
-"""The training loop of `aigem fit`: epochs of optimiser steps, each batch (moved to the device
-once) training every model of a fit on its own dropout stream, the validation loss after each
-epoch, a checkpoint and a log row per epoch (aigem.runs), early stopping and the time limit.
-aigem.training sets up the models and the data and calls `train_epochs`.
+"""The training loop of `aigem fit`: epochs of optimiser steps, each batch training every model
+of a fit (aigem.trainers: alone or in ensembles; on the loader's batches or, with the splits on
+the device, on static ones, aigem.engine), the validation loss after each epoch, a checkpoint
+and a log row per epoch (aigem.runs), early stopping and the time limit. aigem.training sets up
+the models and the data and calls `train_epochs`.
 
-Models that share a ModelConfig, a TrainConfig but for the horizon and their optimisers' step
-count (a multi-horizon fit's, epoch after epoch) train through each epoch as one ensemble
-(aigem.ensemble): stacked at the start of the epoch (parameters, Adam states, dropout streams),
-stepped together, and unstacked into each model and its optimiser at the end, before each is
-validated and checkpointed as a model trained alone. A model alone, or under DDP, steps alone.
-The ensemble runs eagerly: a compiled decoder (`TrainConfig.compile`) serves a model alone.
-
-The loss is the mean squared error in metres^2 over the valid (unmasked) future steps up to the
-horizon: predictions are made in scaled coordinates and mapped back to metres before the loss,
-so x and y weigh alike.
+The running training losses stay on the device and are read without waiting for it
+(`RunningLosses`), checked finite there and once more at the end of the epoch: within an epoch
+no step waits for the device.
 """
 
 from __future__ import annotations
@@ -21,7 +15,7 @@ import math
 import signal
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,14 +23,23 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
-from aigem import ensemble, runs
+from aigem import runs
 from aigem.config import TrainConfig
 from aigem.cores import ThreadChooser
-from aigem.data import check_covered, xy_to_metres
 from aigem.devices import to_device
-from aigem.ensemble import Ensemble
+from aigem.engine import DeviceData
 from aigem.model import AiGem
-from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
+from aigem.trainers import (
+    RngState,
+    Together,
+    batches_per_epoch,
+    group_trainers,
+    loader_steps,
+    masked_mse_m2,
+    rng_state,
+    static_steps,
+    unstack_together,
+)
 from ngsim_graphs.interrupts import interrupts_held
 from ngsim_graphs.scaling import MinMaxScaler
 
@@ -47,22 +50,10 @@ TrainProgress = Callable[[int, int, int, tuple[float, ...]], None]
 # (the model's horizon in s, the row of its metrics.jsonl written at the end of an epoch): the CLI
 # prints it.
 EpochCallback = Callable[[float, dict[str, float]], None]
-RngState = tuple[torch.Tensor, torch.Tensor | None]  # the CPU generator's state, and CUDA's
 
 
 class NonFiniteLossError(RuntimeError):
     """The loss became NaN or infinite: training stops rather than save a broken model."""
-
-
-def masked_mse_m2(
-    model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler, steps: int
-) -> torch.Tensor:
-    """Mean squared error in metres^2 over valid steps; (A, steps, 2) scaled predictions."""
-    predicted = xy_to_metres(scaler, model_out)
-    truth = batch["target_xy"][:, :steps]
-    mask = batch["target_mask"][:, :steps].to(predicted.dtype)
-    squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
-    return squared.sum() / mask.sum().clamp(min=1.0)
 
 
 def evaluate_losses(
@@ -90,29 +81,42 @@ def evaluate_losses(
     return [t / c if c else math.nan for t, c in zip(totals.tolist(), counts.tolist(), strict=True)]
 
 
-def _read_loss(
-    running: torch.Tensor, batches: int, epoch: int, first: int, last: int, who: str = ""
-) -> float:
-    """The mean training loss so far (one read from the device); refuses a non-finite one, which
-    appeared in batches first + 1..last of the epoch. `who` names the model in the message."""
-    mean = float(running) / batches
+def _read_loss(running: float, batches: int, epoch: int, who: str = "") -> float:
+    """The mean training loss of the epoch's first `batches` batches from their sum; refuses a
+    non-finite one. `who` names the model in the message."""
+    mean = running / batches
     if not math.isfinite(mean):
-        where = f"batch {last}" if last == first + 1 else f"batches {first + 1}-{last}"
         raise NonFiniteLossError(
-            f"{who}non-finite training loss ({mean}) at epoch {epoch + 1}, {where}"
+            f"{who}non-finite training loss ({mean}) at epoch {epoch + 1}, batch {batches} or before"
         )
     return mean
 
 
-def _rng_state(device: torch.device) -> RngState:
-    cuda = torch.cuda.get_rng_state(device) if device.type == "cuda" else None
-    return torch.get_rng_state(), cuda
+class RunningLosses:
+    """The active models' running training losses, read without waiting for the device: a copy
+    to pinned host memory is started, and read once it has landed (on the CPU at once)."""
 
+    def __init__(self, active: list[Member], device: torch.device) -> None:
+        self.active, self.cuda = active, device.type == "cuda"
+        self.host = torch.zeros(len(active), dtype=torch.float64, pin_memory=self.cuda)
+        self.event = torch.cuda.Event() if self.cuda else None
+        self.pending: int | None = None  # the batches summed in the copy under way
 
-def _set_rng_state(state: RngState, device: torch.device) -> None:
-    torch.set_rng_state(state[0])
-    if state[1] is not None:
-        torch.cuda.set_rng_state(state[1], device)
+    def poll(self, batches: int) -> list[tuple[float, int]] | None:
+        """Each model's (loss sum, batches summed) from the last copy that landed (None: none
+        since the last poll); starts the next copy, of the sums after `batches` batches."""
+        if not self.cuda:
+            return [(float(member.running), batches) for member in self.active]
+        landed = None
+        if self.pending is not None and self.event.query():
+            landed = [(value, self.pending) for value in self.host.tolist()]
+            self.pending = None
+        if self.pending is None:
+            sums = torch.stack([member.running for member in self.active])
+            self.host.copy_(sums, non_blocking=True)
+            self.event.record()
+            self.pending = batches
+        return landed
 
 
 @dataclass(frozen=True)
@@ -130,6 +134,7 @@ class Loop:
     threads: ThreadChooser
     synthetic: bool  # the build is of synthetic data: the curves say so
     manifest: Path  # the build's, named when its scaler does not cover a train batch
+    data: DeviceData | None = None  # the splits on the device: static batches, not the loaders
 
 
 @dataclass(eq=False)
@@ -152,135 +157,30 @@ class Member:
     group: Path | None = None  # the multi-horizon run it is a member of
 
 
-@dataclass(eq=False)
-class Together:
-    """Members trained through an epoch as one ensemble, in ascending order of their steps."""
-
-    members: list[Member]
-    ensemble: Ensemble
-    optimizer: torch.optim.Optimizer
-    running: torch.Tensor  # (M,) the members' training losses of the epoch; member.running views
-    rng: RngState  # the members' one dropout stream, between their steps
-
-    @property
-    def train(self) -> TrainConfig:  # the members' own, but for the horizon
-        return self.members[0].train
-
-
-def _steps_taken(optimizer: torch.optim.Optimizer) -> float:
-    state = optimizer.state_dict()["state"]
-    return float(next(iter(state.values()))["step"]) if state else 0.0
-
-
-def _group(active: list[Member], loop: Loop) -> list[Member | Together]:
-    """The active members as they train this epoch: those that share a ModelConfig, a
-    TrainConfig but for the horizon, a step count and a dropout stream stacked into one ensemble
-    each (at the start of the epoch), the others alone."""
-    if loop.world > 1:
-        return list(active)
-    groups: dict[tuple, list[Member]] = {}
-    for member in active:
-        key = (
-            member.model.config,
-            replace(member.train, horizon_s=1.0),
-            type(member.optimizer),
-            _steps_taken(member.optimizer),
-            tuple(bytes(state.numpy()) for state in member.rng if state is not None),
-        )
-        groups.setdefault(key, []).append(member)
-    return [_stack(group, loop.device) if len(group) > 1 else group[0] for group in groups.values()]
-
-
-def _stack(group: list[Member], device: torch.device) -> Together:
-    group = sorted(group, key=lambda member: member.steps)
-    models = [member.model for member in group]
-    stacked = ensemble.stack(models, [member.steps for member in group])
-    optimizer = ensemble.stack_optimizer(stacked, [member.optimizer for member in group])
-    running = torch.zeros(len(group), dtype=torch.float64, device=device)
-    for index, member in enumerate(group):
-        member.running = running[index]  # a view: the group's sums are the member's
-    return Together(group, stacked, optimizer, running, group[0].rng)
-
-
-def _unstack(together: Together) -> None:
-    """Each member's parameters, optimiser state and dropout stream back into it."""
-    ensemble.unstack(together.ensemble, [member.model for member in together.members])
-    ensemble.unstack_optimizer(together.optimizer, [m.optimizer for m in together.members])
-    for member in together.members:
-        member.rng = together.rng
-
-
-def _step(
-    member: Member,
-    batch: dict[str, Any],
-    scaler: MinMaxScaler,
-    device: torch.device,
-    learning_rate: float,
-) -> None:
-    """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
-    _set_rng_state(member.rng, device)
-    loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
-    member.optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    clip_gradients(member.model.parameters(), member.train.clip_grad_norm)
-    set_learning_rate(member.optimizer, learning_rate)
-    member.optimizer.step()
-    member.running += loss.detach()
-    member.rng = _rng_state(device)
-
-
-def _step_together(
-    together: Together,
-    batch: dict[str, Any],
-    scaler: MinMaxScaler,
-    device: torch.device,
-    learning_rate: float,
-) -> None:
-    """One optimiser step of an ensemble: its members' loss summed, each member's gradient its
-    own loss's; clipped per member; on the members' one dropout stream."""
-    _set_rng_state(together.rng, device)
-    stacked = together.ensemble
-    losses = stacked.member_losses(stacked(batch), batch, scaler)  # (M,)
-    together.optimizer.zero_grad(set_to_none=True)
-    losses.sum().backward()
-    stacked.clip_gradients(together.train.clip_grad_norm)
-    set_learning_rate(together.optimizer, learning_rate)
-    together.optimizer.step()
-    together.running += losses.detach()
-    together.rng = _rng_state(device)
-
-
 def _train_epoch(
     loop: Loop,
     members: list[Member],
     active: list[Member],
+    trainers: list[Member | Together],
     epoch: int,
     report: TrainProgress,
     deadline: float,
 ) -> tuple[int, bool]:
-    """One pass over the train loader, each batch (moved to the device once) training every model
-    of `active` (in ensembles where they can, unstacked at the end); returns the graphs seen and
-    whether the time limit cut the epoch short. The losses are summed on the device and read
-    every READ_LOSS_EVERY_S (and at the end of the epoch): a step never waits for the device."""
-    batches, graphs, read_batches, read_at, cut = 0, 0, 0, time.monotonic(), False
-    total = len(loop.train_loader)
-    trainers = _group(active, loop)
-    for index, batch in enumerate(loop.train_loader):
-        check_covered(batch, loop.scaler, loop.manifest)  # on the CPU: the step never waits
-        batch = to_device(batch, loop.device)
-        for trainer in trainers:
-            rate = learning_rate_at(trainer.train, epoch, index, total)
-            if isinstance(trainer, Together):
-                _step_together(trainer, batch, loop.scaler, loop.device, rate)
-            else:
-                _step(trainer, batch, loop.scaler, loop.device, rate)
-        batches, graphs = batches + 1, graphs + batch["graphs"]
-        if index + 1 == total or time.monotonic() - read_at >= READ_LOSS_EVERY_S:
-            for member in active:
-                member.shown = _read_loss(
-                    member.running, batches, epoch, read_batches, batches, member.who
-                )
-            read_at, read_batches = time.monotonic(), batches
+    """One pass over the train split, each batch training every model of `active` (in the
+    ensembles of `trainers`, unstacked at the end); returns the graphs seen and whether the
+    time limit cut the epoch short. The losses are summed on the device and read without
+    waiting for it (`RunningLosses`) every READ_LOSS_EVERY_S, and at the end of the epoch."""
+    batches, graphs, read_at, cut = 0, 0, time.monotonic(), False
+    total, losses = batches_per_epoch(loop), RunningLosses(active, loop.device)
+    steps = loader_steps if loop.data is None else static_steps
+    for batch_graphs in steps(loop, trainers, epoch):
+        batches, graphs = batches + 1, graphs + batch_graphs
+        if time.monotonic() - read_at >= READ_LOSS_EVERY_S:
+            landed = losses.poll(batches)
+            if landed is not None:
+                for member, (running, upto) in zip(active, landed, strict=True):
+                    member.shown = _read_loss(running, upto, epoch, member.who)
+            read_at = time.monotonic()
             loop.threads.look()
         shown = tuple(m.shown if m in active else math.nan for m in members)
         report(epoch + 1, batches, total, shown)
@@ -289,12 +189,23 @@ def _train_epoch(
             break
     for trainer in trainers:
         if isinstance(trainer, Together):
-            _unstack(trainer)
+            unstack_together(trainer)
     for member in active:  # the mean of the epoch (a time limit may have cut it)
-        member.shown = _read_loss(
-            member.running, max(batches, 1), epoch, read_batches, batches, member.who
-        )
+        member.shown = _read_loss(float(member.running), max(batches, 1), epoch, member.who)
     return graphs, cut
+
+
+def _validate(loop: Loop, active: list[Member], trainers: list[Member | Together]) -> list[float]:
+    """Each active model's validation loss: one pass of the loader for all, or each ensemble's
+    on the static batches of the validation split."""
+    if loop.data is None:
+        models = [(m.model, m.steps) for m in active]
+        return evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
+    losses: dict[int, float] = {}
+    for together in trainers:
+        sums = together.validation.losses(loop.data.val_batches, loop.data.val_base)
+        losses |= {id(member): loss for member, loss in zip(together.members, sums, strict=True)}
+    return [losses[id(member)] for member in active]
 
 
 def _end_epoch(
@@ -368,6 +279,7 @@ def train_epochs(
         train.max_minutes if train.max_minutes is not None else math.inf
     )
     first = min((m.state.next_epoch for m in members if m.stopped is None), default=train.epochs)
+    trainers: list[Member | Together] = []
     for epoch in range(first, train.epochs):
         if all(m.stopped for m in members):
             break
@@ -379,16 +291,18 @@ def train_epochs(
         loop.generator.manual_seed(train.seed + epoch)
         torch.manual_seed(train.seed + loop.rank + 1000 * epoch)
         for member in active:
-            member.rng = _rng_state(loop.device)
+            member.rng = rng_state(loop.device)
             member.running = torch.zeros((), dtype=torch.float64, device=loop.device)
         if loop.sampler is not None:
             loop.sampler.set_epoch(epoch)
         epoch_start = time.monotonic()
-        epoch_graphs, timed_out = _train_epoch(loop, members, active, epoch, report, deadline)
+        trainers = group_trainers(active, loop, trainers)
+        epoch_graphs, timed_out = _train_epoch(
+            loop, members, active, trainers, epoch, report, deadline
+        )
         epoch_seconds = time.monotonic() - epoch_start
         train_seconds, graphs_seen = train_seconds + epoch_seconds, graphs_seen + epoch_graphs
-        models = [(m.model, m.steps) for m in active]
-        val_losses = evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
+        val_losses = _validate(loop, active, trainers)
         timing = {
             # fewer than the split's if the time ran out (under DDP each rank's share is padded)
             "train_graphs": epoch_graphs * loop.world,

@@ -33,8 +33,13 @@ def learning_rate_at(train: TrainConfig, epoch: int, batch: int, batches_per_epo
 
 
 def set_learning_rate(optimizer: torch.optim.Optimizer, rate: float) -> None:
+    """The rate of the next step; a capturable optimizer's is a device tensor, filled in place
+    (a captured step reads it there, aigem.engine)."""
     for group in optimizer.param_groups:
-        group["lr"] = rate
+        if isinstance(group["lr"], torch.Tensor):
+            group["lr"].fill_(rate)
+        else:
+            group["lr"] = rate
 
 
 def clip_gradients(parameters: Iterable[torch.Tensor], max_norm: float | None) -> None:

@@ -18,9 +18,12 @@ kernel), and the ensemble runs eagerly: `--compile` applies to a model trained a
 
 from __future__ import annotations
 
+import math
 import os
 import random
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,15 +31,17 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
-from aigem import runs
+from aigem import capacity, engine, runs
 from aigem.baseline import record_baselines
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
+from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, train_epochs
 from aigem.model import AiGem, count_parameters
 from aigem.refusals import check_splits
+from aigem.resident import load_split
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.schema import Split
@@ -116,6 +121,53 @@ def _loaders(
     return train_set, train_loader, val_loader, sampler, generator
 
 
+# (what is loaded, samples done, samples in all): the splits induced onto the device
+LoadProgress = Callable[[str, int, int], None]
+DEVICE_SHARE = 0.5  # of the device's free memory the splits may take: the rest for the steps
+
+
+def device_data(
+    build_dir: Path,
+    model: ModelConfig,
+    train: TrainConfig,
+    device: torch.device,
+    workers: int,
+    loading: LoadProgress | None = None,
+    note: Callable[[str], None] | None = None,
+) -> DeviceData | None:
+    """The train and validation splits loaded onto `device` (aigem.resident), with their batches'
+    capacities; None, said in `note`, where they would take more than DEVICE_SHARE of a GPU's
+    free memory: then the loader serves."""
+    splits = []
+    for split, name in ((Split.TRAIN, "train"), (Split.VAL, "validation")):
+        dataset = GraphDataset(build_dir, split, history_steps=model.history_steps_read)
+        report = None if loading is None else partial(loading, f"the {name} split")
+        loaded = load_split(dataset, model.layers, workers, split is Split.TRAIN, report)
+        splits.append((dataset, loaded))
+    size = sum(loaded.nbytes() for _, loaded in splits)
+    free = torch.cuda.mem_get_info(device)[0] if device.type == "cuda" else math.inf
+    say = note or (lambda line: None)
+    if size > DEVICE_SHARE * free:
+        say(
+            f"the splits take {size / 1e9:.1f} GB, more than half of {device}'s free "
+            f"{free / 1e9:.1f} GB: the DataLoader's batches serve"
+        )
+        return None
+    (train_set, train_split), (val_set, val_split) = [(d, s.to(device)) for d, s in splits]
+    batch = train.batch_size
+    train_base = capacity.base_capacity(train_split.counts, batch, model.layers)
+    val_base = capacity.base_capacity(val_split.counts, batch, model.layers)
+    in_order = np.arange(len(val_set))
+    val_batches = engine.epoch_batches(
+        val_split, in_order, batch, val_base, val_set.batch_order, device
+    )
+    steps = "captured once and replayed" if device.type == "cuda" else "run eagerly"
+    say(f"the splits on {device} ({size / 1e9:.2f} GB): static batches of {batch} graphs, {steps}")
+    return DeviceData(
+        train_split, val_split, batch, train_base, val_base, val_batches, train_set.batch_order
+    )
+
+
 def _start_members(
     build_dir: Path,
     run_dir: Path,
@@ -148,7 +200,7 @@ def _start_members(
     for member_dir, member_train, member_resume, who in plans:
         seed_everything(train.seed + loop.rank)  # initialised as a fit of this model alone would
         model = AiGem(model_config).to(loop.device)
-        if train.compiles_on(loop.device.type):
+        if train.compiles_on(loop.device.type) and loop.data is None:  # a captured step needs none
             model.compile_decoder()
         optimizer = make_optimizer(model, member_train, loop.device)
         state, info = runs.start_run(
@@ -219,10 +271,13 @@ def fit_horizons(
     resume: bool = False,
     progress: TrainProgress | None = None,
     on_epoch: EpochCallback | None = None,
+    loading: LoadProgress | None = None,
+    note: Callable[[str], None] | None = None,
 ) -> tuple[FitResult, ...]:
     """Train one model per horizon (ascending; each replaces `train.horizon_s`) in one loop, and
     write the multi-horizon run directory (see aigem.runs); returns each model's result. None:
-    one model for `train.horizon_s`, in `run_dir` itself (`fit`)."""
+    one model for `train.horizon_s`, in `run_dir` itself (`fit`). `loading` reports the splits'
+    loading onto the device, `note` says in a line where the batches come from."""
     rank, world = _distributed()
     device = pick_device(device_choice)
     if device.type == "cuda" and world > 1:
@@ -237,6 +292,9 @@ def fit_horizons(
         build_dir, model_config, train, rank, world, device, workers
     )
     synthetic = synthetic_build(open_build(build_dir).manifest)
+    data = None
+    if world == 1 and train.resident_on(device.type):
+        data = device_data(build_dir, model_config, train, device, workers, loading, note)
     loop = Loop(
         device,
         rank,
@@ -249,6 +307,7 @@ def fit_horizons(
         threads,
         synthetic,
         manifest_path(build_dir),
+        data,
     )
     members = _start_members(
         build_dir,

@@ -21,8 +21,8 @@ from torch.utils.data import DataLoader
 
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
-from aigem.epochs import masked_mse_m2
 from aigem.model import AiGem
+from aigem.trainers import masked_mse_m2
 
 
 def graphs_per_second(loader: DataLoader, batches: int, batch_size: int) -> float:

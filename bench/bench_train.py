@@ -76,8 +76,8 @@ from aigem import plan as aigem_plan
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.devices import to_device
-from aigem.epochs import masked_mse_m2
 from aigem.model import AiGem
+from aigem.trainers import masked_mse_m2
 from aigem.training import fit_horizons, make_optimizer
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise

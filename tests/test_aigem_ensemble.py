@@ -21,9 +21,9 @@ from aigem import ensemble
 from aigem import plan as aigem_plan
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
-from aigem.epochs import masked_mse_m2
 from aigem.model import AiGem
 from aigem.schedule import clip_gradients
+from aigem.trainers import masked_mse_m2
 
 STEPS = (5, 10, 10, 25)  # ascending; two members of one horizon
 

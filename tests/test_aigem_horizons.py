@@ -20,7 +20,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import epochs, runs, training
+from aigem import epochs, runs, trainers, training
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.devices import to_device
 from aigem.ensemble import Ensemble
@@ -157,7 +157,8 @@ def float64(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
             for k, v in moved.items()
         }
 
-    monkeypatch.setattr(epochs, "to_device", to_device_in_float64)
+    monkeypatch.setattr(epochs, "to_device", to_device_in_float64)  # validation's
+    monkeypatch.setattr(trainers, "to_device", to_device_in_float64)  # the steps'
     before = torch.get_default_dtype()
     torch.set_default_dtype(torch.float64)
     try:

@@ -1,5 +1,5 @@
-"""The training loop: its loss (metres^2 over the valid future steps, falling as the model
-learns) and which models train as one ensemble."""
+"""The trainers of an epoch: the loss (metres^2 over the valid future steps, falling as the
+model learns) and which models train as one ensemble."""
 
 from __future__ import annotations
 
@@ -9,12 +9,13 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aigem import epochs
+from aigem import trainers
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset, xy_to_metres
-from aigem.epochs import Loop, Member, Together, masked_mse_m2
+from aigem.epochs import Loop, Member
 from aigem.model import AiGem
 from aigem.runs import RunState
+from aigem.trainers import Together, masked_mse_m2
 from aigem.training import make_optimizer
 
 
@@ -93,7 +94,7 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
         _member(25, paper, seed=4),
     )
     members = [middle, short, other, long]
-    together, alone = epochs._group(members, _loop(world=1))
+    together, alone = trainers.group_trainers(members, _loop(world=1))
     assert isinstance(together, Together) and alone is other
     assert together.members == [short, middle, long]  # ascending steps
     assert together.ensemble.steps == (5, 10, 25)
@@ -102,7 +103,10 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
         assert torch.equal(stacked[index], member.model.decoder.weight_ih)
     # A member on another dropout stream steps alone (none is, in a fit: one seed an epoch)
     long.rng = (torch.Generator().manual_seed(1).get_state(), None)
-    together, *alone = epochs._group(members, _loop(world=1))
+    together, *alone = trainers.group_trainers(members, _loop(world=1))
     assert together.members == [short, middle] and alone == [other, long]
     # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked.
-    assert all(a is b for a, b in zip(epochs._group(members, _loop(world=2)), members, strict=True))
+    assert all(
+        a is b
+        for a, b in zip(trainers.group_trainers(members, _loop(world=2)), members, strict=True)
+    )
