@@ -4,6 +4,7 @@ synchronisations of a step.
     OMP_NUM_THREADS=2 python bench/bench_train.py bench/out/graphs-txt-r6-m15
     python bench/bench_train.py BUILD --batch-sizes 32,256,1024 --device auto --workers 0 --steps 10
     python bench/bench_train.py BUILD --batch-sizes 32 --models 1,5,10   # several models a step
+    python bench/bench_train.py BUILD --device cpu --batch-sizes 256 --models 5 --paths both
 
 Devices: the CPU, then CUDA when torch.cuda.is_available() (`--device auto`; `cpu` or `cuda` for
 one). Graphs are cut to the history steps the model reads (`ModelConfig().history_steps_read`), as
@@ -29,6 +30,15 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
   windows count the batches that fit reports done, so they hold if fit reports less often.
 - fit M h (for each M of --models from 2 to 5): the same for `aigem.training.fit_horizons` with
   the horizons 1..M s, its M models trained as one ensemble.
+- to device (once per device, where static batches are measured): the train split loaded onto
+  the device (aigem.resident: induced over --workers processes, what a layer reads kept);
+  graphs/s of the loading, its seconds in ms/batch.
+- static M (1 and each M of --models): aigem.engine's step of M models (horizons 1..5 s) as one
+  ensemble on static batches of the split on the device: assembled there by index, padded to
+  the capacity tiers of aigem.capacity, on CUDA captured once per tier and replayed. `padding`:
+  the share of the tier-0 capacity that padding fills.
+- fit loop st, fit M h st: fit's loop on static batches (`TrainConfig.resident`), CUDA's
+  default; `--paths both` measures each device's fit loop on both kinds of batches.
 
 Per step, over --profile-steps untimed steps after the timed ones (torch.profiler with
 ProfilerActivity.CPU, plus CUDA on a GPU, and a TorchFunctionMode), divided by the steps:
@@ -46,7 +56,9 @@ ProfilerActivity.CPU, plus CUDA on a GPU, and a TorchFunctionMode), divided by t
   and, from the TorchFunctionMode, `Tensor.tolist()` (which the profiler does not show on the CPU)
   and `.cpu()` / `.to()` of a device tensor to the CPU. The last column names them. On the CPU the
   CPU code path is counted: the model's CSR aggregation, used on the CPU only, adds its own.
-- kernels/step (CUDA only): CUDA kernel events (memcpy and memset excluded).
+- kernels/step (CUDA only): CUDA kernel events (memcpy and memset excluded), replayed ones too.
+- launches/step (CUDA only): what the host dispatched: cudaLaunchKernel and cudaGraphLaunch
+  runtime calls (a replayed CUDA graph is one).
 - cuda syncs/step (CUDA only): cudaStreamSynchronize, cudaEventSynchronize and cudaMemcpy runtime
   calls (not cudaDeviceSynchronize, which the profiler calls when it stops).
 
@@ -66,17 +78,20 @@ from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch.overrides import TorchFunctionMode
 from torch.profiler import ProfilerActivity
 from torch.utils.data import DataLoader
 
-from aigem import ensemble
+from aigem import capacity, ensemble
 from aigem import plan as aigem_plan
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.devices import to_device
+from aigem.engine import TrainSteps, epoch_batches
 from aigem.model import AiGem
+from aigem.resident import ResidentSplit, load_split
 from aigem.trainers import masked_mse_m2
 from aigem.training import fit_horizons, make_optimizer
 
@@ -93,14 +108,17 @@ SYNC_OPS = {
     "aten::equal",
 }
 CUDA_SYNCS = {"cudaStreamSynchronize", "cudaEventSynchronize", "cudaMemcpy"}
+LAUNCHES = ("cudaLaunchKernel", "cudaGraphLaunch", "cuLaunchKernel")  # what the host dispatches
 COLUMNS = {
     "graphs/s": 9,
     "ms/batch": 8,
     "ops/step": 8,
     "syncs/step": 10,
     "kernels/step": 12,
+    "launches/step": 13,
     "cuda syncs/step": 15,
     "threads": 7,
+    "padding": 7,
     "syncs by op (per step)": 0,
 }
 Batch = dict[str, torch.Tensor]
@@ -151,7 +169,7 @@ class _Counts:
 
     def per_step(self, steps: int) -> dict[str, object]:
         syncs = Counter(self.conversions.names if self.conversions is not None else {})
-        ops, kernels, cuda_syncs = 0, 0, 0
+        ops, kernels, launches, cuda_syncs = 0, 0, 0, 0
         for event in self.profiler.events():
             name, ancestors, parent = event.name, [], event.cpu_parent
             while parent is not None:
@@ -161,6 +179,8 @@ class _Counts:
                 kernels += not name.startswith(("Memcpy", "Memset"))
             elif name in CUDA_SYNCS:
                 cuda_syncs += 1
+            elif name.startswith(LAUNCHES):
+                launches += 1
             elif name.startswith("aten::") and not any(a.startswith("aten::") for a in ancestors):
                 ops += 1
             if name in SYNC_OPS and not any(
@@ -174,7 +194,11 @@ class _Counts:
             "syncs by op (per step)": by_op or "none",
         }
         if self.cuda:
-            row |= {"kernels/step": kernels / steps, "cuda syncs/step": cuda_syncs / steps}
+            row |= {
+                "kernels/step": kernels / steps,
+                "launches/step": launches / steps,
+                "cuda syncs/step": cuda_syncs / steps,
+            }
         return row
 
 
@@ -276,6 +300,69 @@ def measure_step(
     }
 
 
+def load_resident(dataset: GraphDataset, device: torch.device, workers: int):  # noqa: ANN201
+    """The train split on `device` (aigem.resident) and the row of its loading: graphs/s."""
+    start = time.perf_counter()
+    split = load_split(dataset, ModelConfig().layers, workers, check_scaler=True).to(device)
+    _sync(device)
+    seconds = time.perf_counter() - start
+    return split, {"graphs/s": len(dataset) / seconds, "ms/batch": 1000 * seconds}
+
+
+def measure_static(
+    split: ResidentSplit,
+    dataset: GraphDataset,
+    batch_size: int,
+    device: torch.device,
+    args: argparse.Namespace,
+    models: int,
+) -> dict[str, object]:
+    """The step of aigem.engine on static batches of the split on the device (assembled by index,
+    forward, backward, Adam; on CUDA captured per capacity tier and replayed) of `models` models
+    of horizons 1..5 s as one ensemble: --warmup, --steps timed, --profile-steps counted."""
+    torch.manual_seed(0)
+    nets = [AiGem(ModelConfig()).to(device) for _ in range(models)]
+    step_s = dataset.config.time_step_s
+    horizons = sorted(
+        TrainConfig().horizon_steps(step_s) if models == 1 else round((1 + k % 5) / step_s)
+        for k in range(models)
+    )
+    stacked = ensemble.stack(nets, horizons)
+    optimizers = [make_optimizer(net, TrainConfig(), device) for net in nets]
+    optimizer = ensemble.stack_optimizer(stacked, optimizers, capturable=device.type == "cuda")
+    running = torch.zeros(models, dtype=torch.float64, device=device)
+    steps = TrainSteps(stacked, optimizer, split, dataset.scaler, None, running, device)
+    base = capacity.base_capacity(split.counts, batch_size, split.layers)
+    order = np.random.default_rng(0).permutation(split.samples)
+    batches = epoch_batches(split, order, batch_size, base, dataset.batch_order, device)
+    needed = args.warmup + args.steps + args.profile_steps
+    if len(batches) < needed + 1:
+        return {}
+    step = lambda i: steps(batches.ids[i], batches.tiers[i], base, 1e-3)  # noqa: E731
+    for index in range(args.warmup):
+        step(index)
+    _sync(device)
+    start = time.perf_counter()
+    for index in range(args.warmup, args.warmup + args.steps):
+        step(index)
+    _sync(device)
+    seconds = time.perf_counter() - start
+    counts = _Counts(device)
+    counts.start()
+    for index in range(args.warmup + args.steps, needed):
+        step(index)
+    _sync(device)
+    counts.stop()
+    graphs = sum(batches.graphs[args.warmup : args.warmup + args.steps])
+    padding = 1 - float(split.counts[order[: batch_size * 8]].sum()) / (8 * sum(base.sizes))
+    return {
+        "graphs/s": graphs / seconds,
+        "ms/batch": 1000 * seconds / args.steps,
+        "padding": f"{padding:.0%}",
+        **counts.per_step(args.profile_steps),
+    }
+
+
 class _Enough(Exception):
     """Raised from fit's progress callback once the probe has what it needs."""
 
@@ -313,9 +400,11 @@ def measure_fit(
     device: torch.device,
     args: argparse.Namespace,
     horizons_s: tuple[float, ...] | None = None,
+    resident: bool | None = None,
 ) -> dict[str, object]:
     """The whole fit loop at this batch size (see the docstring), of one model or of a
-    multi-horizon fit of `horizons_s`; empty where the epoch ran out."""
+    multi-horizon fit of `horizons_s`, on the loader's batches or static ones (`resident`,
+    None: fit's default for the device); empty where the epoch ran out."""
     probe = _FitProbe(device, args)
     train = TrainConfig(
         epochs=1,
@@ -323,6 +412,7 @@ def measure_fit(
         workers=args.workers,
         seed=0,
         threads=torch.get_num_threads(),
+        resident=resident,
     )
     with tempfile.TemporaryDirectory() as tmp:
         try:
@@ -380,7 +470,12 @@ def main() -> None:
     )
     parser.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
     parser.add_argument("--steps", type=int, default=10, help="timed batches per measurement")
-    parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
+    parser.add_argument(
+        "--warmup",
+        type=int,
+        default=4,
+        help="untimed steps first (on CUDA a static step is captured at its third call)",
+    )
     parser.add_argument("--profile-steps", type=int, default=2, help="steps the profiler counts")
     parser.add_argument(
         "--models",
@@ -388,6 +483,13 @@ def main() -> None:
         help="comma-separated numbers of models stepped on each batch (e.g. 1,5,10: the model "
         "step of several models as one ensemble, as a multi-horizon fit trains them, and one "
         "after the other; and for 2 to 5 models a multi-horizon fit's loop)",
+    )
+    parser.add_argument(
+        "--paths",
+        choices=("default", "both"),
+        default="default",
+        help="the fit loop on the device's default batches only (CUDA: static, the CPU: the "
+        "loader's), or on both: static batches (rows 'static', 'fit static') and the loader's",
     )
     parser.add_argument(
         "--compile",
@@ -408,6 +510,12 @@ def main() -> None:
         f"{args.profile_steps} profiled steps\n"
     )
     _row("device", "batch", "measured", {column: column for column in COLUMNS})
+    several = [int(n) for n in args.models.split(",") if int(n) > 1]
+    residents = {}
+    for device in devices:
+        if device.type == "cuda" or args.paths == "both":
+            residents[device], row = load_resident(dataset, device, args.workers)
+            _row(device.type, "-", "to device", row)
     for size in (int(size) for size in args.batch_sizes.split(",")):
         timed = max(args.steps, math.ceil(min(LOADER_GRAPHS, len(dataset)) / size))
         keep = args.warmup + args.steps + args.profile_steps
@@ -415,32 +523,44 @@ def main() -> None:
         threads = {"threads": torch.get_num_threads()}
         _row("host", size, "loader", {"graphs/s": rate, "ms/batch": 1000 * size / rate, **threads})
         for device in devices:
-            row = measure_step(batches, dataset, device, args)
-            _row(device.type, size, "model step", row | {"threads": torch.get_num_threads()})
-            if device.type == "cpu":  # the accelerator's aggregation, run on the CPU
-                aigem_plan.CPU_SPARSE = False
-                row = measure_step(batches, dataset, device, args)
-                aigem_plan.CPU_SPARSE = True
-                _row(device.type, size, "gpu path", row | {"threads": torch.get_num_threads()})
-            several = [int(n) for n in args.models.split(",") if int(n) > 1]
-            for models in several:
-                for together, what in ((True, "models"), (False, "apart")):
-                    row = measure_step(
-                        batches, dataset, device, args, models=models, together=together
-                    )
-                    threads = {"threads": torch.get_num_threads()}
-                    _row(device.type, size, f"{models} {what}", row | threads)
-            if args.compile:
-                row = measure_step(batches, dataset, device, args, compiled=True)
-                _row(device.type, size, "compiled", row | {"threads": torch.get_num_threads()})
-            row = measure_fit(args.build, size, device, args)
-            _row(device.type, size, "fit loop", row | {"threads": torch.get_num_threads()})
-            for models in (m for m in several if m <= 5):
-                horizons = tuple(float(h) for h in range(1, models + 1))
-                row = measure_fit(args.build, size, device, args, horizons)
-                _row(
-                    device.type, size, f"fit {models} h", row | {"threads": torch.get_num_threads()}
-                )
+            _measure_device(device, size, batches, dataset, residents.get(device), several, args)
+
+
+def _measure_device(
+    device: torch.device,
+    size: int,
+    batches: list[Batch],
+    dataset: GraphDataset,
+    split: ResidentSplit | None,
+    several: list[int],
+    args: argparse.Namespace,
+) -> None:
+    """The rows of one device at one batch size (see the docstring)."""
+    row = lambda what, values: _row(  # noqa: E731
+        device.type, size, what, values | {"threads": torch.get_num_threads()}
+    )
+    row("model step", measure_step(batches, dataset, device, args))
+    if device.type == "cpu":  # the accelerator's aggregation, run on the CPU
+        aigem_plan.CPU_SPARSE = False
+        row("gpu path", measure_step(batches, dataset, device, args))
+        aigem_plan.CPU_SPARSE = True
+    for models in several:
+        for together, what in ((True, "models"), (False, "apart")):
+            values = measure_step(batches, dataset, device, args, models=models, together=together)
+            row(f"{models} {what}", values)
+    if args.compile:
+        row("compiled", measure_step(batches, dataset, device, args, compiled=True))
+    if split is not None:
+        for models in [1, *several]:
+            row(f"static {models}", measure_static(split, dataset, size, device, args, models))
+    paths = {"cuda": (True, False), "cpu": (False, True)}[device.type]
+    for resident in paths if args.paths == "both" else paths[:1]:
+        label = " st" if resident else ""
+        row(f"fit loop{label}", measure_fit(args.build, size, device, args, None, resident))
+        for models in (m for m in several if m <= 5):
+            horizons = tuple(float(h) for h in range(1, models + 1))
+            values = measure_fit(args.build, size, device, args, horizons, resident)
+            row(f"fit {models} h{label}", values)
 
 
 if __name__ == "__main__":

@@ -55,6 +55,7 @@ def _fail(message: str, code: int = 1) -> typer.Exit:
 RENAMED_OPTIONS = {
     "patience_epochs": "--patience",
     "compile": "--compile",
+    "resident": "--resident",
     "concat_position": "--no-concat",
 }
 FIT_OPTIONS = option_names(
@@ -141,12 +142,23 @@ def fit(
             "starts on fewer idle cores than threads."
         ),
     ] = None,
+    resident: Annotated[
+        bool | None,
+        typer.Option(
+            "--resident/--loader",
+            help="Load the train and validation splits onto the device once and train on "
+            "static batches assembled there, each step captured once and replayed on CUDA "
+            "(default: on CUDA, where the splits take at most half its free memory); "
+            "--loader: the DataLoader's batches (the CPU's default).",
+        ),
+    ] = None,
     compile_decoder: Annotated[
         bool | None,
         typer.Option(
             "--compile/--no-compile",
-            help="Run the decoder through torch.compile (default: on CUDA, where it saves some "
-            "2,000 kernel launches a step; on the CPU it costs a minute and gains nothing).",
+            help="Run the decoder through torch.compile on the DataLoader's batches (default: "
+            "on CUDA, where it saves some 2,000 kernel launches a step; on the CPU it costs a "
+            "minute and gains nothing; a captured step on static batches needs none).",
         ),
     ] = None,
     no_concat: Annotated[
@@ -188,6 +200,7 @@ def fit(
             workers=workers,
             threads=threads,
             compile=compile_decoder,
+            resident=resident,
         )
     except ValueError as err:
         raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
@@ -237,9 +250,21 @@ def _train(
             train.epochs * total,
         )
         on_epoch = lambda horizon_s, row: _print_epoch(row, who(horizon_s))
+        loading = lambda what, done, total: progress(f"loading {what}", done, total)
+        note = lambda line: stderr.print(line, markup=False, highlight=False, soft_wrap=True)
         try:
             return fit_horizons(
-                data, out, horizons_s, model_config, train, device, resume, show, on_epoch
+                data,
+                out,
+                horizons_s,
+                model_config,
+                train,
+                device,
+                resume,
+                show,
+                on_epoch,
+                loading,
+                note,
             )
         except KeyboardInterrupt:
             raise _interrupted(out, horizons_s, created) from None

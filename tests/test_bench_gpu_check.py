@@ -1,0 +1,43 @@
+"""bench/gpu_check.sh runs its stages end to end on the CPU on a tiny input and prints the table
+of the target figures last (on a GPU machine it measures them)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "gpu_check.sh"
+FIGURES = (
+    "fit loop, 5 horizons, batch 8 (graphs/s)",
+    "fit loop, 1 model, batch 8 (graphs/s)",
+    "GPU busy while the 5-horizon fit trains (%)",
+    "evaluate (test samples/s per model)",
+    "aigem paper, full protocol, six 15-min recordings (min, extrapolated)",
+)
+
+
+def test_gpu_check_measures_every_stage_on_the_cpu(tmp_path: Path) -> None:
+    python = Path(sys.executable)
+    env = {
+        **os.environ,
+        "PYTHON": str(python),
+        "PATH": f"{python.parent}{os.pathsep}{os.environ['PATH']}",  # the venv's commands
+        "OMP_NUM_THREADS": "1",
+    }
+    command = [str(SCRIPT), "--device", "cpu", "--out", str(tmp_path / "check"),
+               "--recordings", "1", "--minutes", "0.4", "--epochs", "1", "--batch-size", "8",
+               "--bench-sizes", "8", "--steps", "1", "--fast"]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600, env=env)
+    assert result.returncode == 0, result.stderr[-2000:]
+    table = result.stdout[result.stdout.index("== gpu_check on the CPU") :].splitlines()
+    assert not any(line.startswith("FAILED") for line in table), table
+    assert "synth" in table[1] and "paper" in table[1]  # every stage timed
+    cells = [[cell.strip() for cell in line.split("|")[1:-1]] for line in table if line[:1] == "|"]
+    rows = {figure: value for figure, _, value in cells[2:]}
+    for figure in FIGURES:
+        assert figure in rows, figure
+    for figure in FIGURES[:2] + FIGURES[3:]:
+        assert float(rows[figure].replace(",", "")) > 0, (figure, rows[figure])
+    assert rows[FIGURES[2]] == "-"  # no GPU, no utilisation
