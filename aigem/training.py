@@ -36,6 +36,7 @@ from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
 from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, train_epochs
 from aigem.model import AiGem, count_parameters
+from aigem.processes import release_workers
 from aigem.refusals import check_splits
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
@@ -262,9 +263,12 @@ def fit_horizons(
     )
     if rank == 0:  # constant velocity's validation loss at each horizon, once per run
         record_baselines(build_dir, [(m.run_dir, m.steps) for m in members])
-    graphs_per_s, timed_out = train_epochs(
-        loop, members, train, progress or (lambda *_: None), on_epoch
-    )
+    try:
+        graphs_per_s, timed_out = train_epochs(
+            loop, members, train, progress or (lambda *_: None), on_epoch
+        )
+    finally:  # after an error or an interrupt too, when a traceback would keep the loaders
+        release_workers(train_loader, val_loader)
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
         if rank == 0 and not (member.run_dir / runs.CURVES).exists():
