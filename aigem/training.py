@@ -36,7 +36,7 @@ from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
 from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, train_epochs
 from aigem.model import AiGem, count_parameters
-from aigem.processes import release_workers
+from aigem.processes import compile_in_process, release_workers
 from aigem.refusals import check_splits
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
@@ -150,6 +150,7 @@ def _start_members(
         seed_everything(train.seed + loop.rank)  # initialised as a fit of this model alone would
         model = AiGem(model_config).to(loop.device)
         if train.compiles_on(loop.device.type):
+            compile_in_process()  # no pool of compile workers for the exit to wait for
             model.compile_decoder()
         optimizer = make_optimizer(model, member_train, loop.device)
         state, info = runs.start_run(
