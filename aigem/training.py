@@ -40,6 +40,7 @@ from aigem.devices import pick_device
 from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, train_epochs
 from aigem.model import AiGem, count_parameters
+from aigem.processes import compile_in_process, release_workers
 from aigem.refusals import check_splits
 from aigem.resident import load_split
 from ngsim_graphs.build import open_build
@@ -201,6 +202,7 @@ def _start_members(
         seed_everything(train.seed + loop.rank)  # initialised as a fit of this model alone would
         model = AiGem(model_config).to(loop.device)
         if train.compiles_on(loop.device.type) and loop.data is None:  # a captured step needs none
+            compile_in_process()  # no pool of compile workers for the exit to wait for
             model.compile_decoder()
         optimizer = make_optimizer(model, member_train, loop.device)
         state, info = runs.start_run(
@@ -321,9 +323,12 @@ def fit_horizons(
     )
     if rank == 0:  # constant velocity's validation loss at each horizon, once per run
         record_baselines(build_dir, [(m.run_dir, m.steps) for m in members])
-    graphs_per_s, timed_out = train_epochs(
-        loop, members, train, progress or (lambda *_: None), on_epoch
-    )
+    try:
+        graphs_per_s, timed_out = train_epochs(
+            loop, members, train, progress or (lambda *_: None), on_epoch
+        )
+    finally:  # after an error or an interrupt too, when a traceback would keep the loaders
+        release_workers(train_loader, val_loader)
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
         if rank == 0 and not (member.run_dir / runs.CURVES).exists():

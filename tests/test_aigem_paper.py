@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 from conftest import straight_track, write_txt
+from timed_runs import AIGEM, TimedRun, run_timed
 from typer.testing import CliRunner
 
 from aigem.paper import (
@@ -285,7 +286,6 @@ def test_a_refused_call_leaves_the_earlier_report_and_a_second_call_at_once_is_r
 # ------------------------------------------------------------------------------------------------
 # The whole command: uninterrupted; stopped by --max-hours and run again; killed and run again
 
-PROGRAM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
 FIGURES = ["concat.png", "curves.png", "dmin.png", "regions.png", "table1.png"]
 
 
@@ -299,11 +299,12 @@ def tiny_raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def paper_command(raw: Path, out: Path, *more: str) -> list[str]:
     options = ["--batch-size", "64", "--threads", "1", "--jobs", "1", "--device", "cpu"]
-    return [sys.executable, "-c", PROGRAM, "paper", str(raw), "--out", str(out), *options, *more]
+    return [sys.executable, "-c", AIGEM, "paper", str(raw), "--out", str(out), *options, *more]
 
 
-def run_paper_command(raw: Path, out: Path, *more: str) -> subprocess.CompletedProcess:
-    return subprocess.run(paper_command(raw, out, *more), capture_output=True, text=True)
+def run_paper_command(raw: Path, out: Path, *more: str) -> TimedRun:
+    """The call, and how long it took to end after its last line (timed_runs)."""
+    return run_timed(paper_command(raw, out, *more))
 
 
 @pytest.fixture(scope="module")
@@ -371,6 +372,8 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
     assert ours["finished"] and ours["fits"] == {"dmin-25m": theirs["fits"]["dmin-25m"]}
     for key in ("table1", "settings"):
         assert ours[key] == theirs[key], key
+    for call in (nothing, one, cut, finished):  # each ended with its last line
+        assert call.ended_with_its_last_line(), call
 
 
 def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
