@@ -32,7 +32,6 @@ from aigem.refusals import Member, check_build, check_one_fit, resolve_build
 from aigem.results import Evaluation, HorizonsEvaluation, Rows, Scores
 from aigem.runs import load_model
 from aigem.scoring import NonFinitePredictionError, score_members, score_targets
-from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scaling import MinMaxScaler
@@ -84,8 +83,8 @@ def scene_choice(
 @dataclass(frozen=True)
 class LoadedRun:
     """A run's best model, loaded for evaluation, with what its run records: `info` (the
-    checkpoint's run info), the build to score on, whether that is the run's own build, the
-    run's scaler (the one the model was trained with) and the model's future steps."""
+    checkpoint's run info), the build to score on, whether that is the run's own build and the
+    run's scaler (the one the model was trained with)."""
 
     run_dir: Path
     model: AiGem
@@ -93,7 +92,10 @@ class LoadedRun:
     build_dir: Path
     same_build: bool
     scaler: MinMaxScaler
-    steps: int
+
+    def steps(self, dataset: GraphDataset) -> int:
+        """The model's future steps at `dataset`'s time step."""
+        return round(self.info["train"]["horizon_s"] / dataset.config.time_step_s)
 
 
 def load_run(
@@ -105,8 +107,7 @@ def load_run(
     build_dir = resolve_build(info, build_dir)
     same_build = check_build(info, build_dir, run_dir, model.config, other_build)
     scaler = run_scaler(info["scaler"], run_dir / BEST)
-    steps = round(info["train"]["horizon_s"] / open_build(build_dir).config.time_step_s)
-    return LoadedRun(run_dir, model, info, build_dir, same_build, scaler, steps)
+    return LoadedRun(run_dir, model, info, build_dir, same_build, scaler)
 
 
 def _open_split(run: LoadedRun, split: Split | str) -> GraphDataset:
@@ -133,14 +134,14 @@ def _evaluation(run: LoadedRun, dataset: GraphDataset, scores: Scores) -> Evalua
     config = dataset.config
     return Evaluation(
         split=dataset.split.value,
-        horizon_steps=run.steps,
+        horizon_steps=run.steps(dataset),
         samples=len(dataset),
         parameters=count_parameters(run.model),
         model=summarize_errors(scores.model, config.time_step_s),
         constant_velocity=summarize_errors(scores.constant_velocity, config.time_step_s),
         build_dir=str(run.build_dir),
         same_build=run.same_build,
-        synthetic=synthetic_build(open_build(run.build_dir).manifest),
+        synthetic=synthetic_build(dataset.build.manifest),
         time_step_s=config.time_step_s,
         protocol=config.protocol.value,
         protocol_description=describe_protocol(config),
@@ -168,7 +169,8 @@ def evaluate(
     run = load_run(run_dir, build_dir, device, other_build)
     dataset = _open_split(run, split)
     try:
-        scores = score_targets(run.model, dataset, run.steps, device, batch_size, progress)
+        steps = run.steps(dataset)
+        scores = score_targets(run.model, dataset, steps, device, batch_size, progress)
     except NonFinitePredictionError as err:
         raise NgsimInputError(run_dir / BEST, _not_finite(run, dataset, str(err))) from None
     return _evaluation(run, dataset, scores)
@@ -221,7 +223,7 @@ def evaluate_horizons(
         run_dir, [Member(r.run_dir, r.model.config, r.scaler.to_dict(), r.build_dir) for r in runs]
     )
     dataset = _open_split(runs[0], split)
-    steps = [run.steps for run in runs]
+    steps = [run.steps(dataset) for run in runs]
     try:
         scores = score_members(
             [r.model for r in runs], dataset, steps, device, batch_size, progress
