@@ -279,9 +279,8 @@ def _evaluate(plan: FitPlan, out: Path, device: str, meter: _Meter) -> Any:
     """The fit's models on the test split, as the paper reports them (evaluate_horizons)."""
     from aigem.evaluation import evaluate_horizons
 
-    build_dir = out / BUILDS / plan.build_name
+    run_dir, build_dir = out / RUNS / plan.name, out / BUILDS / plan.build_name
     progress = lambda done, _total: meter.at(f"evaluating {plan.describe()}", done)
-    run_dir = out / RUNS / plan.name
     result = evaluate_horizons(run_dir, None, "test", device, EVALUATION_BATCH, progress)
     meter.advance(_batches(build_dir, "test", EVALUATION_BATCH))
     return result

@@ -299,7 +299,8 @@ def check_evaluate(
 ) -> None:
     """Everything `evaluate` (or `evaluate_horizons`) would refuse before it loads a model: a
     directory that is not a run, or not a finished one; the run's build gone; another build
-    without `other_build`, or one that does not fit the model (check_build); an empty split."""
+    without `other_build`, or one that does not fit the model (check_build); an empty split; a
+    multi-horizon run whose models cannot be scored in one pass (check_one_fit)."""
     horizons_s = read_horizons(run_dir)
     members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
     recorded = []
