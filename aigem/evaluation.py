@@ -4,33 +4,37 @@ Both are scored on the same samples and targets, with the metrics of aigem.metri
 default on the run's own build; another build (say, trained on US-101, tested on I-80) only when
 asked, and then with the run's scaler: the model only knows its inputs as scaled in training.
 
-A multi-horizon run (one model per horizon, the paper's protocol) is scored as the paper reports:
-RMSE at h s from the model trained for h s (in general: from the shortest-horizon model that
-predicts that far), ADE and FDE from the longest-horizon model; constant velocity likewise, so
-that each number of the baseline is on the same targets as the model's beside it.
+A multi-horizon run (one model per horizon, the paper's protocol) is scored in one pass over the
+split (aigem.scoring.score_members: the split loaded once, the models run stacked, constant
+velocity computed once), each model getting the numbers `evaluate` gives its run directory, and
+reported as the paper does: RMSE at h s from the model trained for h s (in general: from the
+shortest-horizon model that predicts that far), ADE and FDE from the longest-horizon model;
+constant velocity likewise, so that each number of the baseline is on the same targets as the
+model's beside it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
 
-from aigem.baseline import constant_velocity
-from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.devices import pick_device, to_device
+from aigem.data import GraphDataset, run_scaler
+from aigem.devices import pick_device
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
 from aigem.records import BEST, member_dir, read_horizons
-from aigem.refusals import check_build, resolve_build
-from aigem.results import Evaluation, FinalErrors, HorizonsEvaluation, Rows, Scores
+from aigem.refusals import Member, check_build, check_one_fit, resolve_build
+from aigem.results import Evaluation, HorizonsEvaluation, Rows, Scores
 from aigem.runs import load_model
-from ngsim_graphs.build import open_build
+from aigem.scoring import NonFinitePredictionError, score_members, score_targets
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import Protocol, Split
 from ngsim_graphs.synth.marker import synthetic_build
 
@@ -47,54 +51,6 @@ def describe_protocol(config: BuildConfig) -> str:
         f"AiGem's samples: ego windows every {config.stride_s:g} s, {ego}the actors within "
         f"{config.d_sense_m:g} m of the ego at the present as targets"
     )
-
-
-class NonFinitePredictionError(ValueError):
-    """The model predicted NaN or infinite positions: no metric of them would mean anything."""
-
-
-def score_targets(
-    model: AiGem,
-    dataset: GraphDataset,
-    steps: int,
-    device: torch.device,
-    batch_size: int = 64,
-    progress: Callable[[int, int], None] | None = None,
-) -> Scores:
-    """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
-    `steps` future steps, and each target's final error; inputs scaled with `dataset.scaler`."""
-    collate = Collate(dataset.scaler, layers=model.config.layers)
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
-    ours, baseline = ErrorTotals(steps), ErrorTotals(steps)
-    finals: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    with torch.no_grad():
-        for index, batch in enumerate(loader):
-            predicted = xy_to_metres(dataset.scaler, model(to_device(batch, device), steps))
-            if not bool(torch.isfinite(predicted).all()):
-                raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}")
-            truth = batch["target_xy"][:, :steps].numpy()
-            mask = batch["target_mask"][:, :steps].numpy()
-            state = batch["target_state"].numpy().astype(np.float64)
-            cv = constant_velocity(state, steps, dataset.config.time_step_s)
-            predicted = predicted.cpu().numpy()
-            ours.add(predicted, truth, mask, state[:, 1])
-            baseline.add(cv, truth, mask, state[:, 1])
-            first = index * batch_size  # the loader's batches are consecutive indices
-            ids = dataset.batch_order(np.arange(first, first + batch["graphs"]))
-            last = mask[:, -1]
-            finals.append(
-                (
-                    ids[batch["target_sample"].numpy()[last]],
-                    np.linalg.norm(predicted[last, -1] - truth[last, -1], axis=-1).astype(float),
-                    np.linalg.norm(cv[last, -1] - truth[last, -1], axis=-1),
-                )
-            )
-            if progress:
-                progress(index + 1, len(loader))
-    if not finals:  # no batch: an empty split
-        finals = [(np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]
-    final = FinalErrors(*(np.concatenate(part) for part in zip(*finals, strict=True)))
-    return Scores(ours, baseline, final)
 
 
 def _step_lists(totals: ErrorTotals) -> dict[str, dict[str, list]]:
@@ -124,6 +80,79 @@ def scene_choice(
     return {"worst": worst, "median": ranked[middle : middle + group], "best": ranked[:group]}
 
 
+@dataclass(frozen=True)
+class LoadedRun:
+    """A run's best model, loaded for evaluation, with what its run records: `info` (the
+    checkpoint's run info), the build to score on, whether that is the run's own build and the
+    run's scaler (the one the model was trained with)."""
+
+    run_dir: Path
+    model: AiGem
+    info: dict[str, Any]
+    build_dir: Path
+    same_build: bool
+    scaler: MinMaxScaler
+
+    def steps(self, dataset: GraphDataset) -> int:
+        """The model's future steps at `dataset`'s time step."""
+        return round(self.info["train"]["horizon_s"] / dataset.config.time_step_s)
+
+
+def load_run(
+    run_dir: Path, build_dir: Path | None, device: torch.device, other_build: bool
+) -> LoadedRun:
+    """The run's best model on `device` and the build to score it on (None: the run's own).
+    Another build than the run's is refused unless `other_build` (aigem.refusals.check_build)."""
+    model, info = load_model(run_dir, device)
+    build_dir = resolve_build(info, build_dir)
+    same_build = check_build(info, build_dir, run_dir, model.config, other_build)
+    scaler = run_scaler(info["scaler"], run_dir / BEST)
+    return LoadedRun(run_dir, model, info, build_dir, same_build, scaler)
+
+
+def _open_split(run: LoadedRun, split: Split | str) -> GraphDataset:
+    """`split` of the run's build as its model reads it, scaled with the run's scaler; an empty
+    split is refused."""
+    dataset = GraphDataset(run.build_dir, split, run.model.config.history_steps_read, run.scaler)
+    if len(dataset) == 0:
+        raise NgsimInputError(
+            run.build_dir, f"its {dataset.split.value} split is empty: nothing to evaluate"
+        )
+    return dataset
+
+
+def _not_finite(run: LoadedRun, dataset: GraphDataset, where: str, who: str = "model") -> str:
+    """The refusal of non-finite predictions (on run's checkpoint); `where`: which batch."""
+    return (
+        f"the {who}'s predictions on {run.build_dir} ({dataset.split.value} split, {where}) "
+        "are not finite (NaN or infinite); no metrics"
+    )
+
+
+def _evaluation(run: LoadedRun, dataset: GraphDataset, scores: Scores) -> Evaluation:
+    """The run's Evaluation from its scores on `dataset`."""
+    config = dataset.config
+    return Evaluation(
+        split=dataset.split.value,
+        horizon_steps=run.steps(dataset),
+        samples=len(dataset),
+        parameters=count_parameters(run.model),
+        model=summarize_errors(scores.model, config.time_step_s),
+        constant_velocity=summarize_errors(scores.constant_velocity, config.time_step_s),
+        build_dir=str(run.build_dir),
+        same_build=run.same_build,
+        synthetic=synthetic_build(dataset.build.manifest),
+        time_step_s=config.time_step_s,
+        protocol=config.protocol.value,
+        protocol_description=describe_protocol(config),
+        steps={
+            "model": _step_lists(scores.model),
+            "constant_velocity": _step_lists(scores.constant_velocity),
+        },
+        final=scores.final,
+    )
+
+
 def evaluate(
     run_dir: Path,
     build_dir: Path | None = None,
@@ -137,43 +166,14 @@ def evaluate(
     (None: the run's own build). Another build than the run's is refused unless `other_build`;
     inputs are always scaled with the run's scaler, the one the model was trained with."""
     device = pick_device(device_choice)
-    model, info = load_model(run_dir, device)
-    build_dir = resolve_build(info, build_dir)
-    same_build = check_build(info, build_dir, run_dir, model.config, other_build)
-    scaler = run_scaler(info["scaler"], run_dir / BEST)
-    dataset = GraphDataset(build_dir, split, model.config.history_steps_read, scaler)
-    if len(dataset) == 0:
-        raise NgsimInputError(
-            build_dir, f"its {dataset.split.value} split is empty: nothing to evaluate"
-        )
-    steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
+    run = load_run(run_dir, build_dir, device, other_build)
+    dataset = _open_split(run, split)
     try:
-        scores = score_targets(model, dataset, steps, device, batch_size, progress)
+        steps = run.steps(dataset)
+        scores = score_targets(run.model, dataset, steps, device, batch_size, progress)
     except NonFinitePredictionError as err:
-        raise NgsimInputError(
-            run_dir / BEST,
-            f"the model's predictions on {build_dir} ({Split(split).value} "
-            f"split, {err}) are not finite (NaN or infinite); no metrics",
-        ) from None
-    return Evaluation(
-        split=Split(split).value,
-        horizon_steps=steps,
-        samples=len(dataset),
-        parameters=count_parameters(model),
-        model=summarize_errors(scores.model, dataset.config.time_step_s),
-        constant_velocity=summarize_errors(scores.constant_velocity, dataset.config.time_step_s),
-        build_dir=str(build_dir),
-        same_build=same_build,
-        synthetic=synthetic_build(open_build(build_dir).manifest),
-        time_step_s=dataset.config.time_step_s,
-        protocol=dataset.config.protocol.value,
-        protocol_description=describe_protocol(dataset.config),
-        steps={
-            "model": _step_lists(scores.model),
-            "constant_velocity": _step_lists(scores.constant_velocity),
-        },
-        final=scores.final,
-    )
+        raise NgsimInputError(run_dir / BEST, _not_finite(run, dataset, str(err))) from None
+    return _evaluation(run, dataset, scores)
 
 
 def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str, str]]:
@@ -210,23 +210,38 @@ def evaluate_horizons(
     progress: Callable[[int, int], None] | None = None,
     other_build: bool = False,
 ) -> HorizonsEvaluation:
-    """Score every member of a multi-horizon run as `evaluate` does, and combine them as the paper
-    reports (protocol_rows)."""
+    """Score every member of a multi-horizon run as `evaluate` scores it, in one pass over the
+    split (score_members: the split loaded once, the models stacked, constant velocity once;
+    `progress(done, total)` over its batches), and combine them as the paper reports
+    (protocol_rows). The members must share a model config, a scaler and a build."""
     horizons_s = read_horizons(run_dir)
     if horizons_s is None:
         raise NgsimInputError(run_dir, "not a multi-horizon run: no horizons.json")
-    members = {
-        member_dir(run_dir, h).name: evaluate(
-            member_dir(run_dir, h),
-            build_dir,
-            split,
-            device_choice,
-            batch_size,
-            progress,
-            other_build,
+    device = pick_device(device_choice)
+    runs = [load_run(member_dir(run_dir, h), build_dir, device, other_build) for h in horizons_s]
+    check_one_fit(
+        run_dir, [Member(r.run_dir, r.model.config, r.scaler.to_dict(), r.build_dir) for r in runs]
+    )
+    dataset = _open_split(runs[0], split)
+    steps = [run.steps(dataset) for run in runs]
+    try:
+        scores = score_members(
+            [r.model for r in runs], dataset, steps, device, batch_size, progress
         )
-        for h in horizons_s
+    except NonFinitePredictionError as err:
+        run, who = runs[err.member], f"{horizons_s[err.member]:g} s model"
+        raise NgsimInputError(
+            run.run_dir / BEST, _not_finite(run, dataset, str(err), who)
+        ) from None
+    members = {
+        run.run_dir.name: _evaluation(run, dataset, score)
+        for run, score in zip(runs, scores, strict=True)
     }
+    return _combined(horizons_s, members)
+
+
+def _combined(horizons_s: tuple[float, ...], members: dict[str, Evaluation]) -> HorizonsEvaluation:
+    """The members' evaluations (ascending by horizon) as the paper reports them."""
     model, baseline, sources = protocol_rows(members)
     longest = members[sources["ade_m"]]
     return HorizonsEvaluation(

@@ -59,6 +59,7 @@ from aigem.records import LAST, member_dir, read_horizons
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
+EVALUATION_BATCH = 64  # the batch size of _evaluate (evaluate_horizons), which _work_units counts
 PAPER_FIT = build_name(PAPER_D_MIN_M)  # the paper's model: d_min 25 m, the output concatenation
 
 
@@ -185,7 +186,8 @@ def _builds(
 
 class _Meter:
     """One bar over the fits and the evaluations still to run: a training batch counts
-    TRAIN_UNITS (it steps five models), an evaluation batch of one model one."""
+    TRAIN_UNITS (it steps five models), an evaluation batch one (it runs a fit's five models in
+    one pass: aigem.scoring.score_members)."""
 
     TRAIN_UNITS = 4
 
@@ -277,14 +279,10 @@ def _evaluate(plan: FitPlan, out: Path, device: str, meter: _Meter) -> Any:
     """The fit's models on the test split, as the paper reports them (evaluate_horizons)."""
     from aigem.evaluation import evaluate_horizons
 
-    calls = [0]
-
-    def progress(_done: int, _total: int) -> None:
-        calls[0] += 1
-        meter.at(f"evaluating {plan.describe()}", calls[0])
-
-    result = evaluate_horizons(out / RUNS / plan.name, None, "test", device, progress=progress)
-    meter.advance(calls[0])
+    run_dir, build_dir = out / RUNS / plan.name, out / BUILDS / plan.build_name
+    progress = lambda done, _total: meter.at(f"evaluating {plan.describe()}", done)
+    result = evaluate_horizons(run_dir, None, "test", device, EVALUATION_BATCH, progress)
+    meter.advance(_batches(build_dir, "test", EVALUATION_BATCH))
     return result
 
 
@@ -420,7 +418,7 @@ def _work_units(
         if plan in to_train:
             left = epochs_left(out / RUNS / plan.name, config)
             units += _Meter.TRAIN_UNITS * left * _batches(build_dir, "train", config.batch_size)
-        units += len(HORIZONS_S) * _batches(build_dir, "test", 64)  # evaluate's batch size
+        units += _batches(build_dir, "test", EVALUATION_BATCH)  # one pass for the five models
     return units
 
 

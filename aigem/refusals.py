@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -297,9 +299,11 @@ def check_evaluate(
 ) -> None:
     """Everything `evaluate` (or `evaluate_horizons`) would refuse before it loads a model: a
     directory that is not a run, or not a finished one; the run's build gone; another build
-    without `other_build`, or one that does not fit the model (check_build); an empty split."""
+    without `other_build`, or one that does not fit the model (check_build); an empty split; a
+    multi-horizon run whose models cannot be scored in one pass (check_one_fit)."""
     horizons_s = read_horizons(run_dir)
     members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
+    recorded = []
     for member in members:
         info = read_run_info(member)
         if not (member / BEST).is_file():
@@ -307,8 +311,42 @@ def check_evaluate(
                 member, f"not a finished run: no {BEST} (no epoch has finished yet)"
             )
         build = resolve_build(info, build_dir)
-        check_build(info, build, member, model_config(info, member / RUN_INFO), other_build)
+        model = model_config(info, member / RUN_INFO)
+        check_build(info, build, member, model, other_build)
         if int(open_build(build).manifest.splits.get(Split(split).value, 0)) == 0:
             raise NgsimInputError(
                 build, f"its {Split(split).value} split is empty: nothing to evaluate"
             )
+        recorded.append(Member(member, model, info["scaler"], build))
+    if horizons_s is not None:
+        check_one_fit(run_dir, recorded)
+
+
+@dataclass(frozen=True)
+class Member:
+    """A model of a multi-horizon run as scoring it needs: its run directory, its model config,
+    its scaler (as its run records it: MinMaxScaler.to_dict's form), the build to score on."""
+
+    run_dir: Path
+    model: ModelConfig
+    scaler: dict[str, Any]
+    build_dir: Path
+
+
+def check_one_fit(run_dir: Path, members: Sequence[Member]) -> None:
+    """Refuse a multi-horizon run whose models cannot be scored in one pass over one split
+    (aigem.scoring.score_members): they share one model config (so the history they read), one
+    scaler and one build, as `fit_horizons` trains them."""
+    first = members[0]
+    for member in members[1:]:
+        for what, same in (
+            ("model settings", member.model == first.model),
+            ("scalers", member.scaler == first.scaler),
+            ("builds", member.build_dir == first.build_dir),
+        ):
+            if not same:
+                raise NgsimInputError(
+                    run_dir,
+                    f"its models {first.run_dir.name} and {member.run_dir.name} differ in their "
+                    f"{what}: not the models of one multi-horizon fit; evaluate each on its own",
+                )

@@ -38,3 +38,16 @@ def tiny_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
     train = TrainConfig(epochs=1, batch_size=8, horizon_s=2.0, seed=3)
     fit(tiny_build, run, ModelConfig(), train, "cpu")
     return run
+
+
+@pytest.fixture(scope="session")
+def tiny_horizons_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A one-epoch 1 s + 2 s run on the tiny build (fit_horizons); RUN/h2s alone is a
+    single-horizon run. Read only: a test that edits it edits a copy."""
+    from aigem.config import ModelConfig, TrainConfig
+    from aigem.training import fit_horizons
+
+    run = tmp_path_factory.mktemp("tiny_horizons_run") / "run"
+    train = TrainConfig(epochs=1, batch_size=8, seed=3)
+    fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")
+    return run

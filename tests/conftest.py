@@ -12,7 +12,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from aigem_fixtures import tiny_build, tiny_run, two_recording_build  # noqa: F401  (shared)
+from aigem_fixtures import (  # noqa: F401  (shared)
+    tiny_build,
+    tiny_horizons_run,
+    tiny_run,
+    two_recording_build,
+)
 
 from ngsim_graphs import budget
 from ngsim_graphs import schema as s

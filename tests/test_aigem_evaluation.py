@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,11 +17,12 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
-from aigem.evaluation import evaluate, scene_choice, score_targets
+from aigem.evaluation import evaluate, evaluate_horizons, scene_choice, score_targets
 from aigem.results import as_dict
 from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import write_manifest_json
 from ngsim_graphs.pipeline import run_build
 
@@ -208,3 +211,104 @@ def test_each_final_error_is_tied_to_its_own_sample(trained_run: Path) -> None:
         assert pairs[batch_size][0].tolist() == pairs[1][0].tolist()
         np.testing.assert_allclose(pairs[batch_size][1], pairs[1][1], atol=1e-3)
     assert len(set(pairs[1][0].tolist())) > 1
+
+
+# ------------------------------------------------------------------------------------------------
+# A multi-horizon run: its models in one pass over the split (aigem.scoring.score_members)
+
+
+def _close_rows(ours: object, theirs: object, key: str = "") -> None:
+    """Two evaluations' rows (or per-step curves) alike: counts and None exactly, metres to
+    float32 rounding (the stacked models sum in another order)."""
+    if isinstance(ours, dict):
+        assert isinstance(theirs, dict) and ours.keys() == theirs.keys()
+        for name, value in ours.items():
+            _close_rows(value, theirs[name], name)
+    elif isinstance(ours, list):
+        assert isinstance(theirs, list) and len(ours) == len(theirs)
+        for value, other in zip(ours, theirs, strict=True):
+            _close_rows(value, other, key)
+    elif key == "n" or key.startswith("n_") or ours is None:
+        assert ours == theirs, key
+    else:
+        assert ours == pytest.approx(theirs, rel=1e-5, abs=1e-5), key
+
+
+def test_a_multi_horizon_run_scores_each_model_as_evaluate_does_in_one_pass(
+    tiny_horizons_run: Path,
+) -> None:
+    calls: list[tuple[int, int]] = []
+    several = evaluate_horizons(
+        tiny_horizons_run, None, "test", "cpu", 8, lambda *call: calls.append(call)
+    )
+    batches = -(-several.samples // 8)
+    assert batches > 1 and calls == [(done, batches) for done in range(1, batches + 1)]
+    assert list(several.members) == ["h1s", "h2s"]
+    for name, steps in (("h1s", 5), ("h2s", 10)):
+        alone = evaluate(tiny_horizons_run / name, None, "test", "cpu", 8)
+        joint = several.members[name]
+        assert joint.horizon_steps == alone.horizon_steps == steps
+        # everything but the model's own numbers exactly: constant velocity, counts, fields
+        assert replace(joint, model=alone.model, steps=alone.steps) == alone
+        assert joint.steps["constant_velocity"] == alone.steps["constant_velocity"]
+        _close_rows(joint.model, alone.model)
+        _close_rows(joint.steps["model"], alone.steps["model"])
+        assert joint.final.sample.tolist() == alone.final.sample.tolist()
+        np.testing.assert_array_equal(
+            joint.final.constant_velocity_m, alone.final.constant_velocity_m
+        )
+        np.testing.assert_allclose(joint.final.model_m, alone.final.model_m, rtol=1e-5, atol=1e-4)
+
+
+def _edit_member(run: Path, edit: Callable[[dict], None]) -> None:
+    """Apply `edit` to the run info that a member's run.json and best.pt record."""
+    info = json.loads((run / runs.RUN_INFO).read_text())
+    edit(info)
+    (run / runs.RUN_INFO).write_text(json.dumps(info))
+    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    edit(checkpoint["info"])
+    torch.save(checkpoint, run / runs.BEST)
+
+
+@pytest.mark.parametrize(
+    ("what", "edit"),
+    [
+        ("model settings", lambda info: info["model"].update(dropout=0.25)),
+        (
+            "scalers",
+            lambda info: info["scaler"]["x_m"].update(max=info["scaler"]["x_m"]["max"] + 1),
+        ),
+    ],
+)
+def test_models_of_other_fits_are_refused_as_one_run(
+    tiny_horizons_run: Path, tmp_path: Path, what: str, edit: Callable[[dict], None]
+) -> None:
+    run = Path(shutil.copytree(tiny_horizons_run, tmp_path / "run"))
+    _edit_member(run / "h2s", edit)
+    message = (
+        f"its models h1s and h2s differ in their {what}: not the models of one multi-horizon "
+        "fit; evaluate each on its own"
+    )
+    code, out, err = _evaluate(str(run))  # refused before any model loads
+    assert code == 1 and out == "" and err == f"error: {run}: {message}\n"
+    with pytest.raises(NgsimInputError) as raised:
+        evaluate_horizons(run, None, "test", "cpu")
+    assert str(raised.value) == f"{run}: {message}"
+    assert evaluate(run / "h2s", None, "test", "cpu").samples > 0  # alone, it is a run
+
+
+def test_a_multi_horizon_runs_non_finite_model_is_named(
+    tiny_horizons_run: Path, tmp_path: Path
+) -> None:
+    run = Path(shutil.copytree(tiny_horizons_run, tmp_path / "run"))
+    checkpoint = torch.load(run / "h2s" / runs.BEST, map_location="cpu", weights_only=True)
+    checkpoint["model"]["output.2.bias"][0] = float("nan")
+    torch.save(checkpoint, run / "h2s" / runs.BEST)
+    code, out, err = _evaluate(str(run))
+    build = runs.read_run_info(run / "h2s")["build_dir"]
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert err.startswith(
+        f"error: {run / 'h2s' / runs.BEST}: the 2 s model's predictions on {build} (test split, "
+        "batch 1 of "
+    )
+    assert err.endswith(") are not finite (NaN or infinite); no metrics\n")

@@ -24,6 +24,9 @@ from aigem.paper import (
     FITS,
     PARTS,
     PaperCall,
+    _evaluate,
+    _Meter,
+    _work_units,
     fit_share_s,
     parse_parts,
     plan_builds,
@@ -281,6 +284,27 @@ def test_a_refused_call_leaves_the_earlier_report_and_a_second_call_at_once_is_r
     with output_lock(out), pytest.raises(NgsimOutputError, match="another process is writing"):
         run_paper([raw], out, config, call)
     assert (out / REPORT_JSON).read_text() == "{}"
+
+
+def test_an_evaluation_fills_its_share_of_the_bar_one_unit_a_batch(
+    tiny_build: Path, tiny_horizons_run: Path, tmp_path: Path
+) -> None:
+    """The bar counts a fit's evaluation as one pass over the test split (its models stacked),
+    and the evaluation moves it one unit a batch, to its share and no further."""
+    plan = FITS[0]
+    for folder, name, target in (
+        ("runs", plan.name, tiny_horizons_run),
+        ("builds", plan.build_name, tiny_build),
+    ):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / name).symlink_to(target)
+    units = _work_units(tmp_path, [plan], [], PaperConfig())
+    test_samples = open_build(tiny_build).manifest.splits["test"]
+    assert units == math.ceil(test_samples / 64)
+    shown: list[tuple[int, int]] = []
+    meter = _Meter(lambda _what, done, total: shown.append((done, total)), units)
+    _evaluate(plan, tmp_path, "cpu", meter)
+    assert shown == [(done, units) for done in range(1, units + 1)] and meter.offset == units
 
 
 # ------------------------------------------------------------------------------------------------

@@ -14,7 +14,6 @@ from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
 from aigem import records, runs
-from aigem.config import ModelConfig, TrainConfig
 from aigem.evaluation import evaluate, evaluate_horizons
 from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
 from aigem.plots import (
@@ -24,7 +23,6 @@ from aigem.plots import (
     error_by_region,
     final_error_distribution,
 )
-from aigem.training import fit_horizons
 from ngsim_cli.aigem import app
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
@@ -37,13 +35,10 @@ ROWS = [
 ]
 
 
-@pytest.fixture(scope="module")
-def run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+@pytest.fixture
+def run(tiny_horizons_run: Path) -> Path:
     """A 1 s + 2 s run of one epoch; RUN/h2s alone is a single-horizon run."""
-    run = tmp_path_factory.mktemp("plots") / "run"
-    train = TrainConfig(epochs=1, batch_size=8, seed=3)
-    fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")
-    return run
+    return tiny_horizons_run
 
 
 def _is_png(path: Path, min_bytes: int = 10_000) -> bool:

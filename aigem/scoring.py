@@ -1,0 +1,159 @@
+"""Scores of models and of constant velocity over a split's targets, batch by batch (metres).
+
+`score_targets` scores one model; `score_members` scores the models of a multi-horizon run in one
+pass: each batch is loaded once, the models run as one stacked ensemble (aigem.ensemble, each
+model over its own future steps), and constant velocity is computed once, for the longest
+horizon, each model's baseline being the first steps of it (constant velocity's position at a step
+does not depend on how many steps follow). Each model's scores are those `score_targets` gives it
+alone: constant velocity's exactly, the model's to float rounding (batched products sum in another
+order). aigem.evaluation turns scores into the numbers `aigem evaluate` reports.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from aigem.baseline import constant_velocity
+from aigem.data import Collate, GraphDataset, xy_to_metres
+from aigem.devices import to_device
+from aigem.ensemble import stack
+from aigem.metrics import ErrorTotals
+from aigem.model import AiGem
+from aigem.results import FinalErrors, Scores
+
+
+class NonFinitePredictionError(ValueError):
+    """The model predicted NaN or infinite positions: no metric of them would mean anything.
+    `member`: which model of a stacked pass (0 for a model scored alone)."""
+
+    def __init__(self, where: str, member: int = 0) -> None:
+        super().__init__(where)
+        self.member = member
+
+
+@dataclass(frozen=True)
+class BatchTargets:
+    """A batch's targets as the metrics take them, over its first K future steps: `truth`
+    (A, K, 2) float32 and `cv` (A, K, 2) float64 constant-velocity positions (metres), `mask`
+    (A, K) bool, `present_y_m` (A,) float64, `sample` (A,) each target's sample id in the split."""
+
+    truth: np.ndarray
+    cv: np.ndarray
+    mask: np.ndarray
+    present_y_m: np.ndarray
+    sample: np.ndarray
+
+
+def batch_targets(
+    batch: dict[str, Any], dataset: GraphDataset, first: int, steps: int
+) -> BatchTargets:
+    """The targets of a loader's batch that starts at sample index `first` (the loader's batches
+    are consecutive indices, unshuffled), over `steps` future steps."""
+    state = batch["target_state"].numpy().astype(np.float64)  # (A, 4)
+    ids = dataset.batch_order(np.arange(first, first + batch["graphs"]))
+    return BatchTargets(
+        truth=batch["target_xy"][:, :steps].numpy(),
+        cv=constant_velocity(state, steps, dataset.config.time_step_s),
+        mask=batch["target_mask"][:, :steps].numpy(),
+        present_y_m=state[:, 1],
+        sample=ids[batch["target_sample"].numpy()],
+    )
+
+
+class ScoreSums:
+    """What `Scores` sums over a split for a model of `steps` future steps, batch by batch. The
+    batch's targets may reach further: a model and constant velocity are scored over their first
+    `steps` steps only, as if they had been computed for `steps` (constant velocity's positions
+    at a step do not depend on how many steps follow)."""
+
+    def __init__(self, steps: int) -> None:
+        self.steps = steps
+        self.model, self.constant_velocity = ErrorTotals(steps), ErrorTotals(steps)
+        self._finals: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def add(self, predicted: np.ndarray, targets: BatchTargets) -> None:
+        """Add a batch: `predicted` (A, >= steps, 2) positions in metres."""
+        k = self.steps
+        truth, mask, cv = targets.truth[:, :k], targets.mask[:, :k], targets.cv[:, :k]
+        self.model.add(predicted[:, :k], truth, mask, targets.present_y_m)
+        self.constant_velocity.add(cv, truth, mask, targets.present_y_m)
+        last = mask[:, -1]
+        self._finals.append(
+            (
+                targets.sample[last],
+                np.linalg.norm(predicted[last, k - 1] - truth[last, -1], axis=-1).astype(float),
+                np.linalg.norm(cv[last, -1] - truth[last, -1], axis=-1),
+            )
+        )
+
+    def scores(self) -> Scores:
+        finals = self._finals or [(np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]  # no batch
+        final = FinalErrors(*(np.concatenate(part) for part in zip(*finals, strict=True)))
+        return Scores(self.model, self.constant_velocity, final)
+
+
+def _loader(dataset: GraphDataset, layers: int, batch_size: int) -> DataLoader:
+    """The split in order, batches planned for an encoder of `layers` layers."""
+    collate = Collate(dataset.scaler, layers=layers)
+    return DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
+
+
+def score_targets(
+    model: AiGem,
+    dataset: GraphDataset,
+    steps: int,
+    device: torch.device,
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+) -> Scores:
+    """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
+    `steps` future steps, and each target's final error; inputs scaled with `dataset.scaler`."""
+    loader = _loader(dataset, model.config.layers, batch_size)
+    sums = ScoreSums(steps)
+    with torch.no_grad():
+        for index, batch in enumerate(loader):
+            predicted = xy_to_metres(dataset.scaler, model(to_device(batch, device), steps))
+            if not bool(torch.isfinite(predicted).all()):
+                raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}")
+            sums.add(
+                predicted.cpu().numpy(), batch_targets(batch, dataset, index * batch_size, steps)
+            )
+            if progress:
+                progress(index + 1, len(loader))
+    return sums.scores()
+
+
+def score_members(
+    models: Sequence[AiGem],
+    dataset: GraphDataset,
+    steps: Sequence[int],
+    device: torch.device,
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Scores]:
+    """`score_targets` of each model (one ModelConfig; `steps` ascending, model m's future
+    steps) in one pass over `dataset`: each batch is loaded once, the models run as one stacked
+    ensemble (aigem.ensemble), and constant velocity is computed once, for the longest steps.
+    A non-finite prediction raises NonFinitePredictionError naming the model's index."""
+    ensemble = stack(models, steps)
+    ensemble.eval()
+    loader = _loader(dataset, models[0].config.layers, batch_size)
+    sums = [ScoreSums(k) for k in steps]
+    with torch.no_grad():
+        for index, batch in enumerate(loader):
+            scaled = ensemble(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
+            predicted = xy_to_metres(dataset.scaler, scaled).cpu().numpy()
+            targets = batch_targets(batch, dataset, index * batch_size, max(steps))
+            for member, member_sums in enumerate(sums):
+                if not np.isfinite(predicted[member, :, : member_sums.steps]).all():
+                    raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}", member)
+                member_sums.add(predicted[member], targets)
+            if progress:
+                progress(index + 1, len(loader))
+    return [member_sums.scores() for member_sums in sums]
