@@ -185,3 +185,29 @@ class DeviceData:
     val_base: Capacity
     val_batches: Batches  # the validation split's, in order, made once
     batch_order: Callable[[np.ndarray], np.ndarray]  # the train split's (by recording)
+
+
+class Predictions:
+    """An ensemble's predictions in metres ((M, capacity.targets, K, 2), padding after each
+    batch's targets) of static batches of `split`, forward only; on CUDA each tier's forward is
+    captured and replayed into a buffer of its own."""
+
+    def __init__(
+        self, ensemble: Ensemble, split: ResidentSplit, scaler: MinMaxScaler, device: torch.device
+    ) -> None:
+        self.ensemble, self.split, self.scaler, self.device = ensemble, split, scaler, device
+        self.out: dict[Capacity, torch.Tensor] = {}
+        self.replays = Replays(self._forward, device)
+
+    def _forward(self, ids: torch.Tensor, capacity: Capacity) -> None:
+        with torch.no_grad():
+            batch = self.split.batch(ids, capacity)
+            self.out[capacity].copy_(xy_to_metres(self.scaler, self.ensemble(batch)))
+
+    def __call__(self, ids: torch.Tensor, tier: int, base: Capacity) -> torch.Tensor:
+        capacity = capacities.tier(base, tier)
+        if capacity not in self.out:  # before any capture
+            shape = (self.ensemble.members, capacity.targets, max(self.ensemble.steps), 2)
+            self.out[capacity] = torch.empty(shape, device=self.device)
+        self.replays(ids, tier, capacity)
+        return self.out[capacity]

@@ -161,16 +161,18 @@ def evaluate(
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
     other_build: bool = False,
+    resident: bool | None = None,
 ) -> Evaluation:
     """Score the run's best model and the constant-velocity baseline on `split` of `build_dir`
     (None: the run's own build). Another build than the run's is refused unless `other_build`;
-    inputs are always scaled with the run's scaler, the one the model was trained with."""
+    inputs are always scaled with the run's scaler, the one the model was trained with.
+    `resident` (None: on CUDA): the split scored on the device in static batches (aigem.scoring)."""
     device = pick_device(device_choice)
     run = load_run(run_dir, build_dir, device, other_build)
     dataset = _open_split(run, split)
     try:
         steps = run.steps(dataset)
-        scores = score_targets(run.model, dataset, steps, device, batch_size, progress)
+        scores = score_targets(run.model, dataset, steps, device, batch_size, progress, resident)
     except NonFinitePredictionError as err:
         raise NgsimInputError(run_dir / BEST, _not_finite(run, dataset, str(err))) from None
     return _evaluation(run, dataset, scores)
@@ -209,6 +211,7 @@ def evaluate_horizons(
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
     other_build: bool = False,
+    resident: bool | None = None,
 ) -> HorizonsEvaluation:
     """Score every member of a multi-horizon run as `evaluate` scores it, in one pass over the
     split (score_members: the split loaded once, the models stacked, constant velocity once;
@@ -225,9 +228,8 @@ def evaluate_horizons(
     dataset = _open_split(runs[0], split)
     steps = [run.steps(dataset) for run in runs]
     try:
-        scores = score_members(
-            [r.model for r in runs], dataset, steps, device, batch_size, progress
-        )
+        models = [r.model for r in runs]
+        scores = score_members(models, dataset, steps, device, batch_size, progress, resident)
     except NonFinitePredictionError as err:
         run, who = runs[err.member], f"{horizons_s[err.member]:g} s model"
         raise NgsimInputError(

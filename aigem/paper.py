@@ -59,7 +59,7 @@ from aigem.records import LAST, member_dir, read_horizons
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
-EVALUATION_BATCH = 64  # the batch size of _evaluate (evaluate_horizons), which _work_units counts
+EVALUATION_BATCH = 64  # the batch size of _evaluate on the loader, its units in _work_units
 PAPER_FIT = build_name(PAPER_D_MIN_M)  # the paper's model: d_min 25 m, the output concatenation
 
 
@@ -280,9 +280,10 @@ def _evaluate(plan: FitPlan, out: Path, device: str, meter: _Meter) -> Any:
     from aigem.evaluation import evaluate_horizons
 
     run_dir, build_dir = out / RUNS / plan.name, out / BUILDS / plan.build_name
-    progress = lambda done, _total: meter.at(f"evaluating {plan.describe()}", done)
+    units = _batches(build_dir, "test", EVALUATION_BATCH)  # the pass's share of the bar
+    progress = lambda done, total: meter.at(f"evaluating {plan.describe()}", done * units // total)
     result = evaluate_horizons(run_dir, None, "test", device, EVALUATION_BATCH, progress)
-    meter.advance(_batches(build_dir, "test", EVALUATION_BATCH))
+    meter.advance(units)
     return result
 
 

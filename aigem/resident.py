@@ -31,9 +31,11 @@ from aigem.capacity import Capacity, quantities
 from aigem.data import Collate, GraphDataset, check_covered
 from aigem.plan import Adjacency, Plan, edge_inputs, node_levels
 from ngsim_graphs import edges
+from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.layout import manifest_path
 
 CHUNK = 256  # samples induced at a time: numpy's gathers are fastest at this size
+DEVICE_SHARE = 0.5  # of a GPU's free memory the splits may take: the rest for the steps
 TARGET_KEYS = ("target_xy", "target_mask", "target_state", "cv_step")  # per target, as Collate's
 Progress = Callable[[int, int], None]  # (samples loaded, samples in the split)
 
@@ -317,16 +319,29 @@ class _Chunks(Dataset):
     def __len__(self) -> int:
         return -(-len(self.dataset) // CHUNK)
 
-    def __getitem__(self, index: int) -> _Chunk:
+    def __getitem__(self, index: int) -> _Chunk | NgsimError:
+        """The chunk, or the error that its build gave (returned whole, to be raised again in
+        the main process: a DataLoader raises a worker's error again as a RuntimeError holding
+        its traceback, where ours is one line naming the file)."""
         first = index * CHUNK
         ids = self.dataset.batch_order(np.arange(first, min(first + CHUNK, len(self.dataset))))
-        batch = self.collate(self.dataset.__getitems__(ids))
-        if self.check_scaler:
-            check_covered(batch, self.dataset.scaler, manifest_path(self.dataset.build_dir))
+        try:
+            batch = self.collate(self.dataset.__getitems__(ids))
+            if self.check_scaler:
+                check_covered(batch, self.dataset.scaler, manifest_path(self.dataset.build_dir))
+        except NgsimError as err:
+            return err
         return _chunk(batch, ids, self.layers)
 
 
-def _as_is(chunk: _Chunk) -> _Chunk:
+def fits(nbytes: int, device: torch.device) -> tuple[bool, float]:
+    """Whether splits of `nbytes` may go onto `device` (at most DEVICE_SHARE of a GPU's free
+    memory; anything on the CPU), and its free bytes (inf on the CPU)."""
+    free = torch.cuda.mem_get_info(device)[0] if device.type == "cuda" else float("inf")
+    return nbytes <= DEVICE_SHARE * free, free
+
+
+def _as_is(chunk: _Chunk | NgsimError) -> _Chunk | NgsimError:
     return chunk
 
 
@@ -349,6 +364,8 @@ def load_split(
         collate_fn=_as_is,
     )
     for chunk in loader:  # the workers end with the loop
+        if isinstance(chunk, NgsimError):
+            raise chunk
         chunks.append(chunk)
         done += len(chunk.ids)
         if progress is not None:

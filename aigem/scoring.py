@@ -1,12 +1,16 @@
 """Scores of models and of constant velocity over a split's targets, batch by batch (metres).
 
-`score_targets` scores one model; `score_members` scores the models of a multi-horizon run in one
-pass: each batch is loaded once, the models run as one stacked ensemble (aigem.ensemble, each
-model over its own future steps), and constant velocity is computed once, for the longest
-horizon, each model's baseline being the first steps of it (constant velocity's position at a step
-does not depend on how many steps follow). Each model's scores are those `score_targets` gives it
-alone: constant velocity's exactly, the model's to float rounding (batched products sum in another
-order). aigem.evaluation turns scores into the numbers `aigem evaluate` reports.
+`score_members` scores the models of a multi-horizon run in one pass (`score_targets` one model):
+each batch is loaded once, the models run as one stacked ensemble (aigem.ensemble, each model
+over its own future steps), and constant velocity is computed once, for the longest horizon, each
+model's baseline being the first steps of it (constant velocity's position at a step does not
+depend on how many steps follow). Each model's scores are those it gets scored alone: constant
+velocity's exactly, the model's to float rounding (batched products sum in another order).
+
+On CUDA (`resident`) the split is loaded onto the device once and scored in static batches
+(aigem.resident, aigem.engine: each capacity's forward captured and replayed); the metrics are
+summed on the host from the split's host copy, the same code as the loader's batches. aigem.evaluation
+turns scores into the numbers `aigem evaluate` reports.
 """
 
 from __future__ import annotations
@@ -19,13 +23,18 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
+from aigem import capacity, engine
 from aigem.baseline import constant_velocity
+from aigem.cores import default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.devices import to_device
 from aigem.ensemble import stack
 from aigem.metrics import ErrorTotals
 from aigem.model import AiGem
+from aigem.resident import ResidentSplit, fits, load_split
 from aigem.results import FinalErrors, Scores
+from ngsim_graphs.budget import available_cores
+from ngsim_graphs.grid import concat_ranges
 
 
 class NonFinitePredictionError(ValueError):
@@ -111,22 +120,12 @@ def score_targets(
     device: torch.device,
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
+    resident: bool | None = None,
 ) -> Scores:
     """Error totals (metres) of the model and of constant velocity over `dataset`'s targets,
-    `steps` future steps, and each target's final error; inputs scaled with `dataset.scaler`."""
-    loader = _loader(dataset, model.config.layers, batch_size)
-    sums = ScoreSums(steps)
-    with torch.no_grad():
-        for index, batch in enumerate(loader):
-            predicted = xy_to_metres(dataset.scaler, model(to_device(batch, device), steps))
-            if not bool(torch.isfinite(predicted).all()):
-                raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}")
-            sums.add(
-                predicted.cpu().numpy(), batch_targets(batch, dataset, index * batch_size, steps)
-            )
-            if progress:
-                progress(index + 1, len(loader))
-    return sums.scores()
+    `steps` future steps, and each target's final error; inputs scaled with `dataset.scaler`
+    (`score_members` of the one model)."""
+    return score_members([model], dataset, [steps], device, batch_size, progress, resident)[0]
 
 
 def score_members(
@@ -136,11 +135,18 @@ def score_members(
     device: torch.device,
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
+    resident: bool | None = None,
 ) -> list[Scores]:
     """`score_targets` of each model (one ModelConfig; `steps` ascending, model m's future
     steps) in one pass over `dataset`: each batch is loaded once, the models run as one stacked
     ensemble (aigem.ensemble), and constant velocity is computed once, for the longest steps.
-    A non-finite prediction raises NonFinitePredictionError naming the model's index."""
+    A non-finite prediction raises NonFinitePredictionError naming the model's index.
+    `resident` (None: on CUDA): the split loaded onto the device, scored in static batches of
+    RESIDENT_BATCH (aigem.engine), where it takes at most half the device's free memory."""
+    if resident if resident is not None else device.type == "cuda":
+        scores = _score_resident(models, dataset, steps, device, progress)
+        if scores is not None:
+            return scores
     ensemble = stack(models, steps)
     ensemble.eval()
     loader = _loader(dataset, models[0].config.layers, batch_size)
@@ -156,4 +162,59 @@ def score_members(
                 member_sums.add(predicted[member], targets)
             if progress:
                 progress(index + 1, len(loader))
+    return [member_sums.scores() for member_sums in sums]
+
+
+RESIDENT_BATCH = 1024  # samples a static batch of evaluation: the batch changes no number
+
+
+def _host_targets(
+    host: ResidentSplit, ids: np.ndarray, time_step_s: float, steps: int
+) -> BatchTargets:
+    """The targets of samples `ids` (a static batch's, in its order) from the split's host copy."""
+    counts = host.counts[ids, 0]
+    starts = host.target_start.numpy()[ids]
+    _, rows = concat_ranges(starts, starts + counts)
+    state = host.targets["target_state"].numpy()[rows].astype(np.float64)  # (A, 4)
+    return BatchTargets(
+        truth=host.targets["target_xy"].numpy()[rows, :steps],
+        cv=constant_velocity(state, steps, time_step_s),
+        mask=host.targets["target_mask"].numpy()[rows, :steps],
+        present_y_m=state[:, 1],
+        sample=np.repeat(ids, counts),
+    )
+
+
+def _score_resident(
+    models: Sequence[AiGem],
+    dataset: GraphDataset,
+    steps: Sequence[int],
+    device: torch.device,
+    progress: Callable[[int, int], None] | None,
+) -> list[Scores] | None:
+    """score_members on the split loaded onto the device (None where it would take more than
+    half of a GPU's free memory: then the loader serves)."""
+    layers = models[0].config.layers
+    host = load_split(dataset, layers, default_workers(device.type, available_cores()))
+    if not fits(host.nbytes(), device)[0]:
+        return None
+    split = host.to(device)
+    ensemble = stack(models, steps).eval()
+    base = capacity.base_capacity(host.counts, RESIDENT_BATCH, layers)
+    order = np.arange(len(dataset))
+    batches = engine.epoch_batches(split, order, RESIDENT_BATCH, base, dataset.batch_order, device)
+    predict = engine.Predictions(ensemble, split, dataset.scaler, device)
+    sums = [ScoreSums(k) for k in steps]
+    for index in range(len(batches)):
+        first = index * RESIDENT_BATCH
+        ids = dataset.batch_order(order[first : first + RESIDENT_BATCH])
+        targets = _host_targets(host, ids, dataset.config.time_step_s, max(steps))
+        out = predict(batches.ids[index], batches.tiers[index], base)
+        predicted = out[:, : len(targets.sample)].cpu().numpy()  # (M, A, K, 2) metres
+        for member, member_sums in enumerate(sums):
+            if not np.isfinite(predicted[member, :, : member_sums.steps]).all():
+                raise NonFinitePredictionError(f"batch {index + 1} of {len(batches)}", member)
+            member_sums.add(predicted[member], targets)
+        if progress:
+            progress(index + 1, len(batches))
     return [member_sums.scores() for member_sums in sums]

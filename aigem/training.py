@@ -18,7 +18,6 @@ kernel), and the ensemble runs eagerly: `--compile` applies to a model trained a
 
 from __future__ import annotations
 
-import math
 import os
 import random
 from collections.abc import Callable
@@ -38,11 +37,11 @@ from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
 from aigem.engine import DeviceData
-from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, train_epochs
+from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, draw_curves, train_epochs
 from aigem.model import AiGem, count_parameters
 from aigem.processes import compile_in_process, release_workers
 from aigem.refusals import check_splits
-from aigem.resident import load_split
+from aigem.resident import fits, load_split
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.schema import Split
@@ -124,7 +123,6 @@ def _loaders(
 
 # (what is loaded, samples done, samples in all): the splits induced onto the device
 LoadProgress = Callable[[str, int, int], None]
-DEVICE_SHARE = 0.5  # of the device's free memory the splits may take: the rest for the steps
 
 
 def device_data(
@@ -137,8 +135,8 @@ def device_data(
     note: Callable[[str], None] | None = None,
 ) -> DeviceData | None:
     """The train and validation splits loaded onto `device` (aigem.resident), with their batches'
-    capacities; None, said in `note`, where they would take more than DEVICE_SHARE of a GPU's
-    free memory: then the loader serves."""
+    capacities; None, said in `note`, where they would take more than half of a GPU's free
+    memory (aigem.resident.fits): then the loader serves."""
     splits = []
     for split, name in ((Split.TRAIN, "train"), (Split.VAL, "validation")):
         dataset = GraphDataset(build_dir, split, history_steps=model.history_steps_read)
@@ -146,9 +144,9 @@ def device_data(
         loaded = load_split(dataset, model.layers, workers, split is Split.TRAIN, report)
         splits.append((dataset, loaded))
     size = sum(loaded.nbytes() for _, loaded in splits)
-    free = torch.cuda.mem_get_info(device)[0] if device.type == "cuda" else math.inf
+    room, free = fits(size, device)
     say = note or (lambda line: None)
-    if size > DEVICE_SHARE * free:
+    if not room:
         say(
             f"the splits take {size / 1e9:.1f} GB, more than half of {device}'s free "
             f"{free / 1e9:.1f} GB: the DataLoader's batches serve"
@@ -329,10 +327,11 @@ def fit_horizons(
         )
     finally:  # after an error or an interrupt too, when a traceback would keep the loaders
         release_workers(train_loader, val_loader)
+        for member in members:  # the curves of every epoch kept, also of a stopped fit
+            if rank == 0 and member.drawn < member.state.next_epoch:
+                draw_curves(member, synthetic, member.drawn_at)
     for member in members:
         member.stopped = member.stopped or ("time limit" if timed_out else "epochs")
-        if rank == 0 and not (member.run_dir / runs.CURVES).exists():
-            runs.plot_curves(member.run_dir, synthetic)  # a resumed model with no epoch left
     return tuple(
         FitResult(
             m.run_dir,

@@ -228,11 +228,15 @@ def test_sigterm_before_the_first_epoch_keeps_nothing(tiny_build: Path, tmp_path
     assert not run.exists()
 
 
+@pytest.mark.parametrize(
+    "batches", [[], ["--resident", "--workers", "2"]], ids=["loader", "on-the-device"]
+)
 def test_a_resealed_manifest_whose_scaler_was_edited_is_caught_from_the_data(
-    tiny_build: Path, tmp_path: Path
+    tiny_build: Path, tmp_path: Path, batches: list[str]
 ) -> None:
     """Anyone can recompute the manifest's unkeyed checksum; the train split's values cannot lie
-    outside the scaler fitted on them."""
+    outside the scaler fitted on them. Also where the split is loaded onto the device by worker
+    processes (the error comes back whole, one line)."""
     build = tmp_path / "build"
     shutil.copytree(tiny_build, build)
     manifest = json.loads((build / "manifest.json").read_text())
@@ -242,7 +246,7 @@ def test_a_resealed_manifest_whose_scaler_was_edited_is_caught_from_the_data(
     manifest["manifest_sha256"] = hashlib.sha256(canonical).hexdigest()
     (build / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True))
     run = tmp_path / "run"
-    result = CliRunner().invoke(app, ["fit", str(build), "--out", str(run), *FIT])
+    result = CliRunner().invoke(app, ["fit", str(build), "--out", str(run), *FIT, *batches])
     assert result.exit_code == 1
     line = one_error_line(result)
     assert re.fullmatch(

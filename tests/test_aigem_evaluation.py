@@ -260,6 +260,35 @@ def test_a_multi_horizon_run_scores_each_model_as_evaluate_does_in_one_pass(
         np.testing.assert_allclose(joint.final.model_m, alone.final.model_m, rtol=1e-5, atol=1e-4)
 
 
+def test_the_split_on_the_device_scores_as_the_loader(tiny_horizons_run: Path) -> None:
+    """Static batches of the split loaded once (CUDA's way, here on the CPU): the same numbers
+    as the loader's batches (the counts exactly; constant velocity to float64 rounding, its sums
+    over other batches; the model to float32 rounding), each final error tied to the same
+    sample."""
+    calls: list[tuple[int, int]] = []
+    static = evaluate_horizons(
+        tiny_horizons_run, None, "test", "cpu", 8, lambda *c: calls.append(c), resident=True
+    )
+    loader = evaluate_horizons(tiny_horizons_run, None, "test", "cpu", 8, resident=False)
+    assert calls == [(1, 1)]  # the tiny split is one static batch
+    _close_rows(static.model, loader.model)
+    for region, row in static.constant_velocity.items():
+        other = loader.constant_velocity[region]
+        assert {k: v is None for k, v in row.items()} == {k: v is None for k, v in other.items()}
+        numbers = {k: v for k, v in row.items() if v is not None}
+        assert numbers == pytest.approx({k: other[k] for k in numbers}, rel=1e-12), region
+    for name, joint in static.members.items():
+        alone = loader.members[name]
+        np.testing.assert_array_equal(
+            joint.final.constant_velocity_m, alone.final.constant_velocity_m
+        )
+        _close_rows(joint.steps["model"], alone.steps["model"])
+        assert joint.final.sample.tolist() == alone.final.sample.tolist()
+        np.testing.assert_allclose(joint.final.model_m, alone.final.model_m, rtol=1e-5, atol=1e-4)
+    single = evaluate(tiny_horizons_run / "h2s", None, "test", "cpu", resident=True)
+    _close_rows(single.model, loader.members["h2s"].model)
+
+
 def _edit_member(run: Path, edit: Callable[[dict], None]) -> None:
     """Apply `edit` to the run info that a member's run.json and best.pt record."""
     info = json.loads((run / runs.RUN_INFO).read_text())
