@@ -44,6 +44,10 @@ from ngsim_graphs.interrupts import interrupts_held
 from ngsim_graphs.scaling import MinMaxScaler
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
+# A model's curves.png is drawn after an epoch when this long has passed since its last drawing,
+# and when the fit ends or stops: epochs of seconds (a GPU's) would otherwise spend a fifth of
+# their time drawing.
+CURVES_EVERY_S = 30.0
 # (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
 # for a model not training in this epoch): the CLI draws a bar from it.
 TrainProgress = Callable[[int, int, int, tuple[float, ...]], None]
@@ -155,6 +159,8 @@ class Member:
     running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
     shown: float = math.nan  # its mean training loss of the epoch, as last read
     group: Path | None = None  # the multi-horizon run it is a member of
+    drawn_at: float = -math.inf  # when its curves.png was last drawn (time.monotonic)
+    drawn: int = -1  # the epochs its curves.png shows (-1: none drawn by this fit)
 
 
 def _train_epoch(
@@ -209,10 +215,10 @@ def _validate(loop: Loop, active: list[Member], trainers: list[Member | Together
 
 
 def _end_epoch(
-    member: Member, epoch: int, val_loss: float, timing: dict[str, float], loop: Loop
+    member: Member, epoch: int, val_loss: float, timing: dict[str, float], loop: Loop, now: float
 ) -> dict[str, float]:
-    """Check the validation loss, log and checkpoint the epoch, stop early when the patience is
-    out; returns the metrics row."""
+    """Check the validation loss, log and checkpoint the epoch, draw its curves if they are
+    CURVES_EVERY_S old at `now`, stop early when the patience is out; returns the metrics row."""
     if not math.isfinite(val_loss):
         raise NonFiniteLossError(
             f"{member.who}non-finite validation loss ({val_loss}) at epoch {epoch + 1}: the model "
@@ -230,14 +236,21 @@ def _end_epoch(
         loop.rank == 0,
         timing,
     )
-    if loop.rank == 0:  # after every epoch: a long run shows its course
+    if loop.rank == 0:
         if member.group is not None:  # a checkpoint is kept: not a group a fit may start over
             runs.unmark_started(member.group)
-        runs.plot_curves(member.run_dir, loop.synthetic)
+        if now - member.drawn_at >= CURVES_EVERY_S:  # a long run shows its course
+            draw_curves(member, loop.synthetic, now)
     patience = member.train.patience_epochs
     if patience is not None and epoch - member.state.best_epoch >= patience:
         member.stopped = "early stopping"
     return row
+
+
+def draw_curves(member: Member, synthetic: bool, now: float) -> None:
+    """Draw the model's curves.png from its metrics (runs.plot_curves) at `now`."""
+    runs.plot_curves(member.run_dir, synthetic)
+    member.drawn_at, member.drawn = now, member.state.next_epoch
 
 
 def _end_epochs(
@@ -253,11 +266,12 @@ def _end_epochs(
     same ensembles as an uninterrupted one (an ensemble's sums depend on its members at float
     rounding)."""
     came: list[int] = []
+    now = time.monotonic()  # one reading for all: the loop reads the clock alike for any models
     try:
         with interrupts_held() as came:
             for member, val_loss in zip(active, val_losses, strict=True):
                 rate = {"learning_rate": member.optimizer.param_groups[0]["lr"]}  # its last step's
-                row = _end_epoch(member, epoch, val_loss, timing | rate, loop)
+                row = _end_epoch(member, epoch, val_loss, timing | rate, loop, now)
                 if on_epoch is not None and loop.rank == 0:
                     on_epoch(member.train.horizon_s, row)
     finally:  # also after an error: the interrupt is what the user asked for
