@@ -36,7 +36,8 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
 - static M (1 and each M of --models): aigem.engine's step of M models (horizons 1..5 s) as one
   ensemble on static batches of the split on the device: assembled there by index, padded to
   the capacity tiers of aigem.capacity, on CUDA captured once per tier and replayed. `padding`:
-  the share of the tier-0 capacity that padding fills.
+  the share of the tier-0 capacity that padding fills; `GPU GB`: the memory PyTorch reserved on
+  the GPU so far (the splits, the captured steps' pools).
 - fit loop st, fit M h st: fit's loop on static batches (`TrainConfig.resident`), CUDA's
   default; `--paths both` measures each device's fit loop on both kinds of batches.
 
@@ -119,6 +120,7 @@ COLUMNS = {
     "cuda syncs/step": 15,
     "threads": 7,
     "padding": 7,
+    "GPU GB": 6,
     "syncs by op (per step)": 0,
 }
 Batch = dict[str, torch.Tensor]
@@ -355,10 +357,14 @@ def measure_static(
     counts.stop()
     graphs = sum(batches.graphs[args.warmup : args.warmup + args.steps])
     padding = 1 - float(split.counts[order[: batch_size * 8]].sum()) / (8 * sum(base.sizes))
+    memory = (
+        {"GPU GB": torch.cuda.max_memory_reserved(device) / 1e9} if device.type == "cuda" else {}
+    )
     return {
         "graphs/s": graphs / seconds,
         "ms/batch": 1000 * seconds / args.steps,
         "padding": f"{padding:.0%}",
+        **memory,
         **counts.per_step(args.profile_steps),
     }
 

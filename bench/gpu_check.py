@@ -226,7 +226,7 @@ def main() -> None:
     parser.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
     parser.add_argument("--out", type=Path, default=Path("/tmp/gpu_check"))
     parser.add_argument("--recordings", type=int, default=6)
-    parser.add_argument("--minutes", type=float, default=5.0)
+    parser.add_argument("--minutes", type=float, default=6.0)
     parser.add_argument("--epochs", type=int, default=3, help="of the fit and of aigem paper")
     parser.add_argument("--batch-size", type=int, default=1024, help="beside 32")
     parser.add_argument("--steps", type=int, default=20, help="bench_train's timed steps")

@@ -44,4 +44,4 @@ def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
             assert float(row[5].replace(",", "")) > 0 and float(row[6].replace(",", "")) >= 0
             assert row[7:10] == ["-", "-", "-"]  # the CUDA columns
         if row[2].startswith("static"):
-            assert row[11].endswith("%")  # the padding
+            assert row[11].endswith("%") and row[12] == "-"  # the padding; no GPU memory
