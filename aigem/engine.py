@@ -14,6 +14,8 @@ back, so the host runs ahead of the device through the epoch, and only the epoch
 
 from __future__ import annotations
 
+import gc
+import warnings
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,22 +36,30 @@ StepFunction = Callable[[torch.Tensor, Capacity], None]  # (sample ids, capacity
 
 
 class Replays:
-    """One function of a batch's sample ids per capacity tier: on CUDA captured as a CUDA graph
-    after WARMUP eager calls, then replayed; elsewhere called eagerly."""
+    """Functions of a batch's sample ids, one call per capacity tier: on CUDA each captured as a
+    CUDA graph after WARMUP eager calls, then replayed; elsewhere called eagerly.
 
-    def __init__(self, function: StepFunction, device: torch.device) -> None:
-        self.function, self.device = function, device
+    It holds no reference to its functions (the caller passes one each call), so that an owner
+    dropped with its graphs is freed at once rather than by the garbage collector, which must
+    not destroy a graph while another is being captured (the collector is held off during a
+    capture). Its graphs share one memory pool and one side stream: they never run at once and
+    none reads another's output (every state that lasts, the parameters, Adam's, the losses,
+    the outputs, lives outside the pool), which PyTorch documents as safe in any order."""
+
+    def __init__(self, device: torch.device, pool: object | None = None) -> None:
+        self.device = device
         self.ids: dict[int, torch.Tensor] = {}  # per tier: the captured input
         self.graphs: dict[int, torch.cuda.CUDAGraph] = {}
         self.calls: Counter[int] = Counter()
+        cuda = device.type == "cuda"
+        self.pool = pool if pool is not None or not cuda else torch.cuda.graph_pool_handle()
+        self.stream = torch.cuda.Stream(device) if cuda else None
 
-    @property
-    def captured(self) -> int:
-        return len(self.graphs)
-
-    def __call__(self, ids: torch.Tensor, tier: int, capacity: Capacity) -> None:
+    def __call__(
+        self, function: StepFunction, ids: torch.Tensor, tier: int, capacity: Capacity
+    ) -> None:
         if self.device.type != "cuda":
-            self.function(ids, capacity)
+            function(ids, capacity)
             return
         if tier not in self.ids:
             self.ids[tier] = torch.empty_like(ids)
@@ -58,17 +68,29 @@ class Replays:
             self.graphs[tier].replay()
         elif self.calls[tier] < WARMUP:
             self.calls[tier] += 1
-            side = torch.cuda.Stream(self.device)
-            side.wait_stream(torch.cuda.current_stream(self.device))
-            with torch.cuda.stream(side):
-                self.function(self.ids[tier], capacity)
-            torch.cuda.current_stream(self.device).wait_stream(side)
+            self.stream.wait_stream(torch.cuda.current_stream(self.device))
+            with torch.cuda.stream(self.stream), warnings.catch_warnings():
+                # capturable Adam, stepped eagerly before its capture, warns that it is
+                warnings.filterwarnings("ignore", message=".*capturable=True.*")
+                function(self.ids[tier], capacity)
+            torch.cuda.current_stream(self.device).wait_stream(self.stream)
         else:
-            graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(graph):
-                self.function(self.ids[tier], capacity)
-            self.graphs[tier] = graph
-            graph.replay()
+            self.graphs[tier] = self._capture(function, self.ids[tier], capacity)
+            self.graphs[tier].replay()
+
+    def _capture(
+        self, function: StepFunction, ids: torch.Tensor, capacity: Capacity
+    ) -> torch.cuda.CUDAGraph:
+        graph, collecting = torch.cuda.CUDAGraph(), gc.isenabled()
+        gc.collect()  # whatever graph is garbage goes now, not in the middle of the capture
+        gc.disable()
+        try:
+            with torch.cuda.graph(graph, pool=self.pool, stream=self.stream):
+                function(ids, capacity)
+        finally:
+            if collecting:
+                gc.enable()
+        return graph
 
 
 @dataclass(frozen=True)
@@ -118,7 +140,8 @@ class TrainSteps:
     ) -> None:
         self.ensemble, self.optimizer, self.split = ensemble, optimizer, split
         self.scaler, self.clip_grad_norm, self.running = scaler, clip_grad_norm, running
-        self.replays = Replays(self._step, device)
+        self.replays = Replays(device)
+        self.rate: float | None = None  # the learning rate of the last step, as a number
 
     def _step(self, ids: torch.Tensor, capacity: Capacity) -> None:
         batch = self.split.batch(ids, capacity)
@@ -131,7 +154,8 @@ class TrainSteps:
 
     def __call__(self, ids: torch.Tensor, tier: int, base: Capacity, learning_rate: float) -> None:
         set_learning_rate(self.optimizer, learning_rate)
-        self.replays(ids, tier, capacities.tier(base, tier))
+        self.rate = learning_rate
+        self.replays(self._step, ids, tier, capacities.tier(base, tier))
 
 
 class ValidationSums:
@@ -139,11 +163,16 @@ class ValidationSums:
     summed on the device over static batches of `split` (forward only)."""
 
     def __init__(
-        self, ensemble: Ensemble, split: ResidentSplit, scaler: MinMaxScaler, device: torch.device
+        self,
+        ensemble: Ensemble,
+        split: ResidentSplit,
+        scaler: MinMaxScaler,
+        device: torch.device,
+        pool: object | None = None,
     ) -> None:
         self.ensemble, self.split, self.scaler = ensemble, split, scaler
         self.sums = torch.zeros(2, ensemble.members, dtype=torch.float64, device=device)
-        self.replays = Replays(self._add, device)
+        self.replays = Replays(device, pool)  # the training steps' pool: they never run at once
 
     def _add(self, ids: torch.Tensor, capacity: Capacity) -> None:
         with torch.no_grad():
@@ -160,7 +189,7 @@ class ValidationSums:
         self.ensemble.eval()
         self.sums.zero_()
         for row, tier in enumerate(batches.tiers):
-            self.replays(batches.ids[row], tier, capacities.tier(base, tier))
+            self.replays(self._add, batches.ids[row], tier, capacities.tier(base, tier))
         self.ensemble.train()
         totals, counts = self.sums.tolist()
         return [t / c if c else float("nan") for t, c in zip(totals, counts, strict=True)]
@@ -197,7 +226,7 @@ class Predictions:
     ) -> None:
         self.ensemble, self.split, self.scaler, self.device = ensemble, split, scaler, device
         self.out: dict[Capacity, torch.Tensor] = {}
-        self.replays = Replays(self._forward, device)
+        self.replays = Replays(device)
 
     def _forward(self, ids: torch.Tensor, capacity: Capacity) -> None:
         with torch.no_grad():
@@ -209,5 +238,5 @@ class Predictions:
         if capacity not in self.out:  # before any capture
             shape = (self.ensemble.members, capacity.targets, max(self.ensemble.steps), 2)
             self.out[capacity] = torch.empty(shape, device=self.device)
-        self.replays(ids, tier, capacity)
+        self.replays(self._forward, ids, tier, capacity)
         return self.out[capacity]

@@ -169,12 +169,15 @@ def stack_optimizer(
 
 
 def unstack_optimizer(
-    stacked: torch.optim.Optimizer, optimizers: Sequence[torch.optim.Optimizer]
+    stacked: torch.optim.Optimizer,
+    optimizers: Sequence[torch.optim.Optimizer],
+    rate: float | None = None,
 ) -> None:
     """Load each member's share of the ensemble's optimiser state into its own optimiser, which
-    keeps its own settings but for the learning rate of the last step (a number)."""
+    keeps its own settings but for the learning rate of the last step: `rate` (a number; None:
+    the stacked optimiser's, which a capturable one holds as a float32 tensor)."""
     saved = stacked.state_dict()
-    rate = float(stacked.param_groups[0]["lr"])
+    rate = float(stacked.param_groups[0]["lr"]) if rate is None else rate
     for member, optimizer in enumerate(optimizers):
         state = {
             index: {

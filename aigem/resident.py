@@ -20,6 +20,7 @@ and the assembly reads nothing back: a step over it never waits for the device.
 
 from __future__ import annotations
 
+import gc
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -337,7 +338,11 @@ class _Chunks(Dataset):
 def fits(nbytes: int, device: torch.device) -> tuple[bool, float]:
     """Whether splits of `nbytes` may go onto `device` (at most DEVICE_SHARE of a GPU's free
     memory; anything on the CPU), and its free bytes (inf on the CPU)."""
-    free = torch.cuda.mem_get_info(device)[0] if device.type == "cuda" else float("inf")
+    if device.type != "cuda":
+        return True, float("inf")
+    gc.collect()  # an earlier fit's captured steps and splits, unreferenced, go back
+    torch.cuda.empty_cache()  # and the allocator's cache with them: what is free is free
+    free = torch.cuda.mem_get_info(device)[0]
     return nbytes <= DEVICE_SHARE * free, free
 
 
@@ -373,6 +378,12 @@ def load_split(
     return _join(chunks, layers, len(dataset))
 
 
+def _with_spare(table: torch.Tensor) -> torch.Tensor:
+    """The table and a row of zeros that no sample counts: a padded slot reads entry 0, which a
+    table with no real entry (a split without one edge of a type, say) would not have."""
+    return torch.cat([table, table.new_zeros((1, *table.shape[1:]))])
+
+
 def _join(chunks: list[_Chunk], layers: int, samples: int) -> ResidentSplit:
     """One ResidentSplit of the chunks' samples (the split's ids 0..S-1 in any order)."""
     width = quantities(layers, len(edges.EDGE_TYPES))
@@ -395,7 +406,7 @@ def _join(chunks: list[_Chunk], layers: int, samples: int) -> ResidentSplit:
             edge_totals[index] += int(chunk.counts[:, first : first + layers].sum())
         nodes, targets = nodes + len(chunk.x), targets + int(node_counts[:, 0].sum())
     offsets = np.cumsum([0] + [len(chunk.x) for chunk in chunks])[:-1]
-    on = lambda parts, dtype=None: torch.cat(parts).to(dtype=dtype)  # noqa: E731
+    on = lambda parts, dtype=None: _with_spare(torch.cat(parts).to(dtype=dtype))  # noqa: E731
     node_ids = torch.int32 if nodes < 2**31 else torch.int64  # an edge's ends: half the bytes
     tables = tuple(
         _EdgeTable(

@@ -148,14 +148,16 @@ def _stack(group: list[Member], loop: Loop) -> Together:
         together.steps = TrainSteps(
             stacked, optimizer, data.train, loop.scaler, clip, running, device
         )
-        together.validation = ValidationSums(stacked, data.val, loop.scaler, device)
+        pool = together.steps.replays.pool
+        together.validation = ValidationSums(stacked, data.val, loop.scaler, device, pool)
     return together
 
 
 def unstack_together(together: Together) -> None:
     """Each member's parameters, optimiser state and dropout stream back into it."""
     ensemble.unstack(together.ensemble, [member.model for member in together.members])
-    ensemble.unstack_optimizer(together.optimizer, [m.optimizer for m in together.members])
+    rate = together.steps.rate if together.steps is not None else None  # a number, not float32's
+    ensemble.unstack_optimizer(together.optimizer, [m.optimizer for m in together.members], rate)
     for member in together.members:
         member.rng = together.rng
 

@@ -8,6 +8,7 @@ it is missing (from wheels carried beside it, with no network) and runs this.
 
 Stages, each timed and bounded (a stage that fails or runs out of time is reported, and the
 table says what it could not measure):
+0. tests: tests/test_aigem_engine.py, whose captured steps (CUDA only) must equal eager ones;
 1. synth: `ngsim-graphs synth` of --recordings periods of --minutes (synthetic, not NGSIM);
 2. build: `ngsim-graphs build` with --jobs workers;
 3. bench: `bench/bench_train.py` at batch 32 and --batch-size, one and five models (the model
@@ -215,6 +216,8 @@ def summary(device: str, batch: int, rows: dict, measured: dict) -> list[tuple[s
         ("evaluate (test samples/s per model)", ">= 50,000", _cell(measured.get("evaluate"))),
         ("aigem paper, full protocol, six 15-min recordings (min, extrapolated)", "<= 30",
          _cell(measured.get("paper_minutes"), 1)),
+        ("captured steps equal eager ones (tests/test_aigem_engine.py)", "passed",
+         measured.get("tests", "-")),
     ]  # fmt: skip
     return lines
 
@@ -245,6 +248,10 @@ def main() -> None:
     stages, measured = Stages(args.deadline_s), {}
     raw, build, run = args.out / "raw", args.out / "build", args.out / "run"
     workers = ["--workers", str(args.jobs)] if args.jobs is not None else []
+    tests = Path(__file__).resolve().parents[1] / "tests" / "test_aigem_engine.py"
+    checked = stages.run("tests", [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                                   "-rs", str(tests)], 0.15)  # fmt: skip
+    measured["tests"] = "passed" if checked is not None else "FAILED"
     stages.run("synth", ["ngsim-graphs", "synth", str(raw), "--recordings", str(args.recordings),
                          "--minutes", str(args.minutes)])  # fmt: skip
     jobs = ["--jobs", str(args.jobs)] if args.jobs is not None else []

@@ -41,3 +41,4 @@ def test_gpu_check_measures_every_stage_on_the_cpu(tmp_path: Path) -> None:
     for figure in FIGURES[:2] + FIGURES[3:]:
         assert float(rows[figure].replace(",", "")) > 0, (figure, rows[figure])
     assert rows[FIGURES[2]] == "-"  # no GPU, no utilisation
+    assert rows["captured steps equal eager ones (tests/test_aigem_engine.py)"] == "passed"

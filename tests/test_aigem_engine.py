@@ -1,0 +1,113 @@
+"""The engine of static batches (aigem.engine): the epoch's batches are the loader's, and the
+captured steps compute what the steps called eagerly compute. The capture itself needs CUDA:
+those tests run on a GPU machine (bench/gpu_check.sh runs them) and are skipped elsewhere."""
+
+from __future__ import annotations
+
+import gc
+import weakref
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from aigem import capacity, engine, ensemble
+from aigem.config import ModelConfig
+from aigem.data import GraphDataset
+from aigem.model import AiGem
+from aigem.resident import load_split
+
+LAYERS = ModelConfig().layers
+cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="captures need CUDA")
+
+
+def test_an_epochs_order_is_the_loaders_shuffle(tiny_build: Path) -> None:
+    dataset = GraphDataset(tiny_build, "train", history_steps=LAYERS + 1)
+    generator = torch.Generator()
+    generator.manual_seed(7)
+    loader = DataLoader(range(len(dataset)), batch_size=5, shuffle=True, generator=generator)
+    expected = torch.cat(list(loader)).numpy()
+    generator.manual_seed(7)
+    assert np.array_equal(engine.shuffled(len(dataset), generator), expected)
+
+
+def test_an_epochs_batches_are_padded_with_the_empty_sample_and_take_a_tier(
+    tiny_build: Path,
+) -> None:
+    dataset = GraphDataset(tiny_build, "train", history_steps=LAYERS + 1)
+    split = load_split(dataset, LAYERS)
+    order = np.arange(len(dataset))[::-1].copy()
+    base = capacity.base_capacity(split.counts, 4, LAYERS)
+    small = capacity.Capacity(4, (1,) * len(base.sizes), LAYERS)  # too small for any batch
+    batches = engine.epoch_batches(split, order, 4, small, dataset.batch_order, torch.device("cpu"))
+    assert len(batches) == -(-len(dataset) // 4) and sum(batches.graphs) == len(dataset)
+    for row, graphs in zip(batches.ids.numpy(), batches.graphs, strict=True):
+        assert (row[graphs:] == split.empty_id).all()
+    first = batches.ids[0, :4].numpy()
+    assert np.array_equal(first, dataset.batch_order(order[:4]))  # by recording, as the loader's
+    need = split.counts[first].sum(0)
+    assert batches.tiers[0] == capacity.tier_of(small, need) > 0
+
+
+def _steps(split, dataset: GraphDataset, device: torch.device, base: capacity.Capacity):  # noqa: ANN001, ANN202
+    torch.manual_seed(0)
+    models = [AiGem(ModelConfig(dropout=0.0)).to(device) for _ in range(2)]
+    stacked = ensemble.stack(models, (5, 25))
+    optimizers = [torch.optim.Adam(m.parameters(), lr=1e-3, fused=True) for m in models]
+    optimizer = ensemble.stack_optimizer(stacked, optimizers, capturable=device.type == "cuda")
+    running = torch.zeros(2, dtype=torch.float64, device=device)
+    return engine.TrainSteps(stacked, optimizer, split, dataset.scaler, 0.5, running, device)
+
+
+@cuda
+def test_captured_steps_are_the_eager_steps(tiny_build: Path) -> None:
+    """Eight steps over batches of two tiers, captured after their warm-up, against the same
+    steps called eagerly: the same parameters, losses and validation sums (to the rounding of
+    the GPU's atomic sums)."""
+    device = torch.device("cuda")
+    dataset = GraphDataset(tiny_build, "train", history_steps=LAYERS + 1)
+    split = load_split(dataset, LAYERS).to(device)
+    base = capacity.base_capacity(split.counts, 4, LAYERS)
+    order = np.random.default_rng(0).permutation(len(dataset))
+    batches = engine.epoch_batches(split, order, 4, base, dataset.batch_order, device)
+    tiers = [0, 1] * 4  # each tier warmed up twice, then captured and replayed
+    captured, eager = _steps(split, dataset, device, base), _steps(split, dataset, device, base)
+    for row, tier in enumerate(tiers):
+        captured(batches.ids[row], tier, base, 1e-3)
+        eager.optimizer.param_groups[0]["lr"].fill_(1e-3)
+        eager._step(batches.ids[row], capacity.tier(base, tier))
+    assert len(captured.replays.graphs) == 2
+    torch.testing.assert_close(captured.running, eager.running, rtol=1e-5, atol=1e-6)
+    for mine, theirs in zip(
+        captured.ensemble.parameters(), eager.ensemble.parameters(), strict=True
+    ):
+        torch.testing.assert_close(mine, theirs, rtol=1e-4, atol=1e-5)
+    sums = engine.ValidationSums(captured.ensemble, split, dataset.scaler, device)
+    losses = [sums.losses(batches, base) for _ in range(3)]  # eager, eager, captured
+    assert losses[0] == pytest.approx(losses[2], rel=1e-5)
+
+
+@cuda
+def test_a_dropped_owners_graphs_go_at_once(tiny_build: Path) -> None:
+    """Nothing holds a step's owner but its user: its graphs are freed when it is dropped, never
+    by the garbage collector in the middle of another capture."""
+    device = torch.device("cuda")
+    dataset = GraphDataset(tiny_build, "train", history_steps=LAYERS + 1)
+    split = load_split(dataset, LAYERS).to(device)
+    base = capacity.base_capacity(split.counts, 4, LAYERS)
+    batches = engine.epoch_batches(
+        split, np.arange(len(dataset)), 4, base, dataset.batch_order, device
+    )
+    gc.disable()
+    try:
+        steps = _steps(split, dataset, device, base)
+        for _ in range(3):
+            steps(batches.ids[0], 0, base, 1e-3)
+        assert len(steps.replays.graphs) == 1
+        gone = weakref.ref(steps)
+        del steps
+        assert gone() is None
+    finally:
+        gc.enable()
