@@ -14,7 +14,7 @@ table says what it could not measure):
 3. bench: `bench/bench_train.py` at batch 32 and --batch-size, one and five models (the model
    step, the static step, fit's loop on static batches: graphs/s, launches and syncs a step);
 4. fit: `aigem fit --horizon-s 1,2,3,4,5` for --epochs epochs at --batch-size, with nvidia-smi's
-   GPU utilisation sampled every 0.5 s while it trains (after its splits are loaded);
+   GPU utilisation sampled every 0.5 s from the end of its first epoch to its end;
 5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate_horizons`);
 6. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
    and the paper's protocol (100 epochs, the four fits) extrapolated from it to the six
@@ -120,8 +120,9 @@ class Sampler:
 
 
 def fit_with_sampling(stages: Stages, command: list[str]) -> float | None:
-    """Run the fit, sampling the GPU from its note that the splits are loaded (or its first
-    epoch's progress, on the loader); the mean utilisation while it trains."""
+    """Run the fit, sampling the GPU from the end of its first epoch (the splits loaded, the
+    steps captured) to its end: the mean utilisation of its later epochs, their validation and
+    checkpoints included."""
     print(f"\n== fit: {' '.join(command)}", flush=True)
     sampler, began, training_from = Sampler(), time.monotonic(), None
     process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
@@ -129,7 +130,7 @@ def fit_with_sampling(stages: Stages, command: list[str]) -> float | None:
     timer.start()
     for line in process.stderr:
         print(line, end="", file=sys.stderr)
-        if training_from is None and ("static batches" in line or "epoch" in line):
+        if training_from is None and "epoch 1:" in line:
             training_from = time.monotonic()
     process.wait()
     timer.cancel()
@@ -230,7 +231,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("/tmp/gpu_check"))
     parser.add_argument("--recordings", type=int, default=6)
     parser.add_argument("--minutes", type=float, default=6.0)
-    parser.add_argument("--epochs", type=int, default=3, help="of the fit and of aigem paper")
+    parser.add_argument("--epochs", type=int, default=4, help="of the fit and of aigem paper")
     parser.add_argument("--batch-size", type=int, default=1024, help="beside 32")
     parser.add_argument("--steps", type=int, default=20, help="bench_train's timed steps")
     parser.add_argument(
