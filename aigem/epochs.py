@@ -15,22 +15,17 @@ import math
 import signal
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import torch
 from torch import nn
-from torch.utils.data import DataLoader, DistributedSampler
+from torch.utils.data import DataLoader
 
 from aigem import runs
 from aigem.config import TrainConfig
-from aigem.cores import ThreadChooser
 from aigem.devices import to_device
-from aigem.engine import DeviceData
-from aigem.model import AiGem
 from aigem.trainers import (
-    RngState,
+    Loop,
+    Member,
     Together,
     batches_per_epoch,
     group_trainers,
@@ -121,46 +116,6 @@ class RunningLosses:
             self.event.record()
             self.pending = batches
         return landed
-
-
-@dataclass(frozen=True)
-class Loop:
-    """What the models of a fit share: the device, this process's rank, the data."""
-
-    device: torch.device
-    rank: int
-    world: int
-    scaler: MinMaxScaler
-    train_loader: DataLoader
-    val_loader: DataLoader
-    sampler: DistributedSampler | None
-    generator: torch.Generator  # the shuffle's
-    threads: ThreadChooser
-    synthetic: bool  # the build is of synthetic data: the curves say so
-    manifest: Path  # the build's, named when its scaler does not cover a train batch
-    data: DeviceData | None = None  # the splits on the device: static batches, not the loaders
-
-
-@dataclass(eq=False)
-class Member:
-    """One model of a fit and how far it has come: the training loop's state, hence mutable."""
-
-    run_dir: Path
-    train: TrainConfig  # its horizon_s is this model's
-    steps: int  # future steps predicted and scored
-    model: AiGem
-    net: nn.Module  # the model, or DistributedDataParallel around it
-    optimizer: torch.optim.Optimizer
-    info: dict[str, Any]  # what its checkpoints carry
-    state: runs.RunState
-    who: str  # how errors name it: "" when it trains alone
-    stopped: str | None  # why it trains no more: epochs, early stopping, time limit
-    rng: RngState | None = None  # its dropout stream, between its steps
-    running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
-    shown: float = math.nan  # its mean training loss of the epoch, as last read
-    group: Path | None = None  # the multi-horizon run it is a member of
-    drawn_at: float = -math.inf  # when its curves.png was last drawn (time.monotonic)
-    drawn: int = -1  # the epochs its curves.png shows (-1: none drawn by this fit)
 
 
 def _train_epoch(

@@ -156,13 +156,21 @@ def score_members(
             scaled = ensemble(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
             predicted = xy_to_metres(dataset.scaler, scaled).cpu().numpy()
             targets = batch_targets(batch, dataset, index * batch_size, max(steps))
-            for member, member_sums in enumerate(sums):
-                if not np.isfinite(predicted[member, :, : member_sums.steps]).all():
-                    raise NonFinitePredictionError(f"batch {index + 1} of {len(loader)}", member)
-                member_sums.add(predicted[member], targets)
+            _add_batch(sums, predicted, targets, f"batch {index + 1} of {len(loader)}")
             if progress:
                 progress(index + 1, len(loader))
     return [member_sums.scores() for member_sums in sums]
+
+
+def _add_batch(
+    sums: list[ScoreSums], predicted: np.ndarray, targets: BatchTargets, where: str
+) -> None:
+    """Each member's predictions (M, A, K, 2) metres of a batch added to its sums; a non-finite
+    one raises NonFinitePredictionError naming the member and `where`."""
+    for member, member_sums in enumerate(sums):
+        if not np.isfinite(predicted[member, :, : member_sums.steps]).all():
+            raise NonFinitePredictionError(where, member)
+        member_sums.add(predicted[member], targets)
 
 
 RESIDENT_BATCH = 1024  # samples a static batch of evaluation: the batch changes no number
@@ -211,10 +219,7 @@ def _score_resident(
         targets = _host_targets(host, ids, dataset.config.time_step_s, max(steps))
         out = predict(batches.ids[index], batches.tiers[index], base)
         predicted = out[:, : len(targets.sample)].cpu().numpy()  # (M, A, K, 2) metres
-        for member, member_sums in enumerate(sums):
-            if not np.isfinite(predicted[member, :, : member_sums.steps]).all():
-                raise NonFinitePredictionError(f"batch {index + 1} of {len(batches)}", member)
-            member_sums.add(predicted[member], targets)
+        _add_batch(sums, predicted, targets, f"batch {index + 1} of {len(batches)}")
         if progress:
             progress(index + 1, len(batches))
     return [member_sums.scores() for member_sums in sums]

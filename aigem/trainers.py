@@ -1,5 +1,6 @@
-"""The trainers of an epoch of `aigem fit` (aigem.epochs): the models of a fit, each alone or
-stacked into ensembles, and their optimiser steps on the loader's batches or on static ones.
+"""The trainers of an epoch of `aigem fit` (aigem.epochs): the models of a fit (`Member`, what
+they share: `Loop`), each alone or stacked into ensembles, and their optimiser steps on the
+loader's batches or on static ones.
 
 Models that share a ModelConfig, a TrainConfig but for the horizon, their optimisers' step count
 and their dropout stream (a multi-horizon fit's, epoch after epoch) train as one ensemble
@@ -16,23 +17,26 @@ so x and y weigh alike.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
 import torch
+from torch import nn
+from torch.utils.data import DataLoader, DistributedSampler
 
-from aigem import engine, ensemble
+from aigem import engine, ensemble, runs
 from aigem.config import TrainConfig
+from aigem.cores import ThreadChooser
 from aigem.data import check_covered, xy_to_metres
 from aigem.devices import to_device
-from aigem.engine import TrainSteps, ValidationSums
+from aigem.engine import DeviceData, TrainSteps, ValidationSums
 from aigem.ensemble import Ensemble
+from aigem.model import AiGem
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.scaling import MinMaxScaler
-
-if TYPE_CHECKING:  # the loop's types; aigem.epochs imports this module
-    from aigem.epochs import Loop, Member
 
 RngState = tuple[torch.Tensor, torch.Tensor | None]  # the CPU generator's state, and CUDA's
 
@@ -57,6 +61,46 @@ def _set_rng_state(state: RngState, device: torch.device) -> None:
     torch.set_rng_state(state[0])
     if state[1] is not None:
         torch.cuda.set_rng_state(state[1], device)
+
+
+@dataclass(frozen=True)
+class Loop:
+    """What the models of a fit share: the device, this process's rank, the data."""
+
+    device: torch.device
+    rank: int
+    world: int
+    scaler: MinMaxScaler
+    train_loader: DataLoader
+    val_loader: DataLoader
+    sampler: DistributedSampler | None
+    generator: torch.Generator  # the shuffle's
+    threads: ThreadChooser
+    synthetic: bool  # the build is of synthetic data: the curves say so
+    manifest: Path  # the build's, named when its scaler does not cover a train batch
+    data: DeviceData | None = None  # the splits on the device: static batches, not the loaders
+
+
+@dataclass(eq=False)
+class Member:
+    """One model of a fit and how far it has come: the training loop's state, hence mutable."""
+
+    run_dir: Path
+    train: TrainConfig  # its horizon_s is this model's
+    steps: int  # future steps predicted and scored
+    model: AiGem
+    net: nn.Module  # the model, or DistributedDataParallel around it
+    optimizer: torch.optim.Optimizer
+    info: dict[str, Any]  # what its checkpoints carry
+    state: runs.RunState
+    who: str  # how errors name it: "" when it trains alone
+    stopped: str | None  # why it trains no more: epochs, early stopping, time limit
+    rng: RngState | None = None  # its dropout stream, between its steps
+    running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
+    shown: float = math.nan  # its mean training loss of the epoch, as last read
+    group: Path | None = None  # the multi-horizon run it is a member of
+    drawn_at: float = -math.inf  # when its curves.png was last drawn (time.monotonic)
+    drawn: int = -1  # the epochs its curves.png shows (-1: none drawn by this fit)
 
 
 @dataclass(eq=False)

@@ -37,11 +37,12 @@ from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
 from aigem.engine import DeviceData
-from aigem.epochs import EpochCallback, Loop, Member, TrainProgress, draw_curves, train_epochs
+from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
 from aigem.model import AiGem, count_parameters
 from aigem.processes import compile_in_process, release_workers
 from aigem.refusals import check_splits
 from aigem.resident import fits, load_split
+from aigem.trainers import Loop, Member
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.schema import Split

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -18,7 +17,6 @@ from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, par
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
-    counted,
     exit_on_error,
     exit_on_interrupt,
     in_option_words,
@@ -26,6 +24,14 @@ from ngsim_cli.console import (
     print_warning,
     stderr,
     stdout,
+)
+from ngsim_cli.fit_view import (
+    discard_if_nothing_kept,
+    interrupted,
+    print_epoch,
+    print_results,
+    running_losses,
+    say,
 )
 from ngsim_cli.paper import paper
 from ngsim_graphs.errors import NgsimError
@@ -214,7 +220,7 @@ def fit(
         import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
     group = horizons_s if several else None
     results = _train(data, out, group, model_config, train, device.value, resume)
-    _print_results(results, out)
+    print_results(results, out)
 
 
 def _train(
@@ -245,13 +251,12 @@ def _train(
         # One bar over the run's epochs, so that its ETA is the run's (at the rate of the
         # recent batches; validation and early stopping are not foreseen).
         show = lambda epoch, done, total, losses: progress(
-            f"epoch {epoch}/{train.epochs} loss {_losses(losses)} m²",
+            f"epoch {epoch}/{train.epochs} loss {running_losses(losses)} m²",
             (epoch - 1) * total + done,
             train.epochs * total,
         )
-        on_epoch = lambda horizon_s, row: _print_epoch(row, who(horizon_s))
+        on_epoch = lambda horizon_s, row: print_epoch(row, who(horizon_s))
         loading = lambda what, done, total: progress(f"loading {what}", done, total)
-        note = lambda line: stderr.print(line, markup=False, highlight=False, soft_wrap=True)
         try:
             return fit_horizons(
                 data,
@@ -264,12 +269,12 @@ def _train(
                 show,
                 on_epoch,
                 loading,
-                note,
+                say,
             )
         except KeyboardInterrupt:
-            raise _interrupted(out, horizons_s, created) from None
+            raise interrupted(out, horizons_s, created) from None
         except (NgsimError, NonFiniteLossError, DeviceUnavailableError) as err:
-            _discard_if_nothing_kept(out, horizons_s, created)
+            discard_if_nothing_kept(out, horizons_s, created)
             if isinstance(err, NgsimError):
                 raise  # exit_on_error says it
             raise _fail(str(err)) from None
@@ -289,82 +294,6 @@ def _interrupt_on_sigterm() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, before)
-
-
-def _discard_if_nothing_kept(
-    out: Path, horizons_s: tuple[float, ...] | None, created: bool
-) -> list[int]:
-    """Each model's epochs kept in `out` (its last checkpoint's); with none, a fit that stopped
-    (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
-    from aigem.runs import discard_unfinished, epochs_kept, member_dir
-
-    members = [out] if horizons_s is None else [member_dir(out, h) for h in horizons_s]
-    kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
-    if not any(kept):
-        with exit_on_error():
-            discard_unfinished(out, horizons_s, created)
-    return kept
-
-
-def _interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) -> typer.Exit:
-    """One line on what an interrupted fit kept, and exit status 130 (as for Ctrl-C): the epochs
-    of each model's last checkpoint, or, with none, nothing (the run's files go)."""
-    kept = _discard_if_nothing_kept(out, horizons_s, created)
-    if not any(kept):
-        _say("interrupted before the first epoch ended; nothing kept")
-    elif len(set(kept)) == 1:
-        _say(
-            f"interrupted after epoch {kept[0]} (run {out} holds its checkpoint); continue "
-            "with --resume"
-        )
-    else:
-        each = ", ".join(
-            f"{h:g} s model after epoch {n}" for h, n in zip(horizons_s or (), kept, strict=True)
-        )
-        _say(f"interrupted ({each}; run {out} holds their checkpoints); continue with --resume")
-    return typer.Exit(130)
-
-
-def _say(message: str) -> None:
-    stderr.print(message, markup=False, highlight=False, soft_wrap=True)
-
-
-def _print_results(results: tuple[FitResult, ...], out: Path) -> None:
-    """The model's size, a line per model; with several, one more for the run."""
-    stdout.print(f"AiGem: {results[0].parameters:,} parameters (the paper: 74.5 K)")
-    several = len(results) > 1
-    for result in results:
-        who = f"{result.horizon_s:g} s model: " if several else ""
-        speed = "" if several else f"{result.train_graphs_per_s:,.1f} graphs/s in training. "
-        stdout.print(
-            f"{who}{counted(result.epochs_done, 'epoch')} on {result.device} ({result.stopped_because}); best "
-            f"epoch {result.best_epoch}, validation MSE {result.best_val_loss_m2:.3f} m²; "
-            f"{speed}Run: {result.run_dir}"
-        )
-    if several:
-        stdout.print(
-            f"{len(results)} models trained together at {results[0].train_graphs_per_s:,.1f} "
-            f"graphs/s (each graph through every model still training). Run: {out}; "
-            f"`aigem evaluate {out}` scores them as the paper reports."
-        )
-
-
-def _losses(losses: tuple[float, ...]) -> str:
-    """Running training losses of the progress bar: '-' for a model not training this epoch."""
-    return " | ".join("-" if math.isnan(loss) else f"{loss:.3f}" for loss in losses)
-
-
-def _print_epoch(row: dict[str, float], who: str = "") -> None:
-    """One line per epoch on stderr, so that a log of a long run shows its course."""
-    best = " (best)" if row["best_epoch"] == row["epoch"] else ""
-    stderr.print(
-        f"{who}epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
-        f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
-        f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation",
-        markup=False,
-        highlight=False,
-        soft_wrap=True,
-    )
 
 
 @app.command(short_help="Score a run against constant velocity and the paper.")

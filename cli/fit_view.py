@@ -1,0 +1,90 @@
+"""What `aigem fit` prints: a line per epoch, the results, what an interrupted fit kept."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from ngsim_cli.console import counted, exit_on_error, stderr, stdout
+
+if TYPE_CHECKING:
+    from aigem.training import FitResult
+
+
+def discard_if_nothing_kept(
+    out: Path, horizons_s: tuple[float, ...] | None, created: bool
+) -> list[int]:
+    """Each model's epochs kept in `out` (its last checkpoint's); with none, a fit that stopped
+    (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
+    from aigem.runs import discard_unfinished, epochs_kept, member_dir
+
+    members = [out] if horizons_s is None else [member_dir(out, h) for h in horizons_s]
+    kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
+    if not any(kept):
+        with exit_on_error():
+            discard_unfinished(out, horizons_s, created)
+    return kept
+
+
+def interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) -> typer.Exit:
+    """One line on what an interrupted fit kept, and exit status 130 (as for Ctrl-C): the epochs
+    of each model's last checkpoint, or, with none, nothing (the run's files go)."""
+    kept = discard_if_nothing_kept(out, horizons_s, created)
+    if not any(kept):
+        say("interrupted before the first epoch ended; nothing kept")
+    elif len(set(kept)) == 1:
+        say(
+            f"interrupted after epoch {kept[0]} (run {out} holds its checkpoint); continue "
+            "with --resume"
+        )
+    else:
+        each = ", ".join(
+            f"{h:g} s model after epoch {n}" for h, n in zip(horizons_s or (), kept, strict=True)
+        )
+        say(f"interrupted ({each}; run {out} holds their checkpoints); continue with --resume")
+    return typer.Exit(130)
+
+
+def say(message: str) -> None:
+    stderr.print(message, markup=False, highlight=False, soft_wrap=True)
+
+
+def print_results(results: tuple[FitResult, ...], out: Path) -> None:
+    """The model's size, a line per model; with several, one more for the run."""
+    stdout.print(f"AiGem: {results[0].parameters:,} parameters (the paper: 74.5 K)")
+    several = len(results) > 1
+    for result in results:
+        who = f"{result.horizon_s:g} s model: " if several else ""
+        speed = "" if several else f"{result.train_graphs_per_s:,.1f} graphs/s in training. "
+        stdout.print(
+            f"{who}{counted(result.epochs_done, 'epoch')} on {result.device} ({result.stopped_because}); best "
+            f"epoch {result.best_epoch}, validation MSE {result.best_val_loss_m2:.3f} m²; "
+            f"{speed}Run: {result.run_dir}"
+        )
+    if several:
+        stdout.print(
+            f"{len(results)} models trained together at {results[0].train_graphs_per_s:,.1f} "
+            f"graphs/s (each graph through every model still training). Run: {out}; "
+            f"`aigem evaluate {out}` scores them as the paper reports."
+        )
+
+
+def running_losses(losses: tuple[float, ...]) -> str:
+    """Running training losses of the progress bar: '-' for a model not training this epoch."""
+    return " | ".join("-" if math.isnan(loss) else f"{loss:.3f}" for loss in losses)
+
+
+def print_epoch(row: dict[str, float], who: str = "") -> None:
+    """One line per epoch on stderr, so that a log of a long run shows its course."""
+    best = " (best)" if row["best_epoch"] == row["epoch"] else ""
+    stderr.print(
+        f"{who}epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
+        f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
+        f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
