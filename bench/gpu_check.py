@@ -2,7 +2,8 @@
 table of the target figures, printed last. `bench/gpu_check.sh` installs the project first where
 it is missing (from wheels carried beside it, with no network) and runs this.
 
-    bench/gpu_check.sh                                  # a GPU machine: about 6 minutes
+    bench/gpu_check.sh                                  # a GPU machine: about 5 minutes
+    bench/gpu_check.sh --accuracy-epochs 10 --deadline-s 560   # and the CUDA defaults' figures
     bench/gpu_check.sh --device cpu --recordings 1 --minutes 0.4 --epochs 1 --batch-size 8 \\
         --bench-sizes 8 --steps 1 --fast                # the CPU, a tiny input (the test's)
 
@@ -18,7 +19,10 @@ table says what it could not measure):
 5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate_horizons`);
 6. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
    and the paper's protocol (100 epochs, the four fits) extrapolated from it to the six
-   15-minute recordings (81,815 train graphs): per epoch times 100 and the train graphs' ratio.
+   15-minute recordings (81,815 train graphs): per epoch times 100 and the train graphs' ratio;
+7. with --accuracy-epochs N (N > 0), `bench/bench_accuracy.py` on the build: ACCURACY_SETTINGS
+   for N epochs each, the 5 s model, to constant velocity's validation loss (the fit's
+   baseline.json): the figures that choose the GPU's default batch, rate and schedule.
 """
 
 from __future__ import annotations
@@ -36,6 +40,11 @@ PAPER_EPOCHS = 100  # the paper's protocol
 PAPER_FITS = 4  # aigem paper's fits: d_min 25 with and without concatenation, d_min 0, d_min 50
 FULL_TRAIN_GRAPHS = 81_815  # the six 15-minute synthetic recordings' train split
 HORIZONS = "1,2,3,4,5"
+ACCURACY_SETTINGS = (  # the paper's batch, and two larger ones with their rates warmed up and decayed
+    "batch=32",
+    "batch=256,lr=3e-3,schedule=cosine,warmup=1",
+    "batch=1024,lr=6e-3,schedule=cosine,warmup=2",
+)
 
 
 class Stages:
@@ -242,6 +251,9 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=None, help="build and loader workers")
     parser.add_argument("--deadline-s", type=float, default=450.0, help="the whole check's")
     parser.add_argument("--fast", action="store_true", help="bench_train: 1 warm-up step")
+    parser.add_argument(
+        "--accuracy-epochs", type=int, default=0, help="bench_accuracy's epochs (0: not run)"
+    )
     args = parser.parse_args()
     if args.out.exists():
         shutil.rmtree(args.out)
@@ -283,6 +295,14 @@ def main() -> None:
                          "--device", args.device, *jobs], 0.9)  # fmt: skip
     estimate = paper_estimate(paper, args.epochs)
     measured["paper_minutes"] = estimate["minutes"] if estimate else None
+    baseline = run / "h5s" / "baseline.json"
+    if args.accuracy_epochs > 0 and baseline.is_file():
+        target = json.loads(baseline.read_text())["constant_velocity_val_loss_m2"]
+        settings = [part for setting in ACCURACY_SETTINGS for part in ("--setting", setting)]
+        stages.run("accuracy", [sys.executable, str(Path(__file__).parent / "bench_accuracy.py"),
+                                str(build), "--out", str(args.out / "accuracy"), *settings,
+                                "--epochs", str(args.accuracy_epochs), "--target-m2", f"{target:.4f}",
+                                "--device", args.device, *workers], 0.95)  # fmt: skip
     print_table(args, stages, rows, measured)
 
 
