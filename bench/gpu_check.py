@@ -40,6 +40,8 @@ PAPER_EPOCHS = 100  # the paper's protocol
 PAPER_FITS = 4  # aigem paper's fits: d_min 25 with and without concatenation, d_min 0, d_min 50
 FULL_TRAIN_GRAPHS = 81_815  # the six 15-minute synthetic recordings' train split
 HORIZONS = "1,2,3,4,5"
+
+
 ACCURACY_SETTINGS = (  # the paper's batch, and two larger ones with their rates warmed up and decayed
     "batch=32",
     "batch=256,lr=3e-3,schedule=cosine,warmup=1",
@@ -233,6 +235,9 @@ def summary(device: str, batch: int, rows: dict, measured: dict) -> list[tuple[s
 
 
 def main() -> None:
+    from aigem.cores import default_workers
+    from ngsim_graphs.budget import available_cores
+
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -270,11 +275,15 @@ def main() -> None:
     jobs = ["--jobs", str(args.jobs)] if args.jobs is not None else []
     stages.run("build", ["ngsim-graphs", "build", str(raw), "--out", str(build), *jobs], 0.3)
     warmup = ["--warmup", "1", "--profile-steps", "1"] if args.fast else []
+    # fit's own default on this device (a GPU: all cores but two, at most 12), as 7610a76's figures
+    loader_workers = (
+        args.jobs if args.jobs is not None else default_workers(args.device, available_cores())
+    )
     sizes = args.bench_sizes or ("32" if args.batch_size == 32 else f"32,{args.batch_size}")
     bench = stages.run("bench", [sys.executable, str(Path(__file__).parent / "bench_train.py"),
                                  str(build), "--device", args.device, "--batch-sizes", sizes,
                                  "--models", "5", "--steps", str(args.steps), *warmup,
-                                 "--workers", str(args.jobs or 0)], 0.4)  # fmt: skip
+                                 "--workers", str(loader_workers)], 0.4)  # fmt: skip
     rows = parse_table(bench or "")
     measured["busy"] = fit_with_sampling(
         stages,
