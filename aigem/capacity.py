@@ -31,6 +31,12 @@ def quantities(layers: int, edge_types: int) -> int:
     return layers + 1 + edge_types * layers
 
 
+def edge_columns(layers: int, type_index: int) -> slice:
+    """Where edge type `type_index`'s L segments sit among the Q quantities."""
+    first = layers + 1 + type_index * layers
+    return slice(first, first + layers)
+
+
 @dataclass(frozen=True)
 class Capacity:
     """A static batch's padded sizes: `samples` graphs; `sizes` (Q,) the real entries each
@@ -47,8 +53,7 @@ class Capacity:
 
     def edges(self, type_index: int) -> tuple[int, ...]:
         """(L,) the edge segments of edge type `type_index`, destination levels L..1."""
-        first = self.layers + 1 + type_index * self.layers
-        return self.sizes[first : first + self.layers]
+        return self.sizes[edge_columns(self.layers, type_index)]
 
     @property
     def targets(self) -> int:
@@ -88,8 +93,3 @@ def tier_of(base: Capacity, need: np.ndarray) -> int:
     while not tier(base, t).holds(need):  # the rounding: at most a step or two more
         t += 1
     return t
-
-
-def batch_needs(counts: np.ndarray, batches: list[np.ndarray]) -> np.ndarray:
-    """(n_batches, Q) the summed counts of each batch (its sample ids) of a split."""
-    return np.stack([counts[ids].sum(0) for ids in batches]) if batches else np.zeros((0, 0))

@@ -177,11 +177,8 @@ class ValidationSums:
     def _add(self, ids: torch.Tensor, capacity: Capacity) -> None:
         with torch.no_grad():
             batch = self.split.batch(ids, capacity)
-            predicted = xy_to_metres(self.scaler, self.ensemble(batch))  # (M, A, K, 2)
-            steps = predicted.shape[2]
-            mask = batch["target_mask"][:, :steps].to(predicted.dtype) * self.ensemble.scored
-            squared = ((predicted - batch["target_xy"][:, :steps]) ** 2).sum(-1) * mask
-            self.sums += torch.stack([squared.sum((1, 2)), mask.sum((1, 2))]).double()
+            sums = self.ensemble.member_sums(self.ensemble(batch), batch, self.scaler)
+            self.sums += torch.stack(sums).double()
 
     def losses(self, batches: Batches, base: Capacity) -> list[float]:
         """Each member's mean validation loss in metres^2 over `batches` (read once, at the end;

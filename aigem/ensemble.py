@@ -78,16 +78,24 @@ class Ensemble:
             self.params, self.config, batch, self.steps, self.training, self.decode
         )
 
-    def member_losses(
+    def member_sums(
         self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
-    ) -> torch.Tensor:
-        """(M,) each member's `aigem.trainers.masked_mse_m2` over its own steps, in metres^2."""
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M,) each member's squared error in metres^2 summed over its valid target steps, and
+        (M,) their count; `model_out` (M, A, K, 2) scaled."""
         steps = model_out.shape[2]
         predicted = xy_to_metres(scaler, model_out)  # (M, A, K, 2)
         truth = batch["target_xy"][:, :steps]
         mask = batch["target_mask"][:, :steps].to(predicted.dtype) * self.scored  # (M, A, K)
         squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
-        return squared.sum((1, 2)) / mask.sum((1, 2)).clamp(min=1.0)
+        return squared.sum((1, 2)), mask.sum((1, 2))
+
+    def member_losses(
+        self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
+    ) -> torch.Tensor:
+        """(M,) each member's `aigem.trainers.masked_mse_m2` over its own steps, in metres^2."""
+        squared, count = self.member_sums(model_out, batch, scaler)
+        return squared / count.clamp(min=1.0)
 
     def clip_gradients(self, max_norm: float | None) -> None:
         """`torch.nn.utils.clip_grad_norm_` of each member over its own gradients (None: none)."""

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from aigem.capacity import Capacity, quantities
+from aigem.capacity import Capacity, edge_columns, quantities
 from aigem.data import Collate, GraphDataset, check_covered
 from aigem.plan import Adjacency, Plan, edge_inputs, node_levels
 from ngsim_graphs import edges
@@ -216,10 +216,9 @@ class ResidentSplit:
     def _edges(self, index, ids, count, capacity, layout, node_begins) -> Adjacency:  # noqa: ANN001
         """Edge type `index` of the batch: its segments, their sources and destinations as node
         slots, padded from sink to sink; `node_begins` (L + 1, B) each node run's first slot."""
-        layers, samples, table = self.layers, capacity.samples, self.edges[index]
-        first = layers + 1 + index * layers
+        samples, table = capacity.samples, self.edges[index]
         edge, valid, run, _ = _segments(
-            count[:, first : first + layers].t(),
+            count[:, edge_columns(self.layers, index)].t(),
             table.start.index_select(0, ids).t(),
             layout.edges[index],
         )
@@ -399,11 +398,9 @@ def _join(chunks: list[_Chunk], layers: int, samples: int) -> ResidentSplit:
         node_start[chunk.ids] = _starts(node_counts, nodes)
         target_start[chunk.ids] = _starts(node_counts[:, :1], targets)[:, 0]
         for index in range(len(edges.EDGE_TYPES)):
-            first = layers + 1 + index * layers
-            edge_start[index][chunk.ids] = _starts(
-                chunk.counts[:, first : first + layers], edge_totals[index]
-            )
-            edge_totals[index] += int(chunk.counts[:, first : first + layers].sum())
+            edge_counts = chunk.counts[:, edge_columns(layers, index)]
+            edge_start[index][chunk.ids] = _starts(edge_counts, edge_totals[index])
+            edge_totals[index] += int(edge_counts.sum())
         nodes, targets = nodes + len(chunk.x), targets + int(node_counts[:, 0].sum())
     offsets = np.cumsum([0] + [len(chunk.x) for chunk in chunks])[:-1]
     on = lambda parts, dtype=None: _with_spare(torch.cat(parts).to(dtype=dtype))  # noqa: E731

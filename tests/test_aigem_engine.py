@@ -15,7 +15,8 @@ from torch.utils.data import DataLoader
 
 from aigem import capacity, engine, ensemble
 from aigem.config import ModelConfig
-from aigem.data import GraphDataset
+from aigem.data import Collate, GraphDataset
+from aigem.epochs import evaluate_losses
 from aigem.model import AiGem
 from aigem.resident import load_split
 
@@ -49,6 +50,25 @@ def test_an_epochs_batches_are_padded_with_the_empty_sample_and_take_a_tier(
     assert np.array_equal(first, dataset.batch_order(order[:4]))  # by recording, as the loader's
     need = split.counts[first].sum(0)
     assert batches.tiers[0] == capacity.tier_of(small, need) > 0
+
+
+def test_validation_on_static_batches_is_the_loaders(tiny_build: Path) -> None:
+    """Each member's validation loss summed over static batches (eager on the CPU) is the one
+    `evaluate_losses` takes over the loader's batches, to float rounding."""
+    dataset = GraphDataset(tiny_build, "val", history_steps=LAYERS + 1)
+    split = load_split(dataset, LAYERS)
+    base = capacity.base_capacity(split.counts, 4, LAYERS)
+    cpu = torch.device("cpu")
+    batches = engine.epoch_batches(
+        split, np.arange(len(dataset)), 4, base, dataset.batch_order, cpu
+    )
+    torch.manual_seed(0)
+    models = [AiGem(ModelConfig()) for _ in range(2)]
+    sums = engine.ValidationSums(ensemble.stack(models, (5, 25)), split, dataset.scaler, cpu)
+    loader = DataLoader(dataset, batch_size=4, collate_fn=Collate(dataset.scaler, layers=LAYERS))
+    expected = evaluate_losses(list(zip(models, (5, 25), strict=True)), loader, dataset.scaler, cpu)
+    assert sums.losses(batches, base) == pytest.approx(expected, rel=1e-5)
+    assert sums.ensemble.training  # back to training after it
 
 
 def _steps(split, dataset: GraphDataset, device: torch.device, base: capacity.Capacity):  # noqa: ANN001, ANN202
