@@ -705,3 +705,50 @@ def test_stats_json_and_plots(synthetic_build: Path, tmp_path: Path) -> None:
     assert [line for line in table.stdout.splitlines() if line.startswith("wrote ")] == [
         f"wrote {path}" for path in document["plots"]
     ]
+
+
+def _drop_a_column(text: str) -> str:
+    return "\n".join(" ".join(line.split()[:10] + line.split()[11:]) for line in text.splitlines())
+
+
+def _add_a_column(text: str) -> str:
+    return "\n".join(f"{line}   7" for line in text.splitlines())
+
+
+@pytest.mark.parametrize(
+    ("damage", "fragments"),
+    [
+        (_drop_a_column, ("line 1:", "holds 17 whitespace-separated numbers", "hold 18")),
+        (_add_a_column, ("line 1:", "holds 19 whitespace-separated numbers", "column missing")),
+        (lambda text: text[:30], ("line 1:", "no line end: is the file cut short?")),
+        (lambda text: "", ("empty file",)),
+    ],
+    ids=["column-dropped", "extra-column", "cut-in-line-1", "zero-bytes"],
+)
+def test_a_damaged_file_beside_a_good_one_fails_the_build(
+    tmp_path: Path, long_rows: list[dict], damage: Callable[[str], str], fragments: tuple[str, ...]
+) -> None:
+    # On main each of these was "skipped (not NGSIM)" and the build made the other recording,
+    # exit 0: the damaged file's recording was lost.
+    raw = tmp_path / "raw"
+    write_txt(raw / "i-80" / "trajectories-0400-0415.txt", long_rows)
+    damaged = write_txt(raw / "us-101" / "trajectories-0750am-0805am.txt", long_rows)
+    damaged.write_text(damage(damaged.read_text()))
+    out = tmp_path / "out"
+    assert_failed_cleanly(invoke("build", raw, "--out", out), out, {}, damaged, *fragments)
+    # Alone in its folder, the error names the file, not the folder.
+    (raw / "i-80" / "trajectories-0400-0415.txt").unlink()
+    assert_failed_cleanly(invoke("build", raw, "--out", out), out, {}, damaged, *fragments)
+
+
+def test_a_file_of_numbers_under_any_name_is_not_skipped(
+    tmp_path: Path, long_rows: list[dict]
+) -> None:
+    raw = tmp_path / "raw"
+    write_txt(raw / "us-101" / "trajectories-0750am-0805am.txt", long_rows)
+    other = raw / "us-101" / "part2.txt"
+    other.write_text(
+        _drop_a_column((raw / "us-101" / "trajectories-0750am-0805am.txt").read_text())
+    )
+    out = tmp_path / "out"
+    assert_failed_cleanly(invoke("build", raw, "--out", out), out, {}, other, "holds 17")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import difflib
+import re
 from pathlib import Path
 
 from ngsim_graphs import schema as s
@@ -26,7 +27,9 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     """Expand files and directories into NGSIM files; returns (files, skipped non-NGSIM files).
 
     A named file is always taken (reading it reports what is wrong with it). A directory is
-    searched recursively for .csv/.txt files whose first line looks like NGSIM data.
+    searched recursively for .csv/.txt files whose first line looks like NGSIM data; a file
+    there that is not is skipped only when it is plainly something else (`is_plainly_other`),
+    and is otherwise an error naming it and the place.
     """
     found: list[Path] = []
     skipped: list[Path] = []
@@ -41,6 +44,8 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
                 sniff_format(candidate)
                 inside.append(candidate)
             except NotNgsimFileError:
+                if not is_plainly_other(candidate):
+                    raise
                 skipped.append(candidate)
         if not inside:
             raise NgsimInputError(
@@ -49,6 +54,28 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
         found.extend(inside)
     unique = list(dict.fromkeys(p.resolve() for p in found))
     return unique, skipped
+
+
+# A name that says "trajectory file": NGSIM's own (`trajectories-0750am-0805am.txt`, the portal
+# export's `..._Vehicle_Trajectories_...csv`) or a period's (`0400-0415`).
+_TRAJECTORY_NAME = re.compile(r"trajector|\d{4}(am|pm)?-\d{4}(am|pm)?", re.IGNORECASE)
+
+
+def _is_numbers_line(line: str) -> bool:
+    """Whether a line is two or more numbers, split by whitespace or commas: a row of some table."""
+    tokens = [token for token in re.split(r"[\s,]+", line) if token]
+    return len(tokens) >= 2 and all(_is_number(token) for token in tokens)
+
+
+def is_plainly_other(path: Path) -> bool:
+    """Whether a file that `sniff_format` does not take is plainly something else (a readme, a
+    note): not named like a trajectory file, not empty, and none of its first lines a row of
+    numbers. A damaged trajectory file (a column dropped or added, cut inside its first line,
+    emptied) is none of these: reading it says what is wrong, and where."""
+    if _TRAJECTORY_NAME.search(path.name):
+        return False
+    lines = _head_lines(path)
+    return bool(lines) and not any(_is_numbers_line(line) for line in lines[: SNIFF_LINES + 1])
 
 
 def _head_lines(path: Path) -> list[str]:
@@ -151,12 +178,24 @@ def _format_of_first_line(path: Path) -> RawFormat:
             "lines after it hold NGSIM rows: is the header damaged or missing?",
             line=1,
         )
-    raise NotNgsimFileError(
-        path,
-        "not an NGSIM trajectory file: the first line is neither a CSV header with Vehicle_ID, "
-        f"Frame_ID, ... nor {len(ns.TXT_COLUMNS)} whitespace-separated numbers, and neither are "
-        "the lines after it",
-        line=1,
+    raise NotNgsimFileError(path, f"not an NGSIM trajectory file: {_why_not(path, line)}", line=1)
+
+
+def _why_not(path: Path, line: str) -> str:
+    """What is wrong with a first line that is neither NGSIM's header nor one of its rows (nor
+    are the lines after it)."""
+    n_columns = len(ns.TXT_COLUMNS)
+    if not _is_numbers_line(line) or "," in line:
+        return (
+            "the first line is neither a CSV header with Vehicle_ID, Frame_ID, ... nor "
+            f"{n_columns} whitespace-separated numbers, and neither are the lines after it"
+        )
+    with path.open("rb") as handle:
+        ends = b"\n" in handle.read(SNIFF_BYTES)
+    what = "a column missing or added?" if ends else "no line end: is the file cut short?"
+    return (
+        f"the first line holds {len(line.split())} whitespace-separated numbers where NGSIM's "
+        f"rows hold {n_columns} ({what})"
     )
 
 
