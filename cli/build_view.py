@@ -16,7 +16,12 @@ from ngsim_graphs.sources.registry import label
 def print_build_report(result: BuildResult) -> None:
     """The build's report on stdout (its warnings on stderr)."""
     for skipped in result.skipped_files:
-        stdout.print(f"skipped (not {label(result.manifest.dataset)}): {skipped}")
+        stderr.print(
+            f"skipped (not {label(result.manifest.dataset)}): {skipped}",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
     print_table(_summary_table(result))
     counts, splits = result.manifest.counts, result.manifest.splits
     stdout.print(

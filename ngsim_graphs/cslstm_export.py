@@ -44,6 +44,7 @@ from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import entries_beyond, some_names
 from ngsim_graphs.partial_files import create_exclusive
+from ngsim_graphs.sources.archives import archives_in
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.files import read_raw_file
 from ngsim_graphs.sources.ngsim.formats import find_raw_files
@@ -177,6 +178,11 @@ def read_recordings(
     paths: list[Path], allow_partial: bool, progress: Progress
 ) -> tuple[dict[int, RecordingRows], list[InputFile], list[Path], list[str]]:
     """(rows per dataset id in the script's order, input reports, skipped files, missing)."""
+    packed = [archive for path in paths for archive in archives_in(path)]
+    if packed:
+        raise NgsimInputError(
+            packed[0], "export-cslstm reads no compressed file: unpack it first (build reads it)"
+        )
     files, skipped = find_raw_files(paths)
     found: dict[int, tuple[Path, pl.DataFrame]] = {}
     inputs = []

@@ -37,6 +37,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.engine import summary
+from ngsim_graphs.engine.staging import staged_unpacked_dir
 from ngsim_graphs.engine.tasks import (
     RecordingOutput,
     StagedParts,
@@ -45,14 +46,15 @@ from ngsim_graphs.engine.tasks import (
     read_file,
 )
 from ngsim_graphs.engine.workers import Workers, one_malloc_arena
-from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.errors import NgsimError, NgsimInputError
 from ngsim_graphs.manifest import Manifest
 from ngsim_graphs.protocols import PROTOCOLS
 from ngsim_graphs.scaling import MinMaxScaler
+from ngsim_graphs.sources import archives
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
 from ngsim_graphs.sources.registry import check_locations, choose_source
 from ngsim_graphs.splits import SPLIT_ORDER
-from ngsim_graphs.synth.marker import mixed_inputs_warning, synthetic_inputs
+from ngsim_graphs.synth.marker import MARKER_NAME, mixed_inputs_warning, synthetic_inputs
 from ngsim_graphs.windows import SampleProtocol
 
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
@@ -116,6 +118,53 @@ def _stage_inputs(
             f"found: {', '.join(found) or 'none'}",
         )
     return reports, staged
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What a build read: its source, the files skipped and the reports of those read (both by
+    name), their rows staged per recording, and the files (by name) that synth wrote."""
+
+    source: Source
+    skipped: list[str]
+    reports: list[FileReport]
+    staged: dict[RecordingKey, StagedParts]
+    synthetic: tuple[str, ...]
+
+
+def _read_inputs(
+    raw_paths: list[Path],
+    dataset: str | None,
+    config: BuildConfig,
+    root: Path,
+    progress: BuildProgress,
+    strict: bool,
+    workers: Workers,
+) -> Inputs:
+    """The inputs' archives unpacked into `root`'s staging, the source chosen and its files read
+    and staged. An unpacked file is reported
+    (and its errors name it) by its archive's name and its own inside it."""
+    progress("unpacking archives", 0, 1)
+    unpacked = archives.unpack_inputs(raw_paths, staged_unpacked_dir(root), (MARKER_NAME,))
+    names = unpacked.names
+    try:
+        source, found, skipped = choose_source(
+            archives.searched_paths(raw_paths, unpacked), dataset
+        )
+        # The build depends on the set of inputs, not on the order they were named in: the
+        # files are read in the order of their names (resolved paths, or an archive's and its
+        # member's), which numbers them and lists them in the manifest.
+        files = sorted(found, key=lambda path: archives.shown_name(path, names))
+        reports, staged = _stage_inputs(source, files, config, root, progress, strict, workers)
+    except NgsimError as err:
+        raise archives.named_error(err, names) from None
+    # Which files synth wrote is told from the files read (an archive's copies and markers).
+    synthetic = tuple(
+        archives.shown_name(p, names) for p in synthetic_inputs(r.path for r in reports)
+    )
+    reports = [replace(report, path=archives.shown_name(report.path, names)) for report in reports]
+    shown = [archives.shown_name(path, names) for path in skipped] + unpacked.skipped
+    return Inputs(source, shown, reports, staged, synthetic)
 
 
 def _stage_of(progress: BuildProgress, what: str, total: int) -> Callable[[int], None]:
@@ -233,18 +282,18 @@ def _check_recordings(
 def _finish(
     target: BuildTarget,
     root: Path,
-    source: Source,
-    file_reports: list[FileReport],
+    inputs: Inputs,
     outputs: list[RecordingOutput],
-    skipped: list[Path],
     progress: BuildProgress,
 ) -> BuildResult:
     """A built target's samples tables and manifest written into `root`, the manifest last."""
     out_dir, config = target
+    source, file_reports, skipped, synthetic = (
+        inputs.source, inputs.reports, inputs.skipped, inputs.synthetic
+    )  # fmt: skip
     scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
     progress("writing samples", len(outputs), len(outputs))
     samples = _write_samples(root, outputs)
-    synthetic = synthetic_inputs(file.path for file in file_reports)  # told now: files move
     mixed = mixed_inputs_warning([file.path for file in file_reports], synthetic)
     warnings = summary.warnings(outputs, config, file_reports) + ([mixed] if mixed else [])
     manifest = summary.manifest(
@@ -257,7 +306,7 @@ def _finish(
     return BuildResult(
         out_dir=out_dir,
         files=tuple(file_reports),
-        skipped_files=tuple(str(p) for p in skipped),
+        skipped_files=tuple(skipped),
         recordings=tuple(o.report for o in outputs),
         manifest=manifest,
         warnings=tuple(warnings),
@@ -323,10 +372,6 @@ def run_builds(
         one_malloc_arena()
     report_progress = progress or (lambda _what, _done, _total: None)
     several = len(targets) > 1
-    source, found, skipped = choose_source(raw_paths, dataset)
-    # The build depends on the set of inputs, not on the order they were named in: the files
-    # (resolved paths) are read in path order, which numbers them and lists them in the manifest.
-    files = sorted(found)
     shared = targets[0][1]  # its SHARED_FIELDS are every target's
     with ExitStack() as landings:
         # One stack per target, closed when it lands; the outer one removes those left.
@@ -337,9 +382,10 @@ def run_builds(
         ]
         scratch = roots[0]
         with workers:  # the workers end here: what they held goes back before the writing
-            file_reports, staged = _stage_inputs(
-                source, files, shared, scratch, report_progress, strict, workers
+            inputs = _read_inputs(
+                raw_paths, dataset, shared, scratch, report_progress, strict, workers
             )
+            source, file_reports, staged = inputs.source, inputs.reports, inputs.staged
             for _, config in targets:
                 _check_recordings(staged, file_reports, PROTOCOLS[config.protocol])
             reports = _clean_recordings(
@@ -356,7 +402,7 @@ def run_builds(
         results = []
         for target, root, outputs, stack in zip(targets, roots, built, stacks, strict=True):
             labelled = _labelled(report_progress, target[0], several)
-            results.append(_finish(target, root, source, file_reports, outputs, skipped, labelled))
+            results.append(_finish(target, root, inputs, outputs, labelled))
             stack.close()  # lands this target's out_dir
     return results
 

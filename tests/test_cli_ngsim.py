@@ -8,8 +8,10 @@ exactly as it was), and no hidden `.NAME.partial-*` / `.NAME.old-*` sibling rema
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -327,7 +329,7 @@ def test_build_reports_skipped_files_of_a_directory(tmp_path: Path, long_rows: l
     (raw / "README.txt").write_text("Not data.\n")
     result = invoke("build", raw, "--out", tmp_path / "out")
     assert result.exit_code == 0, result.output
-    assert f"skipped (not NGSIM): {(raw / 'README.txt').resolve()}" in result.stdout
+    assert f"skipped (not NGSIM): {(raw / 'README.txt').resolve()}" in result.stderr
     manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
     assert manifest["skipped_files"] == [str((raw / "README.txt").resolve())]
 
@@ -752,3 +754,72 @@ def test_a_file_of_numbers_under_any_name_is_not_skipped(
     )
     out = tmp_path / "out"
     assert_failed_cleanly(invoke("build", raw, "--out", out), out, {}, other, "holds 17")
+
+
+def _built(result: Result, out: Path) -> dict:
+    assert result.exit_code == 0, result.output
+    return json.loads((out / "manifest.json").read_text())
+
+
+def _same_build(one: dict, other: dict) -> None:
+    """The same samples and files, byte for byte: only the inputs' names differ."""
+    for key in ("files", "counts", "recordings", "splits", "scaler", "synthetic"):
+        assert one[key] == other[key], key
+
+
+def test_gzip_inputs_build_as_the_plain_file(tmp_path: Path, long_rows: list[dict]) -> None:
+    # On main a .txt gzip'd under its own name was "skipped (not NGSIM)" (exit 0, its recording
+    # lost), and a .txt.gz was not even listed.
+    plain = write_txt(tmp_path / "plain" / "us-101" / "trajectories-0750am-0805am.txt", long_rows)
+    expected = _built(invoke("build", plain.parent, "--out", tmp_path / "o0"), tmp_path / "o0")
+    for i, name in enumerate(
+        ["trajectories-0750am-0805am.txt", "trajectories-0750am-0805am.txt.gz"]
+    ):
+        packed = tmp_path / f"raw{i}" / "us-101" / name
+        packed.parent.mkdir(parents=True)
+        packed.write_bytes(gzip.compress(plain.read_bytes()))
+        out = tmp_path / f"o{i + 1}"
+        built = _built(invoke("build", packed.parent.parent, "--out", out), out)
+        _same_build(built, expected)
+        assert [entry["path"] for entry in built["inputs"]] == [str(packed.resolve())]
+        assert built["skipped_files"] == []
+
+
+def test_a_zip_builds_the_samples_of_its_files(tmp_path: Path, long_rows: list[dict]) -> None:
+    # On main `build NGSIM.zip` said "not an NGSIM trajectory file".
+    plain = write_txt(tmp_path / "plain" / "us-101" / "trajectories-0750am-0805am.txt", long_rows)
+    expected = _built(invoke("build", plain.parent, "--out", tmp_path / "o0"), tmp_path / "o0")
+    inner = io.BytesIO()  # a zip inside the zip, as the portal's per-location zips hold
+    with zipfile.ZipFile(inner, "w", zipfile.ZIP_DEFLATED) as zipped:
+        zipped.write(plain, "0750am-0805am/trajectories-0750am-0805am.txt")
+    archive = tmp_path / "US-101-LosAngeles-CA.zip"
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as zipped:
+        zipped.writestr("US-101-LosAngeles-CA/vehicle-trajectory-data.zip", inner.getvalue())
+        zipped.writestr("US-101-LosAngeles-CA/aerial-ortho-photos/a.jpg", PNG_SIGNATURE)
+    out = tmp_path / "o1"
+    result = invoke("build", archive, "--out", out)
+    built = _built(result, out)
+    _same_build(built, expected)
+    member = f"{archive}/US-101-LosAngeles-CA/vehicle-trajectory-data.zip"
+    inputs = [f"{member}/0750am-0805am/trajectories-0750am-0805am.txt"]
+    assert [entry["path"] for entry in built["inputs"]] == inputs
+    photo = f"{archive}/US-101-LosAngeles-CA/aerial-ortho-photos/a.jpg"
+    assert built["skipped_files"] == [photo]
+    assert f"skipped (not NGSIM): {photo}" in result.stderr
+    assert not list(out.rglob("*.txt"))  # the unpacked copies went with the staging
+
+
+def test_a_damaged_file_in_a_zip_is_named_by_the_zip(tmp_path: Path, long_rows: list[dict]) -> None:
+    plain = write_txt(tmp_path / "a.txt", long_rows)
+    archive = tmp_path / "NGSIM.zip"
+    with zipfile.ZipFile(archive, "w") as zipped:
+        zipped.writestr("us-101/trajectories-0750am-0805am.txt", _drop_a_column(plain.read_text()))
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", archive, "--out", out), out, {}, Path(f"{archive}/us-101/trajectories-0750am-0805am.txt"),
+        "line 1:", "holds 17",
+    )  # fmt: skip
+    archive.write_bytes(archive.read_bytes()[:-30])  # cut short: its directory is lost
+    assert_failed_cleanly(
+        invoke("build", archive, "--out", out), out, {}, archive, "cannot read this zip file"
+    )

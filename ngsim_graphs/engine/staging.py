@@ -20,6 +20,12 @@ def staged_raw_path(root: Path, location: str, period: str, part: int, file_inde
     return root / STAGING_DIR / recording_name(location, period) / name
 
 
+def staged_unpacked_dir(root: Path) -> Path:
+    """The folder the inputs' archives are unpacked into (`sources.archives`), kept until the
+    build lands."""
+    return root / STAGING_DIR / "_unpacked"
+
+
 def staged_scratch_dir(root: Path, file_index: int) -> Path:
     """A folder for what a source writes while reading one input file (its parsed rows), kept
     only until the file's rows are staged."""

@@ -127,7 +127,7 @@ def manifest(
     samples: dict[str, dict[str, int]],
     scaler: MinMaxScaler,
     warnings: list[str],
-    skipped: list[Path],
+    skipped: list[str],
 ) -> Manifest:
     """What the build is, to be written last (`layout.write_manifest` adds the file records)."""
     return Manifest(
@@ -142,5 +142,5 @@ def manifest(
         scaler=scaler,
         warnings=tuple(warnings),
         counts=_counts(files, outputs, samples),
-        skipped_files=tuple(str(path) for path in skipped),
+        skipped_files=tuple(skipped),
     )

@@ -12,6 +12,7 @@ from pathlib import Path
 from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import RawFormat
+from ngsim_graphs.sources.archives import archives_in
 from ngsim_graphs.sources.inputs import files_in
 from ngsim_graphs.sources.ngsim import schema as ns
 
@@ -47,7 +48,7 @@ def find_raw_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
                 if not is_plainly_other(candidate):
                     raise
                 skipped.append(candidate)
-        if not inside:
+        if not inside and not archives_in(path):  # an archive's files are searched unpacked
             raise NgsimInputError(
                 path, "no NGSIM trajectory files (.csv or .txt) in this directory"
             )

@@ -1,0 +1,178 @@
+"""Compressed inputs: a .zip or .gz given or found among a build's inputs, told by its first
+bytes (a .txt gzip'd under its own name is one), unpacked into the build's staging folder and
+read from there; each file unpacked is named by where it came from (`NGSIM.zip/US-101/a.txt`,
+`a.txt.gz`). Unpacking streams a member at a time: memory stays small whatever their size.
+
+A zip may nest folders and inner zips or .gz files (the portal's per-location zips do); of its
+members, the .txt and .csv files and the archives are unpacked, and every other member (photos,
+CAD drawings, videos, documents) is listed as skipped.
+"""
+
+from __future__ import annotations
+
+import gzip
+import shutil
+import zipfile
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import IO
+
+from ngsim_graphs.errors import NgsimError, NgsimInputError
+
+GZIP_MAGIC = b"\x1f\x8b"
+ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip with members, an empty zip
+ARCHIVE_SUFFIXES = (".gz", ".zip")
+TEXT_SUFFIXES = (".txt", ".csv")  # the members a source may read
+MAX_DEPTH = 4  # archives inside archives, at most
+_COPY_BYTES = 1 << 20
+
+
+def archive_kind(path: Path) -> str | None:
+    """ "gzip" or "zip" for a file whose first bytes say so; None for any other (or unreadable)."""
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(4)
+    except OSError:
+        return None
+    if head.startswith(GZIP_MAGIC):
+        return "gzip"
+    return "zip" if head in ZIP_MAGICS else None
+
+
+def archives_in(path: Path) -> list[Path]:
+    """The archives among `path` (a named file) or under it (a folder, searched recursively):
+    files named .gz or .zip, and .txt or .csv files that are compressed; in path order."""
+    if path.is_file():
+        return [path] if archive_kind(path) else []
+    if not path.is_dir():
+        return []
+    suffixes = ARCHIVE_SUFFIXES + TEXT_SUFFIXES
+    found = (p for p in sorted(path.rglob("*")) if p.is_file() and p.suffix.lower() in suffixes)
+    return [p for p in found if archive_kind(p)]
+
+
+@dataclass
+class Unpacked:
+    """What unpacking a build's archives gave: in place of each archive, its unpacked copy (a
+    zip's folder, a .gz's file) to search; the name each unpacked file and folder is reported
+    by; and the members skipped, by name."""
+
+    paths: list[Path] = field(default_factory=list)
+    names: dict[Path, str] = field(default_factory=dict)  # resolved unpacked path -> its name
+    skipped: list[str] = field(default_factory=list)
+
+
+def unpack_inputs(paths: list[Path], scratch: Path, markers: tuple[str, ...] = ()) -> Unpacked:
+    """Unpack every archive among or under `paths` into `scratch` (a folder the build removes),
+    each under a mirror of its own path, so that its folder names (a location's) still read as
+    they would beside it. Files named one of `markers` (synth's) are copied too: a zip's
+    members, and those in an archive's folder or the one above it. Raises NgsimInputError naming
+    the archive (and member) that cannot be unpacked."""
+    unpacked = Unpacked()
+    archives = dict.fromkeys(a.resolve() for path in paths for a in archives_in(path))
+    for i, archive in enumerate(archives):
+        into = scratch / f"{i:04d}" / archive.relative_to(archive.anchor).parent
+        unpacked.paths.append(_unpack(archive, into, str(archive), unpacked, 0, markers))
+        for folder, mirror in zip(archive.parents[:2], (into, into.parent), strict=False):
+            for marker in markers:
+                if (folder / marker).is_file() and not (mirror / marker).exists():
+                    shutil.copyfile(folder / marker, mirror / marker)
+    return unpacked
+
+
+def searched_paths(paths: list[Path], unpacked: Unpacked) -> list[Path]:
+    """The paths a source searches: `paths` less the archives named among them, and each
+    archive's unpacked copy."""
+    return [p for p in paths if not (p.is_file() and archive_kind(p))] + unpacked.paths
+
+
+def _unpack(
+    archive: Path, into: Path, name: str, unpacked: Unpacked, depth: int, markers: tuple[str, ...]
+) -> Path:
+    """Unpack `archive` (reported as `name`) into the folder `into`, and any archive in it;
+    returns what it unpacked to: the file of a .gz, the folder of a zip."""
+    if depth > MAX_DEPTH:
+        raise NgsimInputError(name, f"archives nested more than {MAX_DEPTH} deep")
+    into.mkdir(parents=True, exist_ok=True)
+    if archive_kind(archive) == "gzip":
+        stem = archive.name[:-3] if archive.name.lower().endswith(".gz") else archive.name
+        opener = lambda: gzip.open(archive, "rb")  # noqa: E731, SIM115 (opened in _member's with)
+        return _member(opener, into / stem, name, unpacked, depth, markers)
+    folder = into / archive.name
+    folder.mkdir(exist_ok=True)
+    unpacked.names[folder.resolve()] = name
+    try:
+        with zipfile.ZipFile(archive) as zipped:
+            for info in zipped.infolist():
+                if not info.is_dir():
+                    _zip_member(zipped, info, folder, name, unpacked, depth, markers)
+    except (zipfile.BadZipFile, EOFError, zlib.error) as err:
+        raise NgsimInputError(name, f"cannot read this zip file: {err}") from None
+    return folder
+
+
+def _zip_member(
+    zipped: zipfile.ZipFile,
+    info: zipfile.ZipInfo,
+    folder: Path,
+    name: str,
+    unpacked: Unpacked,
+    depth: int,
+    markers: tuple[str, ...],
+) -> None:
+    """Unpack one member of a zip (reported as `name`) into its `folder`: a text file or an
+    archive; a marker; anything else is listed as skipped."""
+    inner = PurePosixPath(info.filename)
+    shown = f"{name}/{info.filename}"
+    if inner.is_absolute() or ".." in inner.parts:
+        raise NgsimInputError(shown, "a member's path leads out of its zip file")
+    target = folder.joinpath(*inner.parts)
+    if inner.name in markers:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(zipped.read(info))
+    elif inner.suffix.lower() not in TEXT_SUFFIXES + ARCHIVE_SUFFIXES:
+        unpacked.skipped.append(shown)
+    else:
+        _member(lambda: zipped.open(info), target, shown, unpacked, depth, markers)
+
+
+def _member(
+    opener: Callable[[], IO[bytes]],
+    target: Path,
+    name: str,
+    unpacked: Unpacked,
+    depth: int,
+    markers: tuple[str, ...],
+) -> Path:
+    """Copy one member (`opener()`'s stream, reported as `name`) to `target`, a chunk at a time;
+    an archive in turn is unpacked beside it and removed. Returns the file, or that folder."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with opener() as stream, target.open("xb") as copy:
+            shutil.copyfileobj(stream, copy, _COPY_BYTES)
+    except (gzip.BadGzipFile, zipfile.BadZipFile, EOFError, zlib.error) as err:
+        raise NgsimInputError(name, f"damaged compressed data: {err}") from None
+    except NotImplementedError as err:  # a zip compression method Python does not read
+        raise NgsimInputError(name, f"cannot unpack: {err}") from None
+    if archive_kind(target):
+        inner = _unpack(
+            target, target.with_name(f"{target.name}.d"), name, unpacked, depth + 1, markers
+        )
+        target.unlink()
+        return inner
+    unpacked.names[target.resolve()] = name
+    return target
+
+
+def shown_name(path: Path | str, names: dict[Path, str]) -> str:
+    """The name a file is reported by: its archive's for an unpacked one, its own otherwise."""
+    return names.get(Path(path).resolve(), str(path))
+
+
+def named_error(err: NgsimError, names: dict[Path, str]) -> NgsimError:
+    """`err` naming the archive (and member) where it names an unpacked file or folder."""
+    if err.path is None or Path(err.path).resolve() not in names:
+        return err
+    return type(err)(shown_name(err.path, names), err.message, err.line)
