@@ -144,8 +144,12 @@ def _read_inputs(
     """The inputs' archives unpacked into `root`'s staging, the source chosen and its files read
     and staged. An unpacked file is reported
     (and its errors name it) by its archive's name and its own inside it."""
-    progress("unpacking archives", 0, 1)
-    unpacked = archives.unpack_inputs(raw_paths, staged_unpacked_dir(root), (MARKER_NAME,))
+    unpacked = archives.unpack_inputs(
+        raw_paths,
+        staged_unpacked_dir(root),
+        (MARKER_NAME,),
+        lambda done, total: progress("unpacking archives", done, total),
+    )
     names = unpacked.names
     try:
         source, found, skipped = choose_source(

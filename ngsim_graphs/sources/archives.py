@@ -64,21 +64,31 @@ class Unpacked:
     skipped: list[str] = field(default_factory=list)
 
 
-def unpack_inputs(paths: list[Path], scratch: Path, markers: tuple[str, ...] = ()) -> Unpacked:
+def unpack_inputs(
+    paths: list[Path],
+    scratch: Path,
+    markers: tuple[str, ...] = (),
+    progress: Callable[[int, int], None] | None = None,
+) -> Unpacked:
     """Unpack every archive among or under `paths` into `scratch` (a folder the build removes),
     each under a mirror of its own path, so that its folder names (a location's) still read as
     they would beside it. Files named one of `markers` (synth's) are copied too: a zip's
     members, and those in an archive's folder or the one above it. Raises NgsimInputError naming
-    the archive (and member) that cannot be unpacked."""
+    the archive (and member) that cannot be unpacked. `progress` is told (archives unpacked,
+    archives) before each and at the end, where there are any."""
     unpacked = Unpacked()
     archives = dict.fromkeys(a.resolve() for path in paths for a in archives_in(path))
     for i, archive in enumerate(archives):
+        if progress is not None:
+            progress(i, len(archives))
         into = scratch / f"{i:04d}" / archive.relative_to(archive.anchor).parent
         unpacked.paths.append(_unpack(archive, into, str(archive), unpacked, 0, markers))
         for folder, mirror in zip(archive.parents[:2], (into, into.parent), strict=False):
             for marker in markers:
                 if (folder / marker).is_file() and not (mirror / marker).exists():
                     shutil.copyfile(folder / marker, mirror / marker)
+    if progress is not None and archives:
+        progress(len(archives), len(archives))
     return unpacked
 
 
