@@ -22,6 +22,7 @@ from ngsim_cli.console import (
     in_option_words,
     option_names,
     print_warning,
+    progress_bar,
     stderr,
     stdout,
 )
@@ -237,7 +238,6 @@ def _train(
     from aigem.devices import DeviceUnavailableError, pick_device
     from aigem.epochs import NonFiniteLossError
     from aigem.training import fit_horizons
-    from ngsim_cli.console import progress_bar
 
     try:
         pick_device(device)
@@ -352,10 +352,11 @@ def evaluate(
         from ngsim_cli.evaluation_view import print_evaluation
 
     left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
-    with exit_on_interrupt(left), exit_on_error():
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
+        scored = lambda done, total: progress(f"evaluating the {split.value} split", done, total)
         try:
             result = (evaluate_horizons if several else run_evaluate)(
-                run, data, split.value, device.value, other_build=other_build
+                run, data, split.value, device.value, progress=scored, other_build=other_build
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
             raise _fail(str(err)) from None

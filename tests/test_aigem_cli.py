@@ -355,3 +355,30 @@ def torch_load(path: Path) -> dict:
     import torch
 
     return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def test_fit_and_evaluate_into_a_log_print_plain_progress_lines(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """stderr is not a terminal here: plain lines with the epoch, the running loss, the batches
+    done and the time; at most one a step (the interval 0), none repeated."""
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    run = tmp_path / "run"
+    fit = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+    assert fit.exit_code == 0, fit.output
+    lines = [line for line in fit.stderr.splitlines() if " elapsed" in line]
+    batches = int(re.search(r"/(\d+) \(", lines[-1]).group(1))
+    assert 2 <= len(lines) <= batches
+    assert re.fullmatch(
+        rf"epoch 1/1 loss \d+\.\d{{3}} m²: {batches}/{batches} \(100%\), 0:00:\d\d elapsed",
+        lines[-1],
+    ), lines[-1]
+    assert re.search(r"epoch 1/1 loss .*, about 0:00:\d\d left$", lines[-2]), lines[-2]
+    evaluated = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    assert evaluated.exit_code == 0, evaluated.output
+    assert re.search(
+        r"^evaluating the test split: (\d+)/\1 \(100%\), 0:00:\d\d elapsed$",
+        evaluated.stderr,
+        re.MULTILINE,
+    ), evaluated.stderr
+    assert "\x1b" not in fit.stderr + evaluated.stderr
