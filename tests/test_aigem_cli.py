@@ -172,7 +172,7 @@ def test_fit_warns_when_fixed_threads_meet_busy_cores(
     assert busy.exit_code == 0, busy.output
     warnings = [line for line in busy.stderr.splitlines() if line.startswith("warning: ")]
     assert len(warnings) == 1 and warnings[0].startswith("warning: --threads 2 with 1.0 of ")
-    assert "1 epoch on cpu (epochs); best epoch 1" in busy.stdout  # not "1 epochs"
+    assert "1 epoch on cpu (the epochs asked); best epoch 1" in busy.stdout  # not "1 epochs"
     terminal = io.StringIO()  # the progress bar draws on a terminal only
     monkeypatch.setattr(
         console, "stderr", Console(file=terminal, force_terminal=True, width=150, color_system=None)
@@ -382,3 +382,22 @@ def test_fit_and_evaluate_into_a_log_print_plain_progress_lines(
         re.MULTILINE,
     ), evaluated.stderr
     assert "\x1b" not in fit.stderr + evaluated.stderr
+
+
+def test_the_summary_says_why_a_model_stopped(capsys: pytest.CaptureFixture[str]) -> None:
+    from aigem.training import FitResult
+    from ngsim_cli.fit_view import print_results
+
+    because = ("epochs", "early stopping", "time limit")
+    results = tuple(
+        FitResult(Path(f"run/h{h}s"), h, 74_242, 3, 2, 1.5, why, 100.0, "cpu")
+        for h, why in enumerate(because, start=1)
+    )
+    print_results(results, Path("run"))
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(";")[0] for line in lines[1:4]] == [
+        "1 s model: 3 epochs on cpu (the epochs asked)",
+        "2 s model: 3 epochs on cpu (stopped early: --patience epochs without a better validation "
+        "loss)",
+        "3 s model: 3 epochs on cpu (--max-minutes ran out)",
+    ]
