@@ -129,17 +129,18 @@ def paper(
         f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
         "run the same command again to continue"
     )
-    with exit_on_interrupt(left):  # PyTorch loads (seconds)
-        from aigem.cores import busy_cores_warning
+    with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
         from aigem.devices import DeviceUnavailableError, pick_device
+
+        try:
+            pick_device(device.value)
+        except DeviceUnavailableError as err:
+            print_error(str(err))
+            raise typer.Exit(1) from None
+        from aigem.cores import busy_cores_warning
         from aigem.epochs import NonFiniteLossError
         from aigem.paper import PaperCall, TimeLimitError, run_paper
         from ngsim_graphs.budget import available_cores
-    try:
-        pick_device(device.value)
-    except DeviceUnavailableError as err:
-        print_error(str(err))
-        raise typer.Exit(1) from None
     if threads is not None and (warning := busy_cores_warning(threads)):
         print_warning(warning)
     call = PaperCall(parts, device.value, threads, max_hours, jobs or available_cores(), overwrite)

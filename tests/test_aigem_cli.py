@@ -401,3 +401,53 @@ def test_the_summary_says_why_a_model_stopped(capsys: pytest.CaptureFixture[str]
         "loss)",
         "3 s model: 3 epochs on cpu (--max-minutes ran out)",
     ]
+
+
+CUDA_PROBE = """
+import json, sys
+import torch
+torch.cuda.is_available = lambda: False  # as on a machine without a GPU
+from typer.testing import CliRunner
+from ngsim_cli.aigem import app
+results = [CliRunner().invoke(app, args) for args in json.loads(sys.argv[1])]
+print(json.dumps({
+    "loaded": sorted(m for m in ("aigem.training", "aigem.evaluation", "aigem.epochs",
+                                 "aigem.model", "torch_geometric") if m in sys.modules),
+    "results": [[r.exit_code, r.stdout, r.stderr] for r in results],
+}))
+"""
+
+
+def test_no_cuda_is_said_before_the_model_and_the_data_load(
+    tiny_build: Path, tiny_run: Path, tmp_path: Path
+) -> None:
+    """`--device cuda` without CUDA took 22 s to be refused: the model, PyTorch Geometric and
+    the data loaded first. Now PyTorch alone."""
+    commands = [
+        ["fit", str(tiny_build), "--out", str(tmp_path / "run"), "--device", "cuda"],
+        ["evaluate", str(tiny_run), "--device", "cuda"],
+        [
+            "paper",
+            str(tiny_build.parent / "raw"),
+            "--out",
+            str(tmp_path / "paper"),
+            "--device",
+            "cuda",
+        ],
+    ]
+    probe = subprocess.run(
+        [sys.executable, "-c", CUDA_PROBE, json.dumps(commands)],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
+    )
+    report = json.loads(probe.stdout)
+    assert report["loaded"] == []
+    for code, stdout, stderr in report["results"]:
+        assert (code, stdout, stderr) == (
+            1,
+            "",
+            "error: --device cuda: no CUDA device is available\n",
+        )
+    assert not (tmp_path / "run").exists() and not (tmp_path / "paper").exists()
