@@ -234,10 +234,11 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextmanager
-def exit_on_interrupt(left: str) -> Iterator[None]:
+def exit_on_interrupt(left: str | Callable[[], str]) -> Iterator[None]:
     """Turn Ctrl-C (SIGINT) and SIGTERM in the block into one line on stderr, `interrupted;
     LEFT` (`terminated; LEFT`), and exit status 130 (143), the shells' 128 + the signal. `left`
-    says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`.
+    says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`; a function
+    gives it when the signal comes (what is left depends on how far the work got).
 
     The work cleans up as it unwinds; the worker processes of a build never see the Ctrl-C
     that a terminal sends to them too (`ngsim_graphs.engine.workers`). An interrupt that lands in a
@@ -274,7 +275,8 @@ def exit_on_interrupt(left: str) -> Iterator[None]:
             raise
         terminated = came[:1] == [signal.SIGTERM] or isinstance(err, Terminated)
         what = "terminated" if terminated else "interrupted"
-        stderr.print(f"{what}; {left}", markup=False, highlight=False, soft_wrap=True)
+        said = left() if callable(left) else left
+        stderr.print(f"{what}; {said}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(128 + (signal.SIGTERM if terminated else signal.SIGINT)) from None
     finally:
         _SIGNALS_CAME.pop()  # this block's: the blocks nest

@@ -125,10 +125,7 @@ def paper(
     config = PaperConfig(epochs, patience, seed, batch_size)
     with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
         check_folder(out, paper_document(raw_paths, config), overwrite)
-    left = (
-        f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
-        "run the same command again to continue"
-    )
+    left = lambda: _left(out)  # noqa: E731
     with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
         from aigem.devices import DeviceUnavailableError, pick_device
 
@@ -151,6 +148,16 @@ def paper(
             print_error(str(err))
             raise typer.Exit(1) from None
     _print_summary(result.report, out)
+
+
+def _left(out: Path) -> str:
+    """What an interrupted call leaves: nothing before it made `out`."""
+    if not out.is_dir():
+        return "nothing written"
+    return (
+        f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
+        "run the same command again to continue"
+    )
 
 
 def _print_summary(report: dict, out: Path) -> None:
