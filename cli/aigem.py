@@ -22,6 +22,7 @@ from ngsim_cli.console import (
     in_option_words,
     option_names,
     print_warning,
+    progress_bar,
     stderr,
     stdout,
 )
@@ -217,6 +218,7 @@ def fit(
 
         with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
             check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+        _check_device(device.value)  # PyTorch alone, before the rest loads
         import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
     group = horizons_s if several else None
     results = _train(data, out, group, model_config, train, device.value, resume)
@@ -234,15 +236,10 @@ def _train(
 ) -> tuple[FitResult, ...]:
     """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
     from aigem.cores import busy_cores_warning
-    from aigem.devices import DeviceUnavailableError, pick_device
+    from aigem.devices import DeviceUnavailableError
     from aigem.epochs import NonFiniteLossError
     from aigem.training import fit_horizons
-    from ngsim_cli.console import progress_bar
 
-    try:
-        pick_device(device)
-    except DeviceUnavailableError as err:
-        raise _fail(str(err)) from None
     if train.threads is not None and (warning := busy_cores_warning(train.threads)):
         print_warning(warning)
     who = (lambda h: f"{h:g} s model, ") if horizons_s else (lambda h: "")
@@ -278,6 +275,17 @@ def _train(
             if isinstance(err, NgsimError):
                 raise  # exit_on_error says it
             raise _fail(str(err)) from None
+
+
+def _check_device(device: str) -> None:
+    """Refuse --device cuda without CUDA as soon as PyTorch is loaded (seconds), before the
+    model, the data and PyTorch Geometric load (seconds more)."""
+    from aigem.devices import DeviceUnavailableError, pick_device
+
+    try:
+        pick_device(device)
+    except DeviceUnavailableError as err:
+        raise _fail(str(err)) from None
 
 
 @contextmanager
@@ -345,6 +353,7 @@ def evaluate(
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
             several = read_horizons(run) is not None
+        _check_device(device.value)
         from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
         from aigem.evaluation import evaluate_horizons
@@ -352,10 +361,11 @@ def evaluate(
         from ngsim_cli.evaluation_view import print_evaluation
 
     left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
-    with exit_on_interrupt(left), exit_on_error():
+    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
+        scored = lambda done, total: progress(f"evaluating the {split.value} split", done, total)
         try:
             result = (evaluate_horizons if several else run_evaluate)(
-                run, data, split.value, device.value, other_build=other_build
+                run, data, split.value, device.value, progress=scored, other_build=other_build
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
             raise _fail(str(err)) from None

@@ -1,5 +1,5 @@
-"""What both programs share on the terminal: a progress bar, one-line errors on stderr, and
-one line for an interrupt."""
+"""What both programs share on the terminal: a progress bar (plain lines where stderr is not a
+terminal), one-line errors on stderr, and one line for an interrupt."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import re
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from types import FrameType
@@ -49,12 +50,18 @@ def print_table(table: Table) -> None:
         Console(width=natural, force_terminal=stdout.is_terminal).print(table)
 
 
+# Where stderr is not a terminal (a file, a pipe, a job scheduler's log): a plain progress line
+# every this many seconds, the first this long after the start (a quick command prints none).
+PLAIN_PROGRESS_INTERVAL_S = 30.0
+
+
 @contextmanager
 def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
     """A callback (what, done, total) drawn as one bar on stderr, with the time elapsed and the
-    time left at the recent rate (ETA); silent unless it is a terminal."""
+    time left at the recent rate (ETA); where stderr is not a terminal, plain lines
+    (PlainProgress) at most every PLAIN_PROGRESS_INTERVAL_S."""
     if not stderr.is_terminal:
-        yield lambda _what, _done, _total: None
+        yield PlainProgress(_plain_line, PLAIN_PROGRESS_INTERVAL_S)
         return
     columns = (
         TextColumn("{task.description:<40}"),
@@ -75,6 +82,59 @@ def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
             bar.update(task, description=what, completed=done, total=total)
 
         yield update
+
+
+def _plain_line(line: str) -> None:
+    stderr.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
+class PlainProgress:
+    """The progress bar as plain lines, `what: done/total (share), elapsed, about T left`: one
+    once `interval_s` seconds have passed since the start or the last line, and one at the end of
+    a stage (done == total) that has had a line. A stage starts at a new total, or where the count
+    goes back; its elapsed time is its own, its time left at its average rate so far."""
+
+    def __init__(
+        self,
+        write: Callable[[str], None],
+        interval_s: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.write, self.interval_s, self.clock = write, interval_s, clock
+        self.total: int | None = None
+        self.done = 0
+        self.started_s, self.started_done = 0.0, 0
+        self.written_s = clock()
+        self.written: tuple[str, int, int] | None = None  # the last line's arguments
+        self.stage_written = False
+
+    def __call__(self, what: str, done: int, total: int) -> None:
+        now = self.clock()
+        if total != self.total or done < self.done:
+            self.total, self.started_s, self.started_done = total, now, done
+            self.stage_written = False
+        self.done = done
+        due = now - self.written_s >= self.interval_s
+        ended = self.stage_written and 0 < total <= done
+        if (due or ended) and self.written != (what, done, total):
+            self.write(self._line(what, done, total, now))
+            self.written_s, self.written, self.stage_written = now, (what, done, total), True
+
+    def _line(self, what: str, done: int, total: int, now: float) -> str:
+        if total <= 0:  # a step without a count
+            return what
+        elapsed_s = now - self.started_s
+        line = f"{what}: {done:,}/{total:,} ({done / total:.0%}), {_clock_time(elapsed_s)} elapsed"
+        steps = done - self.started_done
+        if done < total and steps > 0 and elapsed_s > 0:
+            line += f", about {_clock_time((total - done) * elapsed_s / steps)} left"
+        return line
+
+
+def _clock_time(seconds: float) -> str:
+    """'0:01:05' for 65 s, as the bar shows its times."""
+    whole = round(seconds)
+    return f"{whole // 3600}:{whole % 3600 // 60:02d}:{whole % 60:02d}"
 
 
 # Help as plain text wrapped to the terminal, up to 100 columns: the boxed tables of rich's help
@@ -174,10 +234,11 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextmanager
-def exit_on_interrupt(left: str) -> Iterator[None]:
+def exit_on_interrupt(left: str | Callable[[], str]) -> Iterator[None]:
     """Turn Ctrl-C (SIGINT) and SIGTERM in the block into one line on stderr, `interrupted;
     LEFT` (`terminated; LEFT`), and exit status 130 (143), the shells' 128 + the signal. `left`
-    says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`.
+    says what the interrupted work leaves, e.g. `nothing written (OUT is as it was)`; a function
+    gives it when the signal comes (what is left depends on how far the work got).
 
     The work cleans up as it unwinds; the worker processes of a build never see the Ctrl-C
     that a terminal sends to them too (`ngsim_graphs.engine.workers`). An interrupt that lands in a
@@ -214,7 +275,8 @@ def exit_on_interrupt(left: str) -> Iterator[None]:
             raise
         terminated = came[:1] == [signal.SIGTERM] or isinstance(err, Terminated)
         what = "terminated" if terminated else "interrupted"
-        stderr.print(f"{what}; {left}", markup=False, highlight=False, soft_wrap=True)
+        said = left() if callable(left) else left
+        stderr.print(f"{what}; {said}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(128 + (signal.SIGTERM if terminated else signal.SIGINT)) from None
     finally:
         _SIGNALS_CAME.pop()  # this block's: the blocks nest

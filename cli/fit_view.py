@@ -52,6 +52,14 @@ def say(message: str) -> None:
     stderr.print(message, markup=False, highlight=False, soft_wrap=True)
 
 
+# Why a model stopped (FitResult.stopped_because), as the summary says it.
+STOPPED_WORDS = {
+    "epochs": "the epochs asked",
+    "early stopping": "stopped early: --patience epochs without a better validation loss",
+    "time limit": "--max-minutes ran out",
+}
+
+
 def print_results(results: tuple[FitResult, ...], out: Path) -> None:
     """The model's size, a line per model; with several, one more for the run."""
     stdout.print(f"AiGem: {results[0].parameters:,} parameters (the paper: 74.5 K)")
@@ -60,7 +68,8 @@ def print_results(results: tuple[FitResult, ...], out: Path) -> None:
         who = f"{result.horizon_s:g} s model: " if several else ""
         speed = "" if several else f"{result.train_graphs_per_s:,.1f} graphs/s in training. "
         stdout.print(
-            f"{who}{counted(result.epochs_done, 'epoch')} on {result.device} ({result.stopped_because}); best "
+            f"{who}{counted(result.epochs_done, 'epoch')} on {result.device} "
+            f"({STOPPED_WORDS[result.stopped_because]}); best "
             f"epoch {result.best_epoch}, validation MSE {result.best_val_loss_m2:.3f} m²; "
             f"{speed}Run: {result.run_dir}"
         )

@@ -125,21 +125,19 @@ def paper(
     config = PaperConfig(epochs, patience, seed, batch_size)
     with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
         check_folder(out, paper_document(raw_paths, config), overwrite)
-    left = (
-        f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
-        "run the same command again to continue"
-    )
-    with exit_on_interrupt(left):  # PyTorch loads (seconds)
-        from aigem.cores import busy_cores_warning
+    left = lambda: _left(out)  # noqa: E731
+    with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
         from aigem.devices import DeviceUnavailableError, pick_device
+
+        try:
+            pick_device(device.value)
+        except DeviceUnavailableError as err:
+            print_error(str(err))
+            raise typer.Exit(1) from None
+        from aigem.cores import busy_cores_warning
         from aigem.epochs import NonFiniteLossError
         from aigem.paper import PaperCall, TimeLimitError, run_paper
         from ngsim_graphs.budget import available_cores
-    try:
-        pick_device(device.value)
-    except DeviceUnavailableError as err:
-        print_error(str(err))
-        raise typer.Exit(1) from None
     if threads is not None and (warning := busy_cores_warning(threads)):
         print_warning(warning)
     call = PaperCall(parts, device.value, threads, max_hours, jobs or available_cores(), overwrite)
@@ -150,6 +148,16 @@ def paper(
             print_error(str(err))
             raise typer.Exit(1) from None
     _print_summary(result.report, out)
+
+
+def _left(out: Path) -> str:
+    """What an interrupted call leaves: nothing before it made `out`."""
+    if not out.is_dir():
+        return "nothing written"
+    return (
+        f"{out} keeps the finished builds and each model's last finished epoch, and no report; "
+        "run the same command again to continue"
+    )
 
 
 def _print_summary(report: dict, out: Path) -> None:

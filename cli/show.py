@@ -31,9 +31,11 @@ def _scene_range(text: str, max_panels: int) -> tuple[int, int]:
 
 
 def _show_name(split: str, start: int, end: int, run: Path | None) -> Path:
-    """The default --out: show-test-0.png, show-test-0-7.png, show-test-0-7-RUNNAME.png."""
+    """The default --out: show-test-0.png, show-test-0-7.png, show-test-0-7-RUNNAME.png in the
+    current folder, named in full (what is said of it says where it is)."""
     samples = f"{start}" if end == start + 1 else f"{start}-{end - 1}"
-    return Path(f"show-{split}-{samples}" + (f"-{run.resolve().name}" if run else "") + ".png")
+    name = f"show-{split}-{samples}" + (f"-{run.resolve().name}" if run else "") + ".png"
+    return Path.cwd() / name
 
 
 def show(

@@ -156,7 +156,8 @@ _LOOKED_AT = 1_000  # entries looked at for trajectory files, at most (not a who
 
 def what_folder_is(root: Path) -> str:
     """Why the folder `root`, which holds no manifest, is not a build, as a user can act on it:
-    empty, an aigem run (and its build), an unfinished build, a folder of trajectory files."""
+    empty, an aigem run (and its build), a folder of builds (named), an unfinished build, a
+    folder of trajectory files."""
     try:
         names = {entry.name for entry in root.iterdir()}
         if not names:
@@ -164,6 +165,12 @@ def what_folder_is(root: Path) -> str:
         if names & {RUN_INFO_NAME, RUN_HORIZONS_NAME}:
             build = _run_build(root)
             return "an aigem run, not a build" + (f"; its build is {build}" if build else "")
+        builds = sorted(root / name for name in names if (root / name / MANIFEST_NAME).is_file())
+        if builds:  # before its trajectory files: the README's demo/ holds raw/ and build/
+            which = builds[0] if len(builds) == 1 else "one of " + ", ".join(map(str, builds))
+            return (
+                f"not a build, but it holds {'one' if len(builds) == 1 else 'builds'}: give {which}"
+            )
         if names <= {*_UNFINISHED_NAMES, f"{MANIFEST_NAME}.partial"}:
             return f"an unfinished build (interrupted?): no {MANIFEST_NAME}"
         if _holds_trajectory_files(root):

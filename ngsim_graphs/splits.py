@@ -144,15 +144,16 @@ def _matlab_round(x: float) -> int:
 def _cuts_of(name: str, ids: VehicleIds, config: BuildConfig) -> str:
     """Where the vehicle split cuts recording `name`, and why there."""
     first_cut, second_cut = _vehicle_cuts(ids.largest, config)
-    outlier = (
-        f", far above the next largest ({ids.next_largest:,})"
-        if ids.largest > 1.5 * ids.next_largest
-        else ""
-    )
-    return (
-        f"its largest Vehicle_ID is {ids.largest:,}{outlier}, so the cuts lie at {first_cut:,} "
-        f"and {second_cut:,}"
-    )
+    if ids.next_largest == 0 and not ids.strays:  # one vehicle: no other id to compare with
+        largest = f"its only Vehicle_ID is {ids.largest:,}"
+    elif ids.next_largest > 0 and 1.5 * ids.next_largest < ids.largest:
+        largest = (
+            f"its largest Vehicle_ID is {ids.largest:,}, far above the next largest "
+            f"({ids.next_largest:,})"
+        )
+    else:
+        largest = f"its largest Vehicle_ID is {ids.largest:,}"
+    return f"{largest}, so the cuts lie at {first_cut:,} and {second_cut:,}"
 
 
 def _vehicle_rule(config: BuildConfig) -> str:

@@ -172,7 +172,7 @@ def test_fit_warns_when_fixed_threads_meet_busy_cores(
     assert busy.exit_code == 0, busy.output
     warnings = [line for line in busy.stderr.splitlines() if line.startswith("warning: ")]
     assert len(warnings) == 1 and warnings[0].startswith("warning: --threads 2 with 1.0 of ")
-    assert "1 epoch on cpu (epochs); best epoch 1" in busy.stdout  # not "1 epochs"
+    assert "1 epoch on cpu (the epochs asked); best epoch 1" in busy.stdout  # not "1 epochs"
     terminal = io.StringIO()  # the progress bar draws on a terminal only
     monkeypatch.setattr(
         console, "stderr", Console(file=terminal, force_terminal=True, width=150, color_system=None)
@@ -355,3 +355,99 @@ def torch_load(path: Path) -> dict:
     import torch
 
     return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def test_fit_and_evaluate_into_a_log_print_plain_progress_lines(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """stderr is not a terminal here: plain lines with the epoch, the running loss, the batches
+    done and the time; at most one a step (the interval 0), none repeated."""
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    run = tmp_path / "run"
+    fit = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+    assert fit.exit_code == 0, fit.output
+    lines = [line for line in fit.stderr.splitlines() if " elapsed" in line]
+    batches = int(re.search(r"/(\d+) \(", lines[-1]).group(1))
+    assert 2 <= len(lines) <= batches
+    assert re.fullmatch(
+        rf"epoch 1/1 loss \d+\.\d{{3}} m²: {batches}/{batches} \(100%\), 0:00:\d\d elapsed",
+        lines[-1],
+    ), lines[-1]
+    assert re.search(r"epoch 1/1 loss .*, about 0:00:\d\d left$", lines[-2]), lines[-2]
+    evaluated = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    assert evaluated.exit_code == 0, evaluated.output
+    assert re.search(
+        r"^evaluating the test split: (\d+)/\1 \(100%\), 0:00:\d\d elapsed$",
+        evaluated.stderr,
+        re.MULTILINE,
+    ), evaluated.stderr
+    assert "\x1b" not in fit.stderr + evaluated.stderr
+
+
+def test_the_summary_says_why_a_model_stopped(capsys: pytest.CaptureFixture[str]) -> None:
+    from aigem.training import FitResult
+    from ngsim_cli.fit_view import print_results
+
+    because = ("epochs", "early stopping", "time limit")
+    results = tuple(
+        FitResult(Path(f"run/h{h}s"), h, 74_242, 3, 2, 1.5, why, 100.0, "cpu")
+        for h, why in enumerate(because, start=1)
+    )
+    print_results(results, Path("run"))
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(";")[0] for line in lines[1:4]] == [
+        "1 s model: 3 epochs on cpu (the epochs asked)",
+        "2 s model: 3 epochs on cpu (stopped early: --patience epochs without a better validation "
+        "loss)",
+        "3 s model: 3 epochs on cpu (--max-minutes ran out)",
+    ]
+
+
+CUDA_PROBE = """
+import json, sys
+import torch
+torch.cuda.is_available = lambda: False  # as on a machine without a GPU
+from typer.testing import CliRunner
+from ngsim_cli.aigem import app
+results = [CliRunner().invoke(app, args) for args in json.loads(sys.argv[1])]
+print(json.dumps({
+    "loaded": sorted(m for m in ("aigem.training", "aigem.evaluation", "aigem.epochs",
+                                 "aigem.model", "torch_geometric") if m in sys.modules),
+    "results": [[r.exit_code, r.stdout, r.stderr] for r in results],
+}))
+"""
+
+
+def test_no_cuda_is_said_before_the_model_and_the_data_load(
+    tiny_build: Path, tiny_run: Path, tmp_path: Path
+) -> None:
+    """`--device cuda` without CUDA took 22 s to be refused: the model, PyTorch Geometric and
+    the data loaded first. Now PyTorch alone."""
+    commands = [
+        ["fit", str(tiny_build), "--out", str(tmp_path / "run"), "--device", "cuda"],
+        ["evaluate", str(tiny_run), "--device", "cuda"],
+        [
+            "paper",
+            str(tiny_build.parent / "raw"),
+            "--out",
+            str(tmp_path / "paper"),
+            "--device",
+            "cuda",
+        ],
+    ]
+    probe = subprocess.run(
+        [sys.executable, "-c", CUDA_PROBE, json.dumps(commands)],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
+    )
+    report = json.loads(probe.stdout)
+    assert report["loaded"] == []
+    for code, stdout, stderr in report["results"]:
+        assert (code, stdout, stderr) == (
+            1,
+            "",
+            "error: --device cuda: no CUDA device is available\n",
+        )
+    assert not (tmp_path / "run").exists() and not (tmp_path / "paper").exists()

@@ -115,7 +115,7 @@ def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
         files = sorted(p.name for p in (run / name).iterdir())
         owned = [runs.BASELINE, runs.BEST, runs.CURVES, runs.LAST, runs.METRICS, runs.RUN_INFO]
         assert files == sorted(owned)
-    assert "1 s model: 2 epochs on cpu (epochs); best epoch" in out
+    assert "1 s model: 2 epochs on cpu (the epochs asked); best epoch" in out
     assert f"Run: {run / 'h2s'}" in out.replace("\n", "")
     assert "2 models trained together" in out
 

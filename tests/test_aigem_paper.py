@@ -431,3 +431,29 @@ def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
     timings = json.loads((killed / "report.json").read_text())["timings"]
     assert "fit dmin-25m" not in timings and "fit dmin-25m-no-concat" in timings  # reused
     assert sorted(p.name for p in (killed / "figures").iterdir()) == FIGURES
+
+
+def test_an_interrupt_before_the_folder_is_made_claims_no_folder(
+    tiny_raw: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import aigem.paper
+
+    out = tmp_path / "p2"
+    made: list[bool] = []
+
+    def interrupted(*_args: object) -> None:
+        if made:
+            out.mkdir()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(aigem.paper, "run_paper", interrupted)
+    args = ["paper", str(tiny_raw), "--out", str(out), "--device", "cpu", "--epochs", "1"]
+    before = CliRunner().invoke(app, args)
+    assert (before.exit_code, before.stderr) == (130, "interrupted; nothing written\n")
+    made.append(True)
+    after = CliRunner().invoke(app, args)
+    assert (after.exit_code, after.stderr) == (
+        130,
+        f"interrupted; {out} keeps the finished builds and each model's last finished epoch, "
+        "and no report; run the same command again to continue\n",
+    )

@@ -1,5 +1,5 @@
 """What both programs share on the terminal: one line for an interrupt, whatever a library made
-of it."""
+of it; plain progress lines at a bounded rate where stderr is not a terminal."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import signal
 import pytest
 import typer
 
-from ngsim_cli.console import exit_on_error, exit_on_interrupt
+from ngsim_cli.console import PlainProgress, exit_on_error, exit_on_interrupt
 
 
 class _Callback:
@@ -73,3 +73,33 @@ def test_an_os_error_with_no_signal_is_one_error_line(capfd: pytest.CaptureFixtu
         raise OSError(5, "Input/output error", "raw.txt")
     assert stop.value.exit_code == 1
     assert capfd.readouterr().err == "error: raw.txt: Input/output error\n"
+
+
+def test_plain_progress_is_a_line_every_interval_and_at_the_end_of_a_stage_it_reported() -> None:
+    lines: list[str] = []
+    now = [0]
+    progress = PlainProgress(lines.append, 30.0, lambda: now[0])
+    now[0] = 1
+    progress("reading", 0, 10)  # the stage starts at 1 s: no line before 30 s from the start
+    for second in range(32, 92):  # 60 calls, one a second
+        now[0] = second
+        progress("reading", (second - 21) // 10, 10)  # 1 at 31 s ... 7 at 91 s
+    now[0] = 92
+    progress("reading", 10, 10)
+    now[0] = 93
+    progress("writing", 0, 3)  # a new total: a new stage
+    progress("writing", 3, 3)  # it ended without a line before: none now
+    assert lines == [
+        "reading: 1/10 (10%), 0:00:31 elapsed, about 0:04:39 left",  # 30 s from the start
+        "reading: 4/10 (40%), 0:01:01 elapsed, about 0:01:32 left",  # 6 steps at 61 s / 4
+        "reading: 10/10 (100%), 0:01:31 elapsed",  # the end of a stage that had a line
+    ]
+
+
+def test_plain_progress_repeats_no_line_and_names_a_step_without_a_count() -> None:
+    lines: list[str] = []
+    progress = PlainProgress(lines.append, 0.0, lambda: 5.0)
+    progress("writing raw/a.txt", 0, 0)
+    progress("writing raw/a.txt", 0, 0)
+    progress("fit, epoch 1/2", 0, 8)  # nothing done yet: no time left to say
+    assert lines == ["writing raw/a.txt", "fit, epoch 1/2: 0/8 (0%), 0:00:00 elapsed"]

@@ -20,6 +20,7 @@ import pytest
 from conftest import straight_track, write_period_csv, write_portal, write_txt
 from typer.testing import CliRunner, Result
 
+from ngsim_cli import console
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import SynthConfig
@@ -823,3 +824,27 @@ def test_a_damaged_file_in_a_zip_is_named_by_the_zip(tmp_path: Path, long_rows: 
     assert_failed_cleanly(
         invoke("build", archive, "--out", out), out, {}, archive, "cannot read this zip file"
     )
+
+
+def test_build_into_a_log_prints_plain_progress_lines(
+    tmp_path: Path, long_rows: list[dict], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """stderr is not a terminal here: no bar, but plain lines, the first once
+    PLAIN_PROGRESS_INTERVAL_S has passed (0 here: at every step that differs)."""
+    path = write_period_csv(tmp_path / "a.csv", long_rows)
+    quick = invoke("build", path, "--out", tmp_path / "quick")
+    assert quick.exit_code == 0, quick.output
+    assert "elapsed" not in quick.stderr  # a quick command prints none
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    result = invoke("build", path, "--out", tmp_path / "out")
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.stderr.splitlines() if " elapsed" in line]
+    stages = [line.split(":")[0] for line in lines]
+    assert stages == [
+        *["reading input files"] * 2,
+        *["cleaning recordings"] * 2,
+        *["building recordings"] * 2,
+        "writing samples",
+    ]
+    assert "reading input files: 1/1 (100%), 0:00:0" in lines[1]
+    assert "\x1b" not in result.stderr

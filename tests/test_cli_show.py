@@ -62,12 +62,13 @@ def test_default_name_and_overwrite(
     tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
-    assert invoke("show", tiny_build, "--sample", "2").exit_code == 0
+    result = invoke("show", tiny_build, "--sample", "2")
     out = tmp_path / "show-test-2.png"
+    assert result.exit_code == 0 and result.stdout.startswith(f"wrote {out}: test sample 2 of ")
     assert_png(out)
     out.write_text("mine\n")  # a file that is not ours now
     line = error_line(invoke("show", tiny_build, "--sample", "2"), 1)
-    assert line == "error: show-test-2.png: exists; pass --overwrite to replace it"
+    assert line == f"error: {out}: exists; pass --overwrite to replace it"
     assert out.read_text() == "mine\n"
     assert invoke("show", tiny_build, "--sample", "2", "--overwrite").exit_code == 0
     assert_png(out)

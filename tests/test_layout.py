@@ -30,6 +30,14 @@ def _not_builds(root: Path, tiny_build: Path, tiny_run: Path) -> dict[str, tuple
         folder.mkdir(parents=True)
     (other / "notes.txt").write_text("not a trajectory\n")
     raw_file = ngsim / "us-101" / "trajectories-0750am-0805am.csv"
+    demo = root / "demo"  # the README's: raw files and the build made of them
+    shutil.copytree(ngsim, demo / "raw")
+    (demo / "build").mkdir()
+    shutil.copyfile(tiny_build / layout.MANIFEST_NAME, demo / "build" / layout.MANIFEST_NAME)
+    builds = root / "builds"
+    for name in ("b", "a"):
+        (builds / name).mkdir(parents=True)
+        (builds / name / layout.MANIFEST_NAME).write_text("{}")
     run_says = f"an aigem run, not a build; its build is {tiny_build.resolve()}"
     return {
         "ngsim": (ngsim, f"holds NGSIM/highD trajectory files, not a build: build one with "
@@ -38,6 +46,9 @@ def _not_builds(root: Path, tiny_build: Path, tiny_run: Path) -> dict[str, tuple
                   f"`ngsim-graphs build {highd} --out BUILD`"),
         "raw file": (raw_file, f"an NGSIM/highD trajectory file, not a build: build one with "
                      f"`ngsim-graphs build {raw_file} --out BUILD`"),
+        "demo": (demo, f"not a build, but it holds one: give {demo / 'build'}"),
+        "builds": (builds, f"not a build, but it holds builds: give one of {builds / 'a'}, "
+                   f"{builds / 'b'}"),
         "run": (tiny_run, run_says),
         "multi-horizon run": (multi, run_says),
         "empty": (empty, "an empty folder, not a build"),

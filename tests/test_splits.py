@@ -183,6 +183,10 @@ def test_split_warnings_say_why_with_the_builds_own_fractions() -> None:
         "us-101/r gives it 0 of 10: its largest Vehicle_ID is 1,000, far above the next largest "
         "(10), so the cuts lie at 500 and 750" in warnings[0]
     )
+    one = split_warnings({"us-101/one": {"train": 4}}, {"us-101/one": VehicleIds(3, 0)}, config)
+    assert one[0].endswith(  # not "far above the next largest (0)": there is none
+        "us-101/one gives it 0 of 4: its only Vehicle_ID is 3, so the cuts lie at 2 and 2"
+    )
     only_val = BuildConfig(split_fractions=(0.0, 1.0, 0.0))
     assert split_warnings({"us-101/r": {"val": 10}}, {}, only_val) == [
         "the train split is empty: its fraction is 0", "the test split is empty: its fraction is 0",
