@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from ngsim_graphs.version import __version__  # one distribution, one version
 
 _EXPORTS = {
     "AiGem": "aigem.model",

@@ -1,4 +1,5 @@
-"""Trajectory metrics in metres (docs/conventions.md), accumulated batch by batch.
+"""Trajectory metrics in metres (docs/conventions.md): functions over arrays, and their sums over a
+split, batch by batch.
 
 - RMSE at h s: sqrt of the mean squared Euclidean error over all valid (sample, actor) pairs at
   future step 5h, pooled over the whole split (the CS-LSTM / PiP convention; DeepTrack instead
@@ -6,6 +7,13 @@
 - ADE: mean Euclidean error over all valid (sample, actor, step); FDE: mean over valid pairs at
   the last predicted step. Masked steps (the actor left the section) count nowhere.
 - Breakdown by the actor's present position: front (y > 15 m), rear (y < -15 m), mid.
+
+The functions over arrays (`compute_ade_m`, `compute_fde_m`, `compute_rmse_m`) score anyone's
+predictions: A targets, K future steps of the build's time step. Each is a ratio of per-step
+sums (`ade_of_sums_m`, `mean_error_of_sums_m`, `rmse_of_sums_m`) of `displacement_errors_m`;
+ErrorTotals adds up those same errors batch by batch, per region, and METRICS takes each metric
+from its sums with the same ratios, so a split scored in batches gets the numbers of the
+functions over the whole split (to float rounding).
 
 METRICS lists what `aigem evaluate` reports, each with its label and unit: a new metric is an
 entry there (and, if it needs sums of its own, their accumulation in ErrorTotals); its rows,
@@ -23,6 +31,81 @@ REGIONS = ("all", "front", "mid", "rear")
 FRONT_Y_M = 15.0
 
 
+def displacement_errors_m(
+    predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray
+) -> np.ndarray:
+    """(A, K) Euclidean distance in metres between each predicted and true position, 0 where
+    `mask` is False (whatever was predicted there). `predicted_m`, `truth_m`: (A, K, 2) x, y in
+    metres; `mask`: (A, K) bool, True where the target's position is recorded. Other shapes are
+    a ValueError: numpy would broadcast them into wrong numbers."""
+    if predicted_m.shape != truth_m.shape or truth_m.ndim != 3 or truth_m.shape[-1] != 2:
+        raise ValueError(
+            f"predictions {predicted_m.shape} and targets {truth_m.shape}: both must be (A, K, 2)"
+        )
+    if mask.shape != truth_m.shape[:2] or mask.dtype != np.bool_:
+        raise ValueError(
+            f"mask {mask.shape} {mask.dtype}: must be (A, K) = {truth_m.shape[:2]} bool"
+        )
+    return np.where(mask, np.sqrt(((predicted_m - truth_m) ** 2).sum(axis=-1)), 0.0)
+
+
+def ade_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> float:
+    """ADE in metres from (K,) per-step sums of displacement errors (metres) and (K,) counts of
+    valid targets: every valid (target, step) weighs alike. NaN where none is valid."""
+    total = count.sum()
+    return float(error_m.sum() / total) if total else float("nan")
+
+
+def mean_error_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(..., K) mean displacement error in metres at each step, from sums and counts of the same
+    shape; NaN where no target is valid. FDE is the last step's."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, error_m / count, np.nan)
+
+
+def rmse_of_sums_m(squared_m2: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(..., K) RMSE in metres at each step (the root of the pooled mean squared error), from
+    sums of squared displacement errors (metres^2) and counts of the same shape; NaN where no
+    target is valid. RMSE at h s is step 5h's (on the 0.2 s grid)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.where(count > 0, squared_m2 / count, np.nan))
+
+
+def _step_sums(
+    predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(K,) each, over the targets: summed displacement errors (m), summed squares (m^2), counts."""
+    error = displacement_errors_m(predicted_m, truth_m, mask).astype(np.float64)  # (A, K)
+    return error.sum(axis=0), (error**2).sum(axis=0), mask.sum(axis=0)
+
+
+def compute_ade_m(predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray) -> float:
+    """ADE in metres: the mean Euclidean error over every valid (target, step). `predicted_m`,
+    `truth_m`: (A, K, 2) positions in metres; `mask`: (A, K) bool, True where the target's
+    position is recorded. NaN where nothing is valid."""
+    error_m, _, count = _step_sums(predicted_m, truth_m, mask)
+    return ade_of_sums_m(error_m, count)
+
+
+def compute_fde_m(predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray) -> float:
+    """FDE in metres: the mean Euclidean error over the targets valid at the last step K (the
+    horizon). Arrays as compute_ade_m's; NaN where no target is valid at step K."""
+    error_m, _, count = _step_sums(predicted_m, truth_m, mask)
+    return float(mean_error_of_sums_m(error_m, count)[-1])
+
+
+def compute_rmse_m(
+    predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray, step: int
+) -> float:
+    """RMSE in metres at future step `step` (1..K): the root of the mean squared Euclidean error
+    over the targets valid at that step. RMSE at h s is step h / time_step_s (5h on the 0.2 s
+    grid: 1 s is step 5). Arrays as compute_ade_m's; NaN where no target is valid there."""
+    if not 1 <= step <= truth_m.shape[1]:
+        raise ValueError(f"step {step}: the predictions have future steps 1..{truth_m.shape[1]}")
+    _, squared_m2, count = _step_sums(predicted_m, truth_m, mask)
+    return float(rmse_of_sums_m(squared_m2, count)[step - 1])
+
+
 def region_of(present_y_m: np.ndarray) -> np.ndarray:
     """(A,) region index into REGIONS[1:] (0 front, 1 mid, 2 rear) from the present y."""
     return np.where(present_y_m > FRONT_Y_M, 0, np.where(present_y_m < -FRONT_Y_M, 2, 1))
@@ -30,7 +113,8 @@ def region_of(present_y_m: np.ndarray) -> np.ndarray:
 
 @dataclass
 class ErrorTotals:
-    """Sums per region and future step: errors, squared errors and valid counts. (4, K) each."""
+    """Sums per region and future step of displacement_errors_m: errors (m), squared errors
+    (m^2) and valid counts. (4, K) each, regions as REGIONS."""
 
     steps: int
     error_m: np.ndarray = field(init=False)
@@ -45,9 +129,10 @@ class ErrorTotals:
 
     def add(
         self, predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray, present_y_m: np.ndarray
-    ) -> None:
-        """Add (A, K, 2) predictions and truths with their (A, K) mask; positions in metres."""
-        error = np.sqrt(((predicted - truth) ** 2).sum(axis=-1)) * mask  # (A, K)
+    ) -> np.ndarray:
+        """Add (A, K, 2) predictions and truths with their (A, K) bool mask, positions in metres,
+        and (A,) present y in metres; returns the (A, K) displacement errors it added."""
+        error = displacement_errors_m(predicted, truth, mask)  # (A, K)
         one_hot = np.zeros((len(REGIONS), len(error)))
         one_hot[0] = 1.0
         one_hot[1 + region_of(present_y_m), np.arange(len(error))] = 1.0
@@ -55,6 +140,7 @@ class ErrorTotals:
         self.squared_m2 += one_hot @ (error**2)
         self.count += (one_hot @ mask.astype(np.float64)).astype(np.int64)
         self.actors += len(error)
+        return error
 
 
 Value = Callable[[ErrorTotals, int, int], float | int | None]
@@ -79,21 +165,21 @@ class Metric:
         return "{s}" in self.key
 
 
-def _ratio(numerator: float, denominator: float) -> float | None:
-    return float(numerator / denominator) if denominator else None
+def _number(value: float) -> float | None:
+    """A metric's value as evaluate reports it: None where nothing counts (NaN)."""
+    return None if np.isnan(value) else float(value)
 
 
 def _ade_m(totals: ErrorTotals, region: int, k: int) -> float | None:
-    return _ratio(totals.error_m[region].sum(), totals.count[region].sum())
+    return _number(ade_of_sums_m(totals.error_m[region], totals.count[region]))
 
 
 def _mean_error_m(totals: ErrorTotals, region: int, k: int) -> float | None:
-    return _ratio(totals.error_m[region, k], totals.count[region, k])
+    return _number(mean_error_of_sums_m(totals.error_m[region], totals.count[region])[k])
 
 
 def _rmse_m(totals: ErrorTotals, region: int, k: int) -> float | None:
-    mean_sq = _ratio(totals.squared_m2[region, k], totals.count[region, k])
-    return None if mean_sq is None else float(np.sqrt(mean_sq))
+    return _number(rmse_of_sums_m(totals.squared_m2[region], totals.count[region])[k])
 
 
 def _count(totals: ErrorTotals, region: int, k: int) -> int:
@@ -147,11 +233,9 @@ def step_errors(totals: ErrorTotals) -> dict[str, dict[str, np.ndarray]]:
     squared error), `mean_error_m` (mean displacement error) and `n` (valid targets), each (K,);
     NaN where no target counts. At step 5h, `rmse_m` is summarize_errors' RMSE at h s; at the
     last step, `mean_error_m` is its FDE."""
-    count = totals.count.astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean_sq = np.where(count > 0, totals.squared_m2 / count, np.nan)  # (4, K)
-        mean = np.where(count > 0, totals.error_m / count, np.nan)
+    rmse = rmse_of_sums_m(totals.squared_m2, totals.count)  # (4, K)
+    mean = mean_error_of_sums_m(totals.error_m, totals.count)
     return {
-        region: {"rmse_m": np.sqrt(mean_sq[i]), "mean_error_m": mean[i], "n": totals.count[i]}
+        region: {"rmse_m": rmse[i], "mean_error_m": mean[i], "n": totals.count[i]}
         for i, region in enumerate(REGIONS)
     }

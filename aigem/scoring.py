@@ -90,15 +90,11 @@ class ScoreSums:
         """Add a batch: `predicted` (A, >= steps, 2) positions in metres."""
         k = self.steps
         truth, mask, cv = targets.truth[:, :k], targets.mask[:, :k], targets.cv[:, :k]
-        self.model.add(predicted[:, :k], truth, mask, targets.present_y_m)
-        self.constant_velocity.add(cv, truth, mask, targets.present_y_m)
+        model_m = self.model.add(predicted[:, :k], truth, mask, targets.present_y_m)  # (A, K)
+        cv_m = self.constant_velocity.add(cv, truth, mask, targets.present_y_m)
         last = mask[:, -1]
         self._finals.append(
-            (
-                targets.sample[last],
-                np.linalg.norm(predicted[last, k - 1] - truth[last, -1], axis=-1).astype(float),
-                np.linalg.norm(cv[last, -1] - truth[last, -1], axis=-1),
-            )
+            (targets.sample[last], model_m[last, -1].astype(float), cv_m[last, -1].astype(float))
         )
 
     def scores(self) -> Scores:

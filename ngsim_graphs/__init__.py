@@ -15,7 +15,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from ngsim_graphs.version import __version__
 
 _EXPORTS = {
     "open_build": "ngsim_graphs.build",

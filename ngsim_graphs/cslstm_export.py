@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ngsim_graphs import __version__, landing, matfile, storage
+from ngsim_graphs import landing, matfile, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.cslstm import (
     DATASET_IDS,
@@ -49,6 +49,7 @@ from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.files import read_raw_file
 from ngsim_graphs.sources.ngsim.formats import find_raw_files
 from ngsim_graphs.sources.ngsim.recordings import identify_recordings
+from ngsim_graphs.version import __version__
 
 FILE_NAMES = {"train": "TrainSet.mat", "val": "ValSet.mat", "test": "TestSet.mat"}
 MARKER = "cslstm-export.json"

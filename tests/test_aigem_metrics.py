@@ -1,9 +1,12 @@
-"""Metric functions against hand-computed cases; what evaluate reports follows METRICS."""
+"""Metric functions against hand-computed cases and a brute-force reference; the accumulator over
+batches against the functions over the whole array; what evaluate reports follows METRICS; the
+docs' example scores a build as evaluate does."""
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -14,12 +17,130 @@ from aigem import metrics
 from aigem.metrics import (
     ErrorTotals,
     Metric,
+    compute_ade_m,
+    compute_fde_m,
+    compute_rmse_m,
     region_of,
     step_errors,
     summarize_errors,
     table_columns,
 )
 from ngsim_cli.aigem import app
+
+AIGEM_DOCS = Path(__file__).resolve().parents[1] / "docs" / "aigem.md"
+
+
+def _two_actors() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """10 steps (2 s at 0.2 s). Actor 0 is off by 3-4-5 at every step; actor 1 is off by 1 m
+    in x, and its last 5 steps are masked."""
+    truth = np.zeros((2, 10, 2))
+    predicted = truth.copy()
+    predicted[0] += [3.0, 4.0]
+    predicted[1, :, 0] += 1.0
+    mask = np.ones((2, 10), bool)
+    mask[1, 5:] = False
+    return predicted, truth, mask
+
+
+def test_the_functions_by_hand() -> None:
+    predicted, truth, mask = _two_actors()
+    assert compute_ade_m(predicted, truth, mask) == pytest.approx(55 / 15)  # (10 * 5 + 5 * 1)
+    assert compute_fde_m(predicted, truth, mask) == pytest.approx(5.0)  # actor 0 alone
+    assert compute_rmse_m(predicted, truth, mask, 5) == pytest.approx(math.sqrt(13.0))
+    assert compute_rmse_m(predicted, truth, mask, 10) == pytest.approx(5.0)
+    predicted[1, 5:] = np.nan  # whatever is predicted where the target is not recorded
+    assert compute_ade_m(predicted, truth, mask) == pytest.approx(55 / 15)
+
+
+def _reference(
+    predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray
+) -> tuple[float, float, list[float]]:
+    """ADE, FDE and RMSE at each step by their definitions, one (target, step) at a time."""
+    targets, steps = mask.shape
+    error = [
+        [math.dist(predicted[a, k], truth[a, k]) for k in range(steps)] for a in range(targets)
+    ]
+    every = [error[a][k] for a in range(targets) for k in range(steps) if mask[a, k]]
+    at = [[error[a][k] for a in range(targets) if mask[a, k]] for k in range(steps)]
+    rmse = [math.sqrt(sum(e * e for e in errors) / len(errors)) for errors in at]
+    return sum(every) / len(every), sum(at[-1]) / len(at[-1]), rmse
+
+
+def test_the_functions_against_a_brute_force_reference() -> None:
+    rng = np.random.default_rng(5)
+    for targets, steps in ((1, 1), (7, 10), (30, 25)):
+        truth = rng.normal(0.0, 20.0, (targets, steps, 2))
+        predicted = truth + rng.normal(0.0, 3.0, (targets, steps, 2))
+        mask = rng.random((targets, steps)) < 0.7
+        mask[0] = True  # every step has a valid target
+        ade, fde, rmse = _reference(predicted, truth, mask)
+        assert compute_ade_m(predicted, truth, mask) == pytest.approx(ade, rel=1e-12)
+        assert compute_fde_m(predicted, truth, mask) == pytest.approx(fde, rel=1e-12)
+        for k in range(1, steps + 1):
+            assert compute_rmse_m(predicted, truth, mask, k) == pytest.approx(
+                rmse[k - 1], rel=1e-12
+            )
+
+
+def test_nothing_valid_is_nan_and_wrong_shapes_are_refused() -> None:
+    predicted, truth, mask = _two_actors()
+    assert math.isnan(compute_rmse_m(predicted, truth, mask & False, 3))
+    assert math.isnan(compute_ade_m(predicted, truth, mask & False))
+    with pytest.raises(ValueError, match=r"predictions \(1, 10, 2\) and targets \(2, 10, 2\)"):
+        compute_ade_m(predicted[:1], truth, mask)  # numpy would broadcast it
+    with pytest.raises(ValueError, match=r"mask \(2, 10\) float64: must be \(A, K\)"):
+        compute_fde_m(predicted, truth, mask.astype(float))
+    for step in (0, 11):
+        with pytest.raises(ValueError, match=rf"step {step}: .* future steps 1..10"):
+            compute_rmse_m(predicted, truth, mask, step)
+
+
+def test_the_accumulator_over_batches_is_the_functions_over_the_whole_array() -> None:
+    """ErrorTotals sums what the functions compute: a split added in uneven batches gives, in
+    every region, the functions' numbers over the region's targets all at once."""
+    rng = np.random.default_rng(8)
+    truth = rng.normal(0.0, 20.0, (50, 10, 2))
+    predicted = (truth + rng.normal(0.0, 2.0, truth.shape)).astype(np.float32)  # as a model's
+    mask = rng.random((50, 10)) < 0.8
+    present_y_m = rng.uniform(-30.0, 30.0, 50)
+    totals = ErrorTotals(steps=10)
+    for first in range(0, 50, 7):
+        batch = slice(first, first + 7)
+        totals.add(predicted[batch], truth[batch], mask[batch], present_y_m[batch])
+    rows, curves = summarize_errors(totals, 0.2), step_errors(totals)
+    chosen = {"all": np.ones(50, bool)} | {
+        region: region_of(present_y_m) == index for index, region in enumerate(metrics.REGIONS[1:])
+    }
+    for region, rows_of in chosen.items():
+        arrays = predicted[rows_of], truth[rows_of], mask[rows_of]
+        assert rows_of.sum() > 5, region  # every region has targets
+        row = rows[region]
+        assert row["ade_m"] == pytest.approx(compute_ade_m(*arrays), rel=1e-12)
+        assert row["fde_m"] == pytest.approx(compute_fde_m(*arrays), rel=1e-12)
+        for second, step in ((1, 5), (2, 10)):
+            assert row[f"rmse_{second}s_m"] == pytest.approx(
+                compute_rmse_m(*arrays, step), rel=1e-12
+            )
+        every_step = [compute_rmse_m(*arrays, k) for k in range(1, 11)]
+        np.testing.assert_allclose(curves[region]["rmse_m"], every_step, rtol=1e-12)
+
+
+def test_the_accumulator_and_evaluates_rows_take_the_functions_rules(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """One rule in one place: the errors ErrorTotals sums are displacement_errors_m's, and the
+    rows' ratios are the functions' own (a changed rule changes every number)."""
+    predicted, truth, mask = _two_actors()
+    doubled = metrics.displacement_errors_m
+    monkeypatch.setattr(metrics, "displacement_errors_m", lambda *a: 2.0 * doubled(*a))
+    totals = ErrorTotals(steps=10)
+    totals.add(predicted, truth, mask, present_y_m=np.array([20.0, -20.0]))
+    assert summarize_errors(totals, 0.2)["all"]["ade_m"] == pytest.approx(2 * 55 / 15)
+    monkeypatch.setattr(metrics, "ade_of_sums_m", lambda error_m, count: 7.0)
+    monkeypatch.setattr(metrics, "rmse_of_sums_m", lambda squared, count: np.full(10, 8.0))
+    monkeypatch.setattr(metrics, "mean_error_of_sums_m", lambda error_m, count: np.full(10, 9.0))
+    row = summarize_errors(totals, 0.2)["mid"]
+    assert (row["ade_m"], row["fde_m"], row["rmse_2s_m"]) == (7.0, 9.0, 8.0)
 
 
 def test_hand_computed_two_actors() -> None:
@@ -127,3 +248,43 @@ def test_a_new_metric_reaches_evaluates_json_and_table(
 def _cells(line: str, bar: str) -> list[str]:
     """The cells of one line of a printed table (rich's box drawing)."""
     return [cell.strip() for cell in line.split(bar)[1:-1]]
+
+
+def _docs_example() -> str:
+    """The Python block of docs/aigem.md's section on scoring one's own predictions."""
+    section = AIGEM_DOCS.read_text().split("## Scoring your own model's predictions", 1)[1]
+    blocks = re.findall(r"^```python\n(.*?)^```", section.split("\n## ", 1)[0], re.M | re.S)
+    assert len(blocks) == 1
+    return blocks[0]
+
+
+def test_the_docs_example_scores_as_evaluate_does(
+    tiny_build: Path,
+    tiny_run: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Run as written where the README's commands leave demo/build: its constant velocity,
+    scored with the functions, gets evaluate's numbers for constant velocity (the run's horizon,
+    2 s, is the example's first 10 steps)."""
+    from aigem.evaluation import evaluate
+
+    (tmp_path / "demo").mkdir()
+    (tmp_path / "demo" / "build").symlink_to(tiny_build, target_is_directory=True)
+    monkeypatch.chdir(tmp_path)
+    scope: dict[str, object] = {"__name__": "docs"}
+    exec(compile(_docs_example(), str(AIGEM_DOCS), "exec"), scope)  # noqa: S102 (our own docs)
+    printed = capsys.readouterr().out
+    predicted, truth, mask = (scope[name] for name in ("predicted", "truth", "mask"))
+    assert predicted.shape == truth.shape == (len(mask), 25, 2)  # type: ignore[attr-defined]
+    baseline = evaluate(tiny_run, device_choice="cpu").constant_velocity["all"]
+    first = (predicted[:, :10], truth[:, :10], mask[:, :10])  # type: ignore[index]
+    assert compute_ade_m(*first) == pytest.approx(baseline["ade_m"], rel=1e-5)
+    assert compute_fde_m(*first) == pytest.approx(baseline["fde_m"], rel=1e-5)
+    for second in (1, 2):
+        rmse_m = compute_rmse_m(*first, 5 * second)
+        assert rmse_m == pytest.approx(baseline[f"rmse_{second}s_m"], rel=1e-5)
+        assert f"RMSE {second} s: {rmse_m:.2f} m" in printed
+    assert int(mask[:, 9].sum()) == baseline["n_2s"]  # type: ignore[index]
+    assert f"{len(mask)} targets: ADE " in printed and "RMSE 5 s: " in printed  # type: ignore[arg-type]

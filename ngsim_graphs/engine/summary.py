@@ -10,7 +10,7 @@ from pathlib import Path
 
 import polars as pl
 
-from ngsim_graphs import __version__, layout
+from ngsim_graphs import layout
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.engine.tasks import RecordingOutput
 from ngsim_graphs.errors import NgsimInputError
@@ -20,6 +20,7 @@ from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.contract import FileReport
 from ngsim_graphs.splits import split_warnings
+from ngsim_graphs.version import __version__
 
 
 def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
