@@ -22,7 +22,7 @@ from typing import Any
 
 from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import json_object, some_names
 from ngsim_graphs.layout import manifest_path
@@ -58,8 +58,14 @@ def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
     another file that is not a recording is skipped), each by name, size and sha256, in that
     order: what a later call and a build's manifest are compared by. A moved folder holds the
     same inputs; a file changed, added or taken away makes other inputs."""
+    from ngsim_graphs.sources.archives import archives_in
     from ngsim_graphs.sources.registry import choose_source
 
+    packed = [archive for path in raw_paths for archive in archives_in(Path(path))]
+    if packed:  # its digest is not its members': a build of them could not be told reusable
+        raise NgsimInputError(
+            packed[0], "aigem paper reads no compressed file: unpack it first (build reads it)"
+        )
     _, files, _ = choose_source(list(raw_paths))
     found = [_identity(path) for path in files]
     return sorted(found, key=lambda f: (f["name"], f["sha256"]))

@@ -3,6 +3,7 @@ command on a tiny input, uninterrupted and killed half-way then run again: the s
 
 from __future__ import annotations
 
+import gzip
 import hashlib
 import json
 import math
@@ -229,6 +230,21 @@ def test_the_command_refuses_a_foreign_folder_and_a_bad_part_in_one_line(
     assert result.output.count("\n") == 1 and "not written by `aigem paper`" in result.output
     result = runner.invoke(app, ["paper", str(raw), "--out", str(tmp_path / "o"), "--only", "x"])
     assert result.exit_code == 2 and "--only x: x: not a part of the report" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_command_refuses_a_compressed_input_in_one_line(tmp_path: Path, raw: Path) -> None:
+    """A zip's digest is not its members': the paper refuses it (build reads it) before any
+    folder is made."""
+    packed = tmp_path / "packed"
+    shutil.copytree(raw, packed)
+    a = packed / "a.txt"
+    a.with_name("a.txt.gz").write_bytes(gzip.compress(a.read_bytes()))
+    a.unlink()
+    result = CliRunner().invoke(app, ["paper", str(packed), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 1, result.output
+    assert result.output.count("\n") == 1
+    assert f"{packed / 'a.txt.gz'}: aigem paper reads no compressed file" in result.output
     assert not (tmp_path / "o").exists()
 
 
