@@ -56,7 +56,7 @@ PREDICTION_STYLES = (  # (colour, dashes, marker at the last step) of the 1st, 2
 )
 PANEL_WIDTH_IN = 4.0
 PANEL_BOX_ASPECT = 0.55  # the axes' height / width: a road is long and narrow
-TITLE_IN = 0.95  # a panel's title and axis labels
+TITLE_IN = 1.25  # a panel's title (up to four lines: evaluate's scenes) and axis labels
 LEGEND_COLUMN_IN = 2.6  # the width of a legend column, its longest label at 8 points
 MARGIN_M = 5.0  # along the road, around the drawn things, inside the axes
 LATERAL_MARGIN_M = 1.5  # across it
