@@ -10,6 +10,7 @@ steps. PyTorch Geometric's view of the same samples is in aigem.pyg.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -106,7 +107,7 @@ class GraphDataset(Dataset):
 
     def __init__(
         self,
-        build_dir: Path,
+        build_dir: str | os.PathLike[str],
         split: Split | str = Split.TRAIN,
         history_steps: int | None = None,
         scaler: MinMaxScaler | None = None,

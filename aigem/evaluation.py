@@ -15,6 +15,7 @@ model's beside it.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -154,8 +155,8 @@ def _evaluation(run: LoadedRun, dataset: GraphDataset, scores: Scores) -> Evalua
 
 
 def evaluate(
-    run_dir: Path,
-    build_dir: Path | None = None,
+    run_dir: str | os.PathLike[str],
+    build_dir: str | os.PathLike[str] | None = None,
     split: Split | str = Split.TEST,
     device_choice: str = "auto",
     batch_size: int = 64,
@@ -167,6 +168,7 @@ def evaluate(
     (None: the run's own build). Another build than the run's is refused unless `other_build`;
     inputs are always scaled with the run's scaler, the one the model was trained with.
     `resident` (None: on CUDA): the split scored on the device in static batches (aigem.scoring)."""
+    run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
     device = pick_device(device_choice)
     run = load_run(run_dir, build_dir, device, other_build)
     dataset = _open_split(run, split)
@@ -204,8 +206,8 @@ def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str,
 
 
 def evaluate_horizons(
-    run_dir: Path,
-    build_dir: Path | None = None,
+    run_dir: str | os.PathLike[str],
+    build_dir: str | os.PathLike[str] | None = None,
     split: Split | str = Split.TEST,
     device_choice: str = "auto",
     batch_size: int = 64,
@@ -217,6 +219,7 @@ def evaluate_horizons(
     split (score_members: the split loaded once, the models stacked, constant velocity once;
     `progress(done, total)` over its batches), and combine them as the paper reports
     (protocol_rows). The members must share a model config, a scaler and a build."""
+    run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
     horizons_s = read_horizons(run_dir)
     if horizons_s is None:
         raise NgsimInputError(run_dir, "not a multi-horizon run: no horizons.json")

@@ -8,6 +8,7 @@ actor nodes of the present step, by sample and track id), which is checked, not 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -45,8 +46,8 @@ def same_targets(a: GraphBatch, b: GraphBatch) -> bool:
 
 
 def predict_samples(
-    run_dir: Path | str,
-    build_dir: Path | str | None,
+    run_dir: str | os.PathLike[str],
+    build_dir: str | os.PathLike[str] | None,
     split: Split | str,
     sample_ids: np.ndarray | Sequence[int],
     device_choice: str = "cpu",

@@ -25,8 +25,8 @@ The targets come in node order, which is the order of `Collate`'s `target_node`;
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -111,7 +111,7 @@ class GraphPygDataset(PygDataset):
 
     def __init__(
         self,
-        build_dir: Path,
+        build_dir: str | os.PathLike[str],
         split: Split | str = Split.TRAIN,
         history_steps: int | None = None,
         scaler: MinMaxScaler | None = None,

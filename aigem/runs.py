@@ -112,8 +112,11 @@ def _check_same_run(checkpoint_info: dict[str, Any], run: dict[str, Any], path: 
         )
 
 
-def load_model(run_dir: Path, device: torch.device | str = "cpu") -> tuple[AiGem, dict[str, Any]]:
+def load_model(
+    run_dir: str | os.PathLike[str], device: torch.device | str = "cpu"
+) -> tuple[AiGem, dict[str, Any]]:
     """The best model of a run and its run info (the checkpoint's)."""
+    run_dir = Path(run_dir)
     run = read_run_info(run_dir)
     path = run_dir / BEST
     if not path.is_file():

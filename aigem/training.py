@@ -246,8 +246,8 @@ def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
 
 
 def fit(
-    build_dir: Path,
-    run_dir: Path,
+    build_dir: str | os.PathLike[str],
+    run_dir: str | os.PathLike[str],
     model_config: ModelConfig,
     train: TrainConfig,
     device_choice: str = "auto",
@@ -263,8 +263,8 @@ def fit(
 
 
 def fit_horizons(
-    build_dir: Path,
-    run_dir: Path,
+    build_dir: str | os.PathLike[str],
+    run_dir: str | os.PathLike[str],
     horizons_s: tuple[float, ...] | None,
     model_config: ModelConfig,
     train: TrainConfig,
@@ -279,6 +279,7 @@ def fit_horizons(
     write the multi-horizon run directory (see aigem.runs); returns each model's result. None:
     one model for `train.horizon_s`, in `run_dir` itself (`fit`). `loading` reports the splits'
     loading onto the device, `note` says in a line where the batches come from."""
+    build_dir, run_dir = Path(build_dir), Path(run_dir)
     rank, world = _distributed()
     device = pick_device(device_choice)
     if device.type == "cuda" and world > 1:

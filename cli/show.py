@@ -30,6 +30,16 @@ def _scene_range(text: str, max_panels: int) -> tuple[int, int]:
     return start, end
 
 
+def _described(ids: list[int], every_window: bool) -> str:
+    """The samples drawn, for the printed line: `sample 3`, `samples 0..7`, `samples 0, 2, 5
+    (one per ego)`."""
+    if len(ids) == 1:
+        return f"sample {ids[0]}"
+    if ids == list(range(ids[0], ids[-1] + 1)):
+        return f"samples {ids[0]}..{ids[-1]}" + ("" if every_window else " (one per ego)")
+    return f"samples {', '.join(map(str, ids))} (one per ego)"
+
+
 def _show_name(split: str, start: int, end: int, run: Path | None) -> Path:
     """The default --out: show-test-0.png, show-test-0-7.png, show-test-0-7-RUNNAME.png in the
     current folder, named in full (what is said of it says where it is)."""
@@ -44,9 +54,18 @@ def show(
     sample: Annotated[
         str,
         typer.Option(
-            metavar="N|START:END", help="Sample id, or ids START..END-1: one panel each (<= 64)."
+            metavar="N|START:END",
+            help="Sample id N, or END-START panels (<= 64) from sample START on: the first sample "
+            "of each ego, or with --every-window every sample START..END-1.",
         ),
     ] = "0",
+    every_window: Annotated[
+        bool,
+        typer.Option(
+            "--every-window",
+            help="Draw every sample of START:END, several windows of one ego among them.",
+        ),
+    ] = False,
     out: Annotated[
         Path | None,
         typer.Option(
@@ -65,12 +84,14 @@ def show(
     columns: Annotated[int, typer.Option(min=1, help="Panels per row.")] = 4,
     overwrite: Annotated[bool, typer.Option(help="Replace --out if it exists.")] = False,
 ) -> None:
-    """Draw samples' graphs as one PNG, a panel per sample, in the sample frame (x lateral, y
-    along the road, the ego at (0, 0) at the present step, metres): history nodes (older:
-    fainter), temporal edges as each vehicle's history, the present step's spatial edges, the
-    d_sense circle, and the targets' recorded futures.
+    """Draw samples' graphs as one PNG, a panel per sample, in the sample frame (metres, the ego
+    at (0, 0) at the present step; along the road to the right, lateral downwards, each axis
+    zoomed to the panel's data): history nodes (older: fainter), temporal edges as each
+    vehicle's history, the present step's spatial edges, the d_sense circle, the targets'
+    recorded futures, and with --run the predictions. START:END draws one ego per panel: the
+    first sample of each ego from START on (consecutive samples are often one ego's windows).
     """
-    from ngsim_graphs.scenes import MAX_PANELS, scene_titles, write_scenes  # loads matplotlib
+    from ngsim_graphs.scenes import MAX_PANELS, one_per_ego, scene_titles, write_scenes
 
     start, end = _scene_range(sample, MAX_PANELS)
     out = out if out is not None else _show_name(split.value, start, end, run)
@@ -85,7 +106,11 @@ def show(
             raise usage_error(
                 f"--sample {sample!r}: the {split.value} split has samples 0..{size - 1}"
             )
-        ids = np.arange(start, end)
+        samples = opened.samples(split.value)
+        if every_window or end == start + 1:
+            ids = np.arange(start, end)
+        else:
+            ids = np.array(one_per_ego(samples, start, end - start), dtype=np.int64)
         predictions = None
         if run is None:
             batch = opened.graphs(split.value, ids)
@@ -93,12 +118,12 @@ def show(
             from aigem.prediction import predict_samples  # torch loads only when asked
 
             batch, predictions = predict_samples(run, build_dir, split, ids)
-        titles = scene_titles(opened.samples(split.value), split.value, ids)
+        titles = scene_titles(samples, split.value, ids)
         synthetic = synthetic_build(opened.manifest)
         scenes = write_scenes(
             out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite, synthetic
         )
-    what = f"sample {start}" if end == start + 1 else f"samples {start}..{end - 1}"
+    what = _described(ids.tolist(), every_window)
     drawn = f"{counted(sum(s.nodes for s in scenes), 'node')}, {counted(sum(s.targets for s in scenes), 'target')}"
     also = f"; dashed: {' and '.join(predictions)} of {run}" if predictions else ""
     kind = f"; {SYNTHETIC_LABEL}" if synthetic else ""

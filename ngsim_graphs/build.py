@@ -11,6 +11,7 @@ from the manifest. See `integrity`.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
@@ -175,7 +176,7 @@ def build_files(root: Path, manifest: Manifest) -> list[Path]:
     return paths
 
 
-def open_build(root: Path | str) -> OpenBuild:
+def open_build(root: str | os.PathLike[str]) -> OpenBuild:
     """Open a finished build, its files checked against the manifest (`integrity.check_files`),
     every file the layout reads among them; a clear error for anything else (not a build,
     unfinished, other version, edited, damaged, a file it reads that the manifest leaves out)."""
@@ -205,11 +206,12 @@ class Verification:
 
 
 def verify_build(
-    root: Path, progress: Callable[[str, int, int], None] | None = None
+    root: str | os.PathLike[str], progress: Callable[[str, int, int], None] | None = None
 ) -> Verification:
     """Read every file of a build and compare it with the manifest's checksums (and the manifest
     with its own); name every file the manifest does not list and every symbolic link. Unlike
     `open_build`, which samples large files, this reads it all."""
+    root = Path(root)
     records = layout.read_manifest(root).files
     problems = integrity.verify_files(root, records, layout.manifest_path(root), progress)
     problems += integrity.stray_entries(root, records, own=(layout.MANIFEST_NAME,))

@@ -23,6 +23,7 @@ recording only its counts and scaler ranges.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
@@ -60,6 +61,7 @@ from ngsim_graphs.windows import SampleProtocol
 # (what is being done, steps done, steps in all): the CLI draws it as a progress bar.
 BuildProgress = Callable[[str, int, int], None]
 BuildTarget = tuple[Path, BuildConfig]  # an output folder and the config of its build
+RawPaths = str | os.PathLike[str] | Sequence[str | os.PathLike[str]]  # a file or folder, or several
 # The fields of BuildConfig that reading and cleaning read (the sources' read_file,
 # vehicle_tracks and recording_report, with the properties they use: frames_per_step,
 # smoothing_window_steps): builds alike in these share those stages (`run_builds`).
@@ -345,9 +347,16 @@ def _labelled(progress: BuildProgress, out_dir: Path, several: bool) -> BuildPro
     return lambda what, done, total: progress(f"{what}{label}", done, total)
 
 
+def _raw_paths(raw_paths: RawPaths) -> list[Path]:
+    """The inputs as Paths: one path alone (never a str read as its characters) or several."""
+    if isinstance(raw_paths, str | os.PathLike):
+        return [Path(raw_paths)]
+    return [Path(path) for path in raw_paths]
+
+
 def run_builds(
-    raw_paths: list[Path],
-    targets: Sequence[BuildTarget],
+    raw_paths: RawPaths,
+    targets: Sequence[tuple[str | os.PathLike[str], BuildConfig]],
     overwrite: bool = False,
     progress: BuildProgress | None = None,
     strict: bool = False,
@@ -369,7 +378,8 @@ def run_builds(
     ValueError for configs that cannot share the reading (naming the field), and as
     `run_build` does.
     """
-    targets = list(targets)
+    raw_paths = _raw_paths(raw_paths)
+    targets = [(Path(out_dir), config) for out_dir, config in targets]
     _check_targets(raw_paths, targets)  # before anything is read or written
     workers = Workers(available_cores() if jobs is None else jobs)  # checks jobs >= 1
     if workers.jobs == 1:  # the tasks run in this process
@@ -412,8 +422,8 @@ def run_builds(
 
 
 def run_build(
-    raw_paths: list[Path],
-    out_dir: Path,
+    raw_paths: RawPaths,
+    out_dir: str | os.PathLike[str],
     config: BuildConfig,
     overwrite: bool = False,
     progress: BuildProgress | None = None,
@@ -421,7 +431,8 @@ def run_build(
     dataset: str | None = None,
     jobs: int | None = 1,
 ) -> BuildResult:
-    """Read every raw file under `raw_paths` and write the finished build into `out_dir`.
+    """Read every raw file under `raw_paths` (a file or folder, or several) and write the
+    finished build into `out_dir`.
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
     The same files named in any order, or found in folders, give the same build, byte for byte.

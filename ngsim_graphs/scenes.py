@@ -1,14 +1,19 @@
 """Pictures of samples' graphs in the road frame: nodes, edges, targets' futures, predictions.
 
-One panel per sample, drawn from a `GraphBatch` (metres, the sample frame: x lateral on the
-horizontal axis, y longitudinal and up in the direction of travel, the ego at (0, 0) at the
-present step), at equal aspect:
+One panel per sample, drawn from a `GraphBatch` (metres, the sample frame, the ego at (0, 0) at the
+present step). A road is long and narrow, so the panel lies along it: y longitudinal on the
+horizontal axis (travel to the right), x lateral on the vertical axis, growing downwards (to the
+driver's right, as seen from above). Each axis spans the panel's own data (nodes, futures,
+predictions) and a margin, not the d_sense circle: the lateral axis is stretched (about 4 times
+the longitudinal at a typical scene) so that lanes stand apart. What is drawn:
 - every history node, older steps fainter; the ego's nodes in their own colour, a star at (0, 0);
 - the spatial edges of the present step, ego-actor and actor-actor told apart, each undirected
   pair drawn once (the counts returned are of directed edges, as the graph holds them);
 - the temporal edges, which draw each vehicle's history as a line through its nodes;
-- the targets' recorded futures (masked steps left out), and optional predictions, dashed;
-- the d_sense circle around the ego at the present step;
+- the targets' recorded futures (truth: solid, masked steps left out), and optional predictions,
+  each its own colour, dash pattern and marker at its last step;
+- the d_sense circle around the ego at the present step (an ellipse where the axes' scales
+  differ, cut where it leaves the data);
 - for a build of synthetic data, a red label at the top (plotting.mark_synthetic).
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot`, as in
@@ -43,15 +48,19 @@ EGO_COLOUR, ACTOR_COLOUR = "tab:red", "tab:blue"
 EGO_EDGE_COLOUR, ACTOR_EDGE_COLOUR = "tab:orange", "tab:purple"
 FUTURE_COLOUR, SENSE_COLOUR = "tab:green", "0.55"
 SENSE_STYLE = {"linestyle": (0, (6, 3)), "linewidth": 0.9, "zorder": 1}
-PREDICTION_STYLES = (  # (colour, dashes) of the first, second, ... predictions' labels
-    ("black", (4, 2)),
-    ("magenta", (1.5, 1.5)),
-    ("tab:pink", (6, 2, 1, 2)),
-    ("tab:cyan", (3, 3)),
+PREDICTION_STYLES = (  # (colour, dashes, marker at the last step) of the 1st, 2nd, ... labels
+    ("black", (4, 2), "X"),
+    ("magenta", (1.5, 1.5), "^"),
+    ("tab:brown", (6, 2, 1, 2), "s"),
+    ("tab:cyan", (3, 3), "D"),
 )
 PANEL_WIDTH_IN = 4.0
+PANEL_BOX_ASPECT = 0.55  # the axes' height / width: a road is long and narrow
+TITLE_IN = 1.25  # a panel's title (up to four lines: evaluate's scenes) and axis labels
 LEGEND_COLUMN_IN = 2.6  # the width of a legend column, its longest label at 8 points
-MARGIN_M = 5.0  # around the drawn things, inside the axes
+MARGIN_M = 5.0  # along the road, around the drawn things, inside the axes
+LATERAL_MARGIN_M = 1.5  # across it
+MIN_LATERAL_SPAN_M = 12.0  # about three lanes: a lone vehicle is not magnified without end
 DPI = 120
 MAX_PANELS = 64  # a picture of more would be too large to read
 
@@ -101,7 +110,13 @@ def _sample(batch: GraphBatch, sample: int) -> _Sample:
 
 
 def _xy(batch: GraphBatch, nodes: np.ndarray) -> np.ndarray:
-    return batch.node_features[nodes, :2]
+    """(n, 2) the nodes' positions as plotted: (y longitudinal, x lateral)."""
+    return _plotted(batch.node_features[nodes, :2])
+
+
+def _plotted(xy: np.ndarray) -> np.ndarray:
+    """Positions (..., 2) of the sample frame, (x, y), as plotted: (y, x), along the road first."""
+    return np.asarray(xy, dtype=np.float64)[..., ::-1]
 
 
 def _draw_nodes(axes: Axes, batch: GraphBatch, sample: _Sample) -> None:
@@ -161,10 +176,11 @@ def _draw_futures(
 ) -> tuple[np.ndarray, dict[str, int]]:
     """The targets' recorded futures and the predictions; returns every position drawn (m, 2)."""
     start = _xy(batch, batch.target_node[sample.targets])
-    truth = _paths(start, batch.target_xy[sample.targets], batch.target_mask[sample.targets])
+    future = _plotted(batch.target_xy[sample.targets])
+    truth = _paths(start, future, batch.target_mask[sample.targets])
     drawn = [start, truth.reshape(-1, 2)]
     for line in truth:
-        axes.plot(line[:, 0], line[:, 1], color=FUTURE_COLOUR, linewidth=1.5, zorder=3)
+        axes.plot(line[:, 0], line[:, 1], color=FUTURE_COLOUR, linewidth=1.8, zorder=3)
     axes.scatter(
         start[:, 0],
         start[:, 1],
@@ -175,18 +191,28 @@ def _draw_futures(
         zorder=5,
     )
     predicted = {}
-    for (label, values), (colour, dashes) in zip(
+    for (label, values), (colour, dashes, marker) in zip(
         predictions.items(), _styles(predictions), strict=True
     ):
-        lines = _paths(start, np.asarray(values, dtype=np.float64)[sample.targets], None)
+        lines = _paths(start, _plotted(np.asarray(values)[sample.targets]), None)
         for line in lines:
-            axes.plot(line[:, 0], line[:, 1], color=colour, dashes=dashes, linewidth=1.2, zorder=5)
+            axes.plot(
+                line[:, 0],
+                line[:, 1],
+                color=colour,
+                dashes=dashes,
+                linewidth=1.2,
+                marker=marker,
+                markevery=[len(line) - 1],
+                markersize=5,
+                zorder=5,
+            )
         drawn.append(lines.reshape(-1, 2))
         predicted[label] = len(lines)
     return np.concatenate(drawn), predicted
 
 
-def _styles(predictions: Mapping[str, np.ndarray]) -> list[tuple[str, tuple[float, ...]]]:
+def _styles(predictions: Mapping[str, np.ndarray]) -> list[tuple[str, tuple[float, ...], str]]:
     return [PREDICTION_STYLES[i % len(PREDICTION_STYLES)] for i in range(len(predictions))]
 
 
@@ -200,27 +226,17 @@ def _check_predictions(batch: GraphBatch, predictions: Mapping[str, np.ndarray])
             )
 
 
-def _limits(axes: Axes, drawn: np.ndarray, d_sense_m: float) -> None:
-    """Axis limits around the d_sense circle and everything drawn, at equal aspect."""
+def _limits(axes: Axes, drawn: np.ndarray) -> None:
+    """Axis limits around everything drawn (plotted (along, across) positions, and the ego at
+    (0, 0)) and a margin: MARGIN_M along the road, LATERAL_MARGIN_M across it, at least
+    MIN_LATERAL_SPAN_M across; the lateral axis grows downwards."""
     finite = drawn[np.isfinite(drawn).all(axis=1)]
-    low = np.minimum(finite.min(axis=0, initial=0.0), -d_sense_m) - MARGIN_M
-    high = np.maximum(finite.max(axis=0, initial=0.0), d_sense_m) + MARGIN_M
-    axes.set_xlim(low[0], high[0])
-    axes.set_ylim(low[1], high[1])
-    axes.set_aspect("equal", adjustable="box")
-
-
-def _common_limits(panels: Sequence[Axes]) -> float:
-    """Give every panel the union of their limits (one scale for all, at equal aspect); returns
-    the panels' height / width."""
-    x = [a.get_xlim() for a in panels]
-    y = [a.get_ylim() for a in panels]
-    x_lim = (min(low for low, _ in x), max(high for _, high in x))
-    y_lim = (min(low for low, _ in y), max(high for _, high in y))
-    for axes in panels:
-        axes.set_xlim(*x_lim)
-        axes.set_ylim(*y_lim)
-    return (y_lim[1] - y_lim[0]) / (x_lim[1] - x_lim[0])
+    low = np.minimum(finite.min(axis=0, initial=0.0), 0.0)
+    high = np.maximum(finite.max(axis=0, initial=0.0), 0.0)
+    widen = max(0.0, MIN_LATERAL_SPAN_M - 2 * LATERAL_MARGIN_M - (high[1] - low[1])) / 2
+    axes.set_xlim(low[0] - MARGIN_M, high[0] + MARGIN_M)
+    axes.set_ylim(high[1] + LATERAL_MARGIN_M + widen, low[1] - LATERAL_MARGIN_M - widen)
+    axes.set_box_aspect(PANEL_BOX_ASPECT)
 
 
 def _plural(count: int, noun: str) -> str:
@@ -235,8 +251,8 @@ def _decorate(axes: Axes, title: str, scene: DrawnScene) -> None:
         f"{_plural(scene.targets, 'target')}"
     )
     axes.set_title(f"{title}\n{counts}", fontsize=8)
-    axes.set_xlabel("x lateral (m)", fontsize=7)
-    axes.set_ylabel("y longitudinal (m)", fontsize=7)
+    axes.set_xlabel("y longitudinal (m), travel to the right", fontsize=7)
+    axes.set_ylabel("x lateral (m), stretched", fontsize=7)
     axes.tick_params(labelsize=7)
     axes.grid(alpha=0.25, linewidth=0.5)
 
@@ -260,7 +276,7 @@ def draw_scene(
     ego_edges, actor_edges = _draw_edges(axes, batch, picked)
     axes.add_patch(Circle((0.0, 0.0), d_sense_m, fill=False, color=SENSE_COLOUR, **SENSE_STYLE))
     drawn, predicted = _draw_futures(axes, batch, picked, predictions)
-    _limits(axes, np.concatenate([_xy(batch, picked.nodes), drawn]), d_sense_m)
+    _limits(axes, np.concatenate([_xy(batch, picked.nodes), drawn]))
     scene = DrawnScene(
         nodes=len(picked.nodes),
         spatial_edges=ego_edges + actor_edges,
@@ -292,17 +308,29 @@ def _legend_handles(labels: Sequence[str]) -> list[Line2D]:
             label="ego at present (0, 0)",
         ),
         dot(EGO_COLOUR, "ego node (fainter: older)", markersize=4),
-        dot(ACTOR_COLOUR, "actor node (fainter: older)", markersize=4),
-        Line2D([], [], color=EGO_COLOUR, linewidth=2.0, alpha=0.9, label="ego's temporal edges"),
-        Line2D([], [], color=ACTOR_COLOUR, alpha=0.45, label="actors' temporal edges"),
-        Line2D([], [], color=EGO_EDGE_COLOUR, label="spatial edge ego-actor (present)"),
-        Line2D([], [], color=ACTOR_EDGE_COLOUR, linestyle=":", label="spatial edge actor-actor"),
+        dot(ACTOR_COLOUR, "neighbour node (fainter: older)", markersize=4),
+        Line2D([], [], color=EGO_COLOUR, linewidth=2.0, alpha=0.9, label="ego's history"),
+        Line2D([], [], color=ACTOR_COLOUR, alpha=0.45, label="neighbours' history"),
+        Line2D([], [], color=EGO_EDGE_COLOUR, label="spatial edge ego-neighbour (present)"),
+        Line2D([], [], color=ACTOR_EDGE_COLOUR, linestyle=":", label="spatial edge neighbours"),
         Line2D([], [], color=SENSE_COLOUR, label="d_sense around ego", **SENSE_STYLE),
         dot("none", "target at present", markeredgecolor=FUTURE_COLOUR, markersize=6),
-        Line2D([], [], color=FUTURE_COLOUR, linewidth=1.5, label="target's recorded future"),
+        Line2D([], [], color=FUTURE_COLOUR, linewidth=1.8, label="truth: recorded future"),
     ]
-    for label, (colour, dashes) in zip(labels, _styles(dict.fromkeys(labels)), strict=True):
-        handles.append(Line2D([], [], color=colour, dashes=dashes, label=f"predicted: {label}"))
+    styles = _styles(dict.fromkeys(labels))
+    for label, (colour, dashes, marker) in zip(labels, styles, strict=True):
+        handles.append(
+            Line2D(
+                [0.0, 1.0],
+                [0.0, 0.0],
+                color=colour,
+                dashes=dashes,
+                marker=marker,
+                markevery=[1],
+                markersize=5,
+                label=f"predicted: {label}",
+            )
+        )
     return handles
 
 
@@ -343,8 +371,7 @@ def scene_figure(
     )
     for axes in grid.flat[batch.n_samples :]:
         axes.remove()
-    ratio = _common_limits(grid.flat[: batch.n_samples])
-    panel_height_in = (PANEL_WIDTH_IN - 0.75) * float(np.clip(ratio, 0.6, 3.0)) + 1.0  # + titles
+    panel_height_in = (PANEL_WIDTH_IN - 0.75) * PANEL_BOX_ASPECT + TITLE_IN
     figure.set_size_inches(PANEL_WIDTH_IN * n_columns, panel_height_in * n_rows)
     legend_rows = add_legend(figure, list(predictions or {}))
     band_in = SYNTHETIC_BAND_IN if synthetic else 0.0
@@ -406,3 +433,11 @@ def scene_titles(samples: pl.DataFrame, split: str, sample_ids: Sequence[int]) -
         for sample in map(int, sample_ids)
         for row in [by_id[sample]]
     ]
+
+
+def one_per_ego(samples: pl.DataFrame, start: int, count: int) -> list[int]:
+    """Up to `count` sample ids from `start` on, in order, each the first of its ego (recording
+    and ego track) among them: consecutive samples are often windows of one ego, drawn alike."""
+    rows = samples.filter(pl.col(s.SAMPLE_ID) >= start).sort(s.SAMPLE_ID)
+    firsts = rows.unique([s.LOCATION, s.PERIOD, s.EGO_TRACK_ID], keep="first", maintain_order=True)
+    return firsts[s.SAMPLE_ID].head(count).to_list()

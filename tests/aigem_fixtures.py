@@ -51,3 +51,17 @@ def tiny_horizons_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory
     train = TrainConfig(epochs=1, batch_size=8, seed=3)
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")
     return run
+
+
+@pytest.fixture(scope="session")
+def docs_demo(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder laid out as the README's commands leave it: demo/build (a tiny build), demo/run (a
+    one-epoch fit on it, the README's horizon)."""
+    from aigem.config import ModelConfig, TrainConfig  # torch loads only for tests that use it
+    from aigem.training import fit
+
+    root = tmp_path_factory.mktemp("docs")
+    (root / "demo").mkdir()
+    (root / "demo" / "build").symlink_to(tiny_build, target_is_directory=True)
+    fit(root / "demo" / "build", root / "demo" / "run", ModelConfig(), TrainConfig(epochs=1), "cpu")
+    return root

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from aigem_fixtures import (  # noqa: F401  (shared)
+    docs_demo,
     tiny_build,
     tiny_horizons_run,
     tiny_run,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import polars as pl
 import pytest
 from conftest import straight_track, write_txt
 from PIL import Image
@@ -37,15 +38,24 @@ def assert_png(path: Path, min_bytes: int = 20_000) -> tuple[int, int]:
     return Image.open(path).size
 
 
-def test_show_three_samples(tiny_build: Path, tmp_path: Path) -> None:
+def _egos(samples: pl.DataFrame) -> list[tuple[str, str, int]]:
+    return list(samples.select("location", "period", "ego_track_id").iter_rows())
+
+
+def test_show_three_samples_one_ego_each(tiny_build: Path, tmp_path: Path) -> None:
+    """START:END draws END-START distinct egos, the first sample of each from START on: the
+    tiny build's val samples come two by two per ego, so 0:3 draws samples 0, 2 and 4."""
     out = tmp_path / "three.png"
     result = invoke("show", tiny_build, "--split", "val", "--sample", "0:3", "--out", out)
     assert result.exit_code == 0, result.output
-    samples = open_build(tiny_build).samples("val").head(3)
+    all_samples = open_build(tiny_build).samples("val")
+    assert len(set(_egos(all_samples.head(4)))) == 2  # two windows of each of two egos
+    samples = all_samples.filter(pl.col("sample_id").is_in([0, 2, 4]))
+    assert len(set(_egos(samples))) == 3
     nodes, targets = samples["n_nodes"].sum(), samples["n_targets"].sum()
     assert result.stdout == (
-        f"wrote {out}: val samples 0..2 of {tiny_build} ({nodes:,} nodes, {targets:,} targets); "
-        f"{SYNTHETIC_LABEL}\n"
+        f"wrote {out}: val samples 0, 2, 4 (one per ego) of {tiny_build} ({nodes:,} nodes, "
+        f"{targets:,} targets); {SYNTHETIC_LABEL}\n"
     )
     assert assert_png(out)[0] == 3 * PANEL_WIDTH_IN * DPI  # three panels in a row
     out.unlink()
@@ -56,6 +66,19 @@ def test_show_three_samples(tiny_build: Path, tmp_path: Path) -> None:
         == 0
     )
     assert assert_png(out)[0] == 2 * PANEL_WIDTH_IN * DPI
+
+
+def test_show_every_window(tiny_build: Path, tmp_path: Path) -> None:
+    out = tmp_path / "three.png"
+    args = ("show", tiny_build, "--split", "val", "--sample", "0:3", "--every-window")
+    result = invoke(*args, "--out", out)
+    assert result.exit_code == 0, result.output
+    samples = open_build(tiny_build).samples("val").head(3)
+    nodes, targets = samples["n_nodes"].sum(), samples["n_targets"].sum()
+    assert result.stdout == (
+        f"wrote {out}: val samples 0..2 of {tiny_build} ({nodes:,} nodes, {targets:,} targets); "
+        f"{SYNTHETIC_LABEL}\n"
+    )
 
 
 def test_default_name_and_overwrite(

@@ -6,7 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import polars as pl
 import pytest
+from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from PIL import Image
@@ -14,7 +16,17 @@ from PIL import Image
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import EdgeSet, GraphBatch
-from ngsim_graphs.scenes import DrawnScene, draw_scene, scene_titles, write_scenes
+from ngsim_graphs.scenes import (
+    LATERAL_MARGIN_M,
+    MARGIN_M,
+    MIN_LATERAL_SPAN_M,
+    DrawnScene,
+    draw_scene,
+    one_per_ego,
+    scene_figure,
+    scene_titles,
+    write_scenes,
+)
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 D_SENSE_M = 12.0
@@ -94,7 +106,8 @@ def test_undirected_pairs_are_drawn_once() -> None:
     lines = [c for c in axes.collections if isinstance(c, LineCollection)]
     # ego-actor pairs at the present (ego-A, ego-B), actor-actor (A-B), temporal edges
     assert [len(c.get_segments()) for c in lines] == [2, 1, 5]
-    assert {tuple(map(tuple, s)) for s in lines[1].get_segments()} == {((3, 4), (-3, 7))}
+    # plotted along the road first: (y, x)
+    assert {tuple(map(tuple, s)) for s in lines[1].get_segments()} == {((4, 3), (7, -3))}
 
 
 def test_futures_predictions_title_and_limits() -> None:
@@ -104,15 +117,90 @@ def test_futures_predictions_title_and_limits() -> None:
     scene = draw_scene(axes, batch, 1, D_SENSE_M, "recording, ego 20", predictions)
     assert scene.predicted == {"model": 1, "other": 1}
     truth, model, other = axes.lines  # one target: its future, then a line per prediction
-    assert np.array_equal(truth.get_xydata()[:, 1], [2, 3, 6, np.nan, np.nan], equal_nan=True)
+    assert np.array_equal(truth.get_xydata()[:, 0], [2, 3, 6, np.nan, np.nan], equal_nan=True)
     assert len(model.get_xydata()) == 3 and len(other.get_xydata()) == 5  # from the present
     assert axes.get_title().splitlines() == [
         "recording, ego 20",
         "4 nodes, 2 temporal edges,",
         "2 spatial edges at present, 1 target",
     ]
-    (x_low, x_high), (y_low, y_high) = axes.get_xlim(), axes.get_ylim()
-    assert x_low < -D_SENSE_M and x_high > D_SENSE_M and y_low < -D_SENSE_M and y_high > D_SENSE_M
+    # Along the road: from the ego's oldest node (y -4) to the farthest future (y 6), 5 m margin;
+    # across (growing downwards): from the ego (x 0) to the target (x 3.5) and the predictions'
+    # x 1, widened to 12 m: not the d_sense circle's 2 x 12 m.
+    assert axes.get_xlim() == (-4 - MARGIN_M, 6 + MARGIN_M)
+    assert axes.get_ylim() == (1.75 + MIN_LATERAL_SPAN_M / 2, 1.75 - MIN_LATERAL_SPAN_M / 2)
+
+
+def _enclosed(axes: Axes, plotted: np.ndarray) -> bool:
+    (left, right), (bottom, top) = axes.get_xlim(), sorted(axes.get_ylim())
+    finite = plotted[np.isfinite(plotted).all(axis=1)]
+    return bool(
+        (finite[:, 0] > left).all()
+        and (finite[:, 0] < right).all()
+        and (finite[:, 1] > bottom).all()
+        and (finite[:, 1] < top).all()
+    )
+
+
+def test_each_panel_is_zoomed_to_its_data_with_the_lanes_apart(tiny_build: Path) -> None:
+    """On a real build and a 50 m d_sense: each panel's axes enclose its nodes, truth and
+    predictions, along the road horizontally, and span the road's width across (not +-50 m)."""
+    opened = open_build(tiny_build)
+    ids = np.arange(3)
+    batch = opened.graphs("val", ids)
+    far = {"far": batch.target_xy + np.array([1.0, 20.0])}  # 20 m beyond the truth, 1 m aside
+    figure, _ = scene_figure(batch, ["a", "b", "c"], 50.0, far)
+    for b, axes in enumerate(figure.axes):
+        nodes = batch.node_features[batch.node_ptr[b] : batch.node_ptr[b + 1], :2]
+        targets = batch.node_sample[batch.target_node] == b
+        truth = np.where(batch.target_mask[targets][..., None], batch.target_xy[targets], np.nan)
+        for xy in (nodes, truth.reshape(-1, 2), far["far"][targets].reshape(-1, 2)):
+            assert _enclosed(axes, xy[:, ::-1]), b
+        across = abs(np.subtract(*axes.get_ylim()))
+        lateral = np.ptp(nodes[:, 0])
+        assert across <= max(lateral + 2 * LATERAL_MARGIN_M, MIN_LATERAL_SPAN_M) + 2.5  # the far
+        assert across < 30.0 and axes.yaxis_inverted() and axes.get_aspect() == "auto"
+        assert np.ptp(axes.get_xlim()) > 3 * across  # along the road: long and narrow
+
+
+def test_the_legend_tells_truth_predictions_history_and_neighbours_apart() -> None:
+    predictions = {"AiGem": np.zeros((3, 4, 2)), "constant velocity": np.ones((3, 4, 2))}
+    figure, _ = scene_figure(hand_batch(), ["a", "b"], D_SENSE_M, predictions)
+    (legend,) = figure.legends
+    handles = {
+        text.get_text(): line
+        for text, line in zip(legend.texts, legend.legend_handles, strict=True)
+    }
+    for label in (
+        "truth: recorded future",
+        "predicted: AiGem",
+        "predicted: constant velocity",
+        "ego's history",
+        "neighbours' history",
+        "neighbour node (fainter: older)",
+    ):
+        assert label in handles
+    lines = [handles[name] for name in handles if name.startswith(("truth", "predicted"))]
+    assert len({line.get_color() for line in lines}) == 3
+    assert len({(line.get_linestyle(), str(line._dash_pattern)) for line in lines}) == 3
+    assert len({line.get_marker() for line in lines}) == 3  # None for truth, X and ^
+    # the panels draw them as the legend shows them
+    drawn = {(line.get_color(), line.get_marker()) for line in figure.axes[0].lines}
+    assert {(line.get_color(), line.get_marker()) for line in lines} <= drawn
+
+
+def test_one_panel_per_ego() -> None:
+    samples = pl.DataFrame(
+        {
+            "sample_id": [0, 1, 2, 3, 4, 5, 6],
+            "location": ["us-101"] * 6 + ["i-80"],
+            "period": ["a"] * 7,
+            "ego_track_id": [7, 7, 8, 7, 9, 9, 7],
+        }
+    )
+    assert one_per_ego(samples, 0, 8) == [0, 2, 4, 6]  # (i-80, 7) is another ego
+    assert one_per_ego(samples, 0, 2) == [0, 2]
+    assert one_per_ego(samples, 3, 2) == [3, 4]
 
 
 @pytest.mark.parametrize("shape", [(2, 4, 2), (3, 5, 2), (3, 4, 3), (3, 4)])
