@@ -473,3 +473,24 @@ def test_files_of_locations_left_out_are_not_checked(tmp_path: Path, rows: list[
     counts = manifest(out)["counts"]
     assert counts["rows_other_locations"] == 200 and sum(counts["rows_dropped"].values()) == 0
     assert counts["rows_read"] == counts["rows_other_locations"] + counts["rows"] == 1_200
+
+
+@pytest.mark.parametrize(
+    ("write", "line"), [(write_txt, 501), (write_period_csv, 502), (write_portal, 502)]
+)
+def test_a_row_of_another_location_is_a_stray_not_a_recording(
+    tmp_path: Path, rows: list[dict], write, line: int
+) -> None:
+    # One i-80 0400 row inserted among us-101 0750am's (the portal's saying us-101): on main a
+    # recording i-80/0400-0415 of 1 row, not counted, nothing said.
+    rows.insert(500, {**_i80(rows)[0], s.VEHICLE_ID: 41})
+    path = write(tmp_path / "raw" / "us-101" / "trajectories-0750am-0805am.csv", rows)
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "dropped 1 row: Global_Time off its recording" in result.stdout
+    assert f"(first: {path}, line {line})." in result.stdout
+    built = manifest(out)
+    assert [r["name"] for r in built["recordings"]] == ["us-101_0750am-0805am"]
+    assert built["counts"]["rows_dropped"][DropReason.GLOBAL_TIME.value] == 1
+    assert built["counts"]["rows"] == 1_000
