@@ -494,3 +494,28 @@ def test_a_row_of_another_location_is_a_stray_not_a_recording(
     assert [r["name"] for r in built["recordings"]] == ["us-101_0750am-0805am"]
     assert built["counts"]["rows_dropped"][DropReason.GLOBAL_TIME.value] == 1
     assert built["counts"]["rows"] == 1_000
+
+
+def test_an_optional_column_empty_in_every_row_is_said(tmp_path: Path, rows: list[dict]) -> None:
+    # Time_Headway emptied in every row (d6: swapped with the empty O_Zone): the rows are kept,
+    # and a warning names the file and the column, in the manifest too.
+    path = write_period_csv(tmp_path / "a.csv", [{**row, ns.TIME_HEADWAY: None} for row in rows])
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    warning = f"{path}: column Time_Headway is empty in every row"
+    assert warning in result.stderr
+    assert [w for w in manifest(out)["warnings"] if w.startswith(warning)] != []
+    assert manifest(out)["counts"]["rows"] == 1_000
+    tracks = pl.read_parquet(out / "tracks" / "us-101_0750am-0805am.parquet")
+    assert tracks[s.TIME_HEADWAY_S].null_count() == tracks.height
+
+
+def test_no_warning_where_the_optional_columns_hold_values(
+    tmp_path: Path, rows: list[dict]
+) -> None:
+    rows = [{**row, ns.SPACE_HEADWAY: None} for row in rows[:-1]] + rows[-1:]  # one value left
+    path, out = write_period_csv(tmp_path / "a.csv", rows), tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "empty in every row" not in result.stderr and manifest(out)["warnings"] == []

@@ -70,6 +70,9 @@ CONFLICT_ORDER: tuple[str, ...] = (
     *(c for c in STAGED_SCHEMA if c not in (s.VEHICLE_ID, s.FRAME_ID, s.Y_M, s.X_M)),
 )
 
+# The parsed columns a row may leave empty, each by its name.
+_OPTIONAL = {c: c for c in hs.HIGHD_TRACKS_SCHEMA if c not in hs.HIGHD_REQUIRED_COLUMNS}
+
 
 def _recording(
     path: Path, config: BuildConfig
@@ -208,6 +211,7 @@ def _staged_rows(
         "rows_dropped": {r.value: counts.get(r.value, 0) for r in cleaning.FILE_REASONS},
         "first_dropped_line": {r: first for r, _, first in sorted(dropped.iter_rows())},
         "rows_checked": raw.height - missing.height,
+        "notes": cleaning.empty_column_notes(raw, _OPTIONAL),
     }
     return rows, report
 

@@ -27,6 +27,7 @@ from ngsim_graphs.sources.cleaning import (
     cleaned_report,
     downsample_to_grid,
     drop_duplicate_rows,
+    empty_column_notes,
     split_at_gaps,
 )
 from ngsim_graphs.sources.contract import (
@@ -61,10 +62,12 @@ from ngsim_graphs.sources.ngsim.recordings import (
 from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
 from ngsim_graphs.sources.text import ROW
 
-# The required columns as NGSIM's header spells them, for messages.
-REQUIRED_NAMES = tuple(
-    next(h for h in ns.PORTAL_HEADER if h.lower() == column) for column in ns.REQUIRED_VALUE_COLUMNS
-)
+# The columns as NGSIM's header spells them, for messages: the required ones, the others.
+SPELLED = {
+    column: next(h for h in ns.PORTAL_HEADER if h.lower() == column) for column in ns.TXT_COLUMNS
+}
+REQUIRED_NAMES = tuple(SPELLED[column] for column in ns.REQUIRED_VALUE_COLUMNS)
+OPTIONAL_NAMES = {c: name for c, name in SPELLED.items() if c not in ns.REQUIRED_VALUE_COLUMNS}
 
 
 def read_file_recordings(
@@ -144,7 +147,8 @@ def read_file_recordings(
         rows_checked=kept + sum(counts.values()),
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
-        notes=tuple(note for key, note in sorted(notes.items()) if key in chosen),
+        notes=tuple(note for key, note in sorted(notes.items()) if key in chosen)
+        + empty_column_notes(raw.frame, OPTIONAL_NAMES),
     )
     return FileRows(rows, chosen, report)
 
