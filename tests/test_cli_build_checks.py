@@ -519,3 +519,22 @@ def test_no_warning_where_the_optional_columns_hold_values(
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
     assert "empty in every row" not in result.stderr and manifest(out)["warnings"] == []
+
+
+def test_local_x_swapped_with_space_headway_is_refused(tmp_path: Path, rows: list[dict]) -> None:
+    # d3: each vehicle in its lane (Lane_ID v % 5 + 1, Local_X at its centre), 120 ft behind its
+    # leader; Local_X and Space_Headway swapped in every row: each value plausible, every lane's
+    # vehicles 36.6 m from the left edge.
+    rows = [{**row, s.LANE_ID: row[s.VEHICLE_ID] % 5 + 1, ns.SPACE_HEADWAY: 120.0} for row in rows]
+    good = write_txt(tmp_path / "good" / "a.txt", rows)
+    assert invoke("build", good, "--out", tmp_path / "built").exit_code == 0
+    swapped = [
+        {**r, ns.LOCAL_X: r[ns.SPACE_HEADWAY], ns.SPACE_HEADWAY: r[ns.LOCAL_X]} for r in rows
+    ]
+    path, out = write_txt(tmp_path / "a.txt", swapped), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        "recording us-101/0750am-0805am: its lateral positions are not where its lanes are",
+        "5 of 5 lanes have their median Local_X more than a lane width outside the lane",
+        "(lane 1: 36.6 m, the lane at 0.0 to 3.7 m)",
+    )  # fmt: skip

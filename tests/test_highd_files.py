@@ -320,3 +320,16 @@ def test_a_neighbour_id_that_is_not_whole_is_refused(tmp_path: Path) -> None:
         invoke("build", tmp_path / "raw", "--out", out), out, {}, path,
         "line 4: column rightAlongsideId: '-0.25' is not a whole number",
     )  # fmt: skip
+
+
+def test_a_lateral_column_of_one_value_is_refused(tmp_path: Path) -> None:
+    # d2: y = 0 in every row: each vehicle's centre 1 m from the image's top, outside every lane.
+    rows = [{**row, hs.HIGHD_Y: 0} for row in two_directions_rows(LONG)]
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", tmp_path / "raw", "--out", out), out, {}, path,
+        "recording highd-2/01: its lateral positions are not where its lanes are",
+        "2 of 2 lanes have their median y more than a lane width outside the lane",
+        "(lane 3: 1.0 m, the lane at 11.5 to 15.0 m)",
+    )  # fmt: skip

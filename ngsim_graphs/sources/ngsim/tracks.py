@@ -39,6 +39,13 @@ from ngsim_graphs.sources.contract import (
     TracksPart,
     finish_tracks,
 )
+from ngsim_graphs.sources.lanes import (
+    FREEWAY_LANES,
+    FREEWAY_LOCATIONS,
+    LATERAL_M,
+    check_lanes,
+    lane_medians,
+)
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
     CONFLICT_ORDER,
@@ -228,7 +235,23 @@ def read_file(
     """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
     read = read_file_recordings(path, config, file_index, scratch)
     check_file_drops(read.report, config.limits, strict)
+    check_lateral_positions(path, read)
     return read
+
+
+def check_lateral_positions(path: Path, read: FileRows) -> None:
+    """`lanes.check_lanes` of each freeway recording of the file: Local_X must be where
+    Lane_ID says (lanes 1..6, 12 ft each from the left edge)."""
+    freeway = {i: key for key, i in read.recordings.items() if key[0] in FREEWAY_LOCATIONS}
+    if not freeway:
+        return
+    rows = read.rows.filter(pl.col(s.RECORDING_INDEX).is_in(list(freeway))).select(
+        s.RECORDING_INDEX, s.LANE_ID, (pl.col(ns.LOCAL_X) * FEET_TO_M).alias(LATERAL_M)
+    )
+    medians = lane_medians(rows, (s.RECORDING_INDEX,))
+    for index, (location, period) in freeway.items():
+        of_recording = medians.filter(pl.col(s.RECORDING_INDEX) == index)
+        check_lanes(path, f"{location}/{period}", of_recording, FREEWAY_LANES, "Local_X")
 
 
 def recording_report(
