@@ -473,3 +473,68 @@ def test_files_of_locations_left_out_are_not_checked(tmp_path: Path, rows: list[
     counts = manifest(out)["counts"]
     assert counts["rows_other_locations"] == 200 and sum(counts["rows_dropped"].values()) == 0
     assert counts["rows_read"] == counts["rows_other_locations"] + counts["rows"] == 1_200
+
+
+@pytest.mark.parametrize(
+    ("write", "line"), [(write_txt, 501), (write_period_csv, 502), (write_portal, 502)]
+)
+def test_a_row_of_another_location_is_a_stray_not_a_recording(
+    tmp_path: Path, rows: list[dict], write, line: int
+) -> None:
+    # One i-80 0400 row inserted among us-101 0750am's (the portal's saying us-101): on main a
+    # recording i-80/0400-0415 of 1 row, not counted, nothing said.
+    rows.insert(500, {**_i80(rows)[0], s.VEHICLE_ID: 41})
+    path = write(tmp_path / "raw" / "us-101" / "trajectories-0750am-0805am.csv", rows)
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "dropped 1 row: Global_Time off its recording" in result.stdout
+    assert f"(first: {path}, line {line})." in result.stdout
+    built = manifest(out)
+    assert [r["name"] for r in built["recordings"]] == ["us-101_0750am-0805am"]
+    assert built["counts"]["rows_dropped"][DropReason.GLOBAL_TIME.value] == 1
+    assert built["counts"]["rows"] == 1_000
+
+
+def test_an_optional_column_empty_in_every_row_is_said(tmp_path: Path, rows: list[dict]) -> None:
+    # Time_Headway emptied in every row (d6: swapped with the empty O_Zone): the rows are kept,
+    # and a warning names the file and the column, in the manifest too.
+    path = write_period_csv(tmp_path / "a.csv", [{**row, ns.TIME_HEADWAY: None} for row in rows])
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    warning = f"{path}: column Time_Headway is empty in every row"
+    assert warning in result.stderr
+    assert [w for w in manifest(out)["warnings"] if w.startswith(warning)] != []
+    assert manifest(out)["counts"]["rows"] == 1_000
+    tracks = pl.read_parquet(out / "tracks" / "us-101_0750am-0805am.parquet")
+    assert tracks[s.TIME_HEADWAY_S].null_count() == tracks.height
+
+
+def test_no_warning_where_the_optional_columns_hold_values(
+    tmp_path: Path, rows: list[dict]
+) -> None:
+    rows = [{**row, ns.SPACE_HEADWAY: None} for row in rows[:-1]] + rows[-1:]  # one value left
+    path, out = write_period_csv(tmp_path / "a.csv", rows), tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "empty in every row" not in result.stderr and manifest(out)["warnings"] == []
+
+
+def test_local_x_swapped_with_space_headway_is_refused(tmp_path: Path, rows: list[dict]) -> None:
+    # d3: each vehicle in its lane (Lane_ID v % 5 + 1, Local_X at its centre), 120 ft behind its
+    # leader; Local_X and Space_Headway swapped in every row: each value plausible, every lane's
+    # vehicles 36.6 m from the left edge.
+    rows = [{**row, s.LANE_ID: row[s.VEHICLE_ID] % 5 + 1, ns.SPACE_HEADWAY: 120.0} for row in rows]
+    good = write_txt(tmp_path / "good" / "a.txt", rows)
+    assert invoke("build", good, "--out", tmp_path / "built").exit_code == 0
+    swapped = [
+        {**r, ns.LOCAL_X: r[ns.SPACE_HEADWAY], ns.SPACE_HEADWAY: r[ns.LOCAL_X]} for r in rows
+    ]
+    path, out = write_txt(tmp_path / "a.txt", swapped), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        "recording us-101/0750am-0805am: its lateral positions are not where its lanes are",
+        "5 of 5 lanes have their median Local_X more than a lane width outside the lane",
+        "(lane 1: 36.6 m, the lane at 0.0 to 3.7 m)",
+    )  # fmt: skip

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -294,3 +295,41 @@ def test_a_tracks_file_cut_at_a_line_end_is_refused(
         f"error: {path}: track {track} has {rows:,} rows where 01_tracksMeta.csv says "
         f"{frames:,} (numFrames){more}: cut short?"
     )
+
+
+def test_an_optional_column_empty_in_every_row_is_said(tmp_path: Path) -> None:
+    rows = [{**row, hs.HIGHD_X_ACCELERATION: ""} for row in two_directions_rows(LONG)]
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    result = invoke("build", tmp_path / "raw", "--out", out)
+    assert result.exit_code == 0, result.output
+    warning = f"{path}: column xAcceleration is empty in every row"
+    assert warning in result.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [w for w in manifest["warnings"] if w.startswith(warning)] != []
+
+
+def test_a_neighbour_id_that_is_not_whole_is_refused(tmp_path: Path) -> None:
+    # xAcceleration swapped with rightAlongsideId: the ids are accelerations (line 4's -0.25).
+    rows = two_directions_rows(LONG)
+    for i, row in enumerate(rows):
+        row[hs.HIGHD_X_ACCELERATION], row["rightAlongsideId"] = 0, -0.25 if i == 2 else 0
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", tmp_path / "raw", "--out", out), out, {}, path,
+        "line 4: column rightAlongsideId: '-0.25' is not a whole number",
+    )  # fmt: skip
+
+
+def test_a_lateral_column_of_one_value_is_refused(tmp_path: Path) -> None:
+    # d2: y = 0 in every row: each vehicle's centre 1 m from the image's top, outside every lane.
+    rows = [{**row, hs.HIGHD_Y: 0} for row in two_directions_rows(LONG)]
+    path = write_recording(tmp_path / "raw", rows, TWO_DIRECTIONS)
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", tmp_path / "raw", "--out", out), out, {}, path,
+        "recording highd-2/01: its lateral positions are not where its lanes are",
+        "2 of 2 lanes have their median y more than a lane width outside the lane",
+        "(lane 3: 1.0 m, the lane at 11.5 to 15.0 m)",
+    )  # fmt: skip

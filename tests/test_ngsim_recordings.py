@@ -197,3 +197,15 @@ def test_a_portal_row_is_placed_by_location_and_time_together() -> None:
     index, names = identify_recordings(frame_of(rows, locations), Path("p.csv"), usable)
     assert names == [("i-80", I80_FIRST.period), ("us-101", US101_FIRST.period)]
     assert index.to_list() == [1] * 100 + [0] * 100 + [None, None]
+
+
+@pytest.mark.parametrize("i80_rows", [1, 50])
+def test_rows_of_another_location_in_a_file_of_one_are_strays(i80_rows: int) -> None:
+    # A per-period file (no Location column) of us-101 0750am with i-80 0400's rows inserted:
+    # the file's location is its largest group's, us-101, and the i-80 rows are strays, whether
+    # one (under 1 % of the largest) or 50 (which the build then refuses as too many).
+    rows = [make_row(1 + f // 100, f % 100) for f in range(1000)]
+    rows += [make_row(7, f, start_ms=I80_FIRST.start_epoch_ms) for f in range(i80_rows)]
+    index, names = identify_recordings(frame_of(rows, [None] * len(rows)), Path("t.txt"))
+    assert names == [("us-101", "0750am-0805am")]
+    assert index.to_list() == [0] * 1000 + [None] * i80_rows

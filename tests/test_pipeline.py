@@ -341,7 +341,8 @@ def test_a_conflicting_duplicate_across_files_is_kept_alike_in_any_order(tmp_pat
         tmp_path / "x.csv", straight_track(1, frames) + straight_track(2, frames, x_ft=30.0)
     )
     moved = make_row(1, 100, local_x_ft=18.5, local_y_ft=300.0)
-    y = write_period_csv(tmp_path / "y.csv", [moved, *straight_track(3, frames, x_ft=42.0)])
+    lane_4 = straight_track(3, frames, x_ft=42.0, lane_id=4)  # 42 ft: lane 4's (36..48 ft)
+    y = write_period_csv(tmp_path / "y.csv", [moved, *lane_4])
     out, _ = assert_built_alike(tmp_path, [x, y], [y, x])
     counts = layout.read_manifest(out).counts
     assert (counts.exact_duplicates, counts.conflicting_duplicates) == (0, 1)

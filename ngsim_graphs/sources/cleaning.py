@@ -36,6 +36,25 @@ DESCRIPTIONS: dict[DropReason, str] = {
 }
 
 
+def empty_column_notes(
+    frame: pl.LazyFrame | pl.DataFrame, columns: dict[str, str]
+) -> tuple[str, ...]:
+    """A line for each of `columns` (parsed name: the name as the file spells it) that is empty
+    in every row of `frame`: an optional column, so the rows are kept, but a column emptied (or
+    swapped with an empty one) must not pass without a word."""
+    flags = (
+        frame.lazy()
+        .select(pl.col(c).is_null().all().alias(c) for c in columns)
+        .collect(engine="streaming")
+        .row(0)
+    )
+    return tuple(
+        f"column {name} is empty in every row (its values are missing from the build)"
+        for name, empty in zip(columns.values(), flags, strict=True)
+        if empty
+    )
+
+
 def drop_duplicate_rows(
     frame: pl.DataFrame, conflict_order: tuple[str, ...]
 ) -> tuple[pl.DataFrame, int, int]:

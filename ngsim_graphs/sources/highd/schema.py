@@ -39,6 +39,16 @@ HIGHD_PRECEDING_X_VELOCITY: Final = "precedingXVelocity"
 HIGHD_PRECEDING_ID: Final = "precedingId"  # 0: none
 HIGHD_FOLLOWING_ID: Final = "followingId"  # 0: none
 HIGHD_LANE_ID: Final = "laneId"  # numbered from the top of the image, edges and median included
+# The neighbours on either side: not in the tracks table, but parsed, so that a column of other
+# values in their place (accelerations, not whole) is refused.
+HIGHD_SIDE_IDS: Final[tuple[str, ...]] = (
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+)
 
 HIGHD_TRACKS_HEADER: Final[tuple[str, ...]] = (
     HIGHD_FRAME,
@@ -59,12 +69,7 @@ HIGHD_TRACKS_HEADER: Final[tuple[str, ...]] = (
     HIGHD_PRECEDING_X_VELOCITY,
     HIGHD_PRECEDING_ID,
     HIGHD_FOLLOWING_ID,
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
+    *HIGHD_SIDE_IDS,
     HIGHD_LANE_ID,
 )
 # The tracks columns the reader parses, with their dtypes; the rest of the header is not read.
@@ -84,6 +89,7 @@ HIGHD_TRACKS_SCHEMA: Final = pl.Schema(
         HIGHD_THW: pl.Float64,
         HIGHD_PRECEDING_ID: pl.Int32,
         HIGHD_FOLLOWING_ID: pl.Int32,
+        **dict.fromkeys(HIGHD_SIDE_IDS, pl.Int32),
         HIGHD_LANE_ID: pl.Int16,
     }
 )

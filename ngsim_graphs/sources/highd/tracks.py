@@ -26,7 +26,7 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason
-from ngsim_graphs.sources import cleaning, contract, speeds
+from ngsim_graphs.sources import cleaning, contract, lanes, speeds
 from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import (
     FIRST_LINE,
@@ -70,6 +70,9 @@ CONFLICT_ORDER: tuple[str, ...] = (
     *(c for c in STAGED_SCHEMA if c not in (s.VEHICLE_ID, s.FRAME_ID, s.Y_M, s.X_M)),
 )
 
+# The parsed columns a row may leave empty, each by its name.
+_OPTIONAL = {c: c for c in hs.HIGHD_TRACKS_SCHEMA if c not in hs.HIGHD_REQUIRED_COLUMNS}
+
 
 def _recording(
     path: Path, config: BuildConfig
@@ -93,7 +96,11 @@ def _recording(
             f"recording id {meta.recording_id}, but the file name says {prefix}",
             line=FIRST_LINE,
         )
-    return kind, meta, (location_name(meta.location_id), period_name(meta.recording_id))
+    return kind, meta, _recording_key(meta)
+
+
+def _recording_key(meta: RecordingMeta) -> contract.RecordingKey:
+    return location_name(meta.location_id), period_name(meta.recording_id)
 
 
 def _report(
@@ -145,6 +152,16 @@ def _check_whole_tracks(path: Path, raw: pl.DataFrame, vehicles: pl.DataFrame) -
         )
 
 
+def _check_lateral_positions(path: Path, usable: pl.DataFrame, meta: RecordingMeta) -> None:
+    """`lanes.check_lanes` of the recording: each laneId's vehicles (their centres, image y)
+    must be between that lane's markings."""
+    centre = pl.col(hs.HIGHD_Y) + pl.col(hs.HIGHD_HEIGHT) / 2
+    rows = usable.select(pl.col(hs.HIGHD_LANE_ID).alias(s.LANE_ID), centre.alias(lanes.LATERAL_M))
+    bands = lanes.marked_lanes(meta.upper_markings_m, meta.lower_markings_m)
+    name = "/".join(_recording_key(meta))
+    lanes.check_lanes(path, name, lanes.lane_medians(rows), bands, "y")
+
+
 def _road_rows(
     usable: pl.DataFrame, path: Path, meta: RecordingMeta, file_index: int, vehicles: pl.DataFrame
 ) -> pl.DataFrame:
@@ -189,6 +206,7 @@ def _staged_rows(
         (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
     )
     usable = checked.filter(pl.col("complete") & pl.col("reason").is_null())
+    _check_lateral_positions(path, usable, meta)
     rows = _road_rows(usable, path, meta, file_index, vehicles)
     backwards = rows.select(moves_backwards()).to_series()
     against = rows.filter(backwards).select(
@@ -208,6 +226,7 @@ def _staged_rows(
         "rows_dropped": {r.value: counts.get(r.value, 0) for r in cleaning.FILE_REASONS},
         "first_dropped_line": {r: first for r, _, first in sorted(dropped.iter_rows())},
         "rows_checked": raw.height - missing.height,
+        "notes": cleaning.empty_column_notes(raw, _OPTIONAL),
     }
     return rows, report
 

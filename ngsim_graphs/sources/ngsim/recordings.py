@@ -115,6 +115,14 @@ def _names_an_unclaimed_period(
     return official is not None and (official.location, official.period) not in keys
 
 
+def _names_another_location(frame0_ms: int, file_location: str | None) -> bool:
+    """Whether a frame-0 time names an official period of another location than
+    `file_location`, the location of a file whose rows do not say theirs (a per-location or
+    per-period file holds one location's rows: its largest group's)."""
+    official = find_official_recording(frame0_ms)
+    return file_location is not None and official is not None and official.location != file_location
+
+
 # A frame-0 time shared by the whole record of this many vehicles (and nearly all of its rows
 # theirs) is a clock of its own, a recording, however near another: stray rows are rows of
 # vehicles recorded on another clock too, a damaged Global_Time, never whole vehicles.
@@ -192,9 +200,12 @@ def recording_index(
     they are strays: rows whose frame-0 time lies within MATCH_TOLERANCE_MS of a larger group's,
     names the same recording as a larger group, or is shared by few rows (under
     STRAY_GROUP_SHARE of the location's largest group) and names no official period that a
-    larger group has not named. A group that is a clock of its own (MIN_CLOCK_VEHICLES whole
-    vehicles and nearly all its rows theirs) is never stray: it is a recording, its period
-    suffixed (-2, ...) if a larger group has the same name, and said in the lines returned.
+    larger group has not named. Where the rows do not say their location (all but the portal
+    CSV), the largest group's location is the file's, and a group whose frame-0 time names an
+    official period of another location is stray whatever its size. A group that is a clock
+    of its own (MIN_CLOCK_VEHICLES whole vehicles and nearly all its rows theirs) is never
+    stray: it is a recording, its period suffixed (-2, ...) if a larger group has the same
+    name, and said in the lines returned.
     A stray row's index is null, as is that of a row without a time or frame; the caller counts
     and drops them. Only the `usable` rows (a bool expression; all by default) form recordings;
     the others get the index of the recording whose frame-0 time they share, if any. Recordings
@@ -205,8 +216,11 @@ def recording_index(
     own: dict[int, list[int]] = {}  # by accepted position: the only vehicles of a clock's rows
     notes: dict[tuple[str, str], str] = {}
     groups, per_vehicle = _frame0_groups(frame if usable is None else frame.filter(usable))
+    file_location: str | None = None  # of rows that do not say theirs: the largest group's
     for position, group in enumerate(groups.iter_rows(named=True)):
         location, frame0_ms = group[s.LOCATION], group[FRAME0_MS]
+        if location is None and _names_another_location(frame0_ms, file_location):
+            continue  # stray rows: another location's recording inside this location's file
         near = [
             (loc, ms) for loc, ms, _ in accepted
             if loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS
@@ -231,6 +245,8 @@ def recording_index(
             )
         accepted.append((location, frame0_ms, position))
         keys.append(key)
+        if location is None and file_location is None:
+            file_location = key[0]
     order = sorted(
         range(len(keys)),
         key=lambda i: (accepted[i][0] is None, accepted[i][0] or "", accepted[i][1]),

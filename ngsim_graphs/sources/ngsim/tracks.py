@@ -27,6 +27,7 @@ from ngsim_graphs.sources.cleaning import (
     cleaned_report,
     downsample_to_grid,
     drop_duplicate_rows,
+    empty_column_notes,
     split_at_gaps,
 )
 from ngsim_graphs.sources.contract import (
@@ -37,6 +38,13 @@ from ngsim_graphs.sources.contract import (
     Source,
     TracksPart,
     finish_tracks,
+)
+from ngsim_graphs.sources.lanes import (
+    FREEWAY_LANES,
+    FREEWAY_LOCATIONS,
+    LATERAL_M,
+    check_lanes,
+    lane_medians,
 )
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
@@ -61,10 +69,12 @@ from ngsim_graphs.sources.ngsim.recordings import (
 from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
 from ngsim_graphs.sources.text import ROW
 
-# The required columns as NGSIM's header spells them, for messages.
-REQUIRED_NAMES = tuple(
-    next(h for h in ns.PORTAL_HEADER if h.lower() == column) for column in ns.REQUIRED_VALUE_COLUMNS
-)
+# The columns as NGSIM's header spells them, for messages: the required ones, the others.
+SPELLED = {
+    column: next(h for h in ns.PORTAL_HEADER if h.lower() == column) for column in ns.TXT_COLUMNS
+}
+REQUIRED_NAMES = tuple(SPELLED[column] for column in ns.REQUIRED_VALUE_COLUMNS)
+OPTIONAL_NAMES = {c: name for c, name in SPELLED.items() if c not in ns.REQUIRED_VALUE_COLUMNS}
 
 
 def read_file_recordings(
@@ -144,7 +154,8 @@ def read_file_recordings(
         rows_checked=kept + sum(counts.values()),
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
-        notes=tuple(note for key, note in sorted(notes.items()) if key in chosen),
+        notes=tuple(note for key, note in sorted(notes.items()) if key in chosen)
+        + empty_column_notes(raw.frame, OPTIONAL_NAMES),
     )
     return FileRows(rows, chosen, report)
 
@@ -224,7 +235,23 @@ def read_file(
     """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
     read = read_file_recordings(path, config, file_index, scratch)
     check_file_drops(read.report, config.limits, strict)
+    check_lateral_positions(path, read)
     return read
+
+
+def check_lateral_positions(path: Path, read: FileRows) -> None:
+    """`lanes.check_lanes` of each freeway recording of the file: Local_X must be where
+    Lane_ID says (lanes 1..6, 12 ft each from the left edge)."""
+    freeway = {i: key for key, i in read.recordings.items() if key[0] in FREEWAY_LOCATIONS}
+    if not freeway:
+        return
+    rows = read.rows.filter(pl.col(s.RECORDING_INDEX).is_in(list(freeway))).select(
+        s.RECORDING_INDEX, s.LANE_ID, (pl.col(ns.LOCAL_X) * FEET_TO_M).alias(LATERAL_M)
+    )
+    medians = lane_medians(rows, (s.RECORDING_INDEX,))
+    for index, (location, period) in freeway.items():
+        of_recording = medians.filter(pl.col(s.RECORDING_INDEX) == index)
+        check_lanes(path, f"{location}/{period}", of_recording, FREEWAY_LANES, "Local_X")
 
 
 def recording_report(
