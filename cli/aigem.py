@@ -212,15 +212,33 @@ def fit(
         raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     several = len(horizons_s) > 1
-    with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.refusals import check_fit
+    with _held(out):  # one fit at a time into --out, as build and paper
+        with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
+            from aigem.refusals import check_fit
 
-        with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
-            check_fit(data, out, horizons_s if several else None, model_config, train, resume)
-        import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
-    group = horizons_s if several else None
-    results = _train(data, out, group, model_config, train, device.value, resume)
+            with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out
+                check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+            import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
+        group = horizons_s if several else None
+        results = _train(data, out, group, model_config, train, device.value, resume)
     print_results(results, out)
+
+
+@contextmanager
+def _held(out: Path) -> Iterator[None]:
+    """Hold --out's lock for the block (ngsim_graphs.lock: `.OUT.lock` beside it, as a build's
+    and a paper's): a second fit, build or paper into the same folder meanwhile is refused with
+    one line, and the lock goes with this process, however it ends."""
+    from ngsim_graphs.lock import release_lock, take_lock
+
+    resolved = out.resolve()  # `--out .` has a name
+    with exit_on_interrupt("nothing written"), exit_on_error():
+        out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
+        lock = take_lock(resolved)
+    try:
+        yield
+    finally:
+        release_lock(lock, resolved)
 
 
 def _train(
