@@ -214,10 +214,13 @@ def fit(
     several = len(horizons_s) > 1
     with _held(out):  # one fit at a time into --out, as build and paper
         with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
+            from aigem.records import UNRECORDED, unrecorded_checkpoints
             from aigem.refusals import check_fit
 
             with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out
                 check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+                for path in unrecorded_checkpoints(out) if resume else []:
+                    print_warning(f"{path}: {UNRECORDED}; recorded as they are from now on")
             import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
         group = horizons_s if several else None
         results = _train(data, out, group, model_config, train, device.value, resume)
@@ -357,12 +360,14 @@ def evaluate(
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import read_horizons
+        from aigem.records import BEST, UNRECORDED, read_horizons, unrecorded_checkpoints
         from aigem.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
             several = read_horizons(run) is not None
+            for path in unrecorded_checkpoints(run, (BEST,)):
+                print_warning(f"{path}: {UNRECORDED}")
         from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
         from aigem.evaluation import evaluate_horizons
