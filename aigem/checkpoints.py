@@ -1,15 +1,18 @@
 """A run's checkpoints, read back safely and checked (what they record: aigem.records).
 
 Checkpoints are loaded with `weights_only=True` (tensors and plain data only: loading
-never runs code from the file) and checked against what `aigem fit` writes; anything else is one
+never runs code from the file) and checked against what `aigem fit` writes, their bytes against
+the sha256 that the run's run.json records (aigem.records.DIGESTS); anything else is one
 `NgsimInputError` naming the file.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import re
 import warnings
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -20,14 +23,28 @@ from aigem.records import check_info, model_config
 from ngsim_graphs.errors import NgsimInputError
 
 BEST_KEYS, LAST_KEYS = ("info", "model", "epoch"), ("info", "model", "optimizer", "state")
+ALTERED = (
+    "its bytes do not match the sha256 that run.json records for it: damaged or edited since "
+    "fit kept it"
+)
 
 
 # ------------------------------------------------------------------------------------------------
 # Reading checkpoints.
 
 
-def load_checkpoint(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
-    """A checkpoint written by `aigem fit`, loaded without running anything from the file."""
+def checkpoint_sha256(data: bytes) -> str:
+    """The sha256 of a checkpoint's bytes, as run.json records it (integrity.file_sha256's, of
+    the bytes in hand: those checked are those loaded)."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def load_checkpoint(
+    path: Path, keys: tuple[str, ...], accepted: Collection[str] | None
+) -> dict[str, Any]:
+    """A checkpoint written by `aigem fit`, loaded without running anything from the file; its
+    bytes must have one of the sha256 values `accepted` (aigem.records.accepted_digests; None:
+    a run that records none, unchecked)."""
     data = path.read_bytes()  # a file-system error is an OSError naming the file; after this,
     if not data:  # any error is the content's
         raise NgsimInputError(path, "empty checkpoint (0 bytes): the run is damaged")
@@ -58,6 +75,8 @@ def load_checkpoint(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
             path, f"not an aigem checkpoint: expected {', '.join(keys)}, found {found}"
         )
     check_info(checkpoint["info"], path)
+    if accepted is not None and checkpoint_sha256(data) not in accepted:
+        raise NgsimInputError(path, ALTERED)
     return checkpoint
 
 

@@ -20,15 +20,48 @@ handlers, which wait:
   its shutdown waits for the sidecar for up to 300 s: pytorch/pytorch#162199 reports that wait
   after a cold start (a fresh kernel cache, as on a machine just lent). `compile_in_process`
   compiles in this process instead: no pool to wait for.
+
+And one kind would outlive the fit itself: a DataLoader worker whose fit is killed outright
+(kill -9, the out-of-memory killer) notices only at its next status check, every 5 s (PyTorch's
+MP_STATUS_CHECK_INTERVAL), and went on loading batches for 6 s. `EndWithParent`, each loader's
+`worker_init_fn`, asks Linux to kill the worker the moment its parent ends
+(prctl(PR_SET_PDEATHSIG, SIGKILL), prctl(2)).
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
+import sys
 
 from torch.utils.data import DataLoader
 
 COMPILE_THREADS = "TORCHINDUCTOR_COMPILE_THREADS"  # Inductor's setting of compile_threads
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+class EndWithParent:
+    """A DataLoader's `worker_init_fn` that ends each worker with the process that made the
+    loader: on Linux the kernel sends the worker SIGKILL when its parent ends, however it ends
+    (prctl(PR_SET_PDEATHSIG), the documented mechanism; a worker holds nothing of its own to
+    clean up: its batches are the parent's). The kernel sends it when the thread that started
+    the worker ends: the loaders of fit and of load_split are iterated by the main thread. A
+    parent that ended before the worker asked is caught by its pid. Elsewhere PyTorch's own
+    check, within 5 s, is left to end the worker. Picklable: a spawned worker receives it.
+    """
+
+    def __init__(self) -> None:
+        self.parent_pid = os.getpid()
+
+    def __call__(self, worker_id: int) -> None:
+        if not sys.platform.startswith("linux"):
+            return
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+        if os.getppid() != self.parent_pid:  # the parent ended before the request
+            os._exit(1)
 
 
 def release_workers(*loaders: DataLoader) -> None:

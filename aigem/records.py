@@ -2,6 +2,11 @@
 horizons.json and baseline.json, and the build a run belongs to. aigem.refusals, aigem.runs and
 aigem.checkpoints read runs through these.
 
+run.json also records the sha256 of each checkpoint that the run keeps (DIGESTS), and a
+checkpoint is loaded only if its bytes have one of them (aigem.checkpoints); a run written before
+they were recorded (aigem 0.1.0's) has none, and its checkpoints are used unchecked, with a
+warning.
+
 Run info records each config as a mapping of its settings. A setting that a run lacks was added
 to aigem after the run was written and takes its default (a new setting's default keeps what
 aigem did before it), so that every older run loads; a setting this aigem does not know (a newer
@@ -17,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -43,6 +49,14 @@ STARTED_LINE = b"aigem fit: no checkpoint kept here yet; a new fit may start ove
 RUN_FILES = frozenset({RUN_INFO, METRICS, LAST, BEST, CURVES, BASELINE, HORIZONS})
 EARLY_FILES = frozenset({RUN_INFO, METRICS, BEST, CURVES, BASELINE})  # before the first last.pt
 IDENTITY = ("build_config_hash", "build_manifest_sha256")  # a build's identity, as a run records it
+# run.json's record of its checkpoints' bytes: name -> the sha256 values the file may have (one;
+# two while fit replaces it). Run info that checkpoints carry has no such key.
+DIGESTS = "checkpoint_sha256"
+SHA256 = re.compile(r"[0-9a-f]{64}")
+UNRECORDED = (
+    f"its {RUN_INFO} records no sha256 of its checkpoints (a run of an aigem before they were "
+    "recorded): used as it is, unchecked"
+)
 INFO_KEYS = ("build_dir", *IDENTITY, "build_config", "scaler", "model", "train")
 
 
@@ -165,6 +179,48 @@ def read_run_info(run_dir: Path) -> dict[str, Any]:
         raise NgsimInputError(path, f"unreadable run description: {err}") from None
     check_info(info, path)
     return info
+
+
+def recorded_digests(run: dict[str, Any], path: Path) -> dict[str, list[str]] | None:
+    """The sha256 values that run.json (`run`, read from `path`) accepts for each checkpoint;
+    None for a run written before they were recorded."""
+    if DIGESTS not in run:
+        return None
+    digests = run[DIGESTS]
+    if not isinstance(digests, dict) or not all(
+        isinstance(accepted, list) and accepted and all(SHA256.fullmatch(str(d)) for d in accepted)
+        for accepted in digests.values()
+    ):
+        raise NgsimInputError(path, f"its {DIGESTS} is not aigem's record of its checkpoints")
+    return digests
+
+
+def accepted_digests(run: dict[str, Any], run_dir: Path, name: str) -> list[str] | None:
+    """The sha256 values that checkpoint `name` of the run in `run_dir` (its run.json: `run`)
+    may have; None for a run that records none (UNRECORDED). A run that records them but none of
+    `name` refuses it: a checkpoint that the run did not keep."""
+    recorded = recorded_digests(run, run_dir / RUN_INFO)
+    if recorded is None:
+        return None
+    if name not in recorded:
+        raise NgsimInputError(
+            run_dir / name, f"{RUN_INFO} records no sha256 of it: not a checkpoint this run kept"
+        )
+    return recorded[name]
+
+
+def unrecorded_checkpoints(run_dir: Path, names: tuple[str, ...] = (BEST, LAST)) -> list[Path]:
+    """The checkpoints `names` of a run (of each model of a multi-horizon run) whose run.json
+    records no sha256 of them (UNRECORDED): used unchecked."""
+    horizons_s = read_horizons(run_dir)
+    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
+    return [
+        member / name
+        for member in members
+        if (member / RUN_INFO).is_file() and DIGESTS not in read_run_info(member)
+        for name in names
+        if (member / name).is_file()
+    ]
 
 
 def member_dir(run_dir: Path, horizon_s: float) -> Path:

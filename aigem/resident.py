@@ -31,6 +31,7 @@ from torch.utils.data import DataLoader, Dataset
 from aigem.capacity import Capacity, edge_columns, quantities
 from aigem.data import Collate, GraphDataset, check_covered
 from aigem.plan import Adjacency, Plan, edge_inputs, node_levels
+from aigem.processes import EndWithParent
 from ngsim_graphs import edges
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.layout import manifest_path
@@ -366,6 +367,7 @@ def load_split(
         batch_size=None,
         num_workers=workers,
         collate_fn=_as_is,
+        worker_init_fn=EndWithParent(),  # a killed fit's workers end with it
     )
     for chunk in loader:  # the workers end with the loop
         if isinstance(chunk, NgsimError):

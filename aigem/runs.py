@@ -10,7 +10,11 @@
     RUN/curves.png      training and validation loss per epoch, the best epoch, the baseline
 
 Every checkpoint carries run.json's content as its `info`, so a checkpoint alone says which build
-it belongs to and how its inputs are scaled (aigem.checkpoints reads and checks them).
+it belongs to and how its inputs are scaled (aigem.checkpoints reads and checks them). run.json
+also records each checkpoint's sha256 (records.DIGESTS), which loading checks. Before a
+checkpoint is replaced, run.json is rewritten to accept its present bytes and its new ones, and
+after, the new ones alone: a kill at any point leaves checkpoints whose bytes run.json accepts,
+and a resume settles the record on the bytes it finds.
 
 A multi-horizon run (`aigem fit --horizon-s 1,2,3,4,5`, the paper's protocol) holds one such run
 directory per horizon and a file naming them:
@@ -45,9 +49,11 @@ import torch
 from torch import nn
 
 from aigem.checkpoints import (
+    ALTERED,
     BEST_KEYS,
     LAST_KEYS,
     check_weights,
+    checkpoint_sha256,
     fitted_model,
     load_checkpoint,
 )
@@ -57,6 +63,7 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     BASELINE,
     BEST,
     CURVES,
+    DIGESTS,
     HORIZONS,
     IDENTITY,
     LAST,
@@ -65,11 +72,13 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     RUN_INFO,
     STARTED,
     STARTED_LINE,
+    accepted_digests,
     member_dir,
     model_config,
     read_baseline,
     read_horizons,
     read_run_info,
+    recorded_digests,
     run_info,
 )
 from aigem.refusals import (
@@ -81,6 +90,7 @@ from aigem.refusals import (
 )
 from aigem.unfinished import mark_started, unfinished_group, unfinished_start, unmark_started
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
+from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.partial_files import leftover_partials, write_atomic, write_failure
 
 
@@ -121,7 +131,7 @@ def load_model(
     path = run_dir / BEST
     if not path.is_file():
         raise NgsimInputError(run_dir, f"not a finished run: no {BEST} (no epoch has finished yet)")
-    checkpoint = load_checkpoint(path, BEST_KEYS)
+    checkpoint = load_checkpoint(path, BEST_KEYS, accepted_digests(run, run_dir, BEST))
     _check_same_run(checkpoint["info"], run, path)
     model = fitted_model(checkpoint["info"], checkpoint["model"], path)
     return model.to(device).eval(), checkpoint["info"]
@@ -131,10 +141,10 @@ def load_model(
 # Writing: atomically, never a torn file, never through a link (write_atomic: partial_files).
 
 
-def _save_checkpoint(payload: dict[str, Any], path: Path) -> None:
+def _serialised(payload: dict[str, Any]) -> bytes:
     buffer = io.BytesIO()  # serialised in memory, so that every disk error is Python's OSError
     torch.save(payload, buffer)
-    write_atomic(path, buffer.getvalue())
+    return buffer.getvalue()
 
 
 def _append_line(path: Path, text: str) -> None:
@@ -159,8 +169,29 @@ def _append_line(path: Path, text: str) -> None:
         os.close(fd)
 
 
-def _write_info(run_dir: Path, info: dict[str, Any]) -> None:
-    write_atomic(run_dir / RUN_INFO, (json.dumps(info, indent=2) + "\n").encode())
+def _write_info(run_dir: Path, info: dict[str, Any], digests: dict[str, list[str]]) -> None:
+    """run.json: the run `info` and the sha256 values each checkpoint may have (DIGESTS)."""
+    text = json.dumps({**info, DIGESTS: digests}, indent=2) + "\n"
+    write_atomic(run_dir / RUN_INFO, text.encode())
+
+
+def _settled_digests(run_dir: Path) -> dict[str, list[str]]:
+    """run.json's record of the checkpoints as a resume finds them: each one's own sha256, which
+    must be one that run.json accepts (a kill while fit replaced it leaves two); a run written
+    before they were recorded has its checkpoints' taken as they are (unchecked: the CLI
+    warns)."""
+    run = read_run_info(run_dir)
+    recorded = recorded_digests(run, run_dir / RUN_INFO)
+    settled = {}
+    for name in (BEST, LAST):
+        path = run_dir / name
+        if not path.is_file():
+            continue
+        digest = file_sha256(path)
+        if recorded is not None and digest not in (accepted_digests(run, run_dir, name) or ()):
+            raise NgsimInputError(path, ALTERED)
+        settled[name] = [digest]
+    return settled
 
 
 # ------------------------------------------------------------------------------------------------
@@ -187,7 +218,8 @@ def start_run(
         if is_writer:
             _remove_leftovers(run_dir)  # the run is ours: its last.pt is
             unmark_started(run_dir)  # killed after its first last.pt, before this
-            _write_info(run_dir, info)  # the latest limits (epochs, time, patience)
+            # the latest limits (epochs, time, patience); best.pt checked too
+            _write_info(run_dir, info, _settled_digests(run_dir))
             _drop_metrics_after(run_dir, state.next_epoch)
         return state, info
     if is_writer:  # the other ranks of a distributed run would see rank 0 writing run.json
@@ -208,7 +240,7 @@ def _start_over(run_dir: Path, info: dict[str, Any]) -> None:
         _remove_leftovers(run_dir)
         for name in (METRICS, BEST, BASELINE, CURVES):
             (run_dir / name).unlink(missing_ok=True)
-        _write_info(run_dir, info)
+        _write_info(run_dir, info, {})
     except NgsimOutputError:
         if created:
             unmark_started(run_dir)
@@ -258,9 +290,10 @@ def _resume(
     last = run_dir / LAST
     if not last.is_file():
         raise NgsimInputError(run_dir, f"nothing to resume: no {LAST}")
-    checkpoint = load_checkpoint(last, LAST_KEYS)
+    run = read_run_info(run_dir)
+    checkpoint = load_checkpoint(last, LAST_KEYS, accepted_digests(run, run_dir, LAST))
     saved = checkpoint["info"]
-    _check_same_run(saved, read_run_info(run_dir), last)
+    _check_same_run(saved, run, last)
     check_resume(run_dir, build_dir, saved, info)
     check_weights(model.state_dict(), checkpoint["model"], last)
     model.load_state_dict(checkpoint["model"])
@@ -337,18 +370,27 @@ def end_epoch(
     }
     if not is_writer:
         return new, row
+    kept = {}
     if better:
-        _save_checkpoint(
-            {"info": info, "model": model.state_dict(), "epoch": epoch}, run_dir / BEST
-        )
-    _append_line(run_dir / METRICS, json.dumps(row))
-    checkpoint = {
+        kept[BEST] = _serialised({"info": info, "model": model.state_dict(), "epoch": epoch})
+    last = {
         "info": info,
         "model": model.state_dict(),
         "optimizer": optimizer.state_dict(),
         "state": asdict(new),
     }
-    _save_checkpoint(checkpoint, run_dir / LAST)
+    kept[LAST] = _serialised(last)
+    # run.json accepts each checkpoint's present bytes and its new ones while it is replaced,
+    # then the new ones alone: a kill at any point leaves checkpoints that load.
+    digests = recorded_digests(read_run_info(run_dir), run_dir / RUN_INFO) or {}
+    new_digests = {name: checkpoint_sha256(data) for name, data in kept.items()}
+    replacing = {name: [*digests.get(name, []), d] for name, d in new_digests.items()}
+    _write_info(run_dir, info, {**digests, **replacing})
+    if BEST in kept:
+        write_atomic(run_dir / BEST, kept[BEST])
+    _append_line(run_dir / METRICS, json.dumps(row))
+    write_atomic(run_dir / LAST, kept[LAST])
+    _write_info(run_dir, info, {**digests, **{name: [d] for name, d in new_digests.items()}})
     unmark_started(run_dir)  # a checkpoint is kept: a fresh fit may no longer start over here
     return new, row
 
@@ -405,7 +447,8 @@ def epochs_kept(run_dir: Path) -> int:
     path = run_dir / LAST
     if not path.is_file():
         return 0
-    return _run_state(load_checkpoint(path, LAST_KEYS)["state"], path).next_epoch
+    accepted = accepted_digests(read_run_info(run_dir), run_dir, LAST)
+    return _run_state(load_checkpoint(path, LAST_KEYS, accepted)["state"], path).next_epoch
 
 
 def discard_unfinished(run_dir: Path, horizons_s: tuple[float, ...] | None, created: bool) -> None:

@@ -39,7 +39,7 @@ from aigem.devices import pick_device
 from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
 from aigem.model import AiGem, count_parameters
-from aigem.processes import compile_in_process, release_workers
+from aigem.processes import EndWithParent, compile_in_process, release_workers
 from aigem.refusals import check_splits
 from aigem.resident import fits, load_split
 from aigem.trainers import Loop, Member
@@ -114,6 +114,7 @@ def _loaders(
         "pin_memory": device.type == "cuda",
         "persistent_workers": workers > 0,
         "prefetch_factor": 4 if workers > 0 else None,
+        "worker_init_fn": EndWithParent(),  # a killed fit's workers end with it
     }
     train_loader = DataLoader(
         train_set, shuffle=sampler is None, sampler=sampler, generator=generator, **common

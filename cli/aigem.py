@@ -213,16 +213,37 @@ def fit(
         raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     several = len(horizons_s) > 1
-    with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.refusals import check_fit
+    with _held(out):  # one fit at a time into --out, as build and paper
+        with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
+            from aigem.records import UNRECORDED, unrecorded_checkpoints
+            from aigem.refusals import check_fit
 
-        with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out, before PyTorch
-            check_fit(data, out, horizons_s if several else None, model_config, train, resume)
-        _check_device(device.value)  # PyTorch alone, before the rest loads
-        import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
-    group = horizons_s if several else None
-    results = _train(data, out, group, model_config, train, device.value, resume)
+            with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out
+                check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+                for path in unrecorded_checkpoints(out) if resume else []:
+                    print_warning(f"{path}: {UNRECORDED}; recorded as they are from now on")
+            _check_device(device.value)  # PyTorch alone, before the rest loads
+            import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
+        group = horizons_s if several else None
+        results = _train(data, out, group, model_config, train, device.value, resume)
     print_results(results, out)
+
+
+@contextmanager
+def _held(out: Path) -> Iterator[None]:
+    """Hold --out's lock for the block (ngsim_graphs.lock: `.OUT.lock` beside it, as a build's
+    and a paper's): a second fit, build or paper into the same folder meanwhile is refused with
+    one line, and the lock goes with this process, however it ends."""
+    from ngsim_graphs.lock import release_lock, take_lock
+
+    resolved = out.resolve()  # `--out .` has a name
+    with exit_on_interrupt("nothing written"), exit_on_error():
+        out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
+        lock = take_lock(resolved)
+    try:
+        yield
+    finally:
+        release_lock(lock, resolved)
 
 
 def _train(
@@ -347,12 +368,14 @@ def evaluate(
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import read_horizons
+        from aigem.records import BEST, UNRECORDED, read_horizons, unrecorded_checkpoints
         from aigem.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
             several = read_horizons(run) is not None
+            for path in unrecorded_checkpoints(run, (BEST,)):
+                print_warning(f"{path}: {UNRECORDED}")
         _check_device(device.value)
         from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 import pytest
 
+from aigem.records import DIGESTS, RUN_INFO
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.synth.formats import write_synthetic
@@ -65,3 +68,12 @@ def docs_demo(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Pat
     (root / "demo" / "build").symlink_to(tiny_build, target_is_directory=True)
     fit(root / "demo" / "build", root / "demo" / "run", ModelConfig(), TrainConfig(epochs=1), "cpu")
     return root
+
+
+def record_checkpoint(path: Path) -> None:
+    """Have the run's run.json accept checkpoint `path` as it is now, as fit records each
+    checkpoint it keeps: a test that crafts a checkpoint reaches the checks behind its sha256."""
+    run_json = path.parent / RUN_INFO
+    document = json.loads(run_json.read_text())
+    document[DIGESTS][path.name] = [hashlib.sha256(path.read_bytes()).hexdigest()]
+    run_json.write_text(json.dumps(document))

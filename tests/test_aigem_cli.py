@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 import re
 import shutil
 import signal
@@ -23,6 +24,7 @@ from aigem import cores, runs
 from ngsim_cli import console
 from ngsim_cli.aigem import app
 from ngsim_cli.ngsim import app as ngsim_app
+from ngsim_graphs import lock
 
 FIT = ["--epochs", "1", "--batch-size", "8", "--horizon-s", "2", "--seed", "3", "--device", "cpu"]
 FIELD = re.compile(r"\b[a-z]+_[a-z_]+\b")  # a config field's name (batch_size, lr_schedule)
@@ -226,6 +228,26 @@ def test_sigterm_before_the_first_epoch_keeps_nothing(tiny_build: Path, tmp_path
     assert process.returncode == 130, stderr
     assert stderr.splitlines()[-1] == "interrupted before the first epoch ended; nothing kept"
     assert not run.exists()
+
+
+def test_a_second_fit_into_the_same_out_is_refused_while_the_first_runs(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """A running fit holds --out's lock (as a build and a paper hold theirs): here this test
+    holds it, as the first fit would, and the second fit is one line and touches nothing."""
+    run = tmp_path.resolve() / "run"
+    held = lock.take_lock(run)
+    try:
+        result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+        assert result.exit_code == 1
+        assert one_error_line(result) == (
+            f"error: {run}: another process is writing it (process {os.getpid()}), holding "
+            f"{tmp_path.resolve() / '.run.lock'}; wait for it to finish or choose another --out"
+        )
+        assert not run.exists()
+    finally:
+        lock.release_lock(held, run)
+    assert not (tmp_path / ".run.lock").exists()
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
 from aigem import runs
@@ -129,6 +130,7 @@ def test_the_runs_build_gone_is_one_error_line(trained_run: Path, tmp_path: Path
     checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
     checkpoint["info"]["build_dir"] = str(gone)
     torch.save(checkpoint, run / runs.BEST)
+    record_checkpoint(run / runs.BEST)  # as fit records what it keeps
     code, _, err = _evaluate(str(run))
     assert (
         code == 1
@@ -142,6 +144,7 @@ def test_non_finite_predictions_stop_with_one_line(trained_run: Path, tmp_path: 
     checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
     checkpoint["model"]["output.2.bias"][0] = float("nan")
     torch.save(checkpoint, run / runs.BEST)
+    record_checkpoint(run / runs.BEST)  # as fit records what it keeps
     code, out, err = _evaluate(str(run))
     assert code == 1 and out == "" and err.count("\n") == 1
     assert err.startswith(f"error: {run / runs.BEST}: the model's predictions on ")
@@ -297,6 +300,7 @@ def _edit_member(run: Path, edit: Callable[[dict], None]) -> None:
     checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
     edit(checkpoint["info"])
     torch.save(checkpoint, run / runs.BEST)
+    record_checkpoint(run / runs.BEST)  # as fit records what it keeps
 
 
 @pytest.mark.parametrize(
@@ -333,6 +337,7 @@ def test_a_multi_horizon_runs_non_finite_model_is_named(
     checkpoint = torch.load(run / "h2s" / runs.BEST, map_location="cpu", weights_only=True)
     checkpoint["model"]["output.2.bias"][0] = float("nan")
     torch.save(checkpoint, run / "h2s" / runs.BEST)
+    record_checkpoint(run / "h2s" / runs.BEST)  # as fit records what it keeps
     code, out, err = _evaluate(str(run))
     build = runs.read_run_info(run / "h2s")["build_dir"]
     assert code == 1 and out == "" and err.count("\n") == 1

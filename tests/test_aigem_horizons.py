@@ -6,6 +6,7 @@ model and ADE/FDE from the longest."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -279,6 +280,10 @@ def test_a_resumed_run_ends_as_an_uninterrupted_one(
     # Killed in epoch 2 between the members' checkpoints: the 2 s model's row of epoch 2 is
     # logged, its last.pt is still epoch 1's. Only the 2 s model trains again, alone.
     (run / "h2s" / runs.LAST).write_bytes(after_one)
+    document = json.loads((run / "h2s" / runs.RUN_INFO).read_text())  # as run.json then is:
+    accepted = document[runs.DIGESTS][runs.LAST]  # accepting last.pt's old bytes and new ones
+    accepted.insert(0, hashlib.sha256(after_one).hexdigest())
+    (run / "h2s" / runs.RUN_INFO).write_text(json.dumps(document))
     h1s_last = (run / "h1s" / runs.LAST).read_bytes()
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)  # fmt: skip
     assert (short.epochs_done, short.stopped_because, long.epochs_done) == (2, "epochs", 2)

@@ -3,7 +3,13 @@ error stops the fit and its traceback is kept; and the decoder compiles with no 
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,11 +18,12 @@ import torch
 import torch._inductor.config
 from torch.utils.data import DataLoader
 
+from aigem import resident
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
-from aigem.processes import COMPILE_THREADS, compile_in_process, release_workers
-from aigem.training import fit
+from aigem.processes import COMPILE_THREADS, EndWithParent, compile_in_process, release_workers
+from aigem.training import _loaders, fit
 
 
 def started_since(before: set[int]) -> set[int]:
@@ -93,3 +100,85 @@ def test_a_fit_that_compiles_compiles_in_process(
     train = TrainConfig(epochs=1, batch_size=64, horizon_s=1.0, threads=1, compile=True)
     fit(tiny_build, tmp_path / "run", ModelConfig(), train, "cpu")
     assert settings == [1]
+
+
+LINUX = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl is Linux's")
+PR_GET_PDEATHSIG = 2  # <linux/prctl.h>
+
+
+def _in_a_child(ask: EndWithParent) -> int:
+    """The exit status of a forked child that runs `ask` as a worker would, then exits with the
+    signal the kernel will send it when its parent ends (prctl(PR_GET_PDEATHSIG))."""
+    pid = os.fork()
+    if pid == 0:  # the child: nothing but these calls, then out
+        ask(0)
+        death_signal = ctypes.c_int()
+        ctypes.CDLL(None).prctl(PR_GET_PDEATHSIG, ctypes.byref(death_signal), 0, 0, 0)
+        os._exit(death_signal.value)
+    _, status = os.waitpid(pid, 0)
+    return os.waitstatus_to_exitcode(status)
+
+
+@LINUX
+def test_a_worker_asks_to_be_killed_with_its_parent() -> None:
+    assert _in_a_child(EndWithParent()) == signal.SIGKILL
+    orphan = EndWithParent()
+    orphan.parent_pid = -1  # a parent that ended before its worker asked: it ends at once
+    assert _in_a_child(orphan) == 1
+
+
+def test_the_fits_loaders_and_the_splits_loading_end_their_workers_with_the_fit(
+    tiny_build: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    train = TrainConfig(batch_size=8, workers=1)
+    _, train_loader, val_loader, *_ = _loaders(
+        tiny_build, ModelConfig(), train, 0, 1, torch.device("cpu"), 1
+    )
+    assert isinstance(train_loader.worker_init_fn, EndWithParent)
+    assert isinstance(val_loader.worker_init_fn, EndWithParent)
+    made = []  # the keyword arguments of load_split's loader
+    loader = lambda *args, **kwargs: made.append(kwargs) or DataLoader(*args, **kwargs)
+    monkeypatch.setattr(resident, "DataLoader", loader)
+    resident.load_split(GraphDataset(tiny_build, "val"), layers=2, workers=0)
+    assert isinstance(made[0]["worker_init_fn"], EndWithParent)
+
+
+def _ended(pid: int) -> bool:
+    """Whether process `pid` has ended (gone, or a zombie that nobody has reaped yet)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return True
+    return stat.rsplit(")", 1)[1].split()[0] in ("Z", "X")
+
+
+KILLED_FIT = """
+import multiprocessing, sys, time
+from pathlib import Path
+import torch
+from aigem import resident
+from aigem.config import ModelConfig, TrainConfig
+from aigem.training import _loaders
+train = TrainConfig(batch_size=8, workers=1)
+_, loader, *_ = _loaders(Path(sys.argv[1]), ModelConfig(), train, 0, 1, torch.device("cpu"), 1)
+next(iter(loader))
+print(*(child.pid for child in multiprocessing.active_children()), flush=True)
+time.sleep(600)
+"""
+
+
+@LINUX
+@pytest.mark.slow  # importing PyTorch in a new process: seconds
+def test_a_fits_loader_worker_ends_with_a_kill_9_of_the_fit(tiny_build: Path) -> None:
+    command = [sys.executable, "-c", KILLED_FIT, str(tiny_build)]
+    fit_process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    try:
+        workers = [int(pid) for pid in fit_process.stdout.readline().split()]
+    finally:
+        fit_process.kill()  # kill -9, as the out-of-memory killer does
+        fit_process.wait()
+    assert len(workers) == 1
+    deadline = time.monotonic() + 2.0  # PyTorch's own check would take up to 5 s
+    while not all(map(_ended, workers)):
+        assert time.monotonic() < deadline, f"worker {workers} alive 2 s after kill -9"
+        time.sleep(0.02)

@@ -4,6 +4,7 @@ clear error line for anything that is not our run, and no torn file when a write
 from __future__ import annotations
 
 import builtins
+import contextlib
 import errno
 import hashlib
 import json
@@ -15,6 +16,7 @@ from typing import Self
 
 import pytest
 import torch
+from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
 from aigem import records, runs
@@ -67,6 +69,11 @@ def test_a_run_records_its_builds_identity_and_scaler(trained_run: Path, tiny_bu
     assert info["build_config_hash"] == manifest["config_hash"]
     assert info["build_manifest_sha256"] == hashlib.sha256(manifest_bytes).hexdigest()
     assert info["scaler"] == manifest["scaler"] and info["build_config"] == manifest["config"]
+    digests = info.pop(records.DIGESTS)  # and the sha256 of each checkpoint, as it is
+    assert digests == {
+        name: [hashlib.sha256((trained_run / name).read_bytes()).hexdigest()]
+        for name in (runs.BEST, runs.LAST)
+    }
     for name in (runs.BEST, runs.LAST):  # loadable without running code, with the same info
         checkpoint = torch.load(trained_run / name, map_location="cpu", weights_only=True)
         assert checkpoint["info"] == info
@@ -143,6 +150,7 @@ def test_a_damaged_or_foreign_checkpoint_is_one_error_line(
         path.write_bytes(damaged[kind])
     else:
         torch.save(_foreign(kind, torch.load(path, map_location="cpu", weights_only=True)), path)
+        record_checkpoint(path)  # what a run records: the checks behind the sha256
     if name == runs.BEST:
         result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
     else:
@@ -207,6 +215,7 @@ def test_a_checkpoint_of_another_run_is_refused(
     other = tmp_path / "other"
     fit(tiny_build, other, ModelConfig(concat_position=False), FAST, "cpu")
     shutil.copy(other / runs.BEST, run / runs.BEST)
+    record_checkpoint(run / runs.BEST)  # its run.json taken along too
     result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
     assert "belongs to another run: its model differs from run.json's" in _one_error_line(
         result, run / runs.BEST
@@ -314,6 +323,7 @@ def test_resume_refuses_a_foreign_optimizer_or_progress(
         "state": {"next_epoch": "1", "best_epoch": 0, "best_val_loss": 1.0},
     }
     torch.save({**checkpoint, kind: foreign[kind]}, run / runs.LAST)
+    record_checkpoint(run / runs.LAST)
     result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT])
     assert _one_error_line(result, run / runs.LAST) == f"error: {run / runs.LAST}: {message}\n"
 
@@ -477,6 +487,8 @@ def test_a_run_from_before_cv_residual_reads_as_without_it(
     document = json.loads((run / "run.json").read_text())
     del document["model"]["cv_residual"]
     (run / "run.json").write_text(json.dumps(document))
+    record_checkpoint(run / runs.BEST)  # as that older aigem's fit kept them
+    record_checkpoint(run / runs.LAST)
     result = CliRunner().invoke(app, evaluate)
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["model"] == before["model"]
@@ -535,7 +547,15 @@ def test_a_run_of_aigem_0_1_0_loads_and_evaluates(build_of_run_0_1_0: Path, tmp_
     )
     manifest = json.loads((build_of_run_0_1_0 / "manifest.json").read_text())
     assert info["build_config_hash"] == manifest["config_hash"]
-    scores = _evaluate_json(run, build_of_run_0_1_0)
+    args = ["evaluate", str(run), "--data", str(build_of_run_0_1_0), "--other-build"]
+    result = CliRunner().invoke(app, [*args, "--device", "cpu", "--json"])
+    assert result.exit_code == 0, result.output
+    # Its run.json records no sha256 of best.pt: used as it is, and said so.
+    assert result.stderr == (
+        f"warning: {run / runs.BEST}: its run.json records no sha256 of its checkpoints (a run of "
+        "an aigem before they were recorded): used as it is, unchecked\n"
+    )
+    scores = json.loads(result.stdout)
     assert (scores["samples"], scores["parameters"], scores["horizon_steps"]) == (22, 74_242, 25)
     assert scores["same_build"] is False and scores["synthetic"] is True
     ours, baseline = scores["model"]["all"], scores["constant_velocity"]["all"]
@@ -598,3 +618,100 @@ def test_a_best_model_kept_before_a_resume_of_an_older_run_still_loads(tmp_path:
     torch.save(checkpoint, run / runs.BEST)
     with pytest.raises(NgsimInputError, match="belongs to another run: its model differs"):
         runs.load_model(run)
+
+
+# ------------------------------------------------------------------------------------------------
+# Each checkpoint's sha256, recorded in run.json and checked before anything is computed.
+
+
+def _flip_a_weight_bit(path: Path) -> None:
+    """Flip one bit inside the largest weight tensor of a checkpoint (the same size, and
+    loadable: only the numbers change, as in the reproduction d5)."""
+    weights = torch.load(path, map_location="cpu", weights_only=True)["model"]
+    raw = max(weights.values(), key=lambda tensor: tensor.numel()).numpy().tobytes()
+    data = bytearray(path.read_bytes())
+    at = data.find(raw) + len(raw) // 2
+    assert at > len(raw) // 2
+    data[at] ^= 0x20
+    path.write_bytes(bytes(data))
+    assert torch.load(path, map_location="cpu", weights_only=True)["model"].keys() == weights.keys()
+
+
+def test_a_flipped_bit_in_best_pt_is_refused_before_any_number(
+    trained_run: Path, tmp_path: Path
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    _flip_a_weight_bit(run / runs.BEST)
+    result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu", "--json"])
+    assert _one_error_line(result, run / runs.BEST) == (
+        f"error: {run / runs.BEST}: its bytes do not match the sha256 that run.json records for "
+        "it: damaged or edited since fit kept it\n"
+    )
+    assert result.stdout == ""
+
+
+@pytest.mark.parametrize("name", [runs.LAST, runs.BEST])
+def test_a_resume_refuses_a_flipped_bit_in_either_checkpoint(
+    trained_run: Path, tiny_build: Path, tmp_path: Path, name: str
+) -> None:
+    """last.pt is what a resume loads; best.pt what it would keep as the run's model."""
+    run = _copy(trained_run, tmp_path)
+    _flip_a_weight_bit(run / name)
+    result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT])
+    assert "its bytes do not match the sha256 that run.json" in _one_error_line(result, run / name)
+    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+
+
+def test_a_checkpoint_that_run_json_does_not_record_is_refused(
+    trained_run: Path, tmp_path: Path
+) -> None:
+    run = _copy(trained_run, tmp_path)
+    document = json.loads((run / runs.RUN_INFO).read_text())
+    del document[records.DIGESTS][runs.BEST]
+    (run / runs.RUN_INFO).write_text(json.dumps(document))
+    with pytest.raises(NgsimInputError, match="records no sha256 of it: not a checkpoint this run"):
+        runs.load_model(run)
+
+
+class _Killed(BaseException):
+    """A kill -9 in the middle of end_epoch's writes (nothing after it runs)."""
+
+
+@pytest.mark.parametrize("killed_before", [0, 1, 2, 3, None])
+def test_a_fit_killed_while_it_keeps_its_checkpoints_leaves_them_loadable(
+    trained_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, killed_before: int | None
+) -> None:
+    """end_epoch's writes: run.json (both digests accepted), best.pt, last.pt, run.json (the new
+    ones alone). Killed before any of them, the run's checkpoints still load, each one's bytes
+    one that run.json accepts."""
+    run = _copy(trained_run, tmp_path)
+    kept = torch.load(run / runs.LAST, map_location="cpu", weights_only=True)
+    model = AiGem(ModelConfig())
+    optimizer = torch.optim.Adam(model.parameters())
+    writes, write_atomic = [], runs.write_atomic
+
+    def write_or_die(path: Path, data: bytes) -> None:
+        if len(writes) == killed_before:
+            raise _Killed
+        writes.append(path.name)
+        write_atomic(path, data)
+
+    monkeypatch.setattr(runs, "write_atomic", write_or_die)
+    state = runs.RunState(1, 0, 1e9)  # the next epoch is the best yet: both checkpoints kept
+    with pytest.raises(_Killed) if killed_before is not None else contextlib.nullcontext():
+        runs.end_epoch(run, state, kept["info"], 1, 1.0, 2.0, model, optimizer, True)
+    assert writes == [runs.RUN_INFO, runs.BEST, runs.LAST, runs.RUN_INFO][:killed_before]
+    monkeypatch.undo()
+    runs.load_model(run)
+    epochs = runs.epochs_kept(run)
+    assert epochs == (2 if killed_before in (3, None) else 1)
+    accepted = json.loads((run / runs.RUN_INFO).read_text())[records.DIGESTS]
+    assert len(accepted[runs.LAST]) == (2 if killed_before in (1, 2, 3) else 1)
+    # A resume settles the record on what it finds.
+    runs.start_run(run, Path(kept["info"]["build_dir"]), ModelConfig(), FAST, True, model,
+                   optimizer, True)  # fmt: skip
+    settled = json.loads((run / runs.RUN_INFO).read_text())[records.DIGESTS]
+    assert settled == {
+        name: [hashlib.sha256((run / name).read_bytes()).hexdigest()]
+        for name in (runs.BEST, runs.LAST)
+    }

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
 from aigem import runs
@@ -204,6 +205,7 @@ def test_a_run_of_an_older_aigem_resumes_as_the_constant_rate_it_trained_with(
     ):  # as an aigem without schedules wrote it
         del checkpoint["info"]["train"][key]
     torch.save(checkpoint, run / runs.LAST)
+    record_checkpoint(run / runs.LAST)  # as that aigem's fit kept it
     longer = TrainConfig(**{**config.to_dict(), "epochs": 2})
     assert fit(tiny_build, run, ModelConfig(), longer, "cpu", resume=True).epochs_done == 2
     warmed = TrainConfig(**{**longer.to_dict(), "warmup_epochs": 1.0})
