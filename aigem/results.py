@@ -111,6 +111,9 @@ class Evaluation:
     # "model" / "constant_velocity" -> region -> rmse_m, mean_error_m, n: a list of K (None
     # where no target counts), at future steps 1..K (metrics.step_errors)
     steps: dict[str, dict[str, dict[str, list]]]
+    # what the run's records say of its training (aigem.course.training_record): "trained 1 of 3
+    # epochs", finished or not, how to continue
+    training: dict[str, Any] | None = None
     final: FinalErrors | None = field(default=None, repr=False, compare=False)  # not in --json
 
 
@@ -135,6 +138,7 @@ class HorizonsEvaluation:
     synthetic: bool
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
+    training: dict[str, Any] | None = None  # of every member (aigem.course.training_record)
 
 
 def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
