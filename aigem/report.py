@@ -4,11 +4,16 @@ test split and the paper's model's metrics logs.
 
     table1    AiGem's RMSE at 1..5 s (each from its own horizon's model), ADE and FDE (the 5 s
               model) and parameters; constant velocity on the same targets; the paper's Table 1
+              and the published NGSIM constant-velocity row (Deo and Trivedi 2018)
     dmin      RMSE per horizon of the fits with the output concatenation, by d_min
     concat    RMSE per horizon of the d_min 25 m fits with and without it
     curves    train and validation RMSE per epoch of each horizon's model of the paper's fit
-              (the square root of the logged MSE, metres)
+              (the square root of the logged MSE, metres), and why train lies above validation
     regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
+
+dmin, concat and regions each hold constant velocity on the same targets, and beside them the
+published rows (PUBLISHED_SERIES_NOTE: the paper draws these results without numbers). The runs'
+lines say each model's "trained N of M" epochs, and how to continue an unfinished fit.
 
 Where the builds are of synthetic data every table and figure says SYNTHETIC, where some of
 their inputs are PARTLY SYNTHETIC; where --max-hours left a fit unfinished, UNFINISHED (and
