@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from aigem.course import course_of, run_training, training_record
 from aigem.data import GraphDataset, run_scaler
 from aigem.devices import pick_device
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
@@ -130,8 +131,11 @@ def _not_finite(run: LoadedRun, dataset: GraphDataset, where: str, who: str = "m
     )
 
 
-def _evaluation(run: LoadedRun, dataset: GraphDataset, scores: Scores) -> Evaluation:
-    """The run's Evaluation from its scores on `dataset`."""
+def _evaluation(
+    run: LoadedRun, dataset: GraphDataset, scores: Scores, training: dict[str, Any]
+) -> Evaluation:
+    """The run's Evaluation from its scores on `dataset`; `training`: what its records say of
+    its training (aigem.course.training_record)."""
     config = dataset.config
     return Evaluation(
         split=dataset.split.value,
@@ -150,6 +154,7 @@ def _evaluation(run: LoadedRun, dataset: GraphDataset, scores: Scores) -> Evalua
             "model": _step_lists(scores.model),
             "constant_velocity": _step_lists(scores.constant_velocity),
         },
+        training=training,
         final=scores.final,
     )
 
@@ -177,7 +182,7 @@ def evaluate(
         scores = score_targets(run.model, dataset, steps, device, batch_size, progress, resident)
     except NonFinitePredictionError as err:
         raise NgsimInputError(run_dir / BEST, _not_finite(run, dataset, str(err))) from None
-    return _evaluation(run, dataset, scores)
+    return _evaluation(run, dataset, scores, run_training(run_dir))
 
 
 def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str, str]]:
@@ -238,15 +243,19 @@ def evaluate_horizons(
         raise NgsimInputError(
             run.run_dir / BEST, _not_finite(run, dataset, str(err), who)
         ) from None
-    members = {
-        run.run_dir.name: _evaluation(run, dataset, score)
+    courses = {run.run_dir.name: course_of(run.run_dir) for run in runs}
+    members = {  # each member's training as `evaluate` of the member says it
+        run.run_dir.name: _evaluation(run, dataset, score, run_training(run.run_dir))
         for run, score in zip(runs, scores, strict=True)
     }
-    return _combined(horizons_s, members)
+    return _combined(horizons_s, members, training_record(courses, run_dir, horizons_s))
 
 
-def _combined(horizons_s: tuple[float, ...], members: dict[str, Evaluation]) -> HorizonsEvaluation:
-    """The members' evaluations (ascending by horizon) as the paper reports them."""
+def _combined(
+    horizons_s: tuple[float, ...], members: dict[str, Evaluation], training: dict[str, Any]
+) -> HorizonsEvaluation:
+    """The members' evaluations (ascending by horizon) as the paper reports them, with what
+    the run's records say of their `training`."""
     model, baseline, sources = protocol_rows(members)
     longest = members[sources["ade_m"]]
     return HorizonsEvaluation(
@@ -263,4 +272,5 @@ def _combined(horizons_s: tuple[float, ...], members: dict[str, Evaluation]) -> 
         synthetic=longest.synthetic,
         protocol=longest.protocol,
         protocol_description=longest.protocol_description,
+        training=training,
     )

@@ -246,13 +246,12 @@ def partly_synthetic(build_dirs: Sequence[Path]) -> bool:
 
 def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], bool]:
     """(epochs kept in its last.pt, their metrics rows, whether it has nothing left to train)."""
+    from aigem.course import UNFINISHED, stop_reason
     from aigem.runs import epochs_kept, read_metrics
 
     kept = epochs_kept(member) if (member / LAST).is_file() else 0
     rows = [row for row in read_metrics(member) if row["epoch"] <= kept] if kept else []
-    patience = config.patience_epochs
-    waited = rows[-1]["epoch"] - rows[-1]["best_epoch"] if rows else 0
-    done = kept >= config.epochs or (patience is not None and bool(rows) and waited >= patience)
+    done = stop_reason(kept, config.epochs, rows, config.patience_epochs) != UNFINISHED
     return kept, rows, done
 
 

@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogFormatter, MaxNLocator
 
+from aigem.course import training_line, training_words
 from aigem.metrics import FRONT_Y_M, REGIONS
 from aigem.results import PAPER_TABLE, Evaluation, HorizonsEvaluation
 from ngsim_graphs.plotting import mark_synthetic
@@ -42,6 +43,11 @@ PAPER_MARKERS = {  # each row of the paper's table (results.PAPER_TABLE)
     "GSTCN": ("^", "tab:red"),
     "AiGem": ("o", "tab:blue"),
 }
+# The curves' labels say why the train loss may lie above the validation loss: dropout
+# (ModelConfig.dropout) is on in training and off in validation, and the train loss is the mean
+# over an epoch whose first batches met a worse model.
+TRAIN_LABEL = "train (epoch mean, dropout on)"
+VALIDATION_LABEL = "validation (end of epoch, no dropout)"
 FOOTER_CHARS_PER_IN = 14  # characters of 8-point text per inch of figure width, with room
 REGION_TITLES = {
     "front": f"front (y > {FRONT_Y_M:g} m)",
@@ -73,9 +79,10 @@ def curves_png(
     baseline_m2: float | None,
     horizon_s: float | None,
     synthetic: bool = False,
+    trained: str = "",
 ) -> bytes:
     """curves.png of a run (curves_figure)."""
-    return png_bytes(curves_figure(rows, baseline_m2, horizon_s, synthetic))
+    return png_bytes(curves_figure(rows, baseline_m2, horizon_s, synthetic, trained))
 
 
 def curves_figure(
@@ -83,11 +90,13 @@ def curves_figure(
     baseline_m2: float | None,
     horizon_s: float | None,
     synthetic: bool = False,
+    trained: str = "",
 ) -> Figure:
     """A run's training from its metrics.jsonl rows: train and validation MSE (m²) per epoch,
     the best epoch (by validation MSE) marked, constant velocity's validation MSE as a line; the
     legend below the axes, where it hides no point (after one epoch, the only points are in the
-    middle); SYNTHETIC at the top left for a run on a build of synthetic data."""
+    middle); `trained` (how many of its epochs, aigem.course) under the title; SYNTHETIC at
+    the top left for a run on a build of synthetic data."""
     figure = Figure(figsize=(7, 5), layout="constrained")
     axes = figure.add_subplot()
     epochs = [row["epoch"] for row in rows]
@@ -96,9 +105,9 @@ def curves_figure(
         [r["train_loss_m2"] for r in rows],
         marker="o",
         ms=3,
-        label="train (mean over the epoch)",
+        label=TRAIN_LABEL,
     )
-    axes.plot(epochs, [r["val_loss_m2"] for r in rows], marker="o", ms=3, label="validation")
+    axes.plot(epochs, [r["val_loss_m2"] for r in rows], marker="o", ms=3, label=VALIDATION_LABEL)
     best = int(rows[-1]["best_epoch"])
     best_m2 = next((r["val_loss_m2"] for r in rows if r["epoch"] == best), None)
     if best_m2 is not None:
@@ -128,7 +137,7 @@ def curves_figure(
         xlabel="epoch",
         ylabel="MSE over valid future steps (m², log)",
         yscale="log",
-        title=f"AiGem training{horizon}",
+        title=f"AiGem training{horizon}" + (f"\n{trained}" if trained else ""),
     )
     axes.yaxis.set_major_formatter(_PlainLog(labelOnlyBase=False))
     axes.yaxis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
@@ -177,8 +186,10 @@ def _evaluation_figure(
 ) -> Figure:
     """A figure whose bottom lines say where our curves come from (kept clear of the axes)."""
     footer = textwrap.fill(
-        f"Lines: {result.split} split ({result.samples:,} samples) of {label}.",
+        f"Lines: {result.split} split ({result.samples:,} samples) of {label}. "
+        f"{training_line(result.training)}.",
         width=int(width_in * FOOTER_CHARS_PER_IN),
+        break_on_hyphens=False,  # a command's options stay whole
     )
     footer_in = 0.1 + 0.16 * (footer.count("\n") + 1)
     height_in = 4.5 + footer_in
@@ -189,7 +200,16 @@ def _evaluation_figure(
 
 
 def _marked(figure: Figure, result: Evaluation | HorizonsEvaluation) -> Figure:
-    """The finished figure, with SYNTHETIC at its top left where the build is of synthetic data."""
+    """The finished figure: its title says how many of its epochs the model trained (in red
+    where the run is unfinished; the footer says how to continue it), SYNTHETIC at its top left
+    where the build is of synthetic data."""
+    title, trained = figure.get_suptitle(), training_words(result.training)
+    unfinished = result.training is not None and not result.training["finished"]
+    figure.suptitle(
+        f"{title}\n{trained}" if title else trained,
+        color="tab:red" if unfinished else "black",
+        fontweight="bold" if unfinished else "normal",
+    )
     if result.synthetic:
         mark_synthetic(figure)
     return figure

@@ -4,11 +4,16 @@ test split and the paper's model's metrics logs.
 
     table1    AiGem's RMSE at 1..5 s (each from its own horizon's model), ADE and FDE (the 5 s
               model) and parameters; constant velocity on the same targets; the paper's Table 1
+              and the published NGSIM constant-velocity row (Deo and Trivedi 2018)
     dmin      RMSE per horizon of the fits with the output concatenation, by d_min
     concat    RMSE per horizon of the d_min 25 m fits with and without it
     curves    train and validation RMSE per epoch of each horizon's model of the paper's fit
-              (the square root of the logged MSE, metres)
+              (the square root of the logged MSE, metres), and why train lies above validation
     regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
+
+dmin, concat and regions each hold constant velocity on the same targets, and beside them the
+published rows (PUBLISHED_SERIES_NOTE: the paper draws these results without numbers). The runs'
+lines say each model's "trained N of M" epochs, and how to continue an unfinished fit.
 
 Where the builds are of synthetic data every table and figure says SYNTHETIC, where some of
 their inputs are PARTLY SYNTHETIC; where --max-hours left a fit unfinished, UNFINISHED (and
@@ -27,7 +32,15 @@ from typing import Any
 
 from aigem.metrics import FRONT_Y_M, REGIONS
 from aigem.paper_folder import HORIZONS_S, PAPER_D_MIN_M
-from aigem.results import PAPER_CITATION, PAPER_NOTES, HorizonsEvaluation, paper_rows
+from aigem.results import (
+    CONSTANT_VELOCITY_CITATION,
+    PAPER_CITATION,
+    PAPER_NOTES,
+    PAPER_TABLE,
+    PUBLISHED_CONSTANT_VELOCITY,
+    HorizonsEvaluation,
+    paper_rows,
+)
 from ngsim_graphs.partial_files import write_atomic
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
@@ -39,12 +52,41 @@ PARTLY_SYNTHETIC_LABEL = (
 UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
 TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
 FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")
+# Why a train curve may lie above the validation one (ModelConfig.dropout is 0.05).
+TRAIN_ABOVE_VALIDATION = (
+    "The train RMSE can lie above the validation RMSE: it is the mean over the epoch's batches, "
+    "with the model's 5 % dropout active and the weights still changing, while validation scores "
+    "the epoch's final model with dropout off."
+)
+# The published numbers beside the ablations and the regions: the paper gives those as figures
+# without numbers, so only its Table 1 row (d_min 25 m, with the concatenation, every actor)
+# and constant velocity's published row can stand beside them.
+PUBLISHED_AIGEM = "AiGem (paper, Table 1: d_min 25 m, concatenation, all actors)"
+PUBLISHED_CV = "constant velocity (CS-LSTM paper, all actors)"
+PUBLISHED_SERIES_NOTE = (
+    "The paper draws its d_min, concatenation and front / mid / rear results as figures without "
+    "numbers; the published rows here are its Table 1 row and the constant-velocity row of "
+    f"{CONSTANT_VELOCITY_CITATION}, for scale."
+)
 Fit = dict[str, Any]  # d_min_m, concat_position, models (each model's course)
 
 
-def rmse_series(evaluation: HorizonsEvaluation, region: str = "all") -> list[float | None]:
-    """RMSE (m) at 1..5 s, each from its own horizon's model (the paper's protocol)."""
-    return [evaluation.model[region].get(f"rmse_{s}s_m") for s in SECONDS]
+def rmse_series(
+    evaluation: HorizonsEvaluation, region: str = "all", kind: str = "model"
+) -> list[float | None]:
+    """RMSE (m) at 1..5 s, each from its own horizon's model (the paper's protocol); `kind`
+    "constant_velocity": constant velocity's on the same targets."""
+    return [getattr(evaluation, kind)[region].get(f"rmse_{s}s_m") for s in SECONDS]
+
+
+def published_series() -> dict[str, list[float]]:
+    """The published RMSE at 1..5 s beside the ablations and the regions (PUBLISHED_SERIES_NOTE)."""
+    return {
+        PUBLISHED_AIGEM: list(PAPER_TABLE["AiGem (paper)"]["rmse_m"]),
+        PUBLISHED_CV: list(
+            PUBLISHED_CONSTANT_VELOCITY["constant velocity (CS-LSTM paper)"]["rmse_m"]
+        ),
+    }
 
 
 def _row(values: dict[str, Any], parameters: int | None = None) -> dict[str, Any]:
@@ -63,9 +105,10 @@ def table1(evaluation: HorizonsEvaluation) -> dict[str, Any]:
             "constant velocity": _row(evaluation.constant_velocity["all"]),
         },
         "targets": [evaluation.model["all"].get(f"n_{s}s") for s in SECONDS],
-        "published": paper_rows(),
+        "published": {**paper_rows(), **paper_rows(PUBLISHED_CONSTANT_VELOCITY)},
         "published_notes": PAPER_NOTES,
-        "published_source": PAPER_CITATION + " (NGSIM US-101 and I-80)",
+        "published_source": f"{PAPER_CITATION} (NGSIM US-101 and I-80); constant velocity: "
+        f"{CONSTANT_VELOCITY_CITATION}",
     }
 
 
@@ -87,6 +130,9 @@ def regions(evaluation: HorizonsEvaluation) -> dict[str, Any]:
     return {
         "front_y_m": FRONT_Y_M,
         "rmse_m": {region: rmse_series(evaluation, region) for region in REGIONS[1:]},
+        "constant_velocity_rmse_m": {
+            region: rmse_series(evaluation, region, "constant_velocity") for region in REGIONS[1:]
+        },
         "targets": {
             region: [evaluation.model[region].get(f"n_{s}s") for s in SECONDS]
             for region in REGIONS[1:]
@@ -142,12 +188,26 @@ def paper_report(
     if "dmin" in parts:
         with_concat = sorted((d, n) for (d, concat), n in by_setting.items() if concat)
         document["dmin"] = {f"{d:g}": rmse_series(evaluations[n]) for d, n in with_concat}
+        document["dmin_constant_velocity"] = {
+            f"{d:g}": rmse_series(evaluations[n], kind="constant_velocity") for d, n in with_concat
+        }
     if "concat" in parts:
+        paper_setting = sorted(
+            (item for item in by_setting.items() if item[0][0] == PAPER_D_MIN_M), reverse=True
+        )
         document["concat"] = {
             ("with" if concat else "without"): rmse_series(evaluations[name])
-            for (d, concat), name in sorted(by_setting.items(), reverse=True)
-            if d == PAPER_D_MIN_M
+            for (_, concat), name in paper_setting
         }
+        document["concat_constant_velocity"] = {
+            ("with" if concat else "without"): rmse_series(
+                evaluations[name], kind="constant_velocity"
+            )
+            for (_, concat), name in paper_setting
+        }
+    if {"dmin", "concat", "regions"} & set(parts):
+        document["published_rmse_m"] = published_series()
+        document["published_rmse_note"] = PUBLISHED_SERIES_NOTE
     if "curves" in parts:
         document["curves"] = curves(curve_rows)
     if "regions" in parts and paper is not None:
@@ -231,14 +291,29 @@ def _table1_lines(document: dict[str, Any]) -> list[str]:
     ]
 
 
+def _published_rows(document: dict[str, Any], extra: int = 0) -> list[list[str]]:
+    """The published rows beside an ablation or the regions (`extra` empty cells after them)."""
+    return [
+        [f"{name}, published NGSIM", *map(_m, values), *["–"] * extra]
+        for name, values in document["published_rmse_m"].items()
+    ]
+
+
 def _series_lines(
     document: dict[str, Any], key: str, title: str, first: str, name: str
 ) -> list[str]:
+    """An ablation's AiGem rows, constant velocity on each fit's targets, the published rows."""
     rows = [[label, *map(_m, values)] for label, values in document[key].items()]
+    rows += [
+        [f"{label}: constant velocity, same targets", *map(_m, values)]
+        for label, values in document[f"{key}_constant_velocity"].items()
+    ]
     return [
         f"## {title}{_mark(document)}",
         "",
-        *_table(_rmse_header(first), rows),
+        *_table(_rmse_header(first), rows + _published_rows(document)),
+        "",
+        document["published_rmse_note"],
         "",
         f"![{title}](figures/{name}.png)",
         "",
@@ -266,7 +341,7 @@ def _curves_lines(document: dict[str, Any]) -> list[str]:
         *_table(header, rows),
         "",
         "RMSE here is the square root of the logged MSE over the valid future steps; the best "
-        "epoch (lowest validation loss) is the model kept.",
+        "epoch (lowest validation loss) is the model kept. " + TRAIN_ABOVE_VALIDATION,
         "",
         "![Training curves](figures/curves.png)",
         "",
@@ -285,26 +360,40 @@ def _regions_lines(document: dict[str, Any]) -> list[str]:
         [words[region], *map(_m, values), _count(part["targets"][region][-1])]
         for region, values in part["rmse_m"].items()
     ]
+    rows += [
+        [
+            f"{words[region]}: constant velocity",
+            *map(_m, values),
+            _count(part["targets"][region][-1]),
+        ]
+        for region, values in part["constant_velocity_rmse_m"].items()
+    ]
     return [
         f"## Front / mid / rear: RMSE by the actor's present position{_mark(document)}",
         "",
-        *_table([*_rmse_header("region"), "targets at 5 s"], rows),
+        *_table([*_rmse_header("region"), "targets at 5 s"], rows + _published_rows(document, 1)),
+        "",
+        document["published_rmse_note"],
         "",
         "![RMSE by region](figures/regions.png)",
         "",
     ]
 
 
-def _courses(models: dict[str, dict[str, Any]]) -> str:
-    """Each model's epochs and best epoch, and why they stopped (once where alike)."""
+def _courses(models: dict[str, dict[str, Any]], epochs: int) -> str:
+    """Each model's 'trained N of M epochs' and best epoch, why they stopped (once where alike),
+    and where the time limit stopped one, how to continue."""
     stops = {m["stopped"] for m in models.values()}
     each = "; ".join(
-        f"{name}: {m['epochs_done']} (best {m['best_epoch']}"
+        f"{name}: trained {m['epochs_done']} of {epochs} (best {m['best_epoch']}"
         + ("" if len(stops) == 1 else f", {m['stopped']}")
         + ")"
         for name, m in models.items()
     )
-    return f"{each}; stopped by {stops.pop()}" if len(stops) == 1 else each
+    line = f"{each}; stopped by {next(iter(stops))}" if len(stops) == 1 else each
+    if "time limit" in stops:
+        line += "; UNFINISHED: the same `aigem paper` command continues it"
+    return line
 
 
 def _fits_lines(document: dict[str, Any]) -> list[str]:
@@ -314,7 +403,7 @@ def _fits_lines(document: dict[str, Any]) -> list[str]:
             f"{fit['d_min_m']:g}",
             "yes" if fit["concat_position"] else "no",
             f"{fit['test_samples']:,}",
-            _courses(fit["models"]),
+            _courses(fit["models"], document["settings"]["epochs"]),
         ]
         for name, fit in document["fits"].items()
     ]

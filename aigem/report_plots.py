@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from aigem import report
-from aigem.plots import BASELINE, OURS, paper_points, png_bytes
+from aigem.plots import BASELINE, OURS, REGION_TITLES, paper_points, png_bytes
 from ngsim_graphs.plotting import mark_synthetic
 
 SECONDS = np.array(report.SECONDS)
@@ -142,10 +142,9 @@ def report_figures(document: dict[str, Any]) -> dict[str, bytes]:
         )
     if "curves" in document:
         drawn["curves"] = curves_figure(document["curves"])
-    if "regions" in document:
-        series = dict(document["regions"]["rmse_m"])
-        y = document["regions"]["front_y_m"]
+    if "regions" in document:  # each region defined in its legend entry
+        series = {REGION_TITLES[r]: v for r, v in document["regions"]["rmse_m"].items()}
         drawn["regions"] = bars_figure(
-            series, f"RMSE by the actor's present position (front: y > {y:g} m)", "region"
+            series, "RMSE by the actor's present position (y along the road)", "region"
         )
     return {name: _finish(figure, document) for name, figure in drawn.items()}

@@ -63,15 +63,31 @@ PAPER_CITATION = (
     "Graph Embedding, arXiv:2410.23298, Table 1"
 )
 
+# Constant velocity on NGSIM US-101 + I-80, as published beside Table 1's CS-LSTM row (pooled
+# RMSE at 1..5 s, metres; no ADE, FDE or parameters): the line a model has to get below there.
+PUBLISHED_CONSTANT_VELOCITY = {
+    "constant velocity (CS-LSTM paper)": {
+        "ade_m": None,
+        "fde_m": None,
+        "rmse_m": (0.73, 1.78, 3.13, 4.78, 6.68),
+        "params_k": None,
+    }
+}
+CONSTANT_VELOCITY_CITATION = (
+    "Deo, Trivedi: Convolutional Social Pooling for Vehicle Trajectory Prediction, CVPR "
+    "Workshops 2018, Table 1, the constant-velocity row (NGSIM US-101 and I-80)"
+)
 
-def paper_rows() -> dict[str, dict[str, float | None]]:
-    """PAPER_TABLE in the keys of evaluate's rows: its RMSE as rmse_1s_m .. rmse_5s_m."""
+
+def paper_rows(table: dict[str, dict[str, Any]] = PAPER_TABLE) -> dict[str, dict[str, Any]]:
+    """PAPER_TABLE (or another published `table`) in the keys of evaluate's rows: its RMSE as
+    rmse_1s_m .. rmse_5s_m."""
     return {
         name: {
             **{key: value for key, value in row.items() if key != "rmse_m"},
             **{f"rmse_{s}s_m": value for s, value in enumerate(row["rmse_m"], start=1)},
         }
-        for name, row in PAPER_TABLE.items()
+        for name, row in table.items()
     }
 
 
@@ -111,6 +127,9 @@ class Evaluation:
     # "model" / "constant_velocity" -> region -> rmse_m, mean_error_m, n: a list of K (None
     # where no target counts), at future steps 1..K (metrics.step_errors)
     steps: dict[str, dict[str, dict[str, list]]]
+    # what the run's records say of its training (aigem.course.training_record): "trained 1 of 3
+    # epochs", finished or not, how to continue
+    training: dict[str, Any] | None = None
     final: FinalErrors | None = field(default=None, repr=False, compare=False)  # not in --json
 
 
@@ -135,6 +154,7 @@ class HorizonsEvaluation:
     synthetic: bool
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
+    training: dict[str, Any] | None = None  # of every member (aigem.course.training_record)
 
 
 def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:

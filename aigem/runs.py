@@ -58,6 +58,7 @@ from aigem.checkpoints import (
     load_checkpoint,
 )
 from aigem.config import ModelConfig, TrainConfig
+from aigem.course import course_of
 from aigem.model import AiGem
 from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     BASELINE,
@@ -425,7 +426,8 @@ def read_metrics(run_dir: Path) -> list[dict[str, float]]:
 
 def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
     """Training and validation loss per epoch, the best epoch and constant velocity's validation
-    loss as a PNG (aigem.plots), marked SYNTHETIC where the run's build is of synthetic data;
+    loss as a PNG (aigem.plots), titled with how many of its epochs the run trained
+    (aigem.course), marked SYNTHETIC where the run's build is of synthetic data;
     None before the first epoch."""
     from aigem.plots import curves_png  # matplotlib (a second to import), only when drawing
 
@@ -433,7 +435,9 @@ def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
     if not rows:
         return None
     horizon_s = read_run_info(run_dir)["train"].get("horizon_s")
-    picture = curves_png(rows, read_baseline(run_dir), horizon_s, synthetic)
+    course = course_of(run_dir)
+    trained = course.words() + ("" if course.finished else " (UNFINISHED: continue with --resume)")
+    picture = curves_png(rows, read_baseline(run_dir), horizon_s, synthetic, trained)
     write_atomic(run_dir / CURVES, picture)
     return run_dir / CURVES
 

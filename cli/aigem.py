@@ -381,7 +381,7 @@ def evaluate(
         from aigem.evaluation import evaluate as run_evaluate
         from aigem.evaluation import evaluate_horizons
         from aigem.results import as_dict
-        from ngsim_cli.evaluation_view import print_evaluation
+        from ngsim_cli.evaluation_view import print_evaluation, warn_unfinished
 
     left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
@@ -395,6 +395,7 @@ def evaluate(
         drawn = _draw(result, run, plots, device.value) if plots is not None else []
     if as_json:
         typer.echo(json.dumps(as_dict(result), indent=2))
+        warn_unfinished(result)
         return
     print_evaluation(result)
     if drawn:

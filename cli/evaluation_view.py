@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from rich.table import Table
 
+from aigem.course import training_line, training_words
 from aigem.metrics import REGIONS, table_columns
 from aigem.results import Evaluation, HorizonsEvaluation, paper_rows
-from ngsim_cli.console import counted, print_table, stdout
+from ngsim_cli.console import counted, print_table, print_warning, stdout
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 
@@ -28,7 +29,9 @@ def metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
 
 
 def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
-    """The tables and lines of `aigem evaluate` without --json."""
+    """The tables and lines of `aigem evaluate` without --json; each of the run's tables says
+    how many of its epochs the model trained, and an unfinished run how to continue it."""
+    trained = training_words(result.training)
     seconds = sum(key.startswith("rmse_") for key in result.model["all"])
     empty = [
         region
@@ -40,7 +43,7 @@ def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
             continue
         ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
         rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
-        title = f"{result.split} split, {region} actors (metres)"
+        title = f"{result.split} split, {region} actors (metres); {trained}"
         print_table(metrics_table(title, rows, seconds))
     if empty:
         stdout.print(f"No {' or '.join(empty)} actors among the targets: no table for them.")
@@ -64,6 +67,17 @@ def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
         else ""
     )
     stdout.print(f"These numbers come from {result.build_dir}{other}{kind}.")
+    stdout.print(
+        f"{training_line(result.training)}.", markup=False, highlight=False, soft_wrap=True
+    )
+    warn_unfinished(result)
+
+
+def warn_unfinished(result: Evaluation | HorizonsEvaluation) -> None:
+    """One warning on stderr where the run is unfinished (also beside --json)."""
+    if result.training is not None and not result.training["finished"]:
+        line = training_line(result.training)
+        print_warning(f"these scores are of an unfinished run: {line}")
 
 
 def _print_sources(result: HorizonsEvaluation, seconds: int) -> None:

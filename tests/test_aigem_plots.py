@@ -17,6 +17,7 @@ from aigem import records, runs
 from aigem.evaluation import evaluate, evaluate_horizons
 from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
 from aigem.plots import (
+    VALIDATION_LABEL,
     curves_figure,
     curves_png,
     error_by_horizon,
@@ -53,7 +54,7 @@ def _line(axes, label: str):
 
 def test_curves_draw_the_log_the_best_epoch_and_the_baseline() -> None:
     axes = curves_figure(ROWS, 3.5, 2.0).axes[0]
-    assert _line(axes, "validation").get_ydata().tolist() == [5.0, 3.0, 4.0]
+    assert _line(axes, VALIDATION_LABEL).get_ydata().tolist() == [5.0, 3.0, 4.0]
     assert _line(axes, "best: epoch 2, validation 3 m²").get_xydata().tolist() == [[2.0, 3.0]]
     baseline = _line(axes, "constant velocity, validation (3.5 m²)")
     assert set(baseline.get_ydata()) == {3.5}
@@ -126,7 +127,7 @@ def test_one_epochs_curves_show_the_point_on_a_whole_epoch_clear_of_the_legend()
     legend = figure.legends[0].get_window_extent()
     point = axes.transData.transform((1.0, 5.0))
     assert not legend.contains(*point) and axes.bbox.contains(*point)
-    validation, best = _line(axes, "validation"), _line(axes, "best: epoch 1, validation 5 m²")
+    validation, best = _line(axes, VALIDATION_LABEL), _line(axes, "best: epoch 1, validation 5 m²")
     assert validation.get_zorder() > best.get_zorder()  # the star marks the point, never hides it
 
 
@@ -143,7 +144,8 @@ def test_every_picture_of_a_synthetic_build_says_so(
     assert label_pixels(run / "h2s" / runs.CURVES) > 200  # fit's curves
     result, label = evaluate(run / "h2s", device_choice="cpu"), describe_build(tiny_build)
     footer = error_by_horizon(result, label).texts[0].get_text().replace("\n", " ")
-    assert footer == f"Lines: test split ({result.samples} samples) of {label}."  # no "build build"
+    trained = "AiGem trained 1 of 1 epoch."  # aigem.course
+    assert footer == f"Lines: test split ({result.samples} samples) of {label}. {trained}"
     document = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu", "--json"])
     assert json.loads(document.stdout)["synthetic"] is True
 

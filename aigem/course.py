@@ -1,0 +1,162 @@
+"""What a run's records say of its training: how many of its epochs it trained, why it stopped,
+and, where it stopped before its end, the command that continues it. Every table, JSON document
+and figure of a run says it (aigem.evaluation, cli/evaluation_view.py, aigem.plots), so that an
+unfinished run is never scored as if it were final.
+
+It is read from run.json (the epochs and the patience asked for, the settings that a resume must
+repeat) and metrics.jsonl (the epochs logged): no checkpoint is loaded, and a run of aigem 0.1.0
+reads too. A run stopped before its last epoch, without early stopping, is unfinished: Ctrl-C,
+a kill or --max-minutes (the records do not tell these apart; `--resume` continues each).
+"""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from aigem.config import ModelConfig, TrainConfig
+from aigem.records import model_config, read_run_info, train_config
+from aigem.refusals import RESUME_FIXED
+from ngsim_graphs.errors import NgsimInputError
+
+EPOCHS, EARLY_STOPPING, UNFINISHED = "epochs", "early stopping", "unfinished"
+
+
+def stop_reason(
+    epochs_done: int, epochs: int, rows: Sequence[dict[str, Any]], patience: int | None
+) -> str:
+    """Why a model trains no more after `epochs_done` of `epochs`, from its metrics rows (those
+    of its kept epochs): EPOCHS (all trained), EARLY_STOPPING (`patience` epochs without a better
+    validation loss), else UNFINISHED (stopped before its end: it continues with --resume)."""
+    if epochs_done >= epochs:
+        return EPOCHS
+    waited = rows[-1]["epoch"] - rows[-1]["best_epoch"] if rows else 0
+    if patience is not None and rows and waited >= patience:
+        return EARLY_STOPPING
+    return UNFINISHED
+
+
+@dataclass(frozen=True)
+class Course:
+    """A model's training as its run records it (epochs counted from 1)."""
+
+    epochs_done: int
+    epochs: int  # asked for (run.json's, the latest call's)
+    best_epoch: int | None
+    stopped: str  # EPOCHS, EARLY_STOPPING or UNFINISHED
+
+    @property
+    def finished(self) -> bool:
+        return self.stopped != UNFINISHED
+
+    def words(self) -> str:
+        """'trained 1 of 3 epochs', with ', stopped early' where the patience ended it."""
+        early = (
+            ", stopped early (no better validation loss)" if self.stopped == EARLY_STOPPING else ""
+        )
+        noun = "epoch" if self.epochs == 1 else "epochs"
+        return f"trained {self.epochs_done} of {self.epochs} {noun}{early}"
+
+
+def course_of(run_dir: Path) -> Course:
+    """The course of the model in `run_dir` (a run of one model, or a member of a group)."""
+    from aigem.runs import read_metrics  # the log's reader (aigem.runs loads PyTorch)
+
+    train = train_config(read_run_info(run_dir), run_dir)
+    rows = read_metrics(run_dir)
+    done = int(rows[-1]["epoch"]) if rows else 0
+    best = int(rows[-1]["best_epoch"]) if rows else None
+    stopped = stop_reason(done, train.epochs, rows, train.patience_epochs)
+    return Course(done, train.epochs, best, stopped)
+
+
+def resume_command(run_dir: Path, horizons_s: Sequence[float] | None = None) -> str:
+    """The `aigem fit` command that continues the run in `run_dir` (a multi-horizon run's folder
+    with its `horizons_s`, whose first member's run.json is read): its build, the settings that
+    a resume must repeat where they are not fit's defaults, and its epochs."""
+    from aigem.records import member_dir
+
+    member = run_dir if horizons_s is None else member_dir(run_dir, horizons_s[0])
+    info = read_run_info(member)
+    train, model = train_config(info, member), model_config(info, member)
+    words = ["aigem", "fit", info["build_dir"], "--out", str(run_dir.resolve())]
+    if horizons_s is not None:
+        words += ["--horizon-s", ",".join(f"{h:g}" for h in horizons_s)]
+    default = TrainConfig()
+    for name in RESUME_FIXED:
+        value = getattr(train, name)
+        if value != getattr(default, name) and not (name == "horizon_s" and horizons_s):
+            words += [
+                f"--{name.replace('_', '-')}",
+                f"{value:g}" if isinstance(value, float) else str(value),
+            ]
+    if not model.concat_position:
+        words.append("--no-concat")
+    if model.cv_residual != ModelConfig().cv_residual:
+        words.append("--cv-residual")
+    words += ["--epochs", str(train.epochs), "--resume"]
+    return shlex.join(words)
+
+
+def _group_of(run_dir: Path) -> tuple[Path, tuple[float, ...]] | None:
+    """The multi-horizon run whose member `run_dir` is, and its horizons (None: none)."""
+    from aigem.records import member_dir, read_horizons
+
+    try:
+        horizons_s = read_horizons(run_dir.parent)
+    except NgsimInputError:  # not a run's horizons.json: `run_dir` is no member of it
+        return None
+    if horizons_s is None or run_dir.name not in {
+        member_dir(run_dir.parent, h).name for h in horizons_s
+    }:
+        return None
+    return run_dir.parent, horizons_s
+
+
+def run_training(run_dir: Path) -> dict[str, Any]:
+    """training_record of the model in `run_dir`: a run of one model, or a member of a
+    multi-horizon run (continued by its group's command)."""
+    group = _group_of(run_dir)
+    courses = {run_dir.name: course_of(run_dir)}
+    return training_record(courses, *group) if group else training_record(courses, run_dir)
+
+
+def training_record(
+    courses: dict[str, Course], run_dir: Path, horizons_s: Sequence[float] | None = None
+) -> dict[str, Any]:
+    """What an evaluation says of its models' training (`courses` by model: a run of one model
+    has one, named ""): every course, whether all finished, one line that says it, and the
+    command that continues the run where one did not finish."""
+    finished = all(course.finished for course in courses.values())
+    alike = len({(c.epochs_done, c.epochs, c.stopped) for c in courses.values()}) == 1
+    if alike:
+        summary = next(iter(courses.values())).words()
+    else:
+        summary = "; ".join(f"{name} {course.words()}" for name, course in courses.items())
+    command = None if finished else resume_command(run_dir, horizons_s)
+    return {
+        "finished": finished,
+        "summary": summary,
+        "resume_command": command,
+        "models": {name: asdict(course) for name, course in courses.items()},
+    }
+
+
+def training_words(training: dict[str, Any] | None) -> str:
+    """What a table's or a figure's title says: 'AiGem trained 1 of 3 epochs', with
+    ' (UNFINISHED)' where the run stopped before its end."""
+    if training is None:
+        return "AiGem's training not recorded"
+    return f"AiGem {training['summary']}" + ("" if training["finished"] else " (UNFINISHED)")
+
+
+def training_line(training: dict[str, Any] | None) -> str:
+    """training_words, and where the run is unfinished how to continue it: '...; continue with
+    `aigem fit ... --resume`'."""
+    words = training_words(training)
+    if training is None or training["finished"]:
+        return words
+    return f"{words}; continue with `{training['resume_command']}`"

@@ -1,0 +1,145 @@
+"""What a run says of its training: 'trained N of M epochs' in every table, the JSON and the
+figures of `aigem evaluate`, and where the run is unfinished the command that continues it (and
+that command does continue it)."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from aigem import plots, runs
+from aigem.course import (
+    EARLY_STOPPING,
+    EPOCHS,
+    UNFINISHED,
+    Course,
+    course_of,
+    resume_command,
+    stop_reason,
+    training_record,
+)
+from aigem.evaluation import evaluate
+from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
+from ngsim_cli.aigem import app
+
+ROW = {"train_loss_m2": 1.0, "val_loss_m2": 1.0}
+
+
+def test_why_a_model_stopped_by_hand() -> None:
+    rows = [ROW | {"epoch": 1, "best_epoch": 1}, ROW | {"epoch": 2, "best_epoch": 1}]
+    assert stop_reason(3, 3, rows, None) == EPOCHS
+    assert stop_reason(2, 5, rows, 1) == EARLY_STOPPING  # one epoch without a better loss
+    assert stop_reason(2, 5, rows, 2) == UNFINISHED
+    assert stop_reason(2, 5, rows, None) == UNFINISHED
+    assert stop_reason(0, 5, [], 1) == UNFINISHED
+
+
+def test_a_record_of_models_alike_and_of_models_apart(tiny_horizons_run: Path) -> None:
+    done, cut = Course(3, 3, 2, EPOCHS), Course(1, 3, 1, UNFINISHED)
+    alike = training_record({"h1s": done, "h2s": done}, tiny_horizons_run, (1.0, 2.0))
+    assert alike["finished"] and alike["summary"] == "trained 3 of 3 epochs"
+    assert alike["resume_command"] is None
+    apart = training_record({"h1s": done, "h2s": cut}, tiny_horizons_run, (1.0, 2.0))
+    assert not apart["finished"]
+    assert apart["summary"] == "h1s trained 3 of 3 epochs; h2s trained 1 of 3 epochs"
+    assert apart["models"]["h2s"] == {
+        "epochs_done": 1,
+        "epochs": 3,
+        "best_epoch": 1,
+        "stopped": UNFINISHED,
+    }
+    early = Course(2, 9, 1, EARLY_STOPPING)
+    assert early.finished and early.words().startswith("trained 2 of 9 epochs, stopped early")
+
+
+def test_the_resume_command_repeats_the_settings_a_resume_needs(
+    tiny_horizons_run: Path, tiny_build: Path
+) -> None:
+    # the fixture: TrainConfig(epochs=1, batch_size=8, seed=3), horizons 1 and 2 s
+    assert resume_command(tiny_horizons_run, (1.0, 2.0)) == (
+        f"aigem fit {tiny_build.resolve()} --out {tiny_horizons_run.resolve()} --horizon-s 1,2 "
+        "--batch-size 8 --seed 3 --epochs 1 --resume"
+    )
+    assert course_of(tiny_horizons_run / "h2s") == Course(1, 1, 1, EPOCHS)
+
+
+def _invoke(*args: str) -> tuple[int, str, str]:
+    result = CliRunner().invoke(app, list(args))
+    return result.exit_code, result.stdout, result.stderr
+
+
+@pytest.fixture(scope="module")
+def cut_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`aigem fit --epochs 3` that stopped after its first epoch (its time limit ran out at the
+    first batch: the epoch it cut is checkpointed, the two after it are not trained)."""
+    run = tmp_path_factory.mktemp("course") / "run"
+    code, _, err = _invoke(
+        "fit", str(tiny_build), "--out", str(run), "--epochs", "3", "--batch-size", "8",
+        "--max-minutes", "0.000001", "--device", "cpu", "--threads", "1",
+    )  # fmt: skip
+    assert code == 0, err
+    return run
+
+
+def test_an_unfinished_run_says_so_in_every_table_the_json_and_the_figures(
+    cut_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    command = (
+        f"aigem fit {tiny_build.resolve()} --out {cut_run.resolve()} --batch-size 8 "
+        "--epochs 3 --resume"
+    )
+    code, out, err = _invoke("evaluate", str(cut_run), "--device", "cpu")
+    assert code == 0, err
+    titles = [line.strip() for line in out.splitlines() if "split," in line]
+    assert titles and all(t.endswith("AiGem trained 1 of 3 epochs (UNFINISHED)") for t in titles)
+    said = f"AiGem trained 1 of 3 epochs (UNFINISHED); continue with `{command}`"
+    assert f"{said}." in out.replace("\n", " ")
+    assert f"warning: these scores are of an unfinished run: {said}" in err.replace("\n", " ")
+
+    code, out, err = _invoke("evaluate", str(cut_run), "--device", "cpu", "--json")
+    assert code == 0 and "unfinished run" in err
+    assert json.loads(out)["training"] == {
+        "finished": False,
+        "summary": "trained 1 of 3 epochs",
+        "resume_command": command,
+        "models": {"run": {"epochs_done": 1, "epochs": 3, "best_epoch": 1, "stopped": UNFINISHED}},
+    }
+
+    result = evaluate(cut_run, device_choice="cpu")
+    for draw in (error_by_horizon, error_by_region, final_error_distribution):
+        figure = draw(result, "a build")
+        assert figure.get_suptitle().endswith("AiGem trained 1 of 3 epochs (UNFINISHED)")
+        footer = " ".join(text.get_text() for text in figure.texts).replace("\n", " ")
+        assert f"continue with `{command}`" in footer
+
+
+def test_curves_png_says_how_many_epochs_and_how_to_continue(
+    cut_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    drawn = []
+    monkeypatch.setattr(plots, "curves_png", lambda *args: drawn.append(args) or b"png")
+    runs.plot_curves(cut_run)
+    assert drawn[0][-1] == "trained 1 of 3 epochs (UNFINISHED: continue with --resume)"
+    title = plots.curves_figure(*drawn[0][:-1], trained=drawn[0][-1]).axes[0].get_title()
+    assert (
+        title
+        == "AiGem training, 5 s horizon\ntrained 1 of 3 epochs (UNFINISHED: continue with --resume)"
+    )
+
+
+def test_the_command_said_continues_the_run(cut_run: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(cut_run, run)
+    command = evaluate(run, device_choice="cpu").training["resume_command"]
+    words = shlex.split(command)
+    assert words[:2] == ["aigem", "fit"]
+    code, _, err = _invoke(*words[1:], "--device", "cpu", "--threads", "1")
+    assert code == 0, err
+    code, out, _ = _invoke("evaluate", str(run), "--device", "cpu")
+    assert code == 0 and "AiGem trained 3 of 3 epochs." in out
+    assert "UNFINISHED" not in out and "continue with" not in out
