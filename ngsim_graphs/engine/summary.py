@@ -23,8 +23,11 @@ from ngsim_graphs.splits import split_warnings
 from ngsim_graphs.version import __version__
 
 
-def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
-    """Why the chosen recordings gave no sample at all, as a user can act on it."""
+def _why_no_samples(
+    outputs: list[RecordingOutput], config: BuildConfig, frames_per_step: int
+) -> str:
+    """Why the chosen recordings gave no sample at all, as a user can act on it
+    (`frames_per_step`: the source's frames per grid step)."""
     rows = sum(o.report.rows for o in outputs)
     why = PROTOCOLS[config.protocol].why_no_samples(_script_total(outputs), rows, config)
     if why is not None:
@@ -32,7 +35,7 @@ def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
     if sum(o.report.grid_rows for o in outputs) == 0:
         return (
             f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
-            f"the frames whose Frame_ID is a multiple of {config.frames_per_step} (are they all odd?)"
+            f"the frames whose number is a multiple of {frames_per_step} (are they all odd?)"
         )
     longest = max(o.longest_track_steps for o in outputs)
     if longest < config.window_steps:
@@ -45,12 +48,13 @@ def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
 
 
 def check_some_samples(
-    outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]
+    outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path], frames_per_step: int
 ) -> None:
     if sum(sum(o.samples.values()) for o in outputs) == 0:
         more = f" (and {len(raw_paths) - 1} more)" if len(raw_paths) > 1 else ""
         raise NgsimInputError(
-            f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}"
+            f"{raw_paths[0]}{more}",
+            f"no samples: {_why_no_samples(outputs, config, frames_per_step)}",
         )
 
 

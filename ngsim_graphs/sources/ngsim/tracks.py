@@ -15,7 +15,7 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import FRAME_STEP_S, BuildConfig
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason
@@ -38,6 +38,7 @@ from ngsim_graphs.sources.contract import (
     Source,
     TracksPart,
     finish_tracks,
+    frames_per_step,
 )
 from ngsim_graphs.sources.lanes import (
     FREEWAY_LANES,
@@ -62,6 +63,7 @@ from ngsim_graphs.sources.ngsim.plausibility import (
     row_drop_reason,
 )
 from ngsim_graphs.sources.ngsim.recordings import (
+    FRAME_PERIOD_S,
     KNOWN_LOCATION_NAMES,
     is_ngsim_location,
     recording_index,
@@ -198,12 +200,12 @@ def vehicle_tracks(
     outlier = outlier_rows(unique, config.limits)
     cleaned = unique.filter(~outlier)
     jumps = jump_rows(cleaned, config.limits)
-    compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_STEP_S)
+    compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_PERIOD_S)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
-    on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
-        pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD)
-    )
+    on_grid = downsample_to_grid(
+        segmented, frames_per_step(config.time_step_s, FRAME_PERIOD_S)
+    ).with_columns(pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD))
     grid = to_si_units(on_grid)
     tracks = finish_tracks(grid, first_track_id, config)
     report = cleaned_report(
@@ -287,6 +289,7 @@ SOURCE = Source(
     read_file=read_file,
     vehicle_tracks=vehicle_tracks,
     recording_report=recording_report,
+    frame_period_s=FRAME_PERIOD_S,
     label="NGSIM",
     suffixes=CANDIDATE_SUFFIXES,
     claims=is_ngsim_file,
