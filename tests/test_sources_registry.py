@@ -10,6 +10,7 @@ from pathlib import Path
 import polars as pl
 import pytest
 
+from ngsim_cli.build_view import _dropped_lines
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
@@ -24,12 +25,14 @@ TOY = load_source(TOY_MODULE)
 
 def write_toy(path: Path) -> Path:
     """Three vehicles 3.5 m apart side by side at 10 m/s (36 km/h) for 12 s (frames 0..299 at
-    25 Hz: 0.4 m a frame), and one row of vehicle 1 twice (an exact duplicate)."""
+    25 Hz: 0.4 m a frame), one row of vehicle 1 twice (an exact duplicate), and one row of car 0
+    (dropped: the toy's own reason)."""
     lines = ["frame;car;s_m;d_m;speed_kmh"]
     for vehicle in (1, 2, 3):
         for frame in range(300):
             lines.append(f"{frame};{vehicle};{frame * 0.4:.1f};{3.5 * vehicle};36.0")
     lines.append("7;1;2.8;3.5;36.0")
+    lines.append("8;0;0.0;0.0;0.0")  # a placeholder row: the toy's own drop reason
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -50,9 +53,15 @@ def test_a_toy_source_registered_in_one_line_is_built(toy_registered: None, tmp_
     assert manifest.dataset == "toy"
     assert [f.raw_format for f in manifest.inputs] == ["toy"]
     counts = manifest.counts
-    # 901 rows, one exact duplicate; 60 grid steps (frames 0, 5, ..., 295: 0.2 s at 25 Hz) of
-    # each of 3 tracks
-    assert (counts.rows_read, counts.rows, counts.exact_duplicates) == (901, 901, 1)
+    # 902 rows, the car-0 row dropped, one exact duplicate; 60 grid steps (frames 0, 5, ...,
+    # 295: 0.2 s at 25 Hz) of each of 3 tracks
+    assert (counts.rows_read, counts.rows, counts.exact_duplicates) == (902, 901, 1)
+    # the toy's own reason beside the shared ones, by its name, and in the build's report
+    assert counts.rows_dropped["toy_no_car"] == 1
+    assert set(counts.rows_dropped) == {*(r.value for r in s.DropReason), "toy_no_car"}
+    assert _dropped_lines(result) == [
+        f"dropped 1 row: a placeholder row of no car (car 0) (first: {raw}, line 903)."
+    ]
     assert (counts.tracks, counts.grid_rows) == (3, 180)
     # One window a track: (60 - 41) // 40 + 1; the vehicle split: ids <= round(0.7 * 3) train,
     # <= round(0.8 * 3) validation (none), the rest test.

@@ -35,7 +35,7 @@ def _why_no_samples(
     if sum(o.report.grid_rows for o in outputs) == 0:
         return (
             f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
-            f"the frames whose number is a multiple of {frames_per_step} (are they all odd?)"
+            f"the frames whose Frame_ID is a multiple of {frames_per_step} (are they all odd?)"
         )
     longest = max(o.longest_track_steps for o in outputs)
     if longest < config.window_steps:
@@ -101,10 +101,11 @@ def _counts(
     def total(key: str) -> int:
         return sum(getattr(o.report, key) for o in outputs)
 
-    dropped = {
-        reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files)
-        for reason in DropReason
-    }
+    # The shared reasons, then those of the source's own that its files' reports count.
+    reasons = dict.fromkeys(
+        [*(r.value for r in DropReason), *(r for f in files for r in f.rows_dropped)]
+    )
+    dropped = {reason: sum(f.rows_dropped.get(reason, 0) for f in files) for reason in reasons}
     dropped[DropReason.POSITION_OUTLIER.value] = total("position_outliers")
     return BuildCounts(
         rows_read=sum(f.rows_read for f in files),

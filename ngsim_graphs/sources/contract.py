@@ -36,8 +36,8 @@ judges over a whole recording (NGSIM: the median speed error) it takes from the 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, fields
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import polars as pl
@@ -65,7 +65,7 @@ class FileReport:
     rows_other_locations: int  # of locations (or recordings) the build did not choose
     rows_missing_values: int  # an empty required field
     first_missing_line: int | None  # the first line with an empty required field
-    rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
+    rows_dropped: dict[str, int]  # per reason (shared, then its source's own): every reason
     first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
     rows_checked: int  # rows of the chosen recordings with every required field, kept or dropped
     locations_found: tuple[str, ...]  # every location the file holds, chosen or not
@@ -185,6 +185,9 @@ class Source:
     claims: Callable[[Path], bool] = _claims_no_file
     is_location: Callable[[str], bool] = _knows_no_location
     locations_help: str = ""  # its location names, as an error lists them
+    # Why its rows are dropped beyond the shared `schema.DropReason`s: value -> what a report
+    # says of such rows. Its FileReports count them too, and the manifest by their values.
+    drop_reasons: Mapping[str, str] = field(default_factory=dict)
 
     def frames_per_step(self, time_step_s: float) -> int:
         """Its frames per grid step; ValueError, naming the dataset, for a step of no whole

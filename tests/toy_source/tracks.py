@@ -34,6 +34,8 @@ from . import schema as ts
 
 FRAME_PERIOD_S = 0.04  # 25 Hz
 KEY: RecordingKey = ("toy-road", "morning")
+NO_CAR = "toy_no_car"  # its own drop reason: a placeholder row of car 0
+DROP_REASONS = {NO_CAR: "a placeholder row of no car (car 0)"}
 
 
 def find_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
@@ -52,10 +54,11 @@ def read_file(
         pl.col(ts.D_M).alias(s.X_M),
         pl.col(ts.S_M).alias(s.Y_M),
         (pl.col(ts.SPEED_KMH) / 3.6).alias(s.SPEED_MPS),
-        pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX),
+        pl.when(pl.col(ts.CAR) != 0).then(pl.lit(0, dtype=pl.Int32)).alias(s.RECORDING_INDEX),
         pl.lit(file_index, dtype=pl.UInt16).alias(s.SOURCE_FILE),
         pl.col(s.SOURCE_LINE).cast(pl.Int64),
     )
+    no_car = rows.filter(pl.col(s.VEHICLE_ID) == 0)[s.SOURCE_LINE]
     report = FileReport(
         path=str(path),
         raw_format="toy",
@@ -65,13 +68,13 @@ def read_file(
         rows_other_locations=0,
         rows_missing_values=0,
         first_missing_line=None,
-        rows_dropped={reason.value: 0 for reason in FILE_REASONS},
-        first_dropped_line={},
+        rows_dropped={**{reason.value: 0 for reason in FILE_REASONS}, NO_CAR: no_car.len()},
+        first_dropped_line={NO_CAR: int(no_car.min())} if no_car.len() else {},
         rows_checked=rows.height,
         locations_found=(KEY[0],),
         recordings=(f"{KEY[0]}/{KEY[1]}",),
     )
-    check_file_drops(report, config.limits, strict)
+    check_file_drops(report, config.limits, strict, DROP_REASONS)
     return FileRows(rows.lazy(), {KEY: 0}, report)
 
 
@@ -121,4 +124,5 @@ SOURCE = Source(
     claims=lambda path: path.suffix == ".toy",
     is_location=lambda name: name == KEY[0],
     locations_help="toy-road",
+    drop_reasons=DROP_REASONS,
 )

@@ -20,11 +20,10 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.cleaning import (
-    DESCRIPTIONS,
-    FILE_REASONS,
     check_dropped,
     check_file_drops,
     cleaned_report,
+    describe,
     downsample_to_grid,
     drop_duplicate_rows,
     empty_column_notes,
@@ -57,6 +56,9 @@ from ngsim_graphs.sources.ngsim.cleaning import (
 from ngsim_graphs.sources.ngsim.files import read_raw_file
 from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_files, is_ngsim_file
 from ngsim_graphs.sources.ngsim.plausibility import (
+    DROP_REASONS,
+    FILE_REASONS,
+    NgsimDrop,
     jump_rows,
     outlier_rows,
     passes_row_checks,
@@ -108,7 +110,7 @@ def read_file_recordings(
         pl.when(~complete | other)
         .then(None)
         .when(stray)
-        .then(pl.lit(DropReason.GLOBAL_TIME.value))
+        .then(pl.lit(NgsimDrop.GLOBAL_TIME.value))
         .otherwise(reason)
     )
     line = pl.col(ROW) + raw.first_line
@@ -151,7 +153,7 @@ def read_file_recordings(
         rows_other_locations=raw.rows_read - kept - missing - sum(counts.values()),
         rows_missing_values=missing,
         first_missing_line=None if missing == 0 else int(first_missing),
-        rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
+        rows_dropped={r: counts.get(r, 0) for r in FILE_REASONS},
         first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
         rows_checked=kept + sum(counts.values()),
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
@@ -167,7 +169,7 @@ def _raise_unusable(path: Path, counts: dict[str, int], first_line: dict[str, in
     "rows of other locations" would take its recording with it."""
     total = sum(counts.values())
     detail = ", ".join(
-        f"{n:,} {DESCRIPTIONS[DropReason(reason)]}" for reason, n in sorted(counts.items()) if n
+        f"{n:,} {describe(reason, DROP_REASONS)}" for reason, n in sorted(counts.items()) if n
     )
     line = min(first_line.values())
     raise NgsimInputError(
@@ -236,7 +238,7 @@ def read_file(
 ) -> FileRows:
     """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
     read = read_file_recordings(path, config, file_index, scratch)
-    check_file_drops(read.report, config.limits, strict)
+    check_file_drops(read.report, config.limits, strict, DROP_REASONS)
     check_lateral_positions(path, read)
     return read
 
@@ -295,4 +297,5 @@ SOURCE = Source(
     claims=is_ngsim_file,
     is_location=is_ngsim_location,
     locations_help=", ".join(KNOWN_LOCATION_NAMES),
+    drop_reasons=DROP_REASONS,
 )
