@@ -9,8 +9,7 @@ from ngsim_cli.console import counted, print_table, stderr, stdout
 from ngsim_cli.stats_view import SPLIT_NAMES
 from ngsim_graphs.pipeline import BuildResult
 from ngsim_graphs.schema import DropReason, SplitMode
-from ngsim_graphs.sources.cleaning import DESCRIPTIONS
-from ngsim_graphs.sources.registry import label
+from ngsim_graphs.sources.registry import drop_descriptions, label
 
 
 def print_build_report(result: BuildResult) -> None:
@@ -94,6 +93,7 @@ def _summary_table(result: BuildResult) -> Table:
 def _dropped_lines(result: BuildResult) -> list[str]:
     """One line per reason rows were dropped for, with the first place it happened."""
     lines = []
+    descriptions = drop_descriptions(result.manifest.dataset)
     for reason, n in result.manifest.counts.rows_dropped.items():
         if not n:
             continue
@@ -110,7 +110,9 @@ def _dropped_lines(result: BuildResult) -> list[str]:
                 if reason in f.first_dropped_line
             )
         noun = "row" if n == 1 else "rows"
-        lines.append(f"dropped {n:,} {noun}: {DESCRIPTIONS[DropReason(reason)]} (first: {first}).")
+        lines.append(
+            f"dropped {n:,} {noun}: {descriptions.get(reason, reason.replace('_', ' '))} (first: {first})."
+        )
     jumps = result.manifest.counts.position_jumps
     if jumps:
         limit = result.manifest.config.limits.max_jump_m

@@ -7,8 +7,6 @@ from typing import Any
 
 from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
 
-FRAME_STEP_S = 0.1  # NGSIM's 10 Hz frame period
-
 
 @dataclass(frozen=True)
 class PhysicalLimits:
@@ -61,7 +59,7 @@ class BuildConfig:
     """Everything that shapes a build's output. The CLI builds it; the library only reads it."""
 
     locations: tuple[str, ...] = ("us-101", "i-80")
-    time_step_s: float = 0.2  # the resampled grid: frames with frame_id % 2 == 0
+    time_step_s: float = 0.2  # the resampled grid: a whole number of each source's frames
     heading_smoothing_s: float = 1.0  # centred moving average of positions before atan2
     min_heading_speed_mps: float = 2.0  # below this the last heading is held
     history_steps: int = 16  # K_H: 3 s of history including the present
@@ -81,11 +79,9 @@ class BuildConfig:
         # Which names are locations is the sources' to say (`sources.registry.check_locations`).
         if not self.locations:
             raise ValueError("locations must name at least one location")
-        if (
-            self.frames_per_step < 1
-            or abs(self.frames_per_step * FRAME_STEP_S - self.time_step_s) > 1e-9
-        ):
-            raise ValueError(f"time_step_s must be a positive multiple of {FRAME_STEP_S} s")
+        # Whether the grid is whole frames is the source's to say (`Source.frames_per_step`).
+        if self.time_step_s <= 0:
+            raise ValueError("time_step_s must be > 0")
         if self.heading_smoothing_s < 0 or self.min_heading_speed_mps < 0:
             raise ValueError("heading_smoothing_s and min_heading_speed_mps must be >= 0")
         stride = self.stride_s / self.time_step_s
@@ -135,11 +131,6 @@ class BuildConfig:
     def window_steps(self) -> int:
         """Grid steps of one window: history (with the present) and future (41)."""
         return self.history_steps + self.future_steps
-
-    @property
-    def frames_per_step(self) -> int:
-        """NGSIM frames per grid step (2 for 0.2 s)."""
-        return round(self.time_step_s / FRAME_STEP_S)
 
     @property
     def smoothing_window_steps(self) -> int:

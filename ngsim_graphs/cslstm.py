@@ -23,8 +23,9 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import concat_ranges
 from ngsim_graphs.manifest import ScriptRows
-from ngsim_graphs.sources.contract import RecordingKey
+from ngsim_graphs.sources.contract import RecordingKey, frames_per_step
 from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.sources.ngsim.recordings import FRAME_PERIOD_S
 from ngsim_graphs.splits import VehicleIds
 from ngsim_graphs.windows import RecordingWindows, SampleProtocol
 
@@ -273,20 +274,21 @@ def script_rows(
     grid or not; `too_short` the rows of vehicles under 31 rows (the script stops on them).
 
     `raw`: the recording's rows before cleaning (RAW_SCHEMA columns, any order, duplicates and
-    all). A kept row is on the grid when its Frame_ID is a multiple of `frames_per_step`; its
-    step is Frame_ID / frames_per_step; the rows of one vehicle and frame make one row.
+    all). A kept row is on the grid when its Frame_ID is a multiple of NGSIM's frames per step;
+    its step is Frame_ID / frames per step; the rows of one vehicle and frame make one row.
     """
+    frames = frames_per_step(config.time_step_s, FRAME_PERIOD_S)
     ordered = ordered_rows(
         dataset_id, *(raw[c].cast(pl.Float64).to_numpy() for c in SCRIPT_COLUMNS)
     )
     kept, too_short = kept_by_edge_filter(ordered)
     split = split_codes(ordered)[kept]
     frame = ordered.frame[kept].astype(np.int64)
-    on_grid = frame % config.frames_per_step == 0
+    on_grid = frame % frames == 0
     table = pl.DataFrame(
         {
             s.VEHICLE_ID: ordered.vehicle[kept][on_grid].astype(np.int32),
-            s.STEP: (frame[on_grid] // config.frames_per_step).astype(np.int32),
+            s.STEP: (frame[on_grid] // frames).astype(np.int32),
             s.SPLIT: np.array(SPLIT_NAMES)[split[on_grid]],
         },
         schema={s.VEHICLE_ID: pl.Int32, s.STEP: pl.Int32, s.SPLIT: pl.String},

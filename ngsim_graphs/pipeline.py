@@ -63,8 +63,8 @@ BuildProgress = Callable[[str, int, int], None]
 BuildTarget = tuple[Path, BuildConfig]  # an output folder and the config of its build
 RawPaths = str | os.PathLike[str] | Sequence[str | os.PathLike[str]]  # a file or folder, or several
 # The fields of BuildConfig that reading and cleaning read (the sources' read_file,
-# vehicle_tracks and recording_report, with the properties they use: frames_per_step,
-# smoothing_window_steps): builds alike in these share those stages (`run_builds`).
+# vehicle_tracks and recording_report, with the property they use: smoothing_window_steps):
+# builds alike in these share those stages (`run_builds`).
 SHARED_FIELDS = (
     "locations",
     "time_step_s",
@@ -134,6 +134,14 @@ class Inputs:
     synthetic: tuple[str, ...]
 
 
+def _check_grid(source: Source, config: BuildConfig, paths: list[Path]) -> None:
+    """The grid must be a whole number of the source's frames: it is kept by frame number."""
+    try:
+        source.frames_per_step(config.time_step_s)
+    except ValueError as err:
+        raise NgsimInputError(paths[0], str(err)) from None
+
+
 def _read_inputs(
     raw_paths: list[Path],
     dataset: str | None,
@@ -161,6 +169,7 @@ def _read_inputs(
         # files are read in the order of their names (resolved paths, or an archive's and its
         # member's), which numbers them and lists them in the manifest.
         files = sorted(found, key=lambda path: archives.shown_name(path, names))
+        _check_grid(source, config, files or raw_paths)
         reports, staged = _stage_inputs(source, files, config, root, progress, strict, workers)
     except NgsimError as err:
         raise archives.named_error(err, names) from None
@@ -412,7 +421,8 @@ def run_builds(
                     _build_recordings(staged, reports, scratch, config, root, labelled, workers)
                 )
         for (_, config), outputs in zip(targets, built, strict=True):
-            summary.check_some_samples(outputs, config, raw_paths)
+            frames = inputs.source.frames_per_step(config.time_step_s)
+            summary.check_some_samples(outputs, config, raw_paths, frames)
         results = []
         for target, root, outputs, stack in zip(targets, roots, built, stacks, strict=True):
             labelled = _labelled(report_progress, target[0], several)

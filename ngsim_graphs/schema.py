@@ -40,7 +40,9 @@ class Protocol(str, Enum):
 
 
 class DropReason(str, Enum):
-    """Why a raw row was dropped one by one (docs/trust.md); counted per reason in the manifest.
+    """Why a raw row was dropped one by one (docs/trust.md): the reasons any source's rows may
+    give; counted per reason in the manifest. A reason peculiar to one dataset is its source's
+    (`Source.drop_reasons`: NGSIM's Global_Time and v_Class), counted beside these.
 
     Rows with an empty required field are counted apart (`rows_missing_values`): empty fields
     are a known quirk of real exports, these are not.
@@ -51,11 +53,9 @@ class DropReason(str, Enum):
     POSITION = "position_out_of_range"  # |Local_X| or |Local_Y| beyond the limit
     SPEED = "speed_out_of_range"  # v_Vel below 0 or above the limit
     ACCELERATION = "acceleration_out_of_range"  # |v_Acc| above the limit
-    GLOBAL_TIME = "global_time_off_recording"  # Global_Time - 100 * Frame_ID not its recording's
     POSITION_OUTLIER = "position_outlier"  # farther than the jump limit from both its neighbours
     VEHICLE_SIZE = "vehicle_size_out_of_range"  # length or width not above 0 or above the limit
     LANE = "lane_id_out_of_range"  # Lane_ID below 0 or above the limit
-    VEHICLE_CLASS = "vehicle_class_unknown"  # v_Class none of 1 (motorcycle), 2 (car), 3 (truck)
     HEADWAY = (
         "headway_out_of_range"  # a headway below 0 or beyond its limit, a neighbour id below 0
     )

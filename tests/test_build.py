@@ -62,7 +62,7 @@ def grid_tables(build: OpenBuild) -> dict[tuple[str, str], pl.DataFrame]:
     for entry in build.manifest.recordings:
         tracks = pl.read_parquet(layout.tracks_path(build.root, entry.location, entry.period))
         tables[(entry.location, entry.period)] = tracks.select(
-            (pl.col(s.FRAME_ID) // build.config.frames_per_step).alias(s.STEP),
+            (pl.col(s.TIME_S) / build.config.time_step_s).round().cast(pl.Int32).alias(s.STEP),
             s.TRACK_ID, s.VEHICLE_ID, s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS,
         )  # fmt: skip
     return tables

@@ -14,6 +14,7 @@ from test_cli_ngsim import assert_failed_cleanly, invoke, snapshot
 from ngsim_graphs import schema as s
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.ngsim import schema as ns
+from ngsim_graphs.sources.ngsim.plausibility import NgsimDrop
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
 
 N_VEHICLES, N_FRAMES = 10, 100
@@ -49,7 +50,7 @@ def test_one_stray_global_time_costs_one_row_not_the_recording(
     path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
     result = invoke("build", path, "--out", out)
     assert result.exit_code == 0, result.output
-    reason = DropReason.GLOBAL_TIME.value
+    reason = NgsimDrop.GLOBAL_TIME.value
     assert "dropped 1 row: Global_Time off its recording" in result.stdout
     assert f"(first: {path}, line 151)." in result.stdout
     counts = manifest(out)["counts"]
@@ -90,11 +91,11 @@ def test_implausible_rows_are_counted_per_reason(tmp_path: Path, rows: list[dict
         DropReason.POSITION.value: 1,
         DropReason.SPEED.value: 2,
         DropReason.ACCELERATION.value: 1,
-        DropReason.GLOBAL_TIME.value: 0,
+        NgsimDrop.GLOBAL_TIME.value: 0,
         DropReason.POSITION_OUTLIER.value: 1,
         DropReason.VEHICLE_SIZE.value: 0,
         DropReason.LANE.value: 0,
-        DropReason.VEHICLE_CLASS.value: 0,
+        NgsimDrop.VEHICLE_CLASS.value: 0,
         DropReason.HEADWAY.value: 0,
         DropReason.DIRECTION.value: 0,
     }
@@ -144,7 +145,7 @@ def test_impossible_values_beside_the_motion_never_reach_the_tracks(
     assert inputs["first_dropped_line"] == {
         DropReason.VEHICLE_SIZE.value: 122,
         DropReason.LANE.value: 342,
-        DropReason.VEHICLE_CLASS.value: 452,
+        NgsimDrop.VEHICLE_CLASS.value: 452,
         DropReason.HEADWAY.value: 562,
     }
     assert inputs["rows_dropped"][DropReason.VEHICLE_SIZE.value] == 2
@@ -234,7 +235,7 @@ def test_a_group_of_whole_vehicles_on_its_own_clock_is_a_recording(tmp_path: Pat
     names = [r["name"] for r in manifest(out)["recordings"]]
     assert names == ["peachtree_0850-0850", "peachtree_0850-0850-2"]  # both from 08:50 PDT
     assert [r["vehicles"] for r in manifest(out)["recordings"]] == [25, 23]
-    assert manifest(out)["counts"]["rows_dropped"][DropReason.GLOBAL_TIME.value] == 1
+    assert manifest(out)["counts"]["rows_dropped"][NgsimDrop.GLOBAL_TIME.value] == 1
     note = (
         f"{path}: peachtree/0850-0850-2: 23 vehicles (2,300 rows) keep a frame clock of their "
         "own, Global_Time - 100 * Frame_ID +11.7 s from peachtree/0850-0850's: a recording of "
@@ -492,7 +493,7 @@ def test_a_row_of_another_location_is_a_stray_not_a_recording(
     assert f"(first: {path}, line {line})." in result.stdout
     built = manifest(out)
     assert [r["name"] for r in built["recordings"]] == ["us-101_0750am-0805am"]
-    assert built["counts"]["rows_dropped"][DropReason.GLOBAL_TIME.value] == 1
+    assert built["counts"]["rows_dropped"][NgsimDrop.GLOBAL_TIME.value] == 1
     assert built["counts"]["rows"] == 1_000
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import importlib.util
 import inspect
 import io
 import json
@@ -103,17 +104,27 @@ def test_relative_links_point_at_files(page: str) -> None:
     assert missing == []
 
 
-def test_every_package_of_the_source_tree_is_installed() -> None:
-    """pyproject lists its packages by hand: a subpackage left out is missing from a wheel."""
-    listed = set(
-        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
-    )
+def test_every_package_of_the_source_tree_is_installed(tmp_path: Path) -> None:
+    """setup.py discovers the packages: a new folder with an `__init__.py` (a source's, say) is
+    in the wheel without a line anywhere, and the CLI installs as ngsim_cli."""
+    spec = importlib.util.spec_from_file_location("project_setup", ROOT / "setup.py")
+    assert spec is not None and spec.loader is not None
+    setup_module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(setup_module)  # its setup() runs only as __main__
     found = {
         ".".join(init.parent.relative_to(ROOT).parts)
         for top in ("ngsim_graphs", "aigem")
         for init in (ROOT / top).rglob("__init__.py")
     }
-    assert found - listed == set()
+    assert set(setup_module.packages(str(ROOT))) == found | {"ngsim_cli"}
+    assert (
+        "packages" not in tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    )
+    new_source = tmp_path / "ngsim_graphs" / "sources" / "toy"
+    new_source.mkdir(parents=True)
+    for folder in (new_source, *new_source.parents[:2]):
+        (folder / "__init__.py").touch()
+    assert "ngsim_graphs.sources.toy" in setup_module.packages(str(tmp_path))
 
 
 @pytest.mark.parametrize("package", [ngsim_graphs, aigem])

@@ -10,6 +10,7 @@ from ngsim_graphs.config import BuildConfig, PhysicalLimits
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.plausibility import (
+    NgsimDrop,
     jump_rows,
     outlier_rows,
     passes_row_checks,
@@ -83,7 +84,7 @@ def test_the_columns_beside_the_motion_by_hand() -> None:
         make_row(1, 5, preceding=12, space_headway=80.0, time_headway=1.7),
     ]
     size, lane = DropReason.VEHICLE_SIZE.value, DropReason.LANE.value
-    vehicle_class, headway = DropReason.VEHICLE_CLASS.value, DropReason.HEADWAY.value
+    vehicle_class, headway = NgsimDrop.VEHICLE_CLASS.value, DropReason.HEADWAY.value
     assert reasons(rows) == [
         None, size, size, size, None, None, lane, lane, vehicle_class, vehicle_class,
         headway, headway, headway, headway, headway, headway, None,

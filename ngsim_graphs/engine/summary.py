@@ -23,8 +23,11 @@ from ngsim_graphs.splits import split_warnings
 from ngsim_graphs.version import __version__
 
 
-def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
-    """Why the chosen recordings gave no sample at all, as a user can act on it."""
+def _why_no_samples(
+    outputs: list[RecordingOutput], config: BuildConfig, frames_per_step: int
+) -> str:
+    """Why the chosen recordings gave no sample at all, as a user can act on it
+    (`frames_per_step`: the source's frames per grid step)."""
     rows = sum(o.report.rows for o in outputs)
     why = PROTOCOLS[config.protocol].why_no_samples(_script_total(outputs), rows, config)
     if why is not None:
@@ -32,7 +35,7 @@ def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
     if sum(o.report.grid_rows for o in outputs) == 0:
         return (
             f"none of the {rows:,} rows kept lies on the {config.time_step_s} s grid, which keeps "
-            f"the frames whose Frame_ID is a multiple of {config.frames_per_step} (are they all odd?)"
+            f"the frames whose Frame_ID is a multiple of {frames_per_step} (are they all odd?)"
         )
     longest = max(o.longest_track_steps for o in outputs)
     if longest < config.window_steps:
@@ -45,12 +48,13 @@ def _why_no_samples(outputs: list[RecordingOutput], config: BuildConfig) -> str:
 
 
 def check_some_samples(
-    outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path]
+    outputs: list[RecordingOutput], config: BuildConfig, raw_paths: list[Path], frames_per_step: int
 ) -> None:
     if sum(sum(o.samples.values()) for o in outputs) == 0:
         more = f" (and {len(raw_paths) - 1} more)" if len(raw_paths) > 1 else ""
         raise NgsimInputError(
-            f"{raw_paths[0]}{more}", f"no samples: {_why_no_samples(outputs, config)}"
+            f"{raw_paths[0]}{more}",
+            f"no samples: {_why_no_samples(outputs, config, frames_per_step)}",
         )
 
 
@@ -97,10 +101,11 @@ def _counts(
     def total(key: str) -> int:
         return sum(getattr(o.report, key) for o in outputs)
 
-    dropped = {
-        reason.value: sum(f.rows_dropped.get(reason.value, 0) for f in files)
-        for reason in DropReason
-    }
+    # The shared reasons, then those of the source's own that its files' reports count.
+    reasons = dict.fromkeys(
+        [*(r.value for r in DropReason), *(r for f in files for r in f.rows_dropped)]
+    )
+    dropped = {reason: sum(f.rows_dropped.get(reason, 0) for f in files) for reason in reasons}
     dropped[DropReason.POSITION_OUTLIER.value] = total("position_outliers")
     return BuildCounts(
         rows_read=sum(f.rows_read for f in files),

@@ -6,6 +6,8 @@ Every function is pure over a polars frame and returns what it removed, for the 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import polars as pl
 
 from ngsim_graphs import schema as s
@@ -16,7 +18,8 @@ from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingRep
 
 _BREAK = "__break"
 
-# The reasons a file's report counts (position outliers are found per recording).
+# The shared reasons a file's report counts (position outliers are found per recording); a
+# source's own (`Source.drop_reasons`) come after them.
 FILE_REASONS: tuple[DropReason, ...] = tuple(
     r for r in DropReason if r is not DropReason.POSITION_OUTLIER
 )
@@ -26,14 +29,20 @@ DESCRIPTIONS: dict[DropReason, str] = {
     DropReason.POSITION: "Local_X or Local_Y out of range",
     DropReason.SPEED: "v_Vel negative or above the speed limit",
     DropReason.ACCELERATION: "v_Acc above the acceleration limit",
-    DropReason.GLOBAL_TIME: "Global_Time off its recording (Global_Time - 100 * Frame_ID differs)",
     DropReason.POSITION_OUTLIER: "position jumps away from the neighbouring frames",
     DropReason.VEHICLE_SIZE: "v_Length or v_Width not above 0 or above the size limit",
     DropReason.LANE: "Lane_ID below 0 or above the lane limit",
-    DropReason.VEHICLE_CLASS: "v_Class none of 1 (motorcycle), 2 (car), 3 (truck)",
     DropReason.HEADWAY: "a headway or a Preceding/Following id out of range",
     DropReason.DIRECTION: "the positions move against the vehicle's driving direction",
 }
+
+
+def describe(reason: str, own: Mapping[str, str] | None = None) -> str:
+    """What the rows dropped for `reason` (a DropReason value or one of `own`, a source's own
+    reasons: value -> description) were, as a report says it."""
+    if own and reason in own:
+        return own[reason]
+    return DESCRIPTIONS[DropReason(reason)]
 
 
 def empty_column_notes(
@@ -112,25 +121,27 @@ def check_dropped(
     rows: int,
     limits: PhysicalLimits,
     strict: bool,
+    own: Mapping[str, str] | None = None,
 ) -> None:
-    """Raise when the rows dropped from `path` (per DropReason value) may not be dropped quietly.
+    """Raise when the rows dropped from `path` (per DropReason value, or a value of `own`, the
+    source's own reasons) may not be dropped quietly.
 
     With `strict` any dropped row is an error; otherwise more than `max_dropped_share` of the
     `rows` checked is, because so many say the file is damaged or its columns are not what its
     header claims. `first_line`: the first line of each reason with rows.
     """
-    bad = {DropReason(reason): n for reason, n in dropped.items() if n}
+    bad = {reason: n for reason, n in dropped.items() if n}
     if not bad:
         return
-    first = min(bad, key=lambda reason: first_line[reason.value])
-    line = first_line[first.value]
+    first = min(bad, key=lambda reason: first_line[reason])
+    line = first_line[first]
     if strict:
         raise NgsimInputError(
-            path, f"{DESCRIPTIONS[first]} (--strict: no row may be dropped)", line=line
+            path, f"{describe(first, own)} (--strict: no row may be dropped)", line=line
         )
     total = sum(bad.values())
     if total > limits.max_dropped_share * rows:
-        detail = ", ".join(f"{n:,} {DESCRIPTIONS[reason]}" for reason, n in bad.items())
+        detail = ", ".join(f"{n:,} {describe(reason, own)}" for reason, n in bad.items())
         raise NgsimInputError(
             path,
             f"{total:,} of {rows:,} rows ({total / rows:.1%}) are implausible, more than the "
@@ -139,8 +150,14 @@ def check_dropped(
         )
 
 
-def check_file_drops(report: FileReport, limits: PhysicalLimits, strict: bool) -> None:
-    """`check_dropped` of the rows a file's report says were dropped as it was read."""
+def check_file_drops(
+    report: FileReport,
+    limits: PhysicalLimits,
+    strict: bool,
+    own: Mapping[str, str] | None = None,
+) -> None:
+    """`check_dropped` of the rows a file's report says were dropped as it was read (`own`: the
+    source's own reasons)."""
     check_dropped(
         report.path,
         report.rows_dropped,
@@ -148,6 +165,7 @@ def check_file_drops(report: FileReport, limits: PhysicalLimits, strict: bool) -
         report.rows_checked,
         limits,
         strict,
+        own,
     )
 
 

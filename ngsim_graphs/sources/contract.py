@@ -36,8 +36,8 @@ judges over a whole recording (NGSIM: the median speed error) it takes from the 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, fields
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import polars as pl
@@ -65,7 +65,7 @@ class FileReport:
     rows_other_locations: int  # of locations (or recordings) the build did not choose
     rows_missing_values: int  # an empty required field
     first_missing_line: int | None  # the first line with an empty required field
-    rows_dropped: dict[str, int]  # per DropReason of the row checks and Global_Time: every reason
+    rows_dropped: dict[str, int]  # per reason (shared, then its source's own): every reason
     first_dropped_line: dict[str, int]  # per reason with dropped rows: the first line
     rows_checked: int  # rows of the chosen recordings with every required field, kept or dropped
     locations_found: tuple[str, ...]  # every location the file holds, chosen or not
@@ -138,10 +138,24 @@ def _knows_no_location(name: str) -> bool:
     return False
 
 
+def frames_per_step(time_step_s: float, frame_period_s: float) -> int:
+    """Frames of `frame_period_s` per grid step of `time_step_s` (2 for NGSIM's 0.1 s frames on
+    the 0.2 s grid, 5 for highD's 0.04 s). Raises ValueError for a step of no whole number of
+    frames: the grid is kept by frame number, and a step between frames has none on it."""
+    frames = round(time_step_s / frame_period_s)
+    if frames < 1 or abs(frames * frame_period_s - time_step_s) > 1e-9:
+        raise ValueError(
+            f"the grid step of {time_step_s:g} s is not a whole number of frames of "
+            f"{frame_period_s:g} s ({1 / frame_period_s:g} Hz)"
+        )
+    return frames
+
+
 @dataclass(frozen=True)
 class Source:
-    """A dataset behind the contract: four functions, the name the manifest records, and how the
-    registry (`sources/registry.py`) tells its files and its locations.
+    """A dataset behind the contract: four functions, its frame period, the name the manifest
+    records, the drop reasons of its own, and how the registry (`sources/registry.py`) tells its
+    files and its locations.
 
     find_files(paths) -> (files to read, files skipped in the directories searched)
     read_file(path, config, file_index, strict, scratch) -> FileRows, after the file's own
@@ -165,11 +179,23 @@ class Source:
     recording_report: Callable[
         [list[TracksPart], RecordingKey, BuildConfig, list[FileReport], bool], RecordingReport
     ]
+    frame_period_s: float  # between two of its frames (NGSIM 0.1 s, highD 0.04 s)
     label: str = ""  # the name a person reads: "NGSIM", "highD"
     suffixes: tuple[str, ...] = ()  # of the files it reads, lower case: a folder search's
     claims: Callable[[Path], bool] = _claims_no_file
     is_location: Callable[[str], bool] = _knows_no_location
     locations_help: str = ""  # its location names, as an error lists them
+    # Why its rows are dropped beyond the shared `schema.DropReason`s: value -> what a report
+    # says of such rows. Its FileReports count them too, and the manifest by their values.
+    drop_reasons: Mapping[str, str] = field(default_factory=dict)
+
+    def frames_per_step(self, time_step_s: float) -> int:
+        """Its frames per grid step; ValueError, naming the dataset, for a step of no whole
+        number of its frames."""
+        try:
+            return frames_per_step(time_step_s, self.frame_period_s)
+        except ValueError as err:
+            raise ValueError(f"{err}, {self.label or self.name}'s frame period") from None
 
 
 # Every count of a RecordingReport: a new one is summed over the parts too. (A field's type is

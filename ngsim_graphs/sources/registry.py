@@ -1,6 +1,6 @@
 """Which source reads the given inputs: every dataset the pipeline knows, by name.
 
-A new source is its folder and one line in SOURCES. Without a forced dataset the inputs' content
+A new source is its folder and one line in SOURCE_MODULES. Without a forced dataset the inputs' content
 decides (each source's `claims`): a file a source claims is that source's, the fallback's
 (NGSIM's) last. A file whose source refuses it while claiming it (a highD file whose header is
 damaged) is refused at once, naming the column, whatever lies beside it. Inputs holding the
@@ -11,16 +11,32 @@ each must be a location of some source.
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.sources.cleaning import DESCRIPTIONS
 from ngsim_graphs.sources.contract import Source
-from ngsim_graphs.sources.highd.tracks import SOURCE as HIGHD
 from ngsim_graphs.sources.inputs import files_in
-from ngsim_graphs.sources.ngsim.tracks import SOURCE as NGSIM
 
-SOURCES: dict[str, Source] = {NGSIM.name: NGSIM, HIGHD.name: HIGHD}
-FALLBACK = NGSIM.name  # the source of inputs no source claims: its reader says why
+# Every source, one line each: the module of its folder that defines its `SOURCE`. Their order is
+# --dataset's and detection's (the fallback asked last).
+SOURCE_MODULES: tuple[str, ...] = (
+    "ngsim_graphs.sources.ngsim.tracks",
+    "ngsim_graphs.sources.highd.tracks",
+)
+FALLBACK = "ngsim"  # the source of inputs no source claims: its reader says why
+
+
+def load_source(module: str) -> Source:
+    """The `SOURCE` that `module` (a source folder's module, by its import name) defines."""
+    source = getattr(importlib.import_module(module), "SOURCE", None)
+    if not isinstance(source, Source):
+        raise TypeError(f"{module} defines no SOURCE = Source(...)")
+    return source
+
+
+SOURCES: dict[str, Source] = {source.name: source for source in map(load_source, SOURCE_MODULES)}
 
 
 def dataset_names() -> tuple[str, ...]:
@@ -31,6 +47,14 @@ def dataset_names() -> tuple[str, ...]:
 def label(dataset: str) -> str:
     """The name a person reads of `dataset` ("NGSIM", "highD")."""
     return SOURCES[dataset].label or dataset
+
+
+def drop_descriptions(dataset: str) -> dict[str, str]:
+    """What the rows dropped for each reason of `dataset`'s builds were, by reason value: the
+    shared reasons and its source's own (none for a dataset not registered here)."""
+    shared = {reason.value: text for reason, text in DESCRIPTIONS.items()}
+    source = SOURCES.get(dataset)
+    return {**shared, **(source.drop_reasons if source else {})}
 
 
 def check_locations(locations: tuple[str, ...]) -> None:

@@ -322,6 +322,7 @@ SOURCE = contract.Source(  # the contract's four functions in its order, then ho
     read_file,
     vehicle_tracks,
     recording_report,
+    frame_period_s=FRAME_PERIOD_S,
     label="highD",
     suffixes=(".csv",),
     claims=is_highd_file,

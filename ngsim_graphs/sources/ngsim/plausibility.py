@@ -8,17 +8,38 @@ so the limits are converted once.
 
 from __future__ import annotations
 
+from enum import Enum
+
 import polars as pl
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.schema import DropReason
+from ngsim_graphs.sources import cleaning
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.speeds import distance, same_vehicle
 
+
+class NgsimDrop(str, Enum):
+    """Why NGSIM's rows are dropped beyond the shared reasons (`schema.DropReason`)."""
+
+    GLOBAL_TIME = "global_time_off_recording"  # Global_Time - 100 * Frame_ID not its recording's
+    VEHICLE_CLASS = "vehicle_class_unknown"  # v_Class none of 1 (motorcycle), 2 (car), 3 (truck)
+
+
+# The NGSIM source's own reasons (`Source.drop_reasons`), as its reports say them.
+DROP_REASONS: dict[str, str] = {
+    NgsimDrop.GLOBAL_TIME.value: (
+        "Global_Time off its recording (Global_Time - 100 * Frame_ID differs)"
+    ),
+    NgsimDrop.VEHICLE_CLASS.value: "v_Class none of 1 (motorcycle), 2 (car), 3 (truck)",
+}
+# Every reason an NGSIM file's report counts.
+FILE_REASONS: tuple[str, ...] = (*(r.value for r in cleaning.FILE_REASONS), *DROP_REASONS)
+
 # The row checks in the order they are tried: a row is counted under the first that fails.
-ROW_CHECKS: tuple[DropReason, ...] = (
+ROW_CHECKS: tuple[DropReason | NgsimDrop, ...] = (
     DropReason.FRAME_ID,
     DropReason.VEHICLE_ID,
     DropReason.POSITION,
@@ -26,7 +47,7 @@ ROW_CHECKS: tuple[DropReason, ...] = (
     DropReason.ACCELERATION,
     DropReason.VEHICLE_SIZE,
     DropReason.LANE,
-    DropReason.VEHICLE_CLASS,
+    NgsimDrop.VEHICLE_CLASS,
     DropReason.HEADWAY,
 )
 VEHICLE_CLASSES = (1, 2, 3)  # motorcycle, car, truck
@@ -38,7 +59,7 @@ def feet(metres: float) -> float:
     return metres / FEET_TO_M
 
 
-def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
+def _failed(reason: DropReason | NgsimDrop, limits: PhysicalLimits) -> pl.Expr:
     """True where a row breaks the limit behind `reason` (null values break nothing)."""
     if reason is DropReason.FRAME_ID:
         return (pl.col(s.FRAME_ID) < 0) | (pl.col(s.FRAME_ID) > limits.max_frame_id)
@@ -57,7 +78,7 @@ def _failed(reason: DropReason, limits: PhysicalLimits) -> pl.Expr:
         )
     if reason is DropReason.LANE:
         return _outside(s.LANE_ID, 0, limits.max_lane_id)
-    if reason is DropReason.VEHICLE_CLASS:
+    if reason is NgsimDrop.VEHICLE_CLASS:
         return ~pl.col(s.V_CLASS).is_in(VEHICLE_CLASSES)
     if reason is DropReason.HEADWAY:
         # 0 says "no leader" for Space_Headway and the ids, 9999.99 for Time_Headway.

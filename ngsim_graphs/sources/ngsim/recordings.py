@@ -18,6 +18,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 
 PACIFIC_DAYLIGHT = timezone(timedelta(hours=-7), "PDT")
+FRAME_PERIOD_S = 0.1  # NGSIM's 10 Hz: Global_Time grows 100 ms a frame
 MATCH_TOLERANCE_MS = 10 * 60 * 1000
 KNOWN_LOCATION_NAMES: tuple[str, ...] = ("us-101", "i-80", "lankershim", "peachtree")
 FRAME0_MS = "frame0_epoch_ms"  # Global_Time - 100 * Frame_ID: constant within a recording

@@ -15,16 +15,15 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import FRAME_STEP_S, BuildConfig
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.cleaning import (
-    DESCRIPTIONS,
-    FILE_REASONS,
     check_dropped,
     check_file_drops,
     cleaned_report,
+    describe,
     downsample_to_grid,
     drop_duplicate_rows,
     empty_column_notes,
@@ -38,6 +37,7 @@ from ngsim_graphs.sources.contract import (
     Source,
     TracksPart,
     finish_tracks,
+    frames_per_step,
 )
 from ngsim_graphs.sources.lanes import (
     FREEWAY_LANES,
@@ -56,12 +56,16 @@ from ngsim_graphs.sources.ngsim.cleaning import (
 from ngsim_graphs.sources.ngsim.files import read_raw_file
 from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_files, is_ngsim_file
 from ngsim_graphs.sources.ngsim.plausibility import (
+    DROP_REASONS,
+    FILE_REASONS,
+    NgsimDrop,
     jump_rows,
     outlier_rows,
     passes_row_checks,
     row_drop_reason,
 )
 from ngsim_graphs.sources.ngsim.recordings import (
+    FRAME_PERIOD_S,
     KNOWN_LOCATION_NAMES,
     is_ngsim_location,
     recording_index,
@@ -106,7 +110,7 @@ def read_file_recordings(
         pl.when(~complete | other)
         .then(None)
         .when(stray)
-        .then(pl.lit(DropReason.GLOBAL_TIME.value))
+        .then(pl.lit(NgsimDrop.GLOBAL_TIME.value))
         .otherwise(reason)
     )
     line = pl.col(ROW) + raw.first_line
@@ -149,7 +153,7 @@ def read_file_recordings(
         rows_other_locations=raw.rows_read - kept - missing - sum(counts.values()),
         rows_missing_values=missing,
         first_missing_line=None if missing == 0 else int(first_missing),
-        rows_dropped={r.value: counts.get(r.value, 0) for r in FILE_REASONS},
+        rows_dropped={r: counts.get(r, 0) for r in FILE_REASONS},
         first_dropped_line={r: first for r, _, first in sorted(dropped.iter_rows())},
         rows_checked=kept + sum(counts.values()),
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
@@ -165,7 +169,7 @@ def _raise_unusable(path: Path, counts: dict[str, int], first_line: dict[str, in
     "rows of other locations" would take its recording with it."""
     total = sum(counts.values())
     detail = ", ".join(
-        f"{n:,} {DESCRIPTIONS[DropReason(reason)]}" for reason, n in sorted(counts.items()) if n
+        f"{n:,} {describe(reason, DROP_REASONS)}" for reason, n in sorted(counts.items()) if n
     )
     line = min(first_line.values())
     raise NgsimInputError(
@@ -198,12 +202,12 @@ def vehicle_tracks(
     outlier = outlier_rows(unique, config.limits)
     cleaned = unique.filter(~outlier)
     jumps = jump_rows(cleaned, config.limits)
-    compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_STEP_S)
+    compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_PERIOD_S)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
-    on_grid = downsample_to_grid(segmented, config.frames_per_step).with_columns(
-        pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD)
-    )
+    on_grid = downsample_to_grid(
+        segmented, frames_per_step(config.time_step_s, FRAME_PERIOD_S)
+    ).with_columns(pl.lit(location).alias(s.LOCATION), pl.lit(period).alias(s.PERIOD))
     grid = to_si_units(on_grid)
     tracks = finish_tracks(grid, first_track_id, config)
     report = cleaned_report(
@@ -234,7 +238,7 @@ def read_file(
 ) -> FileRows:
     """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
     read = read_file_recordings(path, config, file_index, scratch)
-    check_file_drops(read.report, config.limits, strict)
+    check_file_drops(read.report, config.limits, strict, DROP_REASONS)
     check_lateral_positions(path, read)
     return read
 
@@ -287,9 +291,11 @@ SOURCE = Source(
     read_file=read_file,
     vehicle_tracks=vehicle_tracks,
     recording_report=recording_report,
+    frame_period_s=FRAME_PERIOD_S,
     label="NGSIM",
     suffixes=CANDIDATE_SUFFIXES,
     claims=is_ngsim_file,
     is_location=is_ngsim_location,
     locations_help=", ".join(KNOWN_LOCATION_NAMES),
+    drop_reasons=DROP_REASONS,
 )
