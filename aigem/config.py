@@ -57,7 +57,8 @@ class ModelConfig:
         return self.layers + 1
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The settings as run.json records them (JSON's form: the edge types a list)."""
+        return {**asdict(self), "edge_types": list(self.edge_types)}
 
 
 @dataclass(frozen=True)

@@ -25,13 +25,12 @@ from ngsim_cli.ngsim import app as ngsim_app
 from ngsim_graphs import edges
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import open_build
-from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.export import export_tables, graph_tables
 from ngsim_graphs.graphs import induce_graphs
 from ngsim_graphs.grid import RecordingArrays
 from ngsim_graphs.neighbourhoods import history_rows, neighbourhoods, sample_counts
 from ngsim_graphs.scaling import SCALED, train_ranges
-from ngsim_graphs.synth.formats import write_synthetic
 
 
 def test_the_default_edge_types_make_the_build_columns_and_the_scaler() -> None:
@@ -213,14 +212,15 @@ def test_lane_neighbour_edges_by_hand(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_a_lane_neighbour_edge_type_goes_from_build_to_evaluate(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, tiny_build: Path
 ) -> None:
     """Registered in EDGE_TYPES and named by the build: the samples' count column, the stats,
-    the model's GATs (its checkpoint's keys) and evaluate follow the build."""
+    the model's GATs (its checkpoint's keys) and evaluate follow the build; evaluate refuses a
+    build of the paper's two types (tiny_build: the same inputs) for the run."""
     monkeypatch.setitem(edges.EDGE_TYPES, "lane", LANE)
-    write_synthetic(tmp_path / "raw", SynthConfig(recordings=1, minutes=0.4, seed=11))
     build, run = tmp_path / "build", tmp_path / "run"
-    args = ["build", str(tmp_path / "raw"), "--out", str(build), "--jobs", "1"]
+    raw = tiny_build.parent / "raw"  # SynthConfig(recordings=1, minutes=0.4, seed=11)
+    args = ["build", str(raw), "--out", str(build), "--jobs", "1"]
     args += ["--d-sense-m", "12", "--d-min-m", "6", "--edge-types", ",".join(WITH_LANE)]
     result = CliRunner().invoke(ngsim_app, args)
     assert result.exit_code == 0, result.output
@@ -247,3 +247,10 @@ def test_a_lane_neighbour_edge_type_goes_from_build_to_evaluate(
     result = CliRunner().invoke(aigem_app, ["evaluate", str(run), "--device", "cpu"])
     assert result.exit_code == 0, result.output
     assert "ADE" in result.stdout
+    other = ["evaluate", str(run), "--data", str(tiny_build), "--other-build", "--device", "cpu"]
+    result = CliRunner().invoke(aigem_app, other)
+    assert result.exit_code != 0
+    assert (
+        f"{tiny_build}: its graphs have edge types spatial, temporal; the run's model has a GAT "
+        "for each of spatial, temporal, lane"
+    ) in " ".join(result.output.split())
