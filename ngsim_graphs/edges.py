@@ -306,7 +306,7 @@ def types_of(names: tuple[str, ...]) -> tuple[EdgeType, ...]:
     unknown = [name for name in names if name not in EDGE_TYPES]
     if unknown:
         raise ValueError(
-            f"unknown edge type {', '.join(map(repr, unknown))}: this ngsim-graphs knows "
+            f"edge_types names unknown {', '.join(map(repr, unknown))}: this ngsim-graphs knows "
             f"{', '.join(EDGE_TYPES)}"
         )
     return tuple(EDGE_TYPES[name] for name in names)

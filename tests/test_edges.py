@@ -26,6 +26,7 @@ from ngsim_graphs import edges
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.export import export_tables, graph_tables
 from ngsim_graphs.graphs import induce_graphs
 from ngsim_graphs.grid import RecordingArrays
@@ -254,3 +255,16 @@ def test_a_lane_neighbour_edge_type_goes_from_build_to_evaluate(
         f"{tiny_build}: its graphs have edge types spatial, temporal; the run's model has a GAT "
         "for each of spatial, temporal, lane"
     ) in " ".join(result.output.split())
+    # A build of an edge type this version does not know is refused on opening, in one line.
+    monkeypatch.delitem(edges.EDGE_TYPES, "lane")
+    with pytest.raises(NgsimInputError, match="edge_types names unknown 'lane'"):
+        open_build(build)
+
+
+def test_build_refuses_an_unknown_edge_type_naming_the_option(tmp_path: Path) -> None:
+    args = ["build", str(tmp_path), "--out", str(tmp_path / "build"), "--edge-types", "lanes"]
+    result = CliRunner().invoke(ngsim_app, args)
+    assert result.exit_code == 2 and not (tmp_path / "build").exists()
+    assert result.output.strip().splitlines()[-1] == (
+        "error: --edge-types names unknown 'lanes': this ngsim-graphs knows spatial, temporal"
+    )
