@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass
 from enum import Enum
 from typing import Any
 
+from ngsim_graphs.config import DEFAULT_EDGE_TYPES
+
 MAX_HORIZON_S = 5.0  # the builds' 25 future steps at 0.2 s
 MIN_HORIZON_S = 0.2  # one step of the builds' 0.2 s grid: a model predicts at least one step
 
@@ -44,6 +46,9 @@ class ModelConfig:
     # Beyond the paper: each step's displacement is constant velocity's plus the MLP's output.
     cv_residual: bool = False
     future_steps: int = 25  # K_F predicted steps (5 s at 0.2 s)
+    # A GAT per edge type of the build, in its order: fit sets them from the build's config
+    # (BuildConfig.edge_types); a run that records none has the paper's two.
+    edge_types: tuple[str, ...] = DEFAULT_EDGE_TYPES
 
     @property
     def history_steps_read(self) -> int:
@@ -52,7 +57,8 @@ class ModelConfig:
         return self.layers + 1
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The settings as run.json records them (JSON's form: the edge types a list)."""
+        return {**asdict(self), "edge_types": list(self.edge_types)}
 
 
 @dataclass(frozen=True)

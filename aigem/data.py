@@ -66,7 +66,7 @@ def check_covered(batch: dict[str, Any], scaler: MinMaxScaler, manifest: Path) -
     (E, 1) scaled edge attributes, on the CPU."""
     columns = [
         (edge.attribute, batch[f"{edge.name}_attr"][:, 0])
-        for edge in edges.EDGE_TYPES
+        for edge in edges.types_of(batch["edge_types"])
         if edge.scaled
     ]
     columns += [(name, batch["x"][:, i]) for i, name in enumerate(FEATURES)]
@@ -165,7 +165,7 @@ class Collate:
     `layers`: also plan the encoder of a model with that many layers for the batch's targets
     (`batch["plan"]`, an `aigem.model.Plan`), so that the model step, on any device, neither
     plans nor waits for the device to read the plan's sizes. `batch["graphs"]` is the number of
-    graphs (a Python int).
+    graphs (a Python int), `batch["edge_types"]` the names of its edge types (the build's).
     """
 
     scaler: MinMaxScaler
@@ -187,7 +187,8 @@ class Collate:
         targets = batch.target_node
         present = batch.node_features[targets]
         out = {"x": torch.from_numpy(self.scaler.scale_features(batch.node_features))}  # (N, 4)
-        for edge in edges.EDGE_TYPES:  # "<name>_edges" (2, E), "<name>_attr" (E, 1)
+        names = tuple(batch.edges)  # the build's edge types, in its order
+        for edge in edges.types_of(names):  # "<name>_edges" (2, E), "<name>_attr" (E, 1)
             edge_set = batch.edges[edge.name]
             out[f"{edge.name}_edges"] = torch.from_numpy(edge_set.index)
             out[f"{edge.name}_attr"] = torch.from_numpy(
@@ -202,6 +203,7 @@ class Collate:
             "target_mask": torch.from_numpy(batch.target_mask),  # (A, K)
             "cv_step": torch.from_numpy(self.cv_step(present, batch.time_step_s)),  # (A, 2)
             "graphs": batch.n_samples,
+            "edge_types": names,  # which "<name>_edges" the batch has, in the build's order
         }
         if self.layers is not None:
             plan = make_plan(

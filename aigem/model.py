@@ -3,8 +3,8 @@
 Shapes: M models ("members"), N nodes in a batch of graphs, A target actors, H = hidden width,
 K = future steps, E edges of one type.
 
-The parameters are those of PyTorch Geometric's `GATConv` (one per edge type of
-`ngsim_graphs.edges.EDGE_TYPES` and layer, named by the type: `encoder.0.spatial.lin.weight`; with
+The parameters are those of PyTorch Geometric's `GATConv` (one per edge type of the build,
+`ModelConfig.edge_types`, and layer, named by the type: `encoder.0.spatial.lin.weight`; with
 `edge_dim=1`, `add_self_loops=False`), `nn.Linear`, `nn.GRUCell` and the output MLP, so the
 parameter count and the checkpoints' keys are theirs.
 
@@ -40,7 +40,6 @@ from torch_geometric.nn import GATConv
 
 from aigem.config import ModelConfig
 from aigem.plan import aggregate, edge_inputs, make_plan, segment_softmax
-from ngsim_graphs import edges
 
 Params = dict[str, torch.Tensor]  # AiGem's parameter name -> its (M, ...) stack over members
 NEGATIVE_SLOPE = 0.2  # GATConv's default, which AiGem keeps
@@ -130,8 +129,8 @@ def _encoder_layer(
     """Z_l = sum over the edge types of GAT_type(Z, E_type) + Linear(Z) of each member:
     z (M, n_src, F), or (n_src, F) shared -> (M, n_dst, H) at the first n_dst nodes."""
     total = None
-    for edge_type, edge_adjacency in zip(edges.EDGE_TYPES, adjacency, strict=True):
-        conv = f"encoder.{index}.{edge_type.name}"
+    for edge_type, edge_adjacency in zip(config.edge_types, adjacency, strict=True):
+        conv = f"encoder.{index}.{edge_type}"
         h = _linear(z, p[f"{conv}.lin.weight"], None)  # PyG's GATConv.lin has no bias
         gat = _gat(p, conv, config, z, h, *edge_adjacency.prefix(n_dst), training)
         gat = gat + p[f"{conv}.bias"].unsqueeze(1)
@@ -147,7 +146,8 @@ def encode_members(p: Params, config: ModelConfig, batch: dict, training: bool) 
     layers = config.layers
     plan = batch.get("plan")
     if plan is None or plan.layers != layers:
-        plan = make_plan(batch["x"].shape[0], batch["target_node"], edge_inputs(batch), layers)
+        edge_list = edge_inputs(batch, config.edge_types)
+        plan = make_plan(batch["x"].shape[0], batch["target_node"], edge_list, layers)
     z = batch["x"] if plan.order is None else batch["x"].index_select(0, plan.order)  # shared
     for index in range(layers):
         z = _encoder_layer(p, config, index, z, plan.sizes[index + 1], plan.adjacency, training)
@@ -253,7 +253,7 @@ class EncoderLayer(nn.Module):
 
     def __init__(self, in_features: int, config: ModelConfig) -> None:
         super().__init__()
-        self.edge_names = tuple(edge.name for edge in edges.EDGE_TYPES)
+        self.edge_names = config.edge_types
         for name in self.edge_names:  # registered in order: the parameters' order and init
             conv = GATConv(
                 in_features,
@@ -271,7 +271,7 @@ class EncoderLayer(nn.Module):
         self.linear = nn.Linear(in_features, config.hidden)
 
     def convs(self) -> list[GATConv]:
-        """The GAT of each edge type, in EDGE_TYPES order."""
+        """The GAT of each edge type, in `ModelConfig.edge_types` order."""
         return [getattr(self, name) for name in self.edge_names]
 
     def reference(self, z, edge_list: list[tuple[torch.Tensor, torch.Tensor]]):  # noqa: ANN001, ANN201

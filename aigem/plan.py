@@ -26,13 +26,15 @@ from dataclasses import dataclass
 
 import torch
 
-from ngsim_graphs import edges
 
-
-def edge_inputs(batch: dict) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """(edge_index (2, E), edge_attr (E, 1)) of each edge type, in EDGE_TYPES order, from a
-    batch's "<name>_edges" and "<name>_attr" (`aigem.data.Collate`)."""
-    return [(batch[f"{e.name}_edges"], batch[f"{e.name}_attr"]) for e in edges.EDGE_TYPES]
+def edge_inputs(
+    batch: dict, names: tuple[str, ...] | None = None
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """(edge_index (2, E), edge_attr (E, 1)) of each edge type `names` (None: the batch's own,
+    `batch["edge_types"]`, its build's), in that order, from a batch's "<name>_edges" and
+    "<name>_attr" (`aigem.data.Collate`)."""
+    names = batch["edge_types"] if names is None else names
+    return [(batch[f"{name}_edges"], batch[f"{name}_attr"]) for name in names]
 
 
 # ------------------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ nodes, E edges of a type, K = K_F future steps:
     data["vehicle"].y          (N, K, 2) float32 future positions, metres, in the sample's frame;
                                0 for non-targets and at masked steps
     data["vehicle"].y_mask     (N, K) bool: True where y is recorded (all False for non-targets)
-    data["vehicle", name, "vehicle"]  for each edge type of `ngsim_graphs.edges.EDGE_TYPES`:
+    data["vehicle", name, "vehicle"]  for each edge type of the build (BuildConfig.edge_types):
                                edge_index (2, E), edge_attr (E, 1) as `Collate` gives them
                                (spatial: the scaled distance; temporal: t_s in seconds)
     data.sample_id             (1,) int64 the sample's index in its split
@@ -71,7 +71,7 @@ def to_hetero_data(
     node.track_id = torch.from_numpy(graph.node_track.astype(np.int64))
     node.is_target = torch.from_numpy(is_target)
     node.y, node.y_mask = torch.from_numpy(y), torch.from_numpy(y_mask)
-    for edge in edges.EDGE_TYPES:
+    for edge in edges.types_of(tuple(graph.edges)):
         edge_set = graph.edges[edge.name]
         data[relation(edge)].edge_index = torch.from_numpy(edge_set.index)
         data[relation(edge)].edge_attr = torch.from_numpy(
@@ -89,9 +89,10 @@ def to_model_batch(data: HeteroData) -> dict[str, torch.Tensor]:
     target = torch.nonzero(node.is_target).squeeze(1)  # (A,)
     node_sample = node.batch if "batch" in node else torch.zeros(node.num_nodes, dtype=torch.long)
     batch = {"x": node.x}  # (N, 4) scaled
-    for edge in edges.EDGE_TYPES:
-        batch[f"{edge.name}_edges"] = data[relation(edge)].edge_index  # (2, E)
-        batch[f"{edge.name}_attr"] = data[relation(edge)].edge_attr  # (E, 1)
+    names = tuple(name for _, name, _ in data.edge_types)  # the build's, in its order
+    for name in names:
+        batch[f"{name}_edges"] = data[NODE, name, NODE].edge_index  # (2, E)
+        batch[f"{name}_attr"] = data[NODE, name, NODE].edge_attr  # (E, 1)
     return batch | {
         "node_sample": node_sample,  # (N,)
         "target_node": target,  # (A,)

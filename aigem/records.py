@@ -154,9 +154,11 @@ def train_config(info: dict[str, Any], path: Path) -> TrainConfig:
 def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
     """The model config a run recorded, settings it lacks at their defaults (_recorded_values);
     an error for a value of another type than the setting's."""
-    values, defaults = _recorded_values(info, "model", ModelConfig, path), ModelConfig()
+    values, defaults = dict(_recorded_values(info, "model", ModelConfig, path)), ModelConfig()
     for name, value in values.items():
         default = getattr(defaults, name)
+        if isinstance(default, tuple) and isinstance(value, list):  # JSON's form of a tuple
+            values[name] = value = tuple(value)
         if type(value) is not type(default) and not (type(default) is float and type(value) is int):
             raise NgsimInputError(
                 path, f"model config {name} = {value!r}: expected a {type(default).__name__}"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -168,6 +168,11 @@ def check_resume(
         )
 
 
+def model_of_build(model: ModelConfig, build_dir: Path) -> ModelConfig:
+    """The model a fit trains on `build_dir`: a GAT per edge type of the build, in its order."""
+    return replace(model, edge_types=open_build(build_dir).config.edge_types)
+
+
 def check_fit(
     build_dir: Path,
     run_dir: Path,
@@ -180,6 +185,7 @@ def check_fit(
     finished one, with train and validation samples), the run directory (check_single_start,
     check_group_start, check_fresh_out) and, to resume, run.json against this call's settings."""
     check_splits(build_dir)
+    model = model_of_build(model, build_dir)
     plans = [(run_dir, train.horizon_s)]
     if horizons_s is None:
         check_single_start(run_dir, resume)
@@ -282,6 +288,12 @@ def check_build(
             build_dir,
             f"its time step is {config.time_step_s} s; the run was "
             f"trained on {time_step_s} s steps",
+        )
+    if config.edge_types != model.edge_types:
+        raise NgsimInputError(
+            build_dir,
+            f"its graphs have edge types {', '.join(config.edge_types)}; the run's model has a "
+            f"GAT for each of {', '.join(model.edge_types)}",
         )
     steps = round(info["train"]["horizon_s"] / time_step_s)
     if config.history_steps < model.history_steps_read or config.future_steps < steps:

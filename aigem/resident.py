@@ -32,7 +32,6 @@ from aigem.capacity import Capacity, edge_columns, quantities
 from aigem.data import Collate, GraphDataset, check_covered
 from aigem.plan import Adjacency, Plan, edge_inputs, node_levels
 from aigem.processes import EndWithParent
-from ngsim_graphs import edges
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.layout import manifest_path
 
@@ -376,7 +375,7 @@ def load_split(
         done += len(chunk.ids)
         if progress is not None:
             progress(done, len(dataset))
-    return _join(chunks, layers, len(dataset))
+    return _join(chunks, layers, len(dataset), len(dataset.config.edge_types))
 
 
 def _with_spare(table: torch.Tensor) -> torch.Tensor:
@@ -385,21 +384,22 @@ def _with_spare(table: torch.Tensor) -> torch.Tensor:
     return torch.cat([table, table.new_zeros((1, *table.shape[1:]))])
 
 
-def _join(chunks: list[_Chunk], layers: int, samples: int) -> ResidentSplit:
-    """One ResidentSplit of the chunks' samples (the split's ids 0..S-1 in any order)."""
-    width = quantities(layers, len(edges.EDGE_TYPES))
+def _join(chunks: list[_Chunk], layers: int, samples: int, types: int) -> ResidentSplit:
+    """One ResidentSplit of the chunks' samples (the split's ids 0..S-1 in any order) of a
+    build of `types` edge types."""
+    width = quantities(layers, types)
     counts = np.zeros((samples + 1, width), dtype=np.int64)
     node_start = np.zeros((samples + 1, layers + 1), dtype=np.int64)
-    edge_start = [np.zeros((samples + 1, layers), dtype=np.int64) for _ in edges.EDGE_TYPES]
+    edge_start = [np.zeros((samples + 1, layers), dtype=np.int64) for _ in range(types)]
     target_start = np.zeros(samples + 1, dtype=np.int64)
     nodes = targets = 0
-    edge_totals = [0] * len(edges.EDGE_TYPES)
+    edge_totals = [0] * types
     for chunk in chunks:
         counts[chunk.ids] = chunk.counts
         node_counts = chunk.counts[:, : layers + 1]
         node_start[chunk.ids] = _starts(node_counts, nodes)
         target_start[chunk.ids] = _starts(node_counts[:, :1], targets)[:, 0]
-        for index in range(len(edges.EDGE_TYPES)):
+        for index in range(types):
             edge_counts = chunk.counts[:, edge_columns(layers, index)]
             edge_start[index][chunk.ids] = _starts(edge_counts, edge_totals[index])
             edge_totals[index] += int(edge_counts.sum())
@@ -420,7 +420,7 @@ def _join(chunks: list[_Chunk], layers: int, samples: int) -> ResidentSplit:
             on([chunk.edges[i][2] for chunk in chunks]),
             torch.from_numpy(edge_start[i]),
         )
-        for i in range(len(edges.EDGE_TYPES))
+        for i in range(types)
     )
     return ResidentSplit(
         layers=layers,

@@ -40,7 +40,7 @@ from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
 from aigem.model import AiGem, count_parameters
 from aigem.processes import EndWithParent, compile_in_process, release_workers
-from aigem.refusals import check_splits
+from aigem.refusals import check_splits, model_of_build
 from aigem.resident import fits, load_split
 from aigem.trainers import Loop, Member
 from ngsim_graphs.build import open_build
@@ -291,6 +291,7 @@ def fit_horizons(
     )
     seed_everything(train.seed + rank)
     check_splits(build_dir)
+    model_config = model_of_build(model_config, build_dir)
     train_set, train_loader, val_loader, sampler, generator = _loaders(
         build_dir, model_config, train, rank, world, device, workers
     )

@@ -30,10 +30,10 @@ from ngsim_cli.console import (
 from ngsim_cli.cslstm import export_cslstm
 from ngsim_cli.show import show
 from ngsim_cli.stats_view import STATS_TABLES
-from ngsim_graphs import __version__
+from ngsim_graphs import __version__, edges
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.build import open_build
-from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
@@ -121,9 +121,11 @@ DatasetChoice = Enum(  # type: ignore[misc]
 
 
 def _build_config(**options):  # type: ignore[no-untyped-def]
-    """The BuildConfig of the options, its locations known to some source."""
+    """The BuildConfig of the options, its locations known to some source and its edge types to
+    `edges.EDGE_TYPES`."""
     config = BuildConfig(**options)
     check_locations(config.locations)
+    edges.types_of(config.edge_types)
     return config
 
 
@@ -213,6 +215,13 @@ def build(
             "vehicle the only target; the six US-101 and I-80 recordings only)."
         ),
     ] = Protocol.AIGEM,
+    edge_types: Annotated[
+        str,
+        typer.Option(
+            help="Comma-separated edge types of the graphs, in order: spatial (ego-actor, and "
+            "actor-actor within --d-min-m, at a step), temporal (a vehicle's node to its next)."
+        ),
+    ] = ",".join(DEFAULT_EDGE_TYPES),
     jobs: Annotated[
         int | None,
         typer.Option(
@@ -245,6 +254,7 @@ def build(
         min_heading_speed_mps=min_heading_speed_mps,
         heading_smoothing_s=heading_smoothing_s,
         protocol=protocol,
+        edge_types=tuple(name.strip() for name in edge_types.split(",") if name.strip()),
     )
     left = f"nothing written ({out} is as it was)"
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:

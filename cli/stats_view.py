@@ -40,12 +40,11 @@ def _table(title: str, first: list[str], right: list[str]) -> Table:
 
 
 DISTRIBUTION_COLUMNS = ["mean", "min", "p5", "p50", "p95", "max"]
-GRAPH_SIZE_LABELS = {
-    "n_nodes": "nodes",
-    "n_spatial_edges": "spatial edges",
-    "n_temporal_edges": "temporal edges",
-    "n_targets": "targets",
-}
+
+
+def _graph_size_label(column: str) -> str:
+    """A count column as the table names it: `n_spatial_edges` -> "spatial edges"."""
+    return column.removeprefix("n_").replace("_", " ")
 
 
 def _recordings_table(st: BuildStatistics) -> Table:
@@ -115,9 +114,9 @@ def _splits_table(st: BuildStatistics) -> Table:
 def _graph_size_table(st: BuildStatistics) -> Table:
     table = _table("Graph size (all samples, exact)", ["split", "per graph"], DISTRIBUTION_COLUMNS)
     for split in SPLIT_NAMES:
-        for column, label in GRAPH_SIZE_LABELS.items():
+        for column, sizes in st.graph_size[split].items():  # the build's count columns
             table.add_row(
-                split, label, *_distribution_cells(st.graph_size[split][column], counts=True)
+                split, _graph_size_label(column), *_distribution_cells(sizes, counts=True)
             )
         table.add_section()
     return table

@@ -7,6 +7,8 @@ from typing import Any
 
 from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
 
+DEFAULT_EDGE_TYPES = ("spatial", "temporal")  # the paper's: what a build of no edge_types has
+
 
 @dataclass(frozen=True)
 class PhysicalLimits:
@@ -74,6 +76,9 @@ class BuildConfig:
     limits: PhysicalLimits = PhysicalLimits()
     # aigem: ego windows at a stride; cs-lstm: CS-LSTM's kept rows, the ego the only target
     protocol: Protocol = Protocol.AIGEM
+    # The graphs' edge types, by name (`edges.EDGE_TYPES` knows them: `edges.types_of`); the
+    # count columns, the statistics and the model's GATs follow them, in this order.
+    edge_types: tuple[str, ...] = DEFAULT_EDGE_TYPES
 
     def __post_init__(self) -> None:
         # Which names are locations is the sources' to say (`sources.registry.check_locations`).
@@ -96,6 +101,8 @@ class BuildConfig:
         fractions = self.split_fractions
         if len(fractions) != 3 or min(fractions) < 0 or abs(sum(fractions) - 1) > 1e-9:
             raise ValueError("split_fractions must be three non-negative numbers summing to 1")
+        if not self.edge_types or len(set(self.edge_types)) != len(self.edge_types):
+            raise ValueError("edge_types must name at least one edge type, each once")
         if self.protocol is Protocol.CS_LSTM:
             self._check_cslstm()
 
@@ -139,17 +146,25 @@ class BuildConfig:
         return steps if steps % 2 == 1 else steps + 1
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The settings as the manifest records them. The paper's edge types are left out, as
+        builds made before edge_types were recorded left them: a default build's config, and so
+        its config hash, stay what they were (`from_dict` reads their absence as the default)."""
+        values = asdict(self)
+        if self.edge_types == DEFAULT_EDGE_TYPES:
+            del values["edge_types"]
+        return values
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> BuildConfig:
-        """The config of a manifest (JSON lists back to tuples, the split back to its enum)."""
+        """The config of a manifest (JSON lists back to tuples, the split back to its enum); a
+        manifest without edge_types (the paper's, or a build older than the setting) has the
+        default's."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"unknown build settings {unknown}: made by a newer ngsim-graphs?")
         typed = dict(values)
-        for name in ("locations", "split_fractions"):
+        for name in ("locations", "split_fractions", "edge_types"):
             if name in typed:
                 typed[name] = tuple(typed[name])
         if "split" in typed:

@@ -7,11 +7,13 @@ attribute, twice over the same decisions:
   the attribute's minimum and maximum there, from the rows near it (`neighbourhoods`, which
   counts a build's samples without inducing their graphs; the scaler's ranges follow from it).
 
-`EDGE_TYPES` lists them in order: the batch's edge sets, the build's count columns, the model's
-GAT per type (and its checkpoint keys), PyG's relations and the export's tables follow it. Code
-reads it as `edges.EDGE_TYPES` at call time, so a test may register a type of its own. A new
-type adds its count column to `schema.COUNT_COLUMNS` (in this order); a scaled attribute of a new
-name is a new quantity of the scaler (`scaling.SCALED`, and so of the manifest).
+`EDGE_TYPES` knows every type by name; a build's config names the types its graphs have
+(`BuildConfig.edge_types`, the paper's two by default, recorded in its manifest) and
+`types_of` gives them, in that order: the batch's edge sets, the build's count columns
+(`count_columns`), the statistics, the model's GAT per type (and its checkpoint keys), PyG's
+relations and the export's tables follow it. Code reads `edges.EDGE_TYPES` at call time, so a
+test may register a type of its own. A scaled attribute of a new name is a new quantity of the
+scaler (`scaling.SCALED`, and so of the manifest).
 
 - spatial: at each step, ego <-> each actor node, and actor <-> actor where the two are at
   most d_max apart (a proximity pair of `grid`; the build's field and manifest key `d_min_m`
@@ -92,7 +94,6 @@ class EdgeType:
     scaler maps the attribute (named `attribute` among its quantities)."""
 
     name: str  # the batch's key, the model's GAT, PyG's relation; `<name>_edges` the table
-    count_column: str  # the samples table's column (schema)
     attribute: str  # the attribute's column in the export (schema)
     scaled: bool
     steps_ahead: int
@@ -102,6 +103,11 @@ class EdgeType:
     @property
     def table(self) -> str:
         return f"{self.name}_edges"
+
+    @property
+    def count_column(self) -> str:
+        """Its column of the samples table: its edges per sample (`n_spatial_edges`)."""
+        return f"n_{self.name}_edges"
 
 
 def reduce_at(ufunc: np.ufunc, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -132,10 +138,15 @@ def by_sample(
 # spatial
 
 
-def _spatial_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
-    """Ego <-> actor edges, then actor <-> actor edges among nodes, in both directions: by
-    sample, and within a sample grouped by kind (ego->actor, actor->ego, actor->actor both
-    ways), each group in step order (deterministic, without a full sort)."""
+PairFilter = Callable[[RecordingArrays, np.ndarray], np.ndarray]  # (rec, (C, 2) rows) -> (C,) bool
+
+
+def actor_pair_edges(
+    nodes: Nodes, keep: PairFilter | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(node_a, node_b, distance): the proximity pairs (`grid`: at most d_max apart) of two
+    actor nodes of one sample-step, once each, in step order; `keep`: only the pairs of rows
+    (C, 2) it keeps (a rule over the pairs, say lateral offsets)."""
     rec, ss_step, ego_rows, node_of_cand = (
         nodes.rec,
         nodes.ss_step,
@@ -146,11 +157,6 @@ def _spatial_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
     # without the ego (cs-lstm) has none, and no pairs.
     has_ego = ego_rows >= 0
     block_start = np.searchsorted(nodes.cand_ss, np.arange(len(ss_step)))
-    actors = nodes.order[~nodes.cand_is_ego[nodes.order]]
-    in_block = np.where(has_ego, ego_rows - rec.step_ptr[ss_step], 0)
-    ego_node = node_of_cand[np.minimum(block_start + in_block, len(node_of_cand) - 1)]
-    ego_src = ego_node[nodes.cand_ss[actors]]
-    ego_dst = node_of_cand[actors]
     # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes.
     pair_ss, pair_index = y_window(
         rec.pair_key, rec, ego_rows, ss_step, nodes.config.d_sense_m, has_ego
@@ -160,11 +166,33 @@ def _spatial_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
     node_a = node_of_cand[base[pair_ss] + pair_rows[:, 0]]
     node_b = node_of_cand[base[pair_ss] + pair_rows[:, 1]]
     ego_row = ego_rows[pair_ss]
-    keep = (
+    keep_pair = (
         (node_a >= 0) & (node_b >= 0) & (pair_rows[:, 0] != ego_row) & (pair_rows[:, 1] != ego_row)
     )
-    node_a, node_b = node_a[keep], node_b[keep]
-    pair_dist = rec.pair_dist[pair_index[keep]].astype(np.float64)
+    if keep is not None:
+        keep_pair &= keep(rec, pair_rows)
+    distance = rec.pair_dist[pair_index[keep_pair]].astype(np.float64)
+    return node_a[keep_pair], node_b[keep_pair], distance
+
+
+def _spatial_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
+    """Ego <-> actor edges, then actor <-> actor edges among nodes, in both directions: by
+    sample, and within a sample grouped by kind (ego->actor, actor->ego, actor->actor both
+    ways), each group in step order (deterministic, without a full sort)."""
+    rec, ss_step, ego_rows, node_of_cand = (
+        nodes.rec,
+        nodes.ss_step,
+        nodes.ego_rows,
+        nodes.node_of_cand,
+    )
+    has_ego = ego_rows >= 0
+    block_start = np.searchsorted(nodes.cand_ss, np.arange(len(ss_step)))
+    actors = nodes.order[~nodes.cand_is_ego[nodes.order]]
+    in_block = np.where(has_ego, ego_rows - rec.step_ptr[ss_step], 0)
+    ego_node = node_of_cand[np.minimum(block_start + in_block, len(node_of_cand) - 1)]
+    ego_src = ego_node[nodes.cand_ss[actors]]
+    ego_dst = node_of_cand[actors]
+    node_a, node_b, pair_dist = actor_pair_edges(nodes)
     ego_dist = nodes.cand_dist[actors]
     return by_sample(
         nodes.node_sample,
@@ -174,10 +202,13 @@ def _spatial_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-def _actor_pairs(near: Near) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def actor_pairs(
+    near: Near, keep: PairFilter | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Count, minimum and maximum distance of the proximity pairs among each ego row's actors,
-    searched as `_spatial_induce` searches them. Which rows are actors is a small (ego, row of
-    its step) table: a lookup, not a distance, per pair."""
+    searched as `actor_pair_edges` searches them; `keep`: only the pairs of rows it keeps.
+    Which rows are actors is a small (ego, row of its step) table: a lookup, not a distance,
+    per pair."""
     rec, egos, step = near.rec, near.egos, near.step
     width = int(np.diff(rec.step_ptr).max()) if rec.n_steps else 0
     # Row r of ego i's step is entry i * width + r - (first row of the step) of `is_actor`.
@@ -187,20 +218,22 @@ def _actor_pairs(near: Near) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     owner, index = y_window(rec.pair_key, rec, egos, step, near.config.d_sense_m)
     pairs = np.take(rec.pair_rows, index, axis=0)  # (C, 2); faster than fancy indexing
     pair_offset = offset[owner]
-    keep = is_actor[pairs[:, 0] + pair_offset] & is_actor[pairs[:, 1] + pair_offset]
+    keep_pair = is_actor[pairs[:, 0] + pair_offset] & is_actor[pairs[:, 1] + pair_offset]
+    if keep is not None:
+        keep_pair &= keep(rec, pairs)
     distance = rec.pair_dist[index]  # float32: its minimum and maximum are exact as float64
     lengths = np.bincount(owner, minlength=len(egos))  # pairs searched per ego, in runs
     return (
-        reduce_runs(np.add, keep.astype(np.int32), lengths, 0, np.int64),
-        reduce_runs(np.minimum, np.where(keep, distance, np.inf), lengths, np.inf),
-        reduce_runs(np.maximum, np.where(keep, distance, -np.inf), lengths, -np.inf),
+        reduce_runs(np.add, keep_pair.astype(np.int32), lengths, 0, np.int64),
+        reduce_runs(np.minimum, np.where(keep_pair, distance, np.inf), lengths, np.inf),
+        reduce_runs(np.maximum, np.where(keep_pair, distance, -np.inf), lengths, -np.inf),
     )
 
 
 def _spatial_count(near: Near) -> RowEdges:
     """2 per actor (ego <-> actor) and 2 per proximity pair of two actors."""
     actors = np.bincount(near.owner[near.actor], minlength=len(near.egos))
-    pairs, pair_low, pair_high = _actor_pairs(near)
+    pairs, pair_low, pair_high = actor_pairs(near)
     ego_low = reduce_at(np.minimum, np.where(near.actor, near.distance, np.inf), near.starts)
     ego_high = reduce_at(np.maximum, np.where(near.actor, near.distance, -np.inf), near.starts)
     return RowEdges(
@@ -250,7 +283,6 @@ def _temporal_count(near: Near) -> RowEdges:
 
 SPATIAL = EdgeType(
     name="spatial",
-    count_column=s.N_SPATIAL,
     attribute=s.DISTANCE_M,
     scaled=True,
     steps_ahead=0,
@@ -259,22 +291,34 @@ SPATIAL = EdgeType(
 )
 TEMPORAL = EdgeType(
     name="temporal",
-    count_column=s.N_TEMPORAL,
     attribute=s.DT_S,
     scaled=False,
     steps_ahead=1,
     induce=_temporal_induce,
     count=_temporal_count,
 )
-EDGE_TYPES: tuple[EdgeType, ...] = (SPATIAL, TEMPORAL)
+EDGE_TYPES: dict[str, EdgeType] = {edge.name: edge for edge in (SPATIAL, TEMPORAL)}
+
+
+def types_of(names: tuple[str, ...]) -> tuple[EdgeType, ...]:
+    """The edge types of these names (a build's `BuildConfig.edge_types`), in their order;
+    ValueError naming any that no edge type of `EDGE_TYPES` has."""
+    unknown = [name for name in names if name not in EDGE_TYPES]
+    if unknown:
+        raise ValueError(
+            f"edge_types names unknown {', '.join(map(repr, unknown))}: this ngsim-graphs knows "
+            f"{', '.join(EDGE_TYPES)}"
+        )
+    return tuple(EDGE_TYPES[name] for name in names)
 
 
 def scaled_attributes() -> tuple[str, ...]:
-    """The edge attributes the scaler maps, once each, in EDGE_TYPES order."""
-    return tuple(dict.fromkeys(e.attribute for e in EDGE_TYPES if e.scaled))
+    """The edge attributes the scaler maps, once each, of every edge type EDGE_TYPES knows."""
+    return tuple(dict.fromkeys(e.attribute for e in EDGE_TYPES.values() if e.scaled))
 
 
-def count_columns() -> tuple[str, ...]:
-    """The samples table's count columns: nodes, each edge type's, targets, full targets."""
-    edge_counts = tuple(e.count_column for e in EDGE_TYPES)
+def count_columns(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The samples table's count columns of a build of these edge types: nodes, each edge
+    type's (its `count_column`), targets, targets with a full future."""
+    edge_counts = tuple(e.count_column for e in types_of(names))
     return (s.N_NODES, *edge_counts, s.N_TARGETS, s.N_FULL_TARGETS)

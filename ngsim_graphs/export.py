@@ -25,8 +25,9 @@ from ngsim_graphs.integrity import file_sha256
 
 
 def export_tables() -> tuple[str, ...]:
-    """The tables an export writes: nodes, one per edge type (`<name>_edges`), targets, samples."""
-    return ("nodes", *(edge.table for edge in edges.EDGE_TYPES), "targets", "samples")
+    """The tables an export may write: nodes, one per edge type (`<name>_edges`, of every type
+    `edges.EDGE_TYPES` knows: an export writes those of its build's), targets, samples."""
+    return ("nodes", *(edge.table for edge in edges.EDGE_TYPES.values()), "targets", "samples")
 
 
 EXPORT_MARKER = "export.json"  # the tables an export wrote, with their sha256
@@ -83,7 +84,7 @@ def graph_tables(batch: GraphBatch, sample_ids: np.ndarray) -> dict[str, pl.Data
                 edge.attribute: batch.edges[edge.name].attribute,
             }
         ).sort(order)
-        for edge in edges.EDGE_TYPES
+        for edge in edges.types_of(tuple(batch.edges))
     }
     return {
         "nodes": nodes.sort(s.SAMPLE_ID, s.NODE),

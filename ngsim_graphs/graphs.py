@@ -4,7 +4,7 @@ For history steps k = 0..K_H-1 (k = K_H-1 is the present) of the window of ego t
 starts at grid step s0:
 - nodes at k: the ego, then every vehicle at step s0+k whose distance to the ego is <= d_sense,
   by ascending track id; features [x, y, heading, speed] with the ego's present position at (0, 0);
-- edges: one set per edge type of `edges.EDGE_TYPES` (spatial within a step, temporal from a
+- edges: one set per edge type of the build (`BuildConfig.edge_types`; spatial within a step, temporal from a
   step to the next), each type's rule in `ngsim_graphs.edges`;
 - targets: the actor nodes at the present step (and the ego, if asked), with their positions at
   the K_F future steps in the sample frame and a mask where the track has no row (it left).
@@ -49,7 +49,7 @@ class GraphBatch:
 
     Nodes of sample b are node_ptr[b]:node_ptr[b+1], ordered by step, then ego first, then by
     track id; the sample-local index of node n is n - node_ptr[node_sample[n]]. `edges` holds
-    an EdgeSet per edge type, by name in `edges.EDGE_TYPES` order; each comes by sample (the
+    an EdgeSet per edge type of the build, by name in `BuildConfig.edge_types` order; each comes by sample (the
     order within a sample is its rule's), so a batch equals the concatenation of its samples'
     graphs.
     """
@@ -170,7 +170,7 @@ def induce_graphs(
         node_step=node_step,
         node_track=node_track,
     )
-    edge_sets = {edge.name: EdgeSet(*edge.induce(nodes)) for edge in edges.EDGE_TYPES}
+    edge_sets = {e.name: EdgeSet(*e.induce(nodes)) for e in edges.types_of(config.edge_types)}
     target_node, target_xy, target_mask = _targets(
         rec, node_sample, node_step, node_track, cand_is_ego[order], origin, start_step, config
     )

@@ -16,6 +16,7 @@ from dataclasses import asdict, astuple, dataclass, field, fields, replace
 from enum import Enum
 from typing import Any
 
+from ngsim_graphs import edges
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.integrity import CHECKSUM_KEY, FILES_KEY
 from ngsim_graphs.scaling import MinMaxScaler
@@ -254,11 +255,13 @@ class Manifest:
             isinstance(r, Mapping) for r in files.values()
         ):
             raise ValueError("no file records")
+        config = BuildConfig.from_dict(values["config"])
+        edges.types_of(config.edge_types)  # a build of an edge type this version does not know
         return cls(
             format_version=values["format_version"],
             software=dict(values["software"]),
             dataset=values.get("dataset", DEFAULT_DATASET),
-            config=BuildConfig.from_dict(values["config"]),
+            config=config,
             config_hash=values["config_hash"],
             inputs=tuple(_report_from_json(FileReport, f) for f in values["inputs"]),
             recordings=tuple(RecordingEntry.from_dict(r) for r in values["recordings"]),

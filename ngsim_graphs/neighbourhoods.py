@@ -115,7 +115,7 @@ def _chunk(
     low[:, :n_state] = edges.reduce_at(np.minimum, state, near.starts)
     high[:, :n_state] = edges.reduce_at(np.maximum, state, near.starts)
     counts = {}
-    for edge in edges.EDGE_TYPES:
+    for edge in edges.types_of(config.edge_types):
         row_edges = edge.count(near)
         counts[edge.name] = row_edges.count
         if edge.scaled:
@@ -179,7 +179,7 @@ def neighbourhoods_of_rows(
     hood = Neighbourhoods(
         rows=rows,
         nodes=np.empty(n, np.int64),
-        edges={edge.name: np.empty(n, np.int64) for edge in edges.EDGE_TYPES},
+        edges={name: np.empty(n, np.int64) for name in config.edge_types},
         full_future=np.empty(n, np.int64),
         ego_full_future=np.empty(n, bool),
         low=np.empty((n, n_ranged)),
@@ -223,12 +223,12 @@ def row_bounds(history: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
-    """(B, C) int64 per sample, in `edges.count_columns()` order: nodes, each edge type's edges,
+    """(B, C) int64 per sample, in `edges.count_columns(config.edge_types)` order: nodes, each edge type's edges,
     targets, targets with a full future, from its (B, K_H) `history_rows`.
 
     Only the rows `hood` holds count (the targets: if it holds the present row): the counts of
     the neighbourhoods of consecutive ranges of steps add up to those of all at once."""
-    counts = np.empty((len(history), len(edges.count_columns())), np.int64)
+    counts = np.empty((len(history), len(edges.count_columns(config.edge_types))), np.int64)
     for part in sample_chunks(len(history)):
         counts[part] = _counts(hood, history[part], config)
     return counts
@@ -237,10 +237,10 @@ def sample_counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig
 def _counts(hood: Neighbourhoods, history: np.ndarray, config: BuildConfig) -> np.ndarray:
     present, at = positions(hood, history)
     if len(hood.rows) == 0:
-        return np.zeros((len(history), len(edges.count_columns())), np.int64)
+        return np.zeros((len(history), len(edges.count_columns(config.edge_types))), np.int64)
     nodes = np.where(present, hood.nodes[at], 0)
     edge_counts = []
-    for edge in edges.EDGE_TYPES:
+    for edge in edges.types_of(config.edge_types):
         per_step = np.where(present, hood.edges[edge.name][at], 0)
         # an edge to a step after the last history step is not in the graph
         edge_counts.append(per_step[:, : per_step.shape[1] - edge.steps_ahead].sum(axis=1))

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import polars as pl
 
-from ngsim_graphs import landing, layout, storage
+from ngsim_graphs import edges, landing, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.config import BuildConfig
@@ -235,7 +235,9 @@ def _staged_sizes(staged: dict[RecordingKey, StagedParts]) -> list[int]:
     ]
 
 
-def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict[str, int]]:
+def _write_samples(
+    root: Path, outputs: list[RecordingOutput], config: BuildConfig
+) -> dict[str, dict[str, int]]:
     """Samples tables and arrays of each split; returns the sample count per split and recording.
 
     A split's samples are numbered in (location, period, ego track, start step) order. The
@@ -250,13 +252,15 @@ def _write_samples(root: Path, outputs: list[RecordingOutput]) -> dict[str, dict
         }
         for split in SPLIT_ORDER
     }
+    columns = {
+        **s.SAMPLE_SCHEMA,
+        **dict.fromkeys(edges.count_columns(config.edge_types), s.COUNT_DTYPE),
+    }
     for split in SPLIT_ORDER:
         in_split = pl.col(s.SPLIT) == split.value
         windows = pl.concat([pl.scan_parquet(o.windows).filter(in_split) for o in outputs])
-        table = windows.with_row_index(s.SAMPLE_ID).select(s.SAMPLES_TABLE_SCHEMA.names())
-        storage.sink_parquet(
-            table.cast(dict(s.SAMPLES_TABLE_SCHEMA)), layout.samples_path(root, split.value)
-        )
+        table = windows.with_row_index(s.SAMPLE_ID).select(list(columns))
+        storage.sink_parquet(table.cast(columns), layout.samples_path(root, split.value))
     with ExitStack() as stack:
         arrays = {
             split: stack.enter_context(
@@ -308,7 +312,7 @@ def _finish(
     )  # fmt: skip
     scaler = reduce(MinMaxScaler.joined, [o.train_ranges for o in outputs])
     progress("writing samples", len(outputs), len(outputs))
-    samples = _write_samples(root, outputs)
+    samples = _write_samples(root, outputs, config)
     mixed = mixed_inputs_warning([file.path for file in file_reports], synthetic)
     warnings = summary.warnings(outputs, config, file_reports) + ([mixed] if mixed else [])
     manifest = summary.manifest(
@@ -343,7 +347,8 @@ def _check_targets(raw_paths: list[Path], targets: list[BuildTarget]) -> None:
                     f"reading and cleaning of the inputs, which read it; build them apart"
                 )
     check_locations(first.locations)
-    for out_dir, _ in targets:
+    for out_dir, config in targets:
+        edges.types_of(config.edge_types)  # every edge type known, before any work
         landing.check_outside_inputs(out_dir, raw_paths)
     landing.check_apart([out_dir for out_dir, _ in targets])
 

@@ -10,12 +10,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import polars as pl
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 
-from ngsim_graphs.schema import N_NODES, N_SPATIAL
+from ngsim_graphs.edges import SPATIAL
+from ngsim_graphs.schema import N_NODES
 from ngsim_graphs.statistics import SPLITS, BuildValues
 
 SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
@@ -124,7 +126,12 @@ def write_histograms(values: BuildValues, folder: Path, synthetic: bool = False)
     where `synthetic` (mark_synthetic); returns the paths written."""
     folder.mkdir(parents=True, exist_ok=True)
     nodes = {split: values.samples[split][N_NODES].to_numpy() for split in SPLITS}
-    edges = {split: values.samples[split][N_SPATIAL].to_numpy() for split in SPLITS}
+    edges = {  # none where the build has no spatial edges
+        split: values.samples[split]
+        .get_column(SPATIAL.count_column, default=pl.Series([], dtype=pl.Int32))
+        .to_numpy()
+        for split in SPLITS
+    }
     rows = f"{len(values.speed_mps):,} tracks rows"
     figures = {
         "nodes_per_graph": share_figure(

@@ -100,7 +100,10 @@ def _sample(batch: GraphBatch, sample: int) -> _Sample:
         raise ValueError(f"sample {sample} is not in a batch of {batch.n_samples}")
     first, last = int(batch.node_ptr[sample]), int(batch.node_ptr[sample + 1])
     present = int(batch.node_step[first:last].max())
-    spatial, temporal = batch.edges["spatial"].index, batch.edges["temporal"].index
+    none = np.zeros((2, 0), np.int64)  # a build without the type: none drawn
+    spatial, temporal = (
+        batch.edges[name].index if name in batch.edges else none for name in ("spatial", "temporal")
+    )
     source = spatial[0]
     mine = (source >= first) & (source < last)
     spatial = spatial[:, mine & (batch.node_step[source] == present)]

@@ -186,11 +186,8 @@ RECORDED: Final = "recorded"  # whether the target vehicle is recorded at that f
 
 SPLIT: Final = "split"  # the split of an ego window, while a build assigns them
 N_NODES: Final = "n_nodes"
-N_SPATIAL: Final = "n_spatial_edges"
-N_TEMPORAL: Final = "n_temporal_edges"
 N_TARGETS: Final = "n_targets"
 N_FULL_TARGETS: Final = "n_targets_full_future"  # targets recorded at every future step
-# Nodes, one column per edge type in `edges.EDGE_TYPES` order (its `count_column`), targets.
-COUNT_COLUMNS: Final[tuple[str, ...]] = (N_NODES, N_SPATIAL, N_TEMPORAL, N_TARGETS, N_FULL_TARGETS)
-# A split's samples table: its samples and the counts of their graphs.
-SAMPLES_TABLE_SCHEMA: Final = pl.Schema({**SAMPLE_SCHEMA, **dict.fromkeys(COUNT_COLUMNS, pl.Int32)})
+# A split's samples table: SAMPLE_SCHEMA and the counts of their graphs, Int32 each: nodes, one
+# column per edge type of the build (`edges.count_columns`: `n_spatial_edges`, ...), targets.
+COUNT_DTYPE: Final = pl.Int32

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from ngsim_graphs import edges
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild
 from ngsim_graphs.errors import NgsimInputError
@@ -24,7 +25,6 @@ from ngsim_graphs.manifest import json_form
 from ngsim_graphs.splits import SPLIT_ORDER
 
 SPLITS = tuple(split.value for split in SPLIT_ORDER)  # train, val, test
-GRAPH_SIZE_COLUMNS = (s.N_NODES, s.N_SPATIAL, s.N_TEMPORAL, s.N_TARGETS)
 KINEMATIC_COLUMNS = (s.SPEED_MPS, s.HEADING_RAD)
 MAX_DEGREE_GRAPHS = 300  # graphs induced per split for the node degrees
 
@@ -112,9 +112,15 @@ class BuildStatistics:
         return asdict(self)
 
 
-def graph_size(samples: pl.DataFrame) -> dict[str, Distribution]:
-    """Nodes, spatial edges, temporal edges and targets per graph, from the count columns."""
-    return {name: describe(samples[name].to_numpy()) for name in GRAPH_SIZE_COLUMNS}
+def graph_size_columns(edge_types: tuple[str, ...]) -> tuple[str, ...]:
+    """The count columns a graph's size is told by: nodes, each edge type's edges, targets."""
+    return edges.count_columns(edge_types)[:-1]  # but the targets with a full future
+
+
+def graph_size(samples: pl.DataFrame, edge_types: tuple[str, ...]) -> dict[str, Distribution]:
+    """Nodes, each edge type's edges (the build's `edge_types`) and targets per graph, from the
+    count columns."""
+    return {name: describe(samples[name].to_numpy()) for name in graph_size_columns(edge_types)}
 
 
 def target_share(samples: pl.DataFrame) -> TargetShare:
@@ -131,8 +137,9 @@ def pick_samples(n_samples: int, max_samples: int, seed: int) -> np.ndarray:
 
 
 def spatial_in_degree(build: OpenBuild, split: str, sample_ids: np.ndarray) -> np.ndarray:
-    """(N,) spatial in-degree of every node of the given samples' graphs (all history steps)."""
-    if len(sample_ids) == 0:
+    """(N,) spatial in-degree of every node of the given samples' graphs (all history steps);
+    none where the build has no spatial edges."""
+    if len(sample_ids) == 0 or edges.SPATIAL.name not in build.config.edge_types:
         return np.zeros(0, dtype=np.int64)
     batch = build.graphs(split, sample_ids)
     return np.bincount(batch.edges["spatial"].index[1], minlength=len(batch.node_track)).astype(
@@ -200,7 +207,9 @@ def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
         counts=json_form(manifest.counts.to_dict()),
         recordings=_recordings_table(build),
         samples={split: values.samples[split].height for split in SPLITS},
-        graph_size={split: graph_size(values.samples[split]) for split in SPLITS},
+        graph_size={
+            split: graph_size(values.samples[split], config.edge_types) for split in SPLITS
+        },
         node_degree={
             split: DegreeSummary(
                 values.degree_graphs[split], describe(values.spatial_in_degree[split])

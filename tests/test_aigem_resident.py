@@ -176,6 +176,7 @@ def _hand_batch() -> dict:
         "target_mask": floats(targets, 25) > 0.2,
         "target_state": floats(targets, 4),
         "cv_step": floats(targets, 2) * 0.01,
+        "edge_types": ("spatial", "temporal"),  # as Collate names them
     }
 
 
@@ -184,7 +185,7 @@ def test_a_graph_of_one_node_and_no_actor_actor_edge(
     data: tuple[GraphDataset, ResidentSplit], exact: bool
 ) -> None:
     hand = _hand_batch()
-    split = resident._join([resident._chunk(hand, np.arange(3), LAYERS)], LAYERS, 3)
+    split = resident._join([resident._chunk(hand, np.arange(3), LAYERS)], LAYERS, 3, 2)
     assert split.counts[:, 0].tolist() == [1, 2, 0]  # the targets: one, two, none
     assert split.counts[2].sum() == 0  # nothing of sample 2 is read by any layer
     ids = np.arange(3)

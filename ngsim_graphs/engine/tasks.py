@@ -108,7 +108,7 @@ def recording_samples(
     rows = ego_rows(history, int(arrays.step_ptr[-1]))
     first_row, last_row = row_bounds(history)
     is_train = (windows[s.SPLIT] == Split.TRAIN.value).to_numpy()
-    columns = edges.count_columns()  # the edge types' count columns, as sample_counts gives them
+    columns = edges.count_columns(config.edge_types)  # as sample_counts gives them
     counts = np.zeros((len(history), len(columns)), np.int64)
     train = MinMaxScaler.empty()
     pair_ptr, n_pairs = np.zeros_like(arrays.pair_ptr), 0
