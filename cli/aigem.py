@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -233,9 +234,13 @@ def fit(
 def _held(out: Path) -> Iterator[None]:
     """Hold --out's lock for the block (ngsim_graphs.lock: `.OUT.lock` beside it, as a build's
     and a paper's): a second fit, build or paper into the same folder meanwhile is refused with
-    one line, and the lock goes with this process, however it ends."""
+    one line, and the lock goes with this process, however it ends. Under torchrun only rank 0
+    holds it: the other ranks write nothing into --out."""
     from ngsim_graphs.lock import release_lock, take_lock
 
+    if int(os.environ.get("RANK", "0")) > 0:  # torchrun's: rank 0's lock covers the fit
+        yield
+        return
     resolved = out.resolve()  # `--out .` has a name
     with exit_on_interrupt("nothing written"), exit_on_error():
         out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
