@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -24,6 +25,14 @@ from ngsim_graphs import budget
 from ngsim_graphs import schema as s
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS
+
+# PyTorch's operators in the test process (and the programs the tests start) on one thread, unless
+# the environment says otherwise: the tests' tensors are tiny, and a second OpenMP thread only
+# waits for the first, spinning on its core, so that on a busy machine (or beside a program a
+# test runs in the background) the suite took several times its CPU time. A fit's own --threads,
+# or the cores ThreadChooser finds, still set its threads (aigem/cores.py). Set before any test
+# module imports torch, which reads it once.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 US101_FIRST = OFFICIAL_RECORDINGS[0]  # us-101 0750am-0805am
 I80_FIRST = OFFICIAL_RECORDINGS[1]  # i-80 0400-0415

@@ -331,9 +331,10 @@ FIGURES = ["concat.png", "curves.png", "dmin.png", "regions.png", "table1.png"]
 
 @pytest.fixture(scope="module")
 def tiny_raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One recording of 24 s: some 200 train samples, an epoch of a second or two."""
+    """One recording of 15 s: 87 train samples (two batches of 64, so that a fit that --max-hours
+    stops after its first batch stops inside its epoch), 14 val and 10 test samples."""
     folder = tmp_path_factory.mktemp("paper") / "raw"
-    write_synthetic(folder, SynthConfig(recordings=1, minutes=0.4, seed=5))
+    write_synthetic(folder, SynthConfig(recordings=1, minutes=0.25, seed=5))
     return folder
 
 

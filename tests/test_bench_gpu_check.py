@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "gpu_check.sh"
 FIGURES = (
     "fit loop, 5 horizons, batch 8 (graphs/s)",
@@ -18,6 +20,9 @@ FIGURES = (
 )
 
 
+# Slow (some 50 CPU seconds: synth, a build, bench_train, a fit, an evaluation and `aigem paper`
+# run one after the other by the script): each of its stages has fast tests of its own.
+@pytest.mark.slow
 def test_gpu_check_measures_every_stage_on_the_cpu(tmp_path: Path) -> None:
     python = Path(sys.executable)
     env = {
