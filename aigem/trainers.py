@@ -18,8 +18,9 @@ so x and y weigh alike.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -99,7 +100,9 @@ class Member:
     running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
     shown: float = math.nan  # its mean training loss of the epoch, as last read
     group: Path | None = None  # the multi-horizon run it is a member of
-    drawn_at: float = -math.inf  # when its curves.png was last drawn (time.monotonic)
+    # when its curves.png was last drawn (time.monotonic; at first, when the fit began: a fit
+    # shorter than CURVES_EVERY_S draws it once, at its end)
+    drawn_at: float = field(default_factory=time.monotonic)
     drawn: int = -1  # the epochs its curves.png shows (-1: none drawn by this fit)
 
 
