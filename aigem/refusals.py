@@ -25,6 +25,7 @@ from aigem.records import (
     identity_difference,
     member_dir,
     model_config,
+    read_group,
     read_horizons,
     read_run_info,
     run_info,
@@ -297,14 +298,12 @@ def check_build(
 def check_evaluate(
     run_dir: Path, build_dir: Path | None, split: Split | str, other_build: bool
 ) -> None:
-    """Everything `evaluate` (or `evaluate_horizons`) would refuse before it loads a model: a
+    """Everything `evaluate` would refuse before it loads a model: a
     directory that is not a run, or not a finished one; the run's build gone; another build
     without `other_build`, or one that does not fit the model (check_build); an empty split; a
     multi-horizon run whose models cannot be scored in one pass (check_one_fit)."""
-    horizons_s = read_horizons(run_dir)
-    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
     recorded = []
-    for member in members:
+    for member in read_group(run_dir).members:
         info = read_run_info(member)
         if not (member / BEST).is_file():
             raise NgsimInputError(
@@ -318,8 +317,7 @@ def check_evaluate(
                 build, f"its {Split(split).value} split is empty: nothing to evaluate"
             )
         recorded.append(Member(member, model, info["scaler"], build))
-    if horizons_s is not None:
-        check_one_fit(run_dir, recorded)
+    check_one_fit(run_dir, recorded)
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,7 @@ from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.schema import Split
 
 if TYPE_CHECKING:
-    from aigem.results import Evaluation, HorizonsEvaluation
+    from aigem.results import Evaluation
     from aigem.training import FitResult
 
 app = typer.Typer(
@@ -368,18 +368,16 @@ def evaluate(
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import BEST, UNRECORDED, read_horizons, unrecorded_checkpoints
+        from aigem.records import BEST, UNRECORDED, unrecorded_checkpoints
         from aigem.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
-            several = read_horizons(run) is not None
             for path in unrecorded_checkpoints(run, (BEST,)):
                 print_warning(f"{path}: {UNRECORDED}")
         _check_device(device.value)
         from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
-        from aigem.evaluation import evaluate_horizons
         from aigem.results import as_dict
         from ngsim_cli.evaluation_view import print_evaluation, warn_unfinished
 
@@ -387,7 +385,7 @@ def evaluate(
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         scored = lambda done, total: progress(f"evaluating the {split.value} split", done, total)
         try:
-            result = (evaluate_horizons if several else run_evaluate)(
+            result = run_evaluate(
                 run, data, split.value, device.value, progress=scored, other_build=other_build
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
@@ -403,9 +401,7 @@ def evaluate(
         stdout.print(f"Plots in {plots}: {', '.join(path.name for path in drawn)}{scenes}")
 
 
-def _draw(
-    result: Evaluation | HorizonsEvaluation, run: Path, folder: Path, device: str
-) -> list[Path]:
+def _draw(result: Evaluation, run: Path, folder: Path, device: str) -> list[Path]:
     """The pictures of `evaluate --plots`; returns the paths written."""
     from aigem.pictures import write_evaluation_plots
 
