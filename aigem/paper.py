@@ -55,7 +55,7 @@ from aigem.paper_folder import (
     paper_document,
     partly_synthetic,
 )
-from aigem.records import LAST, member_dir, read_horizons
+from aigem.records import LAST, member_dir, planned_group, read_horizons
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
@@ -265,7 +265,7 @@ def _fit(
         fit_horizons(build_dir, run_dir, HORIZONS_S, model, train, device, resume, progress)
     except _TimeUp:
         if not any(_epochs_done(run_dir, config)):
-            discard_unfinished(run_dir, HORIZONS_S, created)
+            discard_unfinished(planned_group(run_dir, HORIZONS_S), created)
         return
     meter.advance(_Meter.TRAIN_UNITS * left * batches)
 

@@ -266,6 +266,13 @@ def planned_group(run_dir: Path, horizons_s: tuple[float, ...]) -> Group:
     return Group(run_dir, horizons_s, tuple(member_dir(run_dir, h) for h in horizons_s))
 
 
+def recorded_members(run_dir: Path) -> tuple[Path, ...]:
+    """The model folders that `run_dir` records, without reading their run.json: those its
+    horizons.json names, or else the folder itself."""
+    horizons_s = read_horizons(run_dir)
+    return (run_dir,) if horizons_s is None else planned_group(run_dir, horizons_s).members
+
+
 def read_group(run_dir: Path) -> Group:
     """The run in `run_dir` as a group, whichever aigem wrote it: the members that its
     horizons.json names, or, without that file, the one model whose run.json the folder holds (a
@@ -288,14 +295,6 @@ def group_of_member(run_dir: Path) -> Group:
     if parent is not None and run_dir in planned_group(run_dir.parent, parent).members:
         return planned_group(run_dir.parent, parent)
     return read_group(run_dir)
-
-
-def recorded_group(run_dir: Path) -> Group | None:
-    """read_group of a folder that holds a run (its horizons.json or run.json); None where it
-    holds neither (a new, empty or unfinished folder)."""
-    if (run_dir / HORIZONS).is_file() or (run_dir / RUN_INFO).is_file():
-        return read_group(run_dir)
-    return None
 
 
 def member_dir(run_dir: Path, horizon_s: float) -> Path:
