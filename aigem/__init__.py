@@ -31,7 +31,6 @@ _EXPORTS = {
     "fit_horizons": "aigem.training",
     "load_model": "aigem.runs",
     "evaluate": "aigem.evaluation",
-    "evaluate_horizons": "aigem.evaluation",
     "constant_velocity": "aigem.baseline",
     "predict_samples": "aigem.prediction",
 }
@@ -52,7 +51,6 @@ __all__ = [
     "fit_horizons",
     "load_model",
     "evaluate",
-    "evaluate_horizons",
     "constant_velocity",
     "predict_samples",
 ]
@@ -61,7 +59,7 @@ if TYPE_CHECKING:
     from aigem.baseline import constant_velocity
     from aigem.config import ModelConfig, TrainConfig
     from aigem.data import Collate, GraphDataset, xy_to_metres
-    from aigem.evaluation import evaluate, evaluate_horizons
+    from aigem.evaluation import evaluate
     from aigem.model import AiGem, count_parameters
     from aigem.prediction import predict_samples
     from aigem.pyg import GraphPygDataset, to_hetero_data, to_model_batch

@@ -18,9 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from aigem.config import ModelConfig, TrainConfig
-from aigem.records import model_config, read_run_info, train_config
+from aigem.records import Group, group_of_member, model_config, read_run_info, train_config
 from aigem.refusals import RESUME_FIXED
-from ngsim_graphs.errors import NgsimInputError
 
 EPOCHS, EARLY_STOPPING, UNFINISHED = "epochs", "early stopping", "unfinished"
 
@@ -73,22 +72,20 @@ def course_of(run_dir: Path) -> Course:
     return Course(done, train.epochs, best, stopped)
 
 
-def resume_command(run_dir: Path, horizons_s: Sequence[float] | None = None) -> str:
-    """The `aigem fit` command that continues the run in `run_dir` (a multi-horizon run's folder
-    with its `horizons_s`, whose first member's run.json is read): its build, the settings that
-    a resume must repeat where they are not fit's defaults, and its epochs."""
-    from aigem.records import member_dir
-
-    member = run_dir if horizons_s is None else member_dir(run_dir, horizons_s[0])
+def resume_command(group: Group) -> str:
+    """The `aigem fit` command that continues the run `group` (its first member's run.json is
+    read): its build, its horizons where they are not fit's default, the settings that a resume
+    must repeat where they are not fit's defaults, and its epochs."""
+    member = group.members[0]
     info = read_run_info(member)
     train, model = train_config(info, member), model_config(info, member)
-    words = ["aigem", "fit", info["build_dir"], "--out", str(run_dir.resolve())]
-    if horizons_s is not None:
-        words += ["--horizon-s", ",".join(f"{h:g}" for h in horizons_s)]
+    words = ["aigem", "fit", info["build_dir"], "--out", str(group.run_dir.resolve())]
     default = TrainConfig()
+    if group.horizons_s != (default.horizon_s,):
+        words += ["--horizon-s", ",".join(f"{h:g}" for h in group.horizons_s)]
     for name in RESUME_FIXED:
         value = getattr(train, name)
-        if value != getattr(default, name) and not (name == "horizon_s" and horizons_s):
+        if value != getattr(default, name) and name != "horizon_s":
             words += [
                 f"--{name.replace('_', '-')}",
                 f"{value:g}" if isinstance(value, float) else str(value),
@@ -101,42 +98,23 @@ def resume_command(run_dir: Path, horizons_s: Sequence[float] | None = None) -> 
     return shlex.join(words)
 
 
-def _group_of(run_dir: Path) -> tuple[Path, tuple[float, ...]] | None:
-    """The multi-horizon run whose member `run_dir` is, and its horizons (None: none)."""
-    from aigem.records import member_dir, read_horizons
-
-    try:
-        horizons_s = read_horizons(run_dir.parent)
-    except NgsimInputError:  # not a run's horizons.json: `run_dir` is no member of it
-        return None
-    if horizons_s is None or run_dir.name not in {
-        member_dir(run_dir.parent, h).name for h in horizons_s
-    }:
-        return None
-    return run_dir.parent, horizons_s
-
-
 def run_training(run_dir: Path) -> dict[str, Any]:
-    """training_record of the model in `run_dir`: a run of one model, or a member of a
-    multi-horizon run (continued by its group's command)."""
-    group = _group_of(run_dir)
-    courses = {run_dir.name: course_of(run_dir)}
-    return training_record(courses, *group) if group else training_record(courses, run_dir)
+    """training_record of the model in `run_dir`, continued by its run's command (of the group
+    whose member it is)."""
+    return training_record({run_dir.name: course_of(run_dir)}, group_of_member(run_dir))
 
 
-def training_record(
-    courses: dict[str, Course], run_dir: Path, horizons_s: Sequence[float] | None = None
-) -> dict[str, Any]:
-    """What an evaluation says of its models' training (`courses` by model: a run of one model
-    has one, named ""): every course, whether all finished, one line that says it, and the
-    command that continues the run where one did not finish."""
+def training_record(courses: dict[str, Course], group: Group) -> dict[str, Any]:
+    """What an evaluation says of its models' training (`courses` by model: by member folder):
+    every course, whether all finished, one line that says it, and the command that continues
+    the run `group` where one did not finish."""
     finished = all(course.finished for course in courses.values())
     alike = len({(c.epochs_done, c.epochs, c.stopped) for c in courses.values()}) == 1
     if alike:
         summary = next(iter(courses.values())).words()
     else:
         summary = "; ".join(f"{name} {course.words()}" for name, course in courses.items())
-    command = None if finished else resume_command(run_dir, horizons_s)
+    command = None if finished else resume_command(group)
     return {
         "finished": finished,
         "summary": summary,

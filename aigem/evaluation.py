@@ -4,7 +4,8 @@ Both are scored on the same samples and targets, with the metrics of aigem.metri
 default on the run's own build; another build (say, trained on US-101, tested on I-80) only when
 asked, and then with the run's scaler: the model only knows its inputs as scaled in training.
 
-A multi-horizon run (one model per horizon, the paper's protocol) is scored in one pass over the
+A run is a group of one model per horizon (aigem.records.Group; a run of one horizon is a group of
+one, the paper's protocol a group of five). Its models are scored in one pass over the
 split (aigem.scoring.score_members: the split loaded once, the models run stacked, constant
 velocity computed once), each model getting the numbers `evaluate` gives its run directory, and
 reported as the paper does: RMSE at h s from the model trained for h s (in general: from the
@@ -29,11 +30,11 @@ from aigem.data import GraphDataset, run_scaler
 from aigem.devices import pick_device
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
-from aigem.records import BEST, member_dir, read_horizons
+from aigem.records import BEST, Group, group_of_member, read_group
 from aigem.refusals import Member, check_build, check_one_fit, resolve_build
-from aigem.results import Evaluation, HorizonsEvaluation, Rows, Scores
+from aigem.results import Evaluation, ModelEvaluation, Rows, Scores
 from aigem.runs import load_model
-from aigem.scoring import NonFinitePredictionError, score_members, score_targets
+from aigem.scoring import NonFinitePredictionError, score_members
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scaling import MinMaxScaler
@@ -133,11 +134,11 @@ def _not_finite(run: LoadedRun, dataset: GraphDataset, where: str, who: str = "m
 
 def _evaluation(
     run: LoadedRun, dataset: GraphDataset, scores: Scores, training: dict[str, Any]
-) -> Evaluation:
-    """The run's Evaluation from its scores on `dataset`; `training`: what its records say of
+) -> ModelEvaluation:
+    """A member's evaluation from its scores on `dataset`; `training`: what its records say of
     its training (aigem.course.training_record)."""
     config = dataset.config
-    return Evaluation(
+    return ModelEvaluation(
         split=dataset.split.value,
         horizon_steps=run.steps(dataset),
         samples=len(dataset),
@@ -159,33 +160,7 @@ def _evaluation(
     )
 
 
-def evaluate(
-    run_dir: str | os.PathLike[str],
-    build_dir: str | os.PathLike[str] | None = None,
-    split: Split | str = Split.TEST,
-    device_choice: str = "auto",
-    batch_size: int = 64,
-    progress: Callable[[int, int], None] | None = None,
-    other_build: bool = False,
-    resident: bool | None = None,
-) -> Evaluation:
-    """Score the run's best model and the constant-velocity baseline on `split` of `build_dir`
-    (None: the run's own build). Another build than the run's is refused unless `other_build`;
-    inputs are always scaled with the run's scaler, the one the model was trained with.
-    `resident` (None: on CUDA): the split scored on the device in static batches (aigem.scoring)."""
-    run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
-    device = pick_device(device_choice)
-    run = load_run(run_dir, build_dir, device, other_build)
-    dataset = _open_split(run, split)
-    try:
-        steps = run.steps(dataset)
-        scores = score_targets(run.model, dataset, steps, device, batch_size, progress, resident)
-    except NonFinitePredictionError as err:
-        raise NgsimInputError(run_dir / BEST, _not_finite(run, dataset, str(err))) from None
-    return _evaluation(run, dataset, scores, run_training(run_dir))
-
-
-def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str, str]]:
+def protocol_rows(members: dict[str, ModelEvaluation]) -> tuple[Rows, Rows, dict[str, str]]:
     """(model rows, constant-velocity rows, sources) of one model per horizon, given ascending by
     horizon: a per-second metric at s seconds (RMSE, its count) from the first model that reaches
     s, a metric of the whole horizon (ADE, FDE) from the last."""
@@ -210,7 +185,7 @@ def protocol_rows(members: dict[str, Evaluation]) -> tuple[Rows, Rows, dict[str,
     return rows("model"), rows("constant_velocity"), sources
 
 
-def evaluate_horizons(
+def evaluate(
     run_dir: str | os.PathLike[str],
     build_dir: str | os.PathLike[str] | None = None,
     split: Split | str = Split.TEST,
@@ -219,17 +194,19 @@ def evaluate_horizons(
     progress: Callable[[int, int], None] | None = None,
     other_build: bool = False,
     resident: bool | None = None,
-) -> HorizonsEvaluation:
-    """Score every member of a multi-horizon run as `evaluate` scores it, in one pass over the
-    split (score_members: the split loaded once, the models stacked, constant velocity once;
+) -> Evaluation:
+    """Score the best model of each member of the run and the constant-velocity baseline on
+    `split` of `build_dir` (None: the run's own build), in one pass over the split
+    (score_members: the split loaded once, the models stacked, constant velocity once;
     `progress(done, total)` over its batches), and combine them as the paper reports
-    (protocol_rows). The members must share a model config, a scaler and a build."""
+    (protocol_rows). Another build than the run's is refused unless `other_build`; inputs are
+    always scaled with the run's scaler, the one the models were trained with. The members must
+    share a model config, a scaler and a build. `resident` (None: on CUDA): the split scored on
+    the device in static batches (aigem.scoring)."""
     run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
-    horizons_s = read_horizons(run_dir)
-    if horizons_s is None:
-        raise NgsimInputError(run_dir, "not a multi-horizon run: no horizons.json")
+    group = read_group(run_dir)
     device = pick_device(device_choice)
-    runs = [load_run(member_dir(run_dir, h), build_dir, device, other_build) for h in horizons_s]
+    runs = [load_run(member, build_dir, device, other_build) for member in group.members]
     check_one_fit(
         run_dir, [Member(r.run_dir, r.model.config, r.scaler.to_dict(), r.build_dir) for r in runs]
     )
@@ -239,7 +216,8 @@ def evaluate_horizons(
         models = [r.model for r in runs]
         scores = score_members(models, dataset, steps, device, batch_size, progress, resident)
     except NonFinitePredictionError as err:
-        run, who = runs[err.member], f"{horizons_s[err.member]:g} s model"
+        run = runs[err.member]
+        who = group.model(run.run_dir)
         raise NgsimInputError(
             run.run_dir / BEST, _not_finite(run, dataset, str(err), who)
         ) from None
@@ -248,19 +226,20 @@ def evaluate_horizons(
         run.run_dir.name: _evaluation(run, dataset, score, run_training(run.run_dir))
         for run, score in zip(runs, scores, strict=True)
     }
-    return _combined(horizons_s, members, training_record(courses, run_dir, horizons_s))
+    # a member evaluated alone is continued by its run's command
+    return _combined(group, members, training_record(courses, group_of_member(run_dir)))
 
 
 def _combined(
-    horizons_s: tuple[float, ...], members: dict[str, Evaluation], training: dict[str, Any]
-) -> HorizonsEvaluation:
+    group: Group, members: dict[str, ModelEvaluation], training: dict[str, Any]
+) -> Evaluation:
     """The members' evaluations (ascending by horizon) as the paper reports them, with what
     the run's records say of their `training`."""
     model, baseline, sources = protocol_rows(members)
     longest = members[sources["ade_m"]]
-    return HorizonsEvaluation(
+    return Evaluation(
         split=longest.split,
-        horizons_s=horizons_s,
+        horizons_s=group.horizons_s,
         samples=longest.samples,
         parameters=longest.parameters,
         model=model,

@@ -55,7 +55,7 @@ from aigem.paper_folder import (
     paper_document,
     partly_synthetic,
 )
-from aigem.records import LAST, member_dir, read_horizons
+from aigem.records import LAST, member_dir, planned_group, read_horizons
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
@@ -265,7 +265,7 @@ def _fit(
         fit_horizons(build_dir, run_dir, HORIZONS_S, model, train, device, resume, progress)
     except _TimeUp:
         if not any(_epochs_done(run_dir, config)):
-            discard_unfinished(run_dir, HORIZONS_S, created)
+            discard_unfinished(planned_group(run_dir, HORIZONS_S), created)
         return
     meter.advance(_Meter.TRAIN_UNITS * left * batches)
 
@@ -276,13 +276,13 @@ def _epochs_done(run_dir: Path, config: PaperConfig) -> list[int]:
 
 
 def _evaluate(plan: FitPlan, out: Path, device: str, meter: _Meter) -> Any:
-    """The fit's models on the test split, as the paper reports them (evaluate_horizons)."""
-    from aigem.evaluation import evaluate_horizons
+    """The fit's models on the test split, as the paper reports them (evaluate)."""
+    from aigem.evaluation import evaluate
 
     run_dir, build_dir = out / RUNS / plan.name, out / BUILDS / plan.build_name
     units = _batches(build_dir, "test", EVALUATION_BATCH)  # the pass's share of the bar
     progress = lambda done, total: meter.at(f"evaluating {plan.describe()}", done * units // total)
-    result = evaluate_horizons(run_dir, None, "test", device, EVALUATION_BATCH, progress)
+    result = evaluate(run_dir, None, "test", device, EVALUATION_BATCH, progress)
     meter.advance(units)
     return result
 

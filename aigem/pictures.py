@@ -27,10 +27,9 @@ from aigem.plots import (
     error_by_horizon,
     error_by_region,
     final_error_distribution,
-    longest,
     png_bytes,
 )
-from aigem.results import Evaluation, HorizonsEvaluation
+from aigem.results import Evaluation
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.partial_files import write_atomic
@@ -64,7 +63,7 @@ def describe_build(build_dir: str | Path) -> str:
 
 
 def scene_grid(
-    result: Evaluation | HorizonsEvaluation,
+    result: Evaluation,
     run_dir: Path,
     device_choice: str = "cpu",
     per_group: int = 3,
@@ -72,14 +71,14 @@ def scene_grid(
     """A PNG: a row each of the worst, median and best `per_group` scenes of the evaluated split
     by scene error (the mean final displacement error of AiGem over a sample's targets valid at
     the last step; evaluation.scene_choice), with history, recorded future, and the predictions
-    of AiGem (a multi-horizon run's longest model) and constant velocity. None, drawing nothing,
+    of AiGem (the run's longest-horizon model) and constant velocity. None, drawing nothing,
     where no target is valid at the last step or the evaluation was on another build than the
     run's (its predictions are drawn on its own build only)."""
     from aigem.prediction import predict_samples  # the model, imported only when drawing
     from ngsim_graphs.scenes import DPI as SCENE_DPI
     from ngsim_graphs.scenes import scene_figure, scene_titles
 
-    final = longest(result).final
+    final = result.final
     if not result.same_build or final is None or not len(final.sample):
         return None
     chosen = scene_choice(final.sample, final.model_m, per_group)
@@ -135,7 +134,7 @@ def _own(folder: Path, names: set[str]) -> None:
 
 
 def write_evaluation_plots(
-    result: Evaluation | HorizonsEvaluation,
+    result: Evaluation,
     folder: Path,
     run_dir: Path | None = None,
     device_choice: str = "cpu",

@@ -7,10 +7,10 @@ them as `aigem evaluate --plots DIR`). Each function takes the numbers and retur
     error_by_region           the same per region of the actor's present position
     final_error_distribution  the final displacement error of each target, as an ECDF
 
-A multi-horizon run draws its longest model's curves, and its RMSE at h s from the h s model
-(the paper's protocol) as diamonds. Our curves are labelled with the build they come from
-(`label`), never as NGSIM: a figure of a build of `ngsim-graphs synth` data says SYNTHETIC at
-its top left (ngsim_graphs.plotting.mark_synthetic).
+A run (a group of one model per horizon) draws its longest model's curves, and its RMSE at h s
+from the first model that reaches h s (the paper's protocol) as diamonds. Our curves are
+labelled with the build they come from (`label`), never as NGSIM: a figure of a build of
+`ngsim-graphs synth` data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic).
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot` (as
 ngsim_graphs.plotting): no global state, no display, nothing kept open.
@@ -31,7 +31,7 @@ from matplotlib.ticker import LogFormatter, MaxNLocator
 
 from aigem.course import training_line, training_words
 from aigem.metrics import FRONT_Y_M, REGIONS
-from aigem.results import PAPER_TABLE, Evaluation, HorizonsEvaluation
+from aigem.results import PAPER_TABLE, Evaluation, ModelEvaluation
 from ngsim_graphs.plotting import mark_synthetic
 
 OURS, BASELINE = "tab:blue", "tab:orange"
@@ -158,32 +158,21 @@ def curves_figure(
 # Evaluation figures
 
 
-def longest(result: Evaluation | HorizonsEvaluation) -> Evaluation:
-    """The evaluation whose per-step curves are drawn: a multi-horizon run's longest model's."""
-    if isinstance(result, HorizonsEvaluation):
-        return result.members[result.sources["ade_m"]]
-    return result
-
-
-def _times_s(evaluation: Evaluation) -> np.ndarray:
+def _times_s(evaluation: ModelEvaluation) -> np.ndarray:
     return np.arange(1, evaluation.horizon_steps + 1) * evaluation.time_step_s
 
 
-def _curve(evaluation: Evaluation, kind: str, region: str, key: str) -> np.ndarray:
+def _curve(evaluation: ModelEvaluation, kind: str, region: str, key: str) -> np.ndarray:
     """(K,) one per-step curve of an evaluation, NaN where no target counts."""
     values = evaluation.steps[kind][region][key]
     return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
 
 
-def _ours_label(result: Evaluation | HorizonsEvaluation) -> str:
-    if isinstance(result, HorizonsEvaluation):
-        return f"AiGem, this run's {result.sources['ade_m']} model"
-    return "AiGem, this run"
+def _ours_label(result: Evaluation) -> str:
+    return f"AiGem, this run's {result.horizons_s[-1]:g} s model"
 
 
-def _evaluation_figure(
-    width_in: float, result: Evaluation | HorizonsEvaluation, label: str
-) -> Figure:
+def _evaluation_figure(width_in: float, result: Evaluation, label: str) -> Figure:
     """A figure whose bottom lines say where our curves come from (kept clear of the axes)."""
     footer = textwrap.fill(
         f"Lines: {result.split} split ({result.samples:,} samples) of {label}. "
@@ -199,7 +188,7 @@ def _evaluation_figure(
     return figure
 
 
-def _marked(figure: Figure, result: Evaluation | HorizonsEvaluation) -> Figure:
+def _marked(figure: Figure, result: Evaluation) -> Figure:
     """The finished figure: its title says how many of its epochs the model trained (in red
     where the run is unfinished; the footer says how to continue it), SYNTHETIC at its top left
     where the build is of synthetic data."""
@@ -239,7 +228,7 @@ def paper_points(axes: Axes, key: str) -> None:
         )
 
 
-def _protocol_points(axes: Axes, result: HorizonsEvaluation) -> None:
+def _protocol_points(axes: Axes, result: Evaluation) -> None:
     """RMSE at s s from the first model that reaches s s (the paper's protocol), as diamonds."""
     seconds = [s for s in range(1, 6) if f"rmse_{s}s_m" in result.model["all"]]
     values = [result.model["all"][f"rmse_{s}s_m"] for s in seconds]
@@ -252,10 +241,11 @@ def _protocol_points(axes: Axes, result: HorizonsEvaluation) -> None:
         color=OURS,
         label="AiGem at h s, model named (paper's protocol)",
     )
+    horizon_of = dict(zip(result.members, result.horizons_s, strict=True))
     for s, value in zip(seconds, values, strict=True):
         if value is not None:  # up and left: clear of a rising curve and of the paper's points
             axes.annotate(
-                result.sources[f"rmse_{s}s_m"],
+                f"{horizon_of[result.sources[f'rmse_{s}s_m']]:g} s model",
                 (s, value),
                 xytext=(-5, 5),
                 textcoords="offset points",
@@ -272,9 +262,9 @@ def _headroom(axes: Axes, share: float = 0.4) -> None:
     axes.set_ylim(0, top / (1 - share))
 
 
-def error_by_horizon(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
+def error_by_horizon(result: Evaluation, label: str) -> Figure:
     """RMSE and mean displacement error against the horizon at every future step."""
-    evaluation = longest(result)
+    evaluation = result.longest
     times = _times_s(evaluation)
     figure = _evaluation_figure(11, result, label)
     rmse, mean = figure.subplots(1, 2)
@@ -301,8 +291,7 @@ def error_by_horizon(result: Evaluation | HorizonsEvaluation, label: str) -> Fig
         axes.set_xlim(0, max(5.0, times[-1]) + 0.2)
         axes.set_ylim(bottom=0)
         axes.grid(alpha=0.3)
-    if isinstance(result, HorizonsEvaluation):
-        _protocol_points(rmse, result)
+    _protocol_points(rmse, result)
     for axes in (rmse, mean):
         _headroom(axes)
         axes.legend(fontsize=8, loc="upper left")
@@ -310,9 +299,9 @@ def error_by_horizon(result: Evaluation | HorizonsEvaluation, label: str) -> Fig
     return _marked(figure, result)
 
 
-def error_by_region(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
+def error_by_region(result: Evaluation, label: str) -> Figure:
     """The per-step RMSE and mean displacement error of each region of the present position."""
-    evaluation = longest(result)
+    evaluation = result.longest
     times = _times_s(evaluation)
     figure = _evaluation_figure(12, result, label)
     panels = figure.subplots(1, 3, sharey=True)
@@ -347,9 +336,9 @@ def error_by_region(result: Evaluation | HorizonsEvaluation, label: str) -> Figu
     return _marked(figure, result)
 
 
-def final_error_distribution(result: Evaluation | HorizonsEvaluation, label: str) -> Figure:
+def final_error_distribution(result: Evaluation, label: str) -> Figure:
     """ECDF of the final displacement error of each target valid at the last predicted step."""
-    evaluation = longest(result)
+    evaluation = result.longest
     final = evaluation.final
     figure = _evaluation_figure(7.5, result, label)
     axes = figure.add_subplot()

@@ -18,7 +18,7 @@ import torch
 from aigem.baseline import constant_velocity
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.devices import pick_device, to_device
-from aigem.records import BEST, member_dir, read_horizons
+from aigem.records import BEST, read_group
 from aigem.refusals import check_build, resolve_build
 from aigem.runs import load_model
 from ngsim_graphs.errors import NgsimInputError
@@ -30,11 +30,9 @@ BASELINE_LABEL = "constant velocity"
 
 
 def predicting_run(run_dir: Path | str) -> Path:
-    """The run whose model predicts: `run_dir` itself, or the longest-horizon member of a
-    multi-horizon run (RUN/h5s of RUN/h1s..h5s)."""
-    run_dir = Path(run_dir)
-    horizons_s = read_horizons(run_dir)
-    return run_dir if horizons_s is None else member_dir(run_dir, max(horizons_s))
+    """The run directory of the run's model that predicts: its longest-horizon member (RUN/h5s
+    of RUN/h1s..h5s; a run of one model, its folder)."""
+    return read_group(Path(run_dir)).longest
 
 
 def same_targets(a: GraphBatch, b: GraphBatch) -> bool:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -212,17 +212,91 @@ def accepted_digests(run: dict[str, Any], run_dir: Path, name: str) -> list[str]
 
 
 def unrecorded_checkpoints(run_dir: Path, names: tuple[str, ...] = (BEST, LAST)) -> list[Path]:
-    """The checkpoints `names` of a run (of each model of a multi-horizon run) whose run.json
-    records no sha256 of them (UNRECORDED): used unchecked."""
-    horizons_s = read_horizons(run_dir)
-    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
+    """The checkpoints `names` of each model of a run whose run.json records no sha256 of them
+    (UNRECORDED): used unchecked."""
     return [
         member / name
-        for member in members
+        for member in read_group(run_dir).members
         if (member / RUN_INFO).is_file() and DIGESTS not in read_run_info(member)
         for name in names
         if (member / name).is_file()
     ]
+
+
+# ------------------------------------------------------------------------------------------------
+# A run is a group: one model per horizon. The one place that knows the layouts of a run folder.
+
+
+@dataclass(frozen=True)
+class Group:
+    """A run: one model per horizon (`horizons_s`, ascending), each in its run directory
+    (`members`, in the same order). A group of one model is its own folder (RUN/run.json,
+    RUN/best.pt, ...); a group of several holds one member folder per horizon (RUN/h1s, ...) and
+    horizons.json, which names them."""
+
+    run_dir: Path
+    horizons_s: tuple[float, ...]
+    members: tuple[Path, ...]
+
+    @property
+    def named(self) -> bool:
+        """Whether horizons.json names the members (the members are folders of `run_dir`)."""
+        return self.members != (self.run_dir,)
+
+    @property
+    def longest(self) -> Path:
+        """The member of the longest horizon: the model that predicts and is drawn."""
+        return self.members[-1]
+
+    def model(self, member: Path) -> str:
+        """How a message names a member's model: "2 s model" in a group of several, "model"
+        alone."""
+        if not self.named:
+            return "model"
+        return f"{self.horizons_s[self.members.index(member)]:g} s model"
+
+    def who(self, member: Path) -> str:
+        """The prefix of a member's lines: "the 2 s model: " in a group of several, "" alone."""
+        return f"the {self.model(member)}: " if self.named else ""
+
+
+def planned_group(run_dir: Path, horizons_s: tuple[float, ...]) -> Group:
+    """The run that a fit of `horizons_s` writes into `run_dir`: one model in the folder itself,
+    or several, each in its member folder (member_dir)."""
+    if len(horizons_s) == 1:
+        return Group(run_dir, horizons_s, (run_dir,))
+    return Group(run_dir, horizons_s, tuple(member_dir(run_dir, h) for h in horizons_s))
+
+
+def recorded_members(run_dir: Path) -> tuple[Path, ...]:
+    """The model folders that `run_dir` records, without reading their run.json: those its
+    horizons.json names, or else the folder itself."""
+    horizons_s = read_horizons(run_dir)
+    return (run_dir,) if horizons_s is None else planned_group(run_dir, horizons_s).members
+
+
+def read_group(run_dir: Path) -> Group:
+    """The run in `run_dir` as a group, whichever aigem wrote it: the members that its
+    horizons.json names, or, without that file, the one model whose run.json the folder holds (a
+    run of one horizon, as aigem 0.1.0 and every later aigem write it). One error line for a
+    folder that holds neither."""
+    horizons_s = read_horizons(run_dir)
+    if horizons_s is not None:
+        return planned_group(run_dir, horizons_s)
+    info = read_run_info(run_dir)
+    return Group(run_dir, (train_config(info, run_dir / RUN_INFO).horizon_s,), (run_dir,))
+
+
+def group_of_member(run_dir: Path) -> Group:
+    """The run whose model `run_dir` holds: the group whose horizons.json (in the parent folder)
+    names it, or else the run in `run_dir` itself (read_group)."""
+    try:
+        parent = read_horizons(run_dir.parent)
+    except NgsimInputError:  # not a run's horizons.json: `run_dir` is no member of it
+        parent = None
+    if parent is not None and run_dir in planned_group(run_dir.parent, parent).members:
+        return planned_group(run_dir.parent, parent)
+    return read_group(run_dir)
 
 
 def member_dir(run_dir: Path, horizon_s: float) -> Path:

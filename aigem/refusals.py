@@ -21,12 +21,14 @@ from aigem.records import (
     HORIZONS,
     LAST,
     RUN_INFO,
+    Group,
     build_identity,
     identity_difference,
-    member_dir,
     model_config,
+    read_group,
     read_horizons,
     read_run_info,
+    recorded_members,
     run_info,
     train_config,
 )
@@ -85,15 +87,9 @@ def _seconds(horizons_s: tuple[float, ...]) -> str:
     return ",".join(f"{h:g}" for h in horizons_s)
 
 
-def check_single_start(run_dir: Path, resume: bool) -> None:
-    """A single-horizon fit into `run_dir`: a resume needs a last.pt; a fresh start needs a
-    directory without one (`check_fresh_out` says which directories it may write into)."""
-    if (horizons_s := read_horizons(run_dir)) is not None:
-        raise NgsimInputError(
-            run_dir,
-            f"holds a multi-horizon run ({_seconds(horizons_s)} s): give "
-            f"--horizon-s {_seconds(horizons_s)} to resume it, or choose another --out",
-        )
+def check_member_start(run_dir: Path, resume: bool) -> None:
+    """A model's fit into its folder `run_dir`: a resume needs a last.pt; a fresh start needs a
+    folder without one (`check_fresh_out` says which folders it may write into)."""
     if resume and not (run_dir / LAST).is_file():
         raise NgsimInputError(run_dir, f"nothing to resume: no {LAST}")
     if not resume and (run_dir / LAST).exists():
@@ -102,27 +98,24 @@ def check_single_start(run_dir: Path, resume: bool) -> None:
         )
 
 
-def check_group_start(run_dir: Path, horizons_s: tuple[float, ...], resume: bool) -> None:
-    """A multi-horizon fit into `run_dir`: a resume needs the same horizons and a last.pt in at
-    least one member (a member without one, killed before its first checkpoint, starts over); a
-    fresh start, no member with one."""
-    members = tuple(member_dir(run_dir, h) for h in horizons_s)
-    recorded = read_horizons(run_dir)
+def check_group_start(group: Group, resume: bool) -> None:
+    """A fit of `group`: a resume needs a run of the same horizons (read_group) and a last.pt in
+    at least one member (a member without one, killed before its first checkpoint, starts over);
+    a fresh start, a folder whose recorded members (records.recorded_members) have none
+    (`check_fresh_group` and `check_fresh_out` say which folders it may write into)."""
+    run_dir = group.run_dir
     if resume:
-        if recorded is None:
-            raise NgsimInputError(
-                run_dir, f"nothing to resume: no {HORIZONS} (not a multi-horizon run)"
-            )
-        if recorded != horizons_s:
+        if not any((member / LAST).is_file() for member in recorded_members(run_dir)):
+            raise NgsimInputError(run_dir, f"nothing to resume: no {LAST}")
+        recorded = read_group(run_dir).horizons_s
+        if recorded != group.horizons_s:
             raise NgsimInputError(
                 run_dir,
                 f"cannot resume with other horizons ({_seconds(recorded)} -> "
-                f"{_seconds(horizons_s)} s): it changes what the run learns",
+                f"{_seconds(group.horizons_s)} s): it changes what the run learns",
             )
-        if not any((member / LAST).is_file() for member in members):
-            raise NgsimInputError(run_dir, f"nothing to resume: no member has a {LAST}")
         return
-    if recorded is not None and any((member_dir(run_dir, h) / LAST).exists() for h in recorded):
+    if any((member / LAST).exists() for member in recorded_members(run_dir)):
         raise NgsimInputError(
             run_dir, "already holds a run; pass --resume to continue it, or choose another --out"
         )
@@ -175,26 +168,20 @@ def model_of_build(model: ModelConfig, build_dir: Path) -> ModelConfig:
 
 def check_fit(
     build_dir: Path,
-    run_dir: Path,
-    horizons_s: tuple[float, ...] | None,
+    group: Group,
     model: ModelConfig,
     train: TrainConfig,
     resume: bool,
 ) -> None:
     """Everything `fit_horizons` would refuse before its first checkpoint is read: the build (a
-    finished one, with train and validation samples), the run directory (check_single_start,
-    check_group_start, check_fresh_out) and, to resume, run.json against this call's settings."""
+    finished one, with train and validation samples), the run directory (check_group_start,
+    check_fresh_group, check_fresh_out) and, to resume, run.json against this call's settings."""
     check_splits(build_dir)
     model = model_of_build(model, build_dir)
-    plans = [(run_dir, train.horizon_s)]
-    if horizons_s is None:
-        check_single_start(run_dir, resume)
-    else:
-        check_group_start(run_dir, horizons_s, resume)
-        if not resume:
-            check_fresh_group(run_dir, horizons_s, read_horizons(run_dir))
-        plans = [(member_dir(run_dir, h), h) for h in horizons_s]
-    for member, horizon_s in plans:
+    check_group_start(group, resume)
+    if not resume:
+        check_fresh_group(group)
+    for member, horizon_s in zip(group.members, group.horizons_s, strict=True):
         if resume and (member / LAST).is_file():
             member_train = TrainConfig(**{**train.to_dict(), "horizon_s": horizon_s})
             info = run_info(build_dir, model, member_train)
@@ -203,25 +190,25 @@ def check_fit(
             check_fresh_out(member)
 
 
-def check_fresh_group(
-    run_dir: Path, horizons_s: tuple[float, ...], recorded: tuple[float, ...] | None
-) -> None:
-    """A fresh multi-horizon run goes into a new or empty directory, or one that a fit of the
-    same horizons left before any of its models kept a checkpoint (`unfinished_group`); each
-    member is checked by `check_fresh_out`."""
+def check_fresh_group(group: Group) -> None:
+    """A fresh run goes into a new or empty directory, or one that a fit of the same horizons
+    left before any of its models kept a checkpoint (`unfinished_group`); each member is checked
+    by `check_fresh_out` (a group of one, its own folder, by that alone)."""
+    run_dir, horizons_s = group.run_dir, group.horizons_s
     if not os.path.lexists(run_dir):
         return
     if not run_dir.is_dir():
         raise NgsimOutputError(run_dir, "exists and is not a directory")
+    recorded = read_horizons(run_dir)
     if recorded is not None and recorded != horizons_s:
         raise NgsimOutputError(
             run_dir,
             f"holds a multi-horizon run of other horizons ({_seconds(recorded)} s) "
             "that never finished an epoch; choose another --out, or delete it",
         )
-    if not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
+    if not group.named or not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
         return
-    members = {member_dir(run_dir, h).name for h in horizons_s}
+    members = {member.name for member in group.members}
     refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, *members})
 
 
@@ -309,14 +296,12 @@ def check_build(
 def check_evaluate(
     run_dir: Path, build_dir: Path | None, split: Split | str, other_build: bool
 ) -> None:
-    """Everything `evaluate` (or `evaluate_horizons`) would refuse before it loads a model: a
+    """Everything `evaluate` would refuse before it loads a model: a
     directory that is not a run, or not a finished one; the run's build gone; another build
     without `other_build`, or one that does not fit the model (check_build); an empty split; a
     multi-horizon run whose models cannot be scored in one pass (check_one_fit)."""
-    horizons_s = read_horizons(run_dir)
-    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
     recorded = []
-    for member in members:
+    for member in read_group(run_dir).members:
         info = read_run_info(member)
         if not (member / BEST).is_file():
             raise NgsimInputError(
@@ -330,8 +315,7 @@ def check_evaluate(
                 build, f"its {Split(split).value} split is empty: nothing to evaluate"
             )
         recorded.append(Member(member, model, info["scaler"], build))
-    if horizons_s is not None:
-        check_one_fit(run_dir, recorded)
+    check_one_fit(run_dir, recorded)
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from aigem.results import (
     PAPER_NOTES,
     PAPER_TABLE,
     PUBLISHED_CONSTANT_VELOCITY,
-    HorizonsEvaluation,
+    Evaluation,
     paper_rows,
 )
 from ngsim_graphs.partial_files import write_atomic
@@ -72,7 +72,7 @@ Fit = dict[str, Any]  # d_min_m, concat_position, models (each model's course)
 
 
 def rmse_series(
-    evaluation: HorizonsEvaluation, region: str = "all", kind: str = "model"
+    evaluation: Evaluation, region: str = "all", kind: str = "model"
 ) -> list[float | None]:
     """RMSE (m) at 1..5 s, each from its own horizon's model (the paper's protocol); `kind`
     "constant_velocity": constant velocity's on the same targets."""
@@ -97,7 +97,7 @@ def _row(values: dict[str, Any], parameters: int | None = None) -> dict[str, Any
     return row
 
 
-def table1(evaluation: HorizonsEvaluation) -> dict[str, Any]:
+def table1(evaluation: Evaluation) -> dict[str, Any]:
     """Ours and constant velocity on the same targets, beside the paper's rows as published."""
     return {
         "ours": {
@@ -125,7 +125,7 @@ def curves(rows_by_model: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str
     }
 
 
-def regions(evaluation: HorizonsEvaluation) -> dict[str, Any]:
+def regions(evaluation: Evaluation) -> dict[str, Any]:
     """RMSE at 1..5 s and the targets counted, by the actor's present position."""
     return {
         "front_y_m": FRONT_Y_M,
@@ -150,7 +150,7 @@ def paper_report(
     settings: dict[str, Any],
     parts: Sequence[str],
     fits: dict[str, Fit],
-    evaluations: dict[str, HorizonsEvaluation],
+    evaluations: dict[str, Evaluation],
     curve_rows: dict[str, list[dict[str, Any]]],
     unfinished: Sequence[str] = (),
     partly_synthetic: bool = False,

@@ -1,7 +1,7 @@
-"""What `aigem evaluate` finds, as data: a run's scores on one split (Evaluation), a multi-horizon
-run's as the paper reports them (HorizonsEvaluation), their JSON form, and the paper's table
-beside which they are read. aigem.evaluation computes them; aigem.plots draws them; the CLI
-prints them.
+"""What `aigem evaluate` finds, as data: a run's scores on one split as the paper reports them
+(Evaluation: a run is a group of one model per horizon, each scored as a ModelEvaluation), their
+JSON form, and the paper's table beside which they are read. aigem.evaluation computes them;
+aigem.plots draws them; the CLI prints them.
 """
 
 from __future__ import annotations
@@ -111,7 +111,9 @@ class Scores:
 
 
 @dataclass(frozen=True)
-class Evaluation:
+class ModelEvaluation:
+    """One model of a run (a member) on one split."""
+
     split: str
     horizon_steps: int
     samples: int
@@ -137,9 +139,11 @@ Rows = dict[str, dict[str, float | None]]  # region -> metric -> metres (or a co
 
 
 @dataclass(frozen=True)
-class HorizonsEvaluation:
-    """A multi-horizon run on one split, as the paper reports it; `sources` names the member each
-    metric comes from, `members` holds each member's own evaluation."""
+class Evaluation:
+    """A run on one split, as the paper reports it: RMSE at h s from the first model that reaches
+    h s, ADE and FDE from the longest-horizon model (aigem.evaluation.protocol_rows); a run of
+    one model is a group of one, whose rows are its model's. `sources` names the member each
+    metric comes from, `members` holds each member's own evaluation (ascending by horizon)."""
 
     split: str
     horizons_s: tuple[float, ...]
@@ -148,7 +152,7 @@ class HorizonsEvaluation:
     model: Rows
     constant_velocity: Rows
     sources: dict[str, str]  # metric -> member (its run directory's name)
-    members: dict[str, Evaluation]
+    members: dict[str, ModelEvaluation]
     build_dir: str
     same_build: bool
     synthetic: bool
@@ -156,15 +160,29 @@ class HorizonsEvaluation:
     protocol_description: str  # describe_protocol of the build
     training: dict[str, Any] | None = None  # of every member (aigem.course.training_record)
 
+    @property
+    def longest(self) -> ModelEvaluation:
+        """The longest-horizon model's evaluation: the one whose steps, final errors and scenes
+        are drawn."""
+        return list(self.members.values())[-1]
 
-def as_dict(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
-    """One JSON-ready document; a multi-horizon run's holds each member's evaluation too."""
+    # The longest model's per-step errors, final errors and grid (not in --json: in its member).
+    steps = property(lambda self: self.longest.steps)
+    final = property(lambda self: self.longest.final)
+    horizon_steps = property(lambda self: self.longest.horizon_steps)
+    time_step_s = property(lambda self: self.longest.time_step_s)
+
+
+def as_dict(result: Evaluation) -> dict[str, Any]:
+    """One JSON-ready document: the run's rows, the longest model's horizon (horizon_steps of
+    time_step_s), each member's evaluation (its per-step errors among them) and the paper's
+    table."""
     document = _public(result)
-    if isinstance(result, HorizonsEvaluation):
-        document["members"] = {name: _public(m) for name, m in result.members.items()}
+    document["horizon_steps"], document["time_step_s"] = result.horizon_steps, result.time_step_s
+    document["members"] = {name: _public(m) for name, m in result.members.items()}
     return {**document, "paper": PAPER_TABLE}
 
 
-def _public(result: Evaluation | HorizonsEvaluation) -> dict[str, Any]:
+def _public(result: Evaluation | ModelEvaluation) -> dict[str, Any]:
     """The fields of --json: all but the per-target final errors (arrays, for pictures)."""
     return {key: value for key, value in result.__dict__.items() if key != "final"}

@@ -73,6 +73,7 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     RUN_INFO,
     STARTED,
     STARTED_LINE,
+    Group,
     accepted_digests,
     member_dir,
     model_config,
@@ -86,8 +87,8 @@ from aigem.refusals import (
     check_fresh_group,
     check_fresh_out,
     check_group_start,
+    check_member_start,
     check_resume,
-    check_single_start,
 )
 from aigem.unfinished import mark_started, unfinished_group, unfinished_start, unmark_started
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
@@ -212,7 +213,7 @@ def start_run(
     """Start a fresh run, or load the last checkpoint into `model` and `optimizer` to resume;
     returns the state and the run info that every checkpoint of this run carries. A directory
     with last.pt needs `resume`; one without it has nothing to resume and starts over."""
-    check_single_start(run_dir, resume)
+    check_member_start(run_dir, resume)
     info = run_info(build_dir, model_config, train)
     if resume:
         state = _resume(run_dir, build_dir, info, model, optimizer)
@@ -256,29 +257,26 @@ def _remove_leftovers(folder: Path) -> None:
         path.unlink(missing_ok=True)
 
 
-def start_group(
-    run_dir: Path, horizons_s: tuple[float, ...], resume: bool, is_writer: bool
-) -> tuple[Path, ...]:
-    """Check a multi-horizon run directory for a fresh start (and write its horizons.json) or a
-    resume; returns the members' run directories, which `start_run` then starts one by one. A
-    resume needs the same horizons and a last.pt in at least one member (a member without one,
-    killed before its first checkpoint, starts over)."""
-    members = tuple(member_dir(run_dir, h) for h in horizons_s)
-    check_group_start(run_dir, horizons_s, resume)
-    if is_writer and resume:
+def start_group(group: Group, resume: bool, is_writer: bool) -> None:
+    """Check a run directory for a fresh start or a resume of `group`, whose members `start_run`
+    then starts one by one; a fresh group of several writes its horizons.json. A resume needs the
+    same horizons and a last.pt in at least one member (a member without one, killed before its
+    first checkpoint, starts over)."""
+    run_dir = group.run_dir
+    check_group_start(group, resume)
+    if not is_writer or not group.named:  # a group of one is its member's folder: start_run's
+        return
+    if resume:
         _remove_leftovers(run_dir)
         unmark_started(run_dir)  # a member has kept a checkpoint
-    if resume:
-        return members
-    if is_writer:
-        check_fresh_group(run_dir, horizons_s, read_horizons(run_dir))
-        run_dir.mkdir(parents=True, exist_ok=True)
-        mark_started(run_dir)
-        _remove_leftovers(run_dir)
-        names = [member.name for member in members]
-        text = json.dumps({"horizons_s": list(horizons_s), "members": names}, indent=2) + "\n"
-        write_atomic(run_dir / HORIZONS, text.encode())
-    return members
+        return
+    check_fresh_group(group)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    mark_started(run_dir)
+    _remove_leftovers(run_dir)
+    names = [member.name for member in group.members]
+    text = json.dumps({"horizons_s": list(group.horizons_s), "members": names}, indent=2) + "\n"
+    write_atomic(run_dir / HORIZONS, text.encode())
 
 
 def _resume(
@@ -455,15 +453,14 @@ def epochs_kept(run_dir: Path) -> int:
     return _run_state(load_checkpoint(path, LAST_KEYS, accepted)["state"], path).next_epoch
 
 
-def discard_unfinished(run_dir: Path, horizons_s: tuple[float, ...] | None, created: bool) -> None:
-    """Remove what a fit that finished no epoch wrote: each member's files, the member
-    directories left empty, horizons.json for a multi-horizon run, and `run_dir` itself where
-    the fit `created` it and it is left empty (`horizons_s`: those of a multi-horizon run, None
-    for a run of one model). Only a folder that is, beyond doubt, what a fit
-    left before its first checkpoint (unfinished.unfinished_start, unfinished_group) is touched:
-    files of these names in any other folder stay."""
-    members = [run_dir] if horizons_s is None else [member_dir(run_dir, h) for h in horizons_s]
-    for member in members:
+def discard_unfinished(group: Group, created: bool) -> None:
+    """Remove what a fit of `group` that finished no epoch wrote: each member's files, the member
+    directories left empty, horizons.json, and the run directory itself where the fit `created`
+    it and it is left empty. Only a folder that is, beyond doubt, what a fit left before its first
+    checkpoint (unfinished.unfinished_start, unfinished_group) is touched: files of these names in
+    any other folder stay."""
+    run_dir = group.run_dir
+    for member in group.members:
         if not unfinished_start(member):
             continue
         _remove_leftovers(member)
@@ -472,7 +469,7 @@ def discard_unfinished(run_dir: Path, horizons_s: tuple[float, ...] | None, crea
         unmark_started(member)
         if member != run_dir and not any(member.iterdir()):
             member.rmdir()
-    if horizons_s is not None and unfinished_group(run_dir, horizons_s):
+    if unfinished_group(run_dir, group.horizons_s):  # a group of one has its marker gone by now
         _remove_leftovers(run_dir)
         (run_dir / HORIZONS).unlink(missing_ok=True)
         unmark_started(run_dir)

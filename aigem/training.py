@@ -40,6 +40,7 @@ from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
 from aigem.model import AiGem, count_parameters
 from aigem.processes import EndWithParent, compile_in_process, release_workers
+from aigem.records import Group, planned_group
 from aigem.refusals import check_splits, model_of_build
 from aigem.resident import fits, load_split
 from aigem.trainers import Loop, Member
@@ -171,32 +172,23 @@ def device_data(
 
 def _start_members(
     build_dir: Path,
-    run_dir: Path,
-    horizons_s: tuple[float, ...] | None,
+    group: Group,
     model_config: ModelConfig,
     train: TrainConfig,
     resume: bool,
     time_step_s: float,
     loop: Loop,
 ) -> list[Member]:
-    """The models of a fit, new or resumed: one in `run_dir` (horizons_s None), or one per horizon
-    in its member directory, where a resume starts over a member that has no checkpoint yet. A
-    horizon of less than one of the build's time steps is refused before any directory is made."""
-    for horizon_s in horizons_s or (train.horizon_s,):
+    """The models of a fit, new or resumed: one per horizon of `group`, in its member directory,
+    where a resume starts over a member that has no checkpoint yet. A horizon of less than one of
+    the build's time steps is refused before any directory is made."""
+    for horizon_s in group.horizons_s:
         replace(train, horizon_s=horizon_s).horizon_steps(time_step_s)
-    if horizons_s is None:
-        plans = [(run_dir, train, resume, "")]
-    else:
-        dirs = runs.start_group(run_dir, horizons_s, resume, loop.rank == 0)
-        plans = [
-            (
-                d,
-                replace(train, horizon_s=h),
-                resume and (d / runs.LAST).is_file(),
-                f"the {h:g} s model: ",
-            )
-            for d, h in zip(dirs, horizons_s, strict=True)
-        ]
+    runs.start_group(group, resume, loop.rank == 0)
+    plans = [
+        (d, replace(train, horizon_s=h), resume and (d / runs.LAST).is_file(), group.who(d))
+        for d, h in zip(group.members, group.horizons_s, strict=True)
+    ]
     members = []
     for member_dir, member_train, member_resume, who in plans:
         seed_everything(train.seed + loop.rank)  # initialised as a fit of this model alone would
@@ -229,7 +221,7 @@ def _start_members(
                 state,
                 who,
                 _done_before(state, member_train),
-                group=run_dir if horizons_s is not None else None,
+                group=group.run_dir,
             )
         )
     return members
@@ -258,7 +250,15 @@ def fit(
 ) -> FitResult:
     """Train one model for `train.horizon_s` and write the run directory (see aigem.runs)."""
     (result,) = fit_horizons(
-        build_dir, run_dir, None, model_config, train, device_choice, resume, progress, on_epoch
+        build_dir,
+        run_dir,
+        (train.horizon_s,),
+        model_config,
+        train,
+        device_choice,
+        resume,
+        progress,
+        on_epoch,
     )
     return result
 
@@ -266,7 +266,7 @@ def fit(
 def fit_horizons(
     build_dir: str | os.PathLike[str],
     run_dir: str | os.PathLike[str],
-    horizons_s: tuple[float, ...] | None,
+    horizons_s: tuple[float, ...],
     model_config: ModelConfig,
     train: TrainConfig,
     device_choice: str = "auto",
@@ -277,8 +277,8 @@ def fit_horizons(
     note: Callable[[str], None] | None = None,
 ) -> tuple[FitResult, ...]:
     """Train one model per horizon (ascending; each replaces `train.horizon_s`) in one loop, and
-    write the multi-horizon run directory (see aigem.runs); returns each model's result. None:
-    one model for `train.horizon_s`, in `run_dir` itself (`fit`). `loading` reports the splits'
+    write the run directory (see aigem.runs; one model: in `run_dir` itself, as `fit` writes it);
+    returns each model's result. `loading` reports the splits'
     loading onto the device, `note` says in a line where the batches come from."""
     build_dir, run_dir = Path(build_dir), Path(run_dir)
     rank, world = _distributed()
@@ -315,8 +315,7 @@ def fit_horizons(
     )
     members = _start_members(
         build_dir,
-        run_dir,
-        horizons_s,
+        planned_group(run_dir, horizons_s),
         model_config,
         train,
         resume,

@@ -1,7 +1,7 @@
-"""Benchmark: `evaluate_horizons` of a multi-horizon run, two checkouts side by side.
+"""Benchmark: `evaluate` (an older checkout's `evaluate_horizons`) of a multi-horizon run, two checkouts side by side.
 
 Each measurement is one fresh process that imports `aigem` from one checkout (its root first on
-sys.path) and times one `evaluate_horizons(RUN)` call on the CPU: the models' loading, the split
+sys.path) and times one `evaluate(RUN)` call on the CPU: the models' loading, the split
 and the scoring, not Python's or PyTorch's import. The checkouts alternate (old new, new old,
 ...), so that a busy machine slows both alike; the script prints each call's samples/s (test
 samples scored by all the run's models, per second of the call), the median of each and the
@@ -10,7 +10,7 @@ give (the model's differ by float rounding).
 
 `--forward` adds where the time goes, in this process with this checkout's code: the test batches
 loaded once, then the models' forward passes over them, as one stacked ensemble (what
-evaluate_horizons runs) and one model after the other, alternating.
+evaluate runs) and one model after the other, alternating.
 
     mkdir -p /tmp/ev/old && git archive 7610a76 | tar -x -C /tmp/ev/old   # before one pass
     .venv/bin/python bench/bench_evaluate.py /tmp/ev/run --old /tmp/ev/old --new . --rounds 6
@@ -39,7 +39,8 @@ torch.set_num_threads(int(sys.argv[3]))
 import aigem.evaluation as evaluation
 from aigem.results import as_dict
 start = time.perf_counter()
-result = evaluation.evaluate_horizons(Path(sys.argv[2]), None, "test", "cpu")
+score = getattr(evaluation, "evaluate_horizons", evaluation.evaluate)  # an older checkout's name
+result = score(Path(sys.argv[2]), None, "test", "cpu")
 seconds = time.perf_counter() - start
 print(json.dumps({"module": evaluation.__file__, "seconds": seconds, "result": as_dict(result)}))
 """

@@ -16,7 +16,7 @@ table says what it could not measure):
    step, the static step, fit's loop on static batches: graphs/s, launches and syncs a step);
 4. fit: `aigem fit --horizon-s 1,2,3,4,5` for --epochs epochs at --batch-size, with nvidia-smi's
    GPU utilisation sampled every 0.5 s from the end of its first epoch to its end;
-5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate_horizons`);
+5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate`);
 6. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
    and the paper's protocol (100 epochs, the four fits) extrapolated from it to the six
    15-minute recordings (81,815 train graphs): per epoch times 100 and the train graphs' ratio;
@@ -165,10 +165,10 @@ def epoch_seconds(run: Path) -> tuple[float, int] | None:
 
 def evaluate_rate(run: Path, device: str) -> tuple[float, float] | None:
     """(seconds, test samples a second per model) of the run's evaluation, in this process."""
-    from aigem.evaluation import evaluate_horizons
+    from aigem.evaluation import evaluate
 
     began = time.monotonic()
-    result = evaluate_horizons(run, None, "test", device)
+    result = evaluate(run, None, "test", device)
     seconds = time.monotonic() - began
     return seconds, result.samples * len(result.horizons_s) / seconds
 

@@ -40,7 +40,8 @@ from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.schema import Split
 
 if TYPE_CHECKING:
-    from aigem.results import Evaluation, HorizonsEvaluation
+    from aigem.records import Group
+    from aigem.results import Evaluation
     from aigem.training import FitResult
 
 app = typer.Typer(
@@ -213,20 +214,19 @@ def fit(
     except ValueError as err:
         raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
-    several = len(horizons_s) > 1
     with _held(out):  # one fit at a time into --out, as build and paper
         with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-            from aigem.records import UNRECORDED, unrecorded_checkpoints
+            from aigem.records import UNRECORDED, planned_group, unrecorded_checkpoints
             from aigem.refusals import check_fit
 
+            group = planned_group(out, horizons_s)
             with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out
-                check_fit(data, out, horizons_s if several else None, model_config, train, resume)
+                check_fit(data, group, model_config, train, resume)
                 for path in unrecorded_checkpoints(out) if resume else []:
                     print_warning(f"{path}: {UNRECORDED}; recorded as they are from now on")
             _check_device(device.value)  # PyTorch alone, before the rest loads
             import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
-        group = horizons_s if several else None
-        results = _train(data, out, group, model_config, train, device.value, resume)
+        results = _train(data, group, model_config, train, device.value, resume)
     print_results(results, out)
 
 
@@ -253,8 +253,7 @@ def _held(out: Path) -> Iterator[None]:
 
 def _train(
     data: Path,
-    out: Path,
-    horizons_s: tuple[float, ...] | None,
+    group: Group,
     model_config: ModelConfig,
     train: TrainConfig,
     device: str,
@@ -268,7 +267,8 @@ def _train(
 
     if train.threads is not None and (warning := busy_cores_warning(train.threads)):
         print_warning(warning)
-    who = (lambda h: f"{h:g} s model, ") if horizons_s else (lambda h: "")
+    out = group.run_dir
+    who = (lambda h: f"{h:g} s model, ") if group.named else (lambda h: "")
     created = not out.exists()
     with exit_on_error(), _interrupt_on_sigterm(), progress_bar() as progress:
         # One bar over the run's epochs, so that its ETA is the run's (at the rate of the
@@ -284,7 +284,7 @@ def _train(
             return fit_horizons(
                 data,
                 out,
-                horizons_s,
+                group.horizons_s,
                 model_config,
                 train,
                 device,
@@ -295,9 +295,9 @@ def _train(
                 say,
             )
         except KeyboardInterrupt:
-            raise interrupted(out, horizons_s, created) from None
+            raise interrupted(group, created) from None
         except (NgsimError, NonFiniteLossError, DeviceUnavailableError) as err:
-            discard_if_nothing_kept(out, horizons_s, created)
+            discard_if_nothing_kept(group, created)
             if isinstance(err, NgsimError):
                 raise  # exit_on_error says it
             raise _fail(str(err)) from None
@@ -373,18 +373,16 @@ def evaluate(
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import BEST, UNRECORDED, read_horizons, unrecorded_checkpoints
+        from aigem.records import BEST, UNRECORDED, unrecorded_checkpoints
         from aigem.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
-            several = read_horizons(run) is not None
             for path in unrecorded_checkpoints(run, (BEST,)):
                 print_warning(f"{path}: {UNRECORDED}")
         _check_device(device.value)
         from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
-        from aigem.evaluation import evaluate_horizons
         from aigem.results import as_dict
         from ngsim_cli.evaluation_view import print_evaluation, warn_unfinished
 
@@ -392,7 +390,7 @@ def evaluate(
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         scored = lambda done, total: progress(f"evaluating the {split.value} split", done, total)
         try:
-            result = (evaluate_horizons if several else run_evaluate)(
+            result = run_evaluate(
                 run, data, split.value, device.value, progress=scored, other_build=other_build
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
@@ -408,9 +406,7 @@ def evaluate(
         stdout.print(f"Plots in {plots}: {', '.join(path.name for path in drawn)}{scenes}")
 
 
-def _draw(
-    result: Evaluation | HorizonsEvaluation, run: Path, folder: Path, device: str
-) -> list[Path]:
+def _draw(result: Evaluation, run: Path, folder: Path, device: str) -> list[Path]:
     """The pictures of `evaluate --plots`; returns the paths written."""
     from aigem.pictures import write_evaluation_plots
 

@@ -7,7 +7,7 @@ from rich.table import Table
 
 from aigem.course import training_line, training_words
 from aigem.metrics import REGIONS, table_columns
-from aigem.results import Evaluation, HorizonsEvaluation, paper_rows
+from aigem.results import Evaluation, paper_rows
 from ngsim_cli.console import counted, print_table, print_warning, stdout
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
@@ -28,7 +28,7 @@ def metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
     return table
 
 
-def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
+def print_evaluation(result: Evaluation) -> None:
     """The tables and lines of `aigem evaluate` without --json; each of the run's tables says
     how many of its epochs the model trained, and an unfinished run how to continue it."""
     trained = training_words(result.training)
@@ -55,8 +55,7 @@ def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
         highlight=False,
         soft_wrap=True,
     )
-    if isinstance(result, HorizonsEvaluation):
-        _print_sources(result, seconds)
+    _print_sources(result, seconds)
     print_table(metrics_table("the paper's table (NGSIM US-101 + I-80)", paper_rows(), 5))
     other = (
         "" if result.same_build else " (not the run's build; inputs scaled with the run's scaler)"
@@ -73,19 +72,24 @@ def print_evaluation(result: Evaluation | HorizonsEvaluation) -> None:
     warn_unfinished(result)
 
 
-def warn_unfinished(result: Evaluation | HorizonsEvaluation) -> None:
+def warn_unfinished(result: Evaluation) -> None:
     """One warning on stderr where the run is unfinished (also beside --json)."""
     if result.training is not None and not result.training["finished"]:
         line = training_line(result.training)
         print_warning(f"these scores are of an unfinished run: {line}")
 
 
-def _print_sources(result: HorizonsEvaluation, seconds: int) -> None:
-    """Which member of a multi-horizon run each number comes from."""
-    rmse = ", ".join(f"{s} s from {result.sources[f'rmse_{s}s_m']}" for s in range(1, seconds + 1))
-    longest, horizon_s = result.sources["ade_m"], result.horizons_s[-1]
+def _print_sources(result: Evaluation, seconds: int) -> None:
+    """Which model of the run each number comes from (named by its horizon)."""
+    model = dict(zip(result.members, result.horizons_s, strict=True))
+    rmse = ", ".join(
+        f"{s} s from the {model[result.sources[f'rmse_{s}s_m']]:g} s model"
+        for s in range(1, seconds + 1)
+    )
+    horizon_s = result.horizons_s[-1]
     paper = "" if horizon_s == 5 else " (the paper's over 5 s)"
     stdout.print(
-        f"One model per horizon: RMSE at {rmse}; ADE and FDE from {longest}, over "
-        f"{horizon_s:g} s{paper}. Constant velocity likewise, on the same targets."
+        f"{len(result.members)} model(s), one per horizon: RMSE at {rmse}; ADE and FDE from the "
+        f"{horizon_s:g} s model, over {horizon_s:g} s{paper}. Constant velocity likewise, on the "
+        "same targets."
     )

@@ -11,28 +11,27 @@ import typer
 from ngsim_cli.console import counted, exit_on_error, stderr, stdout
 
 if TYPE_CHECKING:
+    from aigem.records import Group
     from aigem.training import FitResult
 
 
-def discard_if_nothing_kept(
-    out: Path, horizons_s: tuple[float, ...] | None, created: bool
-) -> list[int]:
-    """Each model's epochs kept in `out` (its last checkpoint's); with none, a fit that stopped
-    (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
-    from aigem.runs import discard_unfinished, epochs_kept, member_dir
+def discard_if_nothing_kept(group: Group, created: bool) -> list[int]:
+    """Each model's epochs kept in the run `group` (its last checkpoint's); with none, a fit that
+    stopped (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
+    from aigem.runs import discard_unfinished, epochs_kept
 
-    members = [out] if horizons_s is None else [member_dir(out, h) for h in horizons_s]
-    kept = [epochs_kept(member) if member.is_dir() else 0 for member in members]
+    kept = [epochs_kept(member) if member.is_dir() else 0 for member in group.members]
     if not any(kept):
         with exit_on_error():
-            discard_unfinished(out, horizons_s, created)
+            discard_unfinished(group, created)
     return kept
 
 
-def interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) -> typer.Exit:
+def interrupted(group: Group, created: bool) -> typer.Exit:
     """One line on what an interrupted fit kept, and exit status 130 (as for Ctrl-C): the epochs
     of each model's last checkpoint, or, with none, nothing (the run's files go)."""
-    kept = discard_if_nothing_kept(out, horizons_s, created)
+    out = group.run_dir
+    kept = discard_if_nothing_kept(group, created)
     if not any(kept):
         say("interrupted before the first epoch ended; nothing kept")
     elif len(set(kept)) == 1:
@@ -42,7 +41,7 @@ def interrupted(out: Path, horizons_s: tuple[float, ...] | None, created: bool) 
         )
     else:
         each = ", ".join(
-            f"{h:g} s model after epoch {n}" for h, n in zip(horizons_s or (), kept, strict=True)
+            f"{h:g} s model after epoch {n}" for h, n in zip(group.horizons_s, kept, strict=True)
         )
         say(f"interrupted ({each}; run {out} holds their checkpoints); continue with --resume")
     return typer.Exit(130)

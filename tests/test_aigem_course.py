@@ -25,6 +25,7 @@ from aigem.course import (
 )
 from aigem.evaluation import evaluate
 from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
+from aigem.records import read_group
 from ngsim_cli.aigem import app
 
 ROW = {"train_loss_m2": 1.0, "val_loss_m2": 1.0}
@@ -41,10 +42,10 @@ def test_why_a_model_stopped_by_hand() -> None:
 
 def test_a_record_of_models_alike_and_of_models_apart(tiny_horizons_run: Path) -> None:
     done, cut = Course(3, 3, 2, EPOCHS), Course(1, 3, 1, UNFINISHED)
-    alike = training_record({"h1s": done, "h2s": done}, tiny_horizons_run, (1.0, 2.0))
+    alike = training_record({"h1s": done, "h2s": done}, read_group(tiny_horizons_run))
     assert alike["finished"] and alike["summary"] == "trained 3 of 3 epochs"
     assert alike["resume_command"] is None
-    apart = training_record({"h1s": done, "h2s": cut}, tiny_horizons_run, (1.0, 2.0))
+    apart = training_record({"h1s": done, "h2s": cut}, read_group(tiny_horizons_run))
     assert not apart["finished"]
     assert apart["summary"] == "h1s trained 3 of 3 epochs; h2s trained 1 of 3 epochs"
     assert apart["models"]["h2s"] == {
@@ -61,7 +62,7 @@ def test_the_resume_command_repeats_the_settings_a_resume_needs(
     tiny_horizons_run: Path, tiny_build: Path
 ) -> None:
     # the fixture: TrainConfig(epochs=1, batch_size=8, seed=3), horizons 1 and 2 s
-    assert resume_command(tiny_horizons_run, (1.0, 2.0)) == (
+    assert resume_command(read_group(tiny_horizons_run)) == (
         f"aigem fit {tiny_build.resolve()} --out {tiny_horizons_run.resolve()} --horizon-s 1,2 "
         "--batch-size 8 --seed 3 --epochs 1 --resume"
     )

@@ -18,8 +18,9 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
-from aigem.evaluation import evaluate, evaluate_horizons, scene_choice, score_targets
+from aigem.evaluation import evaluate, scene_choice
 from aigem.results import as_dict
+from aigem.scoring import score_targets
 from aigem.training import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
@@ -197,7 +198,8 @@ def test_per_step_curves_and_final_errors_agree_with_the_table(trained_run: Path
     )
     assert set(final.sample.tolist()) <= set(range(result.samples))
     document = json.loads(json.dumps(as_dict(result)))  # JSON-ready: no arrays
-    assert "final" not in document and document["steps"]["constant_velocity"]["all"]["n"][0] > 0
+    (member,) = document["members"].values()  # a run of one model: a group of one
+    assert "final" not in member and member["steps"]["constant_velocity"]["all"]["n"][0] > 0
 
 
 def test_each_final_error_is_tied_to_its_own_sample(trained_run: Path) -> None:
@@ -241,14 +243,12 @@ def test_a_multi_horizon_run_scores_each_model_as_evaluate_does_in_one_pass(
     tiny_horizons_run: Path,
 ) -> None:
     calls: list[tuple[int, int]] = []
-    several = evaluate_horizons(
-        tiny_horizons_run, None, "test", "cpu", 8, lambda *call: calls.append(call)
-    )
+    several = evaluate(tiny_horizons_run, None, "test", "cpu", 8, lambda *call: calls.append(call))
     batches = -(-several.samples // 8)
     assert batches > 1 and calls == [(done, batches) for done in range(1, batches + 1)]
     assert list(several.members) == ["h1s", "h2s"]
     for name, steps in (("h1s", 5), ("h2s", 10)):
-        alone = evaluate(tiny_horizons_run / name, None, "test", "cpu", 8)
+        alone = evaluate(tiny_horizons_run / name, None, "test", "cpu", 8).longest
         joint = several.members[name]
         assert joint.horizon_steps == alone.horizon_steps == steps
         # everything but the model's own numbers exactly: constant velocity, counts, fields
@@ -269,10 +269,10 @@ def test_the_split_on_the_device_scores_as_the_loader(tiny_horizons_run: Path) -
     over other batches; the model to float32 rounding), each final error tied to the same
     sample."""
     calls: list[tuple[int, int]] = []
-    static = evaluate_horizons(
+    static = evaluate(
         tiny_horizons_run, None, "test", "cpu", 8, lambda *c: calls.append(c), resident=True
     )
-    loader = evaluate_horizons(tiny_horizons_run, None, "test", "cpu", 8, resident=False)
+    loader = evaluate(tiny_horizons_run, None, "test", "cpu", 8, resident=False)
     assert calls == [(1, 1)]  # the tiny split is one static batch
     _close_rows(static.model, loader.model)
     for region, row in static.constant_velocity.items():
@@ -325,7 +325,7 @@ def test_models_of_other_fits_are_refused_as_one_run(
     code, out, err = _evaluate(str(run))  # refused before any model loads
     assert code == 1 and out == "" and err == f"error: {run}: {message}\n"
     with pytest.raises(NgsimInputError) as raised:
-        evaluate_horizons(run, None, "test", "cpu")
+        evaluate(run, None, "test", "cpu")
     assert str(raised.value) == f"{run}: {message}"
     assert evaluate(run / "h2s", None, "test", "cpu").samples > 0  # alone, it is a run
 

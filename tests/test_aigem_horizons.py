@@ -26,6 +26,7 @@ from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.devices import to_device
 from aigem.ensemble import Ensemble
 from aigem.evaluation import evaluate
+from aigem.records import planned_group
 from aigem.training import fit, fit_horizons
 from ngsim_cli.aigem import app
 
@@ -352,7 +353,10 @@ def test_evaluate_takes_each_metric_from_its_model(fitted: tuple[Path, str]) -> 
     assert document["horizons_s"] == [1.0, 2.0] and set(document["members"]) == {"h1s", "h2s"}
     assert document["parameters"] == 74_242 and "AiGem (paper)" in document["paper"]
     table = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"]).stdout
-    assert "One model per horizon: RMSE at 1 s from h1s, 2 s from h2s; ADE and FDE from h2s" in table  # fmt: skip
+    assert (
+        "2 model(s), one per horizon: RMSE at 1 s from the 1 s model, 2 s from the 2 s model; ADE "
+        "and FDE from the 2 s model, over 2 s" in " ".join(table.split())
+    )
     assert "RMSE 2 s" in table and "RMSE 3 s" not in table.split("the paper's table")[0]
     assert "synthetic" in table and "AiGem (this run)" in table
 
@@ -398,18 +402,22 @@ def test_a_multi_horizon_run_is_started_and_resumed_as_such_only(
     assert error("1,3", "--resume") == (
         f"error: {run}: cannot resume with other horizons (1,2 -> 1,3 s): it changes what the run learns\n"
     )  # fmt: skip
-    for more in ((), ("--resume",)):
-        assert error("2", *more) == (
-            f"error: {run}: holds a multi-horizon run (1,2 s): give --horizon-s 1,2 to resume it, "
-            "or choose another --out\n"
-        )
-    assert "nothing to resume: no horizons.json" in error("1,2", "--resume", out=tmp_path / "new")
+    # a run is a group: one horizon into a run of two is refused as any other horizons are
+    assert error("2") == (
+        f"error: {run}: already holds a run; pass --resume to continue it, or choose another --out\n"
+    )  # fmt: skip
+    assert error("2", "--resume") == (
+        f"error: {run}: cannot resume with other horizons (1,2 -> 2 s): it changes what the run learns\n"
+    )  # fmt: skip
+    assert "nothing to resume: no last.pt" in error("1,2", "--resume", out=tmp_path / "new")
     single = tmp_path / "single"
     fit(tiny_build, single, ModelConfig(), TrainConfig(**{**TRAIN.to_dict(), "epochs": 1}), "cpu")
-    assert (
-        "is not a multi-horizon aigem run: it holds baseline.json, best.pt, curves.png and 3 more"
-        in error("1,2", out=single)
-    )
+    assert error("1,2", out=single) == (
+        f"error: {single}: already holds a run; pass --resume to continue it, or choose another --out\n"
+    )  # fmt: skip
+    assert error("1,2", "--resume", out=single) == (
+        f"error: {single}: cannot resume with other horizons (5 -> 1,2 s): it changes what the run learns\n"
+    )  # fmt: skip
     assert _rows(run / "h1s") == _rows(fitted[0] / "h1s")  # nothing was changed
 
 
@@ -433,6 +441,6 @@ def test_a_horizon_shorter_than_the_builds_time_step_is_refused_before_any_direc
     """On a build of 0.5 s steps 0.2 s rounds to 0 steps: refused, and no run directory made."""
     run = tmp_path / "run"
     with pytest.raises(ValueError, match=r"^a 0.2 s horizon is less than one time step"):
-        arguments = (tiny_build, run, (0.2, 1.0), ModelConfig(), TRAIN)
+        arguments = (tiny_build, planned_group(run, (0.2, 1.0)), ModelConfig(), TRAIN)
         training._start_members(*arguments, resume=False, time_step_s=0.5, loop=None)
     assert not run.exists()

@@ -14,7 +14,7 @@ from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
 from aigem import records, runs
-from aigem.evaluation import evaluate, evaluate_horizons
+from aigem.evaluation import evaluate
 from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
 from aigem.plots import (
     VALIDATION_LABEL,
@@ -86,7 +86,7 @@ def test_fit_draws_each_members_curves_with_its_baseline(run: Path) -> None:
 def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
     single = evaluate(run / "h2s", None, "test", "cpu")
     rmse, mean = error_by_horizon(single, "a label").axes
-    ours = _line(rmse, "AiGem, this run")
+    ours = _line(rmse, "AiGem, this run's 2 s model")
     assert len(ours.get_xdata()) == single.horizon_steps == 10
     np.testing.assert_allclose(ours.get_xdata(), np.arange(1, 11) * 0.2)
     np.testing.assert_allclose(ours.get_ydata(), single.steps["model"]["all"]["rmse_m"])
@@ -94,19 +94,19 @@ def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
     np.testing.assert_allclose(cv, single.steps["constant_velocity"]["all"]["mean_error_m"])
     front = error_by_region(single, "a label").axes[0]
     np.testing.assert_allclose(
-        _line(front, "AiGem, this run: mean error").get_ydata(),
+        _line(front, "AiGem, this run's 2 s model: mean error").get_ydata(),
         np.array(single.steps["model"]["front"]["mean_error_m"], dtype=float),
     )
     ecdf = final_error_distribution(single, "a label").axes[0].get_lines()[0]
     assert len(ecdf.get_xdata()) == len(single.final.model_m)
-    several = evaluate_horizons(run, None, "test", "cpu")
+    several = evaluate(run, None, "test", "cpu")
     rmse = error_by_horizon(several, "a label").axes[0]
     diamonds = _line(rmse, "AiGem at h s, model named (paper's protocol)")
     assert diamonds.get_ydata().tolist() == [
         several.model["all"]["rmse_1s_m"],
         several.model["all"]["rmse_2s_m"],
     ]
-    assert len(_line(rmse, "AiGem, this run's h2s model").get_xdata()) == 10
+    assert len(_line(rmse, "AiGem, this run's 2 s model").get_xdata()) == 10
     for draw in (error_by_horizon, error_by_region, final_error_distribution):
         labels = [line.get_label() for axes in draw(several, "x").axes for line in axes.get_lines()]
         assert all("paper" in label for label in labels if "NGSIM" in label), labels

@@ -56,3 +56,22 @@ def test_baseline_round_trip(tmp_path: Path) -> None:
     assert read_baseline(tmp_path) == 12.5
     (tmp_path / BASELINE).write_text('{"constant_velocity_val_loss_m2": true}')
     assert read_baseline(tmp_path) is None  # damaged: only the line is missing
+
+
+def test_every_run_layout_reads_as_a_group(tiny_horizons_run: Path, tmp_path: Path) -> None:
+    """read_group, the one adapter: aigem 0.1.0's run of one model is a group of one (its folder
+    its member), a run of several the members its horizons.json names; a folder of neither is one
+    error line."""
+    from aigem.records import Group, group_of_member, planned_group, read_group
+
+    old = Path(__file__).parent / "fixtures" / "run-0.1.0"
+    assert read_group(old) == Group(old, (5.0,), (old,)) == planned_group(old, (5.0,))
+    assert not read_group(old).named and read_group(old).who(old) == ""
+    several = read_group(tiny_horizons_run)
+    assert several.horizons_s == (1.0, 2.0) and several.named
+    assert several.members == (tiny_horizons_run / "h1s", tiny_horizons_run / "h2s")
+    assert several.longest == tiny_horizons_run / "h2s"
+    assert several.who(several.members[0]) == "the 1 s model: "
+    assert group_of_member(tiny_horizons_run / "h1s") == several
+    with pytest.raises(NgsimInputError, match="not a run directory"):
+        read_group(tmp_path)

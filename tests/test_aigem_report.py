@@ -17,7 +17,7 @@ from aigem.report import (
     write_report,
 )
 from aigem.report_plots import report_figures
-from aigem.results import HorizonsEvaluation, paper_rows
+from aigem.results import Evaluation, paper_rows
 
 SETTINGS = {
     "inputs": [{"path": "/data/a.txt", "size_bytes": 1000}],
@@ -34,7 +34,7 @@ def rows(rmse: list[float], ade: float, fde: float, n: int = 10) -> dict[str, fl
     return row
 
 
-def evaluation(base: float, synthetic: bool = True) -> HorizonsEvaluation:
+def evaluation(base: float, synthetic: bool = True) -> Evaluation:
     """RMSE base + s at s seconds overall, base + s + 0.1/0.2/0.3 front/mid/rear; constant
     velocity's 10 times base + s; ADE base, FDE 2 * base."""
     rmse = [base + s for s in range(1, 6)]
@@ -44,7 +44,7 @@ def evaluation(base: float, synthetic: bool = True) -> HorizonsEvaluation:
     cv = {"all": rows([10 * v for v in rmse], 10 * base, 20 * base, n=12)}
     for shift, region in ((1, "front"), (2, "mid"), (3, "rear")):
         cv[region] = rows([10 * v + shift for v in rmse], 10 * base, 20 * base, n=4)
-    return HorizonsEvaluation(
+    return Evaluation(
         split="test",
         horizons_s=(1.0, 2.0, 3.0, 4.0, 5.0),
         samples=7,

@@ -290,7 +290,7 @@ def test_resume_refuses_another_build_and_accepts_an_identical_rebuild(
     horizon = runner.invoke(
         app, ["fit", str(copy), "--out", str(run), "--resume", *_fit_args(2, 2.0)]
     )
-    assert "cannot resume with another --horizon-s 1.0 -> 2.0" in _one_error_line(horizon, run)
+    assert "cannot resume with other horizons (1 -> 2 s)" in _one_error_line(horizon, run)
     assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
     resumed = runner.invoke(app, ["fit", str(copy), "--out", str(run), "--resume", *_fit_args(2)])
     assert resumed.exit_code == 0, resumed.output
