@@ -183,7 +183,10 @@ def data_line_indices(lines: list[bytes], fmt: str) -> list[int]:
 
 def count_data_lines(data: bytes, fmt: str) -> tuple[int, int]:
     """(data lines with a visible character, non-empty data lines) of a file, the CSV header
-    excluded, as the reader splits lines: at LF, a CR before it dropped."""
+    excluded, as the reader splits lines: at LF, a CR before it dropped; a gzip'd file's as the
+    build reads it, unpacked."""
+    if data.startswith(b"\x1f\x8b"):
+        data = gzip.decompress(data)
     text = data.decode("utf-8", errors="replace").removeprefix("\ufeff")
     lines = [line.removesuffix("\r") for line in text.split("\n")]
     if fmt != "txt":
@@ -393,7 +396,7 @@ def other_type(kind: str) -> Mutator:
         if kind == "png":
             return _png(), "a 1x1 PNG image"
         if kind == "gzip":
-            return gzip.compress(data, mtime=0), "the input gzipped"
+            return gzip.compress(data, mtime=0), "the input gzipped (a build reads it unpacked)"
         if kind == "json":
             return json.dumps(base_rows()).encode(), "the rows as one JSON array of objects"
         if kind == "parquet":

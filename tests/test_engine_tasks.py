@@ -25,7 +25,7 @@ def source_of(vehicle_ids: list[int | None], recording: list[int | None]) -> Sou
         schema={s.VEHICLE_ID: pl.Int32, s.RECORDING_INDEX: pl.Int32},
     )
     read = FileRows(rows.lazy(), {KEY: 0, OTHER: 1}, report=None)  # the report is passed on as is
-    return Source("fake", lambda paths: (paths, []), lambda *_: read, None, None)
+    return Source("fake", lambda paths: (paths, []), lambda *_: read, None, None, 0.1)
 
 
 def staged_ids(staged: dict[int, Path]) -> dict[int, list[int]]:
@@ -97,7 +97,7 @@ def test_a_source_scratch_folder_is_removed_after_staging_and_after_an_error(
             raise ValueError("a bad file")
         return FileRows(pl.LazyFrame({s.VEHICLE_ID: [3], s.RECORDING_INDEX: [0]}), {KEY: 0}, None)
 
-    source = Source("fake", lambda paths: (paths, []), read_file, None, None)
+    source = Source("fake", lambda paths: (paths, []), read_file, None, None, 0.1)
     tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
     with pytest.raises(ValueError, match="a bad file"):
         tasks.read_file(source, Path("g.txt"), BuildConfig(), 1, tmp_path, False)
