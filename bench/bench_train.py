@@ -405,11 +405,11 @@ def measure_fit(
     batch_size: int,
     device: torch.device,
     args: argparse.Namespace,
-    horizons_s: tuple[float, ...] | None = None,
+    horizons_s: tuple[float, ...],
     resident: bool | None = None,
 ) -> dict[str, object]:
-    """The whole fit loop at this batch size (see the docstring), of one model or of a
-    multi-horizon fit of `horizons_s`, on the loader's batches or static ones (`resident`,
+    """The whole fit loop at this batch size (see the docstring), of the fit of `horizons_s`
+    (one model per horizon), on the loader's batches or static ones (`resident`,
     None: fit's default for the device); empty where the epoch ran out."""
     probe = _FitProbe(device, args)
     train = TrainConfig(
@@ -562,7 +562,10 @@ def _measure_device(
     paths = {"cuda": (True, False), "cpu": (False, True)}[device.type]
     for resident in paths if args.paths == "both" else paths[:1]:
         label = " st" if resident else ""
-        row(f"fit loop{label}", measure_fit(args.build, size, device, args, None, resident))
+        row(
+            f"fit loop{label}",
+            measure_fit(args.build, size, device, args, (TrainConfig().horizon_s,), resident),
+        )
         for models in (m for m in several if m <= 5):
             horizons = tuple(float(h) for h in range(1, models + 1))
             values = measure_fit(args.build, size, device, args, horizons, resident)
