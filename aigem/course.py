@@ -18,7 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from aigem.config import ModelConfig, TrainConfig
-from aigem.records import Group, group_of_member, model_config, read_run_info, train_config
+from aigem.records import (
+    Group,
+    group_of_member,
+    model_config,
+    read_metrics,
+    read_run_info,
+    train_config,
+)
 from aigem.refusals import RESUME_FIXED
 
 EPOCHS, EARLY_STOPPING, UNFINISHED = "epochs", "early stopping", "unfinished"
@@ -62,8 +69,6 @@ class Course:
 
 def course_of(run_dir: Path) -> Course:
     """The course of the model in `run_dir` (a run of one model, or a member of a group)."""
-    from aigem.runs import read_metrics  # the log's reader (aigem.runs loads PyTorch)
-
     train = train_config(read_run_info(run_dir), run_dir)
     rows = read_metrics(run_dir)
     done = int(rows[-1]["epoch"]) if rows else 0

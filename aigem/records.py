@@ -333,3 +333,22 @@ def read_baseline(run_dir: Path) -> float | None:
     except (OSError, ValueError, TypeError, KeyError):
         return None
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def read_metrics(run_dir: Path) -> list[dict[str, float]]:
+    """The rows of metrics.jsonl; one line naming the file and line where it is damaged."""
+    path = run_dir / METRICS
+    if not path.exists():
+        return []
+    rows = []
+    for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        try:
+            row = json.loads(line) if line.strip() else None
+        except json.JSONDecodeError:
+            row = "damaged"
+        if row is None:
+            continue
+        if not isinstance(row, dict) or not isinstance(row.get("epoch"), int):
+            raise NgsimInputError(path, "not a row of aigem's metrics log (damaged?)", line=number)
+        rows.append(row)
+    return rows

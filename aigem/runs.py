@@ -79,6 +79,7 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     model_config,
     read_baseline,
     read_horizons,
+    read_metrics,
     read_run_info,
     recorded_digests,
     run_info,
@@ -401,25 +402,6 @@ def _drop_metrics_after(run_dir: Path, epochs_done: int) -> None:
     kept = [row for row in rows if row["epoch"] <= epochs_done]
     if len(kept) < len(rows) or (run_dir / METRICS).is_symlink():  # a link: replaced, not followed
         write_atomic(run_dir / METRICS, "".join(json.dumps(row) + "\n" for row in kept).encode())
-
-
-def read_metrics(run_dir: Path) -> list[dict[str, float]]:
-    """The rows of metrics.jsonl; one line naming the file and line where it is damaged."""
-    path = run_dir / METRICS
-    if not path.exists():
-        return []
-    rows = []
-    for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
-        try:
-            row = json.loads(line) if line.strip() else None
-        except json.JSONDecodeError:
-            row = "damaged"
-        if row is None:
-            continue
-        if not isinstance(row, dict) or not isinstance(row.get("epoch"), int):
-            raise NgsimInputError(path, "not a row of aigem's metrics log (damaged?)", line=number)
-        rows.append(row)
-    return rows
 
 
 def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
