@@ -47,14 +47,14 @@ print(json.dumps({"module": evaluation.__file__, "seconds": seconds, "result": a
 
 
 def measure(checkout: Path, run: Path, threads: int) -> dict:
-    """One evaluate_horizons call of `checkout`'s code on `run`, in a fresh process."""
+    """One evaluation of `run` by `checkout`'s code, in a fresh process."""
     done = subprocess.run(
         [sys.executable, "-c", CHILD, str(checkout.resolve()), str(run), str(threads)],
         capture_output=True,
         text=True,
     )
     if done.returncode != 0:
-        raise SystemExit(f"{checkout}: evaluate_horizons failed:\n{done.stderr}")
+        raise SystemExit(f"{checkout}: the evaluation failed:\n{done.stderr}")
     measured = json.loads(done.stdout.strip().splitlines()[-1])
     if not Path(measured["module"]).is_relative_to(checkout.resolve()):
         raise SystemExit(f"imported {measured['module']}, not {checkout}'s aigem")
