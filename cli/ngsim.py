@@ -36,6 +36,7 @@ from ngsim_graphs.build import open_build
 from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
+from ngsim_graphs.protocols import check_protocol_locations
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
 from ngsim_graphs.sources.registry import check_locations, dataset_names
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
@@ -121,10 +122,11 @@ DatasetChoice = Enum(  # type: ignore[misc]
 
 
 def _build_config(**options):  # type: ignore[no-untyped-def]
-    """The BuildConfig of the options, its locations known to some source and its edge types to
-    `edges.EDGE_TYPES`."""
+    """The BuildConfig of the options, its locations known to some source and read by its
+    protocol, and its edge types known to `edges.EDGE_TYPES`."""
     config = BuildConfig(**options)
     check_locations(config.locations)
+    check_protocol_locations(config)
     edges.types_of(config.edge_types)
     return config
 

@@ -122,12 +122,6 @@ class BuildConfig:
                 "samples are CS-LSTM's kept rows, one per row, split by the script's vehicle rule "
                 "(70/10/20), the row's vehicle the only target"
             )
-        others = sorted(set(self.locations) - {"us-101", "i-80"})
-        if others:
-            raise ValueError(
-                f"the cs-lstm protocol reads us-101 and i-80 only (CS-LSTM's six recordings), "
-                f"not {', '.join(others)}"
-            )
 
     @property
     def stride_steps(self) -> int:

@@ -377,4 +377,9 @@ def why_no_samples(script: ScriptRows | None, rows: int, config: BuildConfig) ->
     )
 
 
-CS_LSTM = SampleProtocol(cslstm_windows, refused_recording, why_no_samples)
+CS_LSTM = SampleProtocol(
+    cslstm_windows,
+    refused_recording,
+    why_no_samples,
+    (("us-101", "i-80"), "CS-LSTM's six recordings"),
+)

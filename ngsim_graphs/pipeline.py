@@ -49,7 +49,7 @@ from ngsim_graphs.engine.tasks import (
 from ngsim_graphs.engine.workers import Workers, one_malloc_arena
 from ngsim_graphs.errors import NgsimError, NgsimInputError
 from ngsim_graphs.manifest import Manifest
-from ngsim_graphs.protocols import PROTOCOLS
+from ngsim_graphs.protocols import PROTOCOLS, check_protocol_locations
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.sources import archives
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
@@ -349,6 +349,7 @@ def _check_targets(raw_paths: list[Path], targets: list[BuildTarget]) -> None:
     check_locations(first.locations)
     for out_dir, config in targets:
         edges.types_of(config.edge_types)  # every edge type known, before any work
+        check_protocol_locations(config)
         landing.check_outside_inputs(out_dir, raw_paths)
     landing.check_apart([out_dir for out_dir, _ in targets])
 

@@ -90,6 +90,7 @@ class SampleProtocol:
     refuses(key) -> why the protocol cannot take recording `key`, or None
     why_no_samples(script_rows, rows, config) -> why the recordings (of `rows` raw rows in all)
         gave no sample, where the protocol can tell; None to leave it to the build
+    locations: the only locations it reads, its reason in words (none: any location)
     """
 
     recording_windows: Callable[
@@ -98,6 +99,7 @@ class SampleProtocol:
     ]
     refuses: Callable[[RecordingKey], str | None]
     why_no_samples: Callable[[ScriptRows | None, int, BuildConfig], str | None]
+    locations: tuple[tuple[str, ...], str] | None = None
 
 
 def aigem_windows(

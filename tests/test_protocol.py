@@ -339,6 +339,18 @@ def test_options_without_meaning_under_cs_lstm_are_refused(
     assert not out.exists()
 
 
+def test_the_protocols_locations_are_checked_by_the_library_too(tmp_path: Path) -> None:
+    """The cs-lstm protocol's locations live on the protocol (protocols.py), not in BuildConfig:
+    the config is made, and run_build refuses it before it reads or writes anything."""
+    config = BuildConfig(protocol=Protocol.CS_LSTM, locations=("us-101", "lankershim"))
+    raw = write_txt(tmp_path / "a.txt", script_recording()[:10])
+    with pytest.raises(
+        ValueError, match=r"reads us-101 and i-80 only \(CS-LSTM's six .*lankershim"
+    ):
+        run_build(raw, tmp_path / "out", config)
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_recording_the_script_does_not_read_is_an_error(tmp_path: Path) -> None:
     # 08:28 PDT: no official period; the folder names the location
     start_ms = 1118935680000 + 7_000
