@@ -141,6 +141,13 @@ def by_sample(
 PairFilter = Callable[[RecordingArrays, np.ndarray], np.ndarray]  # (rec, (C, 2) rows) -> (C,) bool
 
 
+def _candidate_blocks(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
+    """(whether each sample-step has its ego, where its candidates start): the candidates of a
+    sample-step occupy a contiguous block, in row order from step_ptr[step]; one without the ego
+    (cs-lstm) has none, and no pairs."""
+    return nodes.ego_rows >= 0, np.searchsorted(nodes.cand_ss, np.arange(len(nodes.ss_step)))
+
+
 def actor_pair_edges(
     nodes: Nodes, keep: PairFilter | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -153,10 +160,7 @@ def actor_pair_edges(
         nodes.ego_rows,
         nodes.node_of_cand,
     )
-    # Candidates of ss occupy a contiguous block, in row order from step_ptr[step]; an ss
-    # without the ego (cs-lstm) has none, and no pairs.
-    has_ego = ego_rows >= 0
-    block_start = np.searchsorted(nodes.cand_ss, np.arange(len(ss_step)))
+    has_ego, block_start = _candidate_blocks(nodes)
     # Only pairs whose lower vehicle is within d_sense of the ego along y can join two nodes.
     pair_ss, pair_index = y_window(
         rec.pair_key, rec, ego_rows, ss_step, nodes.config.d_sense_m, has_ego
@@ -185,8 +189,7 @@ def _spatial_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
         nodes.ego_rows,
         nodes.node_of_cand,
     )
-    has_ego = ego_rows >= 0
-    block_start = np.searchsorted(nodes.cand_ss, np.arange(len(ss_step)))
+    has_ego, block_start = _candidate_blocks(nodes)
     actors = nodes.order[~nodes.cand_is_ego[nodes.order]]
     in_block = np.where(has_ego, ego_rows - rec.step_ptr[ss_step], 0)
     ego_node = node_of_cand[np.minimum(block_start + in_block, len(node_of_cand) - 1)]
