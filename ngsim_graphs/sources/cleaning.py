@@ -6,7 +6,7 @@ Every function is pure over a polars frame and returns what it removed, for the 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import polars as pl
 
@@ -45,23 +45,29 @@ def describe(reason: str, own: Mapping[str, str] | None = None) -> str:
     return DESCRIPTIONS[DropReason(reason)]
 
 
-def empty_column_notes(
-    frame: pl.LazyFrame | pl.DataFrame, columns: dict[str, str]
-) -> tuple[str, ...]:
-    """A line for each of `columns` (parsed name: the name as the file spells it) that is empty
-    in every row of `frame`: an optional column, so the rows are kept, but a column emptied (or
-    swapped with an empty one) must not pass without a word."""
-    flags = (
-        frame.lazy()
-        .select(pl.col(c).is_null().all().alias(c) for c in columns)
-        .collect(engine="streaming")
-        .row(0)
-    )
+def empty_column_checks(columns: dict[str, str]) -> list[pl.Expr]:
+    """Whether each of `columns` (parsed name: the name as the file spells it) is empty in every
+    row: expressions to select beside a file's other totals (one pass over it)."""
+    return [pl.col(c).is_null().all().alias(c) for c in columns]
+
+
+def empty_column_lines(flags: Sequence[bool], columns: dict[str, str]) -> tuple[str, ...]:
+    """A line for each of `columns` whose flag (`empty_column_checks`, in order) says it is empty
+    in every row: an optional column, so the rows are kept, but a column emptied (or swapped
+    with an empty one) must not pass without a word."""
     return tuple(
         f"column {name} is empty in every row (its values are missing from the build)"
         for name, empty in zip(columns.values(), flags, strict=True)
         if empty
     )
+
+
+def empty_column_notes(
+    frame: pl.LazyFrame | pl.DataFrame, columns: dict[str, str]
+) -> tuple[str, ...]:
+    """`empty_column_lines` of `frame`'s columns, in a pass of its own."""
+    flags = frame.lazy().select(empty_column_checks(columns)).collect(engine="streaming").row(0)
+    return empty_column_lines(flags, columns)
 
 
 def drop_duplicate_rows(

@@ -26,7 +26,8 @@ from ngsim_graphs.sources.cleaning import (
     describe,
     downsample_to_grid,
     drop_duplicate_rows,
-    empty_column_notes,
+    empty_column_checks,
+    empty_column_lines,
     split_at_gaps,
 )
 from ngsim_graphs.sources.contract import (
@@ -134,8 +135,9 @@ def read_file_recordings(
         line.filter(~complete).min().alias("first_missing"),
         pl.len().alias("rows"),
         line.min().alias("first_line"),
+        *empty_column_checks(OPTIONAL_NAMES),
     ).collect(engine="streaming")
-    kept, missing, first_missing, height, first = summary.row(0)
+    kept, missing, first_missing, height, first, *empty = summary.row(0)
     if missing == height:  # nothing to place in a recording: say why, naming the file
         raise NgsimInputError(
             path,
@@ -159,7 +161,7 @@ def read_file_recordings(
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
         notes=tuple(note for key, note in sorted(notes.items()) if key in chosen)
-        + empty_column_notes(raw.frame, OPTIONAL_NAMES),
+        + empty_column_lines(empty, OPTIONAL_NAMES),
     )
     return FileRows(rows, chosen, report)
 
