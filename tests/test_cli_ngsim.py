@@ -826,6 +826,13 @@ def test_a_damaged_file_in_a_zip_is_named_by_the_zip(tmp_path: Path, long_rows: 
     assert_failed_cleanly(
         invoke("build", archive, "--out", out), out, {}, archive, "cannot read this zip file"
     )
+    twice = tmp_path / "twice.zip"  # two members of one name, as an appended zip holds
+    with zipfile.ZipFile(twice, "w") as zipped, pytest.warns(UserWarning, match="Duplicate"):
+        zipped.writestr("a.txt", plain.read_text())
+        zipped.writestr("a.txt", plain.read_text())
+    assert_failed_cleanly(
+        invoke("build", twice, "--out", out), out, {}, Path(f"{twice}/a.txt"), "a member of this name twice"
+    )  # fmt: skip
 
 
 def test_build_into_a_log_prints_plain_progress_lines(

@@ -166,6 +166,8 @@ def _member(
         raise NgsimInputError(name, f"damaged compressed data: {err}") from None
     except NotImplementedError as err:  # a zip compression method Python does not read
         raise NgsimInputError(name, f"cannot unpack: {err}") from None
+    except FileExistsError:  # a zip may hold two members of one name (appended zips do)
+        raise NgsimInputError(name, "the archive holds a member of this name twice") from None
     if archive_kind(target):
         inner = _unpack(
             target, target.with_name(f"{target.name}.d"), name, unpacked, depth + 1, markers

@@ -68,7 +68,7 @@ def check_lanes(
     )
     off = [
         (lane, median, bands[lane])
-        for lane, _, median in checked.select(s.LANE_ID, "rows", "median_m").iter_rows()
+        for lane, median in checked.select(s.LANE_ID, "median_m").iter_rows()
         if not bands[lane][0] - LANE_WIDTH_M <= median <= bands[lane][1] + LANE_WIDTH_M
     ]
     if off:
