@@ -30,15 +30,14 @@ from ngsim_cli.console import (
 from ngsim_cli.cslstm import export_cslstm
 from ngsim_cli.show import show
 from ngsim_cli.stats_view import STATS_TABLES
-from ngsim_graphs import __version__, edges
+from ngsim_graphs import __version__
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.pipeline import run_build
-from ngsim_graphs.protocols import check_protocol_locations
+from ngsim_graphs.pipeline import check_config, run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
-from ngsim_graphs.sources.registry import check_locations, dataset_names
+from ngsim_graphs.sources.registry import dataset_names
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
 
@@ -122,12 +121,9 @@ DatasetChoice = Enum(  # type: ignore[misc]
 
 
 def _build_config(**options):  # type: ignore[no-untyped-def]
-    """The BuildConfig of the options, its locations known to some source and read by its
-    protocol, and its edge types known to `edges.EDGE_TYPES`."""
+    """The BuildConfig of the options, checked as a build checks it (`pipeline.check_config`)."""
     config = BuildConfig(**options)
-    check_locations(config.locations)
-    check_protocol_locations(config)
-    edges.types_of(config.edge_types)
+    check_config(config)
     return config
 
 

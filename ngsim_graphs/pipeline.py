@@ -332,6 +332,14 @@ def _finish(
     )
 
 
+def check_config(config: BuildConfig) -> None:
+    """ValueError where `config` names what this ngsim-graphs cannot build: a location no source
+    knows, one its protocol does not read, an edge type not in `edges.EDGE_TYPES`."""
+    check_locations(config.locations)
+    check_protocol_locations(config)
+    edges.types_of(config.edge_types)
+
+
 def _check_targets(raw_paths: list[Path], targets: list[BuildTarget]) -> None:
     """Refuse builds that cannot share their reading and cleaning (a config that differs in a
     field of SHARED_FIELDS), or whose outputs overlap each other or an input."""
@@ -346,10 +354,8 @@ def _check_targets(raw_paths: list[Path], targets: list[BuildTarget]) -> None:
                     f"and {out_dir} ({getattr(config, name)}): builds made together share the "
                     f"reading and cleaning of the inputs, which read it; build them apart"
                 )
-    check_locations(first.locations)
     for out_dir, config in targets:
-        edges.types_of(config.edge_types)  # every edge type known, before any work
-        check_protocol_locations(config)
+        check_config(config)  # before any work
         landing.check_outside_inputs(out_dir, raw_paths)
     landing.check_apart([out_dir for out_dir, _ in targets])
 
