@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.sources import contract
 from ngsim_graphs.sources.highd.schema import HighdFile
 
 FRAME_RATE_HZ = 25  # every highD recording
@@ -63,14 +64,14 @@ def sibling(path: Path, prefix: str, kind: HighdFile) -> Path:
 
 def frames_per_step(time_step_s: float, path: Path) -> int:
     """highD frames per grid step (5 for 0.2 s); a step that is not whole frames is an error."""
-    frames = round(time_step_s / FRAME_PERIOD_S)
-    if frames < 1 or abs(frames * FRAME_PERIOD_S - time_step_s) > 1e-9:
+    try:
+        return contract.frames_per_step(time_step_s, FRAME_PERIOD_S)
+    except ValueError:
         raise NgsimInputError(
             path,
             f"the grid step of {time_step_s:g} s is not a multiple of highD's frame period "
             f"({FRAME_PERIOD_S:g} s, {FRAME_RATE_HZ} Hz): choose a multiple of 0.2 s",
-        )
-    return frames
+        ) from None
 
 
 def max_frame(max_ngsim_frame_id: int) -> int:
