@@ -20,7 +20,6 @@ from typing import Any
 from aigem.config import ModelConfig, TrainConfig
 from aigem.records import (
     Group,
-    group_of_member,
     model_config,
     read_metrics,
     read_run_info,
@@ -101,12 +100,6 @@ def resume_command(group: Group) -> str:
         words.append("--cv-residual")
     words += ["--epochs", str(train.epochs), "--resume"]
     return shlex.join(words)
-
-
-def run_training(run_dir: Path) -> dict[str, Any]:
-    """training_record of the model in `run_dir`, continued by its run's command (of the group
-    whose member it is)."""
-    return training_record({run_dir.name: course_of(run_dir)}, group_of_member(run_dir))
 
 
 def training_record(courses: dict[str, Course], group: Group) -> dict[str, Any]:

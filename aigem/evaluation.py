@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from aigem.course import course_of, run_training, training_record
+from aigem.course import course_of, training_record
 from aigem.data import GraphDataset, run_scaler
 from aigem.devices import pick_device
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
@@ -222,12 +222,12 @@ def evaluate(
             run.run_dir / BEST, _not_finite(run, dataset, str(err), who)
         ) from None
     courses = {run.run_dir.name: course_of(run.run_dir) for run in runs}
+    owner = group_of_member(run_dir)  # a member evaluated alone is continued by its run's command
     members = {  # each member's training as `evaluate` of the member says it
-        run.run_dir.name: _evaluation(run, dataset, score, run_training(run.run_dir))
-        for run, score in zip(runs, scores, strict=True)
+        name: _evaluation(run, dataset, score, training_record({name: courses[name]}, owner))
+        for (name, run), score in zip(zip(courses, runs, strict=True), scores, strict=True)
     }
-    # a member evaluated alone is continued by its run's command
-    return _combined(group, members, training_record(courses, group_of_member(run_dir)))
+    return _combined(group, members, training_record(courses, owner))
 
 
 def _combined(

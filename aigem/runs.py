@@ -451,7 +451,7 @@ def discard_unfinished(group: Group, created: bool) -> None:
         unmark_started(member)
         if member != run_dir and not any(member.iterdir()):
             member.rmdir()
-    if unfinished_group(run_dir, group.horizons_s):  # a group of one has its marker gone by now
+    if group.named and unfinished_group(run_dir, group.horizons_s):  # a group of several
         _remove_leftovers(run_dir)
         (run_dir / HORIZONS).unlink(missing_ok=True)
         unmark_started(run_dir)

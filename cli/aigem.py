@@ -6,7 +6,7 @@ import json
 import os
 import signal
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -236,19 +236,16 @@ def _held(out: Path) -> Iterator[None]:
     and a paper's): a second fit, build or paper into the same folder meanwhile is refused with
     one line, and the lock goes with this process, however it ends. Under torchrun only rank 0
     holds it: the other ranks write nothing into --out."""
-    from ngsim_graphs.lock import release_lock, take_lock
+    from ngsim_graphs.lock import output_lock
 
     if int(os.environ.get("RANK", "0")) > 0:  # torchrun's: rank 0's lock covers the fit
         yield
         return
-    resolved = out.resolve()  # `--out .` has a name
-    with exit_on_interrupt("nothing written"), exit_on_error():
-        out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
-        lock = take_lock(resolved)
-    try:
+    with ExitStack() as held:
+        with exit_on_interrupt("nothing written"), exit_on_error():
+            out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
+            held.enter_context(output_lock(out.resolve()))  # `--out .` has a name
         yield
-    finally:
-        release_lock(lock, resolved)
 
 
 def _train(
