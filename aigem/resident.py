@@ -41,8 +41,8 @@ TARGET_KEYS = ("target_xy", "target_mask", "target_state", "cv_step")  # per tar
 Progress = Callable[[int, int], None]  # (samples loaded, samples in the split)
 
 
-def _exclusive_cumsum(counts: torch.Tensor, dim: int = -1) -> torch.Tensor:
-    return counts.cumsum(dim) - counts
+def _exclusive_cumsum(counts: torch.Tensor) -> torch.Tensor:
+    return counts.cumsum(-1) - counts
 
 
 def _runs(

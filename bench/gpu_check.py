@@ -293,7 +293,8 @@ def main() -> None:
          "--device", args.device, *workers],
     )  # fmt: skip
     if (run / "h5s" / "metrics.jsonl").is_file():
-        measured["epoch_s"] = epoch_seconds(run)[0]
+        per_epoch = epoch_seconds(run)  # None: the file holds no epoch yet
+        measured["epoch_s"] = per_epoch[0] if per_epoch else None
         try:
             seconds, measured["evaluate"] = evaluate_rate(run, args.device)
             stages.seconds["evaluate"] = seconds
