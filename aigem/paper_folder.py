@@ -244,32 +244,37 @@ def partly_synthetic(build_dirs: Sequence[Path]) -> bool:
     return any(synthetic_inputs_of(m) and not synthetic_build(m) for m in manifests)
 
 
-def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], bool]:
-    """(epochs kept in its last.pt, their metrics rows, whether it has nothing left to train)."""
-    from aigem.course import UNFINISHED, stop_reason
+def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], str]:
+    """(epochs kept in its last.pt, their metrics rows, why it trains no more: course.stop_reason,
+    UNFINISHED while it has epochs left)."""
+    from aigem.course import stop_reason
     from aigem.runs import epochs_kept, read_metrics
 
     kept = epochs_kept(member) if (member / LAST).is_file() else 0
     rows = [row for row in read_metrics(member) if row["epoch"] <= kept] if kept else []
-    done = stop_reason(kept, config.epochs, rows, config.patience_epochs) != UNFINISHED
-    return kept, rows, done
+    return kept, rows, stop_reason(kept, config.epochs, rows, config.patience_epochs)
 
 
 def epochs_left(run_dir: Path, config: PaperConfig) -> int:
     """Epochs a five-horizon fit still runs (0: every model is done): from the epoch of its
     least advanced model still training (early stopping may end it sooner)."""
+    from aigem.course import UNFINISHED
+
     states = [_member_progress(member_dir(run_dir, h), config) for h in HORIZONS_S]
-    training = [kept for kept, _, done in states if not done]
+    training = [kept for kept, _, reason in states if reason == UNFINISHED]
     return config.epochs - min(training) if training else 0
 
 
 def fit_record(run_dir: Path, config: PaperConfig) -> dict[str, dict[str, Any]]:
-    """Each model's course, from its kept epochs: epochs done, best epoch, why it stopped."""
+    """Each model's course, from its kept epochs: epochs done, best epoch, why it stopped (a
+    model with epochs left stopped at the time limit)."""
+    from aigem.course import UNFINISHED
+
     record = {}
     for horizon_s in HORIZONS_S:
         member = member_dir(run_dir, horizon_s)
-        kept, rows, done = _member_progress(member, config)
-        stopped = "epochs" if kept >= config.epochs else "early stopping" if done else "time limit"
+        kept, rows, reason = _member_progress(member, config)
+        stopped = "time limit" if reason == UNFINISHED else reason
         best = int(rows[-1]["best_epoch"]) if rows else None
         record[member.name] = {"epochs_done": kept, "best_epoch": best, "stopped": stopped}
     return record
