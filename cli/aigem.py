@@ -18,6 +18,7 @@ from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, par
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
+    check_device,
     exit_on_error,
     exit_on_interrupt,
     in_option_words,
@@ -224,7 +225,7 @@ def fit(
                 check_fit(data, group, model_config, train, resume)
                 for path in unrecorded_checkpoints(out) if resume else []:
                     print_warning(f"{path}: {UNRECORDED}; recorded as they are from now on")
-            _check_device(device.value)  # PyTorch alone, before the rest loads
+            check_device(device.value)  # PyTorch alone, before the rest loads
             import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
         results = _train(data, group, model_config, train, device.value, resume)
     print_results(results, out)
@@ -300,17 +301,6 @@ def _train(
             raise _fail(str(err)) from None
 
 
-def _check_device(device: str) -> None:
-    """Refuse --device cuda without CUDA as soon as PyTorch is loaded (seconds), before the
-    model, the data and PyTorch Geometric load (seconds more)."""
-    from aigem.devices import DeviceUnavailableError, pick_device
-
-    try:
-        pick_device(device)
-    except DeviceUnavailableError as err:
-        raise _fail(str(err)) from None
-
-
 @contextmanager
 def _interrupt_on_sigterm() -> Iterator[None]:
     """SIGTERM (a `kill`, a job scheduler's stop) ends training as Ctrl-C does: with the files
@@ -377,7 +367,7 @@ def evaluate(
             check_evaluate(run, data, split, other_build)
             for path in unrecorded_checkpoints(run, (BEST,)):
                 print_warning(f"{path}: {UNRECORDED}")
-        _check_device(device.value)
+        check_device(device.value)
         from aigem.devices import DeviceUnavailableError
         from aigem.evaluation import evaluate as run_evaluate
         from aigem.results import as_dict

@@ -206,6 +206,19 @@ def print_error(message: str) -> None:
     stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
 
 
+def check_device(device: str) -> None:
+    """Exit 1 with one line where `device` is one PyTorch cannot use here (--device cuda without
+    CUDA), as soon as PyTorch is loaded (seconds), before the model, the data and PyTorch
+    Geometric load (seconds more)."""
+    from aigem.devices import DeviceUnavailableError, pick_device
+
+    try:
+        pick_device(device)
+    except DeviceUnavailableError as err:
+        print_error(str(err))
+        raise typer.Exit(1) from None
+
+
 @contextmanager
 def exit_on_error() -> Iterator[None]:
     """Turn the project's errors, and any OS error (a full disk, a permission), into one line on

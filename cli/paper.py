@@ -9,6 +9,7 @@ import typer
 
 from aigem.config import DeviceChoice
 from ngsim_cli.console import (
+    check_device,
     exit_on_error,
     exit_on_interrupt,
     print_error,
@@ -127,14 +128,9 @@ def paper(
         check_folder(out, paper_document(raw_paths, config), overwrite)
     left = lambda: _left(out)  # noqa: E731
     with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
-        from aigem.devices import DeviceUnavailableError, pick_device
-
-        try:
-            pick_device(device.value)
-        except DeviceUnavailableError as err:
-            print_error(str(err))
-            raise typer.Exit(1) from None
+        check_device(device.value)
         from aigem.cores import busy_cores_warning
+        from aigem.devices import DeviceUnavailableError
         from aigem.epochs import NonFiniteLossError
         from aigem.paper import PaperCall, TimeLimitError, run_paper
         from ngsim_graphs.budget import available_cores
