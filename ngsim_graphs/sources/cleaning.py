@@ -37,12 +37,15 @@ DESCRIPTIONS: dict[DropReason, str] = {
 }
 
 
+def descriptions(own: Mapping[str, str] | None = None) -> dict[str, str]:
+    """What the rows dropped for each reason were, as a report says it, by reason value: the
+    shared DropReasons and `own`, a source's own reasons (value -> description)."""
+    return {**{reason.value: text for reason, text in DESCRIPTIONS.items()}, **(own or {})}
+
+
 def describe(reason: str, own: Mapping[str, str] | None = None) -> str:
-    """What the rows dropped for `reason` (a DropReason value or one of `own`, a source's own
-    reasons: value -> description) were, as a report says it."""
-    if own and reason in own:
-        return own[reason]
-    return DESCRIPTIONS[DropReason(reason)]
+    """`descriptions(own)` of one reason."""
+    return descriptions(own)[reason]
 
 
 def empty_column_checks(columns: dict[str, str]) -> list[pl.Expr]:

@@ -15,7 +15,7 @@ import importlib
 from pathlib import Path
 
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.sources.cleaning import DESCRIPTIONS
+from ngsim_graphs.sources.cleaning import descriptions
 from ngsim_graphs.sources.contract import Source
 from ngsim_graphs.sources.inputs import files_in
 
@@ -52,9 +52,8 @@ def label(dataset: str) -> str:
 def drop_descriptions(dataset: str) -> dict[str, str]:
     """What the rows dropped for each reason of `dataset`'s builds were, by reason value: the
     shared reasons and its source's own (none for a dataset not registered here)."""
-    shared = {reason.value: text for reason, text in DESCRIPTIONS.items()}
     source = SOURCES.get(dataset)
-    return {**shared, **(source.drop_reasons if source else {})}
+    return descriptions(source.drop_reasons if source else None)
 
 
 def check_locations(locations: tuple[str, ...]) -> None:
