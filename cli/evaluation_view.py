@@ -125,10 +125,10 @@ def print_evaluation(result: Evaluation) -> None:
 def _intervals_line(intervals: SampleIntervals) -> str:
     """What the second lines of the table of all actors are."""
     return (
-        f"Under each number: its 95 % interval (percentile bootstrap, "
+        f"Under each number: its 95 % interval (percentile bootstrap: "
         f"{counted(intervals.resamples, 'resample')} of the {counted(intervals.samples, 'sample')}"
-        f", whole; seed {intervals.seed}); {DIFFERENCE} on the same resamples. --json gives the "
-        "bounds."
+        f", each sample's actors drawn together; seed {intervals.seed}); {DIFFERENCE} on the "
+        "same resamples. --json gives the bounds."
     )
 
 

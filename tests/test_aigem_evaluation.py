@@ -457,8 +457,9 @@ def test_a_groups_intervals_come_from_the_models_its_numbers_come_from(
     assert cells[difference + 1][3] in (f"±{above:.2f}", f"+{above:.2f}/-{below:.2f}")
     assert cells[difference + 1][0] == "" and cells[difference + 1][-1] == ""
     assert (
-        f"Under each number: its 95 % interval (percentile bootstrap, 1,000 resamples of the "
-        f"{document['samples']} samples" in " ".join(shown.stdout.split())
+        f"Under each number: its 95 % interval (percentile bootstrap: 1,000 resamples of the "
+        f"{document['samples']} samples, each sample's actors drawn together; seed 0)"
+        in " ".join(shown.stdout.split())
     )
 
 
