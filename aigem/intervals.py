@@ -103,6 +103,7 @@ class Paired:
     difference: Interval
 
     def as_dict(self) -> dict[str, dict[str, float | None]]:
+        """The three intervals as --json writes them, by kind."""
         return {
             "model": self.model.as_dict(),
             "constant_velocity": self.constant_velocity.as_dict(),
