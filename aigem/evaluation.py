@@ -11,7 +11,9 @@ velocity computed once), each model getting the numbers `evaluate` gives its run
 reported as the paper does: RMSE at h s from the model trained for h s (in general: from the
 shortest-horizon model that predicts that far), ADE and FDE from the longest-horizon model;
 constant velocity likewise, so that each number of the baseline is on the same targets as the
-model's beside it.
+model's beside it. Each number over all actors carries its 95 % bootstrap interval, and so does
+its difference to constant velocity (aigem.intervals: whole samples resampled, the same
+resamples for both), each taken from the member its number comes from.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import torch
 from aigem.course import course_of, training_record
 from aigem.data import GraphDataset, run_scaler
 from aigem.devices import pick_device
+from aigem.intervals import RESAMPLES, SampleIntervals, bootstrap_intervals
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
 from aigem.records import BEST, Group, group_of_member, read_group
@@ -133,18 +136,30 @@ def _not_finite(run: LoadedRun, dataset: GraphDataset, where: str, who: str = "m
 
 
 def _evaluation(
-    run: LoadedRun, dataset: GraphDataset, scores: Scores, training: dict[str, Any]
+    run: LoadedRun,
+    dataset: GraphDataset,
+    scores: Scores,
+    training: dict[str, Any],
+    resamples: int,
 ) -> ModelEvaluation:
     """A member's evaluation from its scores on `dataset`; `training`: what its records say of
-    its training (aigem.course.training_record)."""
+    its training (aigem.course.training_record); with `resamples` > 0, the bootstrap's
+    intervals of its metrics over all actors around its rows' numbers."""
     config = dataset.config
+    model = summarize_errors(scores.model, config.time_step_s)
+    baseline = summarize_errors(scores.constant_velocity, config.time_step_s)
+    intervals = None
+    if resamples:
+        by_sample = scores.model_by_sample, scores.constant_velocity_by_sample
+        drawn = bootstrap_intervals(*by_sample, config.time_step_s, resamples)
+        intervals = drawn.at(model["all"], baseline["all"])
     return ModelEvaluation(
         split=dataset.split.value,
         horizon_steps=run.steps(dataset),
         samples=len(dataset),
         parameters=count_parameters(run.model),
-        model=summarize_errors(scores.model, config.time_step_s),
-        constant_velocity=summarize_errors(scores.constant_velocity, config.time_step_s),
+        model=model,
+        constant_velocity=baseline,
         build_dir=str(run.build_dir),
         same_build=run.same_build,
         synthetic=synthetic_build(dataset.build.manifest),
@@ -156,6 +171,7 @@ def _evaluation(
             "constant_velocity": _step_lists(scores.constant_velocity),
         },
         training=training,
+        intervals=intervals,
         final=scores.final,
     )
 
@@ -194,6 +210,7 @@ def evaluate(
     progress: Callable[[int, int], None] | None = None,
     other_build: bool = False,
     resident: bool | None = None,
+    resamples: int = RESAMPLES,
 ) -> Evaluation:
     """Score the best model of each member of the run and the constant-velocity baseline on
     `split` of `build_dir` (None: the run's own build), in one pass over the split
@@ -202,7 +219,10 @@ def evaluate(
     (protocol_rows). Another build than the run's is refused unless `other_build`; inputs are
     always scaled with the run's scaler, the one the models were trained with. The members must
     share a model config, a scaler and a build. `resident` (None: on CUDA): the split scored on
-    the device in static batches (aigem.scoring)."""
+    the device in static batches (aigem.scoring). `resamples`: of the bootstrap's 95 % intervals
+    of the metrics over all actors (aigem.intervals, seed SEED); 0: none."""
+    if resamples < 0:
+        raise ValueError(f"{resamples} resamples: the bootstrap takes 0 (no intervals) or more")
     run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
     group = read_group(run_dir)
     device = pick_device(device_choice)
@@ -224,7 +244,9 @@ def evaluate(
     courses = {run.run_dir.name: course_of(run.run_dir) for run in runs}
     owner = group_of_member(run_dir)  # a member evaluated alone is continued by its run's command
     members = {  # each member's training as `evaluate` of the member says it
-        name: _evaluation(run, dataset, score, training_record({name: courses[name]}, owner))
+        name: _evaluation(
+            run, dataset, score, training_record({name: courses[name]}, owner), resamples
+        )
         for (name, run), score in zip(zip(courses, runs, strict=True), scores, strict=True)
     }
     return _combined(group, members, training_record(courses, owner))
@@ -237,6 +259,10 @@ def _combined(
     the run's records say of their `training`."""
     model, baseline, sources = protocol_rows(members)
     longest = members[sources["ade_m"]]
+    drawn = {name: member.intervals for name, member in members.items()}
+    intervals = None
+    if all(member is not None for member in drawn.values()):
+        intervals = SampleIntervals.combined(drawn, sources)  # type: ignore[arg-type]
     return Evaluation(
         split=longest.split,
         horizons_s=group.horizons_s,
@@ -252,4 +278,5 @@ def _combined(
         protocol=longest.protocol,
         protocol_description=longest.protocol_description,
         training=training,
+        intervals=intervals,
     )

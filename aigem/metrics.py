@@ -13,7 +13,8 @@ predictions: A targets, K future steps of the build's time step. Each is a ratio
 sums (`ade_of_sums_m`, `mean_error_of_sums_m`, `rmse_of_sums_m`) of `displacement_errors_m`;
 ErrorTotals adds up those same errors batch by batch, per region, and METRICS takes each metric
 from its sums with the same ratios, so a split scored in batches gets the numbers of the
-functions over the whole split (to float rounding).
+functions over the whole split (to float rounding). SampleTotals keeps the same sums per sample
+(all regions), for the bootstrap intervals of aigem.intervals.
 
 METRICS lists what `aigem evaluate` reports, each with its label and unit: a new metric is an
 entry there (and, if it needs sums of its own, their accumulation in ErrorTotals); its rows,
@@ -49,11 +50,14 @@ def displacement_errors_m(
     return np.where(mask, np.sqrt(((predicted_m - truth_m) ** 2).sum(axis=-1)), 0.0)
 
 
-def ade_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> float:
-    """ADE in metres from (K,) per-step sums of displacement errors (metres) and (K,) counts of
-    valid targets: every valid (target, step) weighs alike. NaN where none is valid."""
-    total = count.sum()
-    return float(error_m.sum() / total) if total else float("nan")
+def ade_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> float | np.ndarray:
+    """ADE in metres from (..., K) per-step sums of displacement errors (metres) and counts of
+    valid targets of the same shape: every valid (target, step) weighs alike. A float for (K,)
+    sums, else (...); NaN where none is valid."""
+    total = count.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ade = np.where(total > 0, error_m.sum(axis=-1) / total, np.nan)
+    return float(ade) if ade.ndim == 0 else ade
 
 
 def mean_error_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -143,7 +147,35 @@ class ErrorTotals:
         return error
 
 
-Value = Callable[[ErrorTotals, int, int], float | int | None]
+@dataclass
+class SampleTotals:
+    """Sums per sample and future step of displacement_errors_m over the sample's targets (all
+    regions): errors (m), squared errors (m^2) and valid counts, (S, K) each, row i the split's
+    sample i. What aigem.intervals resamples: the targets of one sample share a scene, so a
+    bootstrap draws whole samples."""
+
+    samples: int
+    steps: int
+    error_m: np.ndarray = field(init=False)
+    squared_m2: np.ndarray = field(init=False)
+    count: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        shape = (self.samples, self.steps)
+        self.error_m, self.squared_m2 = np.zeros(shape), np.zeros(shape)
+        self.count = np.zeros(shape, dtype=np.int32)  # targets a sample: far below 2^31
+
+    def add(self, error_m: np.ndarray, mask: np.ndarray, sample: np.ndarray) -> None:
+        """Add (A, K) displacement errors (metres, 0 where masked, as ErrorTotals.add returns
+        them) with their (A, K) bool mask and (A,) each target's sample id."""
+        np.add.at(self.error_m, sample, error_m)
+        np.add.at(self.squared_m2, sample, error_m**2)  # squared as ErrorTotals squares them
+        np.add.at(self.count, sample, mask)
+
+
+# A metric from sums (..., K) of errors (m), squared errors (m^2) and counts at step index k:
+# (...) values, NaN where nothing counts.
+OfSums = Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray | float]
 
 
 @dataclass(frozen=True)
@@ -151,39 +183,52 @@ class Metric:
     """A number per region that `aigem evaluate` reports. `key` names it in summarize_errors'
     rows and in --json; a key with "{s}" stands for one number per whole second s of the horizon.
     `label` heads its column in the printed table ("{s}" likewise); `unit` is "m" (or another
-    unit) for a column, "" for a count, which gets none. `value(totals, region, k)` computes it
-    from the totals of REGIONS[region] at future step index k: second s's step for a per-second
-    metric, else the last predicted step."""
+    unit) for a column, "" for a count, which gets none. `of_sums(error_m, squared_m2, count, k)`
+    computes it from sums of any leading shape (..., K) at future step index k (second s's step
+    for a per-second metric, else the last predicted step): a region's totals for evaluate's
+    rows (`value`), a block of bootstrap resamples for aigem.intervals, by one function."""
 
     key: str
     label: str
     unit: str
-    value: Value
+    of_sums: OfSums
 
     @property
     def per_second(self) -> bool:
         return "{s}" in self.key
 
-
-def _number(value: float) -> float | None:
-    """A metric's value as evaluate reports it: None where nothing counts (NaN)."""
-    return None if np.isnan(value) else float(value)
-
-
-def _ade_m(totals: ErrorTotals, region: int, k: int) -> float | None:
-    return _number(ade_of_sums_m(totals.error_m[region], totals.count[region]))
-
-
-def _mean_error_m(totals: ErrorTotals, region: int, k: int) -> float | None:
-    return _number(mean_error_of_sums_m(totals.error_m[region], totals.count[region])[k])
+    def value(self, totals: ErrorTotals, region: int, k: int) -> float | int | None:
+        """The metric of REGIONS[region]'s totals at step index k as evaluate reports it: a
+        count as an int, metres as a float, None where nothing counts."""
+        rows = totals.error_m[region], totals.squared_m2[region], totals.count[region]
+        number = np.asarray(self.of_sums(*rows, k))
+        if np.issubdtype(number.dtype, np.integer):
+            return int(number)
+        return None if np.isnan(number) else float(number)
 
 
-def _rmse_m(totals: ErrorTotals, region: int, k: int) -> float | None:
-    return _number(rmse_of_sums_m(totals.squared_m2[region], totals.count[region])[k])
+def _ade_m(
+    error_m: np.ndarray, squared_m2: np.ndarray, count: np.ndarray, k: int
+) -> np.ndarray | float:
+    return ade_of_sums_m(error_m, count)
 
 
-def _count(totals: ErrorTotals, region: int, k: int) -> int:
-    return int(totals.count[region, k])
+def _mean_error_m(
+    error_m: np.ndarray, squared_m2: np.ndarray, count: np.ndarray, k: int
+) -> np.ndarray | float:
+    return mean_error_of_sums_m(error_m, count)[..., k]
+
+
+def _rmse_m(
+    error_m: np.ndarray, squared_m2: np.ndarray, count: np.ndarray, k: int
+) -> np.ndarray | float:
+    return rmse_of_sums_m(squared_m2, count)[..., k]
+
+
+def _count(
+    error_m: np.ndarray, squared_m2: np.ndarray, count: np.ndarray, k: int
+) -> np.ndarray | float:
+    return count[..., k]
 
 
 # What evaluate reports, in the order of its rows, its --json and its table's columns.
@@ -195,20 +240,26 @@ METRICS: tuple[Metric, ...] = (
 )
 
 
+def metric_steps(steps: int, time_step_s: float) -> list[tuple[str, Metric, int]]:
+    """(key, metric, k) of each number evaluate reports over `steps` future steps of
+    `time_step_s`, in its rows' order: the whole horizon's metrics (k: the last step index),
+    then each whole second s's (k: its step index, 5s - 1 on the 0.2 s grid)."""
+    steps_per_s = round(1.0 / time_step_s)
+    keyed = [(m.key, m, steps - 1) for m in METRICS if not m.per_second]
+    for second in range(1, steps // steps_per_s + 1):
+        k = second * steps_per_s - 1
+        keyed += [(m.key.format(s=second), m, k) for m in METRICS if m.per_second]
+    return keyed
+
+
 def summarize_errors(totals: ErrorTotals, time_step_s: float) -> dict[str, dict[str, float | None]]:
     """Each metric of METRICS per region, in metres (None where nothing counts): the whole
     horizon's first, then each whole second's (rmse_1s_m, n_1s, rmse_2s_m, ...)."""
-    steps_per_s = round(1.0 / time_step_s)
-    last = totals.steps - 1
-    result: dict[str, dict[str, float | None]] = {}
-    for region_index, region in enumerate(REGIONS):
-        row = {m.key: m.value(totals, region_index, last) for m in METRICS if not m.per_second}
-        for second in range(1, totals.steps // steps_per_s + 1):
-            k = second * steps_per_s - 1
-            for metric in (m for m in METRICS if m.per_second):
-                row[metric.key.format(s=second)] = metric.value(totals, region_index, k)
-        result[region] = row
-    return result
+    keyed = metric_steps(totals.steps, time_step_s)
+    return {
+        region: {key: metric.value(totals, index, k) for key, metric, k in keyed}
+        for index, region in enumerate(REGIONS)
+    }
 
 
 def table_columns(seconds: int) -> list[tuple[str, str]]:

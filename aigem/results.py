@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from aigem.metrics import ErrorTotals
+from aigem.intervals import SampleIntervals
+from aigem.metrics import ErrorTotals, SampleTotals
 
 # The paper's Table 1 (NGSIM US-101 + I-80, metres), every row as published, in its order; for
 # comparison only. None: not reported.
@@ -103,11 +104,14 @@ class FinalErrors:
 
 @dataclass(frozen=True)
 class Scores:
-    """What `score_targets` accumulates over a split (metres)."""
+    """What `score_targets` accumulates over a split (metres): per region, the final errors,
+    and per sample (all regions; what the bootstrap resamples)."""
 
     model: ErrorTotals
     constant_velocity: ErrorTotals
     final: FinalErrors
+    model_by_sample: SampleTotals
+    constant_velocity_by_sample: SampleTotals
 
 
 @dataclass(frozen=True)
@@ -132,6 +136,9 @@ class ModelEvaluation:
     # what the run's records say of its training (aigem.course.training_record): "trained 1 of 3
     # epochs", finished or not, how to continue
     training: dict[str, Any] | None = None
+    # the bootstrap's 95 % intervals of the metrics over all actors (aigem.intervals); None
+    # where evaluate was asked for none (--bootstrap 0)
+    intervals: SampleIntervals | None = None
     final: FinalErrors | None = field(default=None, repr=False, compare=False)  # not in --json
 
 
@@ -159,6 +166,9 @@ class Evaluation:
     protocol: str  # the build's protocol (BuildConfig.protocol): which samples were scored
     protocol_description: str  # describe_protocol of the build
     training: dict[str, Any] | None = None  # of every member (aigem.course.training_record)
+    # the 95 % intervals of the metrics over all actors, each from the member its row comes
+    # from (aigem.intervals.SampleIntervals.combined); None with --bootstrap 0
+    intervals: SampleIntervals | None = None
 
     @property
     def longest(self) -> ModelEvaluation:
@@ -184,5 +194,9 @@ def as_dict(result: Evaluation) -> dict[str, Any]:
 
 
 def _public(result: Evaluation | ModelEvaluation) -> dict[str, Any]:
-    """The fields of --json: all but the per-target final errors (arrays, for pictures)."""
-    return {key: value for key, value in result.__dict__.items() if key != "final"}
+    """The fields of --json: all but the per-target final errors (arrays, for pictures); the
+    intervals as SampleIntervals.as_dict writes them."""
+    document = {key: value for key, value in result.__dict__.items() if key != "final"}
+    if result.intervals is not None:
+        document["intervals"] = result.intervals.as_dict()
+    return document

@@ -29,7 +29,7 @@ from aigem.cores import default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.devices import to_device
 from aigem.ensemble import stack
-from aigem.metrics import ErrorTotals
+from aigem.metrics import ErrorTotals, SampleTotals
 from aigem.model import AiGem
 from aigem.resident import ResidentSplit, fits, load_split
 from aigem.results import FinalErrors, Scores
@@ -76,14 +76,16 @@ def batch_targets(
 
 
 class ScoreSums:
-    """What `Scores` sums over a split for a model of `steps` future steps, batch by batch. The
-    batch's targets may reach further: a model and constant velocity are scored over their first
+    """What `Scores` sums over a split of `samples` samples for a model of `steps` future steps,
+    batch by batch: per region and, for the bootstrap's intervals, per sample. The batch's
+    targets may reach further: a model and constant velocity are scored over their first
     `steps` steps only, as if they had been computed for `steps` (constant velocity's positions
     at a step do not depend on how many steps follow)."""
 
-    def __init__(self, steps: int) -> None:
+    def __init__(self, steps: int, samples: int) -> None:
         self.steps = steps
         self.model, self.constant_velocity = ErrorTotals(steps), ErrorTotals(steps)
+        self.by_sample = SampleTotals(samples, steps), SampleTotals(samples, steps)
         self._finals: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def add(self, predicted: np.ndarray, targets: BatchTargets) -> None:
@@ -92,6 +94,8 @@ class ScoreSums:
         truth, mask, cv = targets.truth[:, :k], targets.mask[:, :k], targets.cv[:, :k]
         model_m = self.model.add(predicted[:, :k], truth, mask, targets.present_y_m)  # (A, K)
         cv_m = self.constant_velocity.add(cv, truth, mask, targets.present_y_m)
+        for by_sample, error_m in zip(self.by_sample, (model_m, cv_m), strict=True):
+            by_sample.add(error_m, mask, targets.sample)
         last = mask[:, -1]
         self._finals.append(
             (targets.sample[last], model_m[last, -1].astype(float), cv_m[last, -1].astype(float))
@@ -100,7 +104,7 @@ class ScoreSums:
     def scores(self) -> Scores:
         finals = self._finals or [(np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]  # no batch
         final = FinalErrors(*(np.concatenate(part) for part in zip(*finals, strict=True)))
-        return Scores(self.model, self.constant_velocity, final)
+        return Scores(self.model, self.constant_velocity, final, *self.by_sample)
 
 
 def _loader(dataset: GraphDataset, layers: int, batch_size: int) -> DataLoader:
@@ -146,7 +150,7 @@ def score_members(
     ensemble = stack(models, steps)
     ensemble.eval()
     loader = _loader(dataset, models[0].config.layers, batch_size)
-    sums = [ScoreSums(k) for k in steps]
+    sums = [ScoreSums(k, len(dataset)) for k in steps]
     with torch.no_grad():
         for index, batch in enumerate(loader):
             scaled = ensemble(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
@@ -208,7 +212,7 @@ def _score_resident(
     order = np.arange(len(dataset))
     batches = engine.epoch_batches(split, order, RESIDENT_BATCH, base, dataset.batch_order, device)
     predict = engine.Predictions(ensemble, split, dataset.scaler, device)
-    sums = [ScoreSums(k) for k in steps]
+    sums = [ScoreSums(k, len(dataset)) for k in steps]
     for index in range(len(batches)):
         first = index * RESIDENT_BATCH
         ids = dataset.batch_order(order[first : first + RESIDENT_BATCH])

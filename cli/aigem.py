@@ -355,6 +355,16 @@ def evaluate(
             "worst, median and best scenes.",
         ),
     ] = None,
+    bootstrap: Annotated[
+        int,
+        typer.Option(
+            "--bootstrap",
+            metavar="N",
+            min=0,
+            help="Resamples of the split's samples for the 95 % intervals of the numbers over all "
+            "actors and of their difference to constant velocity (seed 0); 0: no intervals.",
+        ),
+    ] = 1000,
 ) -> None:
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity. A
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
@@ -378,7 +388,13 @@ def evaluate(
         scored = lambda done, total: progress(f"evaluating the {split.value} split", done, total)
         try:
             result = run_evaluate(
-                run, data, split.value, device.value, progress=scored, other_build=other_build
+                run,
+                data,
+                split.value,
+                device.value,
+                progress=scored,
+                other_build=other_build,
+                resamples=bootstrap,
             )
         except DeviceUnavailableError as err:  # the project's own errors: exit_on_error
             raise _fail(str(err)) from None

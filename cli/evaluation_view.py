@@ -1,20 +1,32 @@
 """How `aigem evaluate` prints its result: a table per region whose columns are the metrics that
-aigem.metrics reports (METRICS), the targets counted, the protocol, and the paper's table."""
+aigem.metrics reports (METRICS), the table of all actors with each number's 95 % interval on a
+second line and AiGem's difference to constant velocity, the targets counted, the protocol, and
+the paper's table."""
 
 from __future__ import annotations
 
 from rich.table import Table
 
 from aigem.course import training_line, training_words
+from aigem.intervals import Interval, SampleIntervals
 from aigem.metrics import REGIONS, table_columns
 from aigem.results import Evaluation, paper_rows
 from ngsim_cli.console import counted, print_table, print_warning, stdout
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
+DIFFERENCE = "AiGem - constant velocity"  # the row of the paired differences
 
-def metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
+
+def metrics_table(
+    title: str,
+    rows: dict[str, dict],
+    seconds: int,
+    intervals: dict[str, dict[str, Interval]] | None = None,
+) -> Table:
     """One row per model of `rows` (name -> metric key -> value, metres; "params_k"), a column
-    per metric of aigem.metrics over `seconds` whole seconds; "-" where a row has no value."""
+    per metric of aigem.metrics over `seconds` whole seconds; "-" where a row has no value.
+    `intervals` (row name -> metric key -> Interval): a second, dim line under a row's value
+    with its interval (interval_words)."""
     columns = table_columns(seconds)
     table = Table(title=title)
     table.add_column("model", justify="left")
@@ -23,9 +35,44 @@ def metrics_table(title: str, rows: dict[str, dict], seconds: int) -> Table:
     table.add_column("params", justify="right")
     fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
     for name, row in rows.items():
-        values = (fmt(row.get(key)) for key, _ in columns)
+        bounds = (intervals or {}).get(name, {})
+        values = [fmt(row.get(key)) for key, _ in columns]
+        if bounds:
+            values = [
+                value + (f"\n[dim]{interval_words(bounds[key])}[/dim]" if key in bounds else "")
+                for value, (key, _) in zip(values, columns, strict=True)
+            ]
         table.add_row(name, *values, str(row.get("params_k", "")))
     return table
+
+
+def interval_words(interval: Interval) -> str:
+    """An interval as its bounds' distances from its value, to the table's 2 decimals: "±0.04"
+    where they are alike, "+0.05/-0.03" where not, "0.10 to 0.30" where the value lies outside
+    (a percentile interval need not hold it); "" where it has no bounds."""
+    if not interval.known:
+        return ""
+    if not interval.low <= interval.value <= interval.high:
+        return f"{interval.low:.2f} to {interval.high:.2f}"
+    above, below = f"{interval.high - interval.value:.2f}", f"{interval.value - interval.low:.2f}"
+    return f"±{above}" if above == below else f"+{above}/-{below}"
+
+
+def _rows(
+    model: dict, baseline: dict, intervals: SampleIntervals | None
+) -> tuple[dict[str, dict], dict[str, dict[str, Interval]] | None]:
+    """A region's rows (AiGem, constant velocity, and with `intervals` their difference) and
+    each row's intervals."""
+    rows = {"AiGem (this run)": model, "constant velocity": baseline}
+    if intervals is None:
+        return rows, None
+    paired = intervals.metrics
+    rows[DIFFERENCE] = {key: p.difference.value for key, p in paired.items()}
+    return rows, {
+        "AiGem (this run)": {key: p.model for key, p in paired.items()},
+        "constant velocity": {key: p.constant_velocity for key, p in paired.items()},
+        DIFFERENCE: {key: p.difference for key, p in paired.items()},
+    }
 
 
 def print_evaluation(result: Evaluation) -> None:
@@ -42,9 +89,12 @@ def print_evaluation(result: Evaluation) -> None:
         if region in empty:
             continue
         ours = {**result.model[region], "params_k": round(result.parameters / 1000, 1)}
-        rows = {"AiGem (this run)": ours, "constant velocity": result.constant_velocity[region]}
+        shown = result.intervals if region == "all" else None  # intervals: all actors only
+        rows, intervals = _rows(ours, result.constant_velocity[region], shown)
         title = f"{result.split} split, {region} actors (metres); {trained}"
-        print_table(metrics_table(title, rows, seconds))
+        print_table(metrics_table(title, rows, seconds, intervals))
+        if shown is not None:
+            stdout.print(_intervals_line(shown), highlight=False, soft_wrap=True)
     if empty:
         stdout.print(f"No {' or '.join(empty)} actors among the targets: no table for them.")
     counts = ", ".join(f"{s} s: {result.model['all'][f'n_{s}s']:,}" for s in range(1, seconds + 1))
@@ -70,6 +120,16 @@ def print_evaluation(result: Evaluation) -> None:
         f"{training_line(result.training)}.", markup=False, highlight=False, soft_wrap=True
     )
     warn_unfinished(result)
+
+
+def _intervals_line(intervals: SampleIntervals) -> str:
+    """What the second lines of the table of all actors are."""
+    return (
+        f"Under each number: its 95 % interval (percentile bootstrap: "
+        f"{counted(intervals.resamples, 'resample')} of the {counted(intervals.samples, 'sample')}"
+        f", each sample's actors drawn together; seed {intervals.seed}); {DIFFERENCE} on the "
+        "same resamples. --json gives the bounds."
+    )
 
 
 def warn_unfinished(result: Evaluation) -> None:

@@ -19,6 +19,7 @@ from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
 from aigem.evaluation import evaluate, scene_choice
+from aigem.intervals import RESAMPLES, SampleIntervals
 from aigem.results import as_dict
 from aigem.scoring import score_targets
 from aigem.training import fit
@@ -252,7 +253,10 @@ def test_a_multi_horizon_run_scores_each_model_as_evaluate_does_in_one_pass(
         joint = several.members[name]
         assert joint.horizon_steps == alone.horizon_steps == steps
         # everything but the model's own numbers exactly: constant velocity, counts, fields
-        assert replace(joint, model=alone.model, steps=alone.steps) == alone
+        assert replace(joint, model=alone.model, steps=alone.steps, intervals=None) == replace(
+            alone, intervals=None
+        )
+        _close_intervals(joint.intervals, alone.intervals)
         assert joint.steps["constant_velocity"] == alone.steps["constant_velocity"]
         _close_rows(joint.model, alone.model)
         _close_rows(joint.steps["model"], alone.steps["model"])
@@ -288,8 +292,23 @@ def test_the_split_on_the_device_scores_as_the_loader(tiny_horizons_run: Path) -
         _close_rows(joint.steps["model"], alone.steps["model"])
         assert joint.final.sample.tolist() == alone.final.sample.tolist()
         np.testing.assert_allclose(joint.final.model_m, alone.final.model_m, rtol=1e-5, atol=1e-4)
+    _close_intervals(static.intervals, loader.intervals)
     single = evaluate(tiny_horizons_run / "h2s", None, "test", "cpu", resident=True)
     _close_rows(single.model, loader.members["h2s"].model)
+
+
+def _close_intervals(ours: SampleIntervals | None, theirs: SampleIntervals | None) -> None:
+    """Two evaluations' intervals alike: the same resamples of the same samples, the bounds to
+    float32 rounding (the model's sums, in another order)."""
+    assert ours is not None and theirs is not None
+    assert replace(ours, metrics={}) == replace(theirs, metrics={})
+    assert ours.metrics.keys() == theirs.metrics.keys()
+    for key, paired in ours.metrics.items():
+        for kind in ("model", "constant_velocity", "difference"):
+            mine, other = getattr(paired, kind), getattr(theirs.metrics[key], kind)
+            assert (mine.value, mine.low, mine.high) == pytest.approx(
+                (other.value, other.low, other.high), rel=1e-5, abs=1e-5
+            ), (key, kind)
 
 
 def _edit_member(run: Path, edit: Callable[[dict], None]) -> None:
@@ -346,3 +365,112 @@ def test_a_multi_horizon_runs_non_finite_model_is_named(
         "batch 1 of "
     )
     assert err.endswith(") are not finite (NaN or infinite); no metrics\n")
+
+
+# ------------------------------------------------------------------------------------------------
+# The bootstrap's intervals (aigem.intervals): around the numbers, which they leave as they are
+
+
+def test_evaluate_gives_intervals_around_its_numbers(tiny_run: Path) -> None:
+    """--json's intervals: 1,000 resamples of the split's samples, seed 0, one per metric in
+    metres over all actors (not the counts), each holding the row's number as its value; the
+    difference is model - constant velocity. --bootstrap 0 gives none and the same rows."""
+    code, out, err = _evaluate(str(tiny_run))
+    assert code == 0, err
+    document = json.loads(out)
+    intervals = document["intervals"]
+    assert {key: intervals[key] for key in ("level", "resamples", "seed", "samples")} == {
+        "level": 0.95,
+        "resamples": 1000,
+        "seed": 0,
+        "samples": document["samples"],
+    }
+    assert list(intervals["metrics"]) == ["ade_m", "fde_m", "rmse_1s_m", "rmse_2s_m"]
+    for key, paired in intervals["metrics"].items():
+        ours, theirs = document["model"]["all"][key], document["constant_velocity"]["all"][key]
+        assert paired["model"]["value"] == ours and paired["constant_velocity"]["value"] == theirs
+        assert paired["difference"]["value"] == ours - theirs
+        for kind in ("model", "constant_velocity", "difference"):
+            interval = paired[kind]
+            assert interval["low"] < interval["value"] < interval["high"], (key, kind)
+    ((name, member),) = document["members"].items()
+    assert member["intervals"] == intervals  # a run of one model: its model's
+    code, out, err = _evaluate(str(tiny_run), "--bootstrap", "0")
+    assert code == 0, err
+    without = json.loads(out)
+    assert without["intervals"] is None and without["members"][name]["intervals"] is None
+    assert without["members"][name] == {**member, "intervals": None}  # the same numbers
+    assert without == {**document, "intervals": None, "members": without["members"]}
+
+
+def test_the_per_sample_sums_add_up_to_the_totals(trained_run: Path) -> None:
+    """What the bootstrap resamples, summed over the samples, is what the rows come from (to
+    float rounding; the counts exactly), and each sample counts its own targets."""
+    model, _ = runs.load_model(trained_run)
+    dataset = GraphDataset(runs.read_run_info(trained_run)["build_dir"], "test", 5)
+    scores = score_targets(model, dataset, 10, torch.device("cpu"), batch_size=5)
+    pairs = (
+        (scores.model_by_sample, scores.model),
+        (scores.constant_velocity_by_sample, scores.constant_velocity),
+    )
+    for by_sample, totals in pairs:
+        assert by_sample.error_m.shape == (len(dataset), 10)
+        np.testing.assert_allclose(by_sample.error_m.sum(axis=0), totals.error_m[0], rtol=1e-12)
+        np.testing.assert_allclose(
+            by_sample.squared_m2.sum(axis=0), totals.squared_m2[0], rtol=1e-12
+        )
+        assert by_sample.count.sum(axis=0).tolist() == totals.count[0].tolist()
+    graphs = dataset.build.graphs("test", np.arange(len(dataset)))
+    counted = np.zeros((len(dataset), 10), np.int64)  # each sample's targets valid at each step
+    np.add.at(counted, graphs.node_sample[graphs.target_node], graphs.target_mask[:, :10])
+    assert scores.model_by_sample.count.tolist() == counted.tolist()
+    assert (counted.sum(axis=1) > 0).sum() > 1  # more than one sample to resample
+
+
+def test_a_groups_intervals_come_from_the_models_its_numbers_come_from(
+    tiny_horizons_run: Path,
+) -> None:
+    """RMSE at 1 s and its interval from the 1 s model, the rest from the 2 s model; the table
+    of all actors shows each interval under its number and the difference's row."""
+    result = CliRunner(env={"COLUMNS": "200"}).invoke(
+        app, ["evaluate", str(tiny_horizons_run), "--device", "cpu", "--json"]
+    )
+    document = json.loads(result.stdout)
+    members = {name: m["intervals"]["metrics"] for name, m in document["members"].items()}
+    assert list(members["h1s"]) == ["ade_m", "fde_m", "rmse_1s_m"]
+    assert document["intervals"]["metrics"] == {
+        "ade_m": members["h2s"]["ade_m"],
+        "fde_m": members["h2s"]["fde_m"],
+        "rmse_1s_m": members["h1s"]["rmse_1s_m"],
+        "rmse_2s_m": members["h2s"]["rmse_2s_m"],
+    }
+    shown = CliRunner(env={"COLUMNS": "200"}).invoke(
+        app, ["evaluate", str(tiny_horizons_run), "--device", "cpu"]
+    )
+    assert shown.exit_code == 0, shown.output
+    lines = shown.stdout.splitlines()
+    cells = [[c.strip() for c in line.split("│")[1:-1]] for line in lines if line.startswith("│")]
+    difference = next(i for i, row in enumerate(cells) if row[0] == "AiGem - constant velocity")
+    rmse_1s = document["intervals"]["metrics"]["rmse_1s_m"]["difference"]
+    assert cells[difference][3] == f"{rmse_1s['value']:.2f}"
+    above, below = rmse_1s["high"] - rmse_1s["value"], rmse_1s["value"] - rmse_1s["low"]
+    assert cells[difference + 1][3] in (f"±{above:.2f}", f"+{above:.2f}/-{below:.2f}")
+    assert cells[difference + 1][0] == "" and cells[difference + 1][-1] == ""
+    assert (
+        f"Under each number: its 95 % interval (percentile bootstrap: 1,000 resamples of the "
+        f"{document['samples']} samples, each sample's actors drawn together; seed 0)"
+        in " ".join(shown.stdout.split())
+    )
+
+
+def test_bootstrap_option(tiny_run: Path) -> None:
+    """--bootstrap's default is the library's; a negative number is refused naming it."""
+    import inspect
+
+    from ngsim_cli.aigem import evaluate as command
+
+    assert inspect.signature(command).parameters["bootstrap"].default == RESAMPLES
+    code, out, err = _evaluate(str(tiny_run), "--bootstrap", "-1")
+    assert code == 2 and out == "" and "--bootstrap" in err
+    with pytest.raises(ValueError, match="-1 resamples"):
+        evaluate(tiny_run, device_choice="cpu", resamples=-1)

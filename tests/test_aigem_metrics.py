@@ -224,24 +224,31 @@ def test_the_rows_and_the_tables_columns_follow_metrics() -> None:
 def test_a_new_metric_reaches_evaluates_json_and_table(
     tiny_run: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A metric added to METRICS alone (here a toy: 1.5 m plus its region's index) is in every
-    row of --json and a column of the printed table; the paper's rows have none ("-")."""
-    toy = Metric("toy_m", "TOY", "m", lambda totals, region, k: 1.5 + region)
+    """A metric added to METRICS alone (here a toy: 1.5 m plus the count at its step, the last
+    one: 1.5 plus n_2s in each region) is in every row of --json, its intervals and a column of
+    the printed table; the paper's rows have none ("-")."""
+    toy = Metric("toy_m", "TOY", "m", lambda error_m, squared_m2, count, k: 1.5 + count[..., k])
     monkeypatch.setattr(metrics, "METRICS", (*metrics.METRICS, toy))
     args = ["evaluate", str(tiny_run), "--device", "cpu"]
     document = json.loads(CliRunner().invoke(app, [*args, "--json"]).stdout)
-    assert [document["model"][r]["toy_m"] for r in metrics.REGIONS] == [1.5, 2.5, 3.5, 4.5]
-    assert document["constant_velocity"]["all"]["toy_m"] == 1.5
+    rows = document["model"]
+    assert [rows[r]["toy_m"] for r in metrics.REGIONS] == [1.5 + rows[r]["n_2s"] for r in rows]
+    assert [rows[r]["n_2s"] > 0 for r in metrics.REGIONS] == [True, False, True, False]
+    assert document["constant_velocity"]["all"]["toy_m"] == rows["all"]["toy_m"]
+    assert document["intervals"]["metrics"]["toy_m"]["difference"]["value"] == 0.0
     assert "toy_m" not in document["paper"]["AiGem (paper)"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     headers = [_cells(line, "┃") for line in result.stdout.splitlines() if "┃ model" in line]
     assert [header[-2:] for header in headers] == [["TOY", "params"]] * 3  # all, mid; the paper
-    rows = [_cells(line, "│") for line in result.stdout.splitlines() if line.startswith("│")]
-    toy = {(row[0], index): row[-2] for index, row in enumerate(rows)}
+    lines = [_cells(line, "│") for line in result.stdout.splitlines() if line.startswith("│")]
+    named = [row for row in lines if row[0]]  # not the intervals' second lines
+    toy = {(row[0], index): row[-2] for index, row in enumerate(named)}
     # the tables of all actors and of mid actors (this run has no front or rear targets)
-    assert [toy[("AiGem (this run)", 0)], toy[("AiGem (this run)", 2)]] == ["1.50", "3.50"]
-    assert toy[("constant velocity", 1)] == "1.50"
+    n = rows["all"]["n_2s"]
+    assert [toy[("AiGem (this run)", 0)], toy[("AiGem (this run)", 3)]] == [f"{1.5 + n:.2f}"] * 2
+    assert toy[("constant velocity", 1)] == f"{1.5 + n:.2f}"
+    assert toy[("AiGem - constant velocity", 2)] == "0.00"
     assert {toy[(name, index)] for name, index in toy if "(paper)" in name} == {"-"}
 
 
