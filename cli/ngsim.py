@@ -149,7 +149,9 @@ def build(
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
     locations: Annotated[
         str,
-        typer.Option(help=f"Comma-separated locations to keep. {locations_in_words()}."),
+        typer.Option(
+            help=f"Comma-separated locations to keep, by dataset. {locations_in_words()}."
+        ),
     ] = "us-101,i-80",
     stride_s: Annotated[
         float,
