@@ -26,7 +26,9 @@ scaling, the build directory) reads that table alone and knows no dataset. The c
 - **Order**: rows sorted by (track_id, time_s), columns and dtypes exactly TRACKS_SCHEMA.
 
 A source also reports what it read and dropped (`FileReport` per input file, `RecordingReport`
-per recording): every dropped row is counted per reason, with the first line it was on.
+per recording): every dropped row is counted per reason, with the first line it was on. What a
+raw row may hold is the source's to say (`Source.limits`, `sources.limits.PhysicalLimits`), not
+the build config's; a build may be given others, and its manifest records those applied.
 
 A recording is cleaned a part of its vehicles at a time (`TracksPart`: all the rows of each of
 its vehicles), so a source's cleaning may look at one vehicle's rows only at a time; what it
