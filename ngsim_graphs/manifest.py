@@ -2,12 +2,12 @@
 
 The manifest says what a build is: the config that shaped it, the physical limits its source
 held the raw rows to (`limits`, beside the config; an older manifest's config held them), what
-each input file and each
-recording gave and lost, the samples per split, the scaler fitted on train, the warnings, and
-(once written) the record of every other file of the build with the manifest's own checksum
-(`integrity`). On disk it is JSON with sorted keys; `to_dict` gives exactly that JSON's value (as
-`json.loads` would), so a manifest read and written again is the same bytes. Counts are numbers
-of rows, tracks, edges or samples; positions are metres, as everywhere in a build.
+each input file and each recording gave and lost, the samples per split, the scaler fitted on
+train, the warnings, and (once written) the record of every other file of the build with the
+manifest's own checksum (`integrity`). On disk it is JSON with sorted keys; `to_dict` gives
+exactly that JSON's value (as `json.loads` would), so a manifest read and written again is the
+same bytes (an older one's limits move beside its config). Counts are numbers of rows, tracks,
+edges or samples; positions are metres, as everywhere in a build.
 """
 
 from __future__ import annotations
