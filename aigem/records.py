@@ -14,8 +14,9 @@ aigem's) is one error line.
 
 A build's identity is its config hash and the sha256 of its manifest's bytes: builds are
 byte-deterministic, so an identical rebuild keeps it. Run info (run.json, and every checkpoint's
-`info`) records it beside the build's path, config and fitted scaler, and the model and train
-configs.
+`info`) records it beside the build's path, settings (`build_config`: its config and its
+source's physical limits, what the config hash covers) and fitted scaler, and the model and
+train configs. Where a build's config hash is not the run's, the settings that differ are named.
 """
 
 from __future__ import annotations
@@ -75,29 +76,57 @@ def build_identity(build_dir: Path) -> tuple[Manifest, dict[str, str]]:
 
 
 def run_info(build_dir: Path, model_config: ModelConfig, train: TrainConfig) -> dict[str, Any]:
-    """What run.json and every checkpoint record: INFO_KEYS (the build's config and scaler as
-    its manifest.json holds them)."""
+    """What run.json and every checkpoint record: INFO_KEYS (the build's scaler as its
+    manifest.json holds it, its settings as its config hash covers them: `Manifest.settings`)."""
     manifest, identity = build_identity(build_dir)
     return {
         "build_dir": str(Path(build_dir).resolve()),
         **identity,
-        "build_config": json_form(manifest.config.to_dict()),
+        "build_config": manifest.settings(),
         "scaler": json_form(manifest.scaler.to_dict()),
         "model": model_config.to_dict(),
         "train": train.to_dict(),
     }
 
 
-def identity_difference(run: dict[str, Any], identity: dict[str, str]) -> str | None:
-    """How a build's identity differs from the one a run recorded (None: the same build)."""
+def identity_difference(
+    run: dict[str, Any], identity: dict[str, str], settings: dict[str, Any] | None = None
+) -> str | None:
+    """How a build's identity differs from the one a run recorded (None: the same build); with
+    the build's `settings` (`Manifest.settings`), the settings that differ from the run's
+    build_config, named ("d_min_m 25.0 -> 50.0", "limits.max_frame_id 72000 -> 180000")."""
     if identity["build_config_hash"] != run["build_config_hash"]:
+        changed = settings_changed(run["build_config"], settings) if settings else []
         return (
             f"its config hash {identity['build_config_hash'][:12]} is not the run's "
-            f"{run['build_config_hash'][:12]}"
+            f"{run['build_config_hash'][:12]}" + (f": {'; '.join(changed)}" if changed else "")
         )
     if identity["build_manifest_sha256"] != run["build_manifest_sha256"]:
         return "same config, but its manifest.json differs from the run's build (other inputs, or edited)"
     return None
+
+
+def _flat(settings: Any) -> dict[str, Any]:
+    """A build's settings one per key, nested ones (the limits) as "limits.max_speed_mps"."""
+    if not isinstance(settings, dict):
+        return {}
+    return {
+        f"{name}.{key}" if isinstance(value, dict) else name: inner
+        for name, value in settings.items()
+        for key, inner in (value.items() if isinstance(value, dict) else [(name, value)])
+    }
+
+
+def settings_changed(before: Any, now: dict[str, Any]) -> list[str]:
+    """The settings of `now` that differ from `before` (a run's build_config), in words: a
+    highD build made before its limits were its own recorded max_frame_id in NGSIM's 10 Hz
+    frames, so that built again it reads "limits.max_frame_id 72000 -> 180000"."""
+    old, new = _flat(before), _flat(now)
+    return [
+        f"{name} {old.get(name)} -> {new.get(name)}"
+        for name in sorted(old.keys() | new.keys())
+        if old.get(name) != new.get(name)
+    ]
 
 
 # ------------------------------------------------------------------------------------------------

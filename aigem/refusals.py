@@ -127,7 +127,7 @@ def check_resume(
     """Refuse to resume a run that recorded `saved` (its run info) as `info` (run_info of this
     call): another build, another model config, another setting of RESUME_FIXED, or other epochs
     under a decaying schedule."""
-    why = identity_difference(saved, info)
+    why = identity_difference(saved, info, info["build_config"])
     if why:
         raise NgsimInputError(
             build_dir,
@@ -261,8 +261,8 @@ def check_build(
     """Whether `build_dir` is the run's own build. Refuses another build unless `other_build`,
     and, even then, one whose time step or history and future lengths do not fit the run's model
     and horizon."""
-    _, identity = build_identity(build_dir)
-    why = identity_difference(info, identity)
+    manifest, identity = build_identity(build_dir)
+    why = identity_difference(info, identity, manifest.settings())
     if why and not other_build:
         raise NgsimInputError(
             build_dir,

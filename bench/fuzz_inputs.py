@@ -46,13 +46,12 @@ from fuzz_mutations import (
 )
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import manifest_path, read_manifest
+from ngsim_graphs.sources.ngsim.plausibility import LIMITS  # the inputs are NGSIM's
 
 SUCCESS, CLEAN_ERROR, OTHER = "success", "clean error", "other"
 TIMEOUT_S = 60.0
-LIMITS = PhysicalLimits()
 
 
 # ---- running and classifying ---------------------------------------------------------------------

@@ -115,9 +115,10 @@ def _dropped_lines(result: BuildResult) -> list[str]:
         )
     jumps = result.manifest.counts.position_jumps
     if jumps:
-        limit = result.manifest.config.limits.max_jump_m
+        limits = result.manifest.limits  # those its source applied
+        limit = "the jump limit" if limits is None else f"{limits.max_jump_m:g} m"
         noun = "jump" if jumps == 1 else "jumps"
         lines.append(
-            f"split tracks at {jumps:,} position {noun} of more than {limit:g} m between frames."
+            f"split tracks at {jumps:,} position {noun} of more than {limit} between frames."
         )
     return lines

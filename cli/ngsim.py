@@ -37,12 +37,12 @@ from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import check_config, run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
-from ngsim_graphs.sources.registry import dataset_names
+from ngsim_graphs.sources.registry import dataset_names, labels_in_words, locations_in_words
 from ngsim_graphs.statistics import MAX_DEGREE_GRAPHS, build_statistics
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build, synthetic_inputs_of
 
 app = typer.Typer(
-    help="NGSIM US-101 / I-80 trajectories to spatial-temporal graph datasets.",
+    help=f"Vehicle trajectories ({labels_in_words()}) to spatial-temporal graph datasets.",
     no_args_is_help=True,
     add_completion=False,
     **HELP_SETTINGS,
@@ -127,19 +127,30 @@ def _build_config(**options):  # type: ignore[no-untyped-def]
     return config
 
 
-@app.command(short_help="Build the graph dataset from NGSIM or highD files.")
+# `build`'s help names the registered datasets (`sources.registry`): a new source needs no edit.
+BUILD_HELP = f"""Read raw {labels_in_words()} files and write the graph dataset.
+
+RAW_PATH...: {labels_in_words()} files, or folders to search for them (one or more).
+
+Rows beyond their dataset's physical limits (speed, acceleration, position, frame range, a jump
+between frames) or that fail one of its own checks are dropped one by one, counted per reason
+and reported; more than 1 % of a file's rows is an error (so is any, with --strict). A build that
+ends with no samples is an error that says why.
+"""
+
+
+@app.command(short_help=f"Build the graph dataset from {labels_in_words()} files.", help=BUILD_HELP)
 def build(
     raw_paths: Annotated[
         list[Path],
-        # Said in the docstring: typer would show its type as "<list[Path]>".
+        # Said in BUILD_HELP: typer would show its type as "<list[Path]>".
         typer.Argument(metavar="RAW_PATH", hidden=True),
     ],
     out: Annotated[Path, typer.Option("--out", help="Output directory of the build.")],
     locations: Annotated[
         str,
         typer.Option(
-            help="Comma-separated locations to keep: us-101, i-80, lankershim, peachtree (NGSIM); "
-            "highd-N by locationId (highD keeps every location when none of its own is named)."
+            help=f"Comma-separated locations to keep, by dataset. {locations_in_words()}."
         ),
     ] = "us-101,i-80",
     stride_s: Annotated[
@@ -201,7 +212,7 @@ def build(
         DatasetChoice,
         typer.Option(
             help="Which dataset the inputs are: auto tells it from the files' content; inputs "
-            "holding both NGSIM and highD files need ngsim or highd."
+            f"holding the files of several need one: {', '.join(dataset_names())}."
         ),
     ] = DatasetChoice.AUTO,
     protocol: Annotated[
@@ -231,15 +242,7 @@ def build(
         ),
     ] = None,
 ) -> None:
-    """Read raw NGSIM files (any of the three formats) or highD recordings and write the graph dataset.
-
-    RAW_PATH...: NGSIM or highD files, or folders to search for them (one or more).
-
-    Rows beyond the physical limits (speed, acceleration, position, frame range, a jump between
-    frames) or whose Global_Time disagrees with their recording are dropped one by one, counted
-    per reason and reported; more than 1 % of a file's rows is an error (so is any, with
-    --strict). A build that ends with no samples is an error that says why.
-    """
+    """Build the graph dataset: its help is BUILD_HELP."""
     config = _config_or_exit(
         _build_config,
         locations=tuple(name.strip().lower() for name in locations.split(",") if name.strip()),

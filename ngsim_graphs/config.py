@@ -5,60 +5,17 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+from ngsim_graphs.integrity import LIMITS_KEY
 from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
 
 DEFAULT_EDGE_TYPES = ("spatial", "temporal")  # the paper's: what a build of no edge_types has
 
 
 @dataclass(frozen=True)
-class PhysicalLimits:
-    """What a raw row may hold; rows beyond a limit are dropped and counted per reason
-    (docs/trust.md).
-
-    Generous for highway traffic: real NGSIM rows stay far inside them (v_Acc within 3.4 m/s²,
-    speeds under 40 m/s, study areas under 1 km long), so a row beyond one is a damaged value, a
-    swapped column or another unit, never a driver.
-    """
-
-    max_speed_mps: float = 70.0  # 252 km/h; below 0 is beyond it too
-    max_abs_accel_mps2: float = 15.0  # 1.5 g
-    max_abs_position_m: float = 5_000.0  # |Local_X| and |Local_Y|
-    max_jump_m: float = 10.0  # between two consecutive 0.1 s frames of a vehicle: 100 m/s
-    max_outlier_frames: int = 10  # a displaced burst this long or shorter is dropped (1 s)
-    max_frame_id: int = 72_000  # two hours at 10 Hz; the first frame is 0
-    # Vehicle sizes above 0 and up to these (NGSIM's longest trucks are about 23 m, 2.6 m wide).
-    max_vehicle_length_m: float = 40.0
-    max_vehicle_width_m: float = 5.0
-    # Lane numbers from 0 up to this: NGSIM's arterials number turn bays and intersections too.
-    max_lane_id: int = 255
-    # v_Vel must agree with the motion the positions show over 1 s: the median difference may be
-    # at most this plus this share of the median speed, or the speed column is not a speed in
-    # feet per second (swapped with v_Acc, another unit).
-    max_speed_mismatch_mps: float = 1.0
-    max_speed_mismatch_share: float = 0.25
-    # A file (or recording) with a larger share of stray or implausible rows is not used at all:
-    # so many bad rows say the file is damaged or its columns are not what they claim to be.
-    max_dropped_share: float = 0.01
-
-    def __post_init__(self) -> None:
-        positive = (
-            self.max_speed_mps,
-            self.max_abs_accel_mps2,
-            self.max_abs_position_m,
-            self.max_jump_m,
-            self.max_vehicle_length_m,
-            self.max_vehicle_width_m,
-        )
-        whole = (self.max_frame_id, self.max_outlier_frames, self.max_lane_id)
-        if min(positive) <= 0 or min(whole) < 1:
-            raise ValueError("physical limits must be positive")
-        if not 0 <= self.max_dropped_share <= 1:
-            raise ValueError("max_dropped_share must be in [0, 1]")
-
-
-@dataclass(frozen=True)
 class BuildConfig:
-    """Everything that shapes a build's output. The CLI builds it; the library only reads it."""
+    """The grid and the graph rules of a build. The CLI builds it; the library only reads it.
+
+    What a raw row may hold is its source's (`Source.limits`), not the build config's."""
 
     locations: tuple[str, ...] = ("us-101", "i-80")
     time_step_s: float = 0.2  # the resampled grid: a whole number of each source's frames
@@ -73,7 +30,6 @@ class BuildConfig:
     split_fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)  # train, validation, test
     seed: int = 0  # for the random split
     ego_is_target: bool = False  # whether the ego is predicted too (the aigem protocol)
-    limits: PhysicalLimits = PhysicalLimits()
     # aigem: ego windows at a stride; cs-lstm: CS-LSTM's kept rows, the ego the only target
     protocol: Protocol = Protocol.AIGEM
     # The graphs' edge types, by name (`edges.EDGE_TYPES` knows them: `edges.types_of`); the
@@ -152,8 +108,14 @@ class BuildConfig:
     def from_dict(cls, values: dict[str, Any]) -> BuildConfig:
         """The config of a manifest (JSON lists back to tuples, the split back to its enum); a
         manifest without edge_types (the paper's, or a build older than the setting) has the
-        default's."""
+        default's.
+
+        The adapter for older builds: their manifests (and the runs made of them) recorded the
+        source's physical limits inside the config (under LIMITS_KEY, where a manifest now
+        records them beside it); they are set aside here, and `Manifest.from_dict` reads them as
+        the limits that build applied."""
         known = {f.name for f in fields(cls)}
+        values = {k: v for k, v in values.items() if k != LIMITS_KEY}
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"unknown build settings {unknown}: made by a newer ngsim-graphs?")
@@ -165,8 +127,6 @@ class BuildConfig:
             typed["split"] = SplitMode(typed["split"])
         if "protocol" in typed:
             typed["protocol"] = Protocol(typed["protocol"])
-        if "limits" in typed:
-            typed["limits"] = PhysicalLimits(**typed["limits"])
         return cls(**typed)
 
 

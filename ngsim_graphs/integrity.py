@@ -1,7 +1,8 @@
 """What a build's manifest records of itself and of its files, and the checks against it.
 
 The manifest lists every file of the build with its size, sha256 and sampled digest, and every
-array's dtype and shape; it carries the sha256 of its own content, and the sha256 of its config.
+array's dtype and shape; it carries the sha256 of its own content, and the sha256 of its settings
+(its config and the physical limits its source applied: `build_settings`).
 Opening a build checks, every time: the manifest's own checksum and config hash, that every file
 is there with its recorded size, that every array's header gives its recorded dtype and shape,
 and every file's sampled digest (the whole file up to WHOLE_FILE_BYTES; beyond, SAMPLE_BLOCKS
@@ -38,6 +39,9 @@ WHOLE_FILE_BYTES = 8 << 20
 SAMPLE_BLOCKS = 256
 SAMPLE_BLOCK_BYTES = 4096
 SAFE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]*$")  # a file or folder name of a build
+# The physical limits a build's source applied: beside its config in the manifest (an older
+# manifest holds them inside its config, under the same key)
+LIMITS_KEY = "limits"
 
 
 def file_sha256(path: Path) -> str:
@@ -75,6 +79,21 @@ def canonical_sha256(value: Any) -> str:
     """sha256 of a JSON value written canonically (sorted keys, no spaces)."""
     text = json.dumps(value, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def build_settings(config: Any, limits: Any = None) -> Any:
+    """What a build's config hash covers, as JSON: its config with, under LIMITS_KEY, the
+    physical limits its source applied. A manifest records the limits beside its config; an
+    older one inside it (`limits` None), so that its settings, and their hash, are its config:
+    a build of NGSIM's default limits hashes as it did when its config held them."""
+    if limits is None or not isinstance(config, dict):
+        return config
+    return {**config, LIMITS_KEY: limits}
+
+
+def settings_sha256(config: Any, limits: Any = None) -> str:
+    """A build's config hash: sha256 of `build_settings` written canonically."""
+    return canonical_sha256(build_settings(config, limits))
 
 
 def npy_header(path: Path) -> tuple[str, tuple[int, ...]]:
@@ -135,7 +154,8 @@ def check_manifest(manifest: dict[str, Any], path: Path) -> None:
             "its content does not match its checksum: edited or damaged (a build is never edited "
             "by hand; build it again)",
         )
-    if manifest.get("config_hash") != canonical_sha256(manifest.get("config")):
+    settings = settings_sha256(manifest.get("config"), manifest.get(LIMITS_KEY))
+    if manifest.get("config_hash") != settings:
         raise NgsimInputError(path, "its config does not match its config_hash: edited or damaged")
 
 

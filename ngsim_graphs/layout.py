@@ -66,9 +66,10 @@ def manifest_path(root: Path) -> Path:
     return root / MANIFEST_NAME
 
 
-def config_hash(config: dict[str, Any]) -> str:
-    """sha256 of the config as canonical JSON: two builds with equal hashes were made alike."""
-    return integrity.canonical_sha256(config)
+def config_hash(config: dict[str, Any], limits: dict[str, Any] | None = None) -> str:
+    """sha256 of the config and the limits its source applied (`integrity.build_settings`) as
+    canonical JSON: two builds with equal hashes were made alike."""
+    return integrity.settings_sha256(config, limits)
 
 
 def write_manifest(root: Path, manifest: Manifest) -> Manifest:

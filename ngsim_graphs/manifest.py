@@ -1,11 +1,13 @@
 """A build's manifest as typed values, and their JSON form. `layout` alone reads and writes it.
 
-The manifest says what a build is: the config that shaped it, what each input file and each
-recording gave and lost, the samples per split, the scaler fitted on train, the warnings, and
-(once written) the record of every other file of the build with the manifest's own checksum
-(`integrity`). On disk it is JSON with sorted keys; `to_dict` gives exactly that JSON's value (as
-`json.loads` would), so a manifest read and written again is the same bytes. Counts are numbers
-of rows, tracks, edges or samples; positions are metres, as everywhere in a build.
+The manifest says what a build is: the config that shaped it, the physical limits its source
+held the raw rows to (`limits`, beside the config; an older manifest's config held them), what
+each input file and each recording gave and lost, the samples per split, the scaler fitted on
+train, the warnings, and (once written) the record of every other file of the build with the
+manifest's own checksum (`integrity`). On disk it is JSON with sorted keys; `to_dict` gives
+exactly that JSON's value (as `json.loads` would), so a manifest read and written again is the
+same bytes (an older one's limits move beside its config). Counts are numbers of rows, tracks,
+edges or samples; positions are metres, as everywhere in a build.
 """
 
 from __future__ import annotations
@@ -18,9 +20,10 @@ from typing import Any
 
 from ngsim_graphs import edges
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.integrity import CHECKSUM_KEY, FILES_KEY
+from ngsim_graphs.integrity import CHECKSUM_KEY, FILES_KEY, LIMITS_KEY, build_settings
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.sources.contract import FileReport, RecordingReport
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 DEFAULT_DATASET = "ngsim"  # what a manifest written before the "dataset" key was built from
 
@@ -195,6 +198,14 @@ def _synthetic_from_json(values: Mapping[str, Any]) -> dict[str, Any]:
     return {"synthetic": synthetic, "synthetic_inputs": tuple(inputs)}
 
 
+def _recorded_limits(values: Mapping[str, Any]) -> PhysicalLimits | None:
+    """The physical limits a manifest records: beside its config; in an older manifest, inside
+    it (`BuildConfig.from_dict` sets them aside there). An older highD build's max_frame_id
+    counts NGSIM's 10 Hz frames (72,000: two hours), as the limits were then NGSIM's."""
+    recorded = values.get(LIMITS_KEY, values["config"].get(LIMITS_KEY))
+    return None if recorded is None else PhysicalLimits.from_dict(recorded)
+
+
 @dataclass(frozen=True)
 class Manifest:
     """What a build is (see the module docstring). `files` and `manifest_sha256` are set when
@@ -204,7 +215,7 @@ class Manifest:
     software: Mapping[str, str]  # package -> version that made the build
     dataset: str  # the data source (`sources.registry`): "ngsim", ...
     config: BuildConfig
-    config_hash: str  # sha256 of the config's canonical JSON
+    config_hash: str  # sha256 of `settings()`' canonical JSON
     inputs: tuple[FileReport, ...]
     recordings: tuple[RecordingEntry, ...]  # in recording index order
     splits: Mapping[str, int]  # split -> samples
@@ -217,6 +228,9 @@ class Manifest:
     # None in a manifest made before it was recorded. synthetic_inputs: the inputs that were.
     synthetic: bool | None = None
     synthetic_inputs: tuple[str, ...] = ()
+    # The physical limits its source applied to the raw rows (the source's own, or others the
+    # build was given); None only in a manifest that records none.
+    limits: PhysicalLimits | None = None
     files: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)  # integrity's records
     manifest_sha256: str | None = None  # None until written
 
@@ -224,8 +238,16 @@ class Manifest:
         """The manifest as written: with the file records and its checksum."""
         return replace(self, files=files, manifest_sha256=manifest_sha256)
 
+    def settings(self) -> dict[str, Any]:
+        """What its config hash covers, as JSON: its config, and under "limits" the limits its
+        source applied (`integrity.build_settings`); what a run records as its build's config."""
+        limits = None if self.limits is None else self.limits.to_dict()
+        return json_form(build_settings(self.config.to_dict(), limits))
+
     def to_dict(self) -> dict[str, Any]:
-        """The JSON value of the manifest, keys sorted (what `json.loads` gives of the file)."""
+        """The JSON value of the manifest, keys sorted (what `json.loads` gives of the file). An
+        older manifest, read, is written in today's form: its limits beside its config, which
+        keeps its config hash."""
         body: dict[str, Any] = {
             "format_version": self.format_version,
             "software": dict(self.software),
@@ -240,6 +262,8 @@ class Manifest:
             "counts": self.counts.to_dict(),
             "skipped_files": list(self.skipped_files),
         }
+        if self.limits is not None:
+            body[LIMITS_KEY] = self.limits.to_dict()
         if self.synthetic is not None:
             body |= {"synthetic": self.synthetic, "synthetic_inputs": list(self.synthetic_inputs)}
         if self.manifest_sha256 is not None:
@@ -271,6 +295,7 @@ class Manifest:
             counts=BuildCounts.from_dict(values["counts"]),
             skipped_files=tuple(values.get("skipped_files", ())),
             **_synthetic_from_json(values),
+            limits=_recorded_limits(values),
             files=dict(files),
             manifest_sha256=values.get(CHECKSUM_KEY),
         )

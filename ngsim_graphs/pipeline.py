@@ -53,6 +53,7 @@ from ngsim_graphs.protocols import PROTOCOLS, check_protocol_locations
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.sources import archives
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport, Source
+from ngsim_graphs.sources.limits import PhysicalLimits
 from ngsim_graphs.sources.registry import check_locations, choose_source
 from ngsim_graphs.splits import SPLIT_ORDER
 from ngsim_graphs.synth.marker import MARKER_NAME, mixed_inputs_warning, synthetic_inputs
@@ -70,7 +71,6 @@ SHARED_FIELDS = (
     "time_step_s",
     "heading_smoothing_s",
     "min_heading_speed_mps",
-    "limits",
 )
 
 
@@ -145,14 +145,15 @@ def _check_grid(source: Source, config: BuildConfig, paths: list[Path]) -> None:
 def _read_inputs(
     raw_paths: list[Path],
     dataset: str | None,
+    limits: PhysicalLimits | None,
     config: BuildConfig,
     root: Path,
     progress: BuildProgress,
     strict: bool,
     workers: Workers,
 ) -> Inputs:
-    """The inputs' archives unpacked into `root`'s staging, the source chosen and its files read
-    and staged. An unpacked file is reported
+    """The inputs' archives unpacked into `root`'s staging, the source chosen (holding `limits`
+    where given) and its files read and staged. An unpacked file is reported
     (and its errors name it) by its archive's name and its own inside it."""
     unpacked = archives.unpack_inputs(
         raw_paths,
@@ -165,6 +166,7 @@ def _read_inputs(
         source, found, skipped = choose_source(
             archives.searched_paths(raw_paths, unpacked), dataset
         )
+        source = source if limits is None else replace(source, limits=limits)
         # The build depends on the set of inputs, not on the order they were named in: the
         # files are read in the order of their names (resolved paths, or an archive's and its
         # member's), which numbers them and lists them in the manifest.
@@ -316,7 +318,15 @@ def _finish(
     mixed = mixed_inputs_warning([file.path for file in file_reports], synthetic)
     warnings = summary.warnings(outputs, config, file_reports) + ([mixed] if mixed else [])
     manifest = summary.manifest(
-        source.name, config, file_reports, outputs, samples, scaler, warnings, skipped
+        source.name,
+        config,
+        source.limits,
+        file_reports,
+        outputs,
+        samples,
+        scaler,
+        warnings,
+        skipped,
     )
     manifest = replace(
         manifest, synthetic=len(synthetic) == len(file_reports), synthetic_inputs=synthetic
@@ -383,10 +393,11 @@ def run_builds(
     strict: bool = False,
     dataset: str | None = None,
     jobs: int | None = 1,
+    limits: PhysicalLimits | None = None,
 ) -> list[BuildResult]:
     """Read every raw file under `raw_paths` and write a finished build into each target's
     out_dir, as `run_build` does for each (byte for byte its output), reading and cleaning the
-    inputs once for all.
+    inputs once for all, with one source's physical limits (`limits`, or the source's own).
 
     The targets' configs may differ only in the fields that reading and cleaning do not read
     (not in SHARED_FIELDS: d_min_m, d_sense_m, the windows, the split, the protocol); their
@@ -418,7 +429,7 @@ def run_builds(
         scratch = roots[0]
         with workers:  # the workers end here: what they held goes back before the writing
             inputs = _read_inputs(
-                raw_paths, dataset, shared, scratch, report_progress, strict, workers
+                raw_paths, dataset, limits, shared, scratch, report_progress, strict, workers
             )
             source, file_reports, staged = inputs.source, inputs.reports, inputs.staged
             for _, config in targets:
@@ -452,11 +463,14 @@ def run_build(
     strict: bool = False,
     dataset: str | None = None,
     jobs: int | None = 1,
+    limits: PhysicalLimits | None = None,
 ) -> BuildResult:
     """Read every raw file under `raw_paths` (a file or folder, or several) and write the
     finished build into `out_dir`.
 
     `dataset` names the source (`sources.registry.SOURCES`); by default it is told from the files.
+    `limits` replaces the source's physical limits (`Source.limits`: what a raw row may hold,
+    its frame ids in its own frames); the manifest records those applied.
     The same files named in any order, or found in folders, give the same build, byte for byte.
     `jobs` > 1 reads the files and builds the recordings in that many worker processes (None:
     one per core this process may use); the output is the same for any number. The processes
@@ -471,6 +485,6 @@ def run_build(
     disk); `out_dir` is then left as it was.
     """
     [result] = run_builds(
-        raw_paths, [(out_dir, config)], overwrite, progress, strict, dataset, jobs
+        raw_paths, [(out_dir, config)], overwrite, progress, strict, dataset, jobs, limits
     )
     return result

@@ -94,7 +94,7 @@ class BuildStatistics:
     """Everything `ngsim-graphs stats` reports. Keys of the dicts are split or recording names."""
 
     build_dir: str
-    config: dict[str, Any]
+    config: dict[str, Any]  # its config and, under "limits", its source's: what config_hash covers
     config_hash: str
     counts: dict[str, int]  # the manifest's input and cleaning counts
     recordings: list[dict[str, Any]]  # name, location, period, vehicles, tracks, grid_rows, samples
@@ -202,7 +202,7 @@ def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
     manifest, config = build.manifest, build.config
     return BuildStatistics(
         build_dir=str(build.root),
-        config=json_form(config.to_dict()),  # as the manifest holds them: keys sorted
+        config=manifest.settings(),  # keys sorted, as the manifest holds them
         config_hash=manifest.config_hash,
         counts=json_form(manifest.counts.to_dict()),
         recordings=_recordings_table(build),

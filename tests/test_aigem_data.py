@@ -117,6 +117,7 @@ def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_pa
         GraphDataset(copy, "train")
     # A newer ngsim-graphs' setting, in a manifest sealed as that version would seal it.
     config = {**manifest["config"], "new_rule": 1}
-    write_manifest_json(copy, {**manifest, "config": config, "config_hash": config_hash(config)})
+    hashed = config_hash(config, manifest["limits"])
+    write_manifest_json(copy, {**manifest, "config": config, "config_hash": hashed})
     with pytest.raises(NgsimInputError, match="unknown build settings"):
         GraphDataset(copy, "train")

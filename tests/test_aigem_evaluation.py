@@ -73,7 +73,8 @@ def test_another_build_needs_the_flag(trained_run: Path, tiny_build: Path, tmp_p
     ours = json.loads((tiny_build / "manifest.json").read_text())["config_hash"][:12]
     assert code == 1 and err == (
         f"error: {other}: not the build that run {trained_run} was trained on (its config hash "
-        f"{theirs} is not the run's {ours}); pass --other-build to evaluate on another build\n"
+        f"{theirs} is not the run's {ours}: d_min_m 6.0 -> 12.0); pass --other-build to evaluate "
+        "on another build\n"
     )
     code, out, err = _evaluate(str(trained_run), "--data", str(other), "--other-build")
     assert code == 0, err

@@ -52,6 +52,7 @@ from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.layout import write_manifest_json
 from ngsim_graphs.lock import output_lock
 from ngsim_graphs.synth.formats import write_synthetic
 
@@ -270,6 +271,23 @@ def test_a_build_is_reused_only_with_its_config_and_inputs(
     recording.write_bytes(text[:at] + b"2" + text[at + 1 :])
     stale = build_state(tiny_build, manifest.config, list_inputs([raw]))
     assert stale == f"was built from other inputs ({recording.name})"
+
+
+def test_a_build_made_before_the_limits_were_the_sources_is_reused(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """Its manifest held the limits in its config (that older form, made here of today's by
+    moving them back): the same config, limits and config hash, so the paper reuses it."""
+    older = Path(shutil.copytree(tiny_build, tmp_path / "older"))
+    values = json.loads((older / "manifest.json").read_text())
+    values["config"]["limits"] = values.pop("limits")
+    write_manifest_json(older, values)  # sealed anew, as the older code sealed it
+    manifest, today = open_build(older).manifest, open_build(tiny_build).manifest
+    assert (manifest.config_hash, manifest.config, manifest.limits) == (
+        today.config_hash, today.config, today.limits
+    )  # fmt: skip
+    (built_from,) = {Path(f.path).parent for f in manifest.inputs}
+    assert build_state(older, manifest.config, list_inputs([built_from])) == ""
 
 
 def test_a_moved_folder_holds_the_same_inputs_and_a_changed_file_others(

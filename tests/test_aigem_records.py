@@ -4,6 +4,7 @@ a newer aigem's setting refused in one line; baseline.json written and read back
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -11,12 +12,14 @@ import pytest
 from aigem.config import ModelConfig, TrainConfig
 from aigem.records import (
     BASELINE,
+    identity_difference,
     model_config,
     read_baseline,
     train_config,
     write_baseline,
 )
 from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.layout import config_hash, read_manifest
 
 
 def test_settings_a_run_lacks_take_their_defaults(tmp_path: Path) -> None:
@@ -75,3 +78,34 @@ def test_every_run_layout_reads_as_a_group(tiny_horizons_run: Path, tmp_path: Pa
     assert group_of_member(tiny_horizons_run / "h1s") == several
     with pytest.raises(NgsimInputError, match="not a run directory"):
         read_group(tmp_path)
+
+
+def test_a_build_of_another_config_hash_names_the_settings_that_differ() -> None:
+    """A run of a highD build made before the limits were the source's (its config held them,
+    max_frame_id in NGSIM's 10 Hz frames), and the same build made today: its hash changes, and
+    the refusal says why."""
+    older = read_manifest(Path(__file__).parent / "fixtures" / "build-0.1.0" / "highd")
+    run = {
+        "build_config_hash": older.config_hash,
+        "build_manifest_sha256": "a" * 64,
+        "build_config": older.settings(),  # what the run recorded: the config with its limits
+    }
+    limits = replace(older.limits, max_frame_id=180_000)  # highD's own, today
+    today = replace(
+        older, limits=limits, config_hash=config_hash(older.config.to_dict(), limits.to_dict())
+    )
+    identity = {"build_config_hash": today.config_hash, "build_manifest_sha256": "b" * 64}
+    assert identity_difference(run, identity, today.settings()) == (
+        f"its config hash {today.config_hash[:12]} is not the run's dcfa1c68089b: "
+        "limits.max_frame_id 72000 -> 180000"
+    )
+    hashes_only = f"its config hash {today.config_hash[:12]} is not the run's dcfa1c68089b"
+    assert identity_difference(run, identity) == hashes_only  # without the build's settings
+    other = replace(today, config=replace(older.config, d_min_m=25.0)).settings()
+    assert identity_difference(run, identity, other).endswith(
+        ": d_min_m 6.0 -> 25.0; limits.max_frame_id 72000 -> 180000"
+    )
+    same = {**identity, "build_config_hash": older.config_hash}
+    assert identity_difference(run, same, older.settings()) == (
+        "same config, but its manifest.json differs from the run's build (other inputs, or edited)"
+    )

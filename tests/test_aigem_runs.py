@@ -68,7 +68,9 @@ def test_a_run_records_its_builds_identity_and_scaler(trained_run: Path, tiny_bu
     assert info["build_dir"] == str(tiny_build.resolve())
     assert info["build_config_hash"] == manifest["config_hash"]
     assert info["build_manifest_sha256"] == hashlib.sha256(manifest_bytes).hexdigest()
-    assert info["scaler"] == manifest["scaler"] and info["build_config"] == manifest["config"]
+    assert info["scaler"] == manifest["scaler"]
+    # its settings: the config and the limits its source applied, what the config hash covers
+    assert info["build_config"] == {**manifest["config"], "limits": manifest["limits"]}
     digests = info.pop(records.DIGESTS)  # and the sha256 of each checkpoint, as it is
     assert digests == {
         name: [hashlib.sha256((trained_run / name).read_bytes()).hexdigest()]
@@ -547,6 +549,8 @@ def test_a_run_of_aigem_0_1_0_loads_and_evaluates(build_of_run_0_1_0: Path, tmp_
     )
     manifest = json.loads((build_of_run_0_1_0 / "manifest.json").read_text())
     assert info["build_config_hash"] == manifest["config_hash"]
+    # Its build's config held the limits; today's build records NGSIM's beside it, the same ones.
+    assert info["build_config"] == {**manifest["config"], "limits": manifest["limits"]}
     args = ["evaluate", str(run), "--data", str(build_of_run_0_1_0), "--other-build"]
     result = CliRunner().invoke(app, [*args, "--device", "cpu", "--json"])
     assert result.exit_code == 0, result.output

@@ -91,6 +91,6 @@ def test_build_help_wraps_at_the_terminal_width_not_a_narrow_column() -> None:
     lines = helps("ngsim-graphs", 100)["build"].splitlines()
     locations = next(i for i, line in enumerate(lines) if line.startswith("  --locations"))
     assert len(lines[locations]) > 90  # the help runs on to the right margin
-    assert "peachtree (NGSIM); highd-N by locationId" in " ".join(
+    assert "NGSIM: us-101, i-80, lankershim, peachtree; highD: highd-N" in " ".join(
         line.strip() for line in lines[locations : locations + 3]
     )

@@ -76,7 +76,7 @@ def test_build_format_names_every_manifest_key(tiny_build: Path) -> None:
         keys |= set(manifest[section])
     for section in ("inputs", "recordings"):
         keys |= {key for entry in manifest[section] for key in entry}
-    keys.add("max_dropped_share")  # of config.limits; the other limits are PhysicalLimits' own
+    keys.add("max_dropped_share")  # of limits; the other limits are PhysicalLimits' own
     assert keys - named == set()
 
 

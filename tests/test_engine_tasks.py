@@ -13,8 +13,10 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.engine import staging, tasks
 from ngsim_graphs.sources.contract import FileRows, Source
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 KEY = ("us-101", "0750am-0805am")
+LIMITS = PhysicalLimits(max_frame_id=1_000)  # the fake source's: what its reader is given
 OTHER = ("us-101", "0805am-0820am")
 
 
@@ -25,7 +27,7 @@ def source_of(vehicle_ids: list[int | None], recording: list[int | None]) -> Sou
         schema={s.VEHICLE_ID: pl.Int32, s.RECORDING_INDEX: pl.Int32},
     )
     read = FileRows(rows.lazy(), {KEY: 0, OTHER: 1}, report=None)  # the report is passed on as is
-    return Source("fake", lambda paths: (paths, []), lambda *_: read, None, None, 0.1)
+    return Source("fake", lambda paths: (paths, []), lambda *_: read, None, None, 0.1, LIMITS)
 
 
 def staged_ids(staged: dict[int, Path]) -> dict[int, list[int]]:
@@ -89,7 +91,8 @@ def test_a_source_scratch_folder_is_removed_after_staging_and_after_an_error(
     """The source is given a folder of its own per file, which is gone once the task ends."""
     seen = []
 
-    def read_file(path, config, file_index, strict, scratch):
+    def read_file(path, config, limits, file_index, strict, scratch):
+        assert limits is LIMITS  # the source's own, passed on by the task
         seen.append(scratch)
         scratch.mkdir(parents=True)
         (scratch / "parsed.parquet").write_bytes(b"x")
@@ -97,7 +100,7 @@ def test_a_source_scratch_folder_is_removed_after_staging_and_after_an_error(
             raise ValueError("a bad file")
         return FileRows(pl.LazyFrame({s.VEHICLE_ID: [3], s.RECORDING_INDEX: [0]}), {KEY: 0}, None)
 
-    source = Source("fake", lambda paths: (paths, []), read_file, None, None, 0.1)
+    source = Source("fake", lambda paths: (paths, []), read_file, None, None, 0.1, LIMITS)
     tasks.read_file(source, Path("f.txt"), BuildConfig(), 0, tmp_path, False)
     with pytest.raises(ValueError, match="a bad file"):
         tasks.read_file(source, Path("g.txt"), BuildConfig(), 1, tmp_path, False)

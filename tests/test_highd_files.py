@@ -20,7 +20,6 @@ from highd_fixtures import (
 )
 from test_cli_ngsim import assert_failed_cleanly, invoke
 
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import (
@@ -30,6 +29,7 @@ from ngsim_graphs.sources.highd.files import (
     read_tracks_meta,
     sniff_highd,
 )
+from ngsim_graphs.sources.highd.geometry import LIMITS
 from ngsim_graphs.sources.highd.schema import HighdFile
 
 
@@ -133,7 +133,7 @@ def test_empty_header_only_and_truncated_files_are_errors(tmp_path: Path) -> Non
 
 def test_recording_meta_gives_id_location_and_markings(tmp_path: Path) -> None:
     two_directions(tmp_path, number=7, location_id=3)
-    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv", PhysicalLimits())
+    meta = read_recording_meta(tmp_path / "07_recordingMeta.csv", LIMITS)
     assert (meta.recording_id, meta.location_id) == (7, 3)
     assert meta.upper_markings_m == (8.0, 11.5, 15.0) and meta.lower_markings_m == (
         18.0,
@@ -148,18 +148,18 @@ def test_recording_meta_must_be_25_hz_with_increasing_markings(tmp_path: Path) -
     with pytest.raises(
         NgsimInputError, match=r"line 2: frameRate 30: highD recordings run at 25 Hz"
     ):
-        read_recording_meta(tmp_path / "01_recordingMeta.csv", PhysicalLimits())
+        read_recording_meta(tmp_path / "01_recordingMeta.csv", LIMITS)
     path = tmp_path / "01_recordingMeta.csv"
     path.write_text(path.read_text().replace("30", "25").replace("8.0;11.5;15.0", "8.0;x;15.0"))
     with pytest.raises(
         NgsimInputError, match=r"line 2: column upperLaneMarkings: '8\.0;x;15\.0': 'x' is not a num"
     ):
-        read_recording_meta(path, PhysicalLimits())
+        read_recording_meta(path, LIMITS)
     path.write_text(path.read_text().replace("8.0;x;15.0", "8.0;15.0;11.5"))
     with pytest.raises(
         NgsimInputError, match=r"upperLaneMarkings: '8\.0;15\.0;11\.5' is not a list of increasing"
     ):
-        read_recording_meta(path, PhysicalLimits())
+        read_recording_meta(path, LIMITS)
 
 
 @pytest.mark.parametrize(

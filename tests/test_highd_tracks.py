@@ -28,6 +28,7 @@ from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.cleaning import DESCRIPTIONS
 from ngsim_graphs.sources.highd import schema as hs
+from ngsim_graphs.sources.highd.geometry import LIMITS
 from ngsim_graphs.sources.highd.tracks import build_tracks, read_file
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.registry import check_locations, choose_source
@@ -37,7 +38,7 @@ DEFAULT = BuildConfig()
 
 
 def tracks_of(tracks_file: Path, config: BuildConfig = DEFAULT) -> tuple[pl.DataFrame, object]:
-    read = read_file(tracks_file, config, 0, False)
+    read = read_file(tracks_file, config, LIMITS, 0, False)
     return build_tracks(read.recording_rows(KEY).collect(), KEY, config, 0)
 
 
@@ -125,15 +126,15 @@ def test_rows_beyond_the_limits_are_dropped_counted_and_reported(tmp_path: Path)
     rows[9][hs.HIGHD_X_VELOCITY] = 90.0  # line 11: beyond 70 m/s
     rows[19][hs.HIGHD_X] = ""  # line 21: an empty required field
     path = write_recording(tmp_path, rows, {1: ("Car", 2)})
-    report = read_file(path, BuildConfig(), 0, False).report
+    report = read_file(path, BuildConfig(), LIMITS, 0, False).report
     assert report.rows_dropped[DropReason.SPEED.value] == 1
     assert report.first_dropped_line == {DropReason.SPEED.value: 11}
     assert (report.rows_read, report.rows_missing_values, report.first_missing_line) == (200, 1, 21)
     with pytest.raises(NgsimInputError, match=r"01_tracks\.csv, line 11: .*--strict"):
-        read_file(path, BuildConfig(), 0, True)
+        read_file(path, BuildConfig(), LIMITS, 0, True)
     rows[29][hs.HIGHD_X_VELOCITY] = 90.0  # 2 of 199 rows: more than 1 %
     with pytest.raises(NgsimInputError, match=r"2 of 199 rows \(1\.0%\) are implausible"):
-        read_file(write_recording(tmp_path, rows, {1: ("Car", 2)}), BuildConfig(), 0, False)
+        read_file(write_recording(tmp_path, rows, {1: ("Car", 2)}), BuildConfig(), LIMITS, 0, False)
 
 
 def test_a_track_without_meta_row_and_a_grid_off_the_frames_are_errors(tmp_path: Path) -> None:
@@ -143,18 +144,22 @@ def test_a_track_without_meta_row_and_a_grid_off_the_frames_are_errors(tmp_path:
     with pytest.raises(
         NgsimInputError, match=r"line 5: track id 9 has no row in 01_tracksMeta\.csv"
     ):
-        read_file(path, BuildConfig(), 0, False)
+        read_file(path, BuildConfig(), LIMITS, 0, False)
     with pytest.raises(
         NgsimInputError, match=r"grid step of 0\.1 s is not a multiple of highD's frame period"
     ):
-        read_file(path, BuildConfig(time_step_s=0.1), 0, False)
+        read_file(path, BuildConfig(time_step_s=0.1), LIMITS, 0, False)
 
 
 def test_the_location_filter_names_highd_locations_or_keeps_them_all(tmp_path: Path) -> None:
     path = two_directions(tmp_path, location_id=2)
-    assert read_file(path, BuildConfig(), 0, False).recordings == {KEY: 0}  # default: us-101, i-80
-    assert read_file(path, BuildConfig(locations=("highd-2",)), 0, False).recordings == {KEY: 0}
-    other = read_file(path, BuildConfig(locations=("us-101", "highd-3")), 0, False)
+    assert read_file(path, BuildConfig(), LIMITS, 0, False).recordings == {
+        KEY: 0
+    }  # default: us-101, i-80
+    assert read_file(path, BuildConfig(locations=("highd-2",)), LIMITS, 0, False).recordings == {
+        KEY: 0
+    }
+    other = read_file(path, BuildConfig(locations=("us-101", "highd-3")), LIMITS, 0, False)
     assert (
         other.recordings == {}
         and other.report.rows_other_locations == other.report.rows_read == 600

@@ -6,10 +6,11 @@ import polars as pl
 from conftest import make_row, straight_track
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import BuildConfig, PhysicalLimits
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.plausibility import (
+    LIMITS,
     NgsimDrop,
     jump_rows,
     outlier_rows,
@@ -19,7 +20,6 @@ from ngsim_graphs.sources.ngsim.plausibility import (
 from ngsim_graphs.sources.ngsim.tracks import build_tracks
 
 FT = 0.3048
-LIMITS = PhysicalLimits()
 
 
 def reasons(rows: list[dict]) -> list[str | None]:

@@ -15,6 +15,7 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.sources.ngsim import files
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
+from ngsim_graphs.sources.ngsim.plausibility import LIMITS
 from ngsim_graphs.sources.ngsim.tracks import (
     build_tracks,
     read_file_recordings,
@@ -120,8 +121,8 @@ def test_a_recording_cleaned_a_part_of_its_vehicles_at_a_time_is_cleaned_alike()
     assert report.speed_rows_compared % 2 == 0 and report.first_outlier == (0, 10)
 
     by_vehicle = rows.partition_by(s.VEHICLE_ID, as_dict=True)
-    first = vehicle_tracks(pl.concat([by_vehicle[(2,)], by_vehicle[(1,)]]), KEY, config, 0)
-    second = vehicle_tracks(by_vehicle[(3,)], KEY, config, first.report.tracks)
+    first = vehicle_tracks(pl.concat([by_vehicle[(2,)], by_vehicle[(1,)]]), KEY, config, LIMITS, 0)
+    second = vehicle_tracks(by_vehicle[(3,)], KEY, config, LIMITS, first.report.tracks)
     assert (first.report.tracks, second.report.tracks) == (5, 1)
     assert joined_report([first, second], KEY, FEET_TO_M) == report
     assert_frame_equal(pl.concat([first.tracks, second.tracks]), whole)

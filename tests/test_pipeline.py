@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import polars as pl
@@ -31,7 +31,7 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.lock import lock_path, partial_path
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.sources.ngsim import schema as ns
-from ngsim_graphs.sources.ngsim.plausibility import DROP_REASONS
+from ngsim_graphs.sources.ngsim.plausibility import DROP_REASONS, LIMITS
 from ngsim_graphs.synth.formats import write_synthetic
 
 FT = 0.3048
@@ -99,7 +99,10 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
         50.0, 25.0, "vehicle",
     )  # fmt: skip
-    canonical = json.dumps(on_disk["config"], sort_keys=True, separators=(",", ":"))
+    # the limits its source applied, beside the config: NGSIM's; the hash covers both
+    assert on_disk["limits"] == asdict(LIMITS) and on_disk["limits"]["max_frame_id"] == 72_000
+    settings = {**on_disk["config"], "limits": on_disk["limits"]}
+    canonical = json.dumps(settings, sort_keys=True, separators=(",", ":"))
     assert on_disk["config_hash"] == hashlib.sha256(canonical.encode()).hexdigest()
 
     [source] = on_disk["inputs"]

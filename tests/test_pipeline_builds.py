@@ -8,14 +8,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import make_row, write_txt
 from highd_fixtures import two_directions
 from test_pipeline import hidden_siblings, snapshot
 
 from ngsim_graphs import layout, pipeline
-from ngsim_graphs.config import BuildConfig, PhysicalLimits, SynthConfig
+from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.pipeline import SHARED_FIELDS, run_build, run_builds
 from ngsim_graphs.schema import Protocol, SplitMode
+from ngsim_graphs.sources.ngsim.plausibility import LIMITS
 from ngsim_graphs.synth.formats import write_synthetic
 
 D_MIN_M = (0.0, 25.0, 50.0)
@@ -87,7 +89,6 @@ def _changed(name: str) -> Any:
         "time_step_s": 0.4,
         "heading_smoothing_s": 2.0,
         "min_heading_speed_mps": 1.0,
-        "limits": PhysicalLimits(max_jump_m=20.0),
     }[name]
 
 
@@ -101,6 +102,27 @@ def test_configs_differing_in_what_the_reading_reads_are_refused(tmp_path: Path,
         run_builds([tmp_path / "missing"], [(a, first), (b, second)])
     assert not isinstance(e.value, NgsimInputError)
     assert sorted(tmp_path.iterdir()) == []
+
+
+def test_builds_are_held_to_their_sources_limits_or_to_those_given(tmp_path: Path) -> None:
+    """Three vehicles in lanes 1..3 for 30 s; vehicle 2 from frame 150 on 40 ft (12.2 m)
+    further along: a jump that splits its track at NGSIM's 10 m, not at 20 m. The manifest
+    records the limits applied, and its config hash covers them."""
+    rows = [
+        make_row(v, f, 12.0 * v - 6.0, 3.0 * f + 40.0 * (v == 2 and f >= 150), lane_id=v)
+        for v in (1, 2, 3)
+        for f in range(300)
+    ]
+    path = write_txt(tmp_path / "a.txt", rows)
+    own = run_build([path], tmp_path / "own", BuildConfig())
+    wider = replace(LIMITS, max_jump_m=20.0)
+    [given] = run_builds([path], [(tmp_path / "given", BuildConfig())], limits=wider)
+    assert (own.manifest.limits, given.manifest.limits) == (LIMITS, wider)
+    assert [b.manifest.counts.position_jumps for b in (own, given)] == [1, 0]
+    assert [b.manifest.counts.tracks for b in (own, given)] == [4, 3]
+    assert layout.read_manifest(tmp_path / "given").limits == wider
+    assert own.manifest.config == given.manifest.config == BuildConfig()
+    assert own.manifest.config_hash != given.manifest.config_hash
 
 
 @pytest.mark.parametrize(
@@ -224,5 +246,5 @@ def test_reading_and_cleaning_read_only_the_shared_fields(
     monkeypatch.setattr(pipeline, "clean_recording", clean_recording)
     inputs = raw if dataset == "ngsim" else two_directions(tmp_path / "highd", number=1)
     run_build([inputs], tmp_path / "out", BuildConfig())
-    assert {"locations", "limits", "time_step_s", "heading_smoothing_s"} <= read
+    assert {"locations", "time_step_s", "heading_smoothing_s"} <= read
     assert read <= set(SHARED_FIELDS)

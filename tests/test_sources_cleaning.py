@@ -7,12 +7,12 @@ import polars as pl
 import pytest
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.cleaning import check_dropped, downsample_to_grid
+from ngsim_graphs.sources.limits import PhysicalLimits
 
-LIMITS = PhysicalLimits()
+LIMITS = PhysicalLimits(max_frame_id=72_000)
 
 
 def test_grid_keeps_even_frames_whatever_the_row_order() -> None:

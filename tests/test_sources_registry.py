@@ -51,6 +51,12 @@ def test_a_toy_source_registered_in_one_line_is_built(toy_registered: None, tmp_
     result = run_build([raw.parent], tmp_path / "build", config)
     manifest = result.manifest
     assert manifest.dataset == "toy"
+    # its own limits (90,000 of its 25 Hz frames), recorded beside the config that holds none
+    assert manifest.limits == TOY.limits and manifest.limits.max_frame_id == 90_000
+    assert manifest.to_dict()["limits"]["max_frame_id"] == 90_000
+    # what the CLI's help lists of the datasets and their locations, from the registry
+    assert registry.labels_in_words() == "NGSIM, highD or Toy"
+    assert registry.locations_in_words().endswith("; Toy: toy-road")
     assert [f.raw_format for f in manifest.inputs] == ["toy"]
     counts = manifest.counts
     # 902 rows, the car-0 row dropped, one exact duplicate; 60 grid steps (frames 0, 5, ...,
@@ -107,3 +113,16 @@ def test_without_the_toy_its_location_is_unknown(tmp_path: Path) -> None:
         run_build(
             [write_toy(tmp_path / "road.toy")], tmp_path / "build", BuildConfig(("toy-road",))
         )
+
+
+def test_the_help_texts_list_the_registered_datasets() -> None:
+    assert registry.labels_in_words() == "NGSIM or highD"
+    assert registry.locations_in_words() == (
+        "NGSIM: us-101, i-80, lankershim, peachtree; highD: highd-N (a highD locationId; none "
+        "named: every one)"
+    )
+    assert [registry.in_words(n) for n in (["a"], ["a", "b"], ["a", "b", "c"])] == [
+        "a",
+        "a or b",
+        "a, b or c",
+    ]

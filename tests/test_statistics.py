@@ -4,6 +4,7 @@ another way: the manifest, the Parquet files, the graphs induced directly, the t
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.plotting import PLOT_NAMES, write_histograms
+from ngsim_graphs.sources.ngsim.plausibility import LIMITS
 from ngsim_graphs.statistics import (
     SPLITS,
     BuildStatistics,
@@ -156,7 +158,8 @@ def test_kinematics_over_every_tracks_row(build: OpenBuild, computed) -> None:
 def test_scaler_and_config_come_from_the_manifest(build: OpenBuild, computed) -> None:
     statistics, _ = computed
     assert statistics.scaler == build.manifest.to_dict()["scaler"]
-    assert statistics.config == build.manifest.to_dict()["config"]
+    # the config and the limits its source applied: what the config hash covers
+    assert statistics.config == {**build.manifest.to_dict()["config"], "limits": asdict(LIMITS)}
     assert BuildConfig.from_dict(statistics.config) == build.config == BuildConfig()
     assert statistics.config_hash == build.manifest.config_hash
 

@@ -19,6 +19,7 @@ from ngsim_graphs.protocols import PROTOCOLS
 from ngsim_graphs.scaling import MinMaxScaler
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.contract import FileReport
+from ngsim_graphs.sources.limits import PhysicalLimits
 from ngsim_graphs.splits import split_warnings
 from ngsim_graphs.version import __version__
 
@@ -128,6 +129,7 @@ def _counts(
 def manifest(
     dataset: str,
     config: BuildConfig,
+    limits: PhysicalLimits,
     files: list[FileReport],
     outputs: list[RecordingOutput],
     samples: dict[str, dict[str, int]],
@@ -135,13 +137,15 @@ def manifest(
     warnings: list[str],
     skipped: list[str],
 ) -> Manifest:
-    """What the build is, to be written last (`layout.write_manifest` adds the file records)."""
+    """What the build is, to be written last (`layout.write_manifest` adds the file records):
+    `limits`, those its source applied, recorded beside the config and in its hash."""
     return Manifest(
         format_version=layout.FORMAT_VERSION,
         software={"ngsim_graphs": __version__, "polars": pl.__version__},
         dataset=dataset,
         config=config,
-        config_hash=layout.config_hash(config.to_dict()),
+        config_hash=layout.config_hash(config.to_dict(), limits.to_dict()),
+        limits=limits,
         inputs=tuple(files),
         recordings=tuple(_recording_entry(o, samples, files) for o in outputs),
         splits={split: sum(per.values()) for split, per in samples.items()},

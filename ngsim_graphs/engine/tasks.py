@@ -160,7 +160,7 @@ def read_file(
     """Read one input file and stage its rows per recording and part (a worker's task)."""
     scratch = staging.staged_scratch_dir(root, file_index)
     try:
-        read = source.read_file(path, config, file_index, strict, scratch)
+        read = source.read_file(path, config, source.limits, file_index, strict, scratch)
         return read.report, stage_rows(read, path, root, file_index)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
@@ -230,7 +230,7 @@ def clean_recording(
         with storage.TableAppender(target, s.TRACKS_SCHEMA, compression="lz4") as tracks:
             for group, vehicles in enumerate(vehicle_groups(raw, budget.BUDGET.clean_rows)):
                 rows = raw.filter(vehicles).collect()
-                cleaned = source.vehicle_tracks(rows, key, config, first_track_id)
+                cleaned = source.vehicle_tracks(rows, key, config, source.limits, first_track_id)
                 tracks.append(cleaned.tracks)
                 first_track_id += cleaned.report.tracks
                 evidence = cleaned.evidence
@@ -241,7 +241,7 @@ def clean_recording(
                     evidence = pl.scan_parquet(path)
                 parts.append(replace(cleaned, tracks=cleaned.tracks.clear(), evidence=evidence))
                 del rows, cleaned  # before the next group is read
-    return source.recording_report(parts, key, config, files, strict)
+    return source.recording_report(parts, key, config, source.limits, files, strict)
 
 
 def vehicle_groups(raw: pl.LazyFrame, most_rows: int) -> list[pl.Expr]:

@@ -11,10 +11,10 @@ from collections.abc import Mapping, Sequence
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.contract import FileReport, RecordingKey, RecordingReport
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 _BREAK = "__break"
 

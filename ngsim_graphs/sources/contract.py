@@ -26,7 +26,9 @@ scaling, the build directory) reads that table alone and knows no dataset. The c
 - **Order**: rows sorted by (track_id, time_s), columns and dtypes exactly TRACKS_SCHEMA.
 
 A source also reports what it read and dropped (`FileReport` per input file, `RecordingReport`
-per recording): every dropped row is counted per reason, with the first line it was on.
+per recording): every dropped row is counted per reason, with the first line it was on. What a
+raw row may hold is the source's to say (`Source.limits`, `sources.limits.PhysicalLimits`), not
+the build config's; a build may be given others, and its manifest records those applied.
 
 A recording is cleaned a part of its vehicles at a time (`TracksPart`: all the rows of each of
 its vehicles), so a source's cleaning may look at one vehicle's rows only at a time; what it
@@ -45,6 +47,7 @@ import polars as pl
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.kinematics import add_heading
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 RecordingKey = tuple[str, str]  # (location, period)
 
@@ -153,20 +156,22 @@ def frames_per_step(time_step_s: float, frame_period_s: float) -> int:
 
 @dataclass(frozen=True)
 class Source:
-    """A dataset behind the contract: four functions, its frame period, the name the manifest
-    records, the drop reasons of its own, and how the registry (`sources/registry.py`) tells its
-    files and its locations.
+    """A dataset behind the contract: four functions, its frame period, its physical limits,
+    the name the manifest records, the drop reasons of its own, and how the registry
+    (`sources/registry.py`) tells its files and its locations.
 
     find_files(paths) -> (files to read, files skipped in the directories searched)
-    read_file(path, config, file_index, strict, scratch) -> FileRows, after the file's own
-        checks; `scratch` is a folder on the build's disk for files of its own that its rows
+    read_file(path, config, limits, file_index, strict, scratch) -> FileRows, after the file's
+        own checks; `scratch` is a folder on the build's disk for files of its own that its rows
         may be scanned from (removed once they are staged)
-    vehicle_tracks(rows, key, config, first_track_id) -> TracksPart: the tracks of the
+    vehicle_tracks(rows, key, config, limits, first_track_id) -> TracksPart: the tracks of the
         vehicles of `rows` (all the rows of each, in any order, from any input file), numbered
         from `first_track_id`; the same tracks whichever other vehicles are in the part
-    recording_report(parts, key, config, files, strict) -> RecordingReport: the report of the
-        recording whose vehicles are those of `parts` (TracksParts, their tracks let go), after
-        the recording's checks
+    recording_report(parts, key, config, limits, files, strict) -> RecordingReport: the report
+        of the recording whose vehicles are those of `parts` (TracksParts, their tracks let go),
+        after the recording's checks
+    Each is given the build's `limits`: the source's own (`limits`), or others a build was given
+    (`pipeline.run_build`'s `limits`).
     claims(path) -> whether the file is one of this dataset's, told from its content; may raise
         NgsimInputError for a damaged file that is still its own (the build refuses it at once)
     is_location(name) -> whether `name` names one of its locations (BuildConfig.locations)
@@ -174,12 +179,16 @@ class Source:
 
     name: str
     find_files: Callable[[list[Path]], tuple[list[Path], list[Path]]]
-    read_file: Callable[[Path, BuildConfig, int, bool, Path | None], FileRows]
-    vehicle_tracks: Callable[[pl.DataFrame, RecordingKey, BuildConfig, int], TracksPart]
+    read_file: Callable[[Path, BuildConfig, PhysicalLimits, int, bool, Path | None], FileRows]
+    vehicle_tracks: Callable[
+        [pl.DataFrame, RecordingKey, BuildConfig, PhysicalLimits, int], TracksPart
+    ]
     recording_report: Callable[
-        [list[TracksPart], RecordingKey, BuildConfig, list[FileReport], bool], RecordingReport
+        [list[TracksPart], RecordingKey, BuildConfig, PhysicalLimits, list[FileReport], bool],
+        RecordingReport,
     ]
     frame_period_s: float  # between two of its frames (NGSIM 0.1 s, highD 0.04 s)
+    limits: PhysicalLimits  # what its raw rows may hold: its own, in its own frames
     label: str = ""  # the name a person reads: "NGSIM", "highD"
     suffixes: tuple[str, ...] = ()  # of the files it reads, lower case: a folder search's
     claims: Callable[[Path], bool] = _claims_no_file

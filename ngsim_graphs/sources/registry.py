@@ -49,6 +49,26 @@ def label(dataset: str) -> str:
     return SOURCES[dataset].label or dataset
 
 
+def in_words(names: list[str], conjunction: str = "or") -> str:
+    """Names as a sentence lists them: "a", "a or b", "a, b or c"."""
+    return f" {conjunction} ".join(filter(None, [", ".join(names[:-1]), names[-1]]))
+
+
+def labels_in_words() -> str:
+    """The registered datasets as a person reads them ("NGSIM or highD"): help texts name them
+    from here, so that a new source needs no edit of the CLI."""
+    return in_words([label(name) for name in SOURCES])
+
+
+def locations_in_words() -> str:
+    """Each source's location names after its label ("NGSIM: us-101, ...; highD: highd-N ...")."""
+    return "; ".join(
+        f"{label(name)}: {source.locations_help}"
+        for name, source in SOURCES.items()
+        if source.locations_help
+    )
+
+
 def drop_descriptions(dataset: str) -> dict[str, str]:
     """What the rows dropped for each reason of `dataset`'s builds were, by reason value: the
     shared reasons and its source's own (none for a dataset not registered here)."""

@@ -16,9 +16,9 @@ import polars as pl
 
 from ngsim_graphs import budget
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.contract import RecordingKey, RecordingReport, TracksPart, joined_counts
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 SPEED_WINDOW_FRAMES = 5  # each side: the motion a speed is compared with spans 1 s at 10 Hz
 MIN_SPEED_ROWS = 100  # fewer rows with a whole window say too little to judge the column

@@ -29,10 +29,12 @@ from ngsim_graphs.sources.contract import (
     frames_per_step,
     joined_counts,
 )
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 from . import schema as ts
 
 FRAME_PERIOD_S = 0.04  # 25 Hz
+LIMITS = PhysicalLimits(max_frame_id=90_000)  # what its rows may hold: an hour of its frames
 KEY: RecordingKey = ("toy-road", "morning")
 NO_CAR = "toy_no_car"  # its own drop reason: a placeholder row of car 0
 DROP_REASONS = {NO_CAR: "a placeholder row of no car (car 0)"}
@@ -44,7 +46,12 @@ def find_files(paths: list[Path]) -> tuple[list[Path], list[Path]]:
 
 
 def read_file(
-    path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
+    path: Path,
+    config: BuildConfig,
+    limits: PhysicalLimits,
+    file_index: int,
+    strict: bool,
+    scratch: Path | None = None,
 ) -> FileRows:
     """The file's rows, renamed to the shared key columns, labelled as the one recording."""
     raw = pl.read_csv(path, schema=ts.RAW_SCHEMA, separator=ts.SEPARATOR)
@@ -74,12 +81,16 @@ def read_file(
         locations_found=(KEY[0],),
         recordings=(f"{KEY[0]}/{KEY[1]}",),
     )
-    check_file_drops(report, config.limits, strict, DROP_REASONS)
+    check_file_drops(report, limits, strict, DROP_REASONS)
     return FileRows(rows.lazy(), {KEY: 0}, report)
 
 
 def vehicle_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
+    raw: pl.DataFrame,
+    key: RecordingKey,
+    config: BuildConfig,
+    limits: PhysicalLimits,
+    first_track_id: int,
 ) -> TracksPart:
     unique, exact, conflicting = drop_duplicate_rows(raw, (s.Y_M, s.X_M))
     segmented, gaps = split_at_gaps(unique)
@@ -106,6 +117,7 @@ def recording_report(
     parts: list[TracksPart],
     key: RecordingKey,
     config: BuildConfig,
+    limits: PhysicalLimits,
     files: list[FileReport],
     strict: bool,
 ) -> RecordingReport:
@@ -119,6 +131,7 @@ SOURCE = Source(
     vehicle_tracks=vehicle_tracks,
     recording_report=recording_report,
     frame_period_s=FRAME_PERIOD_S,
+    limits=LIMITS,
     label="Toy",
     suffixes=(".toy",),
     claims=lambda path: path.suffix == ".toy",

@@ -19,12 +19,12 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ, parse_file_name, sibling
 from ngsim_graphs.sources.highd.schema import HighdFile
 from ngsim_graphs.sources.inputs import files_in
+from ngsim_graphs.sources.limits import PhysicalLimits
 from ngsim_graphs.sources.text import (
     EXTRA,
     LINE,

@@ -1,4 +1,5 @@
-"""highD's image coordinates to the tracks table's road frame, per driving direction; row limits.
+"""highD's image coordinates to the tracks table's road frame, per driving direction; its row
+limits (`LIMITS`, the highD Source's).
 
 highD's (x, y) is the upper-left corner of a vehicle's bounding box in image coordinates: x to
 the right along the road, y downwards, metres. The box is `width` along x (the vehicle's length)
@@ -34,12 +35,15 @@ from __future__ import annotations
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources.highd import schema as hs
 from ngsim_graphs.sources.highd.files import RecordingMeta
-from ngsim_graphs.sources.highd.recordings import max_frame
+from ngsim_graphs.sources.highd.recordings import FRAME_RATE_HZ
+from ngsim_graphs.sources.limits import PhysicalLimits
 
+# What a highD row may hold (the highD Source's `limits`): the metric defaults, and frame numbers
+# up to two hours of its 25 Hz frames.
+LIMITS = PhysicalLimits(max_frame_id=2 * 3_600 * FRAME_RATE_HZ)
 UPPER_ORIGIN_M = 2_000.0  # direction 1: y_m = UPPER_ORIGIN_M - image x of the front
 UPPER, LOWER = 1, 2  # drivingDirection
 # thw's bound: 2.8 hours, NGSIM's (its "no leader" value); at a standstill thw = dhw / speed is
@@ -94,7 +98,7 @@ def _checks(limits: PhysicalLimits) -> tuple[tuple[DropReason, pl.Expr], ...]:
     far = limits.max_abs_position_m
     frame = pl.col(hs.HIGHD_FRAME)
     return (
-        (DropReason.FRAME_ID, (frame < 0) | (frame > max_frame(limits.max_frame_id))),
+        (DropReason.FRAME_ID, (frame < 0) | (frame > limits.max_frame_id)),
         (DropReason.VEHICLE_ID, pl.col(hs.HIGHD_ID) < 1),
         (DropReason.POSITION, (pl.col(hs.HIGHD_X).abs() > far) | (pl.col(hs.HIGHD_Y).abs() > far)),
         (DropReason.SPEED, _norm(hs.HIGHD_X_VELOCITY, hs.HIGHD_Y_VELOCITY) > limits.max_speed_mps),
@@ -114,8 +118,8 @@ def _checks(limits: PhysicalLimits) -> tuple[tuple[DropReason, pl.Expr], ...]:
 
 def row_drop_reason(limits: PhysicalLimits) -> pl.Expr:
     """The first DropReason value a raw tracks row breaks (null values break nothing); null for
-    a good row. Limits are the metric ones of `PhysicalLimits`; the frame limit is its duration
-    at 25 Hz."""
+    a good row. `limits` are highD's (`LIMITS`) or others a build was given: metric, the frame
+    limit in its 25 Hz frames."""
     checks = _checks(limits)
     reason, failed = checks[0]
     chain = pl.when(failed.fill_null(False)).then(pl.lit(reason.value))

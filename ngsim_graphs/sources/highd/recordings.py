@@ -20,7 +20,6 @@ from ngsim_graphs.sources.highd.schema import HighdFile
 FRAME_RATE_HZ = 25  # every highD recording
 FRAME_PERIOD_S = 1 / FRAME_RATE_HZ  # 0.04 s
 FRAME_PERIOD_MS = 40
-NGSIM_FRAME_PERIOD_S = 0.1  # `PhysicalLimits.max_frame_id` counts NGSIM's 10 Hz frames
 LOCATION_PREFIX = "highd-"
 _LOCATION = re.compile(rf"^{LOCATION_PREFIX}[1-9][0-9]*$")
 _FILE_NAME = re.compile(r"^([0-9]+)_(tracks|tracksMeta|recordingMeta)\.csv$", re.IGNORECASE)
@@ -72,8 +71,3 @@ def frames_per_step(time_step_s: float, path: Path) -> int:
             f"the grid step of {time_step_s:g} s is not a multiple of highD's frame period "
             f"({FRAME_PERIOD_S:g} s, {FRAME_RATE_HZ} Hz): choose a multiple of 0.2 s",
         ) from None
-
-
-def max_frame(max_ngsim_frame_id: int) -> int:
-    """The largest plausible highD frame: the same duration as NGSIM's frame limit."""
-    return round(max_ngsim_frame_id * NGSIM_FRAME_PERIOD_S * FRAME_RATE_HZ)

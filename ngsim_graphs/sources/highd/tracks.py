@@ -40,6 +40,7 @@ from ngsim_graphs.sources.highd.files import (
     read_tracks_meta,
 )
 from ngsim_graphs.sources.highd.geometry import (
+    LIMITS,
     STAGED_SCHEMA,
     moves_backwards,
     row_drop_reason,
@@ -58,6 +59,7 @@ from ngsim_graphs.sources.highd.recordings import (
     sibling,
 )
 from ngsim_graphs.sources.highd.schema import HighdFile
+from ngsim_graphs.sources.limits import PhysicalLimits
 
 METRES = 1.0  # highD's unit of length, in metres (the speed check's evidence is in it)
 TRACKS_FORMAT = f"highd-{HighdFile.TRACKS.value}"  # a tracks file's contract.FileReport.raw_format
@@ -75,7 +77,7 @@ _OPTIONAL = {c: c for c in hs.HIGHD_TRACKS_SCHEMA if c not in hs.HIGHD_REQUIRED_
 
 
 def _recording(
-    path: Path, config: BuildConfig
+    path: Path, limits: PhysicalLimits
 ) -> tuple[HighdFile, RecordingMeta, contract.RecordingKey]:
     """The kind of file `path` is (by name), its recording's meta and key."""
     named = parse_file_name(path)
@@ -89,7 +91,7 @@ def _recording(
         raise NgsimInputError(
             path, f"no {meta_path.name} beside it: a highD recording needs all three files"
         )
-    meta = read_recording_meta(meta_path, config.limits)
+    meta = read_recording_meta(meta_path, limits)
     if meta.recording_id != int(prefix):
         raise NgsimInputError(
             meta_path,
@@ -189,7 +191,7 @@ def _road_rows(
 
 
 def _staged_rows(
-    path: Path, meta: RecordingMeta, config: BuildConfig, file_index: int
+    path: Path, meta: RecordingMeta, limits: PhysicalLimits, file_index: int
 ) -> tuple[pl.DataFrame, dict[str, object]]:
     """The usable rows of a tracks file in the road frame, with provenance; and its report.
 
@@ -201,7 +203,7 @@ def _staged_rows(
     _check_whole_tracks(path, raw, vehicles)
     complete = pl.all_horizontal(pl.col(hs.HIGHD_REQUIRED_COLUMNS).is_not_null())
     checked = raw.with_columns(
-        pl.when(complete).then(row_drop_reason(config.limits)).alias("reason"),
+        pl.when(complete).then(row_drop_reason(limits)).alias("reason"),
         complete.alias("complete"),
         (pl.col(ROW) + FIRST_LINE).alias(s.SOURCE_LINE),
     )
@@ -232,13 +234,18 @@ def _staged_rows(
 
 
 def read_file(
-    path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
+    path: Path,
+    config: BuildConfig,
+    limits: PhysicalLimits,
+    file_index: int,
+    strict: bool,
+    scratch: Path | None = None,
 ) -> contract.FileRows:
     """Read one highD file: a tracks file gives its recording's rows (STAGED_SCHEMA, with
     RECORDING_INDEX and provenance); a meta file is checked and gives none. (A recording's file
     is read in memory: `scratch` is not used.)"""
     frames_per_step(config.time_step_s, path)  # a grid the 25 Hz frames cannot land on fails first
-    kind, meta, key = _recording(path, config)
+    kind, meta, key = _recording(path, limits)
     allowed = chosen_locations(config.locations)
     chosen = allowed is None or key[0] in allowed
     empty = pl.LazyFrame(
@@ -253,19 +260,24 @@ def read_file(
         return contract.FileRows(
             empty, {}, _report(path, key, chosen, rows_read=n, rows_other_locations=n)
         )
-    rows, counts = _staged_rows(path, meta, config, file_index)
+    rows, counts = _staged_rows(path, meta, limits, file_index)
     report = _report(path, key, chosen, **counts)
-    cleaning.check_file_drops(report, config.limits, strict)
+    cleaning.check_file_drops(report, limits, strict)
     staged = rows.with_columns(pl.lit(0, dtype=pl.Int32).alias(s.RECORDING_INDEX))
     return contract.FileRows(staged.lazy().select(empty.collect_schema().names()), {key: 0}, report)
 
 
 def vehicle_tracks(
-    raw: pl.DataFrame, key: contract.RecordingKey, config: BuildConfig, first_track_id: int
+    raw: pl.DataFrame,
+    key: contract.RecordingKey,
+    config: BuildConfig,
+    limits: PhysicalLimits,
+    first_track_id: int,
 ) -> contract.TracksPart:
     """The tracks of the vehicles of `raw` in recording `key` (all the rows of each, from its
     staged rows: any order, duplicates allowed), what cleaning them counted, and the evidence
-    of the speed check (`speeds.speed_comparison` of their 25 Hz rows, in metres).
+    of the speed check (`speeds.speed_comparison` of their 25 Hz rows, in metres). (Its rows
+    were held to `limits` as read: nothing here reads them.)
 
     Tracks are numbered from `first_track_id` in (vehicle, segment) order; rows come out sorted
     by track and frame, columns as TRACKS_SCHEMA. time_s = frame / 25, global_time = 40 * frame
@@ -294,7 +306,7 @@ def build_tracks(
 ) -> tuple[pl.DataFrame, contract.RecordingReport]:
     """The tracks table and report of recording `key` from all its staged rows at once: the
     tests' reference; a build cleans parts (vehicle_tracks)."""
-    part = vehicle_tracks(raw, key, config, first_track_id)
+    part = vehicle_tracks(raw, key, config, LIMITS, first_track_id)
     return part.tracks, speeds.joined_report([part], key, METRES)
 
 
@@ -302,6 +314,7 @@ def recording_report(
     parts: list[contract.TracksPart],
     key: contract.RecordingKey,
     config: BuildConfig,
+    limits: PhysicalLimits,
     files: list[contract.FileReport],
     strict: bool,
 ) -> contract.RecordingReport:
@@ -312,7 +325,7 @@ def recording_report(
     name = f"{report.location}/{report.period}"
     tracks_files = [f.path for f in files if name in f.recordings and f.raw_format == TRACKS_FORMAT]
     units = "metres per second (x and y: metres)"
-    speeds.check_speed_column(", ".join(tracks_files), report, config.limits, "xVelocity", units)
+    speeds.check_speed_column(", ".join(tracks_files), report, limits, "xVelocity", units)
     return report
 
 
@@ -323,9 +336,10 @@ SOURCE = contract.Source(  # the contract's four functions in its order, then ho
     vehicle_tracks,
     recording_report,
     frame_period_s=FRAME_PERIOD_S,
+    limits=LIMITS,
     label="highD",
     suffixes=(".csv",),
     claims=is_highd_file,
     is_location=is_highd_location,
-    locations_help="highd-N (a highD locationId)",
+    locations_help="highd-N (a highD locationId; none named: every one)",
 )

@@ -2,8 +2,9 @@
 
 Real exports hold stray rows: a damaged number, a swapped column, a vehicle that jumps a
 kilometre in a frame. Each such row is dropped on its own and counted per reason; it never costs
-its recording. The limits live in `config.PhysicalLimits`; rows are in NGSIM's units (feet) here,
-so the limits are converted once.
+its recording. The limits are NGSIM's (`LIMITS`, the NGSIM Source's `limits`: metric, its
+frame ids its 10 Hz frames); rows are in NGSIM's units (feet) here, so the limits are converted
+once.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ from enum import Enum
 import polars as pl
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import PhysicalLimits
 from ngsim_graphs.schema import DropReason
 from ngsim_graphs.sources import cleaning
+from ngsim_graphs.sources.limits import PhysicalLimits
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import FEET_TO_M
 from ngsim_graphs.sources.speeds import distance, same_vehicle
@@ -27,6 +28,10 @@ class NgsimDrop(str, Enum):
     GLOBAL_TIME = "global_time_off_recording"  # Global_Time - 100 * Frame_ID not its recording's
     VEHICLE_CLASS = "vehicle_class_unknown"  # v_Class none of 1 (motorcycle), 2 (car), 3 (truck)
 
+
+# What an NGSIM row may hold (the NGSIM Source's `limits`): the metric defaults, and frame ids up
+# to two hours of its 10 Hz frames (a 1 s outlier burst: 10 frames; a 10 m jump in 0.1 s: 100 m/s).
+LIMITS = PhysicalLimits(max_frame_id=72_000)
 
 # The NGSIM source's own reasons (`Source.drop_reasons`), as its reports say them.
 DROP_REASONS: dict[str, str] = {

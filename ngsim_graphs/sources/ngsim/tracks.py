@@ -47,6 +47,7 @@ from ngsim_graphs.sources.lanes import (
     check_lanes,
     lane_medians,
 )
+from ngsim_graphs.sources.limits import PhysicalLimits
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
     CONFLICT_ORDER,
@@ -59,6 +60,7 @@ from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_file
 from ngsim_graphs.sources.ngsim.plausibility import (
     DROP_REASONS,
     FILE_REASONS,
+    LIMITS,
     NgsimDrop,
     jump_rows,
     outlier_rows,
@@ -83,9 +85,14 @@ OPTIONAL_NAMES = {c: name for c, name in SPELLED.items() if c not in ns.REQUIRED
 
 
 def read_file_recordings(
-    path: Path, config: BuildConfig, file_index: int = 0, scratch: Path | None = None
+    path: Path,
+    config: BuildConfig,
+    file_index: int = 0,
+    scratch: Path | None = None,
+    limits: PhysicalLimits = LIMITS,
 ) -> FileRows:
-    """Parse one file, drop what no recording can use, and tell its chosen recordings apart.
+    """Parse one file, drop what no recording can use (beyond `limits`, NGSIM's by default), and
+    tell its chosen recordings apart.
 
     Returns every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
     columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, and
@@ -95,8 +102,8 @@ def read_file_recordings(
     """
     raw = read_raw_file(path, config.locations, scratch)
     complete = is_complete()
-    reason = pl.when(complete).then(row_drop_reason(config.limits))
-    usable = complete & passes_row_checks(config.limits)
+    reason = pl.when(complete).then(row_drop_reason(limits))
+    usable = complete & passes_row_checks(limits)
     index, names, notes = recording_index(raw.frame, path, usable)
     chosen = {key: i for i, key in enumerate(names) if key[0] in config.locations}
     in_chosen = index.is_in(list(chosen.values())).fill_null(False)
@@ -191,7 +198,11 @@ def _first_source(rows: pl.DataFrame) -> tuple[int, int] | None:
 
 
 def vehicle_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
+    raw: pl.DataFrame,
+    key: RecordingKey,
+    config: BuildConfig,
+    limits: PhysicalLimits,
+    first_track_id: int,
 ) -> TracksPart:
     """The tracks of the vehicles of `raw` (all the rows of each, any order, duplicates allowed)
     in recording `key`, and what cleaning them counted (the Source contract's part).
@@ -201,9 +212,9 @@ def vehicle_tracks(
     time; the evidence is the rows `speed_comparison` compares, for the recording's median.
     """
     unique, exact, conflicting = drop_duplicate_rows(raw, CONFLICT_ORDER)
-    outlier = outlier_rows(unique, config.limits)
+    outlier = outlier_rows(unique, limits)
     cleaned = unique.filter(~outlier)
-    jumps = jump_rows(cleaned, config.limits)
+    jumps = jump_rows(cleaned, limits)
     compared = speed_comparison(cleaned, ns.LOCAL_X, ns.LOCAL_Y, ns.V_VEL, FRAME_PERIOD_S)
     segmented, gaps = split_at_gaps(cleaned, jumps)
     location, period = key
@@ -227,20 +238,29 @@ def vehicle_tracks(
 
 
 def build_tracks(
-    raw: pl.DataFrame, key: RecordingKey, config: BuildConfig, first_track_id: int
+    raw: pl.DataFrame,
+    key: RecordingKey,
+    config: BuildConfig,
+    first_track_id: int,
+    limits: PhysicalLimits = LIMITS,
 ) -> tuple[pl.DataFrame, RecordingReport]:
     """The tracks table and report of recording `key` from all its raw rows at once, without
     the recording's checks (see vehicle_tracks): the tests' reference; a build cleans parts."""
-    part = vehicle_tracks(raw, key, config, first_track_id)
+    part = vehicle_tracks(raw, key, config, limits, first_track_id)
     return part.tracks, joined_report([part], key, FEET_TO_M)
 
 
 def read_file(
-    path: Path, config: BuildConfig, file_index: int, strict: bool, scratch: Path | None = None
+    path: Path,
+    config: BuildConfig,
+    limits: PhysicalLimits,
+    file_index: int,
+    strict: bool,
+    scratch: Path | None = None,
 ) -> FileRows:
     """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
-    read = read_file_recordings(path, config, file_index, scratch)
-    check_file_drops(read.report, config.limits, strict, DROP_REASONS)
+    read = read_file_recordings(path, config, file_index, scratch, limits)
+    check_file_drops(read.report, limits, strict, DROP_REASONS)
     check_lateral_positions(path, read)
     return read
 
@@ -264,6 +284,7 @@ def recording_report(
     parts: list[TracksPart],
     key: RecordingKey,
     config: BuildConfig,
+    limits: PhysicalLimits,
     files: list[FileReport],
     strict: bool,
 ) -> RecordingReport:
@@ -272,7 +293,7 @@ def recording_report(
     report = joined_report(parts, key, FEET_TO_M)
     name = f"{report.location}/{report.period}"
     sources = ", ".join(f.path for f in files if name in f.recordings)
-    check_speed_column(sources, report, config.limits)
+    check_speed_column(sources, report, limits)
     if report.first_outlier is not None:
         file_index, line = report.first_outlier
         reason = DropReason.POSITION_OUTLIER.value
@@ -281,7 +302,7 @@ def recording_report(
             {reason: report.position_outliers},
             {reason: line},
             report.rows,
-            config.limits,
+            limits,
             strict,
         )
     return report
@@ -294,6 +315,7 @@ SOURCE = Source(
     vehicle_tracks=vehicle_tracks,
     recording_report=recording_report,
     frame_period_s=FRAME_PERIOD_S,
+    limits=LIMITS,
     label="NGSIM",
     suffixes=CANDIDATE_SUFFIXES,
     claims=is_ngsim_file,
