@@ -230,8 +230,9 @@ def output_directory(out: Path, check: Callable[[Path], None]) -> Iterator[Path]
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         lock = take_lock(out)
-        partial = partial_path(out, lock.token)
-        try:
+        partial = None
+        try:  # from the first call after the lock is held: an interrupt there lets it go
+            partial = partial_path(out, lock.token)
             check(out)
             partial.mkdir()
             try:
@@ -242,7 +243,8 @@ def output_directory(out: Path, check: Callable[[Path], None]) -> Iterator[Path]
                     raise failure from None
                 raise
         except BaseException:
-            shutil.rmtree(partial, ignore_errors=True)
+            if partial is not None:
+                shutil.rmtree(partial, ignore_errors=True)
             release_lock(lock, out)
             raise
         with interrupts_held():

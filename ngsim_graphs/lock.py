@@ -18,6 +18,7 @@ import os
 import re
 import secrets
 import shutil
+import signal
 import stat
 import time
 from collections.abc import Iterator
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.interrupts import interrupts_held
 
 LOCK_LINE = re.compile(r"ngsim-graphs lock ([0-9a-f]{32}) (\d+)\n")
 # A lock file found empty is one whose creator has not flock-ed and written it yet (a moment):
@@ -160,8 +162,21 @@ def take_lock(out: Path) -> Lock:
 
     The kernel drops an flock when its holder dies, so a killed run never blocks the next one;
     its lock file stays, naming its token, and its leftovers are cleaned up here (restored, for
-    a previous `out` it had set aside) before this run's line replaces it.
+    a previous `out` it had set aside) before this run's line replaces it. Ctrl-C and SIGTERM
+    are held off while the lock is taken: one that comes meanwhile lets the lock go again (the
+    file removed) and is then raised, so that no interrupt leaves a lock file without its line.
     """
+    with interrupts_held() as came:
+        lock = _hold(out)
+        if came:
+            release_lock(lock, out)
+    for signum in came:
+        signal.raise_signal(signum)
+    return lock
+
+
+def _hold(out: Path) -> Lock:
+    """take_lock's work, with interrupts held off."""
     path = lock_path(out)
     fd, stale = _take_lock(path, out)
     token = secrets.token_hex(16)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -221,3 +222,24 @@ def test_leftovers_that_remain_keep_the_lock_file_naming_them(tmp_path: Path) ->
     with lock.output_lock(out):  # the next run cleans them up
         pass
     assert siblings(out) == []
+
+
+def test_a_ctrl_c_while_the_lock_is_taken_leaves_no_lock_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "out"
+    taken = lock._take_lock
+
+    def interrupted(path: Path, out: Path) -> tuple[int, str | None]:
+        held = taken(path, out)  # the file created and flock-ed, its line not written yet
+        signal.raise_signal(signal.SIGINT)  # as Ctrl-C would, right then
+        return held
+
+    monkeypatch.setattr(lock, "_take_lock", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        lock.take_lock(out)
+    assert list(tmp_path.iterdir()) == []  # neither an empty lock file nor one with a line
+    monkeypatch.setattr(lock, "_take_lock", taken)
+    with lock.output_lock(out):  # and the next run takes it at once
+        assert lock.lock_path(out).is_file()
+    assert list(tmp_path.iterdir()) == []
