@@ -222,6 +222,7 @@ def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any
     list_inputs's, compared by name and sha256); None where there is none (no manifest); else
     why it cannot be reused."""
     from ngsim_graphs.build import open_build
+    from ngsim_graphs.sources.registry import SOURCES
 
     if not manifest_path(build_dir).is_file():
         return None
@@ -230,6 +231,11 @@ def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any
         ours, theirs = config.to_dict(), manifest.config.to_dict()
         changed = [f"{k} {theirs.get(k)} -> {v}" for k, v in ours.items() if theirs.get(k) != v]
         return f"is a build of another config ({'; '.join(changed)})"
+    source = SOURCES.get(manifest.dataset)
+    if manifest.limits is not None and source is not None and manifest.limits != source.limits:
+        ours, theirs = asdict(source.limits), asdict(manifest.limits)
+        changed = [f"{k} {theirs[k]} -> {v}" for k, v in ours.items() if theirs[k] != v]
+        return f"holds the rows to other physical limits than its source's ({'; '.join(changed)})"
     built = sorted((Path(f.path).name, f.sha256) for f in manifest.inputs)
     now = _contents(inputs)
     return f"was built from other inputs ({_named(built, now)})" if built != now else ""

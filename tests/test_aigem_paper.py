@@ -52,6 +52,7 @@ from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
+from ngsim_graphs.integrity import settings_sha256
 from ngsim_graphs.layout import write_manifest_json
 from ngsim_graphs.lock import output_lock
 from ngsim_graphs.synth.formats import write_synthetic
@@ -491,4 +492,19 @@ def test_an_interrupt_before_the_folder_is_made_claims_no_folder(
         130,
         f"interrupted; {out} keeps the finished builds and each model's last finished epoch, "
         "and no report; run the same command again to continue\n",
+    )
+
+
+def test_a_build_held_to_other_limits_is_not_reused(tiny_build: Path, tmp_path: Path) -> None:
+    """A build made through the library with other limits than its source's has the paper's
+    config but not its rows: it is refused, naming the limit."""
+    other = Path(shutil.copytree(tiny_build, tmp_path / "other"))
+    values = json.loads((other / "manifest.json").read_text())
+    values["limits"]["max_jump_m"] = 20.0
+    values["config_hash"] = settings_sha256(values["config"], values["limits"])  # as built so
+    write_manifest_json(other, values)
+    manifest = open_build(other).manifest
+    (built_from,) = {Path(f.path).parent for f in manifest.inputs}
+    assert build_state(other, manifest.config, list_inputs([built_from])) == (
+        "holds the rows to other physical limits than its source's (max_jump_m 20.0 -> 10.0)"
     )
