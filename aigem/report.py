@@ -18,8 +18,10 @@ aigem.report_cells, the mean over the seeds and its 95 % interval (none with one
 difference between two settings is taken seed by seed (paired) before its mean and interval.
 Constant velocity does not depend on the seed: its numbers are the first seed's evaluation's,
 cells without bounds. Every seed's own numbers are kept under `fits` (each run's "test" rows)
-and `curves` (each seed's curve). `intervals` says what the intervals are (None: one seed, no
-interval), for report.md's words.
+and `curves` (each seed's curve). `intervals` says what the intervals are (interval_kind; None:
+one seed, no interval), for report.md's words. With one seed a cell has no bounds; an interval
+of another kind (a bootstrap over one run's test samples) fits the same cell, report.md shows
+and words it alike, and `intervals` is then where its kind is said.
 
 dmin, concat and regions each hold constant velocity on the same targets, and beside them the
 published rows (PUBLISHED_SERIES_NOTE: the paper draws these results without numbers). The runs'
