@@ -9,11 +9,18 @@ with other settings only with `overwrite`, which discards the runs (only the fil
 where the training settings make other models (`retrains`) before paper.json is rewritten; more
 epochs continue them. A build of another config or other inputs is rebuilt, and the runs
 trained on it discarded, by aigem.paper.
+
+Each fit is trained once per seed (`aigem paper --seeds N`: the seeds paper.json's seed, the
+first, to seed + N - 1), each seed its own run: the first seed's in runs/FIT (as a folder of
+one seed has always held it), seed S's in runs/FIT-seedS (`run_name`). N is no setting of the
+work: a call with more seeds adds the runs of the new ones, one with fewer reports the first N
+and leaves the others; another first seed (paper.json's seed) retrains them all.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from functools import cache
@@ -51,6 +58,25 @@ class PaperConfig:
 
 def build_name(d_min_m: float) -> str:
     return f"dmin-{d_min_m:g}m"
+
+
+def run_name(fit_name: str, seed: int, first_seed: int) -> str:
+    """The folder under runs/ of a fit's run at `seed`: the first seed's the fit's own name,
+    another's with "-seed{seed}" (dmin-25m, dmin-25m-seed1, dmin-25m-seed2 for seeds 0..2)."""
+    return fit_name if seed == first_seed else f"{fit_name}-seed{seed}"
+
+
+def runs_of(out: Path, fit_names: Sequence[str]) -> list[str]:
+    """The names of the runs under out/runs of the fits named `fit_names`, at any seed: the
+    fit's name, or it followed by "-seed" and an integer (run_name), sorted."""
+    folder = out / RUNS
+    found = [path.name for path in folder.iterdir()] if folder.is_dir() else []
+    return sorted(name for name in found if any(_of_fit(name, fit) for fit in fit_names))
+
+
+def _of_fit(name: str, fit_name: str) -> bool:
+    pattern = rf"{re.escape(fit_name)}-seed-?(0|[1-9]\d*)"
+    return name == fit_name or re.fullmatch(pattern, name) is not None
 
 
 def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
@@ -166,9 +192,9 @@ def claim_folder(
 ) -> None:
     """Make `out` ours for `document`'s work (check_folder first): new or empty, paper.json
     written first; ours with the same settings, as it is; ours with others (`overwrite`): the
-    runs named `run_names` discarded where the models would differ (`retrains`), then paper.json
-    rewritten. An earlier call's report.json and report.md go: none is there until this call
-    has finished."""
+    runs named `run_names` (every seed's: runs_of) discarded where the models would differ
+    (`retrains`), then paper.json rewritten. An earlier call's report.json and report.md go:
+    none is there until this call has finished."""
     check_folder(out, document, overwrite)
     marker = out / PAPER_JSON
     before = json_object(marker)

@@ -1,22 +1,34 @@
 """The report of `aigem paper`: its numbers as one JSON document (report.json), the same as
-Markdown (report.md), and the figures (aigem.report_plots), from the fits' evaluations on the
-test split and the paper's model's metrics logs.
+Markdown (report.md: aigem.report_text), and the figures (aigem.report_plots), from the runs'
+evaluations on the test split and the paper's model's metrics logs.
 
     table1    AiGem's RMSE at 1..5 s (each from its own horizon's model), ADE and FDE (the 5 s
-              model) and parameters; constant velocity on the same targets; the paper's Table 1
-              and the published NGSIM constant-velocity row (Deo and Trivedi 2018)
-    dmin      RMSE per horizon of the fits with the output concatenation, by d_min
-    concat    RMSE per horizon of the d_min 25 m fits with and without it
+              model) and parameters; constant velocity on the same targets, and AiGem's RMSE
+              minus constant velocity's; the paper's Table 1 and the published NGSIM
+              constant-velocity row (Deo and Trivedi 2018)
+    dmin      RMSE per horizon of the fits with the output concatenation, by d_min, and each
+              one's difference to the paper's d_min 25 m
+    concat    RMSE per horizon of the d_min 25 m fits with and without it, and the difference
     curves    train and validation RMSE per epoch of each horizon's model of the paper's fit
               (the square root of the logged MSE, metres), and why train lies above validation
     regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
+
+Each fit is trained once per seed (`--seeds`): every AiGem number is a cell of
+aigem.report_cells, the mean over the seeds and its 95 % interval (none with one seed), and each
+difference between two settings is taken seed by seed (paired) before its mean and interval.
+Constant velocity does not depend on the seed: its numbers are the first seed's evaluation's,
+cells without bounds. Every seed's own numbers are kept under `fits` (each run's "test" rows)
+and `curves` (each seed's curve). `intervals` says what the intervals are (interval_kind; None:
+one seed, no interval), for report.md's words. With one seed a cell has no bounds; an interval
+of another kind (a bootstrap over one run's test samples) fits the same cell, report.md shows
+and words it alike, and `intervals` is then where its kind is said.
 
 dmin, concat and regions each hold constant velocity on the same targets, and beside them the
 published rows (PUBLISHED_SERIES_NOTE: the paper draws these results without numbers). The runs'
 lines say each model's "trained N of M" epochs, and how to continue an unfinished fit.
 
 Where the builds are of synthetic data every table and figure says SYNTHETIC, where some of
-their inputs are PARTLY SYNTHETIC; where --max-hours left a fit unfinished, UNFINISHED (and
+their inputs are PARTLY SYNTHETIC; where --max-hours left a run unfinished, UNFINISHED (and
 report.json's "finished" is false). The time each stage took is kept apart, under `timings` in
 report.json and the last section of report.md, so that two calls on the same inputs give the
 same report but for it.
@@ -30,8 +42,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from aigem.intervals import LEVEL
 from aigem.metrics import FRONT_Y_M, REGIONS
-from aigem.paper_folder import HORIZONS_S, PAPER_D_MIN_M
+from aigem.paper_folder import PAPER_D_MIN_M
+from aigem.report_cells import SECONDS, Cell, difference_cells, seed_cell, series_cells
+from aigem.report_text import report_markdown
 from aigem.results import (
     CONSTANT_VELOCITY_CITATION,
     PAPER_CITATION,
@@ -44,20 +59,11 @@ from aigem.results import (
 from ngsim_graphs.partial_files import write_atomic
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
-SECONDS = tuple(round(h) for h in HORIZONS_S)  # 1..5: the keys' rmse_{s}s_m
 PARTLY_SYNTHETIC_LABEL = (
     "the inputs' recordings, PARTLY SYNTHETIC: some of them written by `ngsim-graphs synth` "
     "(each build's manifest names them: synthetic_inputs)"
 )
-UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
-TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
 FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")
-# Why a train curve may lie above the validation one (ModelConfig.dropout is 0.05).
-TRAIN_ABOVE_VALIDATION = (
-    "The train RMSE can lie above the validation RMSE: it is the mean over the epoch's batches, "
-    "with the model's 5 % dropout active and the weights still changing, while validation scores "
-    "the epoch's final model with dropout off."
-)
 # The published numbers beside the ablations and the regions: the paper gives those as figures
 # without numbers, so only its Table 1 row (d_min 25 m, with the concatenation, every actor)
 # and constant velocity's published row can stand beside them.
@@ -68,7 +74,12 @@ PUBLISHED_SERIES_NOTE = (
     "numbers; the published rows here are its Table 1 row and the constant-velocity row of "
     f"{CONSTANT_VELOCITY_CITATION}, for scale."
 )
-Fit = dict[str, Any]  # d_min_m, concat_position, models (each model's course)
+SEED_INTERVALS = (
+    "Student's t over the seeds, N - 1 degrees of freedom: an interval so made holds the mean "
+    "over many more seeds 95 times in 100"
+)
+# A fit's settings and its runs, one per seed: seed, run (its folder's name), models (courses).
+Fit = dict[str, Any]
 
 
 def rmse_series(
@@ -77,6 +88,21 @@ def rmse_series(
     """RMSE (m) at 1..5 s, each from its own horizon's model (the paper's protocol); `kind`
     "constant_velocity": constant velocity's on the same targets."""
     return [getattr(evaluation, kind)[region].get(f"rmse_{s}s_m") for s in SECONDS]
+
+
+def rmse_cells(evaluations: Sequence[Evaluation], region: str = "all") -> list[Cell | None]:
+    """AiGem's RMSE at 1..5 s over the seeds (one evaluation each): mean and interval."""
+    return series_cells([rmse_series(e, region) for e in evaluations])
+
+
+def constant_velocity_cells(
+    evaluations: Sequence[Evaluation], region: str = "all"
+) -> list[Cell | None]:
+    """Constant velocity's RMSE at 1..5 s on the fit's targets: the first seed's evaluation's
+    (it depends on the build alone), cells without bounds."""
+    return [
+        seed_cell([value]) for value in rmse_series(evaluations[0], region, "constant_velocity")
+    ]
 
 
 def published_series() -> dict[str, list[float]]:
@@ -89,22 +115,29 @@ def published_series() -> dict[str, list[float]]:
     }
 
 
-def _row(values: dict[str, Any], parameters: int | None = None) -> dict[str, Any]:
-    row = {key: values.get(key) for key in ("ade_m", "fde_m")}
-    row.update({f"rmse_{s}s_m": values.get(f"rmse_{s}s_m") for s in SECONDS})
+def _row(rows: Sequence[dict[str, Any]], parameters: int | None = None) -> dict[str, Any]:
+    """Table 1's cells from each seed's row of metrics (one row: no interval)."""
+    keys = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))
+    row: dict[str, Any] = {key: seed_cell([values.get(key) for values in rows]) for key in keys}
     if parameters is not None:
         row["params_k"] = round(parameters / 1000, 1)
     return row
 
 
-def table1(evaluation: Evaluation) -> dict[str, Any]:
-    """Ours and constant velocity on the same targets, beside the paper's rows as published."""
+def table1(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
+    """Ours (over the seeds) and constant velocity on the same targets, AiGem's RMSE minus
+    constant velocity's (paired by seed), beside the paper's rows as published."""
+    first = evaluations[0]
     return {
         "ours": {
-            "AiGem (this run)": _row(evaluation.model["all"], evaluation.parameters),
-            "constant velocity": _row(evaluation.constant_velocity["all"]),
+            "AiGem (this run)": _row([e.model["all"] for e in evaluations], first.parameters),
+            "constant velocity": _row([first.constant_velocity["all"]]),
         },
-        "targets": [evaluation.model["all"].get(f"n_{s}s") for s in SECONDS],
+        "aigem_minus_constant_velocity_rmse_m": difference_cells(
+            [rmse_series(e) for e in evaluations],
+            [rmse_series(e, kind="constant_velocity") for e in evaluations],
+        ),
+        "targets": [first.model["all"].get(f"n_{s}s") for s in SECONDS],
         "published": {**paper_rows(), **paper_rows(PUBLISHED_CONSTANT_VELOCITY)},
         "published_notes": PAPER_NOTES,
         "published_source": f"{PAPER_CITATION} (NGSIM US-101 and I-80); constant velocity: "
@@ -112,30 +145,81 @@ def table1(evaluation: Evaluation) -> dict[str, Any]:
     }
 
 
-def curves(rows_by_model: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, list]]:
-    """Per model: its epochs, train and validation RMSE (sqrt of the logged MSE, m)."""
+def _curve(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One model's curve: its epochs, train and validation RMSE (sqrt of the logged MSE, m)."""
     return {
-        name: {
-            "epoch": [int(row["epoch"]) for row in rows],
-            "train_rmse_m": [math.sqrt(row["train_loss_m2"]) for row in rows],
-            "val_rmse_m": [math.sqrt(row["val_loss_m2"]) for row in rows],
-            "best_epoch": int(rows[-1]["best_epoch"]) if rows else None,
-        }
-        for name, rows in rows_by_model.items()
+        "epoch": [int(row["epoch"]) for row in rows],
+        "train_rmse_m": [math.sqrt(row["train_loss_m2"]) for row in rows],
+        "val_rmse_m": [math.sqrt(row["val_loss_m2"]) for row in rows],
+        "best_epoch": int(rows[-1]["best_epoch"]) if rows else None,
     }
 
 
-def regions(evaluation: Evaluation) -> dict[str, Any]:
-    """RMSE at 1..5 s and the targets counted, by the actor's present position."""
+def _at(curve: dict[str, Any], key: str, epoch: int | None) -> float | None:
+    return curve[key][curve["epoch"].index(epoch)] if epoch in curve["epoch"] else None
+
+
+def _over_seeds(each: Sequence[dict[str, Any]], key: str, epochs: Sequence[int]) -> list:
+    """Per epoch, the cell of `key` over the seeds' curves (`each`) that reached it."""
+    return [seed_cell([_at(c, key, e) for c in each if e in c["epoch"]]) for e in epochs]
+
+
+def curves(
+    rows_by_seed: Sequence[dict[str, list[dict[str, Any]]]], seeds: Sequence[int]
+) -> dict[str, dict[str, Any]]:
+    """Per model (rows_by_seed: each seed's metrics rows by model name): each seed's curve
+    (`seeds`), and over them, per epoch, the mean and interval of the seeds that reached it;
+    at each seed's best epoch (the model kept), the mean and interval of its RMSE."""
+    result = {}
+    for name in rows_by_seed[0]:
+        each = [_curve(rows[name]) for rows in rows_by_seed]
+        epochs = sorted({epoch for curve in each for epoch in curve["epoch"]})
+        result[name] = {
+            "epoch": epochs,
+            "train_rmse_m": _over_seeds(each, "train_rmse_m", epochs),
+            "val_rmse_m": _over_seeds(each, "val_rmse_m", epochs),
+            "best_epoch": [curve["best_epoch"] for curve in each],
+            "at_best": {
+                key: seed_cell([_at(c, key, c["best_epoch"]) for c in each])
+                for key in ("train_rmse_m", "val_rmse_m")
+            },
+            "seeds": [{"seed": seed, **curve} for seed, curve in zip(seeds, each, strict=True)],
+        }
+    return result
+
+
+def regions(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
+    """RMSE at 1..5 s over the seeds, constant velocity's and the targets counted, by the
+    actor's present position."""
     return {
         "front_y_m": FRONT_Y_M,
-        "rmse_m": {region: rmse_series(evaluation, region) for region in REGIONS[1:]},
+        "rmse_m": {region: rmse_cells(evaluations, region) for region in REGIONS[1:]},
         "constant_velocity_rmse_m": {
-            region: rmse_series(evaluation, region, "constant_velocity") for region in REGIONS[1:]
+            region: constant_velocity_cells(evaluations, region) for region in REGIONS[1:]
         },
         "targets": {
-            region: [evaluation.model[region].get(f"n_{s}s") for s in SECONDS]
+            region: [evaluations[0].model[region].get(f"n_{s}s") for s in SECONDS]
             for region in REGIONS[1:]
+        },
+    }
+
+
+def ablation(
+    evaluations: dict[str, Sequence[Evaluation]], labelled: dict[str, str], paper: str | None
+) -> dict[str, dict[str, list[Cell | None]]]:
+    """An ablation's parts: each fit's (`labelled`: label -> fit name) RMSE cells, constant
+    velocity's on its targets, and its difference to the `paper` fit (paired by seed)."""
+    series = {label: [rmse_series(e) for e in evaluations[n]] for label, n in labelled.items()}
+    reference = [rmse_series(e) for e in evaluations[paper]] if paper else None
+    return {
+        "rmse": {label: series_cells(values) for label, values in series.items()},
+        "constant_velocity": {
+            label: constant_velocity_cells(evaluations[n]) for label, n in labelled.items()
+        },
+        "difference": {
+            label: difference_cells(series[label], reference)
+            for label, name in labelled.items()
+            if reference is not None and name != paper
         },
     }
 
@@ -146,24 +230,54 @@ def _data_words(synthetic: bool, partly_synthetic: bool) -> str:
     return PARTLY_SYNTHETIC_LABEL if partly_synthetic else "the inputs' recordings"
 
 
+def interval_kind(seeds: Sequence[int]) -> dict[str, Any] | None:
+    """What the report's intervals are (report.json's `intervals`), None with one seed."""
+    if len(seeds) < 2:
+        return None
+    return {"kind": "seeds", "level": LEVEL, "seeds": len(seeds), "method": SEED_INTERVALS}
+
+
+def _fits(
+    fits: dict[str, Fit], evaluations: dict[str, Sequence[Evaluation]]
+) -> dict[str, dict[str, Any]]:
+    """Each fit's settings and test samples, its runs with each seed's numbers (`test`: its
+    metric rows by region), constant velocity's rows once."""
+    return {
+        name: {
+            "d_min_m": fit["d_min_m"],
+            "concat_position": fit["concat_position"],
+            "test_samples": evaluations[name][0].samples,
+            "parameters": evaluations[name][0].parameters,
+            "runs": [
+                {**run, "test": evaluation.model}
+                for run, evaluation in zip(fit["runs"], evaluations[name], strict=True)
+            ],
+            "constant_velocity_test": evaluations[name][0].constant_velocity,
+        }
+        for name, fit in fits.items()
+    }
+
+
 def paper_report(
     settings: dict[str, Any],
     parts: Sequence[str],
+    seeds: Sequence[int],
     fits: dict[str, Fit],
-    evaluations: dict[str, Evaluation],
-    curve_rows: dict[str, list[dict[str, Any]]],
+    evaluations: dict[str, Sequence[Evaluation]],
+    curve_rows: Sequence[dict[str, list[dict[str, Any]]]],
     unfinished: Sequence[str] = (),
     partly_synthetic: bool = False,
 ) -> dict[str, Any]:
     """report.json's numbers (its figures and timings are added by write_report). `fits` and
-    `evaluations` by run name; the paper's fit is the one of d_min 25 m with the output
-    concatenation; `curve_rows`: its models' metrics rows, by model name; `unfinished`: the
-    fits that --max-hours stopped before their last epoch ("finished" false, and every table
-    and figure says UNFINISHED); `partly_synthetic`: some inputs, not all, are synth's (every
-    table and figure says PARTLY SYNTHETIC)."""
-    synthetic = any(e.synthetic for e in evaluations.values())
+    `evaluations` by fit name, each fit's runs and evaluations in the order of `seeds`; the
+    paper's fit is the one of d_min 25 m with the output concatenation; `curve_rows`: its
+    models' metrics rows by model name, one dict per seed; `unfinished`: the runs that
+    --max-hours stopped before their last epoch ("finished" false, and every table and figure
+    says UNFINISHED); `partly_synthetic`: some inputs, not all, are synth's (every table and
+    figure says PARTLY SYNTHETIC)."""
+    synthetic = any(e.synthetic for runs in evaluations.values() for e in runs)
     by_setting = {(f["d_min_m"], f["concat_position"]): name for name, f in fits.items()}
-    paper = evaluations.get(by_setting.get((PAPER_D_MIN_M, True), ""))
+    paper_fit = by_setting.get((PAPER_D_MIN_M, True))
     document: dict[str, Any] = {
         "written_by": "aigem paper",
         "finished": not unfinished,
@@ -174,281 +288,40 @@ def paper_report(
         "split": "test",
         "parts": list(parts),
         "settings": {"inputs": settings["inputs"], **settings["config"]},
-        "fits": {
-            name: {
-                **fit,
-                "test_samples": evaluations[name].samples,
-                "parameters": evaluations[name].parameters,
-            }
-            for name, fit in fits.items()
-        },
+        "seeds": list(seeds),
+        "intervals": interval_kind(seeds),
+        "fits": _fits(fits, evaluations),
     }
-    if "table" in parts and paper is not None:
-        document["table1"] = table1(paper)
+    if "table" in parts and paper_fit is not None:
+        document["table1"] = table1(evaluations[paper_fit])
     if "dmin" in parts:
         with_concat = sorted((d, n) for (d, concat), n in by_setting.items() if concat)
-        document["dmin"] = {f"{d:g}": rmse_series(evaluations[n]) for d, n in with_concat}
-        document["dmin_constant_velocity"] = {
-            f"{d:g}": rmse_series(evaluations[n], kind="constant_velocity") for d, n in with_concat
-        }
+        labelled = {f"{d:g}": name for d, name in with_concat}
+        document |= _prefixed("dmin", ablation(evaluations, labelled, paper_fit))
     if "concat" in parts:
         paper_setting = sorted(
             (item for item in by_setting.items() if item[0][0] == PAPER_D_MIN_M), reverse=True
         )
-        document["concat"] = {
-            ("with" if concat else "without"): rmse_series(evaluations[name])
-            for (_, concat), name in paper_setting
-        }
-        document["concat_constant_velocity"] = {
-            ("with" if concat else "without"): rmse_series(
-                evaluations[name], kind="constant_velocity"
-            )
-            for (_, concat), name in paper_setting
-        }
+        labelled = {("with" if c else "without"): name for (_, c), name in paper_setting}
+        document |= _prefixed("concat", ablation(evaluations, labelled, paper_fit))
     if {"dmin", "concat", "regions"} & set(parts):
         document["published_rmse_m"] = published_series()
         document["published_rmse_note"] = PUBLISHED_SERIES_NOTE
-    if "curves" in parts:
-        document["curves"] = curves(curve_rows)
-    if "regions" in parts and paper is not None:
-        document["regions"] = regions(paper)
+    if "curves" in parts and curve_rows:
+        document["curves"] = curves(curve_rows, seeds)
+    if "regions" in parts and paper_fit is not None:
+        document["regions"] = regions(evaluations[paper_fit])
     return document
 
 
-# ------------------------------------------------------------------------------------------------
-# report.md
-
-
-def _counted(count: int, noun: str) -> str:
-    return f"{count:,} {noun}{'' if count == 1 else 's'}"
-
-
-def _m(value: float | None) -> str:
-    return "–" if value is None else f"{value:.2f}"
-
-
-def _count(value: int | None) -> str:
-    return "–" if value is None else f"{value:,}"
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return lines + ["| " + " | ".join(row) + " |" for row in rows]
-
-
-def _rmse_header(first: str) -> list[str]:
-    return [first, *(f"RMSE {s} s (m)" for s in SECONDS)]
-
-
-def data_mark(document: dict[str, Any]) -> str | None:
-    """What the report says of its data: SYNTHETIC, PARTLY SYNTHETIC, or nothing (None)."""
-    if document["synthetic"]:
-        return "SYNTHETIC"
-    return "PARTLY SYNTHETIC" if document["partly_synthetic"] else None
-
-
-def _mark(document: dict[str, Any]) -> str:
-    """What a heading says of the whole report: (PARTLY) SYNTHETIC data, UNFINISHED training."""
-    marks = [data_mark(document)] + ["UNFINISHED"] * (not document["finished"])
-    shown = [mark for mark in marks if mark]
-    return f" ({', '.join(shown)})" if shown else ""
-
-
-def _table1_lines(document: dict[str, Any]) -> list[str]:
-    part = document["table1"]
-    header = ["model", "ADE (m)", "FDE (m)", *(f"RMSE {s} s (m)" for s in SECONDS), "params (K)"]
-    header.append("numbers")
-    mark = data_mark(document)
-    ours = "this call" + (f", {mark} data" if mark else "")
-    rows = []
-    for source, table in ((ours, part["ours"]), ("published, NGSIM", part["published"])):
-        for name, row in table.items():
-            params = row.get("params_k")
-            rows.append(
-                [
-                    name,
-                    _m(row["ade_m"]),
-                    _m(row["fde_m"]),
-                    *(_m(row[f"rmse_{s}s_m"]) for s in SECONDS),
-                    "–" if params is None else f"{params:g}",
-                    source,
-                ]
-            )
-    notes = [f"- {name}: {note}." for name, note in part["published_notes"].items()]
-    return [
-        f"## Table 1: AiGem beside constant velocity and the published models{_mark(document)}",
-        "",
-        *_table(header, rows),
-        "",
-        "AiGem's RMSE at h s comes from the model trained for h s, its ADE and FDE from the 5 s "
-        "model (the paper's protocol); constant velocity is scored on the same targets. Targets "
-        "at 1..5 s: " + ", ".join(_count(n) for n in part["targets"]) + ".",
-        f"Published rows: {part['published_source']}.",
-        *notes,
-        "",
-        "![Table 1 as a figure](figures/table1.png)",
-        "",
-    ]
-
-
-def _published_rows(document: dict[str, Any], extra: int = 0) -> list[list[str]]:
-    """The published rows beside an ablation or the regions (`extra` empty cells after them)."""
-    return [
-        [f"{name}, published NGSIM", *map(_m, values), *["–"] * extra]
-        for name, values in document["published_rmse_m"].items()
-    ]
-
-
-def _series_lines(
-    document: dict[str, Any], key: str, title: str, first: str, name: str
-) -> list[str]:
-    """An ablation's AiGem rows, constant velocity on each fit's targets, the published rows."""
-    rows = [[label, *map(_m, values)] for label, values in document[key].items()]
-    rows += [
-        [f"{label}: constant velocity, same targets", *map(_m, values)]
-        for label, values in document[f"{key}_constant_velocity"].items()
-    ]
-    return [
-        f"## {title}{_mark(document)}",
-        "",
-        *_table(_rmse_header(first), rows + _published_rows(document)),
-        "",
-        document["published_rmse_note"],
-        "",
-        f"![{title}](figures/{name}.png)",
-        "",
-    ]
-
-
-def _curves_lines(document: dict[str, Any]) -> list[str]:
-    rows = []
-    for name, curve in document["curves"].items():
-        best = curve["best_epoch"]
-        at = curve["epoch"].index(best) if best in curve["epoch"] else None
-        rows.append(
-            [
-                name,
-                str(len(curve["epoch"])),
-                "–" if best is None else str(best),
-                "–" if at is None else _m(curve["train_rmse_m"][at]),
-                "–" if at is None else _m(curve["val_rmse_m"][at]),
-            ]
-        )
-    header = ["model", "epochs", "best epoch", "train RMSE (m)", "validation RMSE (m)"]
-    return [
-        f"## Training curves of the paper's model (d_min 25 m){_mark(document)}",
-        "",
-        *_table(header, rows),
-        "",
-        "RMSE here is the square root of the logged MSE over the valid future steps; the best "
-        "epoch (lowest validation loss) is the model kept. " + TRAIN_ABOVE_VALIDATION,
-        "",
-        "![Training curves](figures/curves.png)",
-        "",
-    ]
-
-
-def _regions_lines(document: dict[str, Any]) -> list[str]:
-    part = document["regions"]
-    y = f"{part['front_y_m']:g}"
-    words = {
-        "front": f"front (y > {y} m)",
-        "mid": f"mid (-{y} m ≤ y ≤ {y} m)",
-        "rear": f"rear (y < -{y} m)",
+def _prefixed(key: str, parts: dict[str, Any]) -> dict[str, Any]:
+    """An ablation's parts under report.json's keys: KEY (the RMSE cells), KEY_constant_velocity,
+    KEY_difference (to the paper's configuration)."""
+    return {
+        key: parts["rmse"],
+        f"{key}_constant_velocity": parts["constant_velocity"],
+        f"{key}_difference": parts["difference"],
     }
-    rows = [
-        [words[region], *map(_m, values), _count(part["targets"][region][-1])]
-        for region, values in part["rmse_m"].items()
-    ]
-    rows += [
-        [
-            f"{words[region]}: constant velocity",
-            *map(_m, values),
-            _count(part["targets"][region][-1]),
-        ]
-        for region, values in part["constant_velocity_rmse_m"].items()
-    ]
-    return [
-        f"## Front / mid / rear: RMSE by the actor's present position{_mark(document)}",
-        "",
-        *_table([*_rmse_header("region"), "targets at 5 s"], rows + _published_rows(document, 1)),
-        "",
-        document["published_rmse_note"],
-        "",
-        "![RMSE by region](figures/regions.png)",
-        "",
-    ]
-
-
-def _courses(models: dict[str, dict[str, Any]], epochs: int) -> str:
-    """Each model's 'trained N of M epochs' and best epoch, why they stopped (once where alike),
-    and where the time limit stopped one, how to continue."""
-    stops = {m["stopped"] for m in models.values()}
-    each = "; ".join(
-        f"{name}: trained {m['epochs_done']} of {epochs} (best {m['best_epoch']}"
-        + ("" if len(stops) == 1 else f", {m['stopped']}")
-        + ")"
-        for name, m in models.items()
-    )
-    line = f"{each}; stopped by {next(iter(stops))}" if len(stops) == 1 else each
-    if "time limit" in stops:
-        line += "; UNFINISHED: the same `aigem paper` command continues it"
-    return line
-
-
-def _fits_lines(document: dict[str, Any]) -> list[str]:
-    rows = [
-        [
-            name,
-            f"{fit['d_min_m']:g}",
-            "yes" if fit["concat_position"] else "no",
-            f"{fit['test_samples']:,}",
-            _courses(fit["models"], document["settings"]["epochs"]),
-        ]
-        for name, fit in document["fits"].items()
-    ]
-    header = ["run", "d_min (m)", "concatenation", "test samples", "epochs of each model"]
-    return ["## Runs", "", *_table(header, rows), ""]
-
-
-def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
-    """report.md: the report's tables, its figures, and the time each stage took (last)."""
-    settings = document["settings"]
-    patience = settings["patience_epochs"]
-    size = sum(f["size_bytes"] for f in settings["inputs"])
-    lines = [
-        f"# AiGem: the paper's experiments{_mark(document)}",
-        "",
-        (
-            f"**{data_mark(document)}**: every number of this call comes from "
-            f"{document['data']}; only the rows marked published are NGSIM results."
-            if data_mark(document)
-            else f"Every number of this call comes from {document['data']}."
-        ),
-        "",
-        f"Inputs: {_counted(len(settings['inputs']), 'file')}, {size:,} bytes. Training: up to "
-        f"{_counted(settings['epochs'], 'epoch')}, batch {settings['batch_size']}, seed {settings['seed']}, "
-        f"patience {'none' if patience is None else patience}. Scored on the "
-        f"{document['split']} split.",
-        "",
-    ]
-    if not document["finished"]:
-        fits = ", ".join(document["unfinished_fits"])
-        lines[2:2] = [f"**{UNFINISHED}** (unfinished fits: {fits}).", ""]
-    if "table1" in document:
-        lines += _table1_lines(document)
-    if "dmin" in document:
-        lines += _series_lines(document, "dmin", "d_min ablation", "d_min (m)", "dmin")
-    if "concat" in document:
-        title = "Output concatenation ablation (d_min 25 m)"
-        lines += _series_lines(document, "concat", title, "previous position at the MLP", "concat")
-    if "curves" in document:
-        lines += _curves_lines(document)
-    if "regions" in document:
-        lines += _regions_lines(document)
-    lines += _fits_lines(document)
-    lines += [TIME_HEADING, "", *(f"- {stage}: {s:,.1f} s" for stage, s in timings.items()), ""]
-    return "\n".join(lines)
 
 
 def write_report(

@@ -7,6 +7,9 @@
     curves.png    train and validation RMSE per epoch, one panel per horizon's model
     regions.png   RMSE per horizon for front, mid and rear actors
 
+AiGem's numbers are the mean over the seeds; where they have a 95 % interval (several seeds,
+aigem.report_cells) it is drawn: a band around a line, an error bar on a bar.
+
 A figure of synthetic data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic);
 one of partly synthetic data PARTLY SYNTHETIC, one of an unfinished report UNFINISHED, in its
 title.
@@ -23,17 +26,36 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from aigem import report
+from aigem import report_cells
 from aigem.plots import BASELINE, OURS, REGION_TITLES, paper_points, png_bytes
+from aigem.report_cells import Cell
+from aigem.report_text import data_mark
 from ngsim_graphs.plotting import mark_synthetic
 
-SECONDS = np.array(report.SECONDS)
+SECONDS = np.array(report_cells.SECONDS)
 UNFINISHED_PICTURE = "UNFINISHED (training stopped by --max-hours)"
 PARTLY_SYNTHETIC_PICTURE = "PARTLY SYNTHETIC data"
 
 
-def _values(values: Sequence[float | None]) -> np.ndarray:
+def _values(cells: Sequence[Cell | None]) -> np.ndarray:
+    """The cells' numbers (the means over the seeds), NaN for none."""
+    values = [report_cells.value_of(cell) for cell in cells]
     return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def _bounds(cells: Sequence[Cell | None]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The cells' 95 % intervals (low, high), NaN where a cell has none; None where none has."""
+    low = [np.nan if c is None or c["low"] is None else c["low"] for c in cells]
+    high = [np.nan if c is None or c["high"] is None else c["high"] for c in cells]
+    if np.isnan(low).all():
+        return None
+    return np.array(low, dtype=np.float64), np.array(high, dtype=np.float64)
+
+
+def _ours(document: dict[str, Any]) -> str:
+    """How AiGem's numbers came: "mean of 3 seeds, 95 % interval", nothing for one seed."""
+    seeds = len(document["seeds"])
+    return f", mean of {seeds} seeds, 95 % interval" if seeds > 1 else ""
 
 
 def _finish(figure: Figure, document: dict[str, Any]) -> bytes:
@@ -49,7 +71,7 @@ def _finish(figure: Figure, document: dict[str, Any]) -> bytes:
 
 
 def _source(document: dict[str, Any]) -> str:
-    mark = report.data_mark(document)
+    mark = data_mark(document)
     return f"{mark} data" if mark else "this call's data"
 
 
@@ -59,11 +81,12 @@ def table1_figure(document: dict[str, Any]) -> Figure:
     figure = Figure(figsize=(8, 5.5), layout="constrained")
     axes = figure.add_subplot()
     for name, colour in (("AiGem (this run)", OURS), ("constant velocity", BASELINE)):
-        row = part["ours"][name]
-        values = _values([row[f"rmse_{s}s_m"] for s in SECONDS])
-        axes.plot(
-            SECONDS, values, color=colour, lw=2, marker="D", label=f"{name}, {_source(document)}"
-        )
+        cells = [part["ours"][name][f"rmse_{s}s_m"] for s in SECONDS]
+        ours = _ours(document) if name.startswith("AiGem") else ""
+        label = f"{name}, {_source(document)}{ours}"
+        axes.plot(SECONDS, _values(cells), color=colour, lw=2, marker="D", label=label)
+        if (bounds := _bounds(cells)) is not None:
+            axes.fill_between(SECONDS, *bounds, color=colour, alpha=0.2, lw=0)
     paper_points(axes, "rmse_m")  # part["published"]'s rows, as aigem evaluate draws them
     axes.set(
         xlabel="horizon (s)",
@@ -79,15 +102,22 @@ def table1_figure(document: dict[str, Any]) -> Figure:
     return figure
 
 
-def bars_figure(series: dict[str, Sequence[float | None]], title: str, legend_title: str) -> Figure:
-    """RMSE per horizon as grouped bars, one colour per series (its label its key)."""
+def bars_figure(series: dict[str, Sequence[Cell | None]], title: str, legend_title: str) -> Figure:
+    """RMSE per horizon as grouped bars, one colour per series (its label its key), each bar's
+    95 % interval as an error bar where it has one."""
     figure = Figure(figsize=(8, 4.8), layout="constrained")
     axes = figure.add_subplot()
     width = 0.8 / max(len(series), 1)
-    for index, (label, values) in enumerate(series.items()):
-        heights = _values(values)
+    for index, (label, cells) in enumerate(series.items()):
+        heights = _values(cells)
         offset = (index - (len(series) - 1) / 2) * width
-        drawn = axes.bar(SECONDS + offset, np.nan_to_num(heights), width, label=label)
+        bounds = _bounds(cells)
+        errors = (
+            None if bounds is None else np.nan_to_num([heights - bounds[0], bounds[1] - heights])
+        )
+        drawn = axes.bar(
+            SECONDS + offset, np.nan_to_num(heights), width, label=label, yerr=errors, capsize=2
+        )
         axes.bar_label(
             drawn, labels=[("–" if np.isnan(h) else f"{h:.2f}") for h in heights], fontsize=7
         )
@@ -98,28 +128,36 @@ def bars_figure(series: dict[str, Sequence[float | None]], title: str, legend_ti
     return figure
 
 
-def curves_figure(curves: dict[str, dict[str, list]]) -> Figure:
-    """Train and validation RMSE per epoch, one panel per model, the best epoch starred."""
+def curves_figure(curves: dict[str, dict[str, Any]], seeds: int) -> Figure:
+    """Train and validation RMSE per epoch, one panel per model, the best epoch starred: with
+    several seeds, their mean, its 95 % interval as a band, and each seed's best epoch."""
     figure = Figure(figsize=(3.2 * max(len(curves), 1), 3.8), layout="constrained")
     panels = figure.subplots(1, max(len(curves), 1), squeeze=False)[0]
     for axes, (name, curve) in zip(panels, curves.items(), strict=False):
         _curve_panel(axes, name, curve)
     panels[0].set_ylabel("RMSE (m)")
     figure.legend(*panels[0].get_legend_handles_labels(), loc="outside lower center", ncols=3)
-    figure.suptitle("Training of one model per horizon (d_min 25 m)")
+    over = f"\n(mean of {seeds} seeds, 95 % interval)" if seeds > 1 else ""
+    figure.suptitle(f"Training of one model per horizon (d_min 25 m){over}")
     return figure
 
 
-def _curve_panel(axes: Axes, name: str, curve: dict[str, list]) -> None:
-    epochs = curve["epoch"]
-    axes.plot(epochs, curve["train_rmse_m"], marker="o", ms=3, label="train")
-    axes.plot(epochs, curve["val_rmse_m"], marker="o", ms=3, label="validation")
-    best = curve["best_epoch"]
-    if best in epochs:
-        value = curve["val_rmse_m"][epochs.index(best)]
-        axes.plot([best], [value], "*", ms=12, color="tab:green", zorder=1.5, label="best epoch")
+def _curve_panel(axes: Axes, name: str, curve: dict[str, Any]) -> None:
+    epochs = np.array(curve["epoch"])
+    for key, words in (("train_rmse_m", "train"), ("val_rmse_m", "validation")):
+        (line,) = axes.plot(epochs, _values(curve[key]), marker="o", ms=3, label=words)
+        if (bounds := _bounds(curve[key])) is not None:
+            axes.fill_between(epochs, *bounds, color=line.get_color(), alpha=0.2, lw=0)
+    best = [  # each seed's best epoch, at its own validation RMSE
+        (seed["best_epoch"], seed["val_rmse_m"][seed["epoch"].index(seed["best_epoch"])])
+        for seed in curve["seeds"]
+        if seed["best_epoch"] in seed["epoch"]
+    ]
+    if best:
+        label = "best epoch" + (" (each seed)" if len(curve["seeds"]) > 1 else "")
+        axes.plot(*zip(*best, strict=True), "*", ms=12, color="tab:green", zorder=1.5, label=label)
     axes.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
-    axes.set_xlim(0.5, max(epochs, default=1) + 0.5)
+    axes.set_xlim(0.5, max(curve["epoch"], default=1) + 0.5)
     horizon = name.removeprefix("h").removesuffix("s")  # a member's name: h1s .. h5s
     axes.set(title=f"the {horizon} s model", xlabel="epoch")
     axes.grid(alpha=0.3)
@@ -130,21 +168,19 @@ def report_figures(document: dict[str, Any]) -> dict[str, bytes]:
     drawn: dict[str, Figure] = {}
     if "table1" in document:
         drawn["table1"] = table1_figure(document)
+    over = f"\n({_ours(document)[2:]})" if _ours(document) else ""  # a second line
     if "dmin" in document:
         series = {f"d_min {d} m": values for d, values in document["dmin"].items()}
-        drawn["dmin"] = bars_figure(
-            series, "RMSE by d_min (each horizon's own model)", "spatial edges"
-        )
+        title = f"RMSE by d_min (each horizon's own model){over}"
+        drawn["dmin"] = bars_figure(series, title, "spatial edges")
     if "concat" in document:
         series = {f"{k} concatenation": v for k, v in document["concat"].items()}
-        drawn["concat"] = bars_figure(
-            series, "RMSE with and without the previous position at the MLP (d_min 25 m)", "output"
-        )
+        title = f"RMSE with and without the previous position at the MLP (d_min 25 m){over}"
+        drawn["concat"] = bars_figure(series, title, "output")
     if "curves" in document:
-        drawn["curves"] = curves_figure(document["curves"])
+        drawn["curves"] = curves_figure(document["curves"], len(document["seeds"]))
     if "regions" in document:  # each region defined in its legend entry
         series = {REGION_TITLES[r]: v for r, v in document["regions"]["rmse_m"].items()}
-        drawn["regions"] = bars_figure(
-            series, "RMSE by the actor's present position (y along the road)", "region"
-        )
+        title = f"RMSE by the actor's present position (y along the road){over}"
+        drawn["regions"] = bars_figure(series, title, "region")
     return {name: _finish(figure, document) for name, figure in drawn.items()}

@@ -47,8 +47,21 @@ def paper(
     ] = None,
     batch_size: Annotated[int, typer.Option(min=1, help="Graphs (samples) per batch.")] = 32,
     seed: Annotated[
-        int, typer.Option(help="Seed of the initialisation, shuffling and dropout.")
+        int,
+        typer.Option(
+            help="Seed of the initialisation, shuffling and dropout: the first seed of --seeds."
+        ),
     ] = 0,
+    seeds: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Train each fit this many times, at --seed, --seed + 1, ...: each number of the "
+            "report is then the mean over the seeds with its 95 % interval, and each ablation's "
+            "difference says whether it is beyond the noise. More seeds later train the new "
+            "seeds' runs alone.",
+        ),
+    ] = 1,
     only: Annotated[
         str,
         typer.Option(
@@ -103,7 +116,9 @@ def paper(
     on the test split, and OUT/report.md, OUT/report.json and OUT/figures/: Table 1 beside the
     published rows, the d_min and concatenation ablations, the training curves and front / mid /
     rear. Every table and figure says SYNTHETIC (PARTLY SYNTHETIC) where all (some) inputs came
-    from `ngsim-graphs synth`.
+    from `ngsim-graphs synth`. --seeds N trains every fit N times (the builds are made once):
+    each AiGem number is then the mean over the seeds with its 95 % interval, and each ablation
+    says whether its difference to the paper's configuration is beyond the noise.
 
     Time, on 2 CPU cores: about 3 minutes with --epochs 2 on the README's demo input (2
     recordings of 2 minutes); 13 minutes with --epochs 1 on two synthetic 15-minute recordings;
@@ -114,8 +129,8 @@ def paper(
     --max-hours bounds the training only (builds and evaluations come on top); a report of fits
     it stopped says UNFINISHED, and the same command again continues them.
     """
-    from aigem.paper import parse_parts  # light: no PyTorch yet
     from aigem.paper_folder import PaperConfig, check_folder, paper_document
+    from aigem.paper_plan import parse_parts  # light: no PyTorch yet
 
     try:
         parts = parse_parts(only)
@@ -132,11 +147,15 @@ def paper(
         from aigem.cores import busy_cores_warning
         from aigem.devices import DeviceUnavailableError
         from aigem.epochs import NonFiniteLossError
-        from aigem.paper import PaperCall, TimeLimitError, run_paper
+        from aigem.paper import run_paper
+        from aigem.paper_plan import PaperCall
+        from aigem.paper_training import TimeLimitError
         from ngsim_graphs.budget import available_cores
     if threads is not None and (warning := busy_cores_warning(threads)):
         print_warning(warning)
-    call = PaperCall(parts, device.value, threads, max_hours, jobs or available_cores(), overwrite)
+    call = PaperCall(
+        parts, device.value, threads, max_hours, jobs or available_cores(), overwrite, seeds
+    )
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         try:
             result = run_paper(raw_paths, out, config, call, progress)
@@ -159,18 +178,21 @@ def _left(out: Path) -> str:
 def _print_summary(report: dict, out: Path) -> None:
     """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
     left a fit unfinished, that the report is unfinished (last)."""
-    from aigem.report import UNFINISHED, data_mark
+    from aigem.report_cells import SECONDS, shown
+    from aigem.report_text import UNFINISHED, data_mark
 
     mark = data_mark(report)
     kind = f" ({mark} data: not comparable to the paper's NGSIM numbers)" if mark else ""
     if "table1" in report:
         ours = report["table1"]["ours"]["AiGem (this run)"]
         paper = report["table1"]["published"]["AiGem (paper)"]
-        shown = lambda row: ", ".join(  # noqa: E731
-            "-" if row[f"rmse_{s}s_m"] is None else f"{row[f'rmse_{s}s_m']:.2f}"
-            for s in range(1, 6)
+        row = lambda cells: ", ".join(shown(cells[f"rmse_{s}s_m"]) for s in SECONDS)  # noqa: E731
+        seeds = len(report["seeds"])
+        over = f", mean of {seeds} seeds [95 % interval]" if seeds > 1 else ""
+        stdout.print(
+            f"AiGem RMSE at 1..5 s (m{over}): {row(ours)}{kind}; the paper: {row(paper)}",
+            markup=False,  # the intervals' brackets are no markup
         )
-        stdout.print(f"AiGem RMSE at 1..5 s (m): {shown(ours)}{kind}; the paper: {shown(paper)}")
     figures = ", ".join(Path(name).name for name in report.get("figures", []))
     stdout.print(f"Report: {out / 'report.md'} and {out / 'report.json'}; figures: {figures}")
     if not report["finished"]:

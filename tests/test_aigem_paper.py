@@ -21,19 +21,7 @@ from conftest import straight_track, write_txt
 from timed_runs import AIGEM, TimedRun, run_timed
 from typer.testing import CliRunner
 
-from aigem.paper import (
-    FITS,
-    PARTS,
-    PaperCall,
-    _evaluate,
-    _Meter,
-    _work_units,
-    fit_share_s,
-    parse_parts,
-    plan_builds,
-    plan_fits,
-    run_paper,
-)
+from aigem.paper import _evaluate, run_paper
 from aigem.paper_folder import (
     PAPER_JSON,
     REPORT_JSON,
@@ -44,9 +32,21 @@ from aigem.paper_folder import (
     discard_run,
     list_inputs,
     paper_document,
+    runs_of,
 )
+from aigem.paper_plan import (
+    FITS,
+    PARTS,
+    PaperCall,
+    SeedRun,
+    parse_parts,
+    plan_builds,
+    plan_fits,
+    plan_runs,
+)
+from aigem.paper_training import Meter, fit_share_s, work_units
 from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
-from aigem.report import UNFINISHED
+from aigem.report_text import UNFINISHED
 from aigem.runs import epochs_kept
 from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
@@ -188,6 +188,34 @@ def test_overwrite_discards_the_runs_files_and_nothing_else(tmp_path: Path, raw:
     discard_run(out / "runs" / "missing")  # nothing there: nothing to do
 
 
+def test_each_seed_is_a_run_of_its_own_the_first_seeds_named_as_before(
+    tmp_path: Path, raw: Path
+) -> None:
+    """--seeds 3 from --seed 4: each fit at seeds 4, 5, 6, seed by seed; the first seed's run
+    is the fit's own name (a folder of one seed holds it there); runs_of finds every seed's."""
+    runs = plan_runs(PaperConfig(seed=4), PaperCall(parts=("concat",), seeds=3))
+    assert [(run.name, run.seed) for run in runs] == [
+        ("dmin-25m", 4),
+        ("dmin-25m-no-concat", 4),
+        ("dmin-25m-seed5", 5),
+        ("dmin-25m-no-concat-seed5", 5),
+        ("dmin-25m-seed6", 6),
+        ("dmin-25m-no-concat-seed6", 6),
+    ]
+    assert runs[2].describe() == "d_min 25 m, seed 5"
+    assert plan_runs(PaperConfig(), PaperCall(parts=("table",)))[0].describe() == "d_min 25 m"
+    with pytest.raises(ValueError, match="0 seeds"):
+        PaperCall(seeds=0)
+    out = tmp_path / "out"
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), False, RUN_NAMES)
+    for name in ("dmin-25m", "dmin-25m-seed1", "dmin-0m-seed-3", "dmin-25m-seedling"):
+        fake_run(out / "runs" / name)
+    found = runs_of(out, RUN_NAMES)
+    assert found == ["dmin-0m-seed-3", "dmin-25m", "dmin-25m-seed1"]  # not dmin-25m-seedling
+    claim_folder(out, paper_document([raw], PaperConfig(epochs=2, seed=1)), True, found)
+    assert sorted(p.name for p in (out / "runs").iterdir()) == ["dmin-25m-seedling"]
+
+
 @pytest.mark.parametrize(
     ("later", "kept"),
     [
@@ -327,18 +355,19 @@ def test_an_evaluation_fills_its_share_of_the_bar_one_unit_a_batch(
     """The bar counts a fit's evaluation as one pass over the test split (its models stacked),
     and the evaluation moves it one unit a batch, to its share and no further."""
     plan = FITS[0]
+    run = SeedRun(plan, 0, plan.name)
     for folder, name, target in (
         ("runs", plan.name, tiny_horizons_run),
         ("builds", plan.build_name, tiny_build),
     ):
         (tmp_path / folder).mkdir()
         (tmp_path / folder / name).symlink_to(target)
-    units = _work_units(tmp_path, [plan], [], PaperConfig())
+    units = work_units(tmp_path, [run], [], PaperConfig())
     test_samples = open_build(tiny_build).manifest.splits["test"]
     assert units == math.ceil(test_samples / 64)
     shown: list[tuple[int, int]] = []
-    meter = _Meter(lambda _what, done, total: shown.append((done, total)), units)
-    _evaluate(plan, tmp_path, "cpu", meter)
+    meter = Meter(lambda _what, done, total: shown.append((done, total)), units)
+    _evaluate(run, tmp_path, "cpu", meter)
     assert shown == [(done, units) for done in range(1, units + 1)] and meter.offset == units
 
 
@@ -421,7 +450,8 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
     assert cut.stdout.strip().splitlines()[-1] == f"{UNFINISHED} (unfinished fits: dmin-25m)"
     document = json.loads((out / "report.json").read_text())
     assert not document["finished"] and document["unfinished_fits"] == ["dmin-25m"]
-    assert {m["epochs_done"] for m in document["fits"]["dmin-25m"]["models"].values()} == {1}
+    models = document["fits"]["dmin-25m"]["runs"][0]["models"]
+    assert {m["epochs_done"] for m in models.values()} == {1}
     markdown = (out / "report.md").read_text()
     assert markdown.splitlines()[2].startswith(f"**{UNFINISHED}**")
     assert markdown.count("(SYNTHETIC, UNFINISHED)") == 2  # the title and Table 1's heading
@@ -434,6 +464,25 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
         assert ours[key] == theirs[key], key
     for call in (nothing, one, cut, finished):  # each ended with its last line
         assert call.ended_with_its_last_line(), call
+    # A second seed in this folder of one: its run alone trains, the first seed's is reused.
+    more = run_paper_command(tiny_raw, out, *table, "--epochs", "2", "--seeds", "2")
+    assert more.returncode == 0, more.stderr
+    two = json.loads((out / "report.json").read_text())
+    assert [key for key in two["timings"] if key.startswith("fit ")] == ["fit dmin-25m-seed1"]
+    assert sorted(p.name for p in (out / "runs").iterdir()) == ["dmin-25m", "dmin-25m-seed1"]
+    runs = two["fits"]["dmin-25m"]["runs"]
+    assert two["seeds"] == [0, 1] and runs[0] == ours["fits"]["dmin-25m"]["runs"][0]
+    each = [run["test"]["all"]["rmse_1s_m"] for run in runs]
+    cell = two["table1"]["ours"]["AiGem (this run)"]["rmse_1s_m"]
+    half = 12.706 * abs(each[0] - each[1]) / 2  # t(1) * sd / sqrt(2), sd = |a - b| / sqrt(2)
+    assert cell == pytest.approx(
+        {"value": sum(each) / 2, "low": cell["value"] - half, "high": cell["value"] + half}
+    )
+    assert "mean of 2 seeds [95 % interval]" in more.stdout
+    # Back to one seed: the first seed's report, as before; the second seed's run stays.
+    again = run_paper_command(tiny_raw, out, *table, "--epochs", "2")
+    assert again.returncode == 0, again.stderr
+    assert comparable(out)[0] == ours and (out / "runs" / "dmin-25m-seed1").is_dir()
 
 
 def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(

@@ -9,14 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from aigem.report import (
-    TIME_HEADING,
-    UNFINISHED,
-    paper_report,
-    report_markdown,
-    write_report,
-)
+from aigem.intervals import t_975
+from aigem.report import paper_report, write_report
 from aigem.report_plots import report_figures
+from aigem.report_text import ONE_SEED, TIME_HEADING, UNFINISHED, report_markdown
 from aigem.results import Evaluation, paper_rows
 
 SETTINGS = {
@@ -34,16 +30,19 @@ def rows(rmse: list[float], ade: float, fde: float, n: int = 10) -> dict[str, fl
     return row
 
 
-def evaluation(base: float, synthetic: bool = True) -> Evaluation:
+def evaluation(base: float, synthetic: bool = True, cv_base: float | None = None) -> Evaluation:
     """RMSE base + s at s seconds overall, base + s + 0.1/0.2/0.3 front/mid/rear; constant
-    velocity's 10 times base + s; ADE base, FDE 2 * base."""
+    velocity's 10 times cv_base + s (cv_base: base unless given, the same for every seed of a
+    fit); ADE base, FDE 2 * base."""
     rmse = [base + s for s in range(1, 6)]
     model = {"all": rows(rmse, base, 2 * base, n=12)}
     for shift, region in ((0.1, "front"), (0.2, "mid"), (0.3, "rear")):
         model[region] = rows([v + shift for v in rmse], base, 2 * base, n=4)
-    cv = {"all": rows([10 * v for v in rmse], 10 * base, 20 * base, n=12)}
+    cv_base = base if cv_base is None else cv_base
+    cv_rmse = [cv_base + s for s in range(1, 6)]
+    cv = {"all": rows([10 * v for v in cv_rmse], 10 * cv_base, 20 * cv_base, n=12)}
     for shift, region in ((1, "front"), (2, "mid"), (3, "rear")):
-        cv[region] = rows([10 * v + shift for v in rmse], 10 * base, 20 * base, n=4)
+        cv[region] = rows([10 * v + shift for v in cv_rmse], 10 * cv_base, 20 * cv_base, n=4)
     return Evaluation(
         split="test",
         horizons_s=(1.0, 2.0, 3.0, 4.0, 5.0),
@@ -61,12 +60,29 @@ def evaluation(base: float, synthetic: bool = True) -> Evaluation:
     )
 
 
-FITS = {
-    "dmin-25m": {"d_min_m": 25.0, "concat_position": True, "models": MODELS},
-    "dmin-25m-no-concat": {"d_min_m": 25.0, "concat_position": False, "models": MODELS},
-    "dmin-0m": {"d_min_m": 0.0, "concat_position": True, "models": MODELS},
-    "dmin-50m": {"d_min_m": 50.0, "concat_position": True, "models": MODELS},
+SETTINGS_OF = {
+    "dmin-25m": (25.0, True),
+    "dmin-25m-no-concat": (25.0, False),
+    "dmin-0m": (0.0, True),
+    "dmin-50m": (50.0, True),
 }
+
+
+def fits(seeds: tuple[int, ...] = (0,)) -> dict:
+    """Each fit's settings and its runs, one per seed (the first seed's run its own name)."""
+    return {
+        name: {
+            "d_min_m": d_min_m,
+            "concat_position": concat,
+            "runs": [
+                {"seed": s, "run": name if s == seeds[0] else f"{name}-seed{s}", "models": MODELS}
+                for s in seeds
+            ],
+        }
+        for name, (d_min_m, concat) in SETTINGS_OF.items()
+    }
+
+
 BASES = {"dmin-25m": 1.0, "dmin-25m-no-concat": 2.0, "dmin-0m": 3.0, "dmin-50m": 4.0}
 CURVE_ROWS = {
     "h1s": [
@@ -83,20 +99,39 @@ def report(
     unfinished: tuple[str, ...] = (),
     partly: bool = False,
 ) -> dict:
-    evaluations = {name: evaluation(base, synthetic) for name, base in BASES.items()}
-    return paper_report(SETTINGS, parts, FITS, evaluations, CURVE_ROWS, unfinished, partly)
+    """The report of one seed, seed 0."""
+    evaluations = {name: [evaluation(base, synthetic)] for name, base in BASES.items()}
+    return paper_report(
+        SETTINGS, parts, (0,), fits(), evaluations, [CURVE_ROWS], unfinished, partly
+    )
+
+
+def bare(cells: list) -> list:
+    """Cells without bounds (one seed) as their numbers; a cell with bounds fails."""
+    assert all(cell is None or cell["low"] is cell["high"] is None for cell in cells)
+    return [None if cell is None else cell["value"] for cell in cells]
+
+
+def bare_row(row: dict) -> dict:
+    return {
+        key: bare([value])[0] if isinstance(value, dict) else value for key, value in row.items()
+    }
 
 
 def test_table1_holds_the_paper_fits_numbers_constant_velocity_and_every_published_row() -> None:
     table = report()["table1"]
-    assert table["ours"]["AiGem (this run)"] == {
+    assert bare_row(table["ours"]["AiGem (this run)"]) == {
         "ade_m": 1.0,
         "fde_m": 2.0,
         **{f"rmse_{s}s_m": 1.0 + s for s in range(1, 6)},
         "params_k": 74.2,
     }
-    assert table["ours"]["constant velocity"]["rmse_5s_m"] == 60.0
-    assert table["ours"]["constant velocity"]["ade_m"] == 10.0
+    assert table["ours"]["constant velocity"]["rmse_5s_m"] == {
+        "value": 60.0,
+        "low": None,
+        "high": None,
+    }
+    assert bare_row(table["ours"]["constant velocity"])["ade_m"] == 10.0
     assert table["targets"] == [12] * 5
     assert {k: v for k, v in table["published"].items() if k in paper_rows()} == paper_rows()
     names = list(table["published"])
@@ -118,26 +153,26 @@ def test_table1_holds_the_paper_fits_numbers_constant_velocity_and_every_publish
 
 def test_the_ablations_are_told_by_each_fits_settings() -> None:
     document = report()
-    assert document["dmin"] == {
+    assert {d: bare(cells) for d, cells in document["dmin"].items()} == {
         "0": [4.0, 5.0, 6.0, 7.0, 8.0],
         "25": [2.0, 3.0, 4.0, 5.0, 6.0],
         "50": [5.0, 6.0, 7.0, 8.0, 9.0],
     }
-    assert document["concat"] == {
+    assert {k: bare(cells) for k, cells in document["concat"].items()} == {
         "with": [2.0, 3.0, 4.0, 5.0, 6.0],
         "without": [3.0, 4.0, 5.0, 6.0, 7.0],
     }
-    assert document["regions"]["rmse_m"]["front"] == pytest.approx([2.1, 3.1, 4.1, 5.1, 6.1])
-    assert document["regions"]["rmse_m"]["rear"] == pytest.approx([2.3, 3.3, 4.3, 5.3, 6.3])
+    assert bare(document["regions"]["rmse_m"]["front"]) == pytest.approx([2.1, 3.1, 4.1, 5.1, 6.1])
+    assert bare(document["regions"]["rmse_m"]["rear"]) == pytest.approx([2.3, 3.3, 4.3, 5.3, 6.3])
     assert document["regions"]["targets"]["mid"] == [4] * 5
     assert document["fits"]["dmin-0m"]["test_samples"] == 7
 
 
 def test_every_comparison_holds_constant_velocity_and_the_published_rows() -> None:
     document = report()
-    assert document["dmin_constant_velocity"]["0"] == [40.0, 50.0, 60.0, 70.0, 80.0]
-    assert document["concat_constant_velocity"]["without"] == [30.0, 40.0, 50.0, 60.0, 70.0]
-    assert document["regions"]["constant_velocity_rmse_m"]["rear"] == [23, 33, 43, 53, 63]
+    assert bare(document["dmin_constant_velocity"]["0"]) == [40.0, 50.0, 60.0, 70.0, 80.0]
+    assert bare(document["concat_constant_velocity"]["without"]) == [30.0, 40.0, 50.0, 60.0, 70.0]
+    assert bare(document["regions"]["constant_velocity_rmse_m"]["rear"]) == [23, 33, 43, 53, 63]
     text = report_markdown(document, {})
     published_aigem = (
         "| AiGem (paper, Table 1: d_min 25 m, concatenation, all actors), published NGSIM "
@@ -165,7 +200,7 @@ def test_every_comparison_holds_constant_velocity_and_the_published_rows() -> No
 def test_the_run_lines_say_how_many_of_the_epochs_and_how_to_continue() -> None:
     cut = {f"h{s}s": {"epochs_done": 1, "best_epoch": 1, "stopped": "time limit"} for s in (1, 2)}
     document = report(unfinished=("dmin-0m",))
-    document["fits"]["dmin-0m"]["models"] = cut
+    document["fits"]["dmin-0m"]["runs"][0]["models"] = cut
     text = report_markdown(document, {})
     assert (
         "| dmin-0m | 0 | yes | 7 | h1s: trained 1 of 3 (best 1); h2s: trained 1 of 3 (best 1); "
@@ -176,12 +211,13 @@ def test_the_run_lines_say_how_many_of_the_epochs_and_how_to_continue() -> None:
 
 def test_curves_are_the_square_root_of_the_logged_mse() -> None:
     curve = report()["curves"]["h1s"]
-    assert curve == {
-        "epoch": [1, 2],
-        "train_rmse_m": [2.0, 1.0],
-        "val_rmse_m": [3.0, 4.0],
-        "best_epoch": 1,
-    }
+    assert curve["seeds"] == [
+        {"seed": 0, "epoch": [1, 2], "train_rmse_m": [2.0, 1.0], "val_rmse_m": [3.0, 4.0]}
+        | {"best_epoch": 1}
+    ]
+    assert curve["epoch"] == [1, 2] and curve["best_epoch"] == [1]
+    assert bare(curve["train_rmse_m"]) == [2.0, 1.0] and bare(curve["val_rmse_m"]) == [3.0, 4.0]
+    assert bare(list(curve["at_best"].values())) == [2.0, 3.0]  # at epoch 1, the model kept
 
 
 def test_only_the_parts_asked_for_are_reported() -> None:
@@ -267,4 +303,151 @@ def test_write_report_writes_the_figures_and_report_json_last_with_the_timings(
     assert (tmp_path / "report.json").stat().st_mtime_ns >= (
         tmp_path / "report.md"
     ).stat().st_mtime_ns
-    assert math.isclose(on_disk["table1"]["ours"]["AiGem (this run)"]["rmse_1s_m"], 2.0)
+    assert math.isclose(on_disk["table1"]["ours"]["AiGem (this run)"]["rmse_1s_m"]["value"], 2.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Three seeds: each AiGem number the mean over the seeds and Student's t 95 % interval, each
+# ablation's difference to the paper's configuration paired by seed, and what it says in words
+
+SEEDS = (0, 1, 2)
+# Each fit's base at seeds 0, 1, 2: the paper's 1.0, 1.2, 1.7 (mean 1.3, sd sqrt(0.13)); the
+# ablations' differ from it, seed by seed, by +2.0/+2.1/+1.9 (d_min 0 m: mean 2, sd 0.1),
+# +0.5/-0.5/+0.3 (d_min 50 m: mean 0.1, sd sqrt(0.28)) and -1.0/-1.1/-0.9 (without the
+# concatenation: mean -1, sd 0.1).
+SEED_BASES = {
+    "dmin-25m": (1.0, 1.2, 1.7),
+    "dmin-0m": (3.0, 3.3, 3.6),
+    "dmin-50m": (1.5, 0.7, 2.0),
+    "dmin-25m-no-concat": (0.0, 0.1, 0.8),
+}
+T2 = 4.303  # Student's t 0.975 quantile, 2 degrees of freedom (a statistics table)
+SEED_CURVES = [  # each seed's log of its 1 s model: 2, 1 and 2 epochs, best 1, 1 and 2
+    CURVE_ROWS["h1s"],
+    [{"epoch": 1, "train_loss_m2": 9.0, "val_loss_m2": 16.0, "best_epoch": 1}],
+    [
+        {"epoch": 1, "train_loss_m2": 1.0, "val_loss_m2": 4.0, "best_epoch": 1},
+        {"epoch": 2, "train_loss_m2": 4.0, "val_loss_m2": 1.0, "best_epoch": 2},
+    ],
+]
+
+
+def seeds_report(parts: tuple[str, ...] = PARTS) -> dict:
+    evaluations = {
+        name: [evaluation(base, cv_base=bases[0]) for base in bases]
+        for name, bases in SEED_BASES.items()
+    }
+    curves = [{"h1s": rows} for rows in SEED_CURVES]
+    return paper_report(SETTINGS, parts, SEEDS, fits(SEEDS), evaluations, curves)
+
+
+def cell(mean: float, half: float) -> dict:
+    return {
+        "value": pytest.approx(mean),
+        "low": pytest.approx(mean - half),
+        "high": pytest.approx(mean + half),
+    }
+
+
+def test_each_aigem_number_is_the_mean_over_the_seeds_and_its_t_interval() -> None:
+    document = seeds_report()
+    assert t_975(2) == T2
+    half = T2 * math.sqrt(0.13) / math.sqrt(3)  # the paper's fit: sd sqrt(0.13) over 3 seeds
+    ours = document["table1"]["ours"]["AiGem (this run)"]
+    assert ours["rmse_1s_m"] == cell(2.3, half) and ours["rmse_5s_m"] == cell(6.3, half)
+    assert ours["ade_m"] == cell(1.3, half) and ours["fde_m"] == cell(2.6, 2 * half)
+    cv = document["table1"]["ours"]["constant velocity"]  # seed-free: no interval
+    assert cv["rmse_1s_m"] == {"value": 20.0, "low": None, "high": None}
+    assert document["regions"]["rmse_m"]["rear"][0] == cell(2.6, half)
+    assert document["dmin"]["0"][0] == cell(4.3, T2 * 0.3 / math.sqrt(3))
+    assert document["seeds"] == [0, 1, 2] and document["intervals"]["seeds"] == 3
+    # Every seed's own numbers: each run's test rows, its name, constant velocity once.
+    runs = document["fits"]["dmin-0m"]["runs"]
+    assert [run["run"] for run in runs] == ["dmin-0m", "dmin-0m-seed1", "dmin-0m-seed2"]
+    assert [run["test"]["all"]["rmse_1s_m"] for run in runs] == pytest.approx([4.0, 4.3, 4.6])
+    assert document["fits"]["dmin-0m"]["constant_velocity_test"]["all"]["rmse_1s_m"] == 40.0
+
+
+def test_an_ablations_difference_is_paired_by_seed() -> None:
+    """d_min 0 m's RMSE alone has the paper's spread (sd 0.3 over the seeds); its difference to
+    the paper's configuration, taken seed by seed, only the spread of the differences (0.1)."""
+    document = seeds_report()
+    assert document["dmin_difference"]["0"] == [cell(2.0, T2 * 0.1 / math.sqrt(3))] * 5
+    assert document["dmin_difference"]["50"][2] == cell(0.1, T2 * math.sqrt(0.28) / math.sqrt(3))
+    assert document["concat_difference"] == {"without": [cell(-1.0, T2 * 0.1 / math.sqrt(3))] * 5}
+    assert set(document["dmin_difference"]) == {"0", "50"}  # the paper's own: no difference
+    aigem_cv = document["table1"]["aigem_minus_constant_velocity_rmse_m"]  # 2.3 - 20 at 1 s
+    assert aigem_cv[0] == cell(-17.7, T2 * math.sqrt(0.13) / math.sqrt(3))
+
+
+def test_the_report_says_which_differences_are_beyond_the_noise() -> None:
+    text = report_markdown(seeds_report(), {})
+    everywhere = "at 1, 2, 3, 4 and 5 s."
+    assert (
+        f"- d_min 0 m against the paper's 25 m: RMSE higher (worse) beyond the noise {everywhere}"
+        in text
+    )
+    assert (
+        "- d_min 50 m against the paper's 25 m: RMSE within the noise (the interval holds 0) "
+        + everywhere
+    ) in text
+    assert (
+        "- without the concatenation against with it (the paper's): RMSE lower (better) beyond "
+        f"the noise {everywhere}"
+    ) in text
+    assert (
+        "- AiGem against constant velocity on the same targets: RMSE lower (better) beyond the "
+        f"noise {everywhere}"
+    ) in text
+    assert "| 0 | +2.00 [+1.75, +2.25] | +2.00 [+1.75, +2.25] |" in text  # 4.303 * 0.1 / sqrt 3
+    assert (
+        "| AiGem (this run) | 1.30 [0.40, 2.20] | 2.60 [0.81, 4.39] | 2.30 [1.40, 3.20] |" in text
+    )
+    assert "| 0: constant velocity, same targets | 40.00 | 50.00 |" in text  # seed-free
+    assert "Each fit was trained 3 times, at seeds 0, 1, 2" in text and ONE_SEED not in text
+    assert "batch 32, seeds 0, 1, 2, patience none" in text
+    assert "| dmin-0m-seed2 | 2 | 0 | yes | 7 |" in text  # a run per seed, its seed said
+
+
+def test_curves_over_seeds_are_the_mean_of_the_seeds_that_reached_each_epoch() -> None:
+    document = seeds_report()
+    curve = document["curves"]["h1s"]
+    assert curve["epoch"] == [1, 2] and curve["best_epoch"] == [1, 1, 2]
+    assert curve["train_rmse_m"] == [cell(2.0, T2 / math.sqrt(3)), cell(1.5, 12.706 * 0.5)]
+    assert curve["at_best"]["val_rmse_m"] == cell(8 / 3, T2 * math.sqrt(7 / 3) / math.sqrt(3))
+    assert [seed["epoch"] for seed in curve["seeds"]] == [[1, 2], [1], [1, 2]]
+    text = report_markdown(document, {})
+    assert curve["at_best"]["train_rmse_m"] == cell(7 / 3, T2 * math.sqrt(1 / 3) / math.sqrt(3))
+    assert "| h1s | 2, 1, 2 | 1, 1, 2 | 2.33 [0.90, 3.77] | 2.67 [-1.13, 6.46] |" in text
+    figures = report_figures(document)  # the bands and error bars drawn
+    assert sorted(figures) == ["concat", "curves", "dmin", "regions", "table1"]
+
+
+def test_one_seed_says_intervals_need_more_seeds_and_holds_no_difference_rows() -> None:
+    document = report()
+    assert document["intervals"] is None and document["seeds"] == [0]
+    assert bare(document["dmin_difference"]["0"]) == [2.0] * 5  # kept in report.json
+    text = report_markdown(document, {})
+    assert ONE_SEED in text and "beyond the noise" not in text and "minus the paper's" not in text
+
+
+def test_noise_words_per_horizon() -> None:
+    from aigem.report_cells import noise_sentence, shown
+
+    cells = [
+        {"value": -0.5, "low": -0.9, "high": -0.1},
+        {"value": 0.2, "low": -0.1, "high": 0.5},
+        None,
+        {"value": 0.3, "low": 0.1, "high": 0.5},
+        {"value": 0.0, "low": 0.0, "high": 0.4},  # 0 on the bound: held
+    ]
+    assert noise_sentence("X", cells) == (
+        "X: RMSE lower (better) beyond the noise at 1 s; higher (worse) beyond the noise at 4 s; "
+        "within the noise (the interval holds 0) at 2 and 5 s; no number at 3 s."
+    )
+    unknown = [{"value": 0.3, "low": None, "high": None}] * 5
+    assert noise_sentence("X", unknown) == (
+        "X: no interval (one seed), so no telling this difference from the noise."
+    )
+    assert shown(cells[0], signed=True) == "-0.50 [-0.90, -0.10]" and shown(None) == "–"
+    assert shown(unknown[0]) == "0.30" and shown(1.234) == "1.23"

@@ -1,0 +1,318 @@
+"""report.md of `aigem paper`: report.json's document (aigem.report) as Markdown tables and words.
+
+Every AiGem number is shown as its cell (aigem.report_cells.shown): "1.23 [1.18, 1.28]", the
+mean over the seeds and its 95 % interval, or "1.23" where it has none (one seed). Each ablation
+gives its difference to the paper's configuration, per horizon, and says in words where that
+difference is beyond the noise and where within it; Table 1 likewise AiGem against constant
+velocity. With one seed the report says once, at its top, that the intervals need more seeds,
+and holds no difference rows (a difference without an interval cannot be told from the noise).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from aigem.report_cells import SECONDS, Cell, known, noise_sentence, shown
+
+UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
+TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
+# Why a train curve may lie above the validation one (ModelConfig.dropout is 0.05).
+TRAIN_ABOVE_VALIDATION = (
+    "The train RMSE can lie above the validation RMSE: it is the mean over the epoch's batches, "
+    "with the model's 5 % dropout active and the weights still changing, while validation scores "
+    "the epoch's final model with dropout off."
+)
+ONE_SEED = (
+    "One seed: no number here carries an interval, so no difference between two settings (an "
+    "ablation, AiGem against constant velocity) can be told from the noise of training; "
+    "`--seeds 3` or more gives each AiGem number and each difference its 95 % interval."
+)
+
+
+def _counted(count: int, noun: str) -> str:
+    return f"{count:,} {noun}{'' if count == 1 else 's'}"
+
+
+def _count(value: int | None) -> str:
+    return "–" if value is None else f"{value:,}"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def _rmse_header(first: str) -> list[str]:
+    return [first, *(f"RMSE {s} s (m)" for s in SECONDS)]
+
+
+def data_mark(document: dict[str, Any]) -> str | None:
+    """What the report says of its data: SYNTHETIC, PARTLY SYNTHETIC, or nothing (None)."""
+    if document["synthetic"]:
+        return "SYNTHETIC"
+    return "PARTLY SYNTHETIC" if document["partly_synthetic"] else None
+
+
+def _mark(document: dict[str, Any]) -> str:
+    """What a heading says of the whole report: (PARTLY) SYNTHETIC data, UNFINISHED training."""
+    marks = [data_mark(document)] + ["UNFINISHED"] * (not document["finished"])
+    said = [mark for mark in marks if mark]
+    return f" ({', '.join(said)})" if said else ""
+
+
+def _seeds_words(seeds: Sequence[int]) -> str:
+    """ "seed 0" or "seeds 0, 1, 2"."""
+    return f"seed{'s' * (len(seeds) > 1)} {', '.join(str(s) for s in seeds)}"
+
+
+def intervals_lines(document: dict[str, Any]) -> list[str]:
+    """What the intervals are, once at the top (ONE_SEED where there are none)."""
+    kind = document.get("intervals")
+    if kind is None:
+        return [ONE_SEED, ""]
+    return [
+        f"Each fit was trained {len(document['seeds'])} times, at {_seeds_words(document['seeds'])}"
+        f" (a run each). Every AiGem number is the mean over the seeds and, in brackets, its "
+        f"{100 * kind['level']:g} % interval ({kind['method']}). A difference between two settings is "
+        "taken seed by seed before its mean and interval; it is beyond the noise where its "
+        "interval excludes 0, within it where the interval holds 0. Constant velocity does not "
+        "depend on the seed: its numbers have no interval.",
+        "",
+    ]
+
+
+def _noise_lines(subject: Callable[[str], str], cells: dict[str, list[Cell | None]]) -> list[str]:
+    """One sentence per difference (noise_sentence), as a list; none without intervals."""
+    if not any(known(row) for row in cells.values()):
+        return []
+    return [f"- {noise_sentence(subject(label), row)}" for label, row in cells.items()] + [""]
+
+
+def _table1_lines(document: dict[str, Any]) -> list[str]:
+    part = document["table1"]
+    header = ["model", "ADE (m)", "FDE (m)", *(f"RMSE {s} s (m)" for s in SECONDS), "params (K)"]
+    header.append("numbers")
+    mark = data_mark(document)
+    ours = "this call" + (f", {mark} data" if mark else "")
+    rows = []
+    for source, table in ((ours, part["ours"]), ("published, NGSIM", part["published"])):
+        for name, row in table.items():
+            params = row.get("params_k")
+            keys = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))
+            rows.append(
+                [name, *(shown(row[k]) for k in keys), "–" if params is None else f"{params:g}"]
+                + [source]
+            )
+    notes = [f"- {name}: {note}." for name, note in part["published_notes"].items()]
+    against = {"AiGem": part["aigem_minus_constant_velocity_rmse_m"]}
+    return [
+        f"## Table 1: AiGem beside constant velocity and the published models{_mark(document)}",
+        "",
+        *_table(header, rows),
+        "",
+        "AiGem's RMSE at h s comes from the model trained for h s, its ADE and FDE from the 5 s "
+        "model (the paper's protocol); constant velocity is scored on the same targets. Targets "
+        "at 1..5 s: " + ", ".join(_count(n) for n in part["targets"]) + ".",
+        f"Published rows: {part['published_source']}.",
+        *notes,
+        "",
+        *_difference_table("AiGem minus constant velocity", against),
+        *_noise_lines(lambda _: "AiGem against constant velocity on the same targets", against),
+        "![Table 1 as a figure](figures/table1.png)",
+        "",
+    ]
+
+
+def _published_rows(document: dict[str, Any], extra: int = 0) -> list[list[str]]:
+    """The published rows beside an ablation or the regions (`extra` empty cells after them)."""
+    return [
+        [f"{name}, published NGSIM", *map(shown, values), *["–"] * extra]
+        for name, values in document["published_rmse_m"].items()
+    ]
+
+
+def _difference_table(first: str, cells: dict[str, list[Cell | None]]) -> list[str]:
+    """A table of differences (signed cells), one row per label; none without intervals."""
+    if not any(known(row) for row in cells.values()):
+        return []
+    rows = [[label, *(shown(cell, signed=True) for cell in row)] for label, row in cells.items()]
+    return [*_table(_rmse_header(first), rows), ""]
+
+
+def _series_lines(
+    document: dict[str, Any], key: str, title: str, first: str, against: Callable[[str], str]
+) -> list[str]:
+    """An ablation's AiGem rows, constant velocity on each fit's targets, the published rows;
+    each fit's difference to the paper's configuration and what it says (`against(label)`: the
+    sentence's subject)."""
+    rows = [[label, *map(shown, values)] for label, values in document[key].items()]
+    rows += [
+        [f"{label}: constant velocity, same targets", *map(shown, values)]
+        for label, values in document[f"{key}_constant_velocity"].items()
+    ]
+    differences = document[f"{key}_difference"]
+    return [
+        f"## {title}{_mark(document)}",
+        "",
+        *_table(_rmse_header(first), rows + _published_rows(document)),
+        "",
+        document["published_rmse_note"],
+        "",
+        *_difference_table(f"{first}: minus the paper's", differences),
+        *_noise_lines(against, differences),
+        f"![{title}](figures/{key}.png)",
+        "",
+    ]
+
+
+def _epochs_words(values: Sequence[int | None]) -> str:
+    """Each seed's number, once where all agree: "2", "1, 2, 1", "–" for none."""
+    words = ["–" if value is None else str(value) for value in values]
+    return words[0] if len(set(words)) == 1 else ", ".join(words)
+
+
+def _curves_lines(document: dict[str, Any]) -> list[str]:
+    rows = [
+        [
+            name,
+            _epochs_words([len(seed["epoch"]) for seed in curve["seeds"]]),
+            _epochs_words(curve["best_epoch"]),
+            shown(curve["at_best"]["train_rmse_m"]),
+            shown(curve["at_best"]["val_rmse_m"]),
+        ]
+        for name, curve in document["curves"].items()
+    ]
+    header = ["model", "epochs", "best epoch", "train RMSE (m)", "validation RMSE (m)"]
+    several = len(document["seeds"]) > 1
+    return [
+        f"## Training curves of the paper's model (d_min 25 m){_mark(document)}",
+        "",
+        *_table(header, rows),
+        "",
+        "RMSE here is the square root of the logged MSE over the valid future steps; the best "
+        "epoch (lowest validation loss) is the model kept"
+        + ("; epochs and best epochs are each seed's, the RMSE at each seed's best epoch" * several)
+        + ". "
+        + TRAIN_ABOVE_VALIDATION,
+        "",
+        "![Training curves](figures/curves.png)",
+        "",
+    ]
+
+
+def _regions_lines(document: dict[str, Any]) -> list[str]:
+    part = document["regions"]
+    y = f"{part['front_y_m']:g}"
+    words = {
+        "front": f"front (y > {y} m)",
+        "mid": f"mid (-{y} m ≤ y ≤ {y} m)",
+        "rear": f"rear (y < -{y} m)",
+    }
+    rows = [
+        [words[region], *map(shown, values), _count(part["targets"][region][-1])]
+        for region, values in part["rmse_m"].items()
+    ]
+    rows += [
+        [
+            f"{words[region]}: constant velocity",
+            *map(shown, values),
+            _count(part["targets"][region][-1]),
+        ]
+        for region, values in part["constant_velocity_rmse_m"].items()
+    ]
+    return [
+        f"## Front / mid / rear: RMSE by the actor's present position{_mark(document)}",
+        "",
+        *_table([*_rmse_header("region"), "targets at 5 s"], rows + _published_rows(document, 1)),
+        "",
+        document["published_rmse_note"],
+        "",
+        "![RMSE by region](figures/regions.png)",
+        "",
+    ]
+
+
+def _courses(models: dict[str, dict[str, Any]], epochs: int) -> str:
+    """Each model's 'trained N of M epochs' and best epoch, why they stopped (once where alike),
+    and where the time limit stopped one, how to continue."""
+    stops = {m["stopped"] for m in models.values()}
+    each = "; ".join(
+        f"{name}: trained {m['epochs_done']} of {epochs} (best {m['best_epoch']}"
+        + ("" if len(stops) == 1 else f", {m['stopped']}")
+        + ")"
+        for name, m in models.items()
+    )
+    line = f"{each}; stopped by {next(iter(stops))}" if len(stops) == 1 else each
+    if "time limit" in stops:
+        line += "; UNFINISHED: the same `aigem paper` command continues it"
+    return line
+
+
+def _fits_lines(document: dict[str, Any]) -> list[str]:
+    """One row per run (a fit at one seed); the seed's column only where there are several."""
+    several = len(document["seeds"]) > 1
+    rows = [
+        [
+            run["run"],
+            *([str(run["seed"])] * several),
+            f"{fit['d_min_m']:g}",
+            "yes" if fit["concat_position"] else "no",
+            f"{fit['test_samples']:,}",
+            _courses(run["models"], document["settings"]["epochs"]),
+        ]
+        for fit in document["fits"].values()
+        for run in fit["runs"]
+    ]
+    header = ["run", *(["seed"] * several), "d_min (m)", "concatenation", "test samples"]
+    return ["## Runs", "", *_table([*header, "epochs of each model"], rows), ""]
+
+
+def _head_lines(document: dict[str, Any]) -> list[str]:
+    """The title, which data, the inputs and the training settings, what the intervals are."""
+    settings = document["settings"]
+    patience = settings["patience_epochs"]
+    size = sum(f["size_bytes"] for f in settings["inputs"])
+    lines = [
+        f"# AiGem: the paper's experiments{_mark(document)}",
+        "",
+        (
+            f"**{data_mark(document)}**: every number of this call comes from "
+            f"{document['data']}; only the rows marked published are NGSIM results."
+            if data_mark(document)
+            else f"Every number of this call comes from {document['data']}."
+        ),
+        "",
+        f"Inputs: {_counted(len(settings['inputs']), 'file')}, {size:,} bytes. Training: up to "
+        f"{_counted(settings['epochs'], 'epoch')}, batch {settings['batch_size']}, "
+        f"{_seeds_words(document['seeds'])}, patience {'none' if patience is None else patience}."
+        f" Scored on the {document['split']} split.",
+        "",
+        *intervals_lines(document),
+    ]
+    if not document["finished"]:
+        fits = ", ".join(document["unfinished_fits"])
+        lines[2:2] = [f"**{UNFINISHED}** (unfinished fits: {fits}).", ""]
+    return lines
+
+
+def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
+    """report.md: the report's tables, its figures, and the time each stage took (last)."""
+    lines = _head_lines(document)
+    if "table1" in document:
+        lines += _table1_lines(document)
+    if "dmin" in document:
+        against = lambda d: f"d_min {d} m against the paper's 25 m"  # noqa: E731
+        lines += _series_lines(document, "dmin", "d_min ablation", "d_min (m)", against)
+    if "concat" in document:
+        title = "Output concatenation ablation (d_min 25 m)"
+        first = "previous position at the MLP"
+        against = lambda _: "without the concatenation against with it (the paper's)"  # noqa: E731
+        lines += _series_lines(document, "concat", title, first, against)
+    if "curves" in document:
+        lines += _curves_lines(document)
+    if "regions" in document:
+        lines += _regions_lines(document)
+    lines += _fits_lines(document)
+    lines += [TIME_HEADING, "", *(f"- {stage}: {s:,.1f} s" for stage, s in timings.items()), ""]
+    return "\n".join(lines)
