@@ -78,6 +78,11 @@ SEED_INTERVALS = (
     "Student's t over the seeds, N - 1 degrees of freedom: an interval so made holds the mean "
     "over many more seeds 95 times in 100"
 )
+BOOTSTRAP_INTERVALS = (
+    "percentile bootstrap over the test samples, each sample's actors drawn together; AiGem "
+    "minus constant velocity on the same resamples. It measures the noise of the test set, not "
+    "that of training, which only more seeds measure"
+)
 # A fit's settings and its runs, one per seed: seed, run (its folder's name), models (courses).
 Fit = dict[str, Any]
 
@@ -124,11 +129,41 @@ def _row(rows: Sequence[dict[str, Any]], parameters: int | None = None) -> dict[
     return row
 
 
+def _bootstrap_table1(evaluation: Evaluation) -> dict[str, Any] | None:
+    """Table 1's cells of one seed's run from its evaluation's bootstrap intervals (resampled
+    test samples, AiGem against constant velocity paired on the same resamples); None where the
+    evaluation has none."""
+    found = evaluation.intervals
+    if found is None:
+        return None
+    keys = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))
+
+    def cells(kind: str) -> dict[str, Cell | None]:
+        return {
+            k: getattr(p, kind).as_dict() if (p := found.metrics.get(k)) else None for k in keys
+        }
+
+    aigem = cells("model") | {"params_k": round(evaluation.parameters / 1000, 1)}
+    difference = cells("difference")
+    return {
+        "ours": {"AiGem (this run)": aigem, "constant velocity": cells("constant_velocity")},
+        "aigem_minus_constant_velocity_rmse_m": [difference[f"rmse_{s}s_m"] for s in SECONDS],
+        "intervals": {
+            "kind": "bootstrap",
+            "level": LEVEL,
+            "resamples": found.resamples,
+            "samples": found.samples,
+            "method": BOOTSTRAP_INTERVALS,
+        },
+    }
+
+
 def table1(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
     """Ours (over the seeds) and constant velocity on the same targets, AiGem's RMSE minus
-    constant velocity's (paired by seed), beside the paper's rows as published."""
+    constant velocity's (paired by seed), beside the paper's rows as published. With one seed,
+    the intervals of its evaluation's bootstrap over the test samples (`intervals` says so)."""
     first = evaluations[0]
-    return {
+    cells = {
         "ours": {
             "AiGem (this run)": _row([e.model["all"] for e in evaluations], first.parameters),
             "constant velocity": _row([first.constant_velocity["all"]]),
@@ -137,6 +172,12 @@ def table1(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
             [rmse_series(e) for e in evaluations],
             [rmse_series(e, kind="constant_velocity") for e in evaluations],
         ),
+        "intervals": None,  # the seeds' (report.json's `intervals`)
+    }
+    if len(evaluations) == 1:
+        cells = _bootstrap_table1(first) or cells
+    return {
+        **cells,
         "targets": [first.model["all"].get(f"n_{s}s") for s in SECONDS],
         "published": {**paper_rows(), **paper_rows(PUBLISHED_CONSTANT_VELOCITY)},
         "published_notes": PAPER_NOTES,

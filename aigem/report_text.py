@@ -24,9 +24,10 @@ TRAIN_ABOVE_VALIDATION = (
     "the epoch's final model with dropout off."
 )
 ONE_SEED = (
-    "One seed: no number here carries an interval, so no difference between two settings (an "
-    "ablation, AiGem against constant velocity) can be told from the noise of training; "
-    "`--seeds 3` or more gives each AiGem number and each difference its 95 % interval."
+    "One seed: no difference between two settings (an ablation, AiGem against constant "
+    "velocity) can be told from the noise of training; `--seeds 3` or more gives each AiGem "
+    "number and each difference its 95 % interval over the seeds. Table 1's brackets hold the "
+    "noise of the test set alone (a bootstrap over its samples)."
 )
 
 
@@ -106,6 +107,13 @@ def _table1_lines(document: dict[str, Any]) -> list[str]:
             )
     notes = [f"- {name}: {note}." for name, note in part["published_notes"].items()]
     against = {"AiGem": part["aigem_minus_constant_velocity_rmse_m"]}
+    bootstrap = part.get("intervals")
+    if bootstrap is not None:
+        notes.append(
+            f"- In brackets: {100 * bootstrap['level']:g} % intervals of this one seed's run "
+            f"({bootstrap['method']}; {bootstrap['resamples']:,} resamples of "
+            f"{bootstrap['samples']:,} samples)."
+        )
     return [
         f"## Table 1: AiGem beside constant velocity and the published models{_mark(document)}",
         "",

@@ -10,9 +10,15 @@ from pathlib import Path
 import pytest
 
 from aigem.intervals import t_975
-from aigem.report import paper_report, write_report
+from aigem.report import paper_report, table1, write_report
 from aigem.report_plots import report_figures
-from aigem.report_text import ONE_SEED, TIME_HEADING, UNFINISHED, report_markdown
+from aigem.report_text import (
+    ONE_SEED,
+    TIME_HEADING,
+    UNFINISHED,
+    _table1_lines,
+    report_markdown,
+)
 from aigem.results import Evaluation, paper_rows
 
 SETTINGS = {
@@ -451,3 +457,39 @@ def test_noise_words_per_horizon() -> None:
     )
     assert shown(cells[0], signed=True) == "-0.50 [-0.90, -0.10]" and shown(None) == "–"
     assert shown(unknown[0]) == "0.30" and shown(1.234) == "1.23"
+
+
+def test_one_seed_table1_takes_its_intervals_from_the_evaluations_bootstrap() -> None:
+    """With one seed, Table 1's cells are the paper fit's bootstrap intervals over its test
+    samples: AiGem's, constant velocity's and their paired difference, said as such."""
+    from dataclasses import replace
+
+    from aigem.intervals import Interval, Paired, SampleIntervals
+
+    def paired(model: float, cv: float) -> Paired:
+        return Paired(
+            Interval(model, model - 0.1, model + 0.2),
+            Interval(cv, cv - 0.3, cv + 0.3),
+            Interval(model - cv, model - cv - 0.5, model - cv + 0.5),
+        )
+
+    one = evaluation(1.0)  # RMSE 2..6 m, constant velocity's 20..60 m, ADE 1, FDE 2 (CV 10, 20)
+    metrics = {f"rmse_{s}s_m": paired(1.0 + s, 10 * (1.0 + s)) for s in range(1, 6)}
+    metrics |= {"ade_m": paired(1.0, 10.0), "fde_m": paired(2.0, 20.0)}
+    one = replace(one, intervals=SampleIntervals(1000, 0, 7, metrics))
+    table = table1([one])
+    assert table["intervals"]["kind"] == "bootstrap" and table["intervals"]["samples"] == 7
+    aigem = table["ours"]["AiGem (this run)"]
+    assert aigem["rmse_3s_m"] == {"value": 4.0, "low": 3.9, "high": 4.2}
+    assert aigem["params_k"] == 74.2
+    assert table["ours"]["constant velocity"]["ade_m"] == {"value": 10.0, "low": 9.7, "high": 10.3}
+    assert table["aigem_minus_constant_velocity_rmse_m"][0] == {
+        "value": -18.0, "low": -18.5, "high": -17.5
+    }  # fmt: skip
+    document = {"table1": table, "synthetic": True, "partly_synthetic": False, "finished": True}
+    lines = _table1_lines(document)
+    text = "\n".join(lines)
+    assert "| AiGem (this run) | 1.00 [0.90, 1.20] | 2.00 [1.90, 2.20] | 2.00 [1.90, 2.20]" in text
+    assert "lower (better) beyond the noise at 1, 2, 3, 4 and 5 s" in text
+    assert "1,000 resamples of 7 samples" in text
+    assert table1([evaluation(1.0)])["intervals"] is None  # no bootstrap: bare cells
