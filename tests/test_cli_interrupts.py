@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from ngsim_cli import entry
 from ngsim_cli.ngsim import app
 from ngsim_graphs import lock
 from ngsim_graphs.config import SynthConfig
@@ -254,3 +255,23 @@ def test_a_killed_export_cslstm_leaves_nothing_the_next_does_not_remove(
     )
     assert done.returncode == 0, done.stderr
     assert siblings(folder) == [] and len(list(folder.iterdir())) == 4
+
+
+def test_a_ctrl_c_while_the_program_loads_is_answered_once_it_has_loaded(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Polars' native start-up panics on an interrupt that reaches it: the entry point holds
+    Ctrl-C off while it imports, then answers it with its one line."""
+    imported = []
+
+    def import_module(name: str) -> object:
+        signal.raise_signal(signal.SIGINT)  # Ctrl-C in the middle of the imports
+        imported.append(name)  # the import ran to its end
+        return type("Module", (), {"main": staticmethod(lambda: None)})
+
+    monkeypatch.setattr(entry.importlib, "import_module", import_module)
+    with pytest.raises(SystemExit) as exited:
+        entry.ngsim_graphs()
+    assert exited.value.code == 130 and imported == ["ngsim_cli.ngsim"]
+    assert capsys.readouterr().err == "interrupted; nothing written\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
