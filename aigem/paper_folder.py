@@ -243,6 +243,11 @@ def build_config(d_min_m: float) -> BuildConfig:
     return BuildConfig(d_min_m=d_min_m)
 
 
+def _changed(ours: dict[str, Any], theirs: dict[str, Any]) -> str:
+    """The settings of `ours` that `theirs` holds otherwise: "name THEIRS -> OURS; ..."."""
+    return "; ".join(f"{k} {theirs.get(k)} -> {v}" for k, v in ours.items() if theirs.get(k) != v)
+
+
 def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any]]) -> str | None:
     """ "" for a finished build in `build_dir` to reuse (of `config`, read from exactly `inputs`:
     list_inputs's, compared by name and sha256); None where there is none (no manifest); else
@@ -254,14 +259,12 @@ def build_state(build_dir: Path, config: BuildConfig, inputs: list[dict[str, Any
         return None
     manifest = open_build(build_dir).manifest
     if manifest.config != config:
-        ours, theirs = config.to_dict(), manifest.config.to_dict()
-        changed = [f"{k} {theirs.get(k)} -> {v}" for k, v in ours.items() if theirs.get(k) != v]
-        return f"is a build of another config ({'; '.join(changed)})"
+        changed = _changed(config.to_dict(), manifest.config.to_dict())
+        return f"is a build of another config ({changed})"
     source = SOURCES.get(manifest.dataset)
     if manifest.limits is not None and source is not None and manifest.limits != source.limits:
-        ours, theirs = asdict(source.limits), asdict(manifest.limits)
-        changed = [f"{k} {theirs[k]} -> {v}" for k, v in ours.items() if theirs[k] != v]
-        return f"holds the rows to other physical limits than its source's ({'; '.join(changed)})"
+        changed = _changed(asdict(source.limits), asdict(manifest.limits))
+        return f"holds the rows to other physical limits than its source's ({changed})"
     built = sorted((Path(f.path).name, f.sha256) for f in manifest.inputs)
     now = _contents(inputs)
     return f"was built from other inputs ({_named(built, now)})" if built != now else ""

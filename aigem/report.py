@@ -45,7 +45,7 @@ from typing import Any
 from aigem.intervals import LEVEL
 from aigem.metrics import FRONT_Y_M, REGIONS
 from aigem.paper_folder import PAPER_D_MIN_M
-from aigem.report_cells import SECONDS, Cell, difference_cells, seed_cell, series_cells
+from aigem.report_cells import SECONDS, TABLE1_KEYS, Cell, difference_cells, seed_cell, series_cells
 from aigem.report_text import report_markdown
 from aigem.results import (
     CONSTANT_VELOCITY_CITATION,
@@ -122,8 +122,9 @@ def published_series() -> dict[str, list[float]]:
 
 def _row(rows: Sequence[dict[str, Any]], parameters: int | None = None) -> dict[str, Any]:
     """Table 1's cells from each seed's row of metrics (one row: no interval)."""
-    keys = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))
-    row: dict[str, Any] = {key: seed_cell([values.get(key) for values in rows]) for key in keys}
+    row: dict[str, Any] = {
+        key: seed_cell([values.get(key) for values in rows]) for key in TABLE1_KEYS
+    }
     if parameters is not None:
         row["params_k"] = round(parameters / 1000, 1)
     return row
@@ -136,12 +137,10 @@ def _bootstrap_table1(evaluation: Evaluation) -> dict[str, Any] | None:
     found = evaluation.intervals
     if found is None:
         return None
-    keys = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))
 
-    def cells(kind: str) -> dict[str, Cell | None]:
-        return {
-            k: getattr(p, kind).as_dict() if (p := found.metrics.get(k)) else None for k in keys
-        }
+    def cells(kind: str) -> dict[str, Cell | None]:  # kind: a field of intervals.Paired
+        paired = {key: found.metrics.get(key) for key in TABLE1_KEYS}
+        return {k: None if p is None else getattr(p, kind).as_dict() for k, p in paired.items()}
 
     aigem = cells("model") | {"params_k": round(evaluation.parameters / 1000, 1)}
     difference = cells("difference")

@@ -22,6 +22,7 @@ from aigem.intervals import Interval, seed_interval
 from aigem.paper_folder import HORIZONS_S
 
 SECONDS = tuple(round(h) for h in HORIZONS_S)  # 1..5: the keys' rmse_{s}s_m
+TABLE1_KEYS = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))  # its number columns
 Cell = dict[str, float | None]  # Interval.as_dict(): value, low, high (None: no bounds)
 LOWER, HIGHER, WITHIN = "lower", "higher", "within"  # a difference's verdict
 

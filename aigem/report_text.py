@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from aigem.report_cells import SECONDS, Cell, known, noise_sentence, shown
+from aigem.report_cells import SECONDS, TABLE1_KEYS, Cell, known, noise_sentence, shown
 
 UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
 TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
@@ -100,9 +100,12 @@ def _table1_lines(document: dict[str, Any]) -> list[str]:
     for source, table in ((ours, part["ours"]), ("published, NGSIM", part["published"])):
         for name, row in table.items():
             params = row.get("params_k")
-            keys = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))
             rows.append(
-                [name, *(shown(row[k]) for k in keys), "–" if params is None else f"{params:g}"]
+                [
+                    name,
+                    *(shown(row[k]) for k in TABLE1_KEYS),
+                    "–" if params is None else f"{params:g}",
+                ]
                 + [source]
             )
     notes = [f"- {name}: {note}." for name, note in part["published_notes"].items()]
