@@ -168,9 +168,20 @@ class SampleTotals:
     def add(self, error_m: np.ndarray, mask: np.ndarray, sample: np.ndarray) -> None:
         """Add (A, K) displacement errors (metres, 0 where masked, as ErrorTotals.add returns
         them) with their (A, K) bool mask and (A,) each target's sample id."""
-        np.add.at(self.error_m, sample, error_m)
-        np.add.at(self.squared_m2, sample, error_m**2)  # squared as ErrorTotals squares them
-        np.add.at(self.count, sample, mask)
+        if not len(sample):
+            return
+        # One bincount per sum over the rows of the batch's samples (np.add.at on rows is some
+        # ten times slower); each (sample, step) sums its targets in their order, as add.at does.
+        first = int(sample.min())
+        rows = int(sample.max()) + 1 - first
+        cells = ((sample - first)[:, None] * self.steps + np.arange(self.steps)).ravel()
+        for total, values in (
+            (self.error_m, error_m),
+            (self.squared_m2, error_m**2),  # squared as ErrorTotals squares them
+            (self.count, mask),
+        ):
+            summed = np.bincount(cells, values.ravel(), minlength=rows * self.steps)
+            total[first : first + rows] += summed.reshape(rows, self.steps).astype(total.dtype)
 
 
 # A metric from sums (..., K) of errors (m), squared errors (m^2) and counts at step index k:
