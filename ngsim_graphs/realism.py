@@ -9,6 +9,11 @@ section and per lane, at each step). And rates: lane changes (a change of lane_i
 consecutive steps of a track) per vehicle-minute; the share of time below 5 m/s; the share of rows
 whose recorded acceleration is beyond 3 m/s²; the mean over tracks of the share of a track's
 steps whose jerk is beyond 15 m/s³ (the data-quality literature's measures of NGSIM's noise).
+
+`noise_measures` gives the second-order statistics that the synthetic generator is tuned to
+against a held-out real US-101 sample (docs/synthetic.md), per recording and pooled: the standard
+deviations of the heading, of the acceleration, jerk and lateral acceleration taken as finite
+differences of the recorded speed and x, and the lane changes per track-step.
 Constant velocity's errors, the other half of the report, need the graphs: `bench/realism.py`
 computes them with `aigem.baseline`.
 """
@@ -137,6 +142,80 @@ def _statistics(values: pl.DataFrame, density: pl.DataFrame, time_step_s: float)
         slow_share=_mean(values[s.SPEED_MPS] < SLOW_MPS),
         hard_accel_share=_mean(accel.abs() > HARD_ACCEL_MPS2),
         hard_jerk_track_share=_mean(per_track["jerk_mps3"]),
+    )
+
+
+@dataclass(frozen=True)
+class NoiseMeasures:
+    """Second-order statistics of a tracks table on its grid (step dt), over the rows where each
+    is defined; differences are taken within a track only. Standard deviations are population
+    ones (ddof 0); a measure is None where it has no value."""
+
+    heading_std_rad: float | None  # of HEADING_RAD, as the build derives it
+    jerk_std_mps3: float | None  # of (v[t+1] - 2 v[t] + v[t-1]) / dt², v the recorded speed
+    lateral_accel_std_mps2: float | None  # of (x[t+1] - 2 x[t] + x[t-1]) / dt²
+    accel_std_mps2: float | None  # of (v[t+1] - v[t]) / dt
+    lane_changes_per_track_step: float | None  # lane_id changes / consecutive row pairs
+    rows: int
+
+
+NOISE_MEASURES = (
+    "heading_std_rad",
+    "jerk_std_mps3",
+    "lateral_accel_std_mps2",
+    "accel_std_mps2",
+    "lane_changes_per_track_step",
+)
+
+
+def noise_values(tracks: pl.LazyFrame, time_step_s: float) -> pl.DataFrame:
+    """Per tracks row: recording ("location/period"), heading, and the finite differences of
+    `NoiseMeasures` centred on the row (jerk and lateral acceleration: null at a track's first and
+    last row) or forward from it (acceleration and lane change: null at its last row).
+
+    Rows of a track are consecutive grid steps (the tracks contract), so a shift within a track
+    is one time step.
+    """
+    after = lambda c: pl.col(c).shift(-1).over(s.TRACK_ID)  # noqa: E731
+    before = lambda c: pl.col(c).shift(1).over(s.TRACK_ID)  # noqa: E731
+    second = lambda c: (after(c) - 2 * pl.col(c) + before(c)) / time_step_s**2  # noqa: E731
+    return (
+        tracks.sort(s.TRACK_ID, s.TIME_S)
+        .select(
+            pl.concat_str(s.LOCATION, s.PERIOD, separator="/").alias("recording"),
+            pl.col(s.HEADING_RAD).alias("heading_rad"),
+            second(s.SPEED_MPS).alias("jerk_mps3"),
+            second(s.X_M).alias("lateral_accel_mps2"),
+            ((after(s.SPEED_MPS) - pl.col(s.SPEED_MPS)) / time_step_s).alias("accel_mps2"),
+            (after(s.LANE_ID) != pl.col(s.LANE_ID)).alias("lane_change"),
+        )
+        .collect(engine="streaming")
+    )
+
+
+def noise_measures(tracks: pl.LazyFrame, time_step_s: float) -> dict[str, NoiseMeasures]:
+    """`NoiseMeasures` of each recording of `tracks` (TRACKS_SCHEMA), keyed "location/period",
+    and of all rows pooled (ALL)."""
+    values = noise_values(tracks, time_step_s)
+    names = sorted(values["recording"].unique().to_list())
+    return {
+        name: _noise(values if name == ALL else values.filter(pl.col("recording") == name))
+        for name in [*names, ALL]
+    }
+
+
+def _noise(values: pl.DataFrame) -> NoiseMeasures:
+    def std(column: str) -> float | None:
+        present = values[column].drop_nulls()
+        return float(present.std(ddof=0)) if len(present) else None
+
+    return NoiseMeasures(
+        heading_std_rad=std("heading_rad"),
+        jerk_std_mps3=std("jerk_mps3"),
+        lateral_accel_std_mps2=std("lateral_accel_mps2"),
+        accel_std_mps2=std("accel_mps2"),
+        lane_changes_per_track_step=_mean(values["lane_change"].drop_nulls()),
+        rows=values.height,
     )
 
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from statistics import pstdev
+
 import polars as pl
 import pytest
 
 from ngsim_graphs import schema as s
-from ngsim_graphs.realism import ALL, densities, realism, step_values
+from ngsim_graphs.realism import ALL, densities, noise_measures, realism, step_values
 
 DT = 0.2
 
@@ -81,3 +83,58 @@ def test_rates_and_distributions_by_hand() -> None:
     headway = us101.distributions["time_headway_s"]  # no leader: no value
     assert (headway.count, headway.p50) == (4, pytest.approx(1.9))
     assert i80.distributions["space_headway_m"].count == 0
+
+
+def noisy_tracks(rows: list[tuple]) -> pl.LazyFrame:
+    """(location, period, track, step, x, speed, lane, heading) rows."""
+    names = (s.LOCATION, s.PERIOD, s.TRACK_ID, "step", s.X_M, s.SPEED_MPS, s.LANE_ID, s.HEADING_RAD)
+    frame = pl.DataFrame(rows, schema=names, orient="row")
+    return frame.lazy().with_columns((pl.col("step") * DT).alias(s.TIME_S)).drop("step")
+
+
+# us-101/p: track 1 of four steps (a lane change), track 2 of two; i-80/q: track 7 of three.
+NOISY_ROWS = [
+    ("us-101", "p", 1, 0, 1.0, 10.0, 1, 0.0),
+    ("us-101", "p", 1, 1, 1.1, 11.0, 1, 0.1),
+    ("us-101", "p", 1, 2, 1.1, 13.0, 2, -0.1),
+    ("us-101", "p", 1, 3, 1.3, 13.0, 2, 0.0),
+    ("us-101", "p", 2, 0, 5.0, 4.0, 3, 0.2),
+    ("us-101", "p", 2, 1, 5.0, 6.0, 3, 0.2),
+    ("i-80", "q", 7, 5, 5.0, 4.0, 3, 0.0),
+    ("i-80", "q", 7, 6, 5.0, 4.0, 3, 0.0),
+    ("i-80", "q", 7, 7, 5.0, 6.0, 3, 0.0),
+]
+
+
+def test_noise_measures_by_hand() -> None:
+    # Shuffled: rows are taken per track in time order, never differenced across two tracks.
+    found = noise_measures(noisy_tracks(NOISY_ROWS[::-1]), DT)
+    assert list(found) == ["i-80/q", "us-101/p", ALL]
+    us101, i80, every = found["us-101/p"], found["i-80/q"], found[ALL]
+    # Acceleration (v[t+1] - v[t]) / 0.2: track 1's 1, 2, 0 m/s per step, track 2's 2; i-80's 0, 2.
+    assert us101.accel_std_mps2 == pytest.approx(pstdev([5.0, 10.0, 0.0, 10.0]))
+    assert every.accel_std_mps2 == pytest.approx(pstdev([5.0, 10.0, 0.0, 10.0, 0.0, 10.0]))
+    # Jerk (v[t+1] - 2 v[t] + v[t-1]) / 0.04: track 1's (13 - 22 + 10) and (13 - 26 + 11); track 2
+    # has no step with a neighbour on both sides; i-80's (6 - 8 + 4).
+    assert us101.jerk_std_mps3 == pytest.approx(pstdev([25.0, -50.0]))  # 37.5
+    assert i80.jerk_std_mps3 == 0.0  # one value
+    assert every.jerk_std_mps3 == pytest.approx(pstdev([25.0, -50.0, 50.0]))
+    # Lateral acceleration from x: track 1's (1.1 - 2.2 + 1.0) / 0.04 and (1.3 - 2.2 + 1.1) / 0.04.
+    assert us101.lateral_accel_std_mps2 == pytest.approx(3.75)
+    assert every.lateral_accel_std_mps2 == pytest.approx(pstdev([-2.5, 5.0, 0.0]))
+    # Heading: every row's value.
+    assert us101.heading_std_rad == pytest.approx(pstdev([0.0, 0.1, -0.1, 0.0, 0.2, 0.2]))
+    assert every.heading_std_rad == pytest.approx(pstdev([0.0, 0.1, -0.1, 0.0, 0.2, 0.2, 0, 0, 0]))
+    # One lane change in 3 + 1 consecutive pairs; none in i-80's 2.
+    assert (us101.lane_changes_per_track_step, i80.lane_changes_per_track_step) == (0.25, 0.0)
+    assert every.lane_changes_per_track_step == pytest.approx(1 / 6)
+    assert (us101.rows, i80.rows, every.rows) == (6, 3, 9)
+
+
+def test_noise_measures_of_single_rows_are_none() -> None:
+    found = noise_measures(noisy_tracks(NOISY_ROWS[:1]), DT)
+    assert found["us-101/p"] == found[ALL]
+    alone = found[ALL]
+    assert alone.heading_std_rad == 0.0
+    assert (alone.jerk_std_mps3, alone.accel_std_mps2, alone.lateral_accel_std_mps2) == (None,) * 3
+    assert alone.lane_changes_per_track_step is None
