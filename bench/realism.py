@@ -8,9 +8,13 @@ at 1..5 s, pooled over every valid target of every split, the project's metric; 
 the kinematics of the tracks tables (`ngsim_graphs.realism`): speed, longitudinal acceleration,
 jerk, lateral speed, space and time headway, density, lane changes per vehicle-minute, the share of
 time below 5 m/s. Beside each, the figure published of NGSIM where one exists, with its source
-(`PUBLISHED`). With two builds (a user's real build against synthetic, say) it draws their
-distributions overlaid in one PNG (--plot, default bench/out/realism.png). --json writes the
-report's values.
+(`PUBLISHED`), and constant velocity's error against the published one at each horizon. Then the
+five second-order measures the synthetic generator is tuned to (`ngsim_graphs.realism.
+noise_measures`: the standard deviations of heading, jerk, lateral acceleration and acceleration,
+and lane changes per track-step), per recording and pooled, beside a held-out real US-101
+sample's (`REAL_US101`) and their ratio to it. With two builds (a user's real build against
+synthetic, say) it draws their distributions overlaid in one PNG (--plot, default
+bench/out/realism.png). --json writes the report's values.
 """
 
 from __future__ import annotations
@@ -25,7 +29,16 @@ import numpy as np
 
 from aigem.baseline import CHUNK_SAMPLES, constant_velocity
 from ngsim_graphs.build import OpenBuild, open_build
-from ngsim_graphs.realism import ALL, DISTRIBUTIONS, Realism, distribution_values, realism
+from ngsim_graphs.realism import (
+    ALL,
+    DISTRIBUTIONS,
+    NOISE_MEASURES,
+    NoiseMeasures,
+    Realism,
+    distribution_values,
+    noise_measures,
+    realism,
+)
 from ngsim_graphs.splits import SPLIT_ORDER
 
 HORIZONS_S = (1, 2, 3, 4, 5)
@@ -56,6 +69,18 @@ PUBLISHED: dict[str, Published] = {
     "hard_jerk_track_share": Published(
         0.047, 0.6923, "J. Adv. Transp. 2023, 2661136 (adaptive Kalman denoising), Table 2"
     ),
+}
+
+
+# A held-out real US-101 sample measured by the project (three recordings, 214 K rows of the
+# build's tracks table at 0.2 s) with `noise_measures`: the second-order figures the synthetic
+# generator is tuned to (docs/synthetic.md). A measurement of real data, not a published figure.
+REAL_US101: dict[str, float] = {
+    "heading_std_rad": 0.028,
+    "jerk_std_mps3": 8.1,
+    "lateral_accel_std_mps2": 0.90,
+    "accel_std_mps2": 1.74,
+    "lane_changes_per_track_step": 0.0039,
 }
 
 
@@ -120,6 +145,7 @@ class Report:
     build: str
     constant_velocity: dict[str, ConstantVelocity]
     kinematics: dict[str, Realism]
+    noise: dict[str, NoiseMeasures]  # per recording ("location/period") and ALL
 
     def rows(self, name: str) -> dict[str, float | None]:
         """Every figure of location `name` (or ALL) by the names the table prints."""
@@ -146,6 +172,7 @@ def report(build_dir: Path) -> Report:
         build=str(build_dir),
         constant_velocity=constant_velocity_errors(build),
         kinematics=realism(build.tracks(), build.config.time_step_s),
+        noise=noise_measures(build.tracks(), build.config.time_step_s),
     )
 
 
@@ -178,6 +205,47 @@ def print_table(reports: list[Report]) -> None:
         )
     sources = sorted({p.source for p in PUBLISHED.values()})
     print("\nNGSIM figures: " + "; ".join(sources))
+
+
+def print_constant_velocity(report_: Report) -> None:
+    """Constant velocity's RMSE over all of a build beside the published row, and how far off."""
+    errors = report_.constant_velocity.get(ALL)
+    print(f"\nconstant velocity, RMSE (m), {Path(report_.build).name}, against {CS_LSTM_TABLE}:")
+    for h in HORIZONS_S:
+        published = PUBLISHED[f"cv_rmse_{h}s_m"].low
+        ours = errors.rmse_m.get(h) if errors else None
+        off = "-" if ours is None else f"{100 * (ours / published - 1):+.1f} %"
+        print(f"  {h} s  {_cell(ours):>6}  published {published:<5}  off by {off}")
+
+
+def print_noise(report_: Report) -> None:
+    """The five second-order measures per recording and pooled: value (ratio to the real
+    US-101 sample's, REAL_US101)."""
+    names = list(report_.noise)
+    header = ["measure", "real US-101", *names]
+    lines = [header]
+    for measure in NOISE_MEASURES:
+        real = REAL_US101[measure]
+        cells = []
+        for name in names:
+            value = getattr(report_.noise[name], measure)
+            cells.append("-" if value is None else f"{value:.3g} ({value / real:.2f})")
+        lines.append([measure, f"{real:g}", *cells])
+    widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
+    print(
+        f"\nsecond-order measures, {Path(report_.build).name}: value (ratio to the real sample's)"
+    )
+    for line in lines:
+        print(
+            "  ".join(
+                c.rjust(w) if i else c.ljust(w)
+                for i, (c, w) in enumerate(zip(line, widths, strict=True))
+            )
+        )
+    print(
+        "real US-101 sample: held out, three recordings, 214 K rows, measured by the project "
+        "(not a published figure)"
+    )
 
 
 def plot(build_dirs: list[Path], reports: list[Report], path: Path) -> None:
@@ -232,6 +300,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("one or two builds")
     reports = [report(d) for d in args.builds]
     print_table(reports)
+    for report_ in reports:
+        print_constant_velocity(report_)
+        print_noise(report_)
     if args.json:
         args.json.write_text(json.dumps([asdict(r) for r in reports], indent=2, default=str))
     if len(reports) == 2:
