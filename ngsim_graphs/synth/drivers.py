@@ -18,10 +18,10 @@ POLITENESS = 0.2  # MOBIL's weight of the new follower's disadvantage
 SAFE_BRAKE_FPS2 = 8.0  # MOBIL safety: the new follower need not brake harder than this
 MIN_GAP_FT = 3.0
 YIELD_FT, YIELD_FPS = 80.0, 8.0  # drivers let in a vehicle stuck this close to its lane's end
-# Relaxation (as in the lane-change models with relaxation of the literature): a driver changing
-# lanes accepts a gap at which it, and its new follower, keep only a share of their usual time
-# headway, and both drift back to it over RELAX_S. Without it a dense lane almost never offers a
-# gap the IDM deems safe, and lane changes are rarer than NGSIM's.
+# Relaxation: a driver changing lanes accepts a gap at which it, and its new follower, keep only a
+# share of their usual time headway, and both drift back to it over RELAX_S. Without it a dense
+# lane almost never offers a gap the IDM deems safe, and lane changes are rarer than in the real
+# sample that docs/synthetic.md compares with.
 ACCEPTED_HEADWAY = 0.75  # share of the usual time headway
 RELAX_S = 10.0  # time constant of the return to the usual headway
 # Past this share of its lateral move a changing vehicle has left its old lane: followers there
