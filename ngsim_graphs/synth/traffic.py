@@ -92,9 +92,9 @@ FLEET_DTYPE = np.dtype(
 )
 # The error of the recorded speed is smooth: a first-order autoregressive process (noise_v_raw)
 # seen through a first-order low-pass filter of SPEED_SMOOTHING_S, as a speed estimated over a few
-# frames is. Its standard deviation after the filter is SPEED_ERROR_SD_FPS; unfiltered, an error
-# that large would give the speed's changes from one step to the next (acceleration and jerk) far
-# more scatter than NGSIM's.
+# frames is. Its standard deviation after the filter is SPEED_ERROR_SD_FPS (constant velocity's
+# error at 1 s needs it that large); unfiltered, it would give the jerk (the speed's second
+# difference) about twice the scatter of real US-101 data (docs/synthetic.md).
 SPEED_ERROR_SD_FPS = 2.45
 SPEED_ERROR_TAU_S = 0.5
 SPEED_SMOOTHING_S = 0.3
