@@ -81,4 +81,10 @@ def test_the_report_prints_ours_beside_ngsims(calibration_build: Path, tmp_path:
     [row] = [line.split() for line in result.stdout.splitlines() if line.startswith("cv_rmse_1s_m")]
     assert row[-1] == "0.73" and len(row) == 1 + 2 * 3 + 1  # two builds' locations and all
     assert "Deo and Trivedi 2018" in result.stdout
+    # The second-order measures, once per build: the real sample's figure, then value (ratio) for
+    # each of the two recordings and all.
+    rows = [line.split() for line in result.stdout.splitlines() if line.startswith("jerk_std")]
+    assert len(rows) == 2 and rows[0] == rows[1] and len(rows[0]) == 2 + 2 * 3
+    value, ratio = float(rows[0][-2]), float(rows[0][-1].strip("()"))
+    assert rows[0][1] == "8.1" and ratio == pytest.approx(value / 8.1, abs=0.006)
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and report.is_file()

@@ -16,9 +16,13 @@ from ngsim_graphs import schema
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.synth.road import Roadway, lane_of_ft
 
-WHITE_NOISE_FT = (0.05, 0.15)  # (Local_X, Local_Y) uncorrelated part of the measurement error
-SPEED_NOISE = 0.01  # relative
+WHITE_NOISE_FT = (0.04, 0.15)  # (Local_X, Local_Y) uncorrelated part of the measurement error
 ACCEL_NOISE_FPS2 = 0.15
+# The error of the recorded speed grows from nothing at a standstill (a stopped vehicle reads 0)
+# to its full size at this speed (3 m/s). Were it full at a crawl, a crawling vehicle's speed
+# would often read above the build's 2 m/s at which headings start to count, and its heading
+# would be that of its position errors rather than of its motion.
+FULL_SPEED_ERROR_FPS = 10.0
 
 
 def to_global_ft(
@@ -102,15 +106,16 @@ def _measure(
     seen: Sightings, roadway: Roadway, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Local_X, Local_Y (ft, 3 decimals), v_Vel (ft/s) and v_Acc (ft/s^2, 2 decimals), (R,) each:
-    the simulated state plus correlated and white measurement noise. Speeds are never negative and
-    a stopped vehicle reads exactly 0."""
+    the simulated state plus correlated and white measurement noise (v_Vel's error: correlated
+    only, faded in over the slowest speeds). Speeds are never negative and a stopped vehicle reads
+    exactly 0."""
     n = len(seen.uid)
     white = rng.standard_normal((2, n)) * np.array(WHITE_NOISE_FT)[:, None]
     local_x = np.round(seen.x_ft + seen.noise_x_ft + white[0], 3)
     local_y = np.clip(seen.y_ft + seen.noise_y_ft + white[1], 0.0, roadway.length_ft).round(3)
     moving = seen.v_fps > 0
-    relative = 1.0 + SPEED_NOISE * rng.standard_normal(n)
-    speed = np.maximum(seen.v_fps * relative + seen.noise_v_fps * moving, 0.0).round(2)
+    fade = np.minimum(seen.v_fps / FULL_SPEED_ERROR_FPS, 1.0)
+    speed = np.maximum(seen.v_fps + seen.noise_v_fps * fade, 0.0).round(2)
     white = ACCEL_NOISE_FPS2 * rng.standard_normal(n)
     accel = np.round(seen.acc_fps2 + (seen.noise_acc_fps2 + white) * moving, 2)
     return local_x, local_y, speed, accel

@@ -14,14 +14,24 @@ from ngsim_graphs.synth.road import Roadway, change_bias, lane_open
 
 KEY_LANE = 1.0e5  # sort key lane * KEY_LANE + y + KEY_OFFSET orders entries by lane, then y
 KEY_OFFSET = 1.0e4
-POLITENESS = 0.3  # MOBIL's weight of the new follower's disadvantage
+POLITENESS = 0.2  # MOBIL's weight of the new follower's disadvantage
 SAFE_BRAKE_FPS2 = 8.0  # MOBIL safety: the new follower need not brake harder than this
 MIN_GAP_FT = 3.0
 YIELD_FT, YIELD_FPS = 80.0, 8.0  # drivers let in a vehicle stuck this close to its lane's end
+# Relaxation: a driver changing lanes accepts a gap at which it, and its new follower, keep only a
+# share of their usual time headway, and both drift back to it over RELAX_S. Without it a dense
+# lane almost never offers a gap the IDM deems safe, and lane changes are rarer than in the real
+# sample that docs/synthetic.md compares with.
+ACCEPTED_HEADWAY = 0.75  # share of the usual time headway
+RELAX_S = 10.0  # time constant of the return to the usual headway
+# Past this share of its lateral move a changing vehicle has left its old lane: followers there
+# no longer follow it.
+LEFT_OLD_LANE = 0.5
 
 
 class LaneIndex(NamedTuple):
-    """Lane occupancy: (E,) entries sorted by lane then y; a changing vehicle has two entries."""
+    """Lane occupancy: (E,) entries sorted by lane then y; a changing vehicle has two entries until
+    it has left its old lane (LEFT_OLD_LANE)."""
 
     keys: np.ndarray
     vehicle: np.ndarray  # fleet row of each entry
@@ -35,7 +45,8 @@ def lane_index(fleet: np.ndarray, roadway: Roadway) -> tuple[LaneIndex, LaneInde
     A vehicle stuck near the end of the extra lane that must leave it also appears in the lane it
     waits for: the drivers there stop behind it, as real drivers let a waiting car in.
     """
-    changing = np.flatnonzero(fleet["from_lane"] != fleet["lane"])
+    leaving = (fleet["from_lane"] != fleet["lane"]) & (fleet["change_frac"] < LEFT_OLD_LANE)
+    changing = np.flatnonzero(leaving)
     waiting = np.zeros(0, np.int64)
     if roadway.extra_lane_ft is not None:
         must_leave = ~fleet["exits"] if roadway.extra_lane_exits else True
@@ -78,16 +89,24 @@ def neighbours_at(
 
 
 def idm(
-    fleet: np.ndarray, rows: np.ndarray, v0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray
+    fleet: np.ndarray,
+    rows: np.ndarray,
+    v0: np.ndarray,
+    gap: np.ndarray,
+    v_lead: np.ndarray,
+    headway_s: np.ndarray | None = None,
 ) -> np.ndarray:
     """IIDM acceleration (ft/s^2) of fleet rows behind a leader gap ft away (inf: none) at v_lead.
 
     The improved IDM (Treiber and Kesting 2013) keeps the IDM's dynamics but not its low free-flow
     capacity: a driver cruises at v0 until the gap falls to the desired one. Above v0 (entering the
-    bottleneck) it brakes towards v0 at no more than about b.
+    bottleneck) it brakes towards v0 at no more than about b. The time headway is the driver's
+    own less its relaxation (`relax_s`), unless `headway_s` gives another.
     """
     v, a, b = fleet["v"][rows], fleet["a_max"][rows], fleet["b_comf"][rows]
-    dynamic = v * fleet["headway_s"][rows] + v * (v - v_lead) / (2.0 * np.sqrt(a * b))
+    if headway_s is None:
+        headway_s = fleet["headway_s"][rows] - fleet["relax_s"][rows]
+    dynamic = v * headway_s + v * (v - v_lead) / (2.0 * np.sqrt(a * b))
     z = (fleet["s0"][rows] + np.maximum(dynamic, 0.0)) / np.maximum(gap, 0.5)
     below = v <= v0
     ratio = np.where(below, v / v0, v0 / np.maximum(v, 1e-6))
@@ -154,16 +173,17 @@ def change_gain(
     target: np.ndarray,
     roadway: Roadway,
 ) -> np.ndarray:
-    """MOBIL incentive (ft/s^2) of moving rows to target lanes; -inf where unsafe or impossible."""
+    """MOBIL incentive (ft/s^2) of moving rows to target lanes; -inf where unsafe or impossible.
+    The mover and its new follower are judged at the time headway they accept (relaxation)."""
     y = fleet["y"][rows]
     leader, follower = neighbours_at(index, target, y)
     gap_ahead, v_ahead = gap_to(fleet, rows, leader, y)
-    v0 = fleet["v0"]
-    own_new = idm(fleet, rows, v0[rows], gap_ahead, v_ahead)
+    v0, accepted = fleet["v0"], ACCEPTED_HEADWAY * fleet["headway_s"]
+    own_new = idm(fleet, rows, v0[rows], gap_ahead, v_ahead, accepted[rows])
     has_f = follower >= 0
     behind = np.where(has_f, follower, rows)
     gap_behind = np.where(has_f, y - fleet["length"][rows] - fleet["y"][behind], np.inf)
-    follower_new = idm(fleet, behind, v0[behind], gap_behind, fleet["v"][rows])
+    follower_new = idm(fleet, behind, v0[behind], gap_behind, fleet["v"][rows], accepted[behind])
     follower_loss = np.where(has_f, follower_new - acc[behind], 0.0)
     exits = fleet["exits"][rows]
     bias = change_bias(roadway, fleet["lane"][rows], target, y, exits)
@@ -176,3 +196,12 @@ def change_gain(
         & (np.where(has_f, follower_new, 0.0) > -safe_brake)
     )
     return np.where(safe & lane_open(roadway, target, y, exits), gain, -np.inf)
+
+
+def relax(fleet: np.ndarray, index: LaneIndex, rows: np.ndarray, target: np.ndarray) -> None:
+    """Shorten the time headway (`relax_s`) of fleet rows that start to move to target lanes (N,),
+    and of their new followers there, to the share they accepted (ACCEPTED_HEADWAY)."""
+    _, follower = neighbours_at(index, target, fleet["y"][rows])
+    for shortened in (rows, follower[follower >= 0]):
+        short = (1.0 - ACCEPTED_HEADWAY) * fleet["headway_s"][shortened]
+        fleet["relax_s"][shortened] = np.maximum(fleet["relax_s"][shortened], short)

@@ -8,7 +8,7 @@ feet/s, feet/s^2.
 
 The fleet is a numpy structured array, one row per simulated vehicle, appended on entry and removed
 on exit. A vehicle changing lanes (`from_lane != lane`) follows leaders in both lanes and is a
-leader in both until its lateral move ends.
+leader in both until it is half-way across (`drivers.LEFT_OLD_LANE`).
 """
 
 from __future__ import annotations
@@ -22,12 +22,14 @@ import polars as pl
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, Recording
 from ngsim_graphs.synth.camera import Sightings, observed_rows
 from ngsim_graphs.synth.drivers import (
+    RELAX_S,
     LaneIndex,
     accelerations,
     change_gain,
     gap_to,
     lane_index,
     neighbours_at,
+    relax,
 )
 from ngsim_graphs.synth.road import (
     ROADWAYS,
@@ -43,9 +45,17 @@ from ngsim_graphs.synth.road import (
 DT_S = 0.1  # one NGSIM frame
 WARMUP_S = 150.0  # simulated before frame 0, so the recording opens on settled traffic
 MAX_BRAKE_FPS2 = 30.0  # about 0.9 g
-DECISION_EVERY = 10  # steps between two lane-change decisions of one driver (1 s)
-CHANGE_THRESHOLD_FPS2 = 0.3  # advantage a discretionary lane change must bring
+DECISION_EVERY = 5  # steps between two lane-change decisions of one driver (0.5 s)
+CHANGE_THRESHOLD_FPS2 = 0.1  # advantage a discretionary lane change must bring
 COOLDOWN_S = 4.0  # after the start of one lane change, before the next decision
+# A lateral move follows a path along the lane: it takes at least a few seconds (its own, drawn
+# in CHANGE_MIN_S) and, at a speed v, at least the path's length / v, so that its angle to the
+# lane stays a few degrees (NGSIM's headings are small); but no more than CHANGE_MAX_S, by which a
+# driver crawling in a queue has squeezed in all the same, at a steeper angle.
+CHANGE_MIN_S = (3.0, 5.0)
+CHANGE_LENGTH_FT = (180.0, 300.0)  # about 55 to 90 m
+CHANGE_MAX_S = 20.0
+RELAX_DECAY = np.exp(-DT_S / RELAX_S)  # per step, of a relaxed driver's shortened headway
 ENTRY_GAP_FT, ENTRY_HEADWAY_S = 7.0, 1.2  # room a vehicle needs to enter at speed v
 MAX_PENDING = 20  # vehicles waiting to enter at one entry point
 
@@ -58,10 +68,13 @@ FLEET_DTYPE = np.dtype(
         ("lane", np.int16),  # lane it drives in, or moves to
         ("from_lane", np.int16),  # lane it leaves while changing, else == lane
         ("change_s", np.float64),  # time since the lane change began
-        ("change_dur_s", np.float64),
+        ("change_frac", np.float64),  # progress of the lateral move, 0 to 1
+        ("change_min_s", np.float64),  # shortest duration of the lateral move
+        ("change_len_ft", np.float64),  # length of its path along the lane
         ("offset_x", np.float64),  # preferred lateral offset from the lane centre, ft
         ("v0", np.float64),  # IDM desired speed, ft/s
         ("headway_s", np.float64),  # IDM safe time headway
+        ("relax_s", np.float64),  # by how much it is shortened for now (relaxation)
         ("a_max", np.float64),  # IDM maximum acceleration, ft/s^2
         ("b_comf", np.float64),  # IDM comfortable deceleration, ft/s^2
         ("s0", np.float64),  # IDM jam distance, ft
@@ -73,13 +86,27 @@ FLEET_DTYPE = np.dtype(
         ("noise_y", np.float64),
         ("noise_a", np.float64),  # driver's acceleration noise, ft/s^2
         ("noise_v", np.float64),  # error of the recorded speed (v_Vel), ft/s
+        ("noise_v_raw", np.float64),  # what noise_v smooths
         ("noise_acc", np.float64),  # error of the recorded acceleration (v_Acc), ft/s^2
     ]
 )
+# The error of the recorded speed is smooth: a first-order autoregressive process (noise_v_raw)
+# seen through a first-order low-pass filter of SPEED_SMOOTHING_S, as a speed estimated over a few
+# frames is. Its standard deviation after the filter is SPEED_ERROR_SD_FPS (constant velocity's
+# error at 1 s needs it that large); unfiltered, it would give the jerk (the speed's second
+# difference) about twice the scatter of real US-101 data (docs/synthetic.md).
+SPEED_ERROR_SD_FPS = 2.45
+SPEED_ERROR_TAU_S = 0.5
+SPEED_SMOOTHING_S = 0.3
+_SMOOTH = np.exp(-DT_S / SPEED_SMOOTHING_S)
+_RHO_V = np.exp(-DT_S / SPEED_ERROR_TAU_S)
+# The filter's variance gain on an AR(1) input: (1 - b)(1 + b rho) / ((1 + b)(1 - b rho)).
+_GAIN_V = (1 - _SMOOTH) * (1 + _SMOOTH * _RHO_V) / ((1 + _SMOOTH) * (1 - _SMOOTH * _RHO_V))
 # Each a first-order autoregressive process per vehicle: its standard deviation and time constant.
-NOISES = ("noise_x", "noise_y", "noise_a", "noise_v", "noise_acc")
-NOISE_SD = np.array([0.12, 0.35, 1.4, 2.2, 5.4])  # ft, ft, ft/s^2, ft/s, ft/s^2
-NOISE_RHO = np.exp(-DT_S / np.array([1.0, 1.0, 2.0, 1.0, 0.3]))  # AR(1) factors
+NOISES = ("noise_x", "noise_y", "noise_a", "noise_v_raw", "noise_acc")
+# ft, ft, ft/s^2, ft/s, ft/s^2
+NOISE_SD = np.array([0.12, 0.35, 0.9, SPEED_ERROR_SD_FPS / np.sqrt(_GAIN_V), 5.4])
+NOISE_RHO = np.exp(-DT_S / np.array([5.0, 1.0, 2.0, SPEED_ERROR_TAU_S, 0.3]))  # AR(1) factors
 
 
 @dataclass
@@ -176,12 +203,13 @@ def _new_vehicles(sim: _Simulation, n: int) -> np.ndarray:
     new["b_comf"] = rng.uniform(5.0, 7.0, n)
     new["s0"] = rng.uniform(5.5, 9.0, n)
     new["offset_x"] = rng.normal(0.0, 0.6, n).clip(-1.5, 1.5)
-    new["change_dur_s"] = 1.0
+    new["change_frac"] = new["change_min_s"] = new["change_len_ft"] = 1.0
     new["change_s"] = COOLDOWN_S
     for name, value in zip(
         NOISES, rng.normal(0.0, NOISE_SD[:, None], (len(NOISES), n)), strict=True
     ):
         new[name] = value
+    new["noise_v"] = rng.normal(0.0, SPEED_ERROR_SD_FPS, n)
     new["uid"] = sim.next_uid + np.arange(n)
     sim.next_uid += n
     sim.created.append(new[["uid", "length", "width", "v_class"]])
@@ -228,15 +256,17 @@ def _change_lanes(sim: _Simulation, index: LaneIndex, acc: np.ndarray, step: int
     target = (lane + direction).astype(np.int16)
     gain = change_gain(fleet, index, acc, rows, target, sim.roadway)
     moving = rows[gain > CHANGE_THRESHOLD_FPS2]
+    relax(fleet, index, moving, (fleet["lane"][moving] + direction).astype(np.int16))
     fleet["from_lane"][moving] = fleet["lane"][moving]
     fleet["lane"][moving] += direction
-    fleet["change_s"][moving] = 0.0
-    fleet["change_dur_s"][moving] = sim.rng.uniform(3.0, 5.0, moving.size)
+    fleet["change_s"][moving] = fleet["change_frac"][moving] = 0.0
+    fleet["change_min_s"][moving] = sim.rng.uniform(*CHANGE_MIN_S, moving.size)
+    fleet["change_len_ft"][moving] = sim.rng.uniform(*CHANGE_LENGTH_FT, moving.size)
 
 
 def _lateral_ft(fleet: np.ndarray) -> np.ndarray:
     """Noise-free Local_X (N,) ft: lane centre plus offset, eased across a lane change."""
-    frac = np.clip(fleet["change_s"] / fleet["change_dur_s"], 0.0, 1.0)
+    frac = np.clip(fleet["change_frac"], 0.0, 1.0)
     ease = frac * frac * (3.0 - 2.0 * frac)
     start, goal = lane_centre_ft(fleet["from_lane"]), lane_centre_ft(fleet["lane"])
     return start + (goal - start) * ease + fleet["offset_x"]
@@ -252,12 +282,16 @@ def _move(sim: _Simulation, acc: np.ndarray) -> None:
     fleet["v"] = v_new
     fleet["acc"] = (v_new - v_old) / DT_S
     fleet["change_s"] += DT_S
-    done = (fleet["from_lane"] != fleet["lane"]) & (fleet["change_s"] >= fleet["change_dur_s"])
+    fleet["relax_s"] *= RELAX_DECAY
+    rate = np.clip(v_new / fleet["change_len_ft"], 1.0 / CHANGE_MAX_S, 1.0 / fleet["change_min_s"])
+    fleet["change_frac"] += rate * DT_S
+    done = (fleet["from_lane"] != fleet["lane"]) & (fleet["change_frac"] >= 1.0)
     fleet["from_lane"][done] = fleet["lane"][done]
     shocks = sim.rng.standard_normal((len(NOISES), n))
     shocks *= (NOISE_SD * np.sqrt(1 - NOISE_RHO**2))[:, None]
     for k, name in enumerate(NOISES):
         fleet[name] = NOISE_RHO[k] * fleet[name] + shocks[k]
+    fleet["noise_v"] = _SMOOTH * fleet["noise_v"] + (1 - _SMOOTH) * fleet["noise_v_raw"]
 
 
 def _in_view(fleet: np.ndarray, roadway: Roadway) -> np.ndarray:
