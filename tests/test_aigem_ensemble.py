@@ -147,10 +147,12 @@ def test_steps_of_the_ensemble_are_steps_of_each_model(
     # Adam steps a weight by lr m / (sqrt(v) + 1e-8): where a gradient is zero but for rounding
     # (an att_dst whose scores leaky_relu keeps linear cancels in the softmax: ~1e-14), the
     # rounding / 1e-8 shows as up to ~1e-8 per step. A wrong step is off by the order of lr, 1e-2.
+    # The next steps' gradients, taken at weights that far apart, differ by as much again (up to
+    # ~3e-9 in the Adam moments of the synthetic batch): the states are held to the same bound.
     for model, alone in zip(models, alone_models, strict=True):
         torch.testing.assert_close(model.state_dict(), alone.state_dict(), rtol=1e-7, atol=1e-7)
     for mine, theirs in zip(optimizers, alone_optimizers, strict=True):
-        torch.testing.assert_close(mine.state_dict(), theirs.state_dict(), rtol=1e-7, atol=1e-12)
+        torch.testing.assert_close(mine.state_dict(), theirs.state_dict(), rtol=1e-7, atol=1e-7)
         for stream in streams:
             assert torch.equal(after, stream)  # the stream moved on as each model's own
     assert float(alone_losses[-1][0]) != float(alone_losses[0][0])  # it did learn
