@@ -66,14 +66,15 @@ def test_data_defaults_to_the_runs_own_build(trained_run: Path, tiny_build: Path
 
 
 def test_another_build_needs_the_flag(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
-    # every pair of actors within d_sense shares edges: the test samples' graphs differ
-    other = _build(tiny_build, tmp_path / "dmin12", d_min_m=12.0)
+    # neighbours within 8 m, not 12: the test samples' graphs lose the farther ones (the tiny
+    # build's test graphs hold no two actors within 12 m of each other, so d_min changes nothing)
+    other = _build(tiny_build, tmp_path / "dsense8", d_sense_m=8.0)
     code, _, err = _evaluate(str(trained_run), "--data", str(other))
     theirs = json.loads((other / "manifest.json").read_text())["config_hash"][:12]
     ours = json.loads((tiny_build / "manifest.json").read_text())["config_hash"][:12]
     assert code == 1 and err == (
         f"error: {other}: not the build that run {trained_run} was trained on (its config hash "
-        f"{theirs} is not the run's {ours}: d_min_m 6.0 -> 12.0); pass --other-build to evaluate "
+        f"{theirs} is not the run's {ours}: d_sense_m 12.0 -> 8.0); pass --other-build to evaluate "
         "on another build\n"
     )
     code, out, err = _evaluate(str(trained_run), "--data", str(other), "--other-build")

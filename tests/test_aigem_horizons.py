@@ -198,12 +198,12 @@ def test_a_member_is_the_single_horizon_fit_in_float64(
 def test_a_time_limit_cuts_the_ensembles_epoch_as_a_models_alone(
     float64: None, tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A clock that advances 1 s each time the loop reads it (some 3 reads a batch, ~100 an
-    epoch), so that 2.5 minutes run out in the second epoch, after the same batch in both fits:
-    the models are unstacked and checkpointed after the batch the limit cut."""
+    """A clock that advances 1 s each time the loop reads it (some 3 reads a batch, ~77 an
+    epoch of the tiny build), so that 2 minutes run out in the second epoch, after the same batch
+    in both fits: the models are unstacked and checkpointed after the batch the limit cut."""
     ticks = count()
     monkeypatch.setattr(epochs, "time", SimpleNamespace(monotonic=lambda: float(next(ticks))))
-    train = replace(F64_TRAIN, epochs=3, max_minutes=2.5)
+    train = replace(F64_TRAIN, epochs=3, max_minutes=2.0)
     run = tmp_path / "run"
     results = fit_horizons(tiny_build, run, (1.0, 2.0), F64_MODEL, train, "cpu")
     assert [(r.stopped_because, r.epochs_done) for r in results] == [("time limit", 2)] * 2

@@ -154,11 +154,14 @@ def test_each_panel_is_zoomed_to_its_data_with_the_lanes_apart(tiny_build: Path)
         nodes = batch.node_features[batch.node_ptr[b] : batch.node_ptr[b + 1], :2]
         targets = batch.node_sample[batch.target_node] == b
         truth = np.where(batch.target_mask[targets][..., None], batch.target_xy[targets], np.nan)
-        for xy in (nodes, truth.reshape(-1, 2), far["far"][targets].reshape(-1, 2)):
+        drawn = (nodes, truth.reshape(-1, 2), far["far"][targets].reshape(-1, 2))
+        for xy in drawn:
             assert _enclosed(axes, xy[:, ::-1]), b
         across = abs(np.subtract(*axes.get_ylim()))
-        lateral = np.ptp(nodes[:, 0])
-        assert across <= max(lateral + 2 * LATERAL_MARGIN_M, MIN_LATERAL_SPAN_M) + 2.5  # the far
+        lateral = np.ptp(
+            np.concatenate([[0.0], *(xy[:, 0][np.isfinite(xy[:, 0])] for xy in drawn)])
+        )
+        assert across == pytest.approx(max(lateral + 2 * LATERAL_MARGIN_M, MIN_LATERAL_SPAN_M))
         assert across < 30.0 and axes.yaxis_inverted() and axes.get_aspect() == "auto"
         assert np.ptp(axes.get_xlim()) > 3 * across  # along the road: long and narrow
 
