@@ -19,7 +19,7 @@ table says what it could not measure):
 5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate`);
 6. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
    and the paper's protocol (100 epochs, the four fits) extrapolated from it to the six
-   15-minute recordings (81,815 train graphs): per epoch times 100 and the train graphs' ratio;
+   15-minute recordings (79,504 train graphs): per epoch times 100 and the train graphs' ratio;
 7. with --accuracy-epochs N (N > 0), `bench/bench_accuracy.py` on the build: ACCURACY_SETTINGS
    for N epochs each, the 5 s model, to constant velocity's validation loss (the fit's
    baseline.json): the figures that choose the GPU's default batch, rate and schedule.
@@ -38,7 +38,7 @@ from pathlib import Path
 
 PAPER_EPOCHS = 100  # the paper's protocol
 PAPER_FITS = 4  # aigem paper's fits: d_min 25 with and without concatenation, d_min 0, d_min 50
-FULL_TRAIN_GRAPHS = 81_815  # the six 15-minute synthetic recordings' train split
+FULL_TRAIN_GRAPHS = 79_504  # the six 15-minute synthetic recordings' train split
 HORIZONS = "1,2,3,4,5"
 
 
