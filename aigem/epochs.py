@@ -153,6 +153,9 @@ def _train_epoch(
             unstack_together(trainer)
     for member in active:  # the mean of the epoch (a time limit may have cut it)
         member.shown = _read_loss(float(member.running), max(batches, 1), epoch, member.who)
+    # The bar's last frame of the epoch shows its mean loss (an epoch shorter than two reads
+    # would otherwise end showing none).
+    report(epoch + 1, batches, total, tuple(m.shown if m in active else math.nan for m in members))
     return graphs, cut
 
 
