@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 
 from aigem.config import ModelConfig
 from aigem.data import xy_to_metres
@@ -77,6 +78,18 @@ class Ensemble:
         return forward_members(
             self.params, self.config, batch, self.steps, self.training, self.decode
         )
+
+    def one_by_one(self, batch: dict) -> torch.Tensor:
+        """`__call__`'s (M, A, K, 2), the members run one after the other (M = 1 each, member m
+        over its own steps): the same numbers to float rounding, and on the CPU faster than the
+        stacked pass at evaluation's batches (docs/benchmarks.md). Not for training: each member
+        would draw its own dropout masks."""
+        longest, outputs = max(self.steps), []
+        for member, steps in enumerate(self.steps):
+            params = {name: p[member : member + 1] for name, p in self.params.items()}
+            out = forward_members(params, self.config, batch, (steps,), self.training, self.decode)
+            outputs.append(F.pad(out, (0, 0, 0, longest - steps)))
+        return torch.cat(outputs)
 
     def member_sums(
         self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler

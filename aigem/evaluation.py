@@ -38,6 +38,7 @@ from aigem.refusals import Member, check_build, check_one_fit, resolve_build
 from aigem.results import Evaluation, ModelEvaluation, Rows, Scores
 from aigem.runs import load_model
 from aigem.scoring import NonFinitePredictionError, score_members
+from ngsim_graphs.build import OpenBuild
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scaling import MinMaxScaler
@@ -105,13 +106,18 @@ class LoadedRun:
 
 
 def load_run(
-    run_dir: Path, build_dir: Path | None, device: torch.device, other_build: bool
+    run_dir: Path,
+    build_dir: Path | None,
+    device: torch.device,
+    other_build: bool,
+    opened: dict[Path, OpenBuild] | None = None,
 ) -> LoadedRun:
     """The run's best model on `device` and the build to score it on (None: the run's own).
-    Another build than the run's is refused unless `other_build` (aigem.refusals.check_build)."""
+    Another build than the run's is refused unless `other_build` (aigem.refusals.check_build;
+    `opened`: the builds opened so far, each opened once)."""
     model, info = load_model(run_dir, device)
     build_dir = resolve_build(info, build_dir)
-    same_build = check_build(info, build_dir, run_dir, model.config, other_build)
+    same_build = check_build(info, build_dir, run_dir, model.config, other_build, opened=opened)
     scaler = run_scaler(info["scaler"], run_dir / BEST)
     return LoadedRun(run_dir, model, info, build_dir, same_build, scaler)
 
@@ -226,7 +232,8 @@ def evaluate(
     run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
     group = read_group(run_dir)
     device = pick_device(device_choice)
-    runs = [load_run(member, build_dir, device, other_build) for member in group.members]
+    opened: dict[Path, OpenBuild] = {}  # the members' build, its files checked once
+    runs = [load_run(member, build_dir, device, other_build, opened) for member in group.members]
     check_one_fit(
         run_dir, [Member(r.run_dir, r.model.config, r.scaler.to_dict(), r.build_dir) for r in runs]
     )

@@ -22,6 +22,9 @@ PyG form; the two agree to float32 rounding) on the nodes of the batch's `aigem.
 - The edge-feature attention term `att_edge . lin_edge(e)` is linear in the edge feature e, so it
   is computed as e @ (lin_edge.weight^T att_edge): one number per edge and head instead of an
   (E, H) projection; likewise h . att = z . (lin.weight^T att).
+- The attention sums the sources' inputs and projects the sum, sum_j alpha_ij W z_j =
+  W sum_j alpha_ij z_j (GATConv's `lin` has no bias): the product runs over the destinations
+  only, and the first layer sums the nodes' few input features, not H.
 - Dropout masks are drawn from the global generator, one mask for all members (the members of a
   fit start every epoch from one seed, and a model trained alone draws the same masks): on the
   CPU `F.dropout` is `x * empty_like(x).bernoulli_(1 - p).div_(1 - p)`, which this draws.
@@ -85,16 +88,17 @@ def _block_diagonal(crow, col, dst, members: int, n_src: int) -> tuple[torch.Ten
 # The encoder
 
 
-def _gat(p: Params, conv: str, config: ModelConfig, z, h, crow, col, attr, dst, training: bool):  # noqa: ANN001, ANN201
+def _gat(p: Params, conv: str, config: ModelConfig, z, crow, col, attr, dst, training: bool):  # noqa: ANN001, ANN201
     """GATConv `conv` (a parameter prefix) of each member without its bias at the first n_dst
-    nodes: z (M, n_src, F) or shared (n_src, F), h its (M, n_src, heads C) projection ->
-    (M, n_dst, C); the edges as CSR rows (destinations) over the n_src sources, dst[e] edge e's
-    row."""
-    (members, n_src), heads, channels = h.shape[:2], config.heads, config.hidden
-    n_dst = crow.numel() - 1
+    nodes: z (M, n_src, F) or shared (n_src, F) -> (M, n_dst, C); the edges as CSR rows
+    (destinations) over the n_src sources, dst[e] edge e's row. The attention sums the sources'
+    inputs, projected after: sum_j alpha_ij W z_j = W sum_j alpha_ij z_j."""
+    weight = p[f"{conv}.lin.weight"]  # (M, heads C, F)
+    (members, _, features), heads, channels = weight.shape, config.heads, config.hidden
+    n_src, n_dst = z.shape[-2], crow.numel() - 1
     big_crow, big_col, big_dst, dst_as_src = _block_diagonal(crow, col, dst, members, n_src)
-    # h . att = z . (lin.weight^T att) per head: one product with 2 heads columns
-    weight = p[f"{conv}.lin.weight"].view(members, heads, channels, -1)
+    # W z . att = z . (W^T att) per head: one product with 2 heads columns
+    weight = weight.view(members, heads, channels, features)
     att = torch.cat([p[f"{conv}.att_src"], p[f"{conv}.att_dst"]], 1)  # (M, 2, heads, C)
     att = att.view(members, 2 * heads, channels, 1)
     scores = _linear(z, (weight.repeat(1, 2, 1, 1) * att).sum(2), None)  # (M, n_src, 2 heads)
@@ -103,24 +107,29 @@ def _gat(p: Params, conv: str, config: ModelConfig, z, h, crow, col, attr, dst, 
         0, dst_as_src
     )  # (M E, heads)
     if f"{conv}.lin_edge.weight" in p:
-        weight = p[f"{conv}.lin_edge.weight"].view(members, heads, channels, -1)
+        edge_weight = p[f"{conv}.lin_edge.weight"].view(members, heads, channels, -1)
         att = p[f"{conv}.att_edge"].view(members, heads, channels, 1)
-        edge_att = (weight * att).sum(2).transpose(1, 2)  # (M, D, heads)
+        edge_att = (edge_weight * att).sum(2).transpose(1, 2)  # (M, D, heads)
         if edge_att.shape[1] == 1:  # AiGem's edge_dim: an outer product, not a matmul
-            edge_scores = attr.to(h.dtype) * edge_att
+            edge_scores = attr.to(z.dtype) * edge_att
         else:
-            edge_scores = torch.matmul(attr.to(h.dtype), edge_att)
+            edge_scores = torch.matmul(attr.to(z.dtype), edge_att)
         scores = scores + edge_scores.view(-1, heads)
     alpha = F.leaky_relu(scores, NEGATIVE_SLOPE)
-    alpha = segment_softmax(alpha, big_dst, members * n_dst)
+    alpha = segment_softmax(alpha, big_crow, big_dst)
     alpha = _dropout(alpha.view(members, -1, heads), config.dropout, training).view(-1, heads)
-    x = h.view(members * n_src, heads, channels)
+    sources = z.expand(members, n_src, features).reshape(members * n_src, features)
     per_head = [
-        aggregate(alpha[:, k].contiguous(), x[:, k], big_crow, big_col, big_dst)
+        _linear(
+            aggregate(alpha[:, k].contiguous(), sources, big_crow, big_col, big_dst).view(
+                members, n_dst, features
+            ),
+            weight[:, k],
+            None,
+        )
         for k in range(heads)
     ]
-    out = per_head[0] if heads == 1 else torch.stack(per_head, 1).mean(1)
-    return out.view(members, n_dst, channels)
+    return per_head[0] if heads == 1 else torch.stack(per_head, 1).mean(1)
 
 
 def _encoder_layer(
@@ -131,8 +140,7 @@ def _encoder_layer(
     total = None
     for edge_type, edge_adjacency in zip(config.edge_types, adjacency, strict=True):
         conv = f"encoder.{index}.{edge_type}"
-        h = _linear(z, p[f"{conv}.lin.weight"], None)  # PyG's GATConv.lin has no bias
-        gat = _gat(p, conv, config, z, h, *edge_adjacency.prefix(n_dst), training)
+        gat = _gat(p, conv, config, z, *edge_adjacency.prefix(n_dst), training)
         gat = gat + p[f"{conv}.bias"].unsqueeze(1)
         total = gat if total is None else total + gat
     own = z[:n_dst] if z.dim() == 2 else z[:, :n_dst]

@@ -33,7 +33,7 @@ from aigem.records import (
     train_config,
 )
 from aigem.unfinished import is_started, refuse_other_contents, unfinished_group, unfinished_start
-from ngsim_graphs.build import open_build
+from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import N_TARGETS, Split
@@ -250,6 +250,16 @@ def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
     return recorded
 
 
+def opened_build(build_dir: Path, opened: dict[Path, OpenBuild] | None) -> OpenBuild:
+    """`open_build(build_dir)`, once per build where `opened` keeps the builds a command has
+    opened (its files checked against the manifest once, not once per model)."""
+    if opened is None:
+        return open_build(build_dir)
+    if build_dir not in opened:
+        opened[build_dir] = open_build(build_dir)
+    return opened[build_dir]
+
+
 def check_build(
     info: dict[str, Any],
     build_dir: Path,
@@ -257,10 +267,11 @@ def check_build(
     model: ModelConfig,
     other_build: bool,
     refusal: str = "pass --other-build to evaluate on another build",
+    opened: dict[Path, OpenBuild] | None = None,
 ) -> bool:
     """Whether `build_dir` is the run's own build. Refuses another build unless `other_build`,
     and, even then, one whose time step or history and future lengths do not fit the run's model
-    and horizon."""
+    and horizon. `opened`: the builds opened so far (opened_build)."""
     manifest, identity = build_identity(build_dir)
     why = identity_difference(info, identity, manifest.settings())
     if why and not other_build:
@@ -268,7 +279,7 @@ def check_build(
             build_dir,
             f"not the build that run {run_dir} was trained on ({why}); {refusal}",
         )
-    config = open_build(build_dir).config
+    config = opened_build(build_dir, opened).config
     time_step_s = float(info["build_config"].get("time_step_s", math.nan))
     if not math.isclose(config.time_step_s, time_step_s):
         raise NgsimInputError(
@@ -300,7 +311,7 @@ def check_evaluate(
     directory that is not a run, or not a finished one; the run's build gone; another build
     without `other_build`, or one that does not fit the model (check_build); an empty split; a
     multi-horizon run whose models cannot be scored in one pass (check_one_fit)."""
-    recorded = []
+    recorded, opened = [], {}
     for member in read_group(run_dir).members:
         info = read_run_info(member)
         if not (member / BEST).is_file():
@@ -309,8 +320,8 @@ def check_evaluate(
             )
         build = resolve_build(info, build_dir)
         model = model_config(info, member / RUN_INFO)
-        check_build(info, build, member, model, other_build)
-        if int(open_build(build).manifest.splits.get(Split(split).value, 0)) == 0:
+        check_build(info, build, member, model, other_build, opened=opened)
+        if int(opened_build(build, opened).manifest.splits.get(Split(split).value, 0)) == 0:
             raise NgsimInputError(
                 build, f"its {Split(split).value} split is empty: nothing to evaluate"
             )

@@ -1,16 +1,17 @@
 """Scores of models and of constant velocity over a split's targets, batch by batch (metres).
 
 `score_members` scores the models of a multi-horizon run in one pass (`score_targets` one model):
-each batch is loaded once, the models run as one stacked ensemble (aigem.ensemble, each model
-over its own future steps), and constant velocity is computed once, for the longest horizon, each
-model's baseline being the first steps of it (constant velocity's position at a step does not
-depend on how many steps follow). Each model's scores are those it gets scored alone: constant
-velocity's exactly, the model's to float rounding (batched products sum in another order).
+each batch is loaded once, the models run as one ensemble (aigem.ensemble, each model over its
+own future steps; on the CPU one after the other, faster there than stacked), and constant
+velocity is computed once, for the longest horizon, each model's baseline being the first steps
+of it (constant velocity's position at a step does not depend on how many steps follow). Each
+model's scores are those it gets scored alone: constant velocity's exactly, the model's to float
+rounding (batched products sum in another order).
 
 On CUDA (`resident`) the split is loaded onto the device once and scored in static batches
 (aigem.resident, aigem.engine: each capacity's forward captured and replayed); the metrics are
-summed on the host from the split's host copy, the same code as the loader's batches. aigem.evaluation
-turns scores into the numbers `aigem evaluate` reports.
+summed on the host from the split's host copy, the same code as the loader's batches.
+aigem.evaluation turns scores into the numbers `aigem evaluate` reports.
 """
 
 from __future__ import annotations
@@ -150,10 +151,12 @@ def score_members(
     ensemble = stack(models, steps)
     ensemble.eval()
     loader = _loader(dataset, models[0].config.layers, batch_size)
+    # on the CPU the models one after the other: faster there than stacked (benchmarks.md)
+    predict = ensemble.one_by_one if device.type == "cpu" else ensemble
     sums = [ScoreSums(k, len(dataset)) for k in steps]
     with torch.no_grad():
         for index, batch in enumerate(loader):
-            scaled = ensemble(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
+            scaled = predict(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
             predicted = xy_to_metres(dataset.scaler, scaled).cpu().numpy()
             targets = batch_targets(batch, dataset, index * batch_size, max(steps))
             _add_batch(sums, predicted, targets, f"batch {index + 1} of {len(loader)}")

@@ -73,12 +73,15 @@ def test_each_member_computes_its_model(
     stacked = ensemble.stack(models, STEPS).train(training)
     torch.manual_seed(7)
     out = stacked(batch)
-    assert out.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
+    one_by_one = stacked.one_by_one(batch)  # evaluation's path on the CPU
+    assert out.shape == one_by_one.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
     for index, (model, steps) in enumerate(zip(models, STEPS, strict=True)):
         torch.manual_seed(7)  # the members' one stream: each draws the masks it draws alone
         alone = model.train(training)(batch, steps)
         torch.testing.assert_close(out[index, :, :steps], alone, rtol=1e-5, atol=1e-5)
-        assert not out[index, :, steps:].any()  # not predicted
+        assert not out[index, :, steps:].any() and not one_by_one[index, :, steps:].any()
+        if not training:  # one after the other: each member is its model alone, to the bit
+            assert torch.equal(one_by_one[index, :, :steps], alone)
     if training:  # another stream, other masks, another output
         torch.manual_seed(11)
         assert not torch.allclose(models[1].train()(batch, 10), out[1, :, :10])
