@@ -134,6 +134,10 @@ def _train_epoch(
     batches, graphs, read_at, cut = 0, 0, time.monotonic(), False
     total, losses = batches_per_epoch(loop), RunningLosses(active, loop.device)
     steps = loader_steps if loop.data is None else static_steps
+
+    def shown() -> tuple[float, ...]:  # the bar's losses: NaN for a model that stopped
+        return tuple(m.shown if m in active else math.nan for m in members)
+
     for batch_graphs in steps(loop, trainers, epoch):
         batches, graphs = batches + 1, graphs + batch_graphs
         if time.monotonic() - read_at >= READ_LOSS_EVERY_S:
@@ -143,8 +147,7 @@ def _train_epoch(
                     member.shown = _read_loss(running, upto, epoch, member.who)
             read_at = time.monotonic()
             loop.threads.look()
-        shown = tuple(m.shown if m in active else math.nan for m in members)
-        report(epoch + 1, batches, total, shown)
+        report(epoch + 1, batches, total, shown())
         cut = time.monotonic() > deadline
         if cut:
             break
@@ -155,7 +158,7 @@ def _train_epoch(
         member.shown = _read_loss(float(member.running), max(batches, 1), epoch, member.who)
     # The bar's last frame of the epoch shows its mean loss (an epoch shorter than two reads
     # would otherwise end showing none).
-    report(epoch + 1, batches, total, tuple(m.shown if m in active else math.nan for m in members))
+    report(epoch + 1, batches, total, shown())
     return graphs, cut
 
 
