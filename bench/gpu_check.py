@@ -2,7 +2,7 @@
 table of the target figures, printed last. `bench/gpu_check.sh` installs the project first where
 it is missing (from wheels carried beside it, with no network) and runs this.
 
-    bench/gpu_check.sh                                  # a GPU machine: about 5 minutes
+    bench/gpu_check.sh                                  # a GPU machine: about 6 minutes
     bench/gpu_check.sh --accuracy-epochs 10 --deadline-s 560   # and the CUDA defaults' figures
     bench/gpu_check.sh --device cpu --recordings 1 --minutes 0.4 --epochs 1 --batch-size 8 \\
         --bench-sizes 8 --steps 1 --fast                # the CPU, a tiny input (the test's)
@@ -20,7 +20,9 @@ table says what it could not measure):
 6. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
    and the paper's protocol (100 epochs, the four fits) extrapolated from it to the six
    15-minute recordings (79,504 train graphs): per epoch times 100 and the train graphs' ratio;
-7. with --accuracy-epochs N (N > 0), `bench/bench_accuracy.py` on the build: ACCURACY_SETTINGS
+7. exit: `bench/bench_exit.py`, how long each command (synth, build, stats, fit, a fit stopped
+   by SIGTERM, evaluate, `aigem paper --only table`) takes to end after its last line;
+8. with --accuracy-epochs N (N > 0), `bench/bench_accuracy.py` on the build: ACCURACY_SETTINGS
    for N epochs each, the 5 s model, to constant velocity's validation loss (the fit's
    baseline.json): the figures that choose the GPU's default batch, rate and schedule.
 """
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -194,6 +197,12 @@ def paper_estimate(paper: Path, epochs: int) -> dict[str, float] | None:
     return {"minutes": total * scale / 60, "epoch_s": epoch_s * scale, "scale": scale}
 
 
+def longest_exit_s(text: str) -> float | None:
+    """bench_exit's longest time from a command's last line to its end (or its output's)."""
+    found = re.search(r"longest end after a last line: ([0-9.]+|inf) s", text)
+    return float(found.group(1)) if found else None
+
+
 def _number(row: dict[str, str] | None, column: str) -> float | None:
     value = (row or {}).get(column, "-")
     try:
@@ -228,6 +237,8 @@ def summary(device: str, batch: int, rows: dict, measured: dict) -> list[tuple[s
         ("evaluate (test samples/s per model)", ">= 50,000", _cell(measured.get("evaluate"))),
         ("aigem paper, full protocol, six 15-min recordings (min, extrapolated)", "<= 30",
          _cell(measured.get("paper_minutes"), 1)),
+        ("longest end of a command after its last line (s, bench_exit.py)", "<= 5",
+         _cell(measured.get("exit_s"), 2)),
         ("captured steps equal eager ones (tests/test_aigem_engine.py)", "passed",
          measured.get("tests", "-")),
     ]  # fmt: skip
@@ -306,6 +317,9 @@ def main() -> None:
                          "--device", args.device, *jobs], 0.9)  # fmt: skip
     estimate = paper_estimate(paper, args.epochs)
     measured["paper_minutes"] = estimate["minutes"] if estimate else None
+    exits = stages.run("exit", [sys.executable, str(Path(__file__).parent / "bench_exit.py"),
+                                "--device", args.device], 0.5)  # fmt: skip
+    measured["exit_s"] = longest_exit_s(exits or "")
     baseline = run / "h5s" / "baseline.json"
     if args.accuracy_epochs > 0 and baseline.is_file():
         target = json.loads(baseline.read_text())["constant_velocity_val_loss_m2"]

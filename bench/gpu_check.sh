@@ -7,7 +7,7 @@
 # into $GPU_CHECK_SITE; then run bench/gpu_check.py with the arguments given. The table of the
 # target figures comes last.
 #
-#   bench/gpu_check.sh                       # CUDA, about 6 minutes
+#   bench/gpu_check.sh                       # CUDA, about 6-7 minutes
 #   bench/gpu_check.sh --device cpu --recordings 1 --minutes 0.4 --epochs 1 --batch-size 8 \
 #       --bench-sizes 8 --steps 1 --fast    # the CPU, a tiny input (tests/test_bench_gpu_check.py)
 set -euo pipefail

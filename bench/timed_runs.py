@@ -1,6 +1,7 @@
 """A program run in a process of its own, its output read as it comes: how long it took to end
 after its last line, and how long its output stayed open after that (a process it started and
-left running holds it open)."""
+left running holds it open). bench/bench_exit.py measures the commands against EXIT_S with it;
+the tests hold them to LINGER_S (tests/test_cli_exit.py, tests/test_aigem_paper.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,11 @@ import subprocess
 import time
 from dataclasses import dataclass
 
-EXIT_S = 5.0  # a command ends within this long of its last line
+EXIT_S = 5.0  # the target: a command ends within this long of its last line (bench_exit.py)
+# What a test holds a command to: a timing, so far above the target that a busy machine passes,
+# and far below what something a command leaves behind holds it (Inductor's compile workers wait
+# up to 300 s to shut down; a worker process left running holds the output open).
+LINGER_S = 30.0
 # The programs as their installed scripts run them (pyproject.toml), with their own names.
 AIGEM = "import sys; from ngsim_cli.entry import aigem; sys.argv[0] = 'aigem'; aigem()"
 NGSIM_GRAPHS = (
@@ -28,9 +33,9 @@ class TimedRun:
     after_last_line_s: float  # from the last output read to the program's end
     open_after_end_s: float  # from the program's end to its output's end; inf: still open
 
-    def ended_with_its_last_line(self) -> bool:
-        """Whether it ended, and its output with it, within EXIT_S of its last line."""
-        return self.after_last_line_s < EXIT_S and self.open_after_end_s < EXIT_S
+    def ended_within(self, seconds: float) -> bool:
+        """Whether it ended, and its output with it, within `seconds` of its last line."""
+        return self.after_last_line_s < seconds and self.open_after_end_s < seconds
 
 
 def run_timed(argv: list[str], stop_on: str | None = None, timeout_s: float = 300.0) -> TimedRun:
@@ -60,7 +65,7 @@ def run_timed(argv: list[str], stop_on: str | None = None, timeout_s: float = 30
         now = time.monotonic()
         if ended is None and program.poll() is not None:
             ended = now
-        if ended is not None and now - ended > 2 * EXIT_S:  # held open by what it left
+        if ended is not None and now - ended > LINGER_S:  # held open by what it left
             break
         if ended is None and now - start > timeout_s:
             program.kill()
