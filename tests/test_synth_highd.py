@@ -192,16 +192,17 @@ def _compare_targets(a: GraphBatch, b: GraphBatch, na: pl.DataFrame, nb: pl.Data
 
 
 def test_round_trip_ngsim_text_and_highd_give_the_same_graphs(tmp_path: Path) -> None:
-    """One simulation (2 recordings of 1 minute: us-101 on the lower lanes, i-80 on the upper
-    ones) built from NGSIM text and from highD files.
+    """One simulation (2 recordings of 1 minute: us-101 on the lower lanes, i-80 on the upper ones)
+    built from NGSIM text and from highD files.
 
-    What is compared: the sample populations exactly (recording, ego vehicle, start step; the
-    keys differ by name, and highD's steps are one later, see synth.highd); every sample's nodes,
-    spatial and temporal edges and targets, keyed by (step, vehicle, segment) since track ids are
-    numbered over recordings in another order ((highd-1, 01) is us-101, sorted first). Values
-    agree within the tolerances above. A node or edge may be in one graph only where its distance
-    is within that tolerance of d_sense (50 m) or d_min (25 m): rounding can put it either side
-    (this simulation has a few such, at 49.9998 m); every other difference fails the test.
+    What is compared: the sample populations exactly (recording, ego vehicle, start step; the keys
+    differ by name, and highD's steps are one later, see synth.highd); the nodes, spatial and
+    temporal edges and targets of every val and test sample and of every fourth train sample, keyed
+    by (step, vehicle, segment) since track ids are numbered over recordings in another order
+    ((highd-1, 01) is us-101, sorted first). Values agree within the tolerances above. A node or
+    edge may be in one graph only where its distance is within that tolerance of d_sense (50 m) or
+    d_min (25 m): rounding can put it either side (this simulation has a few such, at 49.9998 m);
+    every other difference fails the test.
     """
     config = BuildConfig()
     builds = {}
@@ -213,7 +214,9 @@ def test_round_trip_ngsim_text_and_highd_give_the_same_graphs(tmp_path: Path) ->
     ngsim, highd = builds[RawFormat.TXT], builds[RawFormat.HIGHD]
     assert ngsim.manifest.dataset == "ngsim" and highd.manifest.dataset == "highd"
     for split in ("train", "val", "test"):
-        matched = _matched_samples(ngsim, highd, split)
+        matched = _matched_samples(ngsim, highd, split)  # the whole populations match
+        if split == "train":  # the graphs of every fourth sample (of val and test: all), for time
+            matched = matched.gather_every(4)
         a = ngsim.graphs(split, matched[s.SAMPLE_ID].to_numpy())
         b = highd.graphs(split, matched[f"{s.SAMPLE_ID}_h"].to_numpy())
         na, nb = _nodes(a, ngsim), _nodes(b, highd)
