@@ -6,8 +6,8 @@ asked, and then with the run's scaler: the model only knows its inputs as scaled
 
 A run is a group of one model per horizon (aigem.records.Group; a run of one horizon is a group of
 one, the paper's protocol a group of five). Its models are scored in one pass over the
-split (aigem.scoring.score_members: the split loaded once, the models run stacked, constant
-velocity computed once), each model getting the numbers `evaluate` gives its run directory, and
+split (aigem.scoring.score_members: the split loaded once, the models run as one ensemble,
+constant velocity computed once), each model getting the numbers `evaluate` gives its run directory, and
 reported as the paper does: RMSE at h s from the model trained for h s (in general: from the
 shortest-horizon model that predicts that far), ADE and FDE from the longest-horizon model;
 constant velocity likewise, so that each number of the baseline is on the same targets as the
@@ -220,7 +220,7 @@ def evaluate(
 ) -> Evaluation:
     """Score the best model of each member of the run and the constant-velocity baseline on
     `split` of `build_dir` (None: the run's own build), in one pass over the split
-    (score_members: the split loaded once, the models stacked, constant velocity once;
+    (score_members: the split loaded once, the models run together, constant velocity once;
     `progress(done, total)` over its batches), and combine them as the paper reports
     (protocol_rows). Another build than the run's is refused unless `other_build`; inputs are
     always scaled with the run's scaler, the one the models were trained with. The members must

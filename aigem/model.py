@@ -273,7 +273,9 @@ class EncoderLayer(nn.Module):
                 dropout=config.dropout,
                 negative_slope=NEGATIVE_SLOPE,
             )
-            if conv.lin.bias is not None:  # the scores z . (W^T a) leave it out
+            # The scores z . (W^T a) leave a bias out, and the attention's sum of inputs projected
+            # after (_gat) would need the weights of each row to sum to 1, which dropout breaks.
+            if conv.lin.bias is not None:
                 raise ValueError("a GATConv whose lin has a bias: not the GATConv AiGem is")
             self.add_module(name, conv)
         self.linear = nn.Linear(in_features, config.hidden)

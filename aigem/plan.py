@@ -232,20 +232,27 @@ def _gather_scatter(values, x, n_dst: int, col, dst) -> torch.Tensor:  # noqa: A
     return x.new_zeros(n_dst, x.shape[1]).index_add_(0, dst, messages)
 
 
+def _row_reduce(
+    values: torch.Tensor, how: str, crow: torch.Tensor, dst: torch.Tensor
+) -> torch.Tensor:
+    """Each destination's "max" or "sum" of (E, heads) values over its edges, the edges in CSR
+    order (`crow`: the destinations' row pointers, crow[-1] = E; dst[e] edge e's row). On the CPU
+    `torch.segment_reduce` over the rows (five times faster there than PyG's scatters, which the
+    accelerators keep); its offsets go unchecked, so `crow` must be the CSR rows of exactly these
+    edges, as a Plan's are."""
+    if values.device.type == "cpu" and CPU_SPARSE:
+        return torch.segment_reduce(values, how, offsets=crow, unsafe=True)
+    index = dst[:, None].expand_as(values)
+    zeros = values.new_zeros(crow.numel() - 1, values.shape[1])
+    if how == "max":
+        return zeros.scatter_reduce_(0, index, values, "amax", include_self=False)
+    return zeros.scatter_add_(0, index, values)
+
+
 def segment_softmax(scores: torch.Tensor, crow: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:
-    """PyG's `softmax(scores, dst)`: softmax of (E, heads) scores over each destination's edges,
-    the edges in CSR order (`crow`: the destinations' row pointers, dst[e] edge e's row). On the
-    CPU the maxima and sums are `torch.segment_reduce` over the rows (five times faster there
-    than PyG's scatters, which the accelerators keep)."""
-    if scores.device.type == "cpu" and CPU_SPARSE:
-        top = torch.segment_reduce(scores.detach(), "max", offsets=crow, unsafe=True)
-        out = (scores - top.index_select(0, dst)).exp()
-        total = torch.segment_reduce(out, "sum", offsets=crow, unsafe=True) + 1e-16
-        return out / total.index_select(0, dst)
-    index = dst[:, None].expand_as(scores)
-    size = (crow.numel() - 1, scores.shape[1])
-    top = scores.new_zeros(size)
-    top = top.scatter_reduce_(0, index, scores.detach(), "amax", include_self=False)
+    """PyG's `softmax(scores, dst)`: softmax of (E, heads) scores over each destination's edges
+    (in CSR order: `_row_reduce`)."""
+    top = _row_reduce(scores.detach(), "max", crow, dst)
     out = (scores - top.index_select(0, dst)).exp()
-    total = out.new_zeros(size).scatter_add_(0, index, out) + 1e-16
+    total = _row_reduce(out, "sum", crow, dst) + 1e-16
     return out / total.index_select(0, dst)

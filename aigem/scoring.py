@@ -139,8 +139,9 @@ def score_members(
     resident: bool | None = None,
 ) -> list[Scores]:
     """`score_targets` of each model (one ModelConfig; `steps` ascending, model m's future
-    steps) in one pass over `dataset`: each batch is loaded once, the models run as one stacked
-    ensemble (aigem.ensemble), and constant velocity is computed once, for the longest steps.
+    steps) in one pass over `dataset`: each batch is loaded once, the models run as one ensemble
+    (aigem.ensemble: stacked, or on the CPU one after the other), and constant velocity is
+    computed once, for the longest steps.
     A non-finite prediction raises NonFinitePredictionError naming the model's index.
     `resident` (None: on CUDA): the split loaded onto the device, scored in static batches of
     RESIDENT_BATCH (aigem.engine), where it takes at most half the device's free memory."""

@@ -9,8 +9,8 @@ ratio of each round's pair. It also prints the largest difference between the me
 give, the model's and constant velocity's rows (the model's differ by float rounding).
 
 `--forward` adds where the time goes, in this process with this checkout's code: the test batches
-loaded once, then the models' forward passes over them, as one stacked ensemble (what
-evaluate runs) and one model after the other, alternating.
+loaded once, then the models' forward passes over them, as one stacked ensemble (what evaluate
+runs on an accelerator) and one model after the other (what it runs on the CPU), alternating.
 
     mkdir -p /tmp/ev/old && git archive 7610a76 | tar -x -C /tmp/ev/old   # before one pass
     .venv/bin/python bench/bench_evaluate.py /tmp/ev/run --old /tmp/ev/old --new . --rounds 6

@@ -13,28 +13,20 @@ within the target. What once lingered: Inductor's compile workers (their shutdow
     .venv/bin/python bench/bench_exit.py                 # the CPU
     .venv/bin/python bench/bench_exit.py --device cuda   # a GPU (bench/gpu_check.sh runs it)
 
-The tests run the same commands (tests/test_cli_exit.py) and hold them to LINGER_S, a bound far
-above the target that a busy machine passes.
+The tests hold synth, build, stats and the two fits (tests/test_cli_exit.py, the same commands)
+and `aigem paper`'s calls (tests/test_aigem_paper.py) to LINGER_S, a bound far above the target
+that a busy machine passes.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
-from timed_runs import AIGEM, EXIT_S, NGSIM_GRAPHS, TimedRun, run_timed
+from timed_runs import EXIT_S, TimedRun, aigem, ngsim_graphs, run_timed
 
 STOPPED_CODE = 130  # a fit stopped by SIGTERM
-
-
-def ngsim_graphs(*args: object) -> list[str]:
-    return [sys.executable, "-c", NGSIM_GRAPHS, *map(str, args)]
-
-
-def aigem(*args: object) -> list[str]:
-    return [sys.executable, "-c", AIGEM, *map(str, args)]
 
 
 def fit_command(build: Path, run: Path, epochs: int, device: str = "cpu") -> list[str]:
@@ -67,10 +59,14 @@ def model_commands(folder: Path, device: str) -> dict[str, tuple[list[str], str 
     }
 
 
+def ended_as_expected(name: str, call: TimedRun) -> bool:
+    """Whether the command's exit code is the one it ends with (130 for the stopped fit)."""
+    return call.returncode == (STOPPED_CODE if "SIGTERM" in name else 0)
+
+
 def row(name: str, call: TimedRun) -> str:
     """One line of the table: the command, its exit code, its two times and the verdict."""
-    expected = STOPPED_CODE if "SIGTERM" in name else 0
-    code = f"{call.returncode}" + ("" if call.returncode == expected else " (!)")
+    code = f"{call.returncode}" + ("" if ended_as_expected(name, call) else " (!)")
     verdict = "yes" if call.ended_within(EXIT_S) else "NO"
     return (
         f"{name:<24}{code:>6}{call.after_last_line_s:>12.2f}{call.open_after_end_s:>12.2f}"
@@ -84,10 +80,10 @@ def main() -> None:
     )
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     args = parser.parse_args()
-    header = f"{'command':<24}{'exit':>6}{'end (s)':>12}{'open (s)':>12}{'<= 5 s':>9}"
+    header = f"{'command':<24}{'exit':>6}{'end (s)':>12}{'open (s)':>12}{f'<= {EXIT_S:g} s':>9}"
     print("end: its last line to its end; open: its end to its output's end")
     print(header, flush=True)
-    calls = []
+    calls, failed = [], []
     with tempfile.TemporaryDirectory(prefix="bench_exit_") as tmp:
         folder = Path(tmp)
         steps = {name: (argv, None) for name, argv in data_commands(folder).items()}
@@ -95,8 +91,11 @@ def main() -> None:
             call = run_timed(argv, stop_on=stop_on)
             calls.append(call)
             print(row(name, call), flush=True)
-            if call.returncode not in (0, STOPPED_CODE):
+            if not ended_as_expected(name, call):
+                failed.append(name)
                 print(f"  its last error line: {call.stderr.strip().splitlines()[-1:]}")
+    if failed:  # a command that failed measured nothing
+        raise SystemExit(f"failed: {', '.join(failed)}; no figure")
     longest = max(max(c.after_last_line_s, c.open_after_end_s) for c in calls)
     within = all(call.ended_within(EXIT_S) for call in calls)
     print(f"longest end after a last line: {longest:.2f} s; all within {EXIT_S:g} s: {within}")

@@ -2,7 +2,7 @@
 table of the target figures, printed last. `bench/gpu_check.sh` installs the project first where
 it is missing (from wheels carried beside it, with no network) and runs this.
 
-    bench/gpu_check.sh                                  # a GPU machine: about 6 minutes
+    bench/gpu_check.sh                                  # a GPU machine: about 6-7 minutes
     bench/gpu_check.sh --accuracy-epochs 10 --deadline-s 560   # and the CUDA defaults' figures
     bench/gpu_check.sh --device cpu --recordings 1 --minutes 0.4 --epochs 1 --batch-size 8 \\
         --bench-sizes 8 --steps 1 --fast                # the CPU, a tiny input (the test's)
@@ -17,11 +17,12 @@ table says what it could not measure):
 4. fit: `aigem fit --horizon-s 1,2,3,4,5` for --epochs epochs at --batch-size, with nvidia-smi's
    GPU utilisation sampled every 0.5 s from the end of its first epoch to its end;
 5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate`);
-6. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
+6. exit: `bench/bench_exit.py` on a tiny input of its own, how long each command (synth, build,
+   stats, fit, a fit stopped by SIGTERM, evaluate, `aigem paper --only table`) takes to end
+   after its last line;
+7. paper: `aigem paper --only table` for --epochs epochs at --batch-size; its time per stage,
    and the paper's protocol (100 epochs, the four fits) extrapolated from it to the six
    15-minute recordings (79,504 train graphs): per epoch times 100 and the train graphs' ratio;
-7. exit: `bench/bench_exit.py`, how long each command (synth, build, stats, fit, a fit stopped
-   by SIGTERM, evaluate, `aigem paper --only table`) takes to end after its last line;
 8. with --accuracy-epochs N (N > 0), `bench/bench_accuracy.py` on the build: ACCURACY_SETTINGS
    for N epochs each, the 5 s model, to constant velocity's validation loss (the fit's
    baseline.json): the figures that choose the GPU's default batch, rate and schedule.
@@ -31,8 +32,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -69,21 +72,31 @@ class Stages:
         timeout = max(10.0, share * self.left_s())
         print(f"\n== {name}: {' '.join(command)}  (at most {timeout:.0f} s)", flush=True)
         began = time.monotonic()
+        # A session of its own: past its time the stage is killed with every process it started.
+        process = subprocess.Popen(
+            command,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
         try:
-            done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+            stdout, stderr = process.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
             self.failed[name] = f"stopped after {timeout:.0f} s"
             return None
         finally:
             self.seconds[name] = time.monotonic() - began
-        print(done.stdout, end="")
+        print(stdout, end="")
         noise = ("profiler_start", "profiler_stop")  # Kineto's lines
-        kept = [line for line in done.stderr.splitlines(True) if not line.rstrip().endswith(noise)]
+        kept = [line for line in stderr.splitlines(True) if not line.rstrip().endswith(noise)]
         print("".join(kept)[-4000:], end="", file=sys.stderr)
-        if done.returncode != 0:
-            self.failed[name] = f"exit {done.returncode}"
+        if process.returncode != 0:
+            self.failed[name] = f"exit {process.returncode}"
             return None
-        return done.stdout
+        return stdout
 
 
 def parse_table(text: str) -> dict[tuple[str, str, str], dict[str, str]]:
@@ -311,15 +324,15 @@ def main() -> None:
             stages.seconds["evaluate"] = seconds
         except Exception as err:  # the table says what failed
             stages.failed["evaluate"] = f"{type(err).__name__}: {err}"
+    exits = stages.run("exit", [sys.executable, str(Path(__file__).parent / "bench_exit.py"),
+                                "--device", args.device], 0.25)  # fmt: skip
+    measured["exit_s"] = longest_exit_s(exits or "")
     paper = args.out / "paper"
     stages.run("paper", ["aigem", "paper", str(raw), "--out", str(paper), "--only", "table",
                          "--epochs", str(args.epochs), "--batch-size", str(args.batch_size),
                          "--device", args.device, *jobs], 0.9)  # fmt: skip
     estimate = paper_estimate(paper, args.epochs)
     measured["paper_minutes"] = estimate["minutes"] if estimate else None
-    exits = stages.run("exit", [sys.executable, str(Path(__file__).parent / "bench_exit.py"),
-                                "--device", args.device], 0.5)  # fmt: skip
-    measured["exit_s"] = longest_exit_s(exits or "")
     baseline = run / "h5s" / "baseline.json"
     if args.accuracy_epochs > 0 and baseline.is_file():
         target = json.loads(baseline.read_text())["constant_velocity_val_loss_m2"]

@@ -9,6 +9,7 @@ import os
 import selectors
 import signal
 import subprocess
+import sys
 import time
 from dataclasses import dataclass
 
@@ -23,6 +24,16 @@ NGSIM_GRAPHS = (
     "import sys; from ngsim_cli.entry import ngsim_graphs; sys.argv[0] = 'ngsim-graphs'; "
     "ngsim_graphs()"
 )
+
+
+def ngsim_graphs(*args: object) -> list[str]:
+    """The command line of `ngsim-graphs ARGS` as its installed script runs it."""
+    return [sys.executable, "-c", NGSIM_GRAPHS, *map(str, args)]
+
+
+def aigem(*args: object) -> list[str]:
+    """The command line of `aigem ARGS` as its installed script runs it."""
+    return [sys.executable, "-c", AIGEM, *map(str, args)]
 
 
 @dataclass(frozen=True)

@@ -73,8 +73,11 @@ def test_each_member_computes_its_model(
     stacked = ensemble.stack(models, STEPS).train(training)
     torch.manual_seed(7)
     out = stacked(batch)
-    one_by_one = stacked.one_by_one(batch)  # evaluation's path on the CPU
-    assert out.shape == one_by_one.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
+    assert out.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
+    if training:  # evaluation's alone
+        with pytest.raises(ValueError, match="evaluation"):
+            stacked.one_by_one(batch)
+    one_by_one = stacked.eval().one_by_one(batch)  # evaluation's path on the CPU
     for index, (model, steps) in enumerate(zip(models, STEPS, strict=True)):
         torch.manual_seed(7)  # the members' one stream: each draws the masks it draws alone
         alone = model.train(training)(batch, steps)

@@ -87,8 +87,16 @@ def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int)
     return model.decode(z[target], batch["x"][target, :2], steps)
 
 
-def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(tiny_build) -> None:  # noqa: ANN001, F811
+@pytest.mark.parametrize("sparse", [True, False], ids=["csr", "gather-scatter"])
+def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(
+    tiny_build, sparse: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:  # noqa: ANN001, F811
+    """AiGem's forward (the attention summing inputs, projected after) against PyG's GATConv
+    applied as the paper's layers, on the CPU's path and on the accelerators'."""
+    from aigem import plan as aigem_plan
     from aigem.data import Collate, GraphDataset
+
+    monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
 
     dataset = GraphDataset(tiny_build, "train")
     batch = Collate(dataset.scaler)(dataset.__getitems__(list(range(min(8, len(dataset))))))

@@ -21,7 +21,7 @@ from conftest import straight_track, write_txt
 from typer.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from timed_runs import AIGEM, LINGER_S, TimedRun, run_timed
+from timed_runs import LINGER_S, TimedRun, aigem, run_timed
 
 from aigem.paper import _evaluate, run_paper
 from aigem.paper_folder import (
@@ -390,7 +390,7 @@ def tiny_raw(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def paper_command(raw: Path, out: Path, *more: str) -> list[str]:
     options = ["--batch-size", "64", "--threads", "1", "--jobs", "1", "--device", "cpu"]
-    return [sys.executable, "-c", AIGEM, "paper", str(raw), "--out", str(out), *options, *more]
+    return aigem("paper", raw, "--out", out, *options, *more)
 
 
 def run_paper_command(raw: Path, out: Path, *more: str) -> TimedRun:

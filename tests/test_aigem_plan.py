@@ -3,11 +3,12 @@ of the CPU and the gather-scatter of accelerators, the same."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from aigem.config import ModelConfig
 from aigem.model import AiGem
-from aigem.plan import make_plan
+from aigem.plan import make_plan, segment_softmax
 
 
 def test_cpu_sparse_aggregation_equals_the_accelerator_gather_scatter() -> None:
@@ -82,3 +83,30 @@ def test_a_plan_made_with_the_batch_gives_the_same_output_and_gradients(tiny_bui
         assert torch.equal(results[0][0], results[1][0])
         for a, b in zip(results[0][1], results[1][1], strict=True):
             assert (a is None and b is None) or torch.equal(a, b)
+
+
+@pytest.mark.parametrize("sparse", [True, False], ids=["segment-reduce", "scatter"])
+def test_segment_softmax_is_pygs_softmax(sparse: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Values and gradients of PyG's softmax, over rows with no edge (first, middle and last)
+    and scores far apart, on the CPU's path and on the accelerators'."""
+    from torch_geometric.utils import softmax
+
+    from aigem import plan as aigem_plan
+
+    monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
+    dst = torch.tensor([1, 1, 1, 3, 4, 4])  # rows 0, 2 and 5 have none
+    crow = torch.cat([torch.zeros(1, dtype=torch.long), torch.bincount(dst, minlength=6).cumsum(0)])
+    scores = torch.tensor(
+        [[0.5, -1.0], [2.0, 300.0], [-1.5, 0.0], [7.0, 1.0], [-200.0, 2.0], [1.0, 2.0]],
+        dtype=torch.float64,
+        requires_grad=True,
+    )
+    weights = torch.arange(12, dtype=torch.float64).view(6, 2)
+    ours = segment_softmax(scores, crow, dst)
+    theirs = softmax(scores, dst, num_nodes=6)
+    torch.testing.assert_close(ours, theirs, rtol=1e-15, atol=1e-15)
+    assert torch.allclose(ours[:3].sum(0), torch.ones(2, dtype=torch.float64))  # row 1's edges
+    assert torch.equal(ours[3], torch.ones(2, dtype=torch.float64))  # row 3's one edge
+    ours_grad = torch.autograd.grad((ours * weights).sum(), scores)[0]
+    theirs_grad = torch.autograd.grad((theirs * weights).sum(), scores)[0]
+    torch.testing.assert_close(ours_grad, theirs_grad, rtol=1e-12, atol=1e-12)
