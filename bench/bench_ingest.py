@@ -4,12 +4,17 @@ Generates (or reuses) the six-recording, 15-minute synthetic input with `ngsim-g
 a child process, then times `run_build` in this process and prints rows, wall seconds, rows per
 second and peak resident memory. The input is synthetic: these are not NGSIM results.
 
+An input is reused only when this checkout's generator made it: beside it, `raw-TAG.generator`
+holds the sha256 of the generator's sources (ngsim_graphs/synth) that made it; an input of other
+sources, or of none recorded, is made again (synth replaces a folder of its own files).
+
     python bench/bench_ingest.py --format portal --quirks
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import resource
 import subprocess
 import sys
@@ -20,12 +25,27 @@ from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.pipeline import run_build
 
 
+def generator_digest() -> str:
+    """sha256 over the synthetic generator's source files (their names and bytes)."""
+    import ngsim_graphs.synth
+
+    folder = Path(ngsim_graphs.synth.__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(folder.rglob("*.py")):
+        digest.update(path.relative_to(folder).as_posix().encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
 def ensure_input(
     raw_dir: Path, raw_format: str, recordings: int, minutes: float, quirks: bool
 ) -> float:
-    """Synthesize the input unless it is already there; returns the seconds it took (0 if reused)."""
+    """Synthesize the input unless this checkout's generator made it already (the digest beside
+    it); returns the seconds it took (0 if reused)."""
+    stamp, generator = raw_dir.with_name(f"{raw_dir.name}.generator"), generator_digest()
     if raw_dir.is_dir() and any(raw_dir.rglob("*.*")):
-        return 0.0
+        if stamp.is_file() and stamp.read_text().strip() == generator:
+            return 0.0
+        print(f"{raw_dir}: not made by this checkout's generator; made again", file=sys.stderr)
     command = [
         sys.executable,
         "-m",
@@ -42,7 +62,9 @@ def ensure_input(
         "0",
     ] + (["--quirks"] if quirks else [])
     start = time.perf_counter()
+    stamp.unlink(missing_ok=True)  # no stamp while the input is being made
     subprocess.run(command, check=True)
+    stamp.write_text(generator + "\n")
     return time.perf_counter() - start
 
 
