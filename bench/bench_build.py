@@ -54,7 +54,7 @@ def largest_files(raw_dir: Path, count: int, fmt: str) -> list[Path]:
 
 def main() -> None:
     args, tag, raw_dir = parse_input_args(__doc__, "txt", largest=True)
-    ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
+    synth_s = ensure_input(raw_dir, args.format, args.recordings, args.minutes, args.quirks)
 
     inputs, name = [raw_dir], f"graphs-{tag}"
     if args.largest is not None:
@@ -124,7 +124,9 @@ def main() -> None:
     )
     print(
         f"peak memory        {memory.peak_bytes / 1024**3:.2f} GB (all processes, summed; "
-        f"max RSS {own_gb:.2f} GB of this one, {child_gb:.2f} GB of the largest worker)"
+        f"max RSS {own_gb:.2f} GB of this one, {child_gb:.2f} GB of the largest worker"
+        + (", or of synth, which made the input in this run" if synth_s else "")
+        + ")"
     )
 
 
