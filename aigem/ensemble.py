@@ -79,13 +79,13 @@ class Ensemble:
             self.params, self.config, batch, self.steps, self.training, self.decode
         )
 
-    def one_by_one(self, batch: dict) -> torch.Tensor:
+    def predict_one_by_one(self, batch: dict) -> torch.Tensor:
         """`__call__`'s (M, A, K, 2), the members run one after the other (M = 1 each, member m
         over its own steps): the same numbers to float rounding, and on the CPU faster than the
         stacked pass at evaluation's batches (docs/benchmarks.md). Evaluation only: in training each
         member would draw dropout masks of its own, not the stacked pass's."""
         if self.training:
-            raise ValueError("one_by_one is evaluation's: call eval() first")
+            raise ValueError("predict_one_by_one is evaluation's: call eval() first")
         longest, outputs = max(self.steps), []
         for member, steps in enumerate(self.steps):
             params = {name: p[member : member + 1] for name, p in self.params.items()}

@@ -153,7 +153,7 @@ def score_members(
     ensemble.eval()
     loader = _loader(dataset, models[0].config.layers, batch_size)
     # on the CPU the models one after the other: faster there than stacked (benchmarks.md)
-    predict = ensemble.one_by_one if device.type == "cpu" else ensemble
+    predict = ensemble.predict_one_by_one if device.type == "cpu" else ensemble
     sums = [ScoreSums(k, len(dataset)) for k in steps]
     with torch.no_grad():
         for index, batch in enumerate(loader):

@@ -76,8 +76,8 @@ def test_each_member_computes_its_model(
     assert out.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
     if training:  # evaluation's alone
         with pytest.raises(ValueError, match="evaluation"):
-            stacked.one_by_one(batch)
-    one_by_one = stacked.eval().one_by_one(batch)  # evaluation's path on the CPU
+            stacked.predict_one_by_one(batch)
+    one_by_one = stacked.eval().predict_one_by_one(batch)  # evaluation's path on the CPU
     for index, (model, steps) in enumerate(zip(models, STEPS, strict=True)):
         torch.manual_seed(7)  # the members' one stream: each draws the masks it draws alone
         alone = model.train(training)(batch, steps)
