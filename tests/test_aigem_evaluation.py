@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
+from aigem.ensemble import Ensemble
 from aigem.evaluation import evaluate, scene_choice
 from aigem.intervals import RESAMPLES, SampleIntervals
 from aigem.results import as_dict
@@ -242,11 +243,23 @@ def _close_rows(ours: object, theirs: object, key: str = "") -> None:
         assert ours == pytest.approx(theirs, rel=1e-5, abs=1e-5), key
 
 
+@pytest.mark.parametrize("together", ["one by one", "stacked"])
 def test_a_multi_horizon_run_scores_each_model_as_evaluate_does_in_one_pass(
-    tiny_horizons_run: Path,
+    tiny_horizons_run: Path, together: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """The CPU's way (the models one after the other) and an accelerator's with the loader's
+    batches (stacked), both here on the CPU."""
+    stacked: list[int] = []  # the members of each stacked pass
+    if together == "stacked":
+
+        def run_stacked(ensemble: Ensemble, batch: dict) -> torch.Tensor:
+            stacked.append(ensemble.members)
+            return ensemble(batch)
+
+        monkeypatch.setattr(Ensemble, "predict_one_by_one", run_stacked)
     calls: list[tuple[int, int]] = []
     several = evaluate(tiny_horizons_run, None, "test", "cpu", 8, lambda *call: calls.append(call))
+    assert (2 in stacked) == (together == "stacked")
     batches = -(-several.samples // 8)
     assert batches > 1 and calls == [(done, batches) for done in range(1, batches + 1)]
     assert list(several.members) == ["h1s", "h2s"]
