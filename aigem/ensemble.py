@@ -89,7 +89,7 @@ class Ensemble:
         longest, outputs = max(self.steps), []
         for member, steps in enumerate(self.steps):
             params = {name: p[member : member + 1] for name, p in self.params.items()}
-            out = forward_members(params, self.config, batch, (steps,), self.training, self.decode)
+            out = forward_members(params, self.config, batch, (steps,), False, self.decode)
             outputs.append(F.pad(out, (0, 0, 0, longest - steps)))
         return torch.cat(outputs)
 

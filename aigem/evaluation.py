@@ -5,9 +5,9 @@ default on the run's own build; another build (say, trained on US-101, tested on
 asked, and then with the run's scaler: the model only knows its inputs as scaled in training.
 
 A run is a group of one model per horizon (aigem.records.Group; a run of one horizon is a group of
-one, the paper's protocol a group of five). Its models are scored in one pass over the
-split (aigem.scoring.score_members: the split loaded once, the models run as one ensemble,
-constant velocity computed once), each model getting the numbers `evaluate` gives its run directory, and
+one, the paper's protocol a group of five). Its models are scored in one pass over the split
+(aigem.scoring.score_members: the split loaded once, the models run as one ensemble, constant
+velocity computed once), each model getting the numbers `evaluate` gives its run directory, and
 reported as the paper does: RMSE at h s from the model trained for h s (in general: from the
 shortest-horizon model that predicts that far), ADE and FDE from the longest-horizon model;
 constant velocity likewise, so that each number of the baseline is on the same targets as the

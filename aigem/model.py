@@ -119,16 +119,10 @@ def _gat(p: Params, conv: str, config: ModelConfig, z, crow, col, attr, dst, tra
     alpha = segment_softmax(alpha, big_crow, big_dst)
     alpha = _dropout(alpha.view(members, -1, heads), config.dropout, training).view(-1, heads)
     sources = z.expand(members, n_src, features).reshape(members * n_src, features)
-    per_head = [
-        _linear(
-            aggregate(alpha[:, k].contiguous(), sources, big_crow, big_col, big_dst).view(
-                members, n_dst, features
-            ),
-            weight[:, k],
-            None,
-        )
-        for k in range(heads)
-    ]
+    per_head = []
+    for k in range(heads):  # the sources' inputs summed by head k's weights, then projected
+        summed = aggregate(alpha[:, k].contiguous(), sources, big_crow, big_col, big_dst)
+        per_head.append(_linear(summed.view(members, n_dst, features), weight[:, k], None))
     return per_head[0] if heads == 1 else torch.stack(per_head, 1).mean(1)
 
 
