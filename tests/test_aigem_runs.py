@@ -87,6 +87,19 @@ def test_a_run_records_its_builds_identity_and_scaler(trained_run: Path, tiny_bu
     assert last["state"]["next_epoch"] == 1 and last["optimizer"]["param_groups"][0]["lr"] == 1e-3
 
 
+def test_loading_a_model_gives_its_weights_and_draws_nothing(trained_run: Path) -> None:
+    saved = torch.load(trained_run / runs.BEST, map_location="cpu", weights_only=True)["model"]
+    torch.manual_seed(11)
+    model, _ = runs.load_model(trained_run)
+    drawn_after_loading = torch.rand(3)
+    torch.manual_seed(11)
+    assert torch.equal(drawn_after_loading, torch.rand(3))  # the global generator untouched
+    weights = model.state_dict()
+    assert weights.keys() == saved.keys()
+    assert all(torch.equal(weights[name], saved[name]) for name in saved)
+    assert not model.training and all(p.device.type == "cpu" for p in model.parameters())
+
+
 class _Payload:
     """Unpickling this creates `marker`: what a malicious checkpoint would do, harmlessly."""
 
