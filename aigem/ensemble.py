@@ -11,9 +11,8 @@ computes what `AiGem.forward(batch, steps[m])` computes, to float rounding:
   member's parameters is that member's own loss gradient, and Adam, elementwise, steps the
   stacked parameters as M Adams would step each member's.
 - Dropout: the members draw one mask from the global generator, the one each would draw trained
-  alone (on the CPU; on CUDA `F.dropout` is a fused kernel with its own use of the generator, so
-  there the masks are other, equally random ones): a fit's models start every epoch from one
-  seed, and their encoders draw the same shapes.
+  alone (aigem.model draws it so for a model alone too, on every device): a fit's models start
+  every epoch from one seed, and their encoders draw the same shapes.
 
 `stack` and `unstack` move the members' parameters and their Adam states in and out (through the
 optimisers' public `state_dict`); the checkpoints stay each member's own.

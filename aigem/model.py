@@ -6,7 +6,10 @@ K = future steps, E edges of one type.
 The parameters are those of PyTorch Geometric's `GATConv` (one per edge type of the build,
 `ModelConfig.edge_types`, and layer, named by the type: `encoder.0.spatial.lin.weight`; with
 `edge_dim=1`, `add_self_loops=False`), `nn.Linear`, `nn.GRUCell` and the output MLP, so the
-parameter count and the checkpoints' keys are theirs.
+parameter count and the checkpoints' keys are theirs. `GATParameters` holds a GATConv's parameters
+under its names, initialised as it initialises them (a seed gives the same model), without
+importing PyG, whose import takes longer than PyTorch's (it loads torch._dynamo); the tests hold
+the forward to PyG's `GATConv.forward` on these parameters.
 
 The forward pass is written once, for M models at a time: `forward_members(params, ...)` takes
 the parameters stacked along a leading member dimension under AiGem's own names
@@ -16,8 +19,8 @@ own parameters with a member dimension of one); the models of a multi-horizon fi
 matrix products, the attention is computed over one graph of M copies of the batch's graph
 (member m's nodes offset by m times the layer's sizes) through `aigem.plan.aggregate`, and the
 GRU cell and the MLP are batched matrix products. What the members share (the batch, its plan)
-is read once. The encoder computes `GATConv.forward` (`EncoderLayer.reference` keeps the plain
-PyG form; the two agree to float32 rounding) on the nodes of the batch's `aigem.plan.Plan`:
+is read once. The encoder computes `GATConv.forward` (the two agree to float32 rounding) on the
+nodes of the batch's `aigem.plan.Plan`:
 
 - The edge-feature attention term `att_edge . lin_edge(e)` is linear in the edge feature e, so it
   is computed as e @ (lin_edge.weight^T att_edge): one number per edge and head instead of an
@@ -34,12 +37,12 @@ PyG form; the two agree to float32 rounding) on the nodes of the batch's `aigem.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch_geometric.nn import GATConv
 
 from aigem.config import ModelConfig
 from aigem.plan import aggregate, edge_inputs, make_plan, segment_softmax
@@ -249,6 +252,43 @@ def forward_members(
 # The model: its parameters, and the forward of one member
 
 
+class _Weight(nn.Module):
+    """A bias-free linear layer's weight (out, in): the `lin` and `lin_edge` of a GATConv."""
+
+    def __init__(self, out_features: int, in_features: int) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(out_features, in_features))
+
+
+def _glorot(parameter: nn.Parameter) -> None:
+    """PyG's glorot: uniform in +-sqrt(6 / (size(-2) + size(-1)))."""
+    bound = math.sqrt(6.0 / (parameter.size(-2) + parameter.size(-1)))
+    with torch.no_grad():
+        parameter.uniform_(-bound, bound)
+
+
+class GATParameters(nn.Module):
+    """The parameters of PyG's `GATConv(in_features, hidden, heads, concat=False, edge_dim=1,
+    add_self_loops=False)`, in its order and under its names (att_src, att_dst, att_edge, bias,
+    lin.weight, lin_edge.weight), drawn from the global generator as it draws them: each of its
+    two Linears on its construction, then its `reset_parameters` (the Linears again, att_src,
+    att_dst, att_edge; the bias zeros). The forward is `_gat`'s."""
+
+    def __init__(self, in_features: int, config: ModelConfig) -> None:
+        super().__init__()
+        heads, channels = config.heads, config.hidden
+        self.att_src = nn.Parameter(torch.empty(1, heads, channels))
+        self.att_dst = nn.Parameter(torch.empty(1, heads, channels))
+        self.att_edge = nn.Parameter(torch.empty(1, heads, channels))
+        self.bias = nn.Parameter(torch.empty(channels))  # concat=False: one per channel
+        self.lin = _Weight(heads * channels, in_features)
+        self.lin_edge = _Weight(heads * channels, 1)  # edge_dim=1
+        linears = [self.lin.weight, self.lin_edge.weight]
+        for parameter in [*linears, *linears, self.att_src, self.att_dst, self.att_edge]:
+            _glorot(parameter)
+        nn.init.zeros_(self.bias)
+
+
 class EncoderLayer(nn.Module):
     """One GAT per edge type (an attribute named by the type, so the checkpoints' keys are
     `spatial.*`, `temporal.*`) and the linear term; `forward_members` computes the layer."""
@@ -257,35 +297,12 @@ class EncoderLayer(nn.Module):
         super().__init__()
         self.edge_names = config.edge_types
         for name in self.edge_names:  # registered in order: the parameters' order and init
-            conv = GATConv(
-                in_features,
-                config.hidden,
-                heads=config.heads,
-                concat=False,
-                edge_dim=1,
-                add_self_loops=False,
-                dropout=config.dropout,
-                negative_slope=NEGATIVE_SLOPE,
-            )
-            # The scores z . (W^T a) leave a bias out, and the attention's sum of inputs projected
-            # after (_gat) would need the weights of each row to sum to 1, which dropout breaks.
-            if conv.lin.bias is not None:
-                raise ValueError("a GATConv whose lin has a bias: not the GATConv AiGem is")
-            self.add_module(name, conv)
+            self.add_module(name, GATParameters(in_features, config))
         self.linear = nn.Linear(in_features, config.hidden)
 
-    def convs(self) -> list[GATConv]:
+    def convs(self) -> list[GATParameters]:
         """The GAT of each edge type, in `ModelConfig.edge_types` order."""
         return [getattr(self, name) for name in self.edge_names]
-
-    def reference(self, z, edge_list: list[tuple[torch.Tensor, torch.Tensor]]):  # noqa: ANN001, ANN201
-        """The layer on all N nodes through PyG's `GATConv.forward` (for checks); `edge_list`:
-        (edge_index, edge_attr) per edge type."""
-        total = None
-        for conv, (edge_index, attr) in zip(self.convs(), edge_list, strict=True):
-            gat = conv(z, edge_index, attr)
-            total = gat if total is None else total + gat
-        return total + self.linear(z)  # (N, H)
 
 
 class AiGem(nn.Module):

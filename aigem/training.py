@@ -11,9 +11,9 @@ batch, moved to the device once, trains every model, the models of an epoch as o
 (aigem.epochs, aigem.ensemble), each with its own optimizer, checkpoints, log and early stopping. On
 the CPU each model is the one `fit` would train for its horizon with the same seed and settings
 (the same initialisation, batches and dropout masks), to float rounding, which the ensemble's
-other order of summation changes. On CUDA its dropout masks are other, equally random ones (the
-ensemble draws them with `bernoulli_` from each member's stream, `F.dropout` with its fused
-kernel), and the ensemble runs eagerly: `--compile` applies to a model trained alone.
+other order of summation changes: the members draw one dropout mask from the global generator,
+as a model alone draws its own (aigem.model). On the loader's batches the ensemble runs eagerly:
+`--compile` applies to a model trained alone.
 """
 
 from __future__ import annotations

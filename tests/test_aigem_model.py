@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 import torch
+from torch.func import functional_call
+from torch_geometric.nn import GATConv
 
 from aigem.config import ModelConfig
-from aigem.model import AiGem, count_parameters
+from aigem.model import NEGATIVE_SLOPE, AiGem, GATParameters, count_parameters
 
 
 def tiny_batch() -> dict[str, torch.Tensor]:
@@ -75,12 +80,53 @@ def test_gradients_reach_every_parameter() -> None:
     assert all(p.grad is not None for p in model.parameters())
 
 
+@pytest.mark.parametrize(("features", "heads"), [(4, 1), (64, 1), (64, 2)])
+def test_gat_parameters_are_pyg_gatconvs_drawn_alike(features: int, heads: int) -> None:
+    """Names, order, shapes and values of PyG's GATConv under one seed, and the generator left
+    where PyG leaves it: a seed makes the model it made when AiGem held PyG's GATConvs."""
+    config = ModelConfig(heads=heads)
+    torch.manual_seed(7)
+    ours, after_ours = GATParameters(features, config), torch.rand(4)
+    torch.manual_seed(7)
+    theirs = GATConv(features, config.hidden, heads=heads, concat=False, edge_dim=1,
+                     add_self_loops=False)  # fmt: skip
+    after_theirs = torch.rand(4)
+    ours_sd, theirs_sd = ours.state_dict(), theirs.state_dict()
+    assert list(ours_sd) == list(theirs_sd)
+    assert all(torch.equal(ours_sd[name], theirs_sd[name]) for name in theirs_sd)
+    assert ours_sd["lin.weight"].abs().max() > 0 and not ours_sd["bias"].any()  # drawn; zeros
+    assert torch.equal(after_ours, after_theirs)
+
+
+def test_the_model_is_made_without_importing_pyg() -> None:
+    """PyG's import (which loads torch._dynamo) would add seconds to every aigem command."""
+    code = (
+        "import sys; from aigem.model import AiGem; from aigem.config import ModelConfig; "
+        "AiGem(ModelConfig()); print('torch_geometric' in sys.modules, 'torch._dynamo' in sys.modules)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["False", "False"]
+
+
+def _pyg_gatconv(conv: GATParameters, config: ModelConfig) -> GATConv:
+    """PyG's GATConv that AiGem's parameters `conv` are those of (its own parameters unused)."""
+    features = conv.lin.weight.shape[1]
+    return GATConv(features, config.hidden, heads=config.heads, concat=False, edge_dim=1,
+                   add_self_loops=False, negative_slope=NEGATIVE_SLOPE)  # fmt: skip
+
+
 def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int) -> torch.Tensor:
-    """The model through PyG's plain GATConv path on every node (no pruning, no sparse product)."""
+    """The model through PyG's plain GATConv path on every node (no pruning, no sparse product),
+    on the model's own parameters (functional_call: the gradients reach them)."""
     z = batch["x"]
+    edges = [(batch[f"{name}_edges"], batch[f"{name}_attr"]) for name in model.config.edge_types]
     for index, layer in enumerate(model.encoder):
-        z = layer.reference(z, [(batch["spatial_edges"], batch["spatial_attr"]),
-                                (batch["temporal_edges"], batch["temporal_attr"])])  # fmt: skip
+        total = None
+        for conv, (edge_index, attr) in zip(layer.convs(), edges, strict=True):
+            pyg = _pyg_gatconv(conv, model.config).eval()
+            gat = functional_call(pyg, dict(conv.named_parameters()), (z, edge_index, attr))
+            total = gat if total is None else total + gat
+        z = total + layer.linear(z)  # (N, H)
         if index < len(model.encoder) - 1:
             z = torch.relu(z)
     target = batch["target_node"]
