@@ -42,18 +42,24 @@ class Replays:
     It holds no reference to its functions (the caller passes one each call), so that an owner
     dropped with its graphs is freed at once rather than by the garbage collector, which must
     not destroy a graph while another is being captured (the collector is held off during a
-    capture). Its graphs share one memory pool and one side stream: they never run at once and
-    none reads another's output (every state that lasts, the parameters, Adam's, the losses,
-    the outputs, lives outside the pool), which PyTorch documents as safe in any order."""
+    capture). Its graphs share one memory pool and one side stream, with those of `shared`
+    (another Replays) where given. PyTorch documents a shared pool as safe for graphs replayed
+    in the order they were captured, and these replay in the data's order of tiers; it holds
+    because no graph reads what another wrote in the pool: every state that lasts (the
+    parameters, Adam's, the losses, the outputs, the sample ids) lives outside it, and they
+    never run at once. The gradients alone live in the pool: outside a step they mean nothing."""
 
-    def __init__(self, device: torch.device, pool: object | None = None) -> None:
+    def __init__(self, device: torch.device, shared: Replays | None = None) -> None:
         self.device = device
         self.ids: dict[int, torch.Tensor] = {}  # per tier: the captured input
         self.graphs: dict[int, torch.cuda.CUDAGraph] = {}
         self.calls: Counter[int] = Counter()
         cuda = device.type == "cuda"
-        self.pool = pool if pool is not None or not cuda else torch.cuda.graph_pool_handle()
-        self.stream = torch.cuda.Stream(device) if cuda else None
+        if shared is not None:  # a pool shared takes its capture's stream (torch.cuda.graph)
+            self.pool, self.stream = shared.pool, shared.stream
+        else:
+            self.pool = torch.cuda.graph_pool_handle() if cuda else None
+            self.stream = torch.cuda.Stream(device) if cuda else None
 
     def __call__(
         self, function: StepFunction, ids: torch.Tensor, tier: int, capacity: Capacity
@@ -168,11 +174,11 @@ class ValidationSums:
         split: ResidentSplit,
         scaler: MinMaxScaler,
         device: torch.device,
-        pool: object | None = None,
+        shared: Replays | None = None,
     ) -> None:
         self.ensemble, self.split, self.scaler = ensemble, split, scaler
         self.sums = torch.zeros(2, ensemble.members, dtype=torch.float64, device=device)
-        self.replays = Replays(device, pool)  # the training steps' pool: they never run at once
+        self.replays = Replays(device, shared)  # the training steps' pool and stream
 
     def _add(self, ids: torch.Tensor, capacity: Capacity) -> None:
         with torch.no_grad():

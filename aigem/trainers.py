@@ -195,8 +195,8 @@ def _stack(group: list[Member], loop: Loop) -> Together:
         together.steps = TrainSteps(
             stacked, optimizer, data.train, loop.scaler, clip, running, device
         )
-        pool = together.steps.replays.pool
-        together.validation = ValidationSums(stacked, data.val, loop.scaler, device, pool)
+        shared = together.steps.replays  # its pool and stream: they never run at once
+        together.validation = ValidationSums(stacked, data.val, loop.scaler, device, shared)
     return together
 
 
@@ -274,9 +274,11 @@ def static_steps(loop: Loop, trainers: list[Together], epoch: int) -> Iterator[i
         data.train, order, data.batch_size, data.train_base, data.batch_order, loop.device
     )
     for index in range(len(batches)):
-        for together in trainers:
+        for together in trainers:  # each on its members' dropout stream, as on the loader's
             rate = learning_rate_at(together.train, epoch, index, len(batches))
+            _set_rng_state(together.rng, loop.device)  # outside the capture: a replay reads it
             together.steps(batches.ids[index], batches.tiers[index], data.train_base, rate)
+            together.rng = rng_state(loop.device)
         yield batches.graphs[index]
 
 

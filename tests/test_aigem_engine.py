@@ -19,6 +19,7 @@ from aigem.data import Collate, GraphDataset
 from aigem.epochs import evaluate_losses
 from aigem.model import AiGem
 from aigem.resident import load_split
+from aigem.schedule import set_learning_rate
 
 LAYERS = ModelConfig().layers
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="captures need CUDA")
@@ -71,9 +72,10 @@ def test_validation_on_static_batches_is_the_loaders(tiny_build: Path) -> None:
     assert sums.ensemble.training  # back to training after it
 
 
-def _steps(split, dataset: GraphDataset, device: torch.device, base: capacity.Capacity):  # noqa: ANN001, ANN202
+def _steps(split, dataset: GraphDataset, device: torch.device, base: capacity.Capacity,
+           dropout: float = 0.0):  # fmt: skip  # noqa: ANN001, ANN202
     torch.manual_seed(0)
-    models = [AiGem(ModelConfig(dropout=0.0)).to(device) for _ in range(2)]
+    models = [AiGem(ModelConfig(dropout=dropout)).to(device) for _ in range(2)]
     stacked = ensemble.stack(models, (5, 25))
     optimizers = [torch.optim.Adam(m.parameters(), lr=1e-3, fused=True) for m in models]
     optimizer = ensemble.stack_optimizer(stacked, optimizers, capturable=device.type == "cuda")
@@ -81,32 +83,60 @@ def _steps(split, dataset: GraphDataset, device: torch.device, base: capacity.Ca
     return engine.TrainSteps(stacked, optimizer, split, dataset.scaler, 0.5, running, device)
 
 
-@cuda
-def test_captured_steps_are_the_eager_steps(tiny_build: Path) -> None:
-    """Eight steps over batches of two tiers, captured after their warm-up, against the same
-    steps called eagerly: the same parameters, losses and validation sums (to the rounding of
-    the GPU's atomic sums)."""
-    device = torch.device("cuda")
-    dataset = GraphDataset(tiny_build, "train", history_steps=LAYERS + 1)
+def captured_against_eager(build: Path, device: torch.device) -> None:
+    """Eleven steps over batches of two tiers in an irregular order (each tier warmed up twice,
+    captured at its third call, then replayed out of the order of capture), dropout on, the
+    global generator seeded again half-way (as each epoch is), validation sharing the steps'
+    pool and stream called between them: against the same steps and validations called
+    eagerly, the same parameters, losses and validation sums (to the rounding of the GPU's
+    atomic sums). Each instance runs its whole sequence from one seed, so both draw the same
+    dropout masks."""
+    dataset = GraphDataset(build, "train", history_steps=LAYERS + 1)
     split = load_split(dataset, LAYERS).to(device)
     base = capacity.base_capacity(split.counts, 4, LAYERS)
     order = np.random.default_rng(0).permutation(len(dataset))
     batches = engine.epoch_batches(split, order, 4, base, dataset.batch_order, device)
-    tiers = [0, 1] * 4  # each tier warmed up twice, then captured and replayed
-    captured, eager = _steps(split, dataset, device, base), _steps(split, dataset, device, base)
-    for row, tier in enumerate(tiers):
-        captured(batches.ids[row], tier, base, 1e-3)
-        eager.optimizer.param_groups[0]["lr"].fill_(1e-3)
-        eager._step(batches.ids[row], capacity.tier(base, tier))
-    assert len(captured.replays.graphs) == 2
+    tiers = [0, 1, 0, 1, 0, 1, 1, 0, 1, 1, 0]
+
+    def run(steps: engine.TrainSteps, step, validation) -> list[list[float]]:  # noqa: ANN001
+        torch.manual_seed(5)
+        losses = []
+        for row, tier in enumerate(tiers):
+            if row == 6:
+                torch.manual_seed(6)
+            step(steps, row, tier)
+            if row >= 5:  # both tiers captured: their replays, then validation's
+                losses.append(validation(steps).losses(batches, base))
+        return losses
+
+    def replayed(steps: engine.TrainSteps, row: int, tier: int) -> None:
+        steps(batches.ids[row], tier, base, 1e-3)
+
+    def called(steps: engine.TrainSteps, row: int, tier: int) -> None:
+        set_learning_rate(steps.optimizer, 1e-3)
+        steps._step(batches.ids[row], capacity.tier(base, tier))
+
+    captured = _steps(split, dataset, device, base, dropout=0.1)
+    shared = engine.ValidationSums(
+        captured.ensemble, split, dataset.scaler, device, captured.replays
+    )
+    mine = run(captured, replayed, lambda steps: shared)  # eager twice, then captured
+    eager = _steps(split, dataset, device, base, dropout=0.1)
+    fresh = lambda steps: engine.ValidationSums(steps.ensemble, split, dataset.scaler, device)  # noqa: E731
+    theirs = run(eager, called, fresh)  # a first call: eager
+    if device.type == "cuda":
+        assert len(captured.replays.graphs) == 2
+        assert len(shared.replays.graphs) == len(set(batches.tiers))
     torch.testing.assert_close(captured.running, eager.running, rtol=1e-5, atol=1e-6)
-    for mine, theirs in zip(
-        captured.ensemble.parameters(), eager.ensemble.parameters(), strict=True
-    ):
-        torch.testing.assert_close(mine, theirs, rtol=1e-4, atol=1e-5)
-    sums = engine.ValidationSums(captured.ensemble, split, dataset.scaler, device)
-    losses = [sums.losses(batches, base) for _ in range(3)]  # eager, eager, captured
-    assert losses[0] == pytest.approx(losses[2], rel=1e-5)
+    for a, b in zip(captured.ensemble.parameters(), eager.ensemble.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    for ours, others in zip(mine, theirs, strict=True):
+        assert ours == pytest.approx(others, rel=1e-5)
+
+
+@cuda
+def test_captured_steps_are_the_eager_steps(tiny_build: Path) -> None:
+    captured_against_eager(tiny_build, torch.device("cuda"))
 
 
 @cuda

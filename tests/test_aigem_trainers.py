@@ -3,6 +3,7 @@ model learns) and which models train as one ensemble."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -16,7 +17,7 @@ from aigem.epochs import Loop, Member
 from aigem.model import AiGem
 from aigem.runs import RunState
 from aigem.trainers import Together, masked_mse_m2
-from aigem.training import make_optimizer
+from aigem.training import device_data, make_optimizer
 
 
 def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:
@@ -110,3 +111,33 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
         a is b
         for a, b in zip(trainers.group_trainers(members, _loop(world=2)), members, strict=True)
     )
+
+
+def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Together]:
+    """One epoch of static batches (the splits on the CPU) stepped by an ensemble of each group."""
+    cpu = torch.device("cpu")
+    config = ModelConfig()
+    data = device_data(build, config, TrainConfig(batch_size=16), cpu, workers=0)
+    scaler = GraphDataset(build, "train").scaler
+    loop = replace(_loop(world=1), scaler=scaler, data=data)
+    loop.generator.manual_seed(0)
+    together = [trainers._stack(group, loop) for group in groups]
+    torch.manual_seed(99)  # what the global stream holds before: no member's
+    for _ in trainers.static_steps(loop, together, epoch=0):
+        pass
+    return together
+
+
+def test_each_ensemble_on_static_batches_draws_its_own_dropout_stream(tiny_build: Path) -> None:
+    """Two ensembles step each static batch in turn; the first ends as it ends stepping alone,
+    its dropout masks drawn from its members' stream, not after the other's draws."""
+    paper, two_heads = ModelConfig(), ModelConfig(heads=2)
+    both = _static_epoch(
+        tiny_build, [[_member(5, paper, 1), _member(10, paper, 2)], [_member(5, two_heads, 3)]]
+    )
+    alone = _static_epoch(tiny_build, [[_member(5, paper, 1), _member(10, paper, 2)]])
+    ours, theirs = both[0].ensemble.params, alone[0].ensemble.params
+    assert all(torch.equal(ours[name], theirs[name]) for name in theirs)
+    assert torch.equal(both[0].rng[0], alone[0].rng[0])  # where the stream ended
+    start = _member(5, paper, 1).rng[0]
+    assert not torch.equal(both[0].rng[0], start) and not torch.equal(both[1].rng[0], start)
