@@ -83,9 +83,9 @@ def _steps(split, dataset: GraphDataset, device: torch.device, base: capacity.Ca
     return engine.TrainSteps(stacked, optimizer, split, dataset.scaler, 0.5, running, device)
 
 
-def captured_against_eager(build: Path, device: torch.device) -> None:
+def captured_against_eager(build: Path, device: torch.device, dropout: float) -> None:
     """Eleven steps over batches of two tiers in an irregular order (each tier warmed up twice,
-    captured at its third call, then replayed out of the order of capture), dropout on, the
+    captured at its third call, then replayed out of the order of capture), with `dropout`, the
     global generator seeded again half-way (as each epoch is), validation sharing the steps'
     pool and stream called between them: against the same steps and validations called
     eagerly, the same parameters, losses and validation sums (to the rounding of the GPU's
@@ -116,12 +116,12 @@ def captured_against_eager(build: Path, device: torch.device) -> None:
         set_learning_rate(steps.optimizer, 1e-3)
         steps._step(batches.ids[row], capacity.tier(base, tier))
 
-    captured = _steps(split, dataset, device, base, dropout=0.1)
+    captured = _steps(split, dataset, device, base, dropout)
     shared = engine.ValidationSums(
         captured.ensemble, split, dataset.scaler, device, captured.replays
     )
     mine = run(captured, replayed, lambda steps: shared)  # eager twice, then captured
-    eager = _steps(split, dataset, device, base, dropout=0.1)
+    eager = _steps(split, dataset, device, base, dropout)
     fresh = lambda steps: engine.ValidationSums(steps.ensemble, split, dataset.scaler, device)  # noqa: E731
     theirs = run(eager, called, fresh)  # a first call: eager
     if device.type == "cuda":
@@ -135,8 +135,9 @@ def captured_against_eager(build: Path, device: torch.device) -> None:
 
 
 @cuda
-def test_captured_steps_are_the_eager_steps(tiny_build: Path) -> None:
-    captured_against_eager(tiny_build, torch.device("cuda"))
+@pytest.mark.parametrize("dropout", [0.0, 0.1])  # the second alone failing: the masks differ
+def test_captured_steps_are_the_eager_steps(tiny_build: Path, dropout: float) -> None:
+    captured_against_eager(tiny_build, torch.device("cuda"), dropout)
 
 
 @cuda
