@@ -8,12 +8,17 @@ samples scored by all the run's models, per second of the call), the median of e
 ratio of each round's pair. It also prints the largest difference between the metrics the two
 give, the model's and constant velocity's rows (the model's differ by float rounding).
 
+`--command` times the whole command instead: `aigem evaluate RUN --device cpu` of each checkout
+in a fresh process, from its start to its end (Python's start and the imports included), with
+`OMP_NUM_THREADS` set to --threads; it prints each call's seconds and their ratio.
+
 `--forward` adds where the time goes, in this process with this checkout's code: the test batches
 loaded once, then the models' forward passes over them, as one stacked ensemble (what evaluate
 runs on an accelerator) and one model after the other (what it runs on the CPU), alternating.
 
     mkdir -p /tmp/ev/old && git archive 7610a76 | tar -x -C /tmp/ev/old   # before one pass
     .venv/bin/python bench/bench_evaluate.py /tmp/ev/run --old /tmp/ev/old --new . --rounds 6
+    .venv/bin/python bench/bench_evaluate.py /tmp/ev/run --old /tmp/ev/old --new . --command
 
 Make the run with `ngsim-graphs synth`, `ngsim-graphs build` and `aigem fit --horizon-s
 1,2,3,4,5` (docs/benchmarks.md has the commands). Synthetic data: these are not NGSIM results.
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -44,6 +50,51 @@ result = score(Path(sys.argv[2]), None, "test", "cpu")
 seconds = time.perf_counter() - start
 print(json.dumps({"module": evaluation.__file__, "seconds": seconds, "result": as_dict(result)}))
 """
+
+
+# The whole command, in a child process: argv = checkout, run directory. The checkout's CLI (cli/)
+# is imported as the package `ngsim_cli` it installs as; its aigem and ngsim_graphs come first on
+# sys.path. Its last line names the aigem it ran.
+COMMAND = """
+import importlib.util, sys
+from pathlib import Path
+root = Path(sys.argv[1]).resolve()
+sys.path.insert(0, str(root))
+spec = importlib.util.spec_from_file_location(
+    "ngsim_cli", root / "cli" / "__init__.py", submodule_search_locations=[str(root / "cli")]
+)
+sys.modules["ngsim_cli"] = package = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(package)
+from ngsim_cli.entry import aigem
+sys.argv = ["aigem", "evaluate", sys.argv[2], "--device", "cpu"]
+try:
+    aigem()
+except SystemExit as end:
+    code = end.code
+else:
+    code = 0
+print("aigem:", sys.modules["aigem"].__file__, flush=True)
+sys.exit(code)
+"""
+
+
+def measure_command(checkout: Path, run: Path, threads: int) -> float:
+    """Seconds of `aigem evaluate RUN` by `checkout`'s code, a fresh process from start to end."""
+    environment = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+    start = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-c", COMMAND, str(checkout), str(run)],
+        capture_output=True,
+        text=True,
+        env=environment,
+    )
+    seconds = time.perf_counter() - start
+    if done.returncode != 0:
+        raise SystemExit(f"{checkout}: aigem evaluate failed:\n{done.stderr}")
+    module = Path(done.stdout.strip().splitlines()[-1].removeprefix("aigem: "))
+    if not module.is_relative_to(checkout.resolve()):
+        raise SystemExit(f"ran {module}, not {checkout}'s aigem")
+    return seconds
 
 
 def measure(checkout: Path, run: Path, threads: int) -> dict:
@@ -116,6 +167,19 @@ def forward_times(run: Path, rounds: int) -> None:
             print(f"forward, round {round_index + 1}: stacked {stacked:.2f} s, apart {apart:.2f} s")
 
 
+def compare_commands(args: argparse.Namespace) -> None:
+    """Each round's seconds of the whole command by both checkouts, alternating, and the ratios."""
+    seconds: dict[str, list[float]] = {"old": [], "new": []}
+    for round_index in range(args.rounds):
+        for name in ("old", "new") if round_index % 2 == 0 else ("new", "old"):
+            seconds[name].append(measure_command(getattr(args, name), args.run, args.threads))
+            print(f"round {round_index + 1} {name}: aigem evaluate in {seconds[name][-1]:.2f} s")
+    old, new = (statistics.median(seconds[name]) for name in ("old", "new"))
+    ratios = [o / n for o, n in zip(seconds["old"], seconds["new"], strict=True)]
+    print(f"median seconds: old {old:.2f}, new {new:.2f}; old / new {old / new:.2f}")
+    print(f"old / new per round: {', '.join(f'{r:.2f}' for r in ratios)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="a multi-horizon run (aigem fit --horizon-s ...)")
@@ -124,7 +188,11 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5, help="calls of each, alternating")
     parser.add_argument("--threads", type=int, default=1, help="torch's CPU threads")
     parser.add_argument("--forward", action="store_true", help="also time the forward passes")
+    parser.add_argument("--command", action="store_true", help="time the whole aigem evaluate")
     args = parser.parse_args()
+    if args.command:
+        compare_commands(args)
+        return
     rates: dict[str, list[float]] = {"old": [], "new": []}
     results: dict[str, dict] = {}
     for round_index in range(args.rounds):
