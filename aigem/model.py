@@ -109,15 +109,10 @@ def _gat(p: Params, conv: str, config: ModelConfig, z, crow, col, attr, dst, tra
     scores = scores[:, :heads].index_select(0, big_col) + scores[:, heads:].index_select(
         0, dst_as_src
     )  # (M E, heads)
-    if f"{conv}.lin_edge.weight" in p:
-        edge_weight = p[f"{conv}.lin_edge.weight"].view(members, heads, channels, -1)
-        att = p[f"{conv}.att_edge"].view(members, heads, channels, 1)
-        edge_att = (edge_weight * att).sum(2).transpose(1, 2)  # (M, D, heads)
-        if edge_att.shape[1] == 1:  # AiGem's edge_dim: an outer product, not a matmul
-            edge_scores = attr.to(z.dtype) * edge_att
-        else:
-            edge_scores = torch.matmul(attr.to(z.dtype), edge_att)
-        scores = scores + edge_scores.view(-1, heads)
+    edge_weight = p[f"{conv}.lin_edge.weight"].view(members, heads, channels, 1)  # edge_dim 1
+    att = p[f"{conv}.att_edge"].view(members, heads, channels, 1)
+    edge_att = (edge_weight * att).sum(2).transpose(1, 2)  # (M, 1, heads)
+    scores = scores + (attr.to(z.dtype) * edge_att).view(-1, heads)  # an outer product
     alpha = F.leaky_relu(scores, NEGATIVE_SLOPE)
     alpha = segment_softmax(alpha, big_crow, big_dst)
     alpha = _dropout(alpha.view(members, -1, heads), config.dropout, training).view(-1, heads)
