@@ -126,7 +126,7 @@ class GraphDataset(Dataset):
             )
         self.scaler = scaler if scaler is not None else build.manifest.scaler
         self.size = int(build.manifest.splits[self.split.value])
-        self._build: OpenBuild | None = None  # opened lazily in each worker process
+        self._build: OpenBuild | None = build  # None in a worker process: it opens its own
 
     @property
     def build(self) -> OpenBuild:
