@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,15 @@ def _set_rng_state(state: RngState, device: torch.device) -> None:
     torch.set_rng_state(state[0])
     if state[1] is not None:
         torch.cuda.set_rng_state(state[1], device)
+
+
+@contextmanager
+def _own_stream(trainer: Member | Together, device: torch.device) -> Iterator[None]:
+    """A step of `trainer` on its own dropout stream: its state set as the global generator's
+    before the step (outside any capture: a replay reads it) and kept after it."""
+    _set_rng_state(trainer.rng, device)
+    yield
+    trainer.rng = rng_state(device)
 
 
 @dataclass(frozen=True)
@@ -217,15 +227,14 @@ def _step(
     learning_rate: float,
 ) -> None:
     """One optimiser step of one model on its own dropout stream; its loss stays on the device."""
-    _set_rng_state(member.rng, device)
-    loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
-    member.optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    clip_gradients(member.model.parameters(), member.train.clip_grad_norm)
-    set_learning_rate(member.optimizer, learning_rate)
-    member.optimizer.step()
-    member.running += loss.detach()
-    member.rng = rng_state(device)
+    with _own_stream(member, device):
+        loss = masked_mse_m2(member.net(batch, member.steps), batch, scaler, member.steps)
+        member.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        clip_gradients(member.model.parameters(), member.train.clip_grad_norm)
+        set_learning_rate(member.optimizer, learning_rate)
+        member.optimizer.step()
+        member.running += loss.detach()
 
 
 def _step_together(
@@ -237,16 +246,15 @@ def _step_together(
 ) -> None:
     """One optimiser step of an ensemble: its members' loss summed, each member's gradient its
     own loss's; clipped per member; on the members' one dropout stream."""
-    _set_rng_state(together.rng, device)
     stacked = together.ensemble
-    losses = stacked.member_losses(stacked(batch), batch, scaler)  # (M,)
-    together.optimizer.zero_grad(set_to_none=True)
-    losses.sum().backward()
-    stacked.clip_gradients(together.train.clip_grad_norm)
-    set_learning_rate(together.optimizer, learning_rate)
-    together.optimizer.step()
-    together.running += losses.detach()
-    together.rng = rng_state(device)
+    with _own_stream(together, device):
+        losses = stacked.member_losses(stacked(batch), batch, scaler)  # (M,)
+        together.optimizer.zero_grad(set_to_none=True)
+        losses.sum().backward()
+        stacked.clip_gradients(together.train.clip_grad_norm)
+        set_learning_rate(together.optimizer, learning_rate)
+        together.optimizer.step()
+        together.running += losses.detach()
 
 
 def loader_steps(loop: Loop, trainers: list[Member | Together], epoch: int) -> Iterator[int]:
@@ -276,9 +284,8 @@ def static_steps(loop: Loop, trainers: list[Together], epoch: int) -> Iterator[i
     for index in range(len(batches)):
         for together in trainers:  # each on its members' dropout stream, as on the loader's
             rate = learning_rate_at(together.train, epoch, index, len(batches))
-            _set_rng_state(together.rng, loop.device)  # outside the capture: a replay reads it
-            together.steps(batches.ids[index], batches.tiers[index], data.train_base, rate)
-            together.rng = rng_state(loop.device)
+            with _own_stream(together, loop.device):
+                together.steps(batches.ids[index], batches.tiers[index], data.train_base, rate)
         yield batches.graphs[index]
 
 
