@@ -80,6 +80,12 @@ def test_gradients_reach_every_parameter() -> None:
     assert all(p.grad is not None for p in model.parameters())
 
 
+def _pyg_gatconv(features: int, config: ModelConfig) -> GATConv:
+    """PyG's GATConv that AiGem's GATParameters of `features` inputs are the parameters of."""
+    return GATConv(features, config.hidden, heads=config.heads, concat=False, edge_dim=1,
+                   add_self_loops=False, negative_slope=NEGATIVE_SLOPE)  # fmt: skip
+
+
 @pytest.mark.parametrize(("features", "heads"), [(4, 1), (64, 1), (64, 2)])
 def test_gat_parameters_are_pyg_gatconvs_drawn_alike(features: int, heads: int) -> None:
     """Names, order, shapes and values of PyG's GATConv under one seed, and the generator left
@@ -88,9 +94,7 @@ def test_gat_parameters_are_pyg_gatconvs_drawn_alike(features: int, heads: int) 
     torch.manual_seed(7)
     ours, after_ours = GATParameters(features, config), torch.rand(4)
     torch.manual_seed(7)
-    theirs = GATConv(features, config.hidden, heads=heads, concat=False, edge_dim=1,
-                     add_self_loops=False)  # fmt: skip
-    after_theirs = torch.rand(4)
+    theirs, after_theirs = _pyg_gatconv(features, config), torch.rand(4)
     ours_sd, theirs_sd = ours.state_dict(), theirs.state_dict()
     assert list(ours_sd) == list(theirs_sd)
     assert all(torch.equal(ours_sd[name], theirs_sd[name]) for name in theirs_sd)
@@ -108,13 +112,6 @@ def test_the_model_is_made_without_importing_pyg() -> None:
     assert done.stdout.split() == ["False", "False"]
 
 
-def _pyg_gatconv(conv: GATParameters, config: ModelConfig) -> GATConv:
-    """PyG's GATConv that AiGem's parameters `conv` are those of (its own parameters unused)."""
-    features = conv.lin.weight.shape[1]
-    return GATConv(features, config.hidden, heads=config.heads, concat=False, edge_dim=1,
-                   add_self_loops=False, negative_slope=NEGATIVE_SLOPE)  # fmt: skip
-
-
 def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int) -> torch.Tensor:
     """The model through PyG's plain GATConv path on every node (no pruning, no sparse product),
     on the model's own parameters (functional_call: the gradients reach them)."""
@@ -123,7 +120,7 @@ def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int)
     for index, layer in enumerate(model.encoder):
         total = None
         for conv, (edge_index, attr) in zip(layer.convs(), edges, strict=True):
-            pyg = _pyg_gatconv(conv, model.config).eval()
+            pyg = _pyg_gatconv(conv.lin.weight.shape[1], model.config).eval()
             gat = functional_call(pyg, dict(conv.named_parameters()), (z, edge_index, attr))
             total = gat if total is None else total + gat
         z = total + layer.linear(z)  # (N, H)
