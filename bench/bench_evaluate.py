@@ -16,9 +16,9 @@ in a fresh process, from its start to its end (Python's start and the imports in
 loaded once, then the models' forward passes over them, as one stacked ensemble (what evaluate
 runs on an accelerator) and one model after the other (what it runs on the CPU), alternating.
 
-    mkdir -p /tmp/ev/old && git archive 7610a76 | tar -x -C /tmp/ev/old   # before one pass
-    .venv/bin/python bench/bench_evaluate.py /tmp/ev/run --old /tmp/ev/old --new . --rounds 6
-    .venv/bin/python bench/bench_evaluate.py /tmp/ev/run --old /tmp/ev/old --new . --command
+    mkdir -p bench/out/ev/old && git archive 7610a76 | tar -x -C bench/out/ev/old   # before one pass
+    .venv/bin/python bench/bench_evaluate.py bench/out/ev/run --old bench/out/ev/old --new . --rounds 6
+    .venv/bin/python bench/bench_evaluate.py bench/out/ev/run --old bench/out/ev/old --new . --command
 
 Make the run with `ngsim-graphs synth`, `ngsim-graphs build` and `aigem fit --horizon-s
 1,2,3,4,5` (docs/benchmarks.md has the commands). Synthetic data: these are not NGSIM results.

@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import sys
 import tomllib
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -311,14 +312,30 @@ def shell_commands(code: str) -> list[list[str]]:
     return commands
 
 
-def _program(word: str) -> tuple[str, bool]:
-    """(a command's program name, whether it is found here: .venv/bin/X in this venv, a script of
-    the checkout, or a program on the PATH)."""
+def _made_venvs(commands: list[list[str]]) -> set[str]:
+    """The folders that a block's own `python3 -m venv DIR` commands make, as written."""
+    return {
+        command[3].rstrip("/")
+        for command in commands
+        if command[0] in ("python", "python3") and command[1:3] == ["-m", "venv"]
+    }
+
+
+def _program(word: str, venvs: AbstractSet[str] = frozenset()) -> tuple[str, bool]:
+    """(a command's program name, whether it is found: .venv/bin/X in this venv, DIR/bin/X of a
+    venv the block itself makes (X as this venv has it), a script of the checkout, or a program on
+    the PATH). A path outside the checkout is never found: what a machine happens to hold there is
+    no part of the docs."""
     if word.startswith(".venv/bin/"):
         name = word.removeprefix(".venv/bin/")
         return name, (VENV_BIN / name).is_file()
     if "/" in word:
-        return word, os.access(ROOT / word, os.X_OK)
+        folder, _, name = word.rpartition("/bin/")
+        if folder in venvs:
+            return name, (VENV_BIN / name).is_file()
+        path = Path(word)
+        inside = not path.is_absolute() and ".." not in path.parts
+        return word, inside and os.access(ROOT / word, os.X_OK)
     return word, shutil.which(word) is not None or (VENV_BIN / word).is_file()
 
 
@@ -406,13 +423,16 @@ def help_text(*words: str) -> str:
     ).stdout
 
 
-def command_problems(command: list[str]) -> list[str]:
+def command_problems(command: list[str], venvs: AbstractSet[str] = frozenset()) -> list[str]:
     """What is wrong with one command of a bash block: a program not found, arguments that the
-    project's programs or scripts refuse, an option of pip or ruff that its --help does not name."""
-    name, found = _program(command[0])
+    project's programs or scripts refuse, an option of pip or ruff that its --help does not name.
+    `venvs`: the folders of the venvs that the block makes (`_made_venvs`), whose programs are
+    found as this venv's and checked as the code of the block's own checkout (not parsed here)."""
+    name, found = _program(command[0], venvs)
     if not found:
         return [f"{command[0]}: no such program"]
-    if name in PROGRAMS:
+    block_made = any(command[0].startswith(f"{venv}/") for venv in venvs)
+    if name in PROGRAMS and not block_made:
         refusal = _cli_refusal(name, command[1:])
         return [] if refusal is None else [f"{' '.join(command)}: {refusal}"]
     if name in ("python", "python3") and command[1].endswith(".py"):
@@ -437,7 +457,26 @@ def test_each_bash_command_is_checked(block: Block) -> None:
         pytest.skip(block.not_run)
     commands = shell_commands(block.code)
     assert commands
-    assert [problem for command in commands for problem in command_problems(command)] == []
+    venvs = _made_venvs(commands)
+    assert [problem for command in commands for problem in command_problems(command, venvs)] == []
+
+
+def test_a_program_is_found_in_the_checkout_or_the_block_never_elsewhere(tmp_path: Path) -> None:
+    """A documented program outside the checkout is refused even where this machine holds it (a
+    newcomer's clone does not); a venv's program is found when the block makes that venv."""
+    venv_pip = tmp_path / ".venv" / "bin" / "pip"
+    venv_pip.parent.mkdir(parents=True)
+    venv_pip.write_text("#!/bin/sh\n")
+    venv_pip.chmod(0o755)
+    assert command_problems([str(venv_pip), "install", "-q", "x"]) == [
+        f"{venv_pip}: no such program"
+    ]
+    block = "python3 -m venv bench/out/old/.venv && bench/out/old/.venv/bin/pip install -q x"
+    commands = shell_commands(block)
+    assert _made_venvs(commands) == {"bench/out/old/.venv"}
+    assert command_problems(commands[1], _made_venvs(commands)) == []
+    assert command_problems(commands[1]) == ["bench/out/old/.venv/bin/pip: no such program"]
+    assert command_problems(["../elsewhere/run.sh"]) == ["../elsewhere/run.sh: no such program"]
 
 
 def synopses() -> list[tuple[str, str, list[str]]]:
