@@ -539,3 +539,21 @@ def test_local_x_swapped_with_space_headway_is_refused(tmp_path: Path, rows: lis
         "5 of 5 lanes have their median Local_X more than a lane width outside the lane",
         "(lane 1: 36.6 m, the lane at 0.0 to 3.7 m)",
     )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("column", "written", "name"),
+    [(ns.V_ACC, "-1,2", "v_Acc"), (ns.V_ACC, "0,5", "v_Acc"), (ns.V_ACC, "1,,5", "v_Acc"),
+     (ns.LOCAL_X, ",25", "Local_X")],
+)  # fmt: skip
+def test_a_comma_that_separates_no_thousands_is_refused(
+    tmp_path: Path, rows: list[dict], column: str, written: str, name: str
+) -> None:
+    # i50 e13: every comma was stripped, so that v_Acc '-1,2' (a decimal comma) was read as -12
+    # ft/s² and Local_X ',25' as 25 ft, with nothing said.
+    rows[7] = {**rows[7], column: written}
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        f"line 8: column {name}: {written!r} is not a number",
+    )  # fmt: skip

@@ -228,3 +228,33 @@ def test_whole_numbers_written_with_a_point_are_integers(tmp_path: Path) -> None
         NgsimInputError, match=r"t\.txt, line 3: column Lane_ID: '2\.5' is not a whole"
     ):
         read_raw_file(write_txt(tmp_path / "t.txt", pointed), US)
+
+
+@pytest.mark.parametrize("write", [write_txt, write_period_csv])
+def test_thousands_separators_are_stripped(tmp_path: Path, write) -> None:
+    # The portal's way (1-3 digits, then groups of exactly 3), in a .txt too; a CSV quotes them.
+    rows = straight_track(1, range(2))
+    rows[1] = {
+        **rows[1],
+        s.GLOBAL_TIME: f"{rows[1][s.GLOBAL_TIME]:,}",  # 1,118,846,993,100
+        ns.GLOBAL_X: "-1,234.5",
+        ns.SPACE_HEADWAY: "1,156",
+        ns.TIME_HEADWAY: "9,999.99",
+    }
+    frame = read_raw_file(write(tmp_path / f"a.{write.__name__}", rows), US).frame.collect()
+    columns = [s.GLOBAL_TIME, ns.GLOBAL_X, ns.SPACE_HEADWAY, ns.TIME_HEADWAY]
+    assert frame.select(columns).row(1) == (1_118_846_993_100, -1234.5, 1156.0, 9999.99)
+
+
+@pytest.mark.parametrize(
+    "written",
+    ["-1,2", "0,5", "1,,5", ",25", "1,23", "1,2345", "1234,567", "1,234,56", "1,234e2", "1,"],
+)
+def test_a_comma_that_separates_no_thousands_is_not_a_number(tmp_path: Path, written: str) -> None:
+    # Every comma was stripped: '-1,2' (a decimal comma) read as -12, ',25' as 25.
+    rows = straight_track(1, range(3))
+    rows[1] = {**rows[1], ns.V_ACC: written}
+    path = write_txt(tmp_path / "t.txt", rows)
+    with pytest.raises(NgsimInputError) as err:
+        read_raw_file(path, US)
+    assert str(err.value) == f"{path}, line 2: column v_Acc: {written!r} is not a number"

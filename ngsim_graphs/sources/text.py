@@ -142,6 +142,31 @@ _RUST_WHITESPACE = (
 )
 
 
+# A number written with thousands separators as the portal writes them (`1,156`, `-1,234.5`,
+# `12,345,678`): 1-3 digits, then groups of exactly 3, then a fraction. Only such commas are
+# stripped; any other (`-1,2` or `0,5`, a decimal comma; `1,,5`; `,25`) leaves the field as it is,
+# which then does not parse: "not a number", with its line.
+_GROUPED = r"[+-]?[0-9]{1,3}(?:,[0-9]{3})+(?:\.[0-9]*)?"
+_GROUPED_FULL = re.compile(_GROUPED)
+
+
+def without_thousands(text: pl.Expr) -> pl.Expr:
+    """A text column, stripped, without its thousands separators where it is a number written
+    with them (`_GROUPED`), as it is otherwise."""
+    stripped = text.str.strip_chars()
+    grouped = stripped.str.contains(f"^{_GROUPED}$")
+    return (
+        pl.when(grouped).then(stripped.str.replace_all(",", "", literal=True)).otherwise(stripped)
+    )
+
+
+def field_without_thousands(text: str) -> str:
+    """One field as `without_thousands` reads it: stripped, its thousands separators dropped
+    where it is a number written with them."""
+    stripped = text.strip(_RUST_WHITESPACE)
+    return stripped.replace(",", "") if _GROUPED_FULL.fullmatch(stripped) else stripped
+
+
 def number_problem(text: str, dtype: pl.DataType) -> str | None:
     """What is wrong with one field's text as a value of `dtype`; None when it is fine or empty.
 

@@ -19,6 +19,7 @@ from ngsim_graphs.sources.text import (
     EXTRA,
     ROW,
     check_csv_field_counts,
+    field_without_thousands,
     number_problem,
     raise_control_character,
 )
@@ -33,7 +34,7 @@ def raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) 
     fields = text.filter(pl.col(ROW) == row).select(ns.TXT_COLUMNS).collect().row(0, named=True)
     official = {name.lower(): name for name in ns.PORTAL_HEADER}
     for column, value in fields.items():
-        problem = number_problem((value or "").replace(",", ""), ns.RAW_SCHEMA[column])
+        problem = number_problem(field_without_thousands(value or ""), ns.RAW_SCHEMA[column])
         if problem:
             message = f"column {official[column]}: {value!r} {problem}"
             raise NgsimInputError(path, message, line=row + first_line)

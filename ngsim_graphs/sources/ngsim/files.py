@@ -1,9 +1,9 @@
 """Reading raw NGSIM files of all three formats into one parsed raw table per file.
 
 The format is told from the content (`formats.sniff_format`: the first lines), never from the
-file name. Every value is read as text first and parsed here, so that quoted thousands
-separators (`"1,156"`) parse and a malformed number is reported with its file, line and column
-(`faults`). Units stay NGSIM's (feet, ms).
+file name. Every value is read as text first and parsed here, so that thousands separators
+(`"1,156"`, and no other comma) parse and a malformed number is reported with its file, line
+and column (`faults`). Units stay NGSIM's (feet, ms).
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ from ngsim_graphs.sources.text import (
     raise_bad_quoting,
     scan_csv_fields,
     scan_lines,
+    without_thousands,
 )
 
 _POINTED = "__pointed"  # an integer field of the row has a point or an exponent
@@ -114,7 +115,8 @@ def _number_exprs(
     whether an integer field of the row is written with a point or an exponent.
 
     Returns (tidied, parsed, present, pointed): `tidied` strips each column's blanks and thousands
-    separators in place, once; the others read the tidied columns, in a later select.
+    separators in place, once (`text.without_thousands`: any other comma stays, and the value
+    fails to parse); the others read the tidied columns, in a later select.
     A row whose parsed non-null values are fewer than its non-empty fields holds a malformed
     number. Comparing two counts costs far less than testing every field for it. An integer
     column's value must be whole (`10.5` as a Frame_ID truncates to 10 when cast): the few rows
@@ -126,7 +128,7 @@ def _number_exprs(
     pointed: list[pl.Expr] = []
     for column in columns:
         text = pl.col(column)
-        tidied.append(text.str.strip_chars().str.replace_all(",", "", literal=True))
+        tidied.append(without_thousands(text))
         dtype = ns.RAW_SCHEMA[column]
         parsed.append(text.cast(pl.Float64, strict=False).cast(dtype, strict=False))
         present.append((text != "").fill_null(False).cast(pl.Int8))
@@ -141,13 +143,7 @@ def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
     is not whole; re-reads those rows only."""
     integers = [c for c in ns.TXT_COLUMNS if ns.RAW_SCHEMA[c] != pl.Float64]
     fields = text.filter(pl.col(ROW).is_in(rows.implode())).select(ROW, *integers)
-    real = [
-        pl.col(c)
-        .str.strip_chars()
-        .str.replace_all(",", "", literal=True)
-        .cast(pl.Float64, strict=False)
-        for c in integers
-    ]
+    real = [without_thousands(pl.col(c)).cast(pl.Float64, strict=False) for c in integers]
     fraction = pl.any_horizontal([(r != r.floor()).fill_null(False) for r in real])
     found = fields.filter(fraction).select(pl.col(ROW).min()).collect().item()
     return None if found is None else int(found)
