@@ -557,3 +557,79 @@ def test_a_comma_that_separates_no_thousands_is_refused(
         invoke("build", path, "--out", out), out, {}, path,
         f"line 8: column {name}: {written!r} is not a number",
     )  # fmt: skip
+
+
+# --- i50: a file cut at a line end (a partial copy or download) -------------------------------
+
+
+def _cut_after(path: Path, rows_kept: int) -> None:
+    """Keep the header (of a CSV) and the first `rows_kept` rows, each line with its line end."""
+    lines = path.read_bytes().splitlines(keepends=True)
+    header = int(path.suffix == ".csv")
+    path.write_bytes(b"".join(lines[: header + rows_kept]).rstrip(b"\r\n") + b"\n")
+
+
+def _cut_warning(path: Path, out: Path, cut: bool) -> str | None:
+    """The build's one warning naming `path` (on stderr and in the manifest alike), if `cut`."""
+    result = invoke("build", path, "--out", out, "--overwrite")
+    assert result.exit_code == 0, result.output
+    warnings = [w for w in manifest(out)["warnings"] if w.startswith(f"{path}: ")]
+    assert [f"warning: {w}" for w in warnings] == [
+        line for line in result.stderr.splitlines() if line.startswith(f"warning: {path}: ")
+    ]
+    assert len(warnings) == int(cut), warnings
+    return warnings[0] if warnings else None
+
+
+@pytest.mark.parametrize(
+    ("write", "suffix", "line"), [(write_txt, "txt", 950), (write_period_csv, "csv", 951),
+                                  (write_portal, "csv", 951)]
+)  # fmt: skip
+def test_a_file_cut_inside_a_vehicle_is_said(
+    tmp_path: Path, rows: list[dict], write, suffix: str, line: int
+) -> None:
+    # i50 e02: read in silence. Vehicles 1..10 of frames 0..99 (Total_Frames 100) in NGSIM's
+    # order; cut after row 950, vehicle 10 at frame 49. The whole file, its last vehicle with
+    # a gap inside (frames 40..49 lost, Total_Frames counting them, as in NGSIM), is no cut.
+    gap = [row for row in rows if not (row[s.VEHICLE_ID] == 10 and 40 <= row[s.FRAME_ID] < 50)]
+    path, out = write(tmp_path / f"trajectories-0750am-0805am.{suffix}", gap), tmp_path / "out"
+    assert _cut_warning(path, out, cut=False) is None
+    path = write(path, rows)
+    _cut_after(path, 950)
+    assert _cut_warning(path, out, cut=True) == (
+        f"{path}: its last vehicle, 10 of us-101/0750am-0805am (line {line}), spans frames 0 "
+        "to 49: 50 frames where its Total_Frames says 100, while the other 9 vehicles span all "
+        "of theirs: is the file cut short (a partial copy or download)? Any vehicle after it is "
+        "missing from the build"
+    )
+    assert manifest(out)["counts"]["rows_read"] == 950
+
+
+def test_a_file_cut_between_two_vehicles_is_said(tmp_path: Path, rows: list[dict]) -> None:
+    # Cut after vehicle 9, whole: nothing is short of its Total_Frames, but vehicle 9 names
+    # vehicle 10 as its Following, and no vehicle above 9 is in the file.
+    rows = [{**row, s.FOLLOWING: row[s.VEHICLE_ID] % 10 + 1} for row in rows]
+    path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
+    assert _cut_warning(path, out, cut=False) is None  # vehicle 10 names vehicle 1
+    _cut_after(path, 900)
+    assert _cut_warning(path, out, cut=True) == (
+        f"{path}: its last vehicle, 9 of us-101/0750am-0805am (line 900), is whole, but the "
+        "rows of its recording name vehicles up to 10 as Preceding or Following, and none above "
+        "9 is in the file: is the file cut short (a partial copy or download)? Any vehicle after "
+        "it is missing from the build"
+    )
+
+
+def test_a_portal_query_of_a_time_window_is_no_cut(tmp_path: Path) -> None:
+    # A query of the portal, "Frame_ID between 40 and 159", in the portal's order: vehicle v
+    # drives frames 10 v .. 10 v + 149 (Total_Frames 150), so that the window cuts the record
+    # of every one of them, the last (vehicle 10, frames 100..159) too.
+    rows = [
+        make_row(v, f, 6.0 + 12.0 * (v % 5), 3.5 * f - 30.0 * v, 35.0, total_frames=150)
+        for v in range(1, 11)
+        for f in range(10 * v, 10 * v + 150)
+        if 40 <= f < 160
+    ]
+    path, out = write_portal(tmp_path / "query.csv", rows), tmp_path / "out"
+    assert _cut_warning(path, out, cut=False) is None
+    assert manifest(out)["counts"]["samples"] > 0

@@ -1,11 +1,12 @@
 """Raw files to the tracks table, each stage a pure function.
 
-Per input file: parse, drop incomplete and implausible rows, label recordings (dropping stray
-rows whose Global_Time disagrees with their recording), and stage each recording's rows (a
-recording may come from several files). Per part of a recording's vehicles: drop duplicates and
-position outliers, split at frame gaps and position jumps, downsample to the grid, convert to
-SI, number the tracks and derive the heading; per recording, join the parts' reports and check
-the speed column. Every dropped row is counted per reason, with the first line it was on.
+Per input file: parse, drop incomplete and implausible rows, label recordings (dropping stray rows
+whose Global_Time disagrees with their recording), say whether the file looks cut at a line end
+(`truncation`), and stage each recording's rows (a recording may come from several files). Per part
+of a recording's vehicles: drop duplicates and position outliers, split at frame gaps and position
+jumps, downsample to the grid, convert to SI, number the tracks and derive the heading; per
+recording, join the parts' reports and check the speed column. Every dropped row is counted per
+reason, with the first line it was on.
 """
 
 from __future__ import annotations
@@ -73,6 +74,7 @@ from ngsim_graphs.sources.ngsim.recordings import (
     is_ngsim_location,
     recording_index,
 )
+from ngsim_graphs.sources.ngsim.truncation import cut_record_note, vehicle_records
 from ngsim_graphs.sources.speeds import check_speed_column, joined_report, speed_comparison
 from ngsim_graphs.sources.text import ROW
 
@@ -95,10 +97,11 @@ def read_file_recordings(
     tell its chosen recordings apart.
 
     Returns every parsed row in NGSIM units with a RECORDING_INDEX column and the provenance
-    columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, and
-    the file's report. The index is null for incomplete, implausible and stray rows, which are
-    dropped. The rows are lazy, and each count a streaming pass over them: with `scratch`
-    (`read_raw_file`), no more than a part of them is ever in memory.
+    columns SOURCE_FILE = `file_index` and SOURCE_LINE, the index of each chosen recording, and the
+    file's report (its notes: recordings told apart by their own clock, optional columns empty in
+    every row, the file looking cut at a line end). The index is null for incomplete, implausible
+    and stray rows, which are dropped. The rows are lazy, and each count a streaming pass over
+    them: with `scratch` (`read_raw_file`), no more than a part of them is ever in memory.
     """
     raw = read_raw_file(path, config.locations, scratch)
     complete = is_complete()
@@ -153,6 +156,8 @@ def read_file_recordings(
         )
     if not names:
         _raise_unusable(path, counts, {r: first for r, _, first in dropped.iter_rows()})
+    records = vehicle_records(raw.frame, pl.when(in_chosen).then(index))
+    cut = cut_record_note(records, names, raw.first_line)
     report = FileReport(
         path=str(path),
         raw_format=raw.raw_format.value,
@@ -168,7 +173,8 @@ def read_file_recordings(
         locations_found=tuple(sorted(set(raw.locations_found) | {loc for loc, _ in names})),
         recordings=tuple(f"{loc}/{period}" for loc, period in sorted(chosen)),
         notes=tuple(note for key, note in sorted(notes.items()) if key in chosen)
-        + empty_column_lines(empty, OPTIONAL_NAMES),
+        + empty_column_lines(empty, OPTIONAL_NAMES)
+        + ((cut,) if cut else ()),
     )
     return FileRows(rows, chosen, report)
 
