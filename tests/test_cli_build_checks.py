@@ -4,6 +4,7 @@ by one, or a one-line error (too many of them, --strict, swapped columns, no sam
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
 import polars as pl
@@ -495,6 +496,38 @@ def test_a_row_of_another_location_is_a_stray_not_a_recording(
     assert [r["name"] for r in built["recordings"]] == ["us-101_0750am-0805am"]
     assert built["counts"]["rows_dropped"][NgsimDrop.GLOBAL_TIME.value] == 1
     assert built["counts"]["rows"] == 1_000
+
+
+@pytest.mark.parametrize(
+    "write", [write_txt, write_period_csv, partial(write_portal, locations="i-80")]
+)
+def test_one_vehicle_an_hour_off_is_counted_as_stray_rows_not_a_recording(
+    tmp_path: Path, write
+) -> None:
+    # e03: 25 vehicles of i-80 0400 (frames 0..99, five lanes) and vehicle 26's 20 rows with
+    # Global_Time an hour late: they name i-80's 0500-0515, which no other group holds; on main
+    # a recording of 1 vehicle, nothing counted. One vehicle is no recording: 20 stray rows.
+    rows = [
+        make_row(
+            v, f, local_x_ft=6.0 + 12.0 * (v % 5), local_y_ft=40.0 * (v // 5) + 3.5 * f,
+            v_vel_fps=35.0, start_ms=I80_FIRST.start_epoch_ms, lane_id=v % 5 + 1,
+        )
+        for v in range(1, 27)
+        for f in range(100 if v < 26 else 20)
+    ]  # fmt: skip
+    for row in rows[2500:]:
+        row[s.GLOBAL_TIME] += 3_600_000
+    path = write(tmp_path / "raw" / "i-80" / "trajectories-0400-0415.csv", rows)
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    line = 2501 if write is write_txt else 2502
+    assert "dropped 20 rows: Global_Time off its recording" in result.stdout
+    assert f"(first: {path}, line {line})." in result.stdout
+    built = manifest(out)
+    assert [r["name"] for r in built["recordings"]] == ["i-80_0400-0415"]
+    assert built["counts"]["rows_dropped"][NgsimDrop.GLOBAL_TIME.value] == 20
+    assert built["counts"]["rows"] == 2_500
 
 
 def test_an_optional_column_empty_in_every_row_is_said(tmp_path: Path, rows: list[dict]) -> None:
