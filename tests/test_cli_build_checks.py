@@ -25,7 +25,8 @@ N_VEHICLES, N_FRAMES = 10, 100
 def rows() -> list[dict]:
     """Vehicles 1..10 of us-101 0750am, frames 0..99 each (1,000 rows; row i is vehicle
     i // 100 + 1 at frame i % 100). Each spans 50 grid steps, one 8.2 s window: 10 samples,
-    by the vehicle split 7 train, 1 val, 2 test. Lanes 12 ft apart, 40 ft between rows of five."""
+    by the vehicle split 7 train, 1 val, 2 test. Lanes 1..5 (v % 5 + 1), each vehicle at its
+    lane's centre (12 ft apart), 40 ft between rows of five."""
     return [
         make_row(
             v,
@@ -33,6 +34,7 @@ def rows() -> list[dict]:
             local_x_ft=6.0 + 12.0 * (v % 5),
             local_y_ft=40.0 * (v // 5) + 3.5 * f,
             v_vel_fps=35.0,
+            lane_id=v % 5 + 1,
         )
         for v in range(1, N_VEHICLES + 1)
         for f in range(N_FRAMES)
@@ -155,7 +157,7 @@ def test_impossible_values_beside_the_motion_never_reach_the_tracks(
     assert tracks.select(
         pl.col(s.LENGTH_M).max(), pl.col(s.WIDTH_M).min(), pl.col(s.LANE_ID).min(),
         pl.col(s.V_CLASS).max(), pl.col(s.TIME_HEADWAY_S).min(),
-    ).row(0) == (pytest.approx(15.0 * 0.3048), pytest.approx(6.0 * 0.3048), 2, 2, None)  # fmt: skip
+    ).row(0) == (pytest.approx(15.0 * 0.3048), pytest.approx(6.0 * 0.3048), 1, 2, None)  # fmt: skip
 
 
 def _i80(rows: list[dict]) -> list[dict]:
@@ -224,7 +226,7 @@ def test_a_group_of_whole_vehicles_on_its_own_clock_is_a_recording(tmp_path: Pat
     rows = [
         make_row(
             v, f, local_x_ft=6.0 + 12.0 * (v % 5), local_y_ft=40.0 * (v // 5) + 3.5 * f,
-            v_vel_fps=35.0, start_ms=start + (11_700 if v > 25 else 0),
+            v_vel_fps=35.0, start_ms=start + (11_700 if v > 25 else 0), lane_id=v % 5 + 1,
         )
         for v in range(1, 49)
         for f in range(N_FRAMES)
@@ -559,7 +561,7 @@ def test_local_x_swapped_with_space_headway_is_refused(tmp_path: Path, rows: lis
     # d3: each vehicle in its lane (Lane_ID v % 5 + 1, Local_X at its centre), 120 ft behind its
     # leader; Local_X and Space_Headway swapped in every row: each value plausible, every lane's
     # vehicles 36.6 m from the left edge.
-    rows = [{**row, s.LANE_ID: row[s.VEHICLE_ID] % 5 + 1, ns.SPACE_HEADWAY: 120.0} for row in rows]
+    rows = [{**row, ns.SPACE_HEADWAY: 120.0} for row in rows]
     good = write_txt(tmp_path / "good" / "a.txt", rows)
     assert invoke("build", good, "--out", tmp_path / "built").exit_code == 0
     swapped = [
@@ -571,4 +573,22 @@ def test_local_x_swapped_with_space_headway_is_refused(tmp_path: Path, rows: lis
         "recording us-101/0750am-0805am: its lateral positions are not where its lanes are",
         "5 of 5 lanes have their median Local_X more than a lane width outside the lane",
         "(lane 1: 36.6 m, the lane at 0.0 to 3.7 m)",
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("lane", [0, 3])
+def test_one_lane_id_in_every_row_is_refused(tmp_path: Path, rows: list[dict], lane: int) -> None:
+    # e07: Lane_ID one value in every row, vehicles 12 ft apart across five lanes (Local_X 6 to
+    # 54 ft): lane 0 is no freeway lane the lane check judges, and lane 3's median Local_X, the
+    # road's middle, lies in lane 3; but one lane cannot hold rows 14.6 m apart.
+    path, out = (
+        write_txt(tmp_path / "a.txt", [{**r, s.LANE_ID: lane} for r in rows]),
+        tmp_path / "out",
+    )
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        f"a.txt: recording us-101/0750am-0805am: Lane_ID is {lane} in 100.0% of its 1,000 rows, "
+        "whose Local_X spread over 14.6 m (4.0 lane widths: 1.8 to 16.5 m, the 5th and 95th "
+        "percentiles): one lane cannot hold them; is Lane_ID one value in every row, or another "
+        "column's?",
     )  # fmt: skip
