@@ -58,6 +58,7 @@ from ngsim_graphs.sources.ngsim.cleaning import (
 )
 from ngsim_graphs.sources.ngsim.files import read_raw_file
 from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_files, is_ngsim_file
+from ngsim_graphs.sources.ngsim.neighbours import check_neighbours
 from ngsim_graphs.sources.ngsim.plausibility import (
     DROP_REASONS,
     FILE_REASONS,
@@ -260,10 +261,11 @@ def read_file(
     scratch: Path | None = None,
 ) -> FileRows:
     """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`) and the
-    check of each recording's lanes against its lateral positions."""
+    checks of each recording's columns against each other: lanes, neighbours and headways."""
     read = read_file_recordings(path, config, file_index, scratch, limits)
     check_file_drops(read.report, limits, strict, DROP_REASONS)
     check_lateral_positions(path, read)
+    check_neighbours(path, read)
     return read
 
 
