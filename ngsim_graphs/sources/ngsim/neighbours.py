@@ -174,6 +174,7 @@ def _of(table: pl.DataFrame, index: int) -> dict:
 
 
 def _judged(stats: dict, count: str) -> bool:
+    """Whether the statistics `stats` rest on enough rows (their `count`) to judge a column."""
     return stats.get(count, 0) >= MIN_NEIGHBOUR_ROWS
 
 
