@@ -4,6 +4,7 @@ by one, or a one-line error (too many of them, --strict, swapped columns, no sam
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
 import polars as pl
@@ -24,7 +25,8 @@ N_VEHICLES, N_FRAMES = 10, 100
 def rows() -> list[dict]:
     """Vehicles 1..10 of us-101 0750am, frames 0..99 each (1,000 rows; row i is vehicle
     i // 100 + 1 at frame i % 100). Each spans 50 grid steps, one 8.2 s window: 10 samples,
-    by the vehicle split 7 train, 1 val, 2 test. Lanes 12 ft apart, 40 ft between rows of five."""
+    by the vehicle split 7 train, 1 val, 2 test. Lanes 1..5 (v % 5 + 1), each vehicle at its
+    lane's centre (12 ft apart), 40 ft between rows of five."""
     return [
         make_row(
             v,
@@ -32,6 +34,7 @@ def rows() -> list[dict]:
             local_x_ft=6.0 + 12.0 * (v % 5),
             local_y_ft=40.0 * (v // 5) + 3.5 * f,
             v_vel_fps=35.0,
+            lane_id=v % 5 + 1,
         )
         for v in range(1, N_VEHICLES + 1)
         for f in range(N_FRAMES)
@@ -154,7 +157,7 @@ def test_impossible_values_beside_the_motion_never_reach_the_tracks(
     assert tracks.select(
         pl.col(s.LENGTH_M).max(), pl.col(s.WIDTH_M).min(), pl.col(s.LANE_ID).min(),
         pl.col(s.V_CLASS).max(), pl.col(s.TIME_HEADWAY_S).min(),
-    ).row(0) == (pytest.approx(15.0 * 0.3048), pytest.approx(6.0 * 0.3048), 2, 2, None)  # fmt: skip
+    ).row(0) == (pytest.approx(15.0 * 0.3048), pytest.approx(6.0 * 0.3048), 1, 2, None)  # fmt: skip
 
 
 def _i80(rows: list[dict]) -> list[dict]:
@@ -223,7 +226,7 @@ def test_a_group_of_whole_vehicles_on_its_own_clock_is_a_recording(tmp_path: Pat
     rows = [
         make_row(
             v, f, local_x_ft=6.0 + 12.0 * (v % 5), local_y_ft=40.0 * (v // 5) + 3.5 * f,
-            v_vel_fps=35.0, start_ms=start + (11_700 if v > 25 else 0),
+            v_vel_fps=35.0, start_ms=start + (11_700 if v > 25 else 0), lane_id=v % 5 + 1,
         )
         for v in range(1, 49)
         for f in range(N_FRAMES)
@@ -497,6 +500,38 @@ def test_a_row_of_another_location_is_a_stray_not_a_recording(
     assert built["counts"]["rows"] == 1_000
 
 
+@pytest.mark.parametrize(
+    "write", [write_txt, write_period_csv, partial(write_portal, locations="i-80")]
+)
+def test_one_vehicle_an_hour_off_is_counted_as_stray_rows_not_a_recording(
+    tmp_path: Path, write
+) -> None:
+    # e03: 25 vehicles of i-80 0400 (frames 0..99, five lanes) and vehicle 26's 20 rows with
+    # Global_Time an hour late: they name i-80's 0500-0515, which no other group holds; on main
+    # a recording of 1 vehicle, nothing counted. One vehicle is no recording: 20 stray rows.
+    rows = [
+        make_row(
+            v, f, local_x_ft=6.0 + 12.0 * (v % 5), local_y_ft=40.0 * (v // 5) + 3.5 * f,
+            v_vel_fps=35.0, start_ms=I80_FIRST.start_epoch_ms, lane_id=v % 5 + 1,
+        )
+        for v in range(1, 27)
+        for f in range(100 if v < 26 else 20)
+    ]  # fmt: skip
+    for row in rows[2500:]:
+        row[s.GLOBAL_TIME] += 3_600_000
+    path = write(tmp_path / "raw" / "i-80" / "trajectories-0400-0415.csv", rows)
+    out = tmp_path / "out"
+    result = invoke("build", path, "--out", out)
+    assert result.exit_code == 0, result.output
+    line = 2501 if write is write_txt else 2502
+    assert "dropped 20 rows: Global_Time off its recording" in result.stdout
+    assert f"(first: {path}, line {line})." in result.stdout
+    built = manifest(out)
+    assert [r["name"] for r in built["recordings"]] == ["i-80_0400-0415"]
+    assert built["counts"]["rows_dropped"][NgsimDrop.GLOBAL_TIME.value] == 20
+    assert built["counts"]["rows"] == 2_500
+
+
 def test_an_optional_column_empty_in_every_row_is_said(tmp_path: Path, rows: list[dict]) -> None:
     # Time_Headway emptied in every row (d6: swapped with the empty O_Zone): the rows are kept,
     # and a warning names the file and the column, in the manifest too.
@@ -526,7 +561,7 @@ def test_local_x_swapped_with_space_headway_is_refused(tmp_path: Path, rows: lis
     # d3: each vehicle in its lane (Lane_ID v % 5 + 1, Local_X at its centre), 120 ft behind its
     # leader; Local_X and Space_Headway swapped in every row: each value plausible, every lane's
     # vehicles 36.6 m from the left edge.
-    rows = [{**row, s.LANE_ID: row[s.VEHICLE_ID] % 5 + 1, ns.SPACE_HEADWAY: 120.0} for row in rows]
+    rows = [{**row, ns.SPACE_HEADWAY: 120.0} for row in rows]
     good = write_txt(tmp_path / "good" / "a.txt", rows)
     assert invoke("build", good, "--out", tmp_path / "built").exit_code == 0
     swapped = [
@@ -606,11 +641,16 @@ def test_a_file_cut_inside_a_vehicle_is_said(
 
 
 def test_a_file_cut_between_two_vehicles_is_said(tmp_path: Path, rows: list[dict]) -> None:
-    # Cut after vehicle 9, whole: nothing is short of its Total_Frames, but vehicle 9 names
-    # vehicle 10 as its Following, and no vehicle above 9 is in the file.
-    rows = [{**row, s.FOLLOWING: row[s.VEHICLE_ID] % 10 + 1} for row in rows]
+    # Cut after vehicle 9, whole: nothing is short of its Total_Frames, but vehicle 5 names
+    # vehicle 10 as its Preceding (v + 5: its lane, 40 ft ahead), and no vehicle above 9 is in
+    # the file.
+    leader = {ns.SPACE_HEADWAY: 40.0, ns.TIME_HEADWAY: 40.0 / 35.0}
+    rows = [
+        {**row, s.PRECEDING: row[s.VEHICLE_ID] + 5, **leader} if row[s.VEHICLE_ID] <= 5 else row
+        for row in rows
+    ]
     path, out = write_txt(tmp_path / "a.txt", rows), tmp_path / "out"
-    assert _cut_warning(path, out, cut=False) is None  # vehicle 10 names vehicle 1
+    assert _cut_warning(path, out, cut=False) is None  # vehicle 10 is in the file
     _cut_after(path, 900)
     assert _cut_warning(path, out, cut=True) == (
         f"{path}: its last vehicle, 9 of us-101/0750am-0805am (line 900), is whole, but the "
@@ -625,7 +665,15 @@ def test_a_portal_query_of_a_time_window_is_no_cut(tmp_path: Path) -> None:
     # drives frames 10 v .. 10 v + 149 (Total_Frames 150), so that the window cuts the record
     # of every one of them, the last (vehicle 10, frames 100..159) too.
     rows = [
-        make_row(v, f, 6.0 + 12.0 * (v % 5), 3.5 * f - 30.0 * v, 35.0, total_frames=150)
+        make_row(
+            v,
+            f,
+            6.0 + 12.0 * (v % 5),
+            3.5 * f - 30.0 * v,
+            35.0,
+            total_frames=150,
+            lane_id=v % 5 + 1,
+        )  # fmt: skip
         for v in range(1, 11)
         for f in range(10 * v, 10 * v + 150)
         if 40 <= f < 160
@@ -633,3 +681,21 @@ def test_a_portal_query_of_a_time_window_is_no_cut(tmp_path: Path) -> None:
     path, out = write_portal(tmp_path / "query.csv", rows), tmp_path / "out"
     assert _cut_warning(path, out, cut=False) is None
     assert manifest(out)["counts"]["samples"] > 0
+
+
+@pytest.mark.parametrize("lane", [0, 3])
+def test_one_lane_id_in_every_row_is_refused(tmp_path: Path, rows: list[dict], lane: int) -> None:
+    # e07: Lane_ID one value in every row, vehicles 12 ft apart across five lanes (Local_X 6 to
+    # 54 ft): lane 0 is no freeway lane the lane check judges, and lane 3's median Local_X, the
+    # road's middle, lies in lane 3; but one lane cannot hold rows 14.6 m apart.
+    path, out = (
+        write_txt(tmp_path / "a.txt", [{**r, s.LANE_ID: lane} for r in rows]),
+        tmp_path / "out",
+    )
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path,
+        f"a.txt: recording us-101/0750am-0805am: Lane_ID is {lane} in 100.0% of its 1,000 rows, "
+        "whose Local_X spread over 14.6 m (4.0 lane widths: 1.8 to 16.5 m, the 5th and 95th "
+        "percentiles): one lane cannot hold them; is Lane_ID one value in every row, or another "
+        "column's?",
+    )  # fmt: skip

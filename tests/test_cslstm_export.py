@@ -107,8 +107,9 @@ def test_a_sample_reads_as_ngsim_dataset_reads_it(tmp_path: Path) -> None:
 
 def test_portal_csv_gives_the_same_files(tmp_path: Path) -> None:
     """All six recordings in one portal CSV, vehicles in another order, with the portal's quirks
-    and rows of another location: the same files as from the six text files."""
-    tables = _tables()
+    and rows of another location: the same files as from the six text files. Recordings of 20
+    vehicles: beside a larger one of its location, a group of fewer is stray rows."""
+    tables = {dataset_id: _recording(10 + dataset_id, vehicles=20) for dataset_id in range(1, 7)}
     export_cslstm(_write_six(tmp_path / "raw", tables), tmp_path / "txt")
     rows, locations = [], []
     for d, table in tables.items():

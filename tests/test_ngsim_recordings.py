@@ -12,7 +12,7 @@ from ngsim_graphs import schema as s
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import (
-    MIN_CLOCK_VEHICLES,
+    MIN_RECORDING_VEHICLES,
     OFFICIAL_RECORDINGS,
     find_official_recording,
     identify_recordings,
@@ -48,19 +48,20 @@ def test_period_label_of_unofficial_time() -> None:
 
 
 def test_combined_file_separates_periods_with_colliding_vehicle_ids() -> None:
+    # Vehicles 1..20 in two us-101 periods (their ids collide), one vehicle of i-80.
     rows = [
-        make_row(5, 0, start_ms=US101_FIRST.start_epoch_ms),
-        make_row(5, 1, start_ms=US101_FIRST.start_epoch_ms),
-        make_row(5, 0, start_ms=US101_SECOND.start_epoch_ms),
+        *[
+            make_row(v, f, start_ms=US101_FIRST.start_epoch_ms)
+            for v in range(1, 21)
+            for f in (0, 1)
+        ],
+        *[make_row(v, 0, start_ms=US101_SECOND.start_epoch_ms) for v in range(1, 21)],
         make_row(5, 0, start_ms=I80_FIRST.start_epoch_ms),
     ]
-    index, names = identify_recordings(
-        frame_of(rows, ["us-101", "us-101", "us-101", "i-80"]), Path("x")
-    )
+    index, names = identify_recordings(frame_of(rows, ["us-101"] * 60 + ["i-80"]), Path("x"))
     assert [names[i] for i in index] == [
-        ("us-101", "0750am-0805am"),
-        ("us-101", "0750am-0805am"),
-        ("us-101", "0805am-0820am"),
+        *[("us-101", "0750am-0805am")] * 40,
+        *[("us-101", "0805am-0820am")] * 20,
         ("i-80", "0400-0415"),
     ]
 
@@ -123,7 +124,7 @@ def test_a_clock_of_twenty_whole_vehicles_is_a_recording_of_its_own(vehicles: in
     frame = frame_of(rows, [None] * len(rows))
     index, keys, notes = recording_index(frame.lazy(), Path("t.txt"))
     index = frame.select(index).to_series()
-    if vehicles < MIN_CLOCK_VEHICLES:
+    if vehicles < MIN_RECORDING_VEHICLES:
         assert keys == [("us-101", "0750am-0805am")] and index.null_count() == 10 * vehicles
         return
     assert keys == [("us-101", "0750am-0805am"), ("us-101", "0750am-0805am-2")]
@@ -134,35 +135,82 @@ def test_a_clock_of_twenty_whole_vehicles_is_a_recording_of_its_own(vehicles: in
 
 def test_recordings_are_indexed_by_location_and_time_whatever_their_size() -> None:
     rows = (
-        [make_row(1, f, start_ms=US101_SECOND.start_epoch_ms) for f in range(30)]
-        + [make_row(1, f, start_ms=US101_FIRST.start_epoch_ms) for f in range(10)]
+        [make_row(v, 0, start_ms=US101_SECOND.start_epoch_ms) for v in range(1, 31)]
+        + [make_row(v, 0, start_ms=US101_FIRST.start_epoch_ms) for v in range(1, 21)]
         + [make_row(1, f, start_ms=I80_FIRST.start_epoch_ms) for f in range(20)]
     )
-    locations = ["us-101"] * 40 + ["i-80"] * 20
+    locations = ["us-101"] * 50 + ["i-80"] * 20
     index, names = identify_recordings(frame_of(rows, locations), Path("p.csv"))
     assert names == [
         ("i-80", "0400-0415"),
         ("us-101", "0750am-0805am"),
         ("us-101", "0805am-0820am"),
     ]
-    assert index.to_list() == [2] * 30 + [1] * 10 + [0] * 20
+    assert index.to_list() == [2] * 30 + [1] * 20 + [0] * 20
+
+
+@pytest.mark.parametrize("vehicles", [1, 19, 20])
+def test_a_group_beside_the_largest_is_a_recording_only_with_twenty_vehicles(
+    vehicles: int,
+) -> None:
+    # 25 vehicles of us-101 0750am, then `vehicles` others, 10 rows each, on us-101 0805am's
+    # clock: far from the first and naming a period of their own, and not small (10 rows of
+    # one vehicle are 4 % of the largest), but under 20 vehicles they are stray rows.
+    rows = [make_row(v, f) for v in range(1, 26) for f in range(10)] + [
+        make_row(v, f, start_ms=US101_SECOND.start_epoch_ms)
+        for v in range(101, 101 + vehicles)
+        for f in range(10)
+    ]
+    index, names = identify_recordings(frame_of(rows, [None] * len(rows)), Path("t.txt"))
+    if vehicles < MIN_RECORDING_VEHICLES:
+        assert names == [("us-101", "0750am-0805am")]
+        assert index.to_list() == [0] * 250 + [None] * 10 * vehicles
+        return
+    assert names == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
+    assert index.to_list() == [0] * 250 + [1] * 200
 
 
 def test_a_damaged_time_column_is_not_a_thousand_recordings() -> None:
     # Frame-0 times 11 minutes apart: neither near each other nor one of the official periods.
+    # Each of one vehicle: stray rows, all but the largest group's (the first row).
     rows = [make_row(1, f, global_time=1_000_000_000_000 + 660_000 * f) for f in range(150)]
+    index, names = identify_recordings(frame_of(rows, ["us-101"] * 150), Path("p.csv"))
+    assert names == [("us-101", "1846-1846")] and index.to_list() == [0] + [None] * 149
+    # 101 groups of 20 vehicles each, as many recordings: too many for one file.
+    rows = [
+        make_row(v, 0, global_time=1_000_000_000_000 + 660_000 * g)
+        for g in range(101)
+        for v in range(1, 21)
+    ]
     with pytest.raises(NgsimInputError, match=r"p\.csv: more than 100 recordings .*Global_Time"):
-        identify_recordings(frame_of(rows, ["us-101"] * 150), Path("p.csv"))
+        identify_recordings(frame_of(rows, ["us-101"] * len(rows)), Path("p.csv"))
 
 
-def test_a_small_group_naming_an_official_period_of_its_own_is_a_recording() -> None:
-    # 1,000 rows of us-101 0750am and 5 of 0805am: under 1 % of the largest, but 0805am is an
-    # official period no larger group names, which random stray times seldom hit.
-    rows = [make_row(1 + f // 100, f % 100) for f in range(1000)]
-    rows += [make_row(3, f, start_ms=US101_SECOND.start_epoch_ms) for f in range(5)]
-    index, names = identify_recordings(frame_of(rows, ["us-101"] * 1005), Path("p.csv"))
+@pytest.mark.parametrize("rows_shifted", [5, 40])
+def test_one_vehicle_an_hour_off_is_stray_rows_though_it_names_a_period_of_its_own(
+    rows_shifted: int,
+) -> None:
+    # 2,500 rows of i-80 0400 and one vehicle's record an hour late: it names i-80's 0500-0515,
+    # which no larger group names, but one vehicle is no recording, whether its rows are under
+    # 1 % of the largest (5) or not (40).
+    rows = [
+        make_row(v, f, start_ms=I80_FIRST.start_epoch_ms) for v in range(1, 26) for f in range(100)
+    ]
+    late = I80_FIRST.start_epoch_ms + 3_600_000
+    rows += [make_row(26, f, start_ms=late) for f in range(rows_shifted)]
+    index, names = identify_recordings(frame_of(rows, [None] * len(rows)), Path("t.txt"))
+    assert names == [("i-80", "0400-0415")]
+    assert index.to_list() == [0] * 2500 + [None] * rows_shifted
+
+
+def test_a_small_group_of_twenty_whole_vehicles_naming_a_period_of_its_own_is_a_recording() -> None:
+    # 2,500 rows of us-101 0750am and 20 vehicles of 0805am, a row each: under 1 % of the
+    # largest, but a clock of twenty whole vehicles of their own.
+    rows = [make_row(v, f) for v in range(1, 26) for f in range(100)]
+    rows += [make_row(v, 0, start_ms=US101_SECOND.start_epoch_ms) for v in range(101, 121)]
+    index, names = identify_recordings(frame_of(rows, ["us-101"] * len(rows)), Path("p.csv"))
     assert names == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
-    assert index.to_list() == [0] * 1000 + [1] * 5
+    assert index.to_list() == [0] * 2500 + [1] * 20
 
 
 def test_only_usable_rows_form_recordings_but_all_are_placed() -> None:

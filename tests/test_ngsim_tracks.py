@@ -59,30 +59,36 @@ def test_heading_follows_a_lane_change_on_the_grid() -> None:
     assert tracks[s.HEADING_RAD].to_list() == pytest.approx([math.atan2(1.0, 3.0)] * 11)
 
 
+def twenty_vehicles(frames: int, start_ms: int) -> list[dict[str, float]]:
+    """Vehicles 1..20 at frames 0..`frames` - 1 of the recording starting at `start_ms`: as
+    few as a recording beside a larger one holds."""
+    return [r for v in range(1, 21) for r in straight_track(v, range(frames), start_ms=start_ms)]
+
+
 def test_file_rows_split_by_recording(tmp_path: Path) -> None:
-    first = straight_track(3, range(4), start_ms=US101_FIRST.start_epoch_ms)
-    second = straight_track(3, range(2), start_ms=US101_SECOND.start_epoch_ms)
+    first = twenty_vehicles(4, US101_FIRST.start_epoch_ms)
+    second = twenty_vehicles(2, US101_SECOND.start_epoch_ms)
     path = write_portal(tmp_path / "p.csv", second + first + [make_row(3, 9, local_x=None)])
     read = read_file_recordings(path, BuildConfig())
     report = read.report
     assert sorted(read.recordings) == [("us-101", "0750am-0805am"), ("us-101", "0805am-0820am")]
     first = read.recording_rows(("us-101", "0750am-0805am")).collect()
     assert first.columns == [*ns.RAW_SCHEMA.names(), *s.PROVENANCE_SCHEMA.names()]
-    assert first.height == 4
-    assert read.recording_rows(("us-101", "0805am-0820am")).collect().height == 2
-    assert (report.rows_read, report.rows_missing_values, report.raw_format) == (7, 1, "portal")
+    assert first.height == 80
+    assert read.recording_rows(("us-101", "0805am-0820am")).collect().height == 40
+    assert (report.rows_read, report.rows_missing_values, report.raw_format) == (121, 1, "portal")
     assert report.recordings == ("us-101/0750am-0805am", "us-101/0805am-0820am")
 
 
 def test_rows_read_through_a_scratch_file_are_the_rows_read_in_memory(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """With a scratch folder the text is parsed a chunk at a time (here of 300 bytes: a few
+    """With a scratch folder the text is parsed a chunk at a time (here of 2,000 bytes: a dozen
     lines) into files there, scanned back: the same rows of each recording, in the same order,
     and the same report, dropped rows and all."""
-    set_budget(monkeypatch, text_chunk_bytes=300)
-    first = straight_track(3, range(4), start_ms=US101_FIRST.start_epoch_ms)
-    second = straight_track(5, range(3), start_ms=US101_SECOND.start_epoch_ms)
+    set_budget(monkeypatch, text_chunk_bytes=2000)
+    first = twenty_vehicles(4, US101_FIRST.start_epoch_ms)
+    second = twenty_vehicles(3, US101_SECOND.start_epoch_ms)
     bad = [make_row(3, 9, local_x=None), make_row(4, 2, v_vel_fps=-5.0)]
     path = write_portal(tmp_path / "p.csv", second + bad + first)
     in_memory = read_file_recordings(path, BuildConfig(), 2)
@@ -93,7 +99,7 @@ def test_rows_read_through_a_scratch_file_are_the_rows_read_in_memory(
     assert scanned.recordings == in_memory.recordings
     for key in in_memory.recordings:
         rows = scanned.recording_rows(key).collect()
-        assert rows.height in (3, 4)
+        assert rows.height in (60, 80)
         assert_frame_equal(rows, in_memory.recording_rows(key).collect())
 
 

@@ -261,9 +261,16 @@ def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: l
 
 
 def test_periods_of_one_portal_file_are_separate_recordings(tmp_path: Path) -> None:
-    """Vehicle 7 in two us-101 periods, frames 10..19 in both: not one vehicle with duplicates."""
-    first = straight_track(7, range(10, 20), x_ft=6.0)
-    second = straight_track(7, range(10, 20), x_ft=30.0, start_ms=US101_SECOND.start_epoch_ms)
+    """Vehicles 1..20 in two us-101 periods, frames 10..19 in both (a recording needs 20
+    vehicles): not one set of vehicles with duplicates."""
+    first = [r for v in range(1, 21) for r in straight_track(v, range(10, 20), x_ft=6.0)]
+    second = [
+        r
+        for v in range(1, 21)
+        for r in straight_track(v, range(10, 20), x_ft=30.0, start_ms=US101_SECOND.start_epoch_ms)
+    ]
+    first = [{**r, s.LANE_ID: 1} for r in first]
+    second = [{**r, s.LANE_ID: 3} for r in second]
     raw = write_portal(tmp_path / "portal.csv", first + second)
     out = tmp_path / "out"
     result = run_build([raw], out, SHORT)
@@ -271,15 +278,16 @@ def test_periods_of_one_portal_file_are_separate_recordings(tmp_path: Path) -> N
     keys = [(r.location, r.period) for r in result.recordings]
     assert keys == [("us-101", FIRST), ("us-101", SECOND)]
     for r in result.recordings:
-        assert (r.rows, r.exact_duplicates, r.conflicting_duplicates, r.gaps) == (10, 0, 0, 0)
-        assert (r.vehicles, r.tracks, r.grid_rows) == (1, 1, 5)
+        assert (r.rows, r.exact_duplicates, r.conflicting_duplicates, r.gaps) == (200, 0, 0, 0)
+        assert (r.vehicles, r.tracks, r.grid_rows) == (20, 20, 100)
     assert result.files[0].recordings == (f"us-101/{FIRST}", f"us-101/{SECOND}")
 
     a, b = tracks(out, FIRST), tracks(out, SECOND)
-    assert a[s.TRACK_ID].unique().to_list() == [0] and b[s.TRACK_ID].unique().to_list() == [1]
+    assert a[s.TRACK_ID].unique().sort().to_list() == list(range(20))
+    assert b[s.TRACK_ID].unique().sort().to_list() == list(range(20, 40))
     assert a[s.PERIOD].unique().to_list() == [FIRST] and b[s.PERIOD].unique().to_list() == [SECOND]
-    assert a[s.X_M].to_list() == pytest.approx([6 * FT] * 5)
-    assert b[s.X_M].to_list() == pytest.approx([30 * FT] * 5)
+    assert a[s.X_M].to_list() == pytest.approx([6 * FT] * 100)
+    assert b[s.X_M].to_list() == pytest.approx([30 * FT] * 100)
     assert b[s.GLOBAL_TIME][0] - a[s.GLOBAL_TIME][0] == 15 * 60 * 1000
 
 

@@ -107,15 +107,6 @@ def _name_recording(
     return named, period_label(frame0_ms, last_frame)
 
 
-def _names_an_unclaimed_period(
-    frame0_ms: int, location: str | None, keys: list[tuple[str, str]]
-) -> bool:
-    """Whether a frame-0 time names an official period (of `location`, if known) not yet taken:
-    a small recording of its own rather than stray rows (random times seldom land there)."""
-    official = find_official_recording(frame0_ms, location)
-    return official is not None and (official.location, official.period) not in keys
-
-
 def _names_another_location(frame0_ms: int, file_location: str | None) -> bool:
     """Whether a frame-0 time names an official period of another location than
     `file_location`, the location of a file whose rows do not say theirs (a per-location or
@@ -124,17 +115,22 @@ def _names_another_location(frame0_ms: int, file_location: str | None) -> bool:
     return file_location is not None and official is not None and official.location != file_location
 
 
-# A frame-0 time shared by the whole record of this many vehicles (and nearly all of its rows
-# theirs) is a clock of its own, a recording, however near another: stray rows are rows of
-# vehicles recorded on another clock too, a damaged Global_Time, never whole vehicles.
-MIN_CLOCK_VEHICLES = 20
+# A group of rows that share a frame-0 time, other than its location's largest, is a recording
+# only with this many vehicles: fewer are stray rows (a damaged Global_Time, such as one
+# vehicle's record an hour off, which names an official period of its own), however far from
+# the others and whatever period they name. A group that by its time alone would be stray rows
+# (small, near a larger group's, or of its name) is a clock of its own, a recording, when this
+# many whole vehicles have no row in a larger group and hold nearly all of its rows: stray rows
+# are rows of vehicles recorded on another clock too, never whole vehicles.
+MIN_RECORDING_VEHICLES = 20
 MIN_CLOCK_OWN_SHARE = 0.9
 
 
 def _frame0_groups(frame: pl.LazyFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """(location, frame-0 time) groups of rows with their row count and last frame, the largest
-    of each location first, and whether each is too small to be a recording of its own; and the
-    rows of each vehicle in each group (location, frame-0 time, vehicle id, rows)."""
+    """(location, frame-0 time) groups of rows with their row count, last frame and vehicle
+    count, the largest of each location first, and whether each is too small to be a recording
+    of its own; and the rows of each vehicle in each group (location, frame-0 time, vehicle id,
+    rows)."""
     per_vehicle = (
         frame.select(s.LOCATION, _FRAME0.alias(FRAME0_MS), s.FRAME_ID, s.VEHICLE_ID)
         .drop_nulls(FRAME0_MS)
@@ -144,11 +140,18 @@ def _frame0_groups(frame: pl.LazyFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     )
     groups = (
         per_vehicle.group_by(s.LOCATION, FRAME0_MS)
-        .agg(pl.col("rows").sum(), pl.col("last_frame").max())
+        .agg(pl.col("rows").sum(), pl.col("last_frame").max(), pl.len().alias("vehicles"))
         .sort(s.LOCATION, "rows", FRAME0_MS, descending=[False, True, False], nulls_last=True)
     )
     small = pl.col("rows") < STRAY_GROUP_SHARE * pl.col("rows").max().over(s.LOCATION)
     return groups.with_columns(small.alias("small")), per_vehicle.drop("last_frame")
+
+
+def is_a_recording(vehicles: int, their_rows: int, rows: int) -> bool:
+    """The rule of a group of rows (`rows` of them) that is not its location's largest: a
+    recording only when `vehicles` vehicles (at least MIN_RECORDING_VEHICLES), holding
+    `their_rows` of its rows (at least MIN_CLOCK_OWN_SHARE of them), are its own."""
+    return vehicles >= MIN_RECORDING_VEHICLES and their_rows >= MIN_CLOCK_OWN_SHARE * rows
 
 
 def _own_vehicles(
@@ -198,15 +201,15 @@ def recording_index(
     `frame` needs global_time, frame_id, vehicle_id and location (null where the file does not
     say, as in per-period files). Rows of one file that differ in `Global_Time - 100 * Frame_ID`
     belong to different recordings (the combined CSV holds three periods per location), unless
-    they are strays: rows whose frame-0 time lies within MATCH_TOLERANCE_MS of a larger group's,
-    names the same recording as a larger group, or is shared by few rows (under
-    STRAY_GROUP_SHARE of the location's largest group) and names no official period that a
-    larger group has not named. Where the rows do not say their location (all but the portal
-    CSV), the largest group's location is the file's, and a group whose frame-0 time names an
-    official period of another location is stray whatever its size. A group that is a clock
-    of its own (MIN_CLOCK_VEHICLES whole vehicles and nearly all its rows theirs) is never
-    stray: it is a recording, its period suffixed (-2, ...) if a larger group has the same
-    name, and said in the lines returned.
+    they are strays: a group other than its location's largest with fewer than
+    MIN_RECORDING_VEHICLES vehicles (`is_a_recording`), whatever period it names; or rows whose
+    frame-0 time lies within MATCH_TOLERANCE_MS of a larger group's, names the same recording
+    as a larger group, or is shared by few rows (under STRAY_GROUP_SHARE of the location's
+    largest group), unless they are a clock of their own (MIN_RECORDING_VEHICLES whole vehicles
+    and nearly all its rows theirs): a recording, its period suffixed (-2, ...) if a larger
+    group has the same name, and said in the lines returned. Where the rows do not say their
+    location (all but the portal CSV), the largest group's location is the file's, and a group
+    whose frame-0 time names an official period of another location is stray whatever its size.
     A stray row's index is null, as is that of a row without a time or frame; the caller counts
     and drops them. Only the `usable` rows (a bool expression; all by default) form recordings;
     the others get the index of the recording whose frame-0 time they share, if any. Recordings
@@ -226,12 +229,16 @@ def recording_index(
             (loc, ms) for loc, ms, _ in accepted
             if loc == location and abs(ms - frame0_ms) <= MATCH_TOLERANCE_MS
         ]  # fmt: skip
-        unclaimed = _names_an_unclaimed_period(frame0_ms, location, keys)
-        stray = bool(near) or (group["small"] and not unclaimed)
+        largest = not any(loc == location for loc, _, _ in accepted)
+        stray = bool(near) or group["small"]
+        if not (
+            stray or largest or is_a_recording(group["vehicles"], group["rows"], group["rows"])
+        ):
+            continue  # stray rows: too few vehicles for a recording, wherever their time lies
         key = None if stray else _name_recording(frame0_ms, group["last_frame"], location, path)
         if stray or key in keys:
             vehicles, rows = _own_vehicles(per_vehicle, groups, position)
-            if len(vehicles) < MIN_CLOCK_VEHICLES or rows < MIN_CLOCK_OWN_SHARE * group["rows"]:
+            if not is_a_recording(len(vehicles), rows, group["rows"]):
                 continue  # stray rows
             key = key or _name_recording(frame0_ms, group["last_frame"], location, path)
             own[len(keys)] = vehicles

@@ -46,6 +46,7 @@ from ngsim_graphs.sources.lanes import (
     FREEWAY_LOCATIONS,
     LATERAL_M,
     check_lanes,
+    check_one_lane,
     lane_medians,
 )
 from ngsim_graphs.sources.limits import PhysicalLimits
@@ -58,6 +59,7 @@ from ngsim_graphs.sources.ngsim.cleaning import (
 )
 from ngsim_graphs.sources.ngsim.files import read_raw_file
 from ngsim_graphs.sources.ngsim.formats import CANDIDATE_SUFFIXES, find_raw_files, is_ngsim_file
+from ngsim_graphs.sources.ngsim.neighbours import check_neighbours
 from ngsim_graphs.sources.ngsim.plausibility import (
     DROP_REASONS,
     FILE_REASONS,
@@ -264,26 +266,32 @@ def read_file(
     strict: bool,
     scratch: Path | None = None,
 ) -> FileRows:
-    """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`)."""
+    """read_file_recordings, then the rule of dropped rows (`cleaning.check_dropped`) and the
+    checks of each recording's columns against each other: lanes, neighbours and headways."""
     read = read_file_recordings(path, config, file_index, scratch, limits)
     check_file_drops(read.report, limits, strict, DROP_REASONS)
     check_lateral_positions(path, read)
+    check_neighbours(path, read)
     return read
 
 
 def check_lateral_positions(path: Path, read: FileRows) -> None:
-    """`lanes.check_lanes` of each freeway recording of the file: Local_X must be where
-    Lane_ID says (lanes 1..6, 12 ft each from the left edge)."""
-    freeway = {i: key for key, i in read.recordings.items() if key[0] in FREEWAY_LOCATIONS}
-    if not freeway:
+    """The lanes of each recording of the file: one lane must not hold nearly every row of
+    lateral positions several lanes apart (`lanes.check_one_lane`), and on the freeways Local_X
+    must be where Lane_ID says (`lanes.check_lanes`: lanes 1..6, 12 ft each from the left
+    edge)."""
+    if not read.recordings:
         return
-    rows = read.rows.filter(pl.col(s.RECORDING_INDEX).is_in(list(freeway))).select(
+    rows = read.rows.filter(pl.col(s.RECORDING_INDEX).is_not_null()).select(
         s.RECORDING_INDEX, s.LANE_ID, (pl.col(ns.LOCAL_X) * FEET_TO_M).alias(LATERAL_M)
     )
     medians = lane_medians(rows, (s.RECORDING_INDEX,))
-    for index, (location, period) in freeway.items():
+    for (location, period), index in read.recordings.items():
         of_recording = medians.filter(pl.col(s.RECORDING_INDEX) == index)
-        check_lanes(path, f"{location}/{period}", of_recording, FREEWAY_LANES, "Local_X")
+        name = f"{location}/{period}"
+        check_one_lane(path, name, of_recording, "Lane_ID", "Local_X")
+        if location in FREEWAY_LOCATIONS:
+            check_lanes(path, name, of_recording, FREEWAY_LANES, "Local_X")
 
 
 def recording_report(
