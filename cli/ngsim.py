@@ -87,7 +87,14 @@ def synth(
         ),
     ] = RawFormat.TXT,
     recordings: Annotated[int, typer.Option(help="How many of the six NGSIM periods (1-6).")] = 6,
-    minutes: Annotated[float, typer.Option(help="Length of each recording, minutes.")] = 15.0,
+    minutes: Annotated[
+        float,
+        typer.Option(
+            help="Length of each recording, minutes, from the start of its official period. The "
+            "files keep the 15-minute period's name (0400-0415) whatever the length: a build "
+            "tells a recording by its start time."
+        ),
+    ] = 15.0,
     seed: Annotated[int, typer.Option(help="Random seed; the same seed gives the same bytes.")] = 0,
     quirks: Annotated[
         bool,
@@ -106,12 +113,14 @@ def synth(
         quirks=quirks,
     )
     with exit_on_interrupt(f"nothing written ({out_dir} is as it was)"):
-        from ngsim_graphs.synth.formats import write_synthetic  # the simulator, only when used
+        from ngsim_graphs.synth.formats import period_note, write_synthetic  # only when used
 
         with exit_on_error(), progress_bar() as progress:
             paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))
     for path in paths:
         stdout.print(f"{path}  {path.stat().st_size / 1e6:.1f} MB")
+    if note := period_note(config):
+        stdout.print(f"Note: {note}.")
 
 
 # `build --dataset`: told from the files (auto), or forced: the registry's sources.

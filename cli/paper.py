@@ -110,8 +110,9 @@ def paper(
         ),
     ] = False,
 ) -> None:
-    """Run the paper's experiments on RAW_PATH... (NGSIM files, or folders to search for them):
-    3 builds (d_min 0, 25, 50 m), 4 fits of 5 models each (1..5 s;
+    """Run the paper's experiments on RAW_PATH... (NGSIM files, or folders to search for them;
+    unpacked: a .zip or .gz is refused, docs/reproduce.md unpacks NGSIM's zips): 3 builds (d_min 0,
+    25, 50 m), 4 fits of 5 models each (1..5 s;
     d_min 25 m with and without the output concatenation, d_min 0 and 50 m), their evaluations
     on the test split, and OUT/report.md, OUT/report.json and OUT/figures/: Table 1 beside the
     published rows, the d_min and concatenation ablations, the training curves and front / mid /
@@ -120,10 +121,10 @@ def paper(
     each AiGem number is then the mean over the seeds with its 95 % interval, and each ablation
     says whether its difference to the paper's configuration is beyond the noise.
 
-    Time, on 2 CPU cores: about 3 minutes with --epochs 2 on the README's demo input (2
-    recordings of 2 minutes); 13 minutes with --epochs 1 on two synthetic 15-minute recordings;
-    NGSIM's six recordings at the paper's 100 epochs some 70 hours (extrapolated from synthetic
-    data: docs/reproduce.md).
+    Time, on 2 idle CPU cores: about 2.5 minutes with --epochs 2 on the README's demo input (2
+    recordings of 2 minutes); 14.5 minutes with --epochs 1 on two synthetic 15-minute recordings;
+    six recordings at the paper's 100 epochs some 70 to 90 hours (extrapolated from six synthetic
+    ones: docs/reproduce.md). Where other work shares the cores, 2.5 to 4.5 times as long.
 
     Ctrl-C keeps the finished builds and each model's last epoch: the same command continues.
     --max-hours bounds the training only (builds and evaluations come on top); a report of fits

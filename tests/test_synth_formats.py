@@ -231,6 +231,32 @@ def test_progress_per_recording_and_no_partial_files(tmp_path: Path) -> None:
     ]
 
 
+def test_a_short_recording_keeps_its_periods_name_and_says_so(tmp_path: Path) -> None:
+    """--minutes 0.3 writes `trajectories-0400-0415.txt`, as a build will name the recording (by
+    its start time), and synth says so in its output and its marker; 15 minutes says nothing."""
+    result = CliRunner(env={"COLUMNS": "300"}).invoke(
+        app, ["synth", str(tmp_path / "raw"), "--recordings", "2", "--minutes", str(MINUTES)]
+    )
+    assert result.exit_code == 0, result.output
+    note = (
+        f"each recording runs {MINUTES:g} minutes from the start of its official period and is "
+        "named after that 15-minute period (e.g. 0400-0415) in its file's name and a build's "
+        "report: a build tells a recording by its start time"
+    )
+    assert result.output.splitlines()[-1] == f"Note: {note}."
+    assert f"\n{note[0].upper()}{note[1:]}.\n" in (tmp_path / "raw" / MARKER_NAME).read_text()
+    assert (tmp_path / "raw" / "i-80" / "trajectories-0400-0415.txt").is_file()
+    first_ms = int((tmp_path / "raw" / "i-80" / "trajectories-0400-0415.txt").open().readline()
+                   .split()[3])  # fmt: skip
+    start_ms = OFFICIAL_RECORDINGS[1].start_epoch_ms  # 4:00 pm, frame 0 within 30 s of it
+    assert start_ms - 30_000 <= first_ms <= start_ms + 1000 * 60 * MINUTES
+    assert synthesis.period_note(SynthConfig(RawFormat.PORTAL, minutes=2)).endswith(
+        "(e.g. 0400-0415) in a build's report: a build tells a recording by its start time"
+    )
+    assert synthesis.period_note(SynthConfig(minutes=15)) is None
+    assert synthesis.period_note(SynthConfig(RawFormat.HIGHD, minutes=2)) is None
+
+
 def test_interrupted_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     def fail(handle, rows, quirks):  # noqa: ANN001, ANN202
         handle.write(b"half a file")

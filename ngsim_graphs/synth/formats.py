@@ -53,6 +53,8 @@ EXACT_DUPLICATE_SHARE = 0.001
 CONFLICT_SHARE = 0.0005  # second rows with a larger Local_Y (the reader keeps the smallest)
 EMPTY_LOCAL_X_SHARE = 0.0001
 CHUNK_ROWS = 500_000  # rows formatted at a time when writing text
+# Each official recording's period, which names its files whatever --minutes is (below).
+OFFICIAL_PERIOD_MINUTES = 15.0
 _DIGEST_LINE = re.compile(r"    ([0-9a-f]{64})  (\S+)")  # a marker's sha256 of one file
 
 # Header spellings of per-period CSVs in the wild: case and `v_Length` vary.
@@ -94,6 +96,23 @@ def synthetic_paths(out_dir: Path, config: SynthConfig) -> list[Path]:
         out_dir / recording.location / f"trajectories-{recording.period}.{config.raw_format.value}"
         for recording in OFFICIAL_RECORDINGS[: config.recordings]
     ]
+
+
+def period_note(config: SynthConfig) -> str | None:
+    """What to tell a user whose recordings are not the official periods' 15 minutes (None where
+    they are, or for highD's files): each one starts at its period's official start and keeps
+    that period's name. A build tells an NGSIM recording by its frame 0's time, which names the
+    period whose start is nearest (`sources.ngsim.recordings`), so a file named by its own
+    length would be reported by the build under another name than its own."""
+    if config.minutes == OFFICIAL_PERIOD_MINUTES or config.raw_format is schema.RawFormat.HIGHD:
+        return None
+    per_period = config.raw_format is not schema.RawFormat.PORTAL
+    named = "its file's name and a build's report" if per_period else "a build's report"
+    return (
+        f"each recording runs {config.minutes:g} minutes from the start of its official period "
+        f"and is named after that 15-minute period (e.g. 0400-0415) in {named}: a build tells "
+        "a recording by its start time"
+    )
 
 
 def check_synth_target(out_dir: Path) -> None:
@@ -169,7 +188,8 @@ def _marker_text(config: SynthConfig, digests: dict[str, str]) -> str:
         "this folder only while it holds these files and nothing else, each with its sha256 below.\n\n"
         f"Settings: format {config.raw_format.value}, {config.recordings} recordings of "
         f"{config.minutes:g} minutes, seed {config.seed}, quirks {quirks}.\n\n"
-        "Files:\n\n"
+        + (f"{note[0].upper()}{note[1:]}.\n\n" if (note := period_note(config)) else "")
+        + "Files:\n\n"
         + "".join(f"- {name}\n" for name in digests)
         + "\nsha256 (`sha256sum -c` reads these lines):\n\n"
         + "".join(f"    {digest}  {name}\n" for name, digest in digests.items())
