@@ -43,14 +43,34 @@ def archive_kind(path: Path) -> str | None:
 
 def archives_in(path: Path) -> list[Path]:
     """The archives among `path` (a named file) or under it (a folder, searched recursively):
-    files named .gz or .zip, and .txt or .csv files that are compressed; in path order."""
+    files named .gz or .zip, and .txt or .csv files that are compressed; in path order. Raises
+    NgsimInputError for a file named .gz or .zip that is not one (`check_named_right`)."""
     if path.is_file():
-        return [path] if archive_kind(path) else []
+        return [path] if _is_archive(path) else []
     if not path.is_dir():
         return []
     suffixes = ARCHIVE_SUFFIXES + TEXT_SUFFIXES
     found = (p for p in sorted(path.rglob("*")) if p.is_file() and p.suffix.lower() in suffixes)
-    return [p for p in found if archive_kind(p)]
+    return [p for p in found if _is_archive(p)]
+
+
+def _is_archive(path: Path) -> bool:
+    check_named_right(path, str(path))
+    return archive_kind(path) is not None
+
+
+def check_named_right(path: Path, name: str) -> None:
+    """Raise NgsimInputError naming `name` (the file `path`, or an archive's member unpacked to
+    it) where it is named .gz or .zip and is not one: a download that failed (an HTML page), a
+    text file renamed. No source reads it, so it would otherwise be lost in silence."""
+    suffix = path.suffix.lower()
+    expected = {".gz": "gzip", ".zip": "zip"}.get(suffix)
+    if expected is None or archive_kind(path) is not None:  # the bytes tell the kind
+        return
+    with path.open("rb") as handle:
+        head = handle.read(16)
+    found = f"it begins {head!r}" if head else "it is empty"
+    raise NgsimInputError(name, f"named {suffix} but not {expected} data ({found})")
 
 
 @dataclass
@@ -168,6 +188,7 @@ def _member(
         raise NgsimInputError(name, f"cannot unpack: {err}") from None
     except FileExistsError:  # a zip may hold two members of one name (appended zips do)
         raise NgsimInputError(name, "the archive holds a member of this name twice") from None
+    check_named_right(target, name)
     if archive_kind(target):
         inner = _unpack(
             target, target.with_name(f"{target.name}.d"), name, unpacked, depth + 1, markers
