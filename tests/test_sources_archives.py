@@ -189,7 +189,7 @@ def test_an_archive_unpacks_to_its_bound_at_most(
     line = assert_failed_cleanly(invoke("build", packed.parent, "--out", out), out, {}, packed)
     size = packed.stat().st_size
     assert line == (
-        f"error: {packed}: unpacks to more than {3 * size:,} bytes, the most that {packed} "
+        f"error: {packed}: unpacks to more than {3 * size:,} bytes, the most that it "
         f"({size:,} bytes) may unpack to (3 times its size and 0 bytes more): "
         "a decompression bomb?"
     )

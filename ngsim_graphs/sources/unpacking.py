@@ -78,9 +78,10 @@ class Expansion:
         self.written_bytes += n_bytes
         allowed = LIMITS.allowed_bytes(self.packed_bytes)
         if self.written_bytes > allowed:
+            archive = "it" if name == self.archive else self.archive
             raise NgsimInputError(
                 name,
-                f"unpacks to more than {allowed:,} bytes, the most that {self.archive} "
+                f"unpacks to more than {allowed:,} bytes, the most that {archive} "
                 f"({self.packed_bytes:,} bytes) may unpack to ({LIMITS.bound_in_words()}): "
                 "a decompression bomb?",
             )
