@@ -4,8 +4,8 @@ and every byte counted against what its archive may unpack to and the free disk.
 
 A decompression bomb (a few KB of zip or gzip that unpacks to GBs) is refused before it is
 unpacked where a zip member declares its size, and while it is unpacked otherwise (a .gz, whose
-size field holds only the last 32 bits, or a zip whose declared sizes lie): memory stays a few
-MB, and the disk holds at most what the limits allow.
+size field holds only the last 32 bits, or a zip whose declared sizes lie): memory stays tens
+of MB at most, and the disk holds at most what the limits allow.
 """
 
 from __future__ import annotations
@@ -41,9 +41,10 @@ _LOCAL_HEADER = struct.Struct("<4s5H3L2H")  # a member's local header, to its na
 
 @dataclass(frozen=True)
 class ExpansionLimits:
-    """How far an archive may expand as it is unpacked. Real NGSIM text deflates 5-8 times (the
-    synthetic files 4.6 times, 8.7 with xz; highD's CSV 4.6 and 7.7), so 50 times is a margin
-    of 6 over the best of them, and a zip of the same rows repeated (84 times) is refused."""
+    """How far an archive may expand as it is unpacked. Real NGSIM text deflates 5-8 times
+    (synth's NGSIM files 3.5-4.6 times, 8.7 at most with xz; its highD tracks 4.6, 7.7 with xz),
+    so 50 times leaves a margin of about 6 over the best of them, and a zip of the same rows
+    repeated (84 times) is refused."""
 
     max_ratio: float = 50.0  # unpacked bytes per byte of the archive (or of a member's)
     allowance_bytes: int = 1 << 20  # and this much more: a small file compresses far more
