@@ -54,6 +54,7 @@ class ExpansionLimits:
         return int(self.max_ratio * packed_bytes) + self.allowance_bytes
 
     def bound_in_words(self) -> str:
+        """The bound as an error message says it."""
         return f"{self.max_ratio:g} times its size and {self.allowance_bytes:,} bytes more"
 
 
@@ -123,8 +124,8 @@ def check_zip_member(info: zipfile.ZipInfo, name: str, folder: Path) -> None:
 def zip_member_chunks(
     zipped: zipfile.ZipFile, archive: Path, info: zipfile.ZipInfo
 ) -> Generator[bytes, None, None]:
-    """A member's unpacked bytes (of `zipped`, opened from `archive`), a few MB at most at a
-    time (`check_zip_member` passed)."""
+    """A member's unpacked bytes (of `zipped`, opened from `archive`), a MB at a time (LZMA's
+    up to 30 MB); `check_zip_member` passed it."""
     if info.compress_type == zipfile.ZIP_BZIP2:
         return _bzip2_chunks(archive, info)
     return stream_chunks(lambda: zipped.open(info), _READ_BYTES[info.compress_type])
