@@ -9,7 +9,7 @@ from pathlib import Path
 
 import polars as pl
 import pytest
-from conftest import I80_FIRST, make_row, write_period_csv, write_portal, write_txt
+from conftest import I80_FIRST, make_row, set_budget, write_period_csv, write_portal, write_txt
 from test_cli_ngsim import assert_failed_cleanly, invoke, snapshot
 
 from ngsim_graphs import schema as s
@@ -391,6 +391,25 @@ def test_a_unit_separator_byte_is_named_with_its_line(tmp_path: Path, rows: list
     assert_failed_cleanly(
         invoke("build", txt, "--out", out), out, {}, txt, "line 51:", "control character (0x1F)"
     )
+
+
+@pytest.mark.parametrize("chunk_bytes", [1_024, 16 * 1024 * 1024])
+def test_a_line_longer_than_any_row_is_named_unread(
+    tmp_path: Path, rows: list[dict], monkeypatch: pytest.MonkeyPatch, chunk_bytes: int
+) -> None:
+    """e06's 2.5 GB line of zeros took 5 GB of memory before its error: a line is read only up
+    to the bound, in chunks of the reader's size (smaller than the bound, or far larger)."""
+    set_budget(monkeypatch, text_chunk_bytes=chunk_bytes)
+    path, out = write_txt(tmp_path / "trajectories-0750am-0805am.txt", rows), tmp_path / "out"
+    lines = path.read_bytes().split(b"\n")
+    path.write_bytes(b"\n".join([*lines[:60], b"0" * (1 << 20)]))  # no line end: cut short
+    line = assert_failed_cleanly(invoke("build", path, "--out", out), out, {}, path)
+    assert line == (
+        f"error: {path}, line 61: a line longer than 4,096 bytes, which no trajectory row is "
+        "(binary data? no line ends?)"
+    )
+    path.write_bytes(b"\n".join([*lines[:30], b" 0" * 2_049, *lines[30:]]))  # 4,098 bytes
+    assert_failed_cleanly(invoke("build", path, "--out", out), out, {}, path, "line 31: a line")
 
 
 def test_every_row_without_a_required_value_names_the_file(

@@ -211,6 +211,18 @@ def test_build_refuses_implausible_lane_markings(
     assert problem in line and column in line
 
 
+def test_a_highd_line_longer_than_any_row_is_named(tmp_path: Path) -> None:
+    tracks = two_directions(tmp_path / "raw")
+    lines = tracks.read_bytes().split(b"\n")
+    tracks.write_bytes(b"\n".join([*lines[:4], b"1," * 3_000, *lines[4:]]))
+    out = tmp_path / "out"
+    line = assert_failed_cleanly(invoke("build", tmp_path / "raw", "--out", out), out, {}, tracks)
+    assert line == (
+        f"error: {tracks}, line 5: a line longer than 4,096 bytes, which no trajectory row is "
+        "(binary data? no line ends?)"
+    )
+
+
 def _damage_header(path: Path, column: str) -> None:
     """One name of the header misspelled: its last letter replaced by 'x'."""
     header, body = path.read_text().split("\n", 1)

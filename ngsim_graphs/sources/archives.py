@@ -1,32 +1,41 @@
 """Compressed inputs: a .zip or .gz given or found among a build's inputs, told by its first
 bytes (a .txt gzip'd under its own name is one), unpacked into the build's staging folder and
 read from there; each file unpacked is named by where it came from (`NGSIM.zip/US-101/a.txt`,
-`a.txt.gz`). Unpacking streams a member at a time: memory stays small whatever their size.
+`a.txt.gz`). Unpacking streams a member at a time, within bounds (`unpacking`): memory stays
+small whatever their size, and an archive unpacks to at most `unpacking.LIMITS` of its size.
 
 A zip may nest folders and inner zips or .gz files (the portal's per-location zips do); of its
 members, the .txt and .csv files and the archives are unpacked, and every other member (photos,
-CAD drawings, videos, documents) is listed as skipped.
+CAD drawings, videos, documents) is listed as skipped. A member that cannot be unpacked
+(encrypted, a compression method Python does not read, damaged, too large) and a file named .gz
+or .zip that is none are refused by name.
 """
 
 from __future__ import annotations
 
 import gzip
+import lzma
 import shutil
 import zipfile
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import IO
 
 from ngsim_graphs.errors import NgsimError, NgsimInputError
+from ngsim_graphs.sources.unpacking import (
+    Expansion,
+    check_zip_member,
+    stream_chunks,
+    write_chunks,
+    zip_member_chunks,
+)
 
 GZIP_MAGIC = b"\x1f\x8b"
 ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip with members, an empty zip
 ARCHIVE_SUFFIXES = (".gz", ".zip")
 TEXT_SUFFIXES = (".txt", ".csv")  # the members a source may read
 MAX_DEPTH = 4  # archives inside archives, at most
-_COPY_BYTES = 1 << 20
 
 
 def archive_kind(path: Path) -> str | None:
@@ -43,14 +52,34 @@ def archive_kind(path: Path) -> str | None:
 
 def archives_in(path: Path) -> list[Path]:
     """The archives among `path` (a named file) or under it (a folder, searched recursively):
-    files named .gz or .zip, and .txt or .csv files that are compressed; in path order."""
+    files named .gz or .zip, and .txt or .csv files that are compressed; in path order. Raises
+    NgsimInputError for a file named .gz or .zip that is not one (`check_named_right`)."""
     if path.is_file():
-        return [path] if archive_kind(path) else []
+        return [path] if _is_archive(path) else []
     if not path.is_dir():
         return []
     suffixes = ARCHIVE_SUFFIXES + TEXT_SUFFIXES
     found = (p for p in sorted(path.rglob("*")) if p.is_file() and p.suffix.lower() in suffixes)
-    return [p for p in found if archive_kind(p)]
+    return [p for p in found if _is_archive(p)]
+
+
+def _is_archive(path: Path) -> bool:
+    check_named_right(path, str(path))
+    return archive_kind(path) is not None
+
+
+def check_named_right(path: Path, name: str) -> None:
+    """Raise NgsimInputError naming `name` (the file `path`, or an archive's member unpacked to
+    it) where it is named .gz or .zip and is not one: a download that failed (an HTML page), a
+    text file renamed. No source reads it, so it would otherwise be lost in silence."""
+    suffix = path.suffix.lower()
+    expected = {".gz": "gzip", ".zip": "zip"}.get(suffix)
+    if expected is None or archive_kind(path) is not None:  # the bytes tell the kind
+        return
+    with path.open("rb") as handle:
+        head = handle.read(16)
+    found = f"it begins {head!r}" if head else "it is empty"
+    raise NgsimInputError(name, f"named {suffix} but not {expected} data ({found})")
 
 
 @dataclass
@@ -82,7 +111,8 @@ def unpack_inputs(
         if progress is not None:
             progress(i, len(archives))
         into = scratch / f"{i:04d}" / archive.relative_to(archive.anchor).parent
-        unpacked.paths.append(_unpack(archive, into, str(archive), unpacked, 0, markers))
+        run = _Run(unpacked, markers, Expansion(str(archive), archive.stat().st_size))
+        unpacked.paths.append(_unpack(archive, into, str(archive), run, 0))
         for folder, mirror in zip(archive.parents[:2], (into, into.parent), strict=False):
             for marker in markers:
                 if (folder / marker).is_file() and not (mirror / marker).exists():
@@ -92,15 +122,23 @@ def unpack_inputs(
     return unpacked
 
 
+@dataclass
+class _Run:
+    """One input archive being unpacked: what all of them gave, the markers copied, and what
+    it may still unpack to."""
+
+    unpacked: Unpacked
+    markers: tuple[str, ...]
+    expansion: Expansion
+
+
 def searched_paths(paths: list[Path], unpacked: Unpacked) -> list[Path]:
     """The paths a source searches: `paths` less the archives named among them, and each
     archive's unpacked copy."""
     return [p for p in paths if not (p.is_file() and archive_kind(p))] + unpacked.paths
 
 
-def _unpack(
-    archive: Path, into: Path, name: str, unpacked: Unpacked, depth: int, markers: tuple[str, ...]
-) -> Path:
+def _unpack(archive: Path, into: Path, name: str, run: _Run, depth: int) -> Path:
     """Unpack `archive` (reported as `name`) into the folder `into`, and any archive in it;
     returns what it unpacked to: the file of a .gz, the folder of a zip."""
     if depth > MAX_DEPTH:
@@ -108,16 +146,16 @@ def _unpack(
     into.mkdir(parents=True, exist_ok=True)
     if archive_kind(archive) == "gzip":
         stem = archive.name[:-3] if archive.name.lower().endswith(".gz") else archive.name
-        opener = lambda: gzip.open(archive, "rb")  # noqa: E731, SIM115 (opened in _member's with)
-        return _member(opener, into / stem, name, unpacked, depth, markers)
+        chunks = stream_chunks(lambda: gzip.open(archive, "rb"))  # noqa: SIM115 (opened in a with)
+        return _member(chunks, into / stem, name, run, depth)
     folder = into / archive.name
     folder.mkdir(exist_ok=True)
-    unpacked.names[folder.resolve()] = name
+    run.unpacked.names[folder.resolve()] = name
     try:
         with zipfile.ZipFile(archive) as zipped:
             for info in zipped.infolist():
                 if not info.is_dir():
-                    _zip_member(zipped, info, folder, name, unpacked, depth, markers)
+                    _zip_member(zipped, archive, info, folder, name, run, depth)
     except (zipfile.BadZipFile, EOFError, zlib.error) as err:
         raise NgsimInputError(name, f"cannot read this zip file: {err}") from None
     return folder
@@ -125,57 +163,60 @@ def _unpack(
 
 def _zip_member(
     zipped: zipfile.ZipFile,
+    archive: Path,
     info: zipfile.ZipInfo,
     folder: Path,
     name: str,
-    unpacked: Unpacked,
+    run: _Run,
     depth: int,
-    markers: tuple[str, ...],
 ) -> None:
-    """Unpack one member of a zip (reported as `name`) into its `folder`: a text file or an
-    archive; a marker; anything else is listed as skipped."""
+    """Unpack one member of a zip (`archive`, reported as `name`) into its `folder`: a text
+    file or an archive; a marker; anything else is listed as skipped."""
     inner = PurePosixPath(info.filename)
     shown = f"{name}/{info.filename}"
     if inner.is_absolute() or ".." in inner.parts:
         raise NgsimInputError(shown, "a member's path leads out of its zip file")
     target = folder.joinpath(*inner.parts)
-    if inner.name in markers:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_bytes(zipped.read(info))
-    elif inner.suffix.lower() not in TEXT_SUFFIXES + ARCHIVE_SUFFIXES:
-        unpacked.skipped.append(shown)
+    is_marker = inner.name in run.markers
+    if not is_marker and inner.suffix.lower() not in TEXT_SUFFIXES + ARCHIVE_SUFFIXES:
+        run.unpacked.skipped.append(shown)
+        return
+    target.parent.mkdir(parents=True, exist_ok=True)
+    check_zip_member(info, shown, target.parent)
+    chunks = zip_member_chunks(zipped, archive, info)
+    if is_marker:
+        _copy(chunks, target, shown, run)
     else:
-        _member(lambda: zipped.open(info), target, shown, unpacked, depth, markers)
+        _member(chunks, target, shown, run, depth)
 
 
 def _member(
-    opener: Callable[[], IO[bytes]],
-    target: Path,
-    name: str,
-    unpacked: Unpacked,
-    depth: int,
-    markers: tuple[str, ...],
+    chunks: Generator[bytes, None, None], target: Path, name: str, run: _Run, depth: int
 ) -> Path:
-    """Copy one member (`opener()`'s stream, reported as `name`) to `target`, a chunk at a time;
-    an archive in turn is unpacked beside it and removed. Returns the file, or that folder."""
+    """Copy one member (its unpacked `chunks`, reported as `name`) to `target`; an archive in
+    turn is unpacked beside it and removed. Returns the file, or that folder."""
     target.parent.mkdir(parents=True, exist_ok=True)
+    _copy(chunks, target, name, run)
+    check_named_right(target, name)
+    if archive_kind(target):
+        inner = _unpack(target, target.with_name(f"{target.name}.d"), name, run, depth + 1)
+        target.unlink()
+        return inner
+    run.unpacked.names[target.resolve()] = name
+    return target
+
+
+def _copy(chunks: Generator[bytes, None, None], target: Path, name: str, run: _Run) -> None:
+    """Write a member's unpacked `chunks` (reported as `name`) to `target`, within the run's
+    bounds (`unpacking.write_chunks`); its damage is named."""
     try:
-        with opener() as stream, target.open("xb") as copy:
-            shutil.copyfileobj(stream, copy, _COPY_BYTES)
-    except (gzip.BadGzipFile, zipfile.BadZipFile, EOFError, zlib.error) as err:
+        write_chunks(chunks, target, name, run.expansion)
+    except (gzip.BadGzipFile, zipfile.BadZipFile, EOFError, zlib.error, lzma.LZMAError) as err:
         raise NgsimInputError(name, f"damaged compressed data: {err}") from None
-    except NotImplementedError as err:  # a zip compression method Python does not read
+    except (NotImplementedError, RuntimeError) as err:  # what zipfile's open refuses
         raise NgsimInputError(name, f"cannot unpack: {err}") from None
     except FileExistsError:  # a zip may hold two members of one name (appended zips do)
         raise NgsimInputError(name, "the archive holds a member of this name twice") from None
-    if archive_kind(target):
-        inner = _unpack(
-            target, target.with_name(f"{target.name}.d"), name, unpacked, depth + 1, markers
-        )
-        target.unlink()
-        return inner
-    unpacked.names[target.resolve()] = name
-    return target
 
 
 def shown_name(path: Path | str, names: dict[Path, str]) -> str:

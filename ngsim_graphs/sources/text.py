@@ -3,7 +3,8 @@
 The sources parse a whole file in one streaming pass and only count what is odd; when something
 is, these functions look again, line by line, for the first line at fault and say what is wrong
 there in one line: a wrong number of fields, a quote left open or misplaced, a control
-character, a field that is not a number (or not finite, or not whole, or out of range).
+character, a field that is not a number (or not finite, or not whole, or out of range). A line
+longer than any row (MAX_LINE_BYTES) is refused as soon as it is met, never read whole.
 """
 
 from __future__ import annotations
@@ -18,11 +19,77 @@ import polars as pl
 
 from ngsim_graphs.errors import NgsimInputError
 
+# The longest line a source reads, in bytes, its line end not counted: NGSIM's and highD's rows
+# and headers are under 300 bytes. A longer line is no row of theirs (zeros, binary data, text
+# without line ends) and is refused as soon as it is met, never read whole.
+MAX_LINE_BYTES = 4_096
+_SCAN_BYTES = 16 * 1024 * 1024  # check_line_lengths reads this much of a file at a time
+
 ROW = "__row"  # 0-based data row in the file, kept to name lines in errors
 EXTRA = "__extra"  # the first surplus field of a CSV row
 LINE = "__line"
 CONTROL = "__control"  # what follows a 0x1F byte in a line (see scan_lines)
 _CUT = "\x1f"
+
+
+def long_line_at(
+    text: bytes | bytearray, end: int | None = None, max_line_bytes: int = MAX_LINE_BYTES
+) -> int | None:
+    """The offset of the first line of `text` (up to `end`) longer than `max_line_bytes` (a
+    last line without its line end counts once it is longer); None where there is none. Looks
+    at one line end in every `max_line_bytes` or so, not at every line."""
+    end = len(text) if end is None else end
+    start = 0  # a line's first byte
+    while end - start > max_line_bytes:
+        found = text.rfind(b"\n", start, start + max_line_bytes + 1)  # the last within reach
+        if found < 0:
+            return start
+        start = found + 1
+    return None
+
+
+def raise_long_line(path: Path, line: int) -> None:
+    raise NgsimInputError(
+        path,
+        f"a line longer than {MAX_LINE_BYTES:,} bytes, which no trajectory row is "
+        "(binary data? no line ends?)",
+        line=line,
+    )
+
+
+def check_line_length(path: Path, text: bytes, first_line: int) -> None:
+    """Raise NgsimInputError for the first line of `text` (a part of `path` whose first line is
+    line `first_line`, from 1) longer than MAX_LINE_BYTES, naming its line."""
+    start = long_line_at(text)
+    if start is not None:
+        raise_long_line(path, first_line + text.count(b"\n", 0, start))
+
+
+def check_line_lengths(path: Path) -> None:
+    """Raise NgsimInputError naming the first line of `path` longer than MAX_LINE_BYTES. Reads
+    16 MB at a time into one buffer, holding no more of a line than that bound, however long
+    it is (`long_line_at` looks at 16 MB in a few ms; the lines are counted only for the
+    error)."""
+    buffer = bytearray(MAX_LINE_BYTES + _SCAN_BYTES)
+    kept, offset = 0, 0  # the bytes of a line carried at the buffer's start; its file offset
+    with path.open("rb") as handle:
+        while n_read := handle.readinto(memoryview(buffer)[kept : kept + _SCAN_BYTES]):
+            end = kept + n_read
+            start = long_line_at(buffer, end)
+            if start is not None:
+                raise_long_line(path, _line_at(path, offset + start))
+            cut = buffer.rfind(b"\n", 0, end) + 1
+            buffer[: end - cut] = buffer[cut:end]  # the part of a line, under the bound
+            kept, offset = end - cut, offset + cut
+
+
+def _line_at(path: Path, offset: int) -> int:
+    """The line (from 1) of `path` that byte `offset` is in."""
+    line = 1
+    with path.open("rb") as handle:
+        while offset > 0 and (data := handle.read(min(offset, _SCAN_BYTES))):
+            line, offset = line + data.count(b"\n"), offset - len(data)
+    return line
 
 
 def scan_lines(path: Path | IO[bytes], skip_rows: int = 1) -> pl.LazyFrame:

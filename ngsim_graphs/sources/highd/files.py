@@ -30,6 +30,7 @@ from ngsim_graphs.sources.text import (
     LINE,
     ROW,
     check_csv_field_counts,
+    check_line_lengths,
     number_problem,
     raise_bad_quoting,
     scan_csv_fields,
@@ -226,6 +227,7 @@ def read_columns(path: Path, kind: HighdFile, schema: pl.Schema) -> pl.DataFrame
     if header is None:
         raise NgsimInputError(path, "empty file: no header and no data")
     _check_header(path, header, kind, list(schema))
+    check_line_lengths(path)  # the reader would hold a line whole, of any length
     text = scan_csv_fields(path, [name.lower() for name in header])
     odd = pl.col(EXTRA).is_not_null() | pl.col(header[-1].lower()).is_null()
     parsed = [_parsed(column, dtype) for column, dtype in schema.items()]
@@ -266,6 +268,7 @@ def _check_line_end(path: Path, last_line: int) -> None:
 
 def count_data_rows(path: Path) -> int:
     """Non-blank lines after the header: the rows of a file whose values the build skips."""
+    check_line_lengths(path)
     lines = scan_lines(path).filter(pl.col(LINE).str.strip_chars() != "")
     return int(lines.select(pl.len()).collect(engine="streaming").item())
 

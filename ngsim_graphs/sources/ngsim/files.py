@@ -39,6 +39,8 @@ from ngsim_graphs.sources.text import (
     EXTRA,
     LINE,
     ROW,
+    check_line_length,
+    check_line_lengths,
     raise_bad_quoting,
     scan_csv_fields,
     scan_lines,
@@ -167,12 +169,14 @@ class TextChunk:
 
 def text_chunks(path: Path, chunk_bytes: int) -> Iterator[TextChunk]:
     """The file's text in chunks of about `chunk_bytes` that end at a line end (LF; CRLF stays
-    whole), in order: every line in exactly one chunk."""
+    whole), in order: every line in exactly one chunk. Raises NgsimInputError for a line longer
+    than `text.MAX_LINE_BYTES` as it is met: no more than a chunk and that bound is held."""
     first_line, rest = 0, b""
     with path.open("rb") as handle:
         while True:
             data = handle.read(chunk_bytes)
             text = rest + data
+            check_line_length(path, text, first_line + 1)
             end = text.rfind(b"\n") + 1 if data else len(text)
             if end == 0 and data:  # a line longer than a chunk: read on
                 rest = text
@@ -192,6 +196,7 @@ def _parsed(
     None), or parsed a chunk at a time (`budget.Budget.text_chunk_bytes`) into `scratch` and scanned from there:
     a file's text and rows are then never all in memory at once."""
     if scratch is None:
+        check_line_lengths(path)  # the reader would hold a line whole, of any length
         return parse(None).collect(engine="streaming").lazy()
     scratch.mkdir(parents=True, exist_ok=True)
     parts = []  # one at least: `sniff_format` let no empty file through
