@@ -33,7 +33,7 @@ from ngsim_cli.stats_view import STATS_TABLES
 from ngsim_graphs import __version__
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.build import open_build
-from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig
+from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig, check_seed
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import check_config, run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
@@ -307,6 +307,10 @@ def stats(
     seed: Annotated[int, typer.Option(help="Seed of the random choice of those graphs.")] = 0,
 ) -> None:
     """Check a build before training: samples, graph sizes, degrees, kinematics, scaler, config."""
+    try:
+        check_seed("seed", seed)
+    except ValueError as err:
+        raise usage_error(in_option_words(str(err), {"seed": "--seed"})) from None
     with exit_on_error():
         opened = open_build(build_dir)
         try:

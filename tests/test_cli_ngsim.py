@@ -661,9 +661,9 @@ def test_ego_target_adds_one_target_per_sample(
     [
         ("--stride-s", "0.3", "--stride-s must be a positive multiple"),
         ("--stride-s", "0", "--stride-s must be a positive multiple"),
-        ("--d-sense-m", "-1", "--d-sense-m must be > 0"),
-        ("--heading-smoothing-s", "-1", "--heading-smoothing-s and --min-heading-speed-mps must"),
-        ("--d-min-m", "-0.5", "--d-min-m >= 0"),
+        ("--d-sense-m", "-1", "--d-sense-m must be a finite number > 0, not -1"),
+        ("--heading-smoothing-s", "-1", "--heading-smoothing-s must be a finite number >= 0"),
+        ("--d-min-m", "-0.5", "--d-min-m must be a finite number >= 0, not -0.5"),
     ],
 )
 def test_invalid_build_option(
