@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
-from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.config import BuildConfig, check_seed
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import json_object, some_names
@@ -51,6 +51,15 @@ class PaperConfig:
     patience_epochs: int | None = None
     seed: int = 0
     batch_size: int = 32
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1:
+            raise ValueError("epochs must be >= 1")
+        if self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1")
+        if self.patience_epochs is not None and self.patience_epochs < 1:
+            raise ValueError("patience_epochs must be >= 1")
+        check_seed("seed", self.seed)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -1,4 +1,4 @@
-"""Every numeric option of ngsim-graphs checked finite and in range, by the config it sets (the
+"""Every numeric option of both programs checked finite and in range, by the config it sets (the
 library refuses the same): NaN, infinity and a value out of range are one line and exit status
 2, before any input is read or anything is written."""
 
@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from aigem.config import TrainConfig, horizon_steps, parse_horizons_s
+from ngsim_cli.aigem import app as aigem_app
 from ngsim_cli.ngsim import app as ngsim_app
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
@@ -46,6 +48,32 @@ SYNTH_CASES = [
     *((["--minutes", v], "--minutes must be in (0, 60]") for v in ("nan", "inf", "0")),
     *((["--seed", v], seed(v)) for v in ("-1", "4294967296")),
 ]
+FIT_CASES = [
+    *((["--learning-rate", v], finite("--learning-rate", v, "> 0")) for v in ("nan", "inf", "0")),
+    *((["--warmup-epochs", v], finite("--warmup-epochs", v, ">= 0")) for v in ("nan", "inf", "-1")),
+    *((["--clip-grad-norm", v], finite("--clip-grad-norm", v, "> 0")) for v in ("nan", "inf", "0")),
+    *((["--max-minutes", v], finite("--max-minutes", v, "> 0")) for v in ("nan", "inf", "0")),
+    *((["--seed", v], seed(v)) for v in ("-1", "4294967296")),
+    *(
+        (["--horizon-s", v], f"--horizon-s {v}: {v} s is not a horizon in (0, 5] s")
+        for v in ("nan", "inf", "-1", "0")
+    ),
+    *(
+        (
+            ["--horizon-s", v],
+            f"--horizon-s {v}: a {h} s horizon is not a whole number of time steps (0.2 s)",
+        )  # fmt: skip
+        for v, h in (("0.3", "0.3"), ("4.9", "4.9"), ("1,2.5", "2.5"))
+    ),
+]
+PAPER_CASES = [
+    *((["--max-hours", v], finite("--max-hours", v, "> 0")) for v in ("nan", "inf", "0")),
+    *((["--seed", v], seed(v)) for v in ("-1", "4294967296")),
+    (
+        ["--seed", "4294967295", "--seeds", "2"],
+        f"--seeds 2, --seed 4294967295: the last seed would be 4294967296, above {TOP}",
+    ),
+]
 
 
 def _refused(app, args: list[str], message: str, tmp_path: Path) -> None:  # noqa: ANN001
@@ -77,6 +105,21 @@ def test_stats_refuses_a_seed_out_of_range(tmp_path: Path, value: str) -> None:
     _refused(ngsim_app, ["stats", str(tmp_path / "b"), "--seed", value], seed(value), tmp_path)
 
 
+@pytest.mark.parametrize(("options", "message"), FIT_CASES)
+def test_fit_refuses_a_value_out_of_range(tmp_path: Path, options: list[str], message: str) -> None:
+    """Checked by TrainConfig (and the horizons' parser) before the build is looked at."""
+    args = ["fit", str(tmp_path / "b"), "--out", str(tmp_path / "run"), *options]
+    _refused(aigem_app, args, message, tmp_path)
+
+
+@pytest.mark.parametrize(("options", "message"), PAPER_CASES)
+def test_paper_refuses_a_value_out_of_range(
+    tmp_path: Path, options: list[str], message: str
+) -> None:
+    args = ["paper", str(tmp_path / "raw"), "--out", str(tmp_path / "out"), *options]
+    _refused(aigem_app, args, message, tmp_path)
+
+
 def test_the_configs_refuse_what_the_options_refuse() -> None:
     """The library's own refusals: the CLI only renames the settings."""
     with pytest.raises(ValueError, match=r"^d_min_m must be a finite number >= 0, not nan$"):
@@ -87,6 +130,22 @@ def test_the_configs_refuse_what_the_options_refuse() -> None:
         BuildConfig(split_fractions=(math.nan, 0.5, 0.5))
     with pytest.raises(ValueError, match=r"^seed must be a whole number from 0 to"):
         SynthConfig(seed=-1)
+    with pytest.raises(ValueError, match=r"^horizon_s must be a multiple of the 0.2 s time step$"):
+        TrainConfig(horizon_s=0.3)
+    assert TrainConfig(horizon_s=1.4).horizon_steps(0.2) == 7  # 6.999999999999999 steps
+
+
+def test_a_horizon_is_a_whole_number_of_steps_by_one_rule() -> None:
+    """horizon_steps: the one rule that evaluate, predictions, the refusals and fit apply."""
+    assert [horizon_steps(h) for h in (0.2, 0.6, 1.0, 4.8, 5.0)] == [1, 3, 5, 24, 25]
+    assert horizon_steps(1.0, 0.5) == 2
+    with pytest.raises(ValueError, match=r"^a 4.9 s horizon is not a whole number of time steps"):
+        horizon_steps(4.9)
+    with pytest.raises(ValueError, match=r"^a 1 s horizon is not a whole number of time steps"):
+        horizon_steps(1.0, 0.3)
+    with pytest.raises(ValueError, match=r"^a 0.2 s horizon is less than one time step \(0.5 s\)"):
+        horizon_steps(0.2, 0.5)
+    assert parse_horizons_s("1.4,0.6") == (0.6, 1.4)
 
 
 def test_the_manifest_writer_refuses_a_value_json_cannot_hold(tmp_path: Path) -> None:
