@@ -17,6 +17,7 @@ from aigem import __version__
 from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, parse_horizons_s
 from ngsim_cli.console import (
     HELP_SETTINGS,
+    TextArguments,
     add_version_option,
     check_device,
     exit_on_error,
@@ -49,6 +50,7 @@ app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
+    cls=TextArguments,
     **HELP_SETTINGS,
 )
 

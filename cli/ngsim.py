@@ -14,6 +14,7 @@ import typer
 from ngsim_cli.build_view import print_build_report
 from ngsim_cli.console import (
     HELP_SETTINGS,
+    TextArguments,
     add_version_option,
     counted,
     exit_on_error,
@@ -45,6 +46,7 @@ app = typer.Typer(
     help=f"Vehicle trajectories ({labels_in_words()}) to spatial-temporal graph datasets.",
     no_args_is_help=True,
     add_completion=False,
+    cls=TextArguments,
     **HELP_SETTINGS,
 )
 

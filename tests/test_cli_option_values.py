@@ -1,6 +1,6 @@
 """Every numeric option of both programs checked finite and in range, by the config it sets (the
 library refuses the same): NaN, infinity and a value out of range are one line and exit status
-2, before any input is read or anything is written."""
+2, before any input is read or anything is written; an argument that is not UTF-8 text alike."""
 
 from __future__ import annotations
 
@@ -118,6 +118,25 @@ def test_paper_refuses_a_value_out_of_range(
 ) -> None:
     args = ["paper", str(tmp_path / "raw"), "--out", str(tmp_path / "out"), *options]
     _refused(aigem_app, args, message, tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("app", "args"),
+    [
+        (ngsim_app, ["build", "raw", "--out", "lat\udce9"]),  # b"lat\xe9", as Python passes it
+        (ngsim_app, ["stats", "b", "--plots=plots-\udce9"]),
+        (aigem_app, ["fit", "b\udcff", "--out", "run"]),
+    ],
+)
+def test_an_argument_that_is_not_utf8_is_one_line(app, args: list[str], tmp_path: Path) -> None:  # noqa: ANN001
+    """Polars opens no such path and JSON records none: refused before any command runs."""
+    shown = next(a for a in args if not a.isascii()).encode("utf-8", "surrogateescape")
+    shown = shown.decode("utf-8", "backslashreplace")  # lat\xe9
+    message = (
+        f"the argument {shown} is not UTF-8 text: builds and runs record their paths as text; "
+        "rename it in UTF-8"
+    )
+    _refused(app, args, message, tmp_path)
 
 
 def test_the_configs_refuse_what_the_options_refuse() -> None:
