@@ -292,9 +292,11 @@ def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[
     """(epochs kept in its last.pt, their metrics rows, why it trains no more: course.stop_reason,
     UNFINISHED while it has epochs left)."""
     from aigem.course import stop_reason
-    from aigem.runs import epochs_kept, read_metrics
+    from aigem.runs import check_log, epochs_kept, read_metrics
 
     kept = epochs_kept(member) if (member / LAST).is_file() else 0
+    if kept:
+        check_log(member, kept)
     rows = [row for row in read_metrics(member) if row["epoch"] <= kept] if kept else []
     return kept, rows, stop_reason(kept, config.epochs, rows, config.patience_epochs)
 
