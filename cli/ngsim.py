@@ -276,19 +276,10 @@ def build(
 
 
 def _write_plots(values, folder: Path, synthetic: bool) -> list[Path]:  # type: ignore[no-untyped-def]
-    """The PNG histograms, or one line on stderr and exit status 1 where the folder is unusable."""
+    """The PNG histograms (a file of their names that is not ours refused: plot_folder)."""
     from ngsim_graphs.plotting import write_histograms  # matplotlib loads only when plotting
 
-    try:
-        return write_histograms(values, folder, synthetic)
-    except OSError as err:
-        stderr.print(
-            f"error: {folder}: cannot write plots: {err.strerror or err}",
-            markup=False,
-            highlight=False,
-            soft_wrap=True,
-        )
-        raise typer.Exit(1) from None
+    return write_histograms(values, folder, synthetic)
 
 
 @app.command(short_help="Summarize a build: samples, graph sizes, degrees, plots.")
@@ -298,7 +289,12 @@ def stats(
         bool, typer.Option("--json", help="Print one JSON document, nothing else.")
     ] = False,
     plots: Annotated[
-        Path | None, typer.Option("--plots", help="Folder to write PNG histograms into (created).")
+        Path | None,
+        typer.Option(
+            "--plots",
+            help="Folder to write PNG histograms into (created); files of their names that an "
+            "earlier --plots did not write (plots.json lists ours) are never replaced.",
+        ),
     ] = None,
     degree_graphs: Annotated[
         int,
@@ -321,7 +317,7 @@ def stats(
             raise NgsimInputError(build_dir, f"incomplete build: {err}") from None
         synthetic = synthetic_build(opened.manifest)
         synthetic_files = synthetic_inputs_of(opened.manifest)
-    written = _write_plots(values, plots, synthetic) if plots is not None else []
+        written = _write_plots(values, plots, synthetic) if plots is not None else []
     if as_json:
         document = statistics.to_dict() | {
             "synthetic": synthetic,
