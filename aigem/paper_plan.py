@@ -104,7 +104,7 @@ def plan_builds(parts: Sequence[str]) -> tuple[float, ...]:
 
 def plan_seeds(config: PaperConfig, call: PaperCall) -> tuple[int, ...]:
     """The seeds of this call: paper.json's seed, the first, and the `call.seeds - 1` after it;
-    ValueError where the last is no seed (check_seed)."""
+    ValueError where the last is beyond the seeds NumPy and PyTorch take (MAX_SEED)."""
     last = config.seed + call.seeds - 1
     if last > MAX_SEED:
         raise ValueError(
