@@ -8,10 +8,35 @@ from dataclasses import asdict, dataclass
 from enum import Enum
 from typing import Any
 
-from ngsim_graphs.config import DEFAULT_EDGE_TYPES
+from ngsim_graphs.config import (
+    DEFAULT_EDGE_TYPES,
+    BuildConfig,
+    check_above,
+    check_at_least,
+    check_seed,
+    whole_steps,
+)
 
 MAX_HORIZON_S = 5.0  # the builds' 25 future steps at 0.2 s
-MIN_HORIZON_S = 0.2  # one step of the builds' 0.2 s grid: a model predicts at least one step
+TIME_STEP_S = BuildConfig.time_step_s  # the grid of the builds `ngsim-graphs build` makes, s
+MIN_HORIZON_S = TIME_STEP_S  # one step of that grid: a model predicts at least one step
+
+
+def horizon_steps(horizon_s: float, time_step_s: float = TIME_STEP_S) -> int:
+    """The future steps a horizon of `horizon_s` s predicts and scores on a grid of `time_step_s`
+    s (5 per second at 0.2 s). ValueError for a horizon of less than one step (a build on a
+    coarser grid may make a short horizon one) or of no whole number of steps (0.3 s at 0.2 s:
+    a model of 1 step, 0.2 s, would be reported as 0.3 s)."""
+    steps = horizon_s / time_step_s
+    if not steps > 1 - 1e-9:  # NaN too
+        raise ValueError(
+            f"a {horizon_s:g} s horizon is less than one time step ({time_step_s:g} s)"
+        )
+    if not whole_steps(horizon_s, time_step_s):
+        raise ValueError(
+            f"a {horizon_s:g} s horizon is not a whole number of time steps ({time_step_s:g} s)"
+        )
+    return round(steps)
 
 
 class LrSchedule(str, Enum):
@@ -83,26 +108,27 @@ class TrainConfig:
     resident: bool | None = None
 
     def __post_init__(self) -> None:
-        if not 0 < self.horizon_s <= MAX_HORIZON_S:
+        if not (math.isfinite(self.horizon_s) and 0 < self.horizon_s <= MAX_HORIZON_S):
             raise ValueError("horizon_s must be in (0, 5]")
         if self.horizon_s < MIN_HORIZON_S:
             raise ValueError(f"horizon_s must be at least one time step ({MIN_HORIZON_S:g} s)")
+        if not whole_steps(self.horizon_s, TIME_STEP_S):
+            raise ValueError(f"horizon_s must be a multiple of the {TIME_STEP_S:g} s time step")
         if self.epochs < 1:
             raise ValueError("epochs must be >= 1")
         if self.batch_size < 1:
             raise ValueError("batch_size must be >= 1")
-        if not (math.isfinite(self.learning_rate) and self.learning_rate > 0):
-            raise ValueError("learning_rate must be > 0")
+        check_above("learning_rate", self.learning_rate, 0)
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}")
-        if not 0 <= self.warmup_epochs < self.epochs:
+        check_at_least("warmup_epochs", self.warmup_epochs, 0)
+        if not self.warmup_epochs < self.epochs:
             raise ValueError("warmup_epochs must be >= 0 and fewer than epochs")
-        if self.clip_grad_norm is not None and not (
-            math.isfinite(self.clip_grad_norm) and self.clip_grad_norm > 0
-        ):
-            raise ValueError("clip_grad_norm must be > 0")
-        if self.max_minutes is not None and not self.max_minutes > 0:
-            raise ValueError("max_minutes must be > 0")
+        if self.clip_grad_norm is not None:
+            check_above("clip_grad_norm", self.clip_grad_norm, 0)
+        if self.max_minutes is not None:
+            check_above("max_minutes", self.max_minutes, 0)
+        check_seed("seed", self.seed)
         if self.patience_epochs is not None and self.patience_epochs < 1:
             raise ValueError("patience_epochs must be >= 1")
         if self.workers is not None and self.workers < 0:
@@ -123,22 +149,16 @@ class TrainConfig:
         return self.resident if self.resident is not None else device_type == "cuda"
 
     def horizon_steps(self, time_step_s: float) -> int:
-        """Future steps predicted and scored: 5 per second at 0.2 s; at least one (a build on a
-        coarser grid than 0.2 s may make a short horizon less than one of its steps)."""
-        steps = round(self.horizon_s / time_step_s)
-        if steps < 1:
-            raise ValueError(
-                f"a {self.horizon_s:g} s horizon is less than one time step ({time_step_s:g} s)"
-            )
-        return steps
+        """Future steps predicted and scored on a grid of `time_step_s` s (horizon_steps)."""
+        return horizon_steps(self.horizon_s, time_step_s)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
 def check_horizons_s(horizons_s: Sequence[float]) -> tuple[float, ...]:
-    """Horizons of a multi-horizon fit, ascending: at least one, each in (0, 5] s and at least one
-    time step (0.2 s), none twice."""
+    """Horizons of a multi-horizon fit, ascending: at least one, each in (0, 5] s and a whole
+    number of time steps (0.2 s), none twice."""
     if not horizons_s:
         raise ValueError("no horizon given")
     for horizon_s in horizons_s:
@@ -146,6 +166,7 @@ def check_horizons_s(horizons_s: Sequence[float]) -> tuple[float, ...]:
             raise ValueError(f"{horizon_s:g} s is not a horizon in (0, {MAX_HORIZON_S:g}] s")
         if horizon_s < MIN_HORIZON_S:
             raise ValueError(f"{horizon_s:g} s is shorter than one time step ({MIN_HORIZON_S:g} s)")
+        horizon_steps(horizon_s)  # a whole number of the builds' steps
     names = [f"{h:g}" for h in horizons_s]  # as a run names its members (aigem.records.member_dir)
     twice = sorted({name for name in names if names.count(name) > 1}, key=float)
     if twice:

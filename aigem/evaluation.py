@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from aigem.config import horizon_steps
 from aigem.course import course_of, training_record
 from aigem.data import GraphDataset, run_scaler
 from aigem.devices import pick_device
@@ -101,8 +102,8 @@ class LoadedRun:
     scaler: MinMaxScaler
 
     def steps(self, dataset: GraphDataset) -> int:
-        """The model's future steps at `dataset`'s time step."""
-        return round(self.info["train"]["horizon_s"] / dataset.config.time_step_s)
+        """The model's future steps at `dataset`'s time step (checked: check_build)."""
+        return horizon_steps(self.info["train"]["horizon_s"], dataset.config.time_step_s)
 
 
 def load_run(

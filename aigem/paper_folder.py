@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
-from ngsim_graphs.config import BuildConfig
+from ngsim_graphs.config import BuildConfig, check_seed
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
 from ngsim_graphs.landing import json_object, some_names
@@ -51,6 +51,15 @@ class PaperConfig:
     patience_epochs: int | None = None
     seed: int = 0
     batch_size: int = 32
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1:
+            raise ValueError("epochs must be >= 1")
+        if self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1")
+        if self.patience_epochs is not None and self.patience_epochs < 1:
+            raise ValueError("patience_epochs must be >= 1")
+        check_seed("seed", self.seed)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -283,9 +292,11 @@ def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[
     """(epochs kept in its last.pt, their metrics rows, why it trains no more: course.stop_reason,
     UNFINISHED while it has epochs left)."""
     from aigem.course import stop_reason
-    from aigem.runs import epochs_kept, read_metrics
+    from aigem.runs import check_log, epochs_kept, read_metrics
 
     kept = epochs_kept(member) if (member / LAST).is_file() else 0
+    if kept:
+        check_log(member, kept)
     rows = [row for row in read_metrics(member) if row["epoch"] <= kept] if kept else []
     return kept, rows, stop_reason(kept, config.epochs, rows, config.patience_epochs)
 

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from aigem.paper_folder import PAPER_D_MIN_M, PaperConfig, build_name, run_name
+from ngsim_graphs.config import MAX_SEED, check_above
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
 PAPER_FIT = build_name(PAPER_D_MIN_M)  # the paper's model: d_min 25 m, the output concatenation
@@ -76,6 +77,8 @@ class PaperCall:
     def __post_init__(self) -> None:
         if self.seeds < 1:
             raise ValueError(f"{self.seeds} seeds: a fit needs at least one")
+        if self.max_hours is not None:
+            check_above("max_hours", self.max_hours, 0)
 
 
 def parse_parts(text: str) -> tuple[str, ...]:
@@ -100,8 +103,15 @@ def plan_builds(parts: Sequence[str]) -> tuple[float, ...]:
 
 
 def plan_seeds(config: PaperConfig, call: PaperCall) -> tuple[int, ...]:
-    """The seeds of this call: paper.json's seed, the first, and the `call.seeds - 1` after it."""
-    return tuple(range(config.seed, config.seed + call.seeds))
+    """The seeds of this call: paper.json's seed, the first, and the `call.seeds - 1` after it;
+    ValueError where the last is beyond the seeds NumPy and PyTorch take (MAX_SEED)."""
+    last = config.seed + call.seeds - 1
+    if last > MAX_SEED:
+        raise ValueError(
+            f"seeds {call.seeds}, seed {config.seed}: the last seed would be {last}, above "
+            f"{MAX_SEED} (2**32 - 1)"
+        )
+    return tuple(range(config.seed, last + 1))
 
 
 def plan_runs(config: PaperConfig, call: PaperCall) -> tuple[SeedRun, ...]:

@@ -5,19 +5,19 @@
     DIR/final_error_distribution.png  ECDF of each target's final displacement error
     DIR/scenes.png                    the worst, median and best scenes by AiGem's error
 
-    DIR/plots.json                    which of these files the last call wrote
+    DIR/plots.json                    which files of DIR are ours to replace
 
-DIR is created. `plots.json` says which files are ours: a file of these names that it does not
-list (a picture of someone else's) is never replaced, the call stops with an error naming it
-before anything is written. Every picture is drawn before the first is written, so a failure
-(a model that cannot be loaded, non-finite predictions) leaves DIR as it was; each is written
-under a temporary name and renamed; a picture of an earlier call that this call does not draw
+DIR is created. `plots.json` says which files are ours (ngsim_graphs.plot_folder, the rule
+`ngsim-graphs stats --plots` follows too): a file of these names that it does not list (a
+picture of someone else's) is never replaced, the call stops with an error naming it before
+anything is written. Every picture is drawn before the first is written, so a failure (a model
+that cannot be loaded, non-finite predictions) leaves DIR as it was; each is written under a
+temporary name and renamed; a picture of an earlier call that this call does not draw
 (scenes.png, with --other-build) is removed, so DIR never mixes two evaluations.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +31,7 @@ from aigem.plots import (
 )
 from aigem.results import Evaluation
 from ngsim_graphs.build import open_build
-from ngsim_graphs.errors import NgsimOutputError
-from ngsim_graphs.partial_files import write_atomic
+from ngsim_graphs.plot_folder import OWNED, claim_plot_folder, land_plots  # noqa: F401 (OWNED too)
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
 
 FIGURES = {
@@ -42,8 +41,8 @@ FIGURES = {
 }
 SCENES = "scenes.png"
 SCENE_GROUPS = ("worst", "median", "best")
-OWNED = "plots.json"  # the pictures the last `--plots` call wrote into the folder
 PICTURES = (*(f"{name}.png" for name in FIGURES), SCENES)
+WRITER = "aigem evaluate --plots"
 
 
 def describe_build(build_dir: str | Path) -> str:
@@ -101,38 +100,6 @@ def scene_grid(
     return png_bytes(figure, dpi=SCENE_DPI)
 
 
-def _owned(folder: Path) -> set[str]:
-    """The pictures an earlier call wrote into `folder` (plots.json), ours to replace."""
-    path = folder / OWNED
-    if not path.exists():
-        return set()
-    try:
-        listed = json.loads(path.read_text())["pictures"]
-        if not isinstance(listed, list) or not all(isinstance(n, str) for n in listed):
-            raise TypeError
-    except (OSError, ValueError, KeyError, TypeError):
-        raise NgsimOutputError(
-            path, "is not aigem's list of plots; move it or choose another --plots folder"
-        ) from None
-    return set(listed) & set(PICTURES)
-
-
-def _refuse_others(folder: Path, owned: set[str]) -> None:
-    """Stop before writing anything where a picture of our names is not ours."""
-    for name in PICTURES:
-        if (folder / name).exists() and name not in owned:
-            raise NgsimOutputError(
-                folder / name,
-                "exists and was not written by `aigem evaluate --plots`; "
-                "move it or choose another --plots folder",
-            )
-
-
-def _own(folder: Path, names: set[str]) -> None:
-    document = {"written_by": "aigem evaluate --plots", "pictures": sorted(names)}
-    write_atomic(folder / OWNED, (json.dumps(document, indent=1) + "\n").encode())
-
-
 def write_evaluation_plots(
     result: Evaluation,
     folder: Path,
@@ -142,23 +109,10 @@ def write_evaluation_plots(
     """Write the FIGURES as `<name>.png` into `folder` (created), and, given the evaluated
     `run_dir`, the scene grid (scene_grid); returns the paths written. See the module's
     docstring for what is replaced and what is refused."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise NgsimOutputError(folder, f"cannot create: {err.strerror or err}") from None
-    owned = _owned(folder)
-    _refuse_others(folder, owned)
+    owned = claim_plot_folder(folder, PICTURES, WRITER)
     label = describe_build(result.build_dir)
     pictures = {f"{name}.png": png_bytes(draw(result, label)) for name, draw in FIGURES.items()}
     scenes = scene_grid(result, run_dir, device_choice) if run_dir is not None else None
     if scenes is not None:
         pictures[SCENES] = scenes
-    _own(folder, owned | set(pictures))  # first: a kill while writing leaves nothing unowned
-    written = []
-    for name, data in pictures.items():
-        write_atomic(folder / name, data)
-        written.append(folder / name)
-    for stale in sorted(owned - set(pictures)):
-        (folder / stale).unlink(missing_ok=True)
-    _own(folder, set(pictures))
-    return written
+    return land_plots(folder, pictures, owned, WRITER)

@@ -18,13 +18,11 @@ ngsim_graphs.plotting): no global state, no display, nothing kept open.
 
 from __future__ import annotations
 
-import io
 import math
 import textwrap
 
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogFormatter, MaxNLocator
@@ -32,7 +30,7 @@ from matplotlib.ticker import LogFormatter, MaxNLocator
 from aigem.course import training_line, training_words
 from aigem.metrics import FRONT_Y_M, REGIONS
 from aigem.results import PAPER_TABLE, Evaluation, ModelEvaluation
-from ngsim_graphs.plotting import mark_synthetic
+from ngsim_graphs.plotting import mark_synthetic, png_bytes
 
 OURS, BASELINE = "tab:blue", "tab:orange"
 PAPER_MARKERS = {  # each row of the paper's table (results.PAPER_TABLE)
@@ -54,13 +52,6 @@ REGION_TITLES = {
     "mid": f"mid (|y| ≤ {FRONT_Y_M:g} m)",
     "rear": f"rear (y < -{FRONT_Y_M:g} m)",
 }
-
-
-def png_bytes(figure: Figure, dpi: int = 110) -> bytes:
-    FigureCanvasAgg(figure)
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=dpi)
-    return buffer.getvalue()
 
 
 # ------------------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from aigem.baseline import constant_velocity
+from aigem.config import horizon_steps
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.devices import pick_device, to_device
 from aigem.records import BEST, read_group
@@ -72,7 +73,7 @@ def predict_samples(
     if not same_targets(graphs, read):
         raise RuntimeError("the model's batch holds other targets than the drawn graphs")
     batch = Collate(scaler, layers=model.config.layers)([read])
-    steps = round(info["train"]["horizon_s"] / dataset.config.time_step_s)
+    steps = horizon_steps(info["train"]["horizon_s"], dataset.config.time_step_s)
     with torch.no_grad():
         predicted = xy_to_metres(scaler, model(to_device(batch, device), steps)).cpu().numpy()
     if not np.isfinite(predicted).all():

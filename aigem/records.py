@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -172,8 +173,12 @@ def _recorded_values(info: dict[str, Any], key: str, known: type, path: Path) ->
 
 
 def train_config(info: dict[str, Any], path: Path) -> TrainConfig:
-    """The train config a run recorded, settings it lacks at their defaults (_recorded_values)."""
+    """The train config a run recorded, settings it lacks at their defaults (_recorded_values).
+    An aigem before the settings were checked finite took `--max-minutes inf`, no limit, which
+    reads as the None that says it now."""
     values = _recorded_values(info, "train", TrainConfig, path)
+    if values.get("max_minutes") == math.inf:
+        values = {**values, "max_minutes": None}
     try:
         return TrainConfig(**values)
     except (TypeError, ValueError) as err:

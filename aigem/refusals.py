@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from aigem.config import ModelConfig, TrainConfig
+from aigem.config import ModelConfig, TrainConfig, horizon_steps
 from aigem.records import (
     BEST,
     EARLY_FILES,
@@ -293,7 +293,10 @@ def check_build(
             f"its graphs have edge types {', '.join(config.edge_types)}; the run's model has a "
             f"GAT for each of {', '.join(model.edge_types)}",
         )
-    steps = round(info["train"]["horizon_s"] / time_step_s)
+    try:
+        steps = horizon_steps(info["train"]["horizon_s"], time_step_s)
+    except ValueError as err:
+        raise NgsimInputError(run_dir / RUN_INFO, f"its horizon cannot be scored: {err}") from None
     if config.history_steps < model.history_steps_read or config.future_steps < steps:
         raise NgsimInputError(
             build_dir,

@@ -136,6 +136,8 @@ def load_model(
         raise NgsimInputError(run_dir, f"not a finished run: no {BEST} (no epoch has finished yet)")
     checkpoint = load_checkpoint(path, BEST_KEYS, accepted_digests(run, run_dir, BEST))
     _check_same_run(checkpoint["info"], run, path)
+    if (run_dir / LAST).is_file():  # a run kept without it has no other record of its epochs
+        check_log(run_dir, epochs_kept(run_dir))
     model = fitted_model(checkpoint["info"], checkpoint["model"], path)
     return model.to(device).eval(), checkpoint["info"]
 
@@ -296,9 +298,11 @@ def _resume(
     _check_same_run(saved, run, last)
     check_resume(run_dir, build_dir, saved, info)
     check_weights(model.state_dict(), checkpoint["model"], last)
+    state = _run_state(checkpoint["state"], last)
+    check_log(run_dir, state.next_epoch)
     model.load_state_dict(checkpoint["model"])
     _load_optimizer(optimizer, checkpoint["optimizer"], last)
-    return _run_state(checkpoint["state"], last)
+    return state
 
 
 def _load_optimizer(optimizer: torch.optim.Optimizer, saved: object, path: Path) -> None:
@@ -433,6 +437,36 @@ def epochs_kept(run_dir: Path) -> int:
         return 0
     accepted = accepted_digests(read_run_info(run_dir), run_dir, LAST)
     return _run_state(load_checkpoint(path, LAST_KEYS, accepted)["state"], path).next_epoch
+
+
+def check_log(run_dir: Path, kept: int) -> None:
+    """Refuse a run whose metrics.jsonl disagrees with its last.pt, which holds `kept` epochs:
+    the log holds epochs 1, 2, ... in order, up to last.pt's or one more (a fit stopped between
+    logging an epoch and keeping its last.pt; a resume redoes that epoch). A log that lost its
+    last line would have evaluate call the run unfinished while it scores a later model, and a
+    resume leave a hole in it."""
+    logged = [row["epoch"] for row in read_metrics(run_dir)]
+    in_order = logged == list(range(1, len(logged) + 1))
+    if in_order and kept <= len(logged) <= kept + 1:
+        return
+    if not logged:
+        said = "logs no epoch"
+    elif in_order:
+        said = f"ends at epoch {logged[-1]}"
+    else:
+        said = f"logs epochs {', '.join(map(str, logged))}, not 1 to {max(logged)} in order,"
+    raise NgsimInputError(
+        run_dir,
+        f"its {METRICS} {said} but its {LAST} holds epoch {kept}: the log lost lines or was "
+        f"edited; put back the {METRICS} this run wrote, or fit a new run into another --out",
+    )
+
+
+def check_logs(group: Group) -> None:
+    """check_log for each model of `group` that holds a last.pt (before a resume writes)."""
+    for member in group.members:
+        if (member / LAST).is_file():
+            check_log(member, epochs_kept(member))
 
 
 def discard_unfinished(group: Group, created: bool) -> None:

@@ -184,6 +184,8 @@ def _start_members(
     the build's time steps is refused before any directory is made."""
     for horizon_s in group.horizons_s:
         replace(train, horizon_s=horizon_s).horizon_steps(time_step_s)
+    if resume:
+        runs.check_logs(group)  # every model's, before any is resumed
     runs.start_group(group, resume, loop.rank == 0)
     plans = [
         (d, replace(train, horizon_s=h), resume and (d / runs.LAST).is_file(), group.who(d))

@@ -17,6 +17,7 @@ from aigem import __version__
 from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, parse_horizons_s
 from ngsim_cli.console import (
     HELP_SETTINGS,
+    TextArguments,
     add_version_option,
     check_device,
     exit_on_error,
@@ -49,6 +50,7 @@ app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
+    cls=TextArguments,
     **HELP_SETTINGS,
 )
 
@@ -94,9 +96,10 @@ def fit(
         str,
         typer.Option(
             metavar="S[,S...]",
-            help="Prediction horizon, s, in (0, 5]; or several, comma-separated: 1,2,3,4,5 trains "
-            "one model per horizon (the paper's protocol) in one loop over the data, into "
-            "RUN/h1s ... RUN/h5s, and `aigem evaluate RUN` scores them as the paper does.",
+            help="Prediction horizon, s, in (0, 5], a multiple of the 0.2 s time step; or "
+            "several, comma-separated: 1,2,3,4,5 trains one model per horizon (the paper's "
+            "protocol) in one loop over the data, into RUN/h1s ... RUN/h5s, and `aigem evaluate "
+            "RUN` scores them as the paper does.",
         ),
     ] = "5",
     epochs: Annotated[int, typer.Option(help="Epochs over the train split.")] = 100,

@@ -24,6 +24,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 from rich.table import Table
+from typer.core import TyperGroup
 
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.interrupts import HELD_SIGNALS
@@ -38,6 +39,27 @@ def usage_error(message: str) -> typer.Exit:
     """One line on stderr; the caller raises the returned exit (status 2: a bad option)."""
     stderr.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
     return typer.Exit(2)
+
+
+def shown_text(text: str) -> str:
+    """`text` as it can be printed: the bytes of a name that is not UTF-8 (which Python passes
+    on as lone surrogates) as escapes, 'lat\\xe9'."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+class TextArguments(TyperGroup):
+    """A program's commands, whose arguments must be UTF-8 text: a path named in another
+    encoding cannot be opened by Polars nor recorded in a manifest or a run's JSON, so it is one
+    line and exit status 2 before any command runs, not a traceback halfway through one."""
+
+    def parse_args(self, ctx: typer.Context, args: list[str]) -> list[str]:
+        for arg in args:
+            if shown_text(arg) != arg:
+                raise usage_error(
+                    f"the argument {shown_text(arg)} is not UTF-8 text: builds and runs record "
+                    "their paths as text; rename it in UTF-8"
+                )
+        return super().parse_args(ctx, args)
 
 
 def print_table(table: Table) -> None:

@@ -14,6 +14,7 @@ import typer
 from ngsim_cli.build_view import print_build_report
 from ngsim_cli.console import (
     HELP_SETTINGS,
+    TextArguments,
     add_version_option,
     counted,
     exit_on_error,
@@ -33,7 +34,7 @@ from ngsim_cli.stats_view import STATS_TABLES
 from ngsim_graphs import __version__
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.build import open_build
-from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig
+from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig, check_seed
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import check_config, run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
@@ -45,6 +46,7 @@ app = typer.Typer(
     help=f"Vehicle trajectories ({labels_in_words()}) to spatial-temporal graph datasets.",
     no_args_is_help=True,
     add_completion=False,
+    cls=TextArguments,
     **HELP_SETTINGS,
 )
 
@@ -283,19 +285,10 @@ def build(
 
 
 def _write_plots(values, folder: Path, synthetic: bool) -> list[Path]:  # type: ignore[no-untyped-def]
-    """The PNG histograms, or one line on stderr and exit status 1 where the folder is unusable."""
+    """The PNG histograms (a file of their names that is not ours refused: plot_folder)."""
     from ngsim_graphs.plotting import write_histograms  # matplotlib loads only when plotting
 
-    try:
-        return write_histograms(values, folder, synthetic)
-    except OSError as err:
-        stderr.print(
-            f"error: {folder}: cannot write plots: {err.strerror or err}",
-            markup=False,
-            highlight=False,
-            soft_wrap=True,
-        )
-        raise typer.Exit(1) from None
+    return write_histograms(values, folder, synthetic)
 
 
 @app.command(short_help="Summarize a build: samples, graph sizes, degrees, plots.")
@@ -305,7 +298,12 @@ def stats(
         bool, typer.Option("--json", help="Print one JSON document, nothing else.")
     ] = False,
     plots: Annotated[
-        Path | None, typer.Option("--plots", help="Folder to write PNG histograms into (created).")
+        Path | None,
+        typer.Option(
+            "--plots",
+            help="Folder to write PNG histograms into (created); files of their names that an "
+            "earlier --plots did not write (plots.json lists ours) are never replaced.",
+        ),
     ] = None,
     degree_graphs: Annotated[
         int,
@@ -316,6 +314,10 @@ def stats(
     seed: Annotated[int, typer.Option(help="Seed of the random choice of those graphs.")] = 0,
 ) -> None:
     """Check a build before training: samples, graph sizes, degrees, kinematics, scaler, config."""
+    try:
+        check_seed("seed", seed)
+    except ValueError as err:
+        raise usage_error(in_option_words(str(err), {"seed": "--seed"})) from None
     with exit_on_error():
         opened = open_build(build_dir)
         try:
@@ -324,7 +326,7 @@ def stats(
             raise NgsimInputError(build_dir, f"incomplete build: {err}") from None
         synthetic = synthetic_build(opened.manifest)
         synthetic_files = synthetic_inputs_of(opened.manifest)
-    written = _write_plots(values, plots, synthetic) if plots is not None else []
+        written = _write_plots(values, plots, synthetic) if plots is not None else []
     if as_json:
         document = statistics.to_dict() | {
             "synthetic": synthetic,

@@ -12,6 +12,8 @@ from ngsim_cli.console import (
     check_device,
     exit_on_error,
     exit_on_interrupt,
+    in_option_words,
+    option_names,
     print_error,
     print_warning,
     progress_bar,
@@ -20,6 +22,11 @@ from ngsim_cli.console import (
 )
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
+# PaperConfig's and PaperCall's fields set by an option (of another name: --patience)
+PAPER_OPTIONS = option_names(
+    ("epochs", "patience_epochs", "seed", "batch_size", "max_hours", "seeds"),
+    {"patience_epochs": "--patience"},
+)
 
 
 def paper(
@@ -131,15 +138,17 @@ def paper(
     it stopped says UNFINISHED, and the same command again continues them.
     """
     from aigem.paper_folder import PaperConfig, check_folder, paper_document
-    from aigem.paper_plan import parse_parts  # light: no PyTorch yet
+    from aigem.paper_plan import PaperCall, parse_parts, plan_seeds  # light: no PyTorch yet
 
     try:
         parts = parse_parts(only)
     except ValueError as err:
         raise usage_error(f"--only {only}: {err}") from None
-    if max_hours is not None and not max_hours > 0:
-        raise usage_error(f"--max-hours {max_hours:g}: must be > 0")
-    config = PaperConfig(epochs, patience, seed, batch_size)
+    try:
+        config = PaperConfig(epochs, patience, seed, batch_size)
+        plan_seeds(config, PaperCall(max_hours=max_hours, seeds=seeds))
+    except ValueError as err:
+        raise usage_error(in_option_words(str(err), PAPER_OPTIONS)) from None
     with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
         check_folder(out, paper_document(raw_paths, config), overwrite)
     left = lambda: _left(out)  # noqa: E731
@@ -149,7 +158,6 @@ def paper(
         from aigem.devices import DeviceUnavailableError
         from aigem.epochs import NonFiniteLossError
         from aigem.paper import run_paper
-        from aigem.paper_plan import PaperCall
         from aigem.paper_training import TimeLimitError
         from ngsim_graphs.budget import available_cores
     if threads is not None and (warning := busy_cores_warning(threads)):

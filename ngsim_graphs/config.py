@@ -2,13 +2,49 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
+from numbers import Integral
 from typing import Any
 
 from ngsim_graphs.integrity import LIMITS_KEY
 from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
 
 DEFAULT_EDGE_TYPES = ("spatial", "temporal")  # the paper's: what a build of no edge_types has
+MAX_SEED = 2**32 - 1  # NumPy's and PyTorch's seeds lie in [0, 2**32 - 1]
+
+
+# The checks of every numeric setting, in one place: a config's __post_init__ calls them, so that
+# the library refuses what the command line refuses (the CLI turns the ValueError into one line
+# naming the option). NaN compares false with everything and infinity passes `> 0`, so a bound
+# alone lets them through: each check asks for a finite number first.
+
+
+def check_at_least(name: str, value: float, low: float) -> None:
+    """ValueError unless `value` is a finite number >= `low`."""
+    if not (math.isfinite(value) and value >= low):
+        raise ValueError(f"{name} must be a finite number >= {low:g}, not {value:g}")
+
+
+def check_above(name: str, value: float, low: float) -> None:
+    """ValueError unless `value` is a finite number > `low`."""
+    if not (math.isfinite(value) and value > low):
+        raise ValueError(f"{name} must be a finite number > {low:g}, not {value:g}")
+
+
+def check_seed(name: str, seed: int) -> None:
+    """ValueError unless `seed` is a whole number in [0, MAX_SEED] (NumPy's and PyTorch's)."""
+    if not (isinstance(seed, Integral) and 0 <= seed <= MAX_SEED):
+        raise ValueError(
+            f"{name} must be a whole number from 0 to {MAX_SEED} (2**32 - 1), not {seed}"
+        )
+
+
+def whole_steps(duration_s: float, time_step_s: float) -> bool:
+    """Whether `duration_s` is a positive whole number of `time_step_s` steps (8 s of 0.2 s: 40),
+    within float rounding (0.6 / 0.2 is 2.9999999999999996); never NaN or infinity."""
+    steps = duration_s / time_step_s
+    return math.isfinite(steps) and steps > 1 - 1e-9 and abs(steps - round(steps)) <= 1e-6
 
 
 @dataclass(frozen=True)
@@ -41,21 +77,24 @@ class BuildConfig:
         if not self.locations:
             raise ValueError("locations must name at least one location")
         # Whether the grid is whole frames is the source's to say (`Source.frames_per_step`).
-        if self.time_step_s <= 0:
-            raise ValueError("time_step_s must be > 0")
-        if self.heading_smoothing_s < 0 or self.min_heading_speed_mps < 0:
-            raise ValueError("heading_smoothing_s and min_heading_speed_mps must be >= 0")
-        stride = self.stride_s / self.time_step_s
-        if stride < 1 - 1e-9 or abs(stride - round(stride)) > 1e-6:
+        check_above("time_step_s", self.time_step_s, 0)
+        check_at_least("heading_smoothing_s", self.heading_smoothing_s, 0)
+        check_at_least("min_heading_speed_mps", self.min_heading_speed_mps, 0)
+        if not whole_steps(self.stride_s, self.time_step_s):
             raise ValueError(
                 f"stride_s must be a positive multiple of time_step_s ({self.time_step_s} s)"
             )
         if self.history_steps < 2 or self.future_steps < 1:
             raise ValueError("history_steps must be >= 2 and future_steps >= 1")
-        if self.d_sense_m <= 0 or self.d_min_m < 0:
-            raise ValueError("d_sense_m must be > 0 and d_min_m >= 0")
+        check_above("d_sense_m", self.d_sense_m, 0)
+        check_at_least("d_min_m", self.d_min_m, 0)
+        check_seed("seed", self.seed)
         fractions = self.split_fractions
-        if len(fractions) != 3 or min(fractions) < 0 or abs(sum(fractions) - 1) > 1e-9:
+        if (
+            len(fractions) != 3
+            or not all(math.isfinite(f) and f >= 0 for f in fractions)
+            or abs(sum(fractions) - 1) > 1e-9
+        ):
             raise ValueError("split_fractions must be three non-negative numbers summing to 1")
         if not self.edge_types or len(set(self.edge_types)) != len(self.edge_types):
             raise ValueError("edge_types must name at least one edge type, each once")
@@ -145,3 +184,4 @@ class SynthConfig:
             raise ValueError("recordings must be between 1 and 6 (the six NGSIM periods)")
         if not 0 < self.minutes <= 60:
             raise ValueError("minutes must be in (0, 60]")
+        check_seed("seed", self.seed)

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from ngsim_graphs import integrity
-from ngsim_graphs.errors import NgsimInputError
+from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.manifest import Manifest
 from ngsim_graphs.storage import writing
 
@@ -89,12 +90,33 @@ def write_manifest_json(root: Path, body: dict[str, Any]) -> dict[str, Any]:
     hand-edited ones with it."""
     target = manifest_path(root)
     partial = target.with_suffix(".json.partial")
+    _check_finite(target, body)
     records = integrity.file_records(root, skip=(STAGING_DIR, MANIFEST_NAME, partial.name))
     written = integrity.with_checksum({**body, integrity.FILES_KEY: records})
+    text = json.dumps(written, indent=2, sort_keys=True, allow_nan=False) + "\n"
     with writing(partial):
-        partial.write_text(json.dumps(written, indent=2, sort_keys=True) + "\n")
+        partial.write_text(text)
     os.replace(partial, target)
     return written
+
+
+def _check_finite(path: Path, body: Any, where: str = "") -> None:
+    """A last guard: a manifest is strict JSON, which has no NaN or infinity (Python would write
+    a bare NaN that strict readers refuse). The configs refuse such settings before any work,
+    and a measured NaN is written as null; one that slips through is an error naming its key."""
+    if isinstance(body, float) and not math.isfinite(body):
+        raise NgsimOutputError(
+            path,
+            f"{where or 'a value'} is {body}, which JSON cannot hold: the build is not written",
+        )
+    if isinstance(body, dict):
+        children = body.items()
+    elif isinstance(body, list | tuple):
+        children = enumerate(body)
+    else:
+        return
+    for key, value in children:
+        _check_finite(path, value, f"{where}.{key}" if where else str(key))
 
 
 def is_our_manifest(path: Path) -> bool:

@@ -7,6 +7,7 @@ synthetic data says so at its top left (`mark_synthetic`, used by every picture 
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +18,13 @@ from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 from ngsim_graphs.edges import SPATIAL
+from ngsim_graphs.plot_folder import claim_plot_folder, land_plots
 from ngsim_graphs.schema import N_NODES
 from ngsim_graphs.statistics import SPLITS, BuildValues
 
 SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
 PLOT_NAMES = ("nodes_per_graph", "spatial_edges_per_graph", "node_degree", "speed", "heading")
+WRITER = "ngsim-graphs stats --plots"  # whose pictures they are (plot_folder)
 SYNTHETIC_COLOUR = "crimson"
 # What a picture of a build of synthetic data says at its top left: short enough to stay clear of
 # a centred title on the same line.
@@ -115,16 +118,29 @@ def _figure(top: float = 0.92) -> tuple[Figure, Axes]:
     return figure, figure.add_subplot()
 
 
-def _save(figure: Figure, path: Path) -> Path:
+def png_bytes(figure: Figure, dpi: int = 110) -> bytes:
+    """`figure` as a PNG file's bytes (drawn on an Agg canvas)."""
     FigureCanvasAgg(figure)
-    figure.savefig(path, dpi=110)
-    return path
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    return buffer.getvalue()
 
 
 def write_histograms(values: BuildValues, folder: Path, synthetic: bool = False) -> list[Path]:
     """Write PLOT_NAMES as `<name>.png` into `folder` (created), each marked as synthetic data
-    where `synthetic` (mark_synthetic); returns the paths written."""
-    folder.mkdir(parents=True, exist_ok=True)
+    where `synthetic` (mark_synthetic); returns the paths written. A file of those names that
+    is not ours is refused before anything is written (plot_folder: plots.json lists ours)."""
+    owned = claim_plot_folder(folder, [f"{name}.png" for name in PLOT_NAMES], WRITER)
+    figures = _figures(values)
+    if synthetic:
+        for figure in figures.values():
+            mark_synthetic(figure)
+    pictures = {f"{name}.png": png_bytes(figure) for name, figure in figures.items()}
+    return land_plots(folder, pictures, owned, WRITER)
+
+
+def _figures(values: BuildValues) -> dict[str, Figure]:
+    """The figure of each of PLOT_NAMES."""
     nodes = {split: values.samples[split][N_NODES].to_numpy() for split in SPLITS}
     edges = {  # none where the build has no spatial edges
         split: values.samples[split]
@@ -133,7 +149,7 @@ def write_histograms(values: BuildValues, folder: Path, synthetic: bool = False)
         for split in SPLITS
     }
     rows = f"{len(values.speed_mps):,} tracks rows"
-    figures = {
+    return {
         "nodes_per_graph": share_figure(
             nodes,
             "Nodes per graph (all history steps), share per split",
@@ -161,7 +177,3 @@ def write_histograms(values: BuildValues, folder: Path, synthetic: bool = False)
             log_y=True,
         ),
     }
-    if synthetic:
-        for figure in figures.values():
-            mark_synthetic(figure)
-    return [_save(figure, folder / f"{name}.png") for name, figure in figures.items()]

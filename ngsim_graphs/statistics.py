@@ -20,6 +20,7 @@ import polars as pl
 from ngsim_graphs import edges
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild
+from ngsim_graphs.config import check_seed
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.manifest import json_form
 from ngsim_graphs.splits import SPLIT_ORDER
@@ -230,6 +231,8 @@ def summarize_build(build: OpenBuild, values: BuildValues) -> BuildStatistics:
 def build_statistics(
     build: OpenBuild, max_degree_graphs: int = MAX_DEGREE_GRAPHS, seed: int = 0
 ) -> tuple[BuildStatistics, BuildValues]:
-    """The statistics of a build, and the values behind them (for histograms)."""
+    """The statistics of a build, and the values behind them (for histograms); `seed` chooses
+    the graphs of the degree statistics (ValueError for no seed: check_seed)."""
+    check_seed("seed", seed)
     values = collect_values(build, max_degree_graphs, seed)
     return summarize_build(build, values), values

@@ -62,10 +62,10 @@ def test_the_choices_are_in_the_help() -> None:
     [
         (["--batch-size", "0"], "--batch-size must be >= 1"),
         (["--epochs", "0"], "--epochs must be >= 1"),
-        (["--learning-rate", "0"], "--learning-rate must be > 0"),
+        (["--learning-rate", "0"], "--learning-rate must be a finite number > 0, not 0"),
         (["--warmup-epochs", "3"], "--warmup-epochs must be >= 0 and fewer than epochs"),
-        (["--clip-grad-norm", "-1"], "--clip-grad-norm must be > 0"),
-        (["--max-minutes", "0"], "--max-minutes must be > 0"),
+        (["--clip-grad-norm", "-1"], "--clip-grad-norm must be a finite number > 0, not -1"),
+        (["--max-minutes", "0"], "--max-minutes must be a finite number > 0, not 0"),
         (["--patience", "0"], "--patience must be >= 1"),
         (["--workers", "-1"], "--workers must be >= 0"),
         (["--threads", "0"], "--threads must be >= 1"),

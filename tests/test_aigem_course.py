@@ -5,6 +5,7 @@ that command does continue it)."""
 from __future__ import annotations
 
 import json
+import re
 import shlex
 import shutil
 from pathlib import Path
@@ -27,6 +28,7 @@ from aigem.evaluation import evaluate
 from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
 from aigem.records import read_group
 from ngsim_cli.aigem import app
+from ngsim_graphs.errors import NgsimInputError
 
 ROW = {"train_loss_m2": 1.0, "val_loss_m2": 1.0}
 
@@ -144,3 +146,75 @@ def test_the_command_said_continues_the_run(cut_run: Path, tmp_path: Path) -> No
     code, out, _ = _invoke("evaluate", str(run), "--device", "cpu")
     assert code == 0 and "AiGem trained 3 of 3 epochs." in out
     assert "UNFINISHED" not in out and "continue with" not in out
+
+
+# ------------------------------------------------------------------------------------------------
+# The log and last.pt agree, or the run is refused: a course is never told from a damaged log.
+
+
+@pytest.fixture(scope="module")
+def two_epoch_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`aigem fit --epochs 2`, finished: metrics.jsonl logs epochs 1 and 2, last.pt holds 2."""
+    run = tmp_path_factory.mktemp("two_epochs") / "run"
+    code, _, err = _invoke(
+        "fit", str(tiny_build), "--out", str(run), "--epochs", "2", "--batch-size", "8",
+        "--horizon-s", "1", "--device", "cpu", "--threads", "1",
+    )  # fmt: skip
+    assert code == 0, err
+    return run
+
+
+def _log_edited(run: Path, tmp_path: Path, epochs: list[int]) -> Path:
+    """A copy of `run` whose metrics.jsonl keeps (or renumbers) its rows as `epochs` say."""
+    copy = Path(shutil.copytree(run, tmp_path / "run"))
+    rows = [json.loads(line) for line in (copy / runs.METRICS).read_text().splitlines()]
+    edited = [rows[min(epoch, len(rows)) - 1] | {"epoch": epoch} for epoch in epochs]
+    (copy / runs.METRICS).write_text("".join(json.dumps(row) + "\n" for row in edited))
+    return copy
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_a_log_that_lost_its_last_line_is_refused_by_evaluate_and_resume(
+    two_epoch_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    """evaluate called such a run unfinished (1 of 2 epochs) while scoring epoch 2's model, and
+    `fit --resume` left a log of epochs 1 and 3: both refuse it, naming the run and both
+    epochs, and nothing is written."""
+    run = _log_edited(two_epoch_run, tmp_path, [1])
+    before = _files(run)
+    expected = (
+        f"error: {run}: its metrics.jsonl ends at epoch 1 but its last.pt holds epoch 2: the log "
+        "lost lines or was edited; put back the metrics.jsonl this run wrote, or fit a new run "
+        "into another --out\n"
+    )
+    code, out, err = _invoke("evaluate", str(run), "--device", "cpu", "--bootstrap", "0")
+    assert (code, out, err) == (1, "", expected)
+    code, out, err = _invoke(
+        "fit", str(tiny_build), "--out", str(run), "--resume", "--epochs", "3", "--batch-size",
+        "8", "--horizon-s", "1", "--device", "cpu", "--threads", "1",
+    )  # fmt: skip
+    assert (code, out, err) == (1, "", expected)
+    assert _files(run) == before
+
+
+def test_a_log_with_a_hole_is_refused_and_one_ahead_is_not(
+    two_epoch_run: Path, tmp_path: Path
+) -> None:
+    """A hole (epoch 2 logged as 3) is refused; a row one epoch beyond last.pt is what a fit
+    killed between logging an epoch and keeping its last.pt leaves (a resume redoes it)."""
+    from aigem.paper_folder import PaperConfig, _member_progress
+
+    run = _log_edited(two_epoch_run, tmp_path / "hole", [1, 3])
+    message = (
+        f"{run}: its metrics.jsonl logs epochs 1, 3, not 1 to 3 in order, but its last.pt holds "
+        "epoch 2: the log lost lines or was edited"
+    )
+    with pytest.raises(NgsimInputError, match=f"^{re.escape(message)}"):
+        runs.load_model(run)  # evaluate, show --run, a user's load_model
+    with pytest.raises(NgsimInputError, match=f"^{re.escape(message)}"):
+        _member_progress(run, PaperConfig(epochs=2))  # aigem paper, on a model it reuses
+    runs.check_log(_log_edited(two_epoch_run, tmp_path / "ahead", [1, 2, 3]), 2)
+    runs.check_log(two_epoch_run, 2)

@@ -8,6 +8,7 @@ import contextlib
 import errno
 import hashlib
 import json
+import math
 import os
 import random
 import shutil
@@ -635,6 +636,29 @@ def test_a_setting_of_a_newer_aigem_is_one_error_line(
         result = CliRunner().invoke(app, ["evaluate", str(run), *args])
         line = _one_error_line(result, run / runs.RUN_INFO)
         assert f"a {key} config this aigem does not know: unknown new_knob" in line
+
+
+def test_a_run_recording_a_horizon_off_the_grid_is_one_error_line(tmp_path: Path) -> None:
+    """A run that an aigem before the check trained for 0.3 s (1 step, 0.2 s) is refused, not
+    scored and reported as 0.3 s."""
+    run = _copy(RUN_0_1_0, tmp_path)
+    _edit_info(run, lambda info: info["train"].update(horizon_s=0.3))
+    result = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
+    assert _one_error_line(result, run / runs.RUN_INFO) == (
+        f"error: {run / runs.RUN_INFO}: a train config this aigem cannot use: horizon_s must be "
+        "a multiple of the 0.2 s time step\n"
+    )
+
+
+def test_an_unlimited_max_minutes_of_an_older_aigem_reads_as_none(tmp_path: Path) -> None:
+    """An aigem before the settings were checked finite took --max-minutes inf (no limit), and
+    run.json holds Infinity: the run still loads, with no limit."""
+    run = _copy(RUN_0_1_0, tmp_path)
+    _edit_info(run, lambda info: info["train"].update(max_minutes=math.inf))
+    assert "Infinity" in (run / runs.RUN_INFO).read_text()
+    info = records.read_run_info(run)
+    assert records.train_config(info, run / runs.RUN_INFO).max_minutes is None
+    assert runs.load_model(run)[1]["train"]["max_minutes"] == math.inf  # as recorded
 
 
 def test_a_best_model_kept_before_a_resume_of_an_older_run_still_loads(tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -61,17 +62,25 @@ def test_cosine_starts_after_the_warmup() -> None:
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
-        ("learning_rate", 0.0, "learning_rate must be > 0"),
-        ("learning_rate", math.nan, "learning_rate must be > 0"),
+        ("learning_rate", 0.0, "learning_rate must be a finite number > 0, not 0"),
+        ("learning_rate", math.nan, "learning_rate must be a finite number > 0, not nan"),
         ("lr_schedule", "linear", "lr_schedule must be one of constant, cosine"),
         ("warmup_epochs", 2.0, "warmup_epochs must be >= 0 and fewer than epochs"),
-        ("warmup_epochs", -0.5, "warmup_epochs must be >= 0 and fewer than epochs"),
-        ("clip_grad_norm", 0.0, "clip_grad_norm must be > 0"),
-        ("clip_grad_norm", math.inf, "clip_grad_norm must be > 0"),
+        ("warmup_epochs", -0.5, "warmup_epochs must be a finite number >= 0, not -0.5"),
+        ("warmup_epochs", math.nan, "warmup_epochs must be a finite number >= 0, not nan"),
+        ("clip_grad_norm", 0.0, "clip_grad_norm must be a finite number > 0, not 0"),
+        ("clip_grad_norm", math.inf, "clip_grad_norm must be a finite number > 0, not inf"),
+        ("max_minutes", math.inf, "max_minutes must be a finite number > 0, not inf"),
+        (
+            "seed",
+            2**32,
+            "seed must be a whole number from 0 to 4294967295 (2**32 - 1), not 4294967296",
+        ),
+        ("horizon_s", 0.3, "horizon_s must be a multiple of the 0.2 s time step"),
     ],
 )
 def test_bad_settings_are_refused(field: str, value: object, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}$"):
         TrainConfig(epochs=2, **{field: value})
 
 

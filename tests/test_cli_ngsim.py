@@ -24,6 +24,7 @@ from ngsim_cli import console
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.plotting import PLOT_NAMES
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.plausibility import DROP_REASONS
 from ngsim_graphs.synth.formats import write_synthetic
@@ -492,6 +493,35 @@ def test_stats_plots_into_a_file(finished_build: Path, tmp_path: Path) -> None:
     assert str(target) in line and "cannot write plots" in line
 
 
+def test_stats_plots_never_replace_a_file_that_is_not_ours(
+    finished_build: Path, tmp_path: Path
+) -> None:
+    """A heading.png of the user's stops the call before anything is written, as `aigem evaluate
+    --plots` does (one rule: plots.json lists the pictures that are ours to replace)."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("my notes\n")
+    (folder / "heading.png").write_text("my own heading.png, not a plot\n")
+    before = snapshot(folder)
+    result = invoke("stats", finished_build, "--plots", folder)
+    assert result.exit_code == 1
+    assert error_line(result) == (
+        f"error: {folder / 'heading.png'}: exists and was not written by `ngsim-graphs stats "
+        "--plots`; move it or choose another --plots folder"
+    )
+    assert snapshot(folder) == before
+    (folder / "heading.png").rename(folder / "my-heading.png")
+    for _ in range(2):  # the second call replaces the first's pictures: they are ours
+        result = invoke("stats", finished_build, "--plots", folder)
+        assert result.exit_code == 0, result.output
+    pictures = [f"{name}.png" for name in PLOT_NAMES]
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        ["notes.txt", "my-heading.png", "plots.json", *pictures]
+    )
+    assert json.loads((folder / "plots.json").read_text())["pictures"] == sorted(pictures)
+    assert (folder / "notes.txt").read_text() == "my notes\n"
+
+
 def test_stats_without_manifest(tmp_path: Path) -> None:
     folder = tmp_path / "half"
     (folder / "tracks").mkdir(parents=True)
@@ -661,9 +691,9 @@ def test_ego_target_adds_one_target_per_sample(
     [
         ("--stride-s", "0.3", "--stride-s must be a positive multiple"),
         ("--stride-s", "0", "--stride-s must be a positive multiple"),
-        ("--d-sense-m", "-1", "--d-sense-m must be > 0"),
-        ("--heading-smoothing-s", "-1", "--heading-smoothing-s and --min-heading-speed-mps must"),
-        ("--d-min-m", "-0.5", "--d-min-m >= 0"),
+        ("--d-sense-m", "-1", "--d-sense-m must be a finite number > 0, not -1"),
+        ("--heading-smoothing-s", "-1", "--heading-smoothing-s must be a finite number >= 0"),
+        ("--d-min-m", "-0.5", "--d-min-m must be a finite number >= 0, not -0.5"),
     ],
 )
 def test_invalid_build_option(
