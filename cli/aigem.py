@@ -22,6 +22,7 @@ from ngsim_cli.console import (
     exit_on_error,
     exit_on_interrupt,
     in_option_words,
+    naming_the_other_program,
     option_names,
     print_warning,
     progress_bar,
@@ -49,6 +50,7 @@ app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
+    cls=naming_the_other_program("ngsim-graphs", "ngsim_cli.ngsim"),
     **HELP_SETTINGS,
 )
 

@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any
 
 import typer
 from rich.console import Console
@@ -24,6 +25,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 from rich.table import Table
+from typer.core import TyperGroup
 
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.interrupts import HELD_SIGNALS
@@ -140,6 +142,33 @@ def _clock_time(seconds: float) -> str:
 # Help as plain text wrapped to the terminal, up to 100 columns: the boxed tables of rich's help
 # squeeze an option's help into a narrow column next to its names and types.
 HELP_SETTINGS = {"rich_markup_mode": None, "context_settings": {"max_content_width": 100}}
+
+
+def naming_the_other_program(program: str, module: str) -> type[TyperGroup]:
+    """A command group that answers a command of the other program (`program`, whose typer app
+    is `module`'s `app`) with where it is: `aigem show` -> "No such command 'show': it is
+    `ngsim-graphs show`". The other program is loaded only then."""
+
+    class Group(TyperGroup):
+        def resolve_command(
+            self, ctx: typer.Context, args: list[str]
+        ) -> tuple[str | None, Any, list[str]]:
+            name = args[0] if args else None
+            if name and self.get_command(ctx, name) is None and name in _commands_of(module):
+                ctx.fail(f"No such command {name!r}: it is `{program} {name}`.")
+            return super().resolve_command(ctx, args)
+
+    return Group
+
+
+def _commands_of(module: str) -> list[str]:
+    """The command names of `module`'s typer app."""
+    import importlib
+
+    app = importlib.import_module(module).app
+    return [
+        info.name or info.callback.__name__.replace("_", "-") for info in app.registered_commands
+    ]
 
 
 def add_version_option(app: typer.Typer, program: str, version: str) -> None:

@@ -19,6 +19,7 @@ from ngsim_cli.console import (
     exit_on_error,
     exit_on_interrupt,
     in_option_words,
+    naming_the_other_program,
     option_names,
     print_error,
     print_table,
@@ -45,6 +46,7 @@ app = typer.Typer(
     help=f"Vehicle trajectories ({labels_in_words()}) to spatial-temporal graph datasets.",
     no_args_is_help=True,
     add_completion=False,
+    cls=naming_the_other_program("aigem", "ngsim_cli.aigem"),
     **HELP_SETTINGS,
 )
 

@@ -473,3 +473,27 @@ def test_no_cuda_is_said_before_the_model_and_the_data_load(
             "error: --device cuda: no CUDA device is available\n",
         )
     assert not (tmp_path / "run").exists() and not (tmp_path / "paper").exists()
+
+
+@pytest.mark.parametrize(
+    ("program", "command", "said"),
+    [
+        (app, "show", "No such command 'show': it is `ngsim-graphs show`."),
+        (
+            app,
+            "export-cslstm",
+            "No such command 'export-cslstm': it is `ngsim-graphs export-cslstm`.",
+        ),
+        (ngsim_app, "fit", "No such command 'fit': it is `aigem fit`."),
+        (ngsim_app, "paper", "No such command 'paper': it is `aigem paper`."),
+        (app, "nothing", "No such command 'nothing'."),  # of neither program
+    ],
+)
+def test_a_command_of_the_other_program_says_which_program_has_it(
+    program,
+    command: str,
+    said: str,  # noqa: ANN001
+) -> None:
+    result = CliRunner().invoke(program, [command, "x"])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.splitlines()[-1] == f"Error: {said}"
