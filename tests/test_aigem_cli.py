@@ -497,3 +497,33 @@ def test_a_command_of_the_other_program_says_which_program_has_it(
     result = CliRunner().invoke(program, [command, "x"])
     assert result.exit_code == 2 and result.stdout == ""
     assert result.stderr.splitlines()[-1] == f"Error: {said}"
+
+
+def test_evaluate_of_a_paper_folder_names_its_runs(tmp_path: Path) -> None:
+    paper = tmp_path / "paper"
+    (paper / "runs" / "dmin-25m").mkdir(parents=True)
+    (paper / "runs" / "dmin-0m").mkdir()
+    (paper / "paper.json").write_text(json.dumps({"written_by": "aigem paper"}))
+    result = CliRunner().invoke(app, ["evaluate", str(paper)])
+    assert one_error_line(result) == (
+        f"error: {paper}: is an `aigem paper` folder, not a run: its runs are at {paper}/runs: "
+        f"dmin-0m, dmin-25m (the paper's model: {paper}/runs/dmin-25m)"
+    )
+    (paper / "runs" / "dmin-25m").rmdir()
+    (paper / "runs" / "dmin-0m").rmdir()
+    result = CliRunner().invoke(app, ["evaluate", str(paper)])
+    assert (
+        one_error_line(result)
+        == f"error: {paper}: is an `aigem paper` folder, not a run: no run yet"
+    )
+
+
+def test_paper_given_a_build_says_it_wants_the_raw_files(tiny_build: Path, tmp_path: Path) -> None:
+    made_from = json.loads((tiny_build / "manifest.json").read_text())["inputs"][0]["path"]
+    result = CliRunner().invoke(app, ["paper", str(tiny_build), "--out", str(tmp_path / "o")])
+    assert one_error_line(result) == (
+        f"error: {tiny_build}: is an ngsim-graphs build, not raw trajectory files: aigem paper "
+        f"makes its three builds itself from the files a build is made of (this one was made "
+        f"from {made_from}); give those files or their folder"
+    )
+    assert not (tmp_path / "o").exists()
