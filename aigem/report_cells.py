@@ -94,9 +94,9 @@ def known(cells: Sequence[Cell | None]) -> bool:
     return any(verdict(cell) is not None for cell in cells)
 
 
-def _horizons(seconds: Sequence[int]) -> str:
-    """[1, 2, 5] -> "1, 2 and 5 s"."""
-    words = [str(s) for s in seconds]
+def seconds_words(seconds: Sequence[float]) -> str:
+    """[1, 2, 5] -> "1, 2 and 5 s"; [2.5] -> "2.5 s"."""
+    words = [f"{s:g}" for s in seconds]
     listed = words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
     return f"{listed} s"
 
@@ -116,8 +116,8 @@ def noise_sentence(subject: str, cells: Sequence[Cell | None]) -> str:
     ):
         at = [s for s, v in zip(SECONDS, verdicts, strict=True) if v == kind]
         if at:
-            said.append(f"{words} at {_horizons(at)}")
+            said.append(f"{words} at {seconds_words(at)}")
     missing = [s for s, v in zip(SECONDS, verdicts, strict=True) if v is None]
     if missing:
-        said.append(f"no number at {_horizons(missing)}")
+        said.append(f"no number at {seconds_words(missing)}")
     return f"{subject}: RMSE {'; '.join(said)}."

@@ -527,3 +527,16 @@ def test_paper_given_a_build_says_it_wants_the_raw_files(tiny_build: Path, tmp_p
         f"from {made_from}); give those files or their folder"
     )
     assert not (tmp_path / "o").exists()
+
+
+def test_evaluate_says_which_model_each_number_comes_from(tiny_run: Path) -> None:
+    result = CliRunner().invoke(
+        app, ["evaluate", str(tiny_run), "--device", "cpu", "--bootstrap", "0"]
+    )
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.stdout.split())
+    assert (
+        "One model, trained for 2 s: every number comes from it (RMSE at 1 and 2 s; ADE and FDE "
+        "over 2 s, the paper's over 5 s). Constant velocity on the same targets." in text
+    )
+    assert "model(s)" not in text and "params (K)" in text

@@ -286,7 +286,7 @@ def test_a_new_metric_reaches_evaluates_json_and_table(
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     headers = [_cells(line, "┃") for line in result.stdout.splitlines() if "┃ model" in line]
-    assert [header[-2:] for header in headers] == [["TOY", "params"]] * 3  # all, mid; the paper
+    assert [header[-2:] for header in headers] == [["TOY", "params (K)"]] * 3  # all, mid; the paper
     lines = [_cells(line, "│") for line in result.stdout.splitlines() if line.startswith("│")]
     named = [row for row in lines if row[0]]  # not the intervals' second lines
     toy = {(row[0], index): row[-2] for index, row in enumerate(named)}
