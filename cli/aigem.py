@@ -274,9 +274,10 @@ def _train(
         # One bar over the run's epochs, so that its ETA is the run's (at the rate of the
         # recent batches; validation and early stopping are not foreseen).
         show = lambda epoch, done, total, losses: progress(
-            f"epoch {epoch}/{train.epochs} loss {running_losses(losses)} m²",
+            f"epoch {epoch}/{train.epochs}",
             (epoch - 1) * total + done,
             train.epochs * total,
+            running_losses(losses),
         )
         on_epoch = lambda horizon_s, row: print_epoch(row, who(horizon_s))
         loading = lambda what, done, total: progress(f"loading {what}", done, total)

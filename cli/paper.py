@@ -18,6 +18,7 @@ from ngsim_cli.console import (
     stdout,
     usage_error,
 )
+from ngsim_cli.fit_view import print_epoch
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
 
@@ -158,7 +159,10 @@ def paper(
     )
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         try:
-            result = run_paper(raw_paths, out, config, call, progress)
+            on_epoch = lambda fit, horizon_s, row: print_epoch(
+                row, f"{fit}, {horizon_s:g} s model, "
+            )
+            result = run_paper(raw_paths, out, config, call, progress, on_epoch)
         except (NonFiniteLossError, DeviceUnavailableError, TimeLimitError) as err:
             print_error(str(err))
             raise typer.Exit(1) from None
