@@ -481,7 +481,7 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
     assert cell == pytest.approx(
         {"value": sum(each) / 2, "low": cell["value"] - half, "high": cell["value"] + half}
     )
-    assert "mean of 2 seeds [95 % interval]" in more.stdout
+    assert "mean of 2 seeds [95 % interval: the training noise]" in more.stdout
     # Back to one seed: the first seed's report, as before; the second seed's run stays.
     again = run_paper_command(tiny_raw, out, *table, "--epochs", "2")
     assert again.returncode == 0, again.stderr
@@ -595,3 +595,7 @@ def test_the_command_into_a_log_prints_each_stage_and_each_models_epochs(
         ), line
     assert re.fullmatch(r"evaluating d_min 25 m: (\d+)/\1 \(100%\)", said[9])  # the bar's end
     assert re.fullmatch(r"writing the report: (\d+)/\1 \(100%\)", said[10]) and len(said) == 11
+    assert (
+        "AiGem RMSE at 1..5 s (m, in brackets its 95 % interval: the test-set noise): "
+        in result.stdout
+    )
