@@ -75,4 +75,5 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+    """The public names (__all__), not this module's own imports (importlib, typing's names)."""
+    return sorted(__all__)

@@ -18,6 +18,7 @@ import numpy as np
 from aigem.records import read_baseline, write_baseline
 from ngsim_graphs.build import open_build
 from ngsim_graphs.schema import Split
+from ngsim_graphs.splits import split_named
 
 CHUNK_SAMPLES = 4096  # graphs induced at once: bounded memory on the largest builds
 
@@ -42,7 +43,7 @@ def constant_velocity_loss_m2(
     longest = max(steps)
     squared = np.zeros(longest)  # summed over targets, per future step
     valid = np.zeros(longest)
-    size = int(build.manifest.splits[Split(split).value])
+    size = int(build.manifest.splits[split_named(split).value])
     for first in range(0, size, CHUNK_SAMPLES):
         ids = np.arange(first, min(first + CHUNK_SAMPLES, size))
         batch = build.graphs(split, ids, first_step=config.history_steps - 1)

@@ -26,6 +26,7 @@ from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, concat_batches
 from ngsim_graphs.scaling import FEATURES, SCALED, MinMaxScaler
 from ngsim_graphs.schema import Split
+from ngsim_graphs.splits import split_named
 
 XY = FEATURES[:2]  # the scaled quantities a model predicts: x_m, y_m
 
@@ -113,7 +114,7 @@ class GraphDataset(Dataset):
         scaler: MinMaxScaler | None = None,
     ) -> None:
         self.build_dir = Path(build_dir)
-        self.split = Split(split)
+        self.split = split_named(split)
         build = open_build(self.build_dir)  # refuses unfinished builds and unknown versions
         self.config = build.config
         if history_steps is not None and history_steps < 1:

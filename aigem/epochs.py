@@ -44,7 +44,7 @@ READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked
 # their time drawing.
 CURVES_EVERY_S = 30.0
 # (epoch, batches done, batches in the epoch, each model's running train loss as last read, NaN
-# for a model not training in this epoch): the CLI draws a bar from it.
+# for a model not training in this epoch or before its first read): the CLI draws a bar from it.
 TrainProgress = Callable[[int, int, int, tuple[float, ...]], None]
 # (the model's horizon in s, the row of its metrics.jsonl written at the end of an epoch): the CLI
 # prints it.
@@ -147,7 +147,8 @@ def _train_epoch(
                     member.shown = _read_loss(running, upto, epoch, member.who)
             read_at = time.monotonic()
             loop.threads.look()
-        report(epoch + 1, batches, total, shown())
+        if batches < total:  # the epoch's last batch is reported below, with its mean loss
+            report(epoch + 1, batches, total, shown())
         cut = time.monotonic() > deadline
         if cut:
             break
@@ -268,6 +269,7 @@ def train_epochs(
         for member in active:
             member.rng = rng_state(loop.device)
             member.running = torch.zeros((), dtype=torch.float64, device=loop.device)
+            member.shown = math.nan  # not the last epoch's loss until this one's is read
         if loop.sampler is not None:
             loop.sampler.set_epoch(epoch)
         epoch_start = time.monotonic()

@@ -34,6 +34,7 @@ from aigem.devices import pick_device
 from aigem.intervals import RESAMPLES, SampleIntervals, bootstrap_intervals
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
+from aigem.paper_folder import refuse_paper_folder_as_run
 from aigem.records import BEST, Group, group_of_member, read_group
 from aigem.refusals import Member, check_build, check_one_fit, resolve_build
 from aigem.results import Evaluation, ModelEvaluation, Rows, Scores
@@ -231,6 +232,7 @@ def evaluate(
     if resamples < 0:
         raise ValueError(f"{resamples} resamples: the bootstrap takes 0 (no intervals) or more")
     run_dir, build_dir = Path(run_dir), None if build_dir is None else Path(build_dir)
+    refuse_paper_folder_as_run(run_dir)
     group = read_group(run_dir)
     device = pick_device(device_choice)
     opened: dict[Path, OpenBuild] = {}  # the members' build, its files checked once

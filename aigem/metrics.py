@@ -16,6 +16,10 @@ from its sums with the same ratios, so a split scored in batches gets the number
 functions over the whole split (to float rounding). SampleTotals keeps the same sums per sample
 (all regions), for the bootstrap intervals of aigem.intervals.
 
+Every public function, and ErrorTotals.add and SampleTotals.add, takes numpy arrays, anything
+np.asarray reads (lists), or PyTorch tensors on any device, with or without gradients
+(`as_array` reads them); the results are numpy's.
+
 METRICS lists what `aigem evaluate` reports, each with its label and unit: a new metric is an
 entry there (and, if it needs sums of its own, their accumulation in ErrorTotals); its rows,
 --json and the printed table follow.
@@ -32,58 +36,86 @@ REGIONS = ("all", "front", "mid", "rear")
 FRONT_Y_M = 15.0
 
 
-def displacement_errors_m(
-    predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray
-) -> np.ndarray:
+def as_array(values: object) -> np.ndarray:
+    """`values` as a numpy array: a PyTorch tensor (on any device, with or without gradients:
+    anything with `detach`) copied to the host; anything else as np.asarray reads it. numpy
+    itself cannot read a tensor on a GPU or one that requires grad."""
+    if hasattr(values, "detach") and hasattr(values, "cpu"):
+        tensor = values.detach().cpu()  # type: ignore[attr-defined]
+        try:
+            return tensor.numpy()
+        except TypeError:  # a dtype numpy lacks (bfloat16): as float32
+            return tensor.float().numpy()
+    return np.asarray(values)
+
+
+def _shape(array: np.ndarray) -> str:
+    """(18, 25) for an array of that shape: the same words for numpy's and PyTorch's."""
+    return str(tuple(int(n) for n in array.shape))
+
+
+def displacement_errors_m(predicted_m: object, truth_m: object, mask: object) -> np.ndarray:
     """(A, K) Euclidean distance in metres between each predicted and true position, 0 where
     `mask` is False (whatever was predicted there). `predicted_m`, `truth_m`: (A, K, 2) x, y in
-    metres; `mask`: (A, K) bool, True where the target's position is recorded. Other shapes are
-    a ValueError: numpy would broadcast them into wrong numbers."""
+    metres; `mask`: (A, K) bool, True where the target's position is recorded (numpy arrays or
+    tensors: as_array). Other shapes are a ValueError: numpy would broadcast them into wrong
+    numbers."""
+    predicted_m, truth_m, mask = as_array(predicted_m), as_array(truth_m), as_array(mask)
     if predicted_m.shape != truth_m.shape or truth_m.ndim != 3 or truth_m.shape[-1] != 2:
         raise ValueError(
-            f"predictions {predicted_m.shape} and targets {truth_m.shape}: both must be (A, K, 2)"
+            f"predictions of shape {_shape(predicted_m)} and targets of shape {_shape(truth_m)}: "
+            "both must be (A, K, 2), the same"
         )
-    if mask.shape != truth_m.shape[:2] or mask.dtype != np.bool_:
+    if mask.shape != truth_m.shape[:2]:
         raise ValueError(
-            f"mask {mask.shape} {mask.dtype}: must be (A, K) = {truth_m.shape[:2]} bool"
+            f"mask of shape {_shape(mask)}: must be (A, K) = {_shape(truth_m[..., 0])}, as the "
+            "targets' (A, K, 2)"
+        )
+    if mask.dtype != np.bool_:
+        raise ValueError(
+            f"mask of dtype {mask.dtype}: must be bool (True where the target's position is "
+            "recorded)"
         )
     return np.where(mask, np.sqrt(((predicted_m - truth_m) ** 2).sum(axis=-1)), 0.0)
 
 
-def ade_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> float | np.ndarray:
+def ade_of_sums_m(error_m: object, count: object) -> float | np.ndarray:
     """ADE in metres from (..., K) per-step sums of displacement errors (metres) and counts of
     valid targets of the same shape: every valid (target, step) weighs alike. A float for (K,)
     sums, else (...); NaN where none is valid."""
+    error_m, count = as_array(error_m), as_array(count)
     total = count.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         ade = np.where(total > 0, error_m.sum(axis=-1) / total, np.nan)
     return float(ade) if ade.ndim == 0 else ade
 
 
-def mean_error_of_sums_m(error_m: np.ndarray, count: np.ndarray) -> np.ndarray:
+def mean_error_of_sums_m(error_m: object, count: object) -> np.ndarray:
     """(..., K) mean displacement error in metres at each step, from sums and counts of the same
     shape; NaN where no target is valid. FDE is the last step's."""
+    error_m, count = as_array(error_m), as_array(count)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, error_m / count, np.nan)
 
 
-def rmse_of_sums_m(squared_m2: np.ndarray, count: np.ndarray) -> np.ndarray:
+def rmse_of_sums_m(squared_m2: object, count: object) -> np.ndarray:
     """(..., K) RMSE in metres at each step (the root of the pooled mean squared error), from
     sums of squared displacement errors (metres^2) and counts of the same shape; NaN where no
     target is valid. RMSE at h s is step 5h's (on the 0.2 s grid)."""
+    squared_m2, count = as_array(squared_m2), as_array(count)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt(np.where(count > 0, squared_m2 / count, np.nan))
 
 
 def _step_sums(
-    predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray
+    predicted_m: object, truth_m: object, mask: object
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K,) each, over the targets: summed displacement errors (m), summed squares (m^2), counts."""
     error = displacement_errors_m(predicted_m, truth_m, mask).astype(np.float64)  # (A, K)
-    return error.sum(axis=0), (error**2).sum(axis=0), mask.sum(axis=0)
+    return error.sum(axis=0), (error**2).sum(axis=0), as_array(mask).sum(axis=0)
 
 
-def compute_ade_m(predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray) -> float:
+def compute_ade_m(predicted_m: object, truth_m: object, mask: object) -> float:
     """ADE in metres: the mean Euclidean error over every valid (target, step). `predicted_m`,
     `truth_m`: (A, K, 2) positions in metres; `mask`: (A, K) bool, True where the target's
     position is recorded. NaN where nothing is valid."""
@@ -91,27 +123,26 @@ def compute_ade_m(predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray
     return ade_of_sums_m(error_m, count)
 
 
-def compute_fde_m(predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray) -> float:
+def compute_fde_m(predicted_m: object, truth_m: object, mask: object) -> float:
     """FDE in metres: the mean Euclidean error over the targets valid at the last step K (the
     horizon). Arrays as compute_ade_m's; NaN where no target is valid at step K."""
     error_m, _, count = _step_sums(predicted_m, truth_m, mask)
     return float(mean_error_of_sums_m(error_m, count)[-1])
 
 
-def compute_rmse_m(
-    predicted_m: np.ndarray, truth_m: np.ndarray, mask: np.ndarray, step: int
-) -> float:
+def compute_rmse_m(predicted_m: object, truth_m: object, mask: object, step: int) -> float:
     """RMSE in metres at future step `step` (1..K): the root of the mean squared Euclidean error
     over the targets valid at that step. RMSE at h s is step h / time_step_s (5h on the 0.2 s
     grid: 1 s is step 5). Arrays as compute_ade_m's; NaN where no target is valid there."""
-    if not 1 <= step <= truth_m.shape[1]:
-        raise ValueError(f"step {step}: the predictions have future steps 1..{truth_m.shape[1]}")
     _, squared_m2, count = _step_sums(predicted_m, truth_m, mask)
+    if not 1 <= step <= len(count):
+        raise ValueError(f"step {step}: the predictions have future steps 1..{len(count)}")
     return float(rmse_of_sums_m(squared_m2, count)[step - 1])
 
 
-def region_of(present_y_m: np.ndarray) -> np.ndarray:
-    """(A,) region index into REGIONS[1:] (0 front, 1 mid, 2 rear) from the present y."""
+def region_of(present_y_m: object) -> np.ndarray:
+    """(A,) region index into REGIONS[1:] (0 front, 1 mid, 2 rear) from the (A,) present y (m)."""
+    present_y_m = as_array(present_y_m)
     return np.where(present_y_m > FRONT_Y_M, 0, np.where(present_y_m < -FRONT_Y_M, 2, 1))
 
 
@@ -132,11 +163,12 @@ class ErrorTotals:
         self.count = np.zeros(shape, dtype=np.int64)
 
     def add(
-        self, predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray, present_y_m: np.ndarray
+        self, predicted: object, truth: object, mask: object, present_y_m: object
     ) -> np.ndarray:
         """Add (A, K, 2) predictions and truths with their (A, K) bool mask, positions in metres,
         and (A,) present y in metres; returns the (A, K) displacement errors it added."""
         error = displacement_errors_m(predicted, truth, mask)  # (A, K)
+        mask, present_y_m = as_array(mask), as_array(present_y_m)
         one_hot = np.zeros((len(REGIONS), len(error)))
         one_hot[0] = 1.0
         one_hot[1 + region_of(present_y_m), np.arange(len(error))] = 1.0
@@ -165,9 +197,10 @@ class SampleTotals:
         self.error_m, self.squared_m2 = np.zeros(shape), np.zeros(shape)
         self.count = np.zeros(shape, dtype=np.int32)  # targets a sample: far below 2^31
 
-    def add(self, error_m: np.ndarray, mask: np.ndarray, sample: np.ndarray) -> None:
+    def add(self, error_m: object, mask: object, sample: object) -> None:
         """Add (A, K) displacement errors (metres, 0 where masked, as ErrorTotals.add returns
         them) with their (A, K) bool mask and (A,) each target's sample id."""
+        error_m, mask, sample = as_array(error_m), as_array(mask), as_array(sample)
         if not len(sample):
             return
         # One bincount per sum over the rows of the batch's samples (np.add.at on rows is some

@@ -68,6 +68,7 @@ from aigem.paper_plan import (
 )
 from aigem.paper_training import (
     EVALUATION_BATCH,
+    FitEpochCallback,
     Meter,
     Progress,
     batches,
@@ -124,8 +125,8 @@ def _builds(
     todo = sorted(plan.missing + plan.stale)
     if todo:
         (out / BUILDS).mkdir(exist_ok=True)
-        show(f"building {len(todo)} of {len(plan.dirs)} builds", 0, 0)
-        building = lambda what, done, total: show(f"building {what}", done, total)
+        show(f"builds: {len(todo)} of {len(plan.dirs)} to make", 0, 0)
+        building = lambda what, done, total: show(f"builds: {what}", done, total)
         targets = [(plan.dirs[d], build_config(d)) for d in todo]
         run_builds(raw_paths, targets, bool(plan.stale), building, jobs=call.jobs)
 
@@ -148,9 +149,11 @@ def run_paper(
     config: PaperConfig,
     call: PaperCall,
     progress: Progress | None = None,
+    on_epoch: FitEpochCallback | None = None,
 ) -> PaperResult:
     """The paper's experiments into `out` (see the module's docstring); returns the report,
-    whose "finished" is false where --max-hours left a fit unfinished. Raises TimeLimitError
+    whose "finished" is false where --max-hours left a fit unfinished. `progress` follows the
+    stages (the builds' among them), `on_epoch` gets each model's losses at each epoch's end. Raises TimeLimitError
     where it left a fit without a whole epoch (nothing to report). A second call into the same
     `out` at once is refused (ngsim_graphs.lock, `.OUT.lock` beside it)."""
     from ngsim_graphs.landing import check_outside_inputs
@@ -163,7 +166,7 @@ def run_paper(
     out.parent.mkdir(parents=True, exist_ok=True)  # where the lock is
     with output_lock(out.resolve()):  # resolved: `--out .` has a name
         show = progress or (lambda _what, _done, _total: None)
-        return _run(raw_paths, out, document, config, call, show, start)
+        return _run(raw_paths, out, document, config, call, show, start, on_epoch)
 
 
 def _run(
@@ -174,6 +177,7 @@ def _run(
     call: PaperCall,
     show: Progress,
     start: float,
+    on_epoch: FitEpochCallback | None,
 ) -> PaperResult:
     """run_paper's work, `out` locked: every check (claim_folder's again, another call may have
     come before) before the folder is touched."""
@@ -188,7 +192,7 @@ def _run(
     runs = plan_runs(config, call)
     to_train = [run for run in runs if epochs_left(out / RUNS / run.name, config)]
     meter = Meter(show, work_units(out, runs, to_train, config))
-    timings |= train_runs(out, to_train, config, call, meter)
+    timings |= train_runs(out, to_train, config, call, meter, on_epoch)
     unfinished = [run for run in runs if epochs_left(out / RUNS / run.name, config)]
     check_reportable(out, unfinished, config)
     evaluations: dict[str, list[Any]] = {}  # by fit, in the seeds' order (runs are seed by seed)

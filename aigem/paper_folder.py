@@ -36,6 +36,7 @@ from ngsim_graphs.layout import manifest_path
 from ngsim_graphs.partial_files import leftover_partials, write_atomic
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
+PAPER_EPOCHS = 100  # the paper's: "approximately 100 training epochs" gave each best model
 PAPER_D_MIN_M = 25.0  # the d_min of the paper's model (the others: the d_min ablation)
 PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
 BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
@@ -47,7 +48,7 @@ RETRAIN = ("seed", "batch_size", "patience_epochs")  # PaperConfig's: other mode
 class PaperConfig:
     """What defines the work (paper.json): a later call with other values is refused."""
 
-    epochs: int = 100  # the paper's
+    epochs: int = PAPER_EPOCHS
     patience_epochs: int | None = None
     seed: int = 0
     batch_size: int = 32
@@ -96,6 +97,8 @@ def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
     from ngsim_graphs.sources.archives import archives_in
     from ngsim_graphs.sources.registry import choose_source
 
+    for path in raw_paths:
+        refuse_build_as_input(Path(path))
     packed = [archive for path in raw_paths for archive in archives_in(Path(path))]
     if packed:  # its digest is not its members': a build of them could not be told reusable
         raise NgsimInputError(
@@ -104,6 +107,34 @@ def list_inputs(raw_paths: Sequence[Path]) -> list[dict[str, Any]]:
     _, files, _ = choose_source(list(raw_paths))
     found = [_identity(path) for path in files]
     return sorted(found, key=lambda f: (f["name"], f["sha256"]))
+
+
+def refuse_build_as_input(path: Path) -> None:
+    """Refuse an ngsim-graphs build given as a raw input: `aigem paper` makes its own three
+    builds from the trajectory files (the build's manifest names those it was made from)."""
+    manifest = json_object(manifest_path(path)) if path.is_dir() else None
+    if manifest is None:
+        return
+    made_from = sorted({str(f["path"]) for f in manifest.get("inputs") or [] if "path" in f})
+    said = f" (this one was made from {', '.join(made_from)})" if made_from else ""
+    raise NgsimInputError(
+        path,
+        "is an ngsim-graphs build, not raw trajectory files: aigem paper makes its three builds "
+        f"itself from the files a build is made of{said}; give those files or their folder",
+    )
+
+
+def refuse_paper_folder_as_run(path: Path) -> None:
+    """Refuse a folder of `aigem paper` where a run is wanted (`aigem evaluate`), naming its
+    runs: it holds one run per fit and seed under runs/, and its report."""
+    if not _ours(json_object(path / PAPER_JSON)):
+        return
+    found = sorted(p.name for p in (path / RUNS).iterdir()) if (path / RUNS).is_dir() else []
+    paper = build_name(PAPER_D_MIN_M)  # the paper's model's fit is named as its build
+    runs = f"its runs are at {path / RUNS}: {', '.join(found)}" if found else "no run yet"
+    if paper in found:
+        runs += f" (the paper's model: {path / RUNS / paper})"
+    raise NgsimInputError(path, f"is an `aigem paper` folder, not a run: {runs}")
 
 
 def _identity(path: Path) -> dict[str, Any]:

@@ -15,6 +15,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,9 @@ EVALUATION_BATCH = 64  # the batch size of an evaluation on the loader, its unit
 
 # (stage's words, done, total): one display for the whole call.
 Progress = Callable[[str, int, int], None]
+# (the fit's words, "fit d_min 25 m", the model's horizon in s, the row of its metrics.jsonl
+# written at the end of an epoch): the CLI prints it.
+FitEpochCallback = Callable[[str, float, dict[str, float]], None]
 
 
 class Meter:
@@ -85,12 +89,13 @@ def _fit(
     device: str,
     meter: Meter,
     deadline: float,
+    on_epoch: FitEpochCallback | None = None,
 ) -> None:
     """One five-horizon fit at `run.seed`: resumed where a model kept a checkpoint, else started
-    (over). Past `deadline` (time.monotonic()) it stops at the next batch: each model keeps the
-    checkpoint of its last whole epoch (the next call redoes the epoch cut: the same models as
-    without a limit), and a run that kept none takes its files away (runs.discard_unfinished),
-    as `aigem fit` does."""
+    (over); `on_epoch` gets each model's row at the end of each epoch. Past `deadline`
+    (time.monotonic()) it stops at the next batch: each model keeps the checkpoint of its last
+    whole epoch (the next call redoes the epoch cut: the same models as without a limit), and a
+    run that kept none takes its files away (runs.discard_unfinished), as `aigem fit` does."""
     from aigem.runs import discard_unfinished
     from aigem.training import fit_horizons
 
@@ -114,8 +119,9 @@ def _fit(
     created = not run_dir.exists()
     model = ModelConfig(concat_position=run.plan.concat_position)
     train = replace(train, seed=run.seed)
+    ended = None if on_epoch is None else partial(on_epoch, words)
     try:
-        fit_horizons(build_dir, run_dir, HORIZONS_S, model, train, device, resume, progress)
+        fit_horizons(build_dir, run_dir, HORIZONS_S, model, train, device, resume, progress, ended)
     except _TimeUp:
         if not any(epochs_done(run_dir, config)):
             discard_unfinished(planned_group(run_dir, HORIZONS_S), created)
@@ -129,11 +135,17 @@ def epochs_done(run_dir: Path, config: PaperConfig) -> list[int]:
 
 
 def train_runs(
-    out: Path, to_train: Sequence[SeedRun], config: PaperConfig, call: PaperCall, meter: Meter
+    out: Path,
+    to_train: Sequence[SeedRun],
+    config: PaperConfig,
+    call: PaperCall,
+    meter: Meter,
+    on_epoch: FitEpochCallback | None = None,
 ) -> dict[str, float]:
     """The runs still to train, one after the other, each until its share of --max-hours
     (counted from here: the builds and the evaluations come on top); a run that finds no time
-    left does not start. Returns the time each took, by "fit RUN"."""
+    left does not start; `on_epoch` gets each model's epochs. Returns the time each took, by
+    "fit RUN"."""
     timings = {}
     deadline = time.monotonic() + (
         3600 * call.max_hours if call.max_hours is not None else math.inf
@@ -143,7 +155,7 @@ def train_runs(
         began = time.monotonic()
         share_s = fit_share_s(deadline - began, len(to_train) - index)
         if share_s > 0:
-            _fit(run, out, config, train, call.device, meter, began + share_s)
+            _fit(run, out, config, train, call.device, meter, began + share_s, on_epoch)
             timings[f"fit {run.name}"] = time.monotonic() - began
     return timings
 

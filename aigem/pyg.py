@@ -25,6 +25,8 @@ The targets come in node order, which is the order of `Collate`'s `target_node`;
 
 from __future__ import annotations
 
+import dataclasses
+import importlib.util
 import os
 from collections.abc import Callable
 
@@ -32,6 +34,7 @@ import numpy as np
 import torch
 from torch_geometric.data import Dataset as PygDataset
 from torch_geometric.data import HeteroData
+from torch_geometric.data.summary import Stats, Summary
 
 from aigem.data import GraphDataset
 from ngsim_graphs import edges
@@ -105,9 +108,11 @@ def to_model_batch(data: HeteroData) -> dict[str, torch.Tensor]:
 class GraphPygDataset(PygDataset):
     """The samples of one split of a build as a PyG dataset: `get(i)` is sample i's HeteroData.
 
-    Graphs are induced on demand from the memory-mapped build (nothing is processed or stored);
-    `history_steps` and `scaler` mean what they mean for `aigem.data.GraphDataset`. Batch with
-    `torch_geometric.loader.DataLoader`.
+    Graphs are induced on demand from the memory-mapped build (nothing is processed or stored):
+    its `root` is the build's directory, and it has no raw or processed files. `history_steps`
+    and `scaler` mean what they mean for `aigem.data.GraphDataset`. Batch with
+    `torch_geometric.loader.DataLoader`. PyG's `print_summary` formats its tables with the
+    package tabulate where it is installed, else as plain columns (`get_summary`).
     """
 
     def __init__(
@@ -119,7 +124,20 @@ class GraphPygDataset(PygDataset):
         transform: Callable[[HeteroData], HeteroData] | None = None,
     ) -> None:
         self.samples = GraphDataset(build_dir, split, history_steps, scaler)
-        super().__init__(root=None, transform=transform)  # no raw or processed files
+        # No download() or process() of ours: PyG makes no raw or processed folder in the root.
+        super().__init__(root=str(self.samples.build_dir), transform=transform)
+
+    def __repr__(self) -> str:
+        samples = self.samples
+        return (
+            f"{type(self).__name__}(build={str(samples.build_dir)!r}, "
+            f"split={samples.split.value!r}, samples={len(self)})"
+        )
+
+    def get_summary(self) -> Summary:
+        """PyG's statistics of the graphs' sizes (every graph is induced: a pass over the split),
+        shown without the package tabulate too (PlainSummary)."""
+        return PlainSummary(**vars(super().get_summary()))
 
     @property
     def scaler(self) -> MinMaxScaler:
@@ -130,3 +148,40 @@ class GraphPygDataset(PygDataset):
 
     def get(self, idx: int) -> HeteroData:
         return to_hetero_data(self.samples[idx], self.samples.scaler, sample_id=idx)
+
+
+class PlainSummary(Summary):
+    """PyG's Summary, formatted as plain columns where the package tabulate (which PyG's own
+    format needs) is not installed; with it, as PyG formats it (`fmt`)."""
+
+    def format(self, fmt: str = "psql") -> str:
+        if importlib.util.find_spec("tabulate") is not None:
+            return super().format(fmt)
+        parts = [
+            f"{self.name} (#graphs={self.num_graphs}):",
+            *_columns({"#nodes": self.num_nodes, "#edges": self.num_edges}),
+        ]
+        for title, per_type in (
+            ("Number of nodes per node type:", self.num_nodes_per_type),
+            ("Number of edges per edge type:", self.num_edges_per_type),
+        ):
+            if per_type is not None:
+                named = {
+                    (k if isinstance(k, str) else f"({', '.join(k)})"): v
+                    for k, v in per_type.items()
+                }
+                parts += [title, *_columns(named)]
+        return "\n".join(parts)
+
+
+def _columns(stats: dict[str, Stats]) -> list[str]:
+    """One row per statistic (mean, std, min, ...), one right-aligned column per entry."""
+    names = [field.name for field in dataclasses.fields(Stats)]
+    rows = [["", *stats]] + [
+        [name, *(f"{getattr(s, name):.1f}" for s in stats.values())] for name in names
+    ]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    return [
+        "  ".join(cell.rjust(width) for cell, width in zip(row, widths, strict=True))
+        for row in rows
+    ]

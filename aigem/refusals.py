@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from aigem.config import ModelConfig, TrainConfig, horizon_steps
+from aigem.paper_folder import refuse_paper_folder_as_run
 from aigem.records import (
     BEST,
     EARLY_FILES,
@@ -313,7 +314,9 @@ def check_evaluate(
     """Everything `evaluate` would refuse before it loads a model: a
     directory that is not a run, or not a finished one; the run's build gone; another build
     without `other_build`, or one that does not fit the model (check_build); an empty split; a
-    multi-horizon run whose models cannot be scored in one pass (check_one_fit)."""
+    multi-horizon run whose models cannot be scored in one pass (check_one_fit); a folder of
+    `aigem paper`, naming its runs."""
+    refuse_paper_folder_as_run(run_dir)
     recorded, opened = [], {}
     for member in read_group(run_dir).members:
         info = read_run_info(member)

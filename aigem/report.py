@@ -7,8 +7,11 @@ evaluations on the test split and the paper's model's metrics logs.
               minus constant velocity's; the paper's Table 1 and the published NGSIM
               constant-velocity row (Deo and Trivedi 2018)
     dmin      RMSE per horizon of the fits with the output concatenation, by d_min, and each
-              one's difference to the paper's d_min 25 m
+              one's difference to the paper's d_min 25 m; with one seed each fit's bootstrap
+              intervals and its AiGem minus constant velocity (`dmin_minus_constant_velocity`,
+              `dmin_intervals`), as Table 1
     concat    RMSE per horizon of the d_min 25 m fits with and without it, and the difference
+              (likewise)
     curves    train and validation RMSE per epoch of each horizon's model of the paper's fit
               (the square root of the logged MSE, metres), and why train lies above validation
     regions   RMSE per horizon by the actor's present position (aigem.metrics.region_of)
@@ -24,8 +27,9 @@ of another kind (a bootstrap over one run's test samples) fits the same cell, re
 and words it alike, and `intervals` is then where its kind is said.
 
 dmin, concat and regions each hold constant velocity on the same targets, and beside them the
-published rows (PUBLISHED_SERIES_NOTE: the paper draws these results without numbers). The runs'
-lines say each model's "trained N of M" epochs, and how to continue an unfinished fit.
+published rows (PUBLISHED_SERIES_NOTE: the paper draws these results without numbers); Table 1's
+notes say where a published row's RMSE at 5 s lies below its FDE (aigem.results.below_fde). The
+runs' lines say each model's "trained N of M" epochs, and how to continue an unfinished fit.
 
 Where the builds are of synthetic data every table and figure says SYNTHETIC, where some of
 their inputs are PARTLY SYNTHETIC; where --max-hours left a run unfinished, UNFINISHED (and
@@ -54,6 +58,7 @@ from aigem.results import (
     PAPER_TABLE,
     PUBLISHED_CONSTANT_VELOCITY,
     Evaluation,
+    below_fde,
     paper_rows,
 )
 from ngsim_graphs.partial_files import write_atomic
@@ -73,6 +78,11 @@ PUBLISHED_SERIES_NOTE = (
     "The paper draws its d_min, concatenation and front / mid / rear results as figures without "
     "numbers; the published rows here are its Table 1 row and the constant-velocity row of "
     f"{CONSTANT_VELOCITY_CITATION}, for scale."
+) + (
+    " Its AiGem row's RMSE at 5 s lies below its FDE, which its own definitions rule out: see "
+    "Table 1's note."
+    if "AiGem (paper)" in below_fde()
+    else ""
 )
 SEED_INTERVALS = (
     "Student's t over the seeds, N - 1 degrees of freedom: an interval so made holds the mean "
@@ -80,9 +90,10 @@ SEED_INTERVALS = (
 )
 BOOTSTRAP_INTERVALS = (
     "percentile bootstrap over the test samples, each sample's actors drawn together; AiGem "
-    "minus constant velocity on the same resamples. It measures the noise of the test set, not "
-    "that of training, which only more seeds measure"
+    "minus constant velocity on the same resamples. It measures the test-set noise, not the "
+    "training noise, which only more seeds measure"
 )
+RMSE_KEYS = tuple(f"rmse_{s}s_m" for s in SECONDS)  # RMSE at 1..5 s, evaluate's keys
 # A fit's settings and its runs, one per seed: seed, run (its folder's name), models (courses).
 Fit = dict[str, Any]
 
@@ -130,30 +141,42 @@ def _row(rows: Sequence[dict[str, Any]], parameters: int | None = None) -> dict[
     return row
 
 
+def _paired_cells(evaluation: Evaluation, keys: Sequence[str], kind: str) -> list[Cell | None]:
+    """The cells of `keys` from one run's bootstrap intervals (`kind`: a field of
+    intervals.Paired: model, constant_velocity or difference, AiGem minus constant velocity on
+    the same resamples); None for a key without an interval."""
+    found = evaluation.intervals.metrics if evaluation.intervals is not None else {}
+    return [None if key not in found else getattr(found[key], kind).as_dict() for key in keys]
+
+
+def _bootstrap_kind(evaluation: Evaluation) -> dict[str, Any]:
+    """What a run's bootstrap intervals are, as report.json's `intervals` of a part says it."""
+    found = evaluation.intervals
+    assert found is not None
+    return {
+        "kind": "bootstrap",
+        "level": LEVEL,
+        "resamples": found.resamples,
+        "samples": found.samples,
+        "method": BOOTSTRAP_INTERVALS,
+    }
+
+
 def _bootstrap_table1(evaluation: Evaluation) -> dict[str, Any] | None:
     """Table 1's cells of one seed's run from its evaluation's bootstrap intervals (resampled
     test samples, AiGem against constant velocity paired on the same resamples); None where the
     evaluation has none."""
-    found = evaluation.intervals
-    if found is None:
+    if evaluation.intervals is None:
         return None
 
-    def cells(kind: str) -> dict[str, Cell | None]:  # kind: a field of intervals.Paired
-        paired = {key: found.metrics.get(key) for key in TABLE1_KEYS}
-        return {k: None if p is None else getattr(p, kind).as_dict() for k, p in paired.items()}
+    def cells(kind: str) -> dict[str, Cell | None]:
+        return dict(zip(TABLE1_KEYS, _paired_cells(evaluation, TABLE1_KEYS, kind), strict=True))
 
     aigem = cells("model") | {"params_k": round(evaluation.parameters / 1000, 1)}
-    difference = cells("difference")
     return {
         "ours": {"AiGem (this run)": aigem, "constant velocity": cells("constant_velocity")},
-        "aigem_minus_constant_velocity_rmse_m": [difference[f"rmse_{s}s_m"] for s in SECONDS],
-        "intervals": {
-            "kind": "bootstrap",
-            "level": LEVEL,
-            "resamples": found.resamples,
-            "samples": found.samples,
-            "method": BOOTSTRAP_INTERVALS,
-        },
+        "aigem_minus_constant_velocity_rmse_m": _paired_cells(evaluation, RMSE_KEYS, "difference"),
+        "intervals": _bootstrap_kind(evaluation),
     }
 
 
@@ -179,7 +202,7 @@ def table1(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
         **cells,
         "targets": [first.model["all"].get(f"n_{s}s") for s in SECONDS],
         "published": {**paper_rows(), **paper_rows(PUBLISHED_CONSTANT_VELOCITY)},
-        "published_notes": PAPER_NOTES,
+        "published_notes": {**PAPER_NOTES, **below_fde()},
         "published_source": f"{PAPER_CITATION} (NGSIM US-101 and I-80); constant velocity: "
         f"{CONSTANT_VELOCITY_CITATION}",
     }
@@ -246,12 +269,16 @@ def regions(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
 
 def ablation(
     evaluations: dict[str, Sequence[Evaluation]], labelled: dict[str, str], paper: str | None
-) -> dict[str, dict[str, list[Cell | None]]]:
+) -> dict[str, Any]:
     """An ablation's parts: each fit's (`labelled`: label -> fit name) RMSE cells, constant
-    velocity's on its targets, and its difference to the `paper` fit (paired by seed)."""
+    velocity's on its targets, and its difference to the `paper` fit (paired by seed). With one
+    seed, where its evaluations have them, the cells of each fit's bootstrap over its test
+    samples, as Table 1's: AiGem's, constant velocity's and AiGem minus constant velocity's
+    (`minus_constant_velocity`, on the same resamples); `intervals` says which (None: the
+    seeds')."""
     series = {label: [rmse_series(e) for e in evaluations[n]] for label, n in labelled.items()}
     reference = [rmse_series(e) for e in evaluations[paper]] if paper else None
-    return {
+    parts: dict[str, Any] = {
         "rmse": {label: series_cells(values) for label, values in series.items()},
         "constant_velocity": {
             label: constant_velocity_cells(evaluations[n]) for label, n in labelled.items()
@@ -261,7 +288,21 @@ def ablation(
             for label, name in labelled.items()
             if reference is not None and name != paper
         },
+        "minus_constant_velocity": {},
+        "intervals": None,
     }
+    runs = {label: evaluations[name] for label, name in labelled.items()}
+    if all(len(each) == 1 and each[0].intervals is not None for each in runs.values()):
+        paired = lambda kind: {  # noqa: E731
+            label: _paired_cells(each[0], RMSE_KEYS, kind) for label, each in runs.items()
+        }
+        parts |= {
+            "rmse": paired("model"),
+            "constant_velocity": paired("constant_velocity"),
+            "minus_constant_velocity": paired("difference"),
+            "intervals": _bootstrap_kind(next(iter(runs.values()))[0]),
+        }
+    return parts
 
 
 def _data_words(synthetic: bool, partly_synthetic: bool) -> str:
@@ -356,11 +397,15 @@ def paper_report(
 
 def _prefixed(key: str, parts: dict[str, Any]) -> dict[str, Any]:
     """An ablation's parts under report.json's keys: KEY (the RMSE cells), KEY_constant_velocity,
-    KEY_difference (to the paper's configuration)."""
+    KEY_difference (to the paper's configuration), KEY_minus_constant_velocity (each fit's AiGem
+    minus constant velocity: with one seed, the bootstrap's) and KEY_intervals (None: the
+    seeds')."""
     return {
         key: parts["rmse"],
         f"{key}_constant_velocity": parts["constant_velocity"],
         f"{key}_difference": parts["difference"],
+        f"{key}_minus_constant_velocity": parts["minus_constant_velocity"],
+        f"{key}_intervals": parts["intervals"],
     }
 
 

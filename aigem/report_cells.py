@@ -8,10 +8,13 @@ settings is beyond the noise.
     difference_cells one setting's RMSE minus another's, per horizon, paired by seed: each
                      seed's difference, then their mean and interval
     noise_sentence   per horizon, whether that difference's interval excludes 0 (beyond the
-                     noise: another set of seeds would keep its sign) or holds it (within)
+                     noise: another set of seeds, or of test samples, would keep its sign) or
+                     holds it (within)
 
-A cell of one seed has no bounds; an interval of another kind (say a bootstrap over one run's
-samples) fits the same cell and is shown and worded alike.
+A cell of one seed has no bounds; an interval of another kind (a bootstrap over one run's test
+samples) fits the same cell and is shown alike. The two kinds measure two noises, which the
+words name apart (NOISES): the seeds' intervals the training noise, the bootstrap's the test
+set's.
 """
 
 from __future__ import annotations
@@ -25,6 +28,14 @@ SECONDS = tuple(round(h) for h in HORIZONS_S)  # 1..5: the keys' rmse_{s}s_m
 TABLE1_KEYS = ("ade_m", "fde_m", *(f"rmse_{s}s_m" for s in SECONDS))  # its number columns
 Cell = dict[str, float | None]  # Interval.as_dict(): value, low, high (None: no bounds)
 LOWER, HIGHER, WITHIN = "lower", "higher", "within"  # a difference's verdict
+# What each kind of interval measures, by report.json's intervals "kind": its name in the words.
+NOISES = {"seeds": "training noise", "bootstrap": "test-set noise"}
+NOISES_SAID = (
+    "Two noises are named apart here. The training noise: how much another seed "
+    "(initialisation, shuffling, dropout) would change a run's numbers; only runs at several "
+    "seeds measure it (`--seeds`). The test-set noise: how much another draw of test samples "
+    "would change them; a bootstrap over the test samples measures it."
+)
 
 
 def seed_cell(values: Sequence[float | None]) -> Cell | None:
@@ -94,30 +105,32 @@ def known(cells: Sequence[Cell | None]) -> bool:
     return any(verdict(cell) is not None for cell in cells)
 
 
-def _horizons(seconds: Sequence[int]) -> str:
-    """[1, 2, 5] -> "1, 2 and 5 s"."""
-    words = [str(s) for s in seconds]
+def seconds_words(seconds: Sequence[float]) -> str:
+    """[1, 2, 5] -> "1, 2 and 5 s"; [2.5] -> "2.5 s"."""
+    words = [f"{s:g}" for s in seconds]
     listed = words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
     return f"{listed} s"
 
 
-def noise_sentence(subject: str, cells: Sequence[Cell | None]) -> str:
+def noise_sentence(subject: str, cells: Sequence[Cell | None], kind: str = "seeds") -> str:
     """In words, per horizon (1..5 s), whether `subject`'s RMSE difference (cells: one per
-    horizon) is lower or higher beyond the noise, or within it; "no interval" where the cells
-    have no bounds (one seed)."""
+    horizon) is lower or higher beyond the noise its intervals measure (`kind`: "seeds", the
+    training noise; "bootstrap", the test-set noise: NOISES), or within it; "no interval" where
+    the cells have no bounds (one seed)."""
+    noise = NOISES[kind]
     verdicts = [verdict(cell) for cell in cells]
     if all(v is None for v in verdicts):
-        return f"{subject}: no interval (one seed), so no telling this difference from the noise."
+        return f"{subject}: no interval (one seed), so no telling this difference from the {noise}."
     said = []
-    for kind, words in (
-        (LOWER, "lower (better) beyond the noise"),
-        (HIGHER, "higher (worse) beyond the noise"),
-        (WITHIN, "within the noise (the interval holds 0)"),
+    for which, words in (
+        (LOWER, f"lower (better) beyond the {noise}"),
+        (HIGHER, f"higher (worse) beyond the {noise}"),
+        (WITHIN, f"within the {noise} (the interval holds 0)"),
     ):
-        at = [s for s, v in zip(SECONDS, verdicts, strict=True) if v == kind]
+        at = [s for s, v in zip(SECONDS, verdicts, strict=True) if v == which]
         if at:
-            said.append(f"{words} at {_horizons(at)}")
+            said.append(f"{words} at {seconds_words(at)}")
     missing = [s for s, v in zip(SECONDS, verdicts, strict=True) if v is None]
     if missing:
-        said.append(f"no number at {_horizons(missing)}")
+        said.append(f"no number at {seconds_words(missing)}")
     return f"{subject}: RMSE {'; '.join(said)}."

@@ -1,11 +1,15 @@
 """report.md of `aigem paper`: report.json's document (aigem.report) as Markdown tables and words.
 
 Every AiGem number is shown as its cell (aigem.report_cells.shown): "1.23 [1.18, 1.28]", the
-mean over the seeds and its 95 % interval, or "1.23" where it has none (one seed). Each ablation
-gives its difference to the paper's configuration, per horizon, and says in words where that
-difference is beyond the noise and where within it; Table 1 likewise AiGem against constant
-velocity. With one seed the report says once, at its top, that the intervals need more seeds,
-and holds no difference rows (a difference without an interval cannot be told from the noise).
+mean over the seeds and its 95 % interval, or with one seed the number and its run's bootstrap
+interval over the test samples (Table 1, the ablations), or the number alone. The words name the
+two noises apart (report_cells.NOISES): the seeds' intervals measure the training noise, the
+bootstrap's the test-set noise. With seeds each ablation gives its difference to the paper's
+configuration per horizon and says where it is beyond the training noise and where within it;
+with one seed the report says so once, at its top, and each ablation gives each fit's AiGem
+minus constant velocity (the bootstrap's, as Table 1 does) instead: a difference between two
+fits cannot be told from the training noise. Constant velocity is one row of a table where it
+is alike on every fit's targets. The head says the epochs beside the paper's.
 """
 
 from __future__ import annotations
@@ -13,7 +17,16 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from aigem.report_cells import SECONDS, TABLE1_KEYS, Cell, known, noise_sentence, shown
+from aigem.paper_folder import PAPER_EPOCHS
+from aigem.report_cells import (
+    NOISES_SAID,
+    SECONDS,
+    TABLE1_KEYS,
+    Cell,
+    known,
+    noise_sentence,
+    shown,
+)
 
 UNFINISHED = "UNFINISHED: training stopped by --max-hours; run the same command again to continue"
 TIME_HEADING = "## Time taken"  # report.md's last section: the only one that differs between calls
@@ -25,9 +38,15 @@ TRAIN_ABOVE_VALIDATION = (
 )
 ONE_SEED = (
     "One seed: no difference between two settings (an ablation, AiGem against constant "
-    "velocity) can be told from the noise of training; `--seeds 3` or more gives each AiGem "
-    "number and each difference its 95 % interval over the seeds. Table 1's brackets hold the "
-    "noise of the test set alone (a bootstrap over its samples)."
+    "velocity) can be told from the training noise; `--seeds 3` or more gives each AiGem number "
+    "and each difference its 95 % interval over the seeds. The brackets of this report hold the "
+    "test-set noise alone (a bootstrap over the test samples of each fit's one run)."
+)
+# Why the ablations hold no difference between two fits with one seed.
+NO_FIT_DIFFERENCE = (
+    "With one seed no fit can be told from another beyond the training noise, which the "
+    "brackets do not hold: `--seeds 3` or more gives each fit's difference to the paper's "
+    "configuration its interval."
 )
 
 
@@ -71,23 +90,42 @@ def intervals_lines(document: dict[str, Any]) -> list[str]:
     """What the intervals are, once at the top (ONE_SEED where there are none)."""
     kind = document.get("intervals")
     if kind is None:
-        return [ONE_SEED, ""]
+        return [NOISES_SAID, "", ONE_SEED, ""]
     return [
+        NOISES_SAID,
+        "",
         f"Each fit was trained {len(document['seeds'])} times, at {_seeds_words(document['seeds'])}"
         f" (a run each). Every AiGem number is the mean over the seeds and, in brackets, its "
-        f"{100 * kind['level']:g} % interval ({kind['method']}). A difference between two settings is "
-        "taken seed by seed before its mean and interval; it is beyond the noise where its "
-        "interval excludes 0, within it where the interval holds 0. Constant velocity does not "
-        "depend on the seed: its numbers have no interval.",
+        f"{100 * kind['level']:g} % interval ({kind['method']}): the training noise. A difference "
+        "between two settings is taken seed by seed before its mean and interval; it is beyond "
+        "the training noise where its interval excludes 0, within it where the interval holds 0. "
+        "Constant velocity does not depend on the seed: its numbers have no interval.",
         "",
     ]
 
 
-def _noise_lines(subject: Callable[[str], str], cells: dict[str, list[Cell | None]]) -> list[str]:
-    """One sentence per difference (noise_sentence), as a list; none without intervals."""
+def _noise_lines(
+    subject: Callable[[str], str], cells: dict[str, list[Cell | None]], kind: str = "seeds"
+) -> list[str]:
+    """One sentence per difference (noise_sentence; `kind`: which intervals, naming the noise
+    they measure), as a list; none without intervals."""
     if not any(known(row) for row in cells.values()):
         return []
-    return [f"- {noise_sentence(subject(label), row)}" for label, row in cells.items()] + [""]
+    return [f"- {noise_sentence(subject(label), row, kind)}" for label, row in cells.items()] + [""]
+
+
+def _kind(intervals: dict[str, Any] | None) -> str:
+    """The kind of a part's intervals ("seeds" where it has none of its own: the report's)."""
+    return "seeds" if intervals is None else intervals["kind"]
+
+
+def _bootstrap_note(intervals: dict[str, Any], whose: str) -> str:
+    """What a part's bootstrap brackets are: `whose` run, resampled how often."""
+    return (
+        f"- In brackets: {100 * intervals['level']:g} % intervals of {whose} "
+        f"({intervals['method']}; {intervals['resamples']:,} resamples of "
+        f"{intervals['samples']:,} samples)."
+    )
 
 
 def _table1_lines(document: dict[str, Any]) -> list[str]:
@@ -112,11 +150,7 @@ def _table1_lines(document: dict[str, Any]) -> list[str]:
     against = {"AiGem": part["aigem_minus_constant_velocity_rmse_m"]}
     bootstrap = part.get("intervals")
     if bootstrap is not None:
-        notes.append(
-            f"- In brackets: {100 * bootstrap['level']:g} % intervals of this one seed's run "
-            f"({bootstrap['method']}; {bootstrap['resamples']:,} resamples of "
-            f"{bootstrap['samples']:,} samples)."
-        )
+        notes.append(_bootstrap_note(bootstrap, "this one seed's run"))
     return [
         f"## Table 1: AiGem beside constant velocity and the published models{_mark(document)}",
         "",
@@ -129,7 +163,11 @@ def _table1_lines(document: dict[str, Any]) -> list[str]:
         *notes,
         "",
         *_difference_table("AiGem minus constant velocity", against),
-        *_noise_lines(lambda _: "AiGem against constant velocity on the same targets", against),
+        *_noise_lines(
+            lambda _: "AiGem against constant velocity on the same targets",
+            against,
+            _kind(bootstrap),
+        ),
         "![Table 1 as a figure](figures/table1.png)",
         "",
     ]
@@ -152,28 +190,56 @@ def _difference_table(first: str, cells: dict[str, list[Cell | None]]) -> list[s
 
 
 def _series_lines(
-    document: dict[str, Any], key: str, title: str, first: str, against: Callable[[str], str]
+    document: dict[str, Any],
+    key: str,
+    title: str,
+    first: str,
+    named: Callable[[str], str],
+    against: Callable[[str], str],
 ) -> list[str]:
-    """An ablation's AiGem rows, constant velocity on each fit's targets, the published rows;
-    each fit's difference to the paper's configuration and what it says (`against(label)`: the
-    sentence's subject)."""
+    """An ablation's AiGem rows, constant velocity (once, on the fits' targets), the published
+    rows; with one seed each fit's bootstrap intervals and its AiGem minus constant velocity (as
+    Table 1), with seeds each fit's difference to the paper's configuration; what each says
+    (`named(label)`: a fit in words; `against(label)`: the subject of a fit's difference to the
+    paper's configuration)."""
     rows = [[label, *map(shown, values)] for label, values in document[key].items()]
-    rows += [
-        [f"{label}: constant velocity, same targets", *map(shown, values)]
-        for label, values in document[f"{key}_constant_velocity"].items()
-    ]
-    differences = document[f"{key}_difference"]
+    rows += _constant_velocity_rows(document[f"{key}_constant_velocity"])
+    bootstrap = document.get(f"{key}_intervals")
+    notes = [document["published_rmse_note"], ""]
+    if bootstrap is None:
+        differences = document[f"{key}_difference"]
+        judged = [
+            *_difference_table(f"{first}: minus the paper's", differences),
+            *_noise_lines(against, differences),
+        ]
+    else:
+        notes += [_bootstrap_note(bootstrap, "each fit's one run"), "", NO_FIT_DIFFERENCE, ""]
+        minus = document[f"{key}_minus_constant_velocity"]
+        subject = lambda label: f"{named(label)}: AiGem against constant velocity"  # noqa: E731
+        judged = [
+            *_difference_table(f"{first}: AiGem minus constant velocity", minus),
+            *_noise_lines(subject, minus, "bootstrap"),
+        ]
     return [
         f"## {title}{_mark(document)}",
         "",
         *_table(_rmse_header(first), rows + _published_rows(document)),
         "",
-        document["published_rmse_note"],
-        "",
-        *_difference_table(f"{first}: minus the paper's", differences),
-        *_noise_lines(against, differences),
+        *notes,
+        *judged,
         f"![{title}](figures/{key}.png)",
         "",
+    ]
+
+
+def _constant_velocity_rows(cells: dict[str, list[Cell | None]]) -> list[list[str]]:
+    """Constant velocity's row of an ablation: once where its numbers are alike on every fit's
+    targets (constant velocity depends on the targets alone), else one row per fit."""
+    shown_rows = {label: [shown(cell) for cell in values] for label, values in cells.items()}
+    if len({tuple(row) for row in shown_rows.values()}) == 1:
+        return [["constant velocity, same targets", *next(iter(shown_rows.values()))]]
+    return [
+        [f"{label}: constant velocity, same targets", *row] for label, row in shown_rows.items()
     ]
 
 
@@ -295,7 +361,8 @@ def _head_lines(document: dict[str, Any]) -> list[str]:
         ),
         "",
         f"Inputs: {_counted(len(settings['inputs']), 'file')}, {size:,} bytes. Training: up to "
-        f"{_counted(settings['epochs'], 'epoch')}, batch {settings['batch_size']}, "
+        f"{_counted(settings['epochs'], 'epoch')} per model ({_paper_epochs(settings['epochs'])}"
+        f"), batch {settings['batch_size']}, "
         f"{_seeds_words(document['seeds'])}, patience {'none' if patience is None else patience}."
         f" Scored on the {document['split']} split.",
         "",
@@ -307,19 +374,28 @@ def _head_lines(document: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _paper_epochs(epochs: int) -> str:
+    """This call's epochs beside the paper's."""
+    if epochs == PAPER_EPOCHS:
+        return "the paper's"
+    return f"the paper trains {PAPER_EPOCHS}; this call {epochs}"
+
+
 def report_markdown(document: dict[str, Any], timings: dict[str, float]) -> str:
     """report.md: the report's tables, its figures, and the time each stage took (last)."""
     lines = _head_lines(document)
     if "table1" in document:
         lines += _table1_lines(document)
     if "dmin" in document:
+        named = lambda d: f"d_min {d} m"  # noqa: E731
         against = lambda d: f"d_min {d} m against the paper's 25 m"  # noqa: E731
-        lines += _series_lines(document, "dmin", "d_min ablation", "d_min (m)", against)
+        lines += _series_lines(document, "dmin", "d_min ablation", "d_min (m)", named, against)
     if "concat" in document:
         title = "Output concatenation ablation (d_min 25 m)"
         first = "previous position at the MLP"
+        named = lambda label: f"{label} the concatenation"  # noqa: E731
         against = lambda _: "without the concatenation against with it (the paper's)"  # noqa: E731
-        lines += _series_lines(document, "concat", title, first, against)
+        lines += _series_lines(document, "concat", title, first, named, against)
     if "curves" in document:
         lines += _curves_lines(document)
     if "regions" in document:

@@ -6,6 +6,7 @@ aigem.plots draws them; the CLI prints them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,6 +60,29 @@ PAPER_NOTES = {
     "GRIP++ (paper)": "parameters not reported by GRIP++'s authors; the AiGem paper extracted "
     "the number from their shared code",
 }
+
+
+def below_fde(table: dict[str, dict[str, Any]] = PAPER_TABLE) -> dict[str, str]:
+    """Per published row whose RMSE at 5 s lies below its FDE (at 5 s too), why its numbers
+    cannot be of one set of predictions scored by the paper's own definitions: at one step the
+    RMSE, the root of the mean squared Euclidean distance, is at least the mean distance (the
+    quadratic mean is never below the arithmetic one), and the FDE is that mean at 5 s."""
+    notes = {}
+    for name, row in table.items():
+        fde, rmse = row["fde_m"], row["rmse_m"][-1]
+        if fde is not None and rmse < fde:
+            notes[name] = (
+                f"its RMSE at 5 s ({rmse:.2f} m) lies below its FDE ({fde:.2f} m), which the "
+                "paper's own definitions rule out for one set of predictions: at a step the RMSE "
+                "(the root of the mean squared distance) is at least the mean distance, the FDE "
+                "at 5 s; so its RMSE cannot be the Euclidean one of the predictions its FDE "
+                "scores (its formula writes no norm: an RMSE per coordinate, the Euclidean one over "
+                f"√2, would fit, {rmse:.2f} × √2 = {rmse * math.sqrt(2):.2f} m ≥ {fde:.2f} m; "
+                "the paper does not say which)"
+            )
+    return notes
+
+
 PAPER_CITATION = (
     "Samiuddin, Boulet, Wu: Trajectory Prediction for Autonomous Driving using Agent-Interaction "
     "Graph Embedding, arXiv:2410.23298, Table 1"

@@ -108,7 +108,7 @@ class Member:
     stopped: str | None  # why it trains no more: epochs, early stopping, time limit
     rng: RngState | None = None  # its dropout stream, between its steps
     running: torch.Tensor | None = None  # its training loss of the epoch, summed on the device
-    shown: float = math.nan  # its mean training loss of the epoch, as last read
+    shown: float = math.nan  # its mean training loss of the epoch, as last read (NaN: none yet)
     group: Path | None = None  # the multi-horizon run it is a member of
     # when its curves.png was last drawn (time.monotonic; at first, when the fit began: a fit
     # shorter than CURVES_EVERY_S draws it once, at its end)

@@ -17,12 +17,12 @@ from aigem import __version__
 from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, parse_horizons_s
 from ngsim_cli.console import (
     HELP_SETTINGS,
-    TextArguments,
     add_version_option,
     check_device,
     exit_on_error,
     exit_on_interrupt,
     in_option_words,
+    naming_the_other_program,
     option_names,
     print_warning,
     progress_bar,
@@ -50,7 +50,7 @@ app = typer.Typer(
     help="AiGem trajectory prediction (GAT + linear encoder, GRU decoder, MLP output).",
     no_args_is_help=True,
     add_completion=False,
-    cls=TextArguments,
+    cls=naming_the_other_program("ngsim-graphs", "ngsim_cli.ngsim"),
     **HELP_SETTINGS,
 )
 
@@ -275,9 +275,10 @@ def _train(
         # One bar over the run's epochs, so that its ETA is the run's (at the rate of the
         # recent batches; validation and early stopping are not foreseen).
         show = lambda epoch, done, total, losses: progress(
-            f"epoch {epoch}/{train.epochs} loss {running_losses(losses)} m²",
+            f"epoch {epoch}/{train.epochs}",
             (epoch - 1) * total + done,
             train.epochs * total,
+            running_losses(losses),
         )
         on_epoch = lambda horizon_s, row: print_epoch(row, who(horizon_s))
         loading = lambda what, done, total: progress(f"loading {what}", done, total)

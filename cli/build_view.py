@@ -7,6 +7,7 @@ from rich.table import Table
 
 from ngsim_cli.console import counted, print_table, stderr, stdout
 from ngsim_cli.stats_view import SPLIT_NAMES
+from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.pipeline import BuildResult
 from ngsim_graphs.schema import DropReason, SplitMode
 from ngsim_graphs.sources.registry import drop_descriptions, label
@@ -50,15 +51,32 @@ def print_build_report(result: BuildResult) -> None:
     stdout.print(
         "samples: "
         + ", ".join(f"{splits.get(name, 0):,} {name}" for name in SPLIT_NAMES)
-        + f" ({counts.samples:,} in all; shares {shares}"
-        + (
-            ", the vehicle split cutting at Vehicle_IDs"
-            if result.manifest.config.split is SplitMode.VEHICLE
-            else ""
-        )
-        + ").",
+        + f" ({counts.samples:,} in all; shares {shares}: {split_words(result.manifest.config)}).",
         markup=False,
         highlight=False,
+    )
+
+
+def split_words(config: BuildConfig) -> str:
+    """Why the shares of samples are not the split's fractions (ngsim_graphs.splits): what each
+    split mode divides, and why samples do not follow it."""
+    train, val, _ = config.split_fractions
+    if config.split is SplitMode.VEHICLE:
+        return (
+            f"the vehicle split cuts each recording's Vehicle_IDs at {train:.0%} and "
+            f"{train + val:.0%} of its largest, not its samples, and vehicles give different "
+            "numbers of samples: the last IDs entered last, and the recording's end cuts their "
+            "tracks short"
+        )
+    if config.split is SplitMode.TIME:
+        return (
+            f"the time split cuts each recording's windows at {train:.0%} and {train + val:.0%} "
+            "by present time, and drops those within a window after each cut"
+        )
+    fractions = " / ".join(f"{f:.0%}" for f in config.split_fractions)
+    return (
+        f"the random split draws {fractions} of the ego tracks, not of the samples, and tracks "
+        "give different numbers of samples"
     )
 
 

@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any, Protocol
 
 import typer
 from rich.console import Console
@@ -73,17 +74,26 @@ def print_table(table: Table) -> None:
 
 
 # Where stderr is not a terminal (a file, a pipe, a job scheduler's log): a plain progress line
-# every this many seconds, the first this long after the start (a quick command prints none).
+# at each stage's end, and within a stage every this many seconds.
 PLAIN_PROGRESS_INTERVAL_S = 30.0
+TIMESTAMP = "%Y-%m-%d %H:%M:%S"  # before each line of a command's course in a log (progress_line)
+
+
+class ProgressCallback(Protocol):
+    """What is being done (a stage: a new one where it changes), the steps done of its total (0:
+    a step without a count), and a detail that changes within the stage (a running loss)."""
+
+    def __call__(self, what: str, done: int, total: int, detail: str = "") -> None: ...
 
 
 @contextmanager
-def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
-    """A callback (what, done, total) drawn as one bar on stderr, with the time elapsed and the
-    time left at the recent rate (ETA); where stderr is not a terminal, plain lines
-    (PlainProgress) at most every PLAIN_PROGRESS_INTERVAL_S."""
+def progress_bar() -> Iterator[ProgressCallback]:
+    """A callback (what, done, total, detail="") drawn as one bar on stderr, with the time
+    elapsed and the time left at the recent rate (ETA); where stderr is not a terminal, plain
+    lines (PlainProgress), each after its wall-clock time (progress_line)."""
     if not stderr.is_terminal:
-        yield PlainProgress(_plain_line, PLAIN_PROGRESS_INTERVAL_S)
+        with _lines_held(PLAIN_PROGRESS_INTERVAL_S) as held:
+            yield PlainProgress(held.write, PLAIN_PROGRESS_INTERVAL_S)
         return
     columns = (
         TextColumn("{task.description:<40}"),
@@ -97,24 +107,89 @@ def progress_bar() -> Iterator[Callable[[str, int, int], None]]:
         task = bar.add_task("starting", total=None)
         totals: list[int] = []
 
-        def update(what: str, done: int, total: int) -> None:
+        def update(what: str, done: int, total: int, detail: str = "") -> None:
+            described = f"{what} {detail}" if detail else what
             if totals != [total]:  # a new count (or a resumed run's first): a new rate, no jump
                 totals[:] = [total]
-                bar.reset(task, total=total, completed=done, description=what)
-            bar.update(task, description=what, completed=done, total=total)
+                bar.reset(task, total=total, completed=done, description=described)
+            bar.update(task, description=described, completed=done, total=total)
 
         yield update
 
 
-def _plain_line(line: str) -> None:
+def progress_line(line: str) -> None:
+    """A line of a command's course on stderr that is written at once (an epoch's losses: its
+    checkpoint is kept): where stderr is not a terminal (a log), after the wall-clock time
+    (TIMESTAMP) and after the progress lines held before it (_HeldLines); on a terminal, as it
+    is (the bar shows the times)."""
+    if stderr.is_terminal:
+        _write_line(line)
+        return
+    if _HELD:
+        _HELD[-1].flush()
+    _write_line(_stamped(line))
+
+
+def _stamped(line: str) -> str:
+    return f"{time.strftime(TIMESTAMP)} {line}"
+
+
+def _write_line(line: str) -> None:
     stderr.print(line, markup=False, highlight=False, soft_wrap=True)
 
 
+class _HeldLines:
+    """A log's progress lines while its command is young, each after the time it was made: kept
+    in order until the command has run `hold_s` (they are written then, and each later line at
+    once), a line written at once comes (progress_line), or the progress ends well. An error or
+    an interrupt before that drops them: a quick command that fails says its one error line
+    alone, and a command that runs longer logs every line it made."""
+
+    def __init__(self, hold_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.until_s, self.clock = clock() + hold_s, clock
+        self.lines: list[str] | None = []  # None: written at once from now on
+
+    def write(self, line: str) -> None:
+        if self.lines is not None and self.clock() < self.until_s:
+            self.lines.append(_stamped(line))
+            return
+        self.flush()
+        _write_line(_stamped(line))
+
+    def flush(self) -> None:
+        for line in self.lines or []:
+            _write_line(line)
+        self.lines = None
+
+
+_HELD: list[_HeldLines] = []  # the running progress_bar's held lines (innermost last)
+
+
+@contextmanager
+def _lines_held(hold_s: float) -> Iterator[_HeldLines]:
+    """Progress lines held in the block (_HeldLines): written where it ends well or once it has
+    run `hold_s`, dropped where it ends on an error or an interrupt before that."""
+    held = _HeldLines(hold_s)
+    _HELD.append(held)
+    try:
+        yield held
+    except BaseException:
+        held.lines = None  # dropped: the error's line is the command's one line
+        raise
+    else:
+        held.flush()
+    finally:
+        _HELD.pop()
+
+
 class PlainProgress:
-    """The progress bar as plain lines, `what: done/total (share), elapsed, about T left`: one
-    once `interval_s` seconds have passed since the start or the last line, and one at the end of
-    a stage (done == total) that has had a line. A stage starts at a new total, or where the count
-    goes back; its elapsed time is its own, its time left at its average rate so far."""
+    """The progress bar as plain lines, `what: done/total (share), elapsed, about T left; detail`:
+    one at the end of each stage (done reaching its total, once: another call at its end, with
+    another detail, writes nothing) and, within a stage, one once `interval_s` seconds have
+    passed since the last line. A stage starts where `what` or the total changes, or where the
+    count goes back; its elapsed time is its own, its time left at its average rate so far. No
+    line repeats the count of the line before. A stage's start says nothing: a command that
+    stops on an error in its first stage prints its error line alone."""
 
     def __init__(
         self,
@@ -123,34 +198,37 @@ class PlainProgress:
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.write, self.interval_s, self.clock = write, interval_s, clock
+        self.what: str | None = None
         self.total: int | None = None
         self.done = 0
         self.started_s, self.started_done = 0.0, 0
         self.written_s = clock()
-        self.written: tuple[str, int, int] | None = None  # the last line's arguments
-        self.stage_written = False
+        self.written: tuple[str, int, int] | None = None  # the last line's count
+        self.ended = False  # the stage's end has been reached
 
-    def __call__(self, what: str, done: int, total: int) -> None:
+    def __call__(self, what: str, done: int, total: int, detail: str = "") -> None:
         now = self.clock()
-        if total != self.total or done < self.done:
-            self.total, self.started_s, self.started_done = total, now, done
-            self.stage_written = False
+        started = what != self.what or total != self.total or done < self.done
+        if started:
+            self.what, self.total, self.started_s, self.started_done = what, total, now, done
+            self.ended = False
         self.done = done
+        ending = 0 < total <= done and not self.ended
         due = now - self.written_s >= self.interval_s
-        ended = self.stage_written and 0 < total <= done
-        if (due or ended) and self.written != (what, done, total):
-            self.write(self._line(what, done, total, now))
-            self.written_s, self.written, self.stage_written = now, (what, done, total), True
+        if (ending or due) and self.written != (what, done, total):
+            self.write(self._line(what, done, total, now, detail))
+            self.written_s, self.written = now, (what, done, total)
+        self.ended = self.ended or ending
 
-    def _line(self, what: str, done: int, total: int, now: float) -> str:
+    def _line(self, what: str, done: int, total: int, now: float, detail: str) -> str:
         if total <= 0:  # a step without a count
-            return what
+            return f"{what}; {detail}" if detail else what
         elapsed_s = now - self.started_s
         line = f"{what}: {done:,}/{total:,} ({done / total:.0%}), {_clock_time(elapsed_s)} elapsed"
         steps = done - self.started_done
         if done < total and steps > 0 and elapsed_s > 0:
             line += f", about {_clock_time((total - done) * elapsed_s / steps)} left"
-        return line
+        return f"{line}; {detail}" if detail else line
 
 
 def _clock_time(seconds: float) -> str:
@@ -162,6 +240,33 @@ def _clock_time(seconds: float) -> str:
 # Help as plain text wrapped to the terminal, up to 100 columns: the boxed tables of rich's help
 # squeeze an option's help into a narrow column next to its names and types.
 HELP_SETTINGS = {"rich_markup_mode": None, "context_settings": {"max_content_width": 100}}
+
+
+def naming_the_other_program(program: str, module: str) -> type[TyperGroup]:
+    """A command group of UTF-8 arguments (`TextArguments`) that answers a command of the other
+    program (`program`, whose typer app is `module`'s `app`) with where it is: `aigem show` ->
+    "No such command 'show': it is `ngsim-graphs show`". The other program is loaded only then."""
+
+    class Group(TextArguments):
+        def resolve_command(
+            self, ctx: typer.Context, args: list[str]
+        ) -> tuple[str | None, Any, list[str]]:
+            name = args[0] if args else None
+            if name and self.get_command(ctx, name) is None and name in _commands_of(module):
+                ctx.fail(f"No such command {name!r}: it is `{program} {name}`.")
+            return super().resolve_command(ctx, args)
+
+    return Group
+
+
+def _commands_of(module: str) -> list[str]:
+    """The command names of `module`'s typer app."""
+    import importlib
+
+    app = importlib.import_module(module).app
+    return [
+        info.name or info.callback.__name__.replace("_", "-") for info in app.registered_commands
+    ]
 
 
 def add_version_option(app: typer.Typer, program: str, version: str) -> None:

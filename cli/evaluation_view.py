@@ -10,11 +10,13 @@ from rich.table import Table
 from aigem.course import training_line, training_words
 from aigem.intervals import Interval, SampleIntervals
 from aigem.metrics import REGIONS, table_columns
+from aigem.report_cells import seconds_words
 from aigem.results import Evaluation, paper_rows
 from ngsim_cli.console import counted, print_table, print_warning, stdout
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 DIFFERENCE = "AiGem - constant velocity"  # the row of the paired differences
+PARAMS = "params (K)"  # the parameters' column: thousands, as the paper's Table 1 counts them
 
 
 def metrics_table(
@@ -32,7 +34,7 @@ def metrics_table(
     table.add_column("model", justify="left")
     for _, label in columns:
         table.add_column(label, justify="right")
-    table.add_column("params", justify="right")
+    table.add_column(PARAMS, justify="right")
     fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
     for name, row in rows.items():
         bounds = (intervals or {}).get(name, {})
@@ -141,15 +143,33 @@ def warn_unfinished(result: Evaluation) -> None:
 
 def _print_sources(result: Evaluation, seconds: int) -> None:
     """Which model of the run each number comes from (named by its horizon)."""
-    model = dict(zip(result.members, result.horizons_s, strict=True))
-    rmse = ", ".join(
-        f"{s} s from the {model[result.sources[f'rmse_{s}s_m']]:g} s model"
-        for s in range(1, seconds + 1)
-    )
+    stdout.print(sources_line(result, seconds), markup=False, highlight=False, soft_wrap=True)
+
+
+def sources_line(result: Evaluation, seconds: int) -> str:
+    """In words, which model each number comes from: a run's one model, or per model of a
+    multi-horizon run the seconds whose RMSE it gives (the first model that reaches them)."""
     horizon_s = result.horizons_s[-1]
-    paper = "" if horizon_s == 5 else " (the paper's over 5 s)"
-    stdout.print(
-        f"{len(result.members)} model(s), one per horizon: RMSE at {rmse}; ADE and FDE from the "
-        f"{horizon_s:g} s model, over {horizon_s:g} s{paper}. Constant velocity likewise, on the "
-        "same targets."
+    paper = "" if horizon_s == 5 else ", the paper's over 5 s"
+    whole = f"ADE and FDE over {horizon_s:g} s"
+    if len(result.members) == 1:
+        return (
+            f"One model, trained for {horizon_s:g} s: every number comes from it (RMSE at "
+            f"{seconds_words(range(1, seconds + 1))}; {whole}{paper}). Constant velocity on the "
+            "same targets."
+        )
+    model = dict(zip(result.members, result.horizons_s, strict=True))
+    at: dict[float, list[int]] = {}  # a model's horizon -> the seconds whose RMSE it gives
+    for second in range(1, seconds + 1):
+        at.setdefault(model[result.sources[f"rmse_{second}s_m"]], []).append(second)
+    if all(seconds_of == [h] for h, seconds_of in at.items()):
+        rmse = "RMSE at h s from the model trained for h s"
+    else:
+        rmse = "RMSE " + "; ".join(
+            f"at {seconds_words(seconds_of)} from the {h:g} s model" for h, seconds_of in at.items()
+        )
+    return (
+        f"{len(result.members)} models, one per horizon ({seconds_words(result.horizons_s)}): "
+        f"{rmse}; {whole} from the {horizon_s:g} s model{paper}. Constant velocity likewise, on "
+        "the same targets."
     )

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from ngsim_cli.console import counted, exit_on_error, stderr, stdout
+from ngsim_cli.console import counted, exit_on_error, progress_line, stderr, stdout
 
 if TYPE_CHECKING:
     from aigem.records import Group
@@ -81,18 +81,20 @@ def print_results(results: tuple[FitResult, ...], out: Path) -> None:
 
 
 def running_losses(losses: tuple[float, ...]) -> str:
-    """Running training losses of the progress bar: '-' for a model not training this epoch."""
-    return " | ".join("-" if math.isnan(loss) else f"{loss:.3f}" for loss in losses)
+    """The progress's detail: each model's running training loss of the epoch ("-" for a model
+    not training in it), or nothing before the epoch's first is read."""
+    if all(math.isnan(loss) for loss in losses):
+        return ""
+    shown = " | ".join("-" if math.isnan(loss) else f"{loss:.3f}" for loss in losses)
+    return f"loss {shown} m²"
 
 
 def print_epoch(row: dict[str, float], who: str = "") -> None:
-    """One line per epoch on stderr, so that a log of a long run shows its course."""
+    """One line per epoch on stderr (after its time in a log: progress_line), so that a log of
+    a long run shows its course; `who`: the model's words before it ("1 s model, ")."""
     best = " (best)" if row["best_epoch"] == row["epoch"] else ""
-    stderr.print(
+    progress_line(
         f"{who}epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
         f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
-        f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation",
-        markup=False,
-        highlight=False,
-        soft_wrap=True,
+        f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation"
     )

@@ -14,12 +14,12 @@ import typer
 from ngsim_cli.build_view import print_build_report
 from ngsim_cli.console import (
     HELP_SETTINGS,
-    TextArguments,
     add_version_option,
     counted,
     exit_on_error,
     exit_on_interrupt,
     in_option_words,
+    naming_the_other_program,
     option_names,
     print_error,
     print_table,
@@ -46,7 +46,7 @@ app = typer.Typer(
     help=f"Vehicle trajectories ({labels_in_words()}) to spatial-temporal graph datasets.",
     no_args_is_help=True,
     add_completion=False,
-    cls=TextArguments,
+    cls=naming_the_other_program("aigem", "ngsim_cli.aigem"),
     **HELP_SETTINGS,
 )
 

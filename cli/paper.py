@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from aigem.config import DeviceChoice
+from aigem.paper_folder import PAPER_EPOCHS
 from ngsim_cli.console import (
     check_device,
     exit_on_error,
@@ -20,6 +21,7 @@ from ngsim_cli.console import (
     stdout,
     usage_error,
 )
+from ngsim_cli.fit_view import print_epoch
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
 # PaperConfig's and PaperCall's fields set by an option (of another name: --patience)
@@ -44,8 +46,8 @@ def paper(
         ),
     ],
     epochs: Annotated[
-        int, typer.Option(min=1, help="Epochs of each model (the paper's: 100).")
-    ] = 100,
+        int, typer.Option(min=1, help=f"Epochs of each model (the paper's: {PAPER_EPOCHS}).")
+    ] = PAPER_EPOCHS,
     patience: Annotated[
         int | None,
         typer.Option(
@@ -167,7 +169,10 @@ def paper(
     )
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         try:
-            result = run_paper(raw_paths, out, config, call, progress)
+            on_epoch = lambda fit, horizon_s, row: print_epoch(
+                row, f"{fit}, {horizon_s:g} s model, "
+            )
+            result = run_paper(raw_paths, out, config, call, progress, on_epoch)
         except (NonFiniteLossError, DeviceUnavailableError, TimeLimitError) as err:
             print_error(str(err))
             raise typer.Exit(1) from None
@@ -197,7 +202,9 @@ def _print_summary(report: dict, out: Path) -> None:
         paper = report["table1"]["published"]["AiGem (paper)"]
         row = lambda cells: ", ".join(shown(cells[f"rmse_{s}s_m"]) for s in SECONDS)  # noqa: E731
         seeds = len(report["seeds"])
-        over = f", mean of {seeds} seeds [95 % interval]" if seeds > 1 else ""
+        over = f", mean of {seeds} seeds [95 % interval: the training noise]" if seeds > 1 else ""
+        if seeds == 1 and report["table1"].get("intervals") is not None:
+            over = ", in brackets its 95 % interval: the test-set noise"
         stdout.print(
             f"AiGem RMSE at 1..5 s (m{over}): {row(ours)}{kind}; the paper: {row(paper)}",
             markup=False,  # the intervals' brackets are no markup

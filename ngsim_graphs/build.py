@@ -27,6 +27,7 @@ from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, concat_batches,
 from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays
 from ngsim_graphs.manifest import Manifest, RecordingEntry
 from ngsim_graphs.schema import Split
+from ngsim_graphs.splits import split_named
 
 
 @dataclass(frozen=True)
@@ -71,7 +72,7 @@ class OpenBuild:
 
     def samples(self, split: Split | str) -> pl.DataFrame:
         """The samples table of a split (SAMPLE_SCHEMA and graph counts)."""
-        return read_table(self._listed(layout.samples_path(self.root, Split(split).value)))
+        return read_table(self._listed(layout.samples_path(self.root, split_named(split).value)))
 
     def tracks(self) -> pl.LazyFrame:
         """The tracks tables of every recording, scanned lazily (TRACKS_SCHEMA)."""
@@ -85,7 +86,7 @@ class OpenBuild:
     def sample_arrays(self, split: Split | str) -> dict[str, np.ndarray]:
         """recording_index, ego_track_id and start_step of every sample of a split (memory-mapped,
         read-only; opened once per split and shared between callers)."""
-        split = Split(split)
+        split = split_named(split)
         if split not in self._sample_arrays:
             folder = layout.sample_arrays_dir(self.root, split.value)
             arrays = self._open_arrays(folder, layout.SAMPLE_ARRAYS)

@@ -19,6 +19,15 @@ from ngsim_graphs.schema import Split, SplitMode
 SPLIT_ORDER = (Split.TRAIN, Split.VAL, Split.TEST)
 
 
+def split_named(name: Split | str) -> Split:
+    """The split called `name` ("train", "val", "test"); a ValueError naming the valid ones."""
+    try:
+        return Split(name)
+    except ValueError:
+        valid = ", ".join(split.value for split in SPLIT_ORDER)
+        raise ValueError(f"split {name!r}: must be one of {valid}") from None
+
+
 def _by_thresholds(value: pl.Expr, first: pl.Expr, second: pl.Expr) -> pl.Expr:
     return (
         pl.when(value <= first)

@@ -379,31 +379,58 @@ def torch_load(path: Path) -> dict:
     return torch.load(path, map_location="cpu", weights_only=True)
 
 
-def test_fit_and_evaluate_into_a_log_print_plain_progress_lines(
+STAMP = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d "  # console.TIMESTAMP's
+MSE = r"\d+\.\d{3} m²"
+
+
+def test_fit_and_evaluate_into_a_log_print_each_epoch_and_the_end_after_its_time(
     tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """stderr is not a terminal here: plain lines with the epoch, the running loss, the batches
-    done and the time; at most one a step (the interval 0), none repeated."""
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    """stderr is not a terminal here (a log): each line after its wall-clock time; each epoch's
+    train and validation loss, and the run's end (the lines every PLAIN_PROGRESS_INTERVAL_S
+    within it set out of reach here), once, with the last epoch's mean loss."""
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     run = tmp_path / "run"
-    fit = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
+    args = ["fit", str(tiny_build), "--out", str(run), *FIT, "--epochs", "2"]
+    fit = CliRunner().invoke(app, args)
     assert fit.exit_code == 0, fit.output
-    lines = [line for line in fit.stderr.splitlines() if " elapsed" in line]
-    batches = int(re.search(r"/(\d+) \(", lines[-1]).group(1))
-    assert 2 <= len(lines) <= batches + 1  # a line per batch at most, and the epoch's mean
-    assert re.fullmatch(
-        rf"epoch 1/1 loss \d+\.\d{{3}} m²: {batches}/{batches} \(100%\), 0:00:\d\d elapsed",
-        lines[-1],
-    ), lines[-1]
-    assert any(re.search(r"epoch 1/1 loss .*, about 0:00:\d\d left$", line) for line in lines)
+    lines = fit.stderr.splitlines()
+    assert all(re.match(STAMP, line) for line in lines), fit.stderr
+    patterns = [
+        rf"epoch 1: train MSE {MSE}, validation MSE {MSE} \(best\); .* s validation",
+        rf"epoch 2/2: (\d+)/\1 \(100%\), 0:00:\d\d elapsed; loss ({MSE})",
+        rf"epoch 2: train MSE ({MSE}), validation MSE {MSE}( \(best\))?; .* s validation",
+    ]
+    assert len(lines) == len(patterns), lines
+    found = [re.fullmatch(p, line[20:]) for p, line in zip(patterns, lines, strict=True)]
+    assert all(found), list(zip(patterns, lines, strict=True))
+    assert found[1].group(2) == found[2].group(1)  # the epoch's mean, as its line says
     evaluated = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu"])
     assert evaluated.exit_code == 0, evaluated.output
-    assert re.search(
-        r"^evaluating the test split: (\d+)/\1 \(100%\), 0:00:\d\d elapsed$",
-        evaluated.stderr,
-        re.MULTILINE,
-    ), evaluated.stderr
+    (line,) = evaluated.stderr.splitlines()
+    assert re.fullmatch(
+        rf"{STAMP}evaluating the test split: (\d+)/\1 \(100%\), 0:00:\d\d elapsed", line
+    )
     assert "\x1b" not in fit.stderr + evaluated.stderr
+
+
+def test_plain_lines_at_every_batch_repeat_no_count_and_no_earlier_epochs_loss(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With the interval 0 a line at every batch, none twice; a line of epoch 2 never shows
+    epoch 1's loss (the running loss before epoch 2's first is read shows none)."""
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    run = tmp_path / "run"
+    args = ["fit", str(tiny_build), "--out", str(run), *FIT, "--epochs", "2"]
+    fit = CliRunner().invoke(app, args)
+    assert fit.exit_code == 0, fit.output
+    lines = fit.stderr.splitlines()
+    counts = [found.group(1) for line in lines if (found := re.search(r": (\d+/\d+) \(", line))]
+    batches = int(counts[-1].split("/")[1])
+    assert counts == [f"{done}/{batches}" for done in range(1, batches + 1)]
+    first = re.search(rf"epoch 1: train MSE ({MSE})", fit.stderr).group(1)
+    later = [line for line in lines if "epoch 2/2:" in line]
+    assert later and not any(f"loss {first}" in line for line in later)
 
 
 def test_the_summary_says_why_a_model_stopped(capsys: pytest.CaptureFixture[str]) -> None:
@@ -473,3 +500,70 @@ def test_no_cuda_is_said_before_the_model_and_the_data_load(
             "error: --device cuda: no CUDA device is available\n",
         )
     assert not (tmp_path / "run").exists() and not (tmp_path / "paper").exists()
+
+
+@pytest.mark.parametrize(
+    ("program", "command", "said"),
+    [
+        (app, "show", "No such command 'show': it is `ngsim-graphs show`."),
+        (
+            app,
+            "export-cslstm",
+            "No such command 'export-cslstm': it is `ngsim-graphs export-cslstm`.",
+        ),
+        (ngsim_app, "fit", "No such command 'fit': it is `aigem fit`."),
+        (ngsim_app, "paper", "No such command 'paper': it is `aigem paper`."),
+        (app, "nothing", "No such command 'nothing'."),  # of neither program
+    ],
+)
+def test_a_command_of_the_other_program_says_which_program_has_it(
+    program,
+    command: str,
+    said: str,  # noqa: ANN001
+) -> None:
+    result = CliRunner().invoke(program, [command, "x"])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.splitlines()[-1] == f"Error: {said}"
+
+
+def test_evaluate_of_a_paper_folder_names_its_runs(tmp_path: Path) -> None:
+    paper = tmp_path / "paper"
+    (paper / "runs" / "dmin-25m").mkdir(parents=True)
+    (paper / "runs" / "dmin-0m").mkdir()
+    (paper / "paper.json").write_text(json.dumps({"written_by": "aigem paper"}))
+    result = CliRunner().invoke(app, ["evaluate", str(paper)])
+    assert one_error_line(result) == (
+        f"error: {paper}: is an `aigem paper` folder, not a run: its runs are at {paper}/runs: "
+        f"dmin-0m, dmin-25m (the paper's model: {paper}/runs/dmin-25m)"
+    )
+    (paper / "runs" / "dmin-25m").rmdir()
+    (paper / "runs" / "dmin-0m").rmdir()
+    result = CliRunner().invoke(app, ["evaluate", str(paper)])
+    assert (
+        one_error_line(result)
+        == f"error: {paper}: is an `aigem paper` folder, not a run: no run yet"
+    )
+
+
+def test_paper_given_a_build_says_it_wants_the_raw_files(tiny_build: Path, tmp_path: Path) -> None:
+    made_from = json.loads((tiny_build / "manifest.json").read_text())["inputs"][0]["path"]
+    result = CliRunner().invoke(app, ["paper", str(tiny_build), "--out", str(tmp_path / "o")])
+    assert one_error_line(result) == (
+        f"error: {tiny_build}: is an ngsim-graphs build, not raw trajectory files: aigem paper "
+        f"makes its three builds itself from the files a build is made of (this one was made "
+        f"from {made_from}); give those files or their folder"
+    )
+    assert not (tmp_path / "o").exists()
+
+
+def test_evaluate_says_which_model_each_number_comes_from(tiny_run: Path) -> None:
+    result = CliRunner().invoke(
+        app, ["evaluate", str(tiny_run), "--device", "cpu", "--bootstrap", "0"]
+    )
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.stdout.split())
+    assert (
+        "One model, trained for 2 s: every number comes from it (RMSE at 1 and 2 s; ADE and FDE "
+        "over 2 s, the paper's over 5 s). Constant velocity on the same targets." in text
+    )
+    assert "model(s)" not in text and "params (K)" in text

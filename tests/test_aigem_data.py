@@ -106,6 +106,12 @@ def test_a_given_scaler_replaces_the_builds(tiny_build: Path) -> None:
     assert torch.equal(a["x"][:, 1:], b["x"][:, 1:])  # y, heading, speed as before
 
 
+def test_an_unknown_split_is_refused_naming_the_splits(tiny_build: Path) -> None:
+    with pytest.raises(ValueError) as wrong:
+        GraphDataset(tiny_build, "testing")
+    assert str(wrong.value) == "split 'testing': must be one of train, val, test"
+
+
 def test_refuses_unfinished_builds_and_unknown_versions(tiny_build: Path, tmp_path: Path) -> None:
     with pytest.raises(NgsimInputError, match="not a build"):
         GraphDataset(tmp_path, "train")

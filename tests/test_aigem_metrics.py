@@ -86,13 +86,59 @@ def test_nothing_valid_is_nan_and_wrong_shapes_are_refused() -> None:
     predicted, truth, mask = _two_actors()
     assert math.isnan(compute_rmse_m(predicted, truth, mask & False, 3))
     assert math.isnan(compute_ade_m(predicted, truth, mask & False))
-    with pytest.raises(ValueError, match=r"predictions \(1, 10, 2\) and targets \(2, 10, 2\)"):
+    with pytest.raises(ValueError) as wrong:
         compute_ade_m(predicted[:1], truth, mask)  # numpy would broadcast it
-    with pytest.raises(ValueError, match=r"mask \(2, 10\) float64: must be \(A, K\)"):
+    assert str(wrong.value) == (
+        "predictions of shape (1, 10, 2) and targets of shape (2, 10, 2): both must be (A, K, 2), "
+        "the same"
+    )
+    with pytest.raises(ValueError) as wrong:
         compute_fde_m(predicted, truth, mask.astype(float))
+    assert str(wrong.value) == (
+        "mask of dtype float64: must be bool (True where the target's position is recorded)"
+    )
+    with pytest.raises(ValueError) as wrong:
+        compute_fde_m(predicted, truth, mask[:, :9])
+    assert (
+        str(wrong.value)
+        == "mask of shape (2, 9): must be (A, K) = (2, 10), as the targets' (A, K, 2)"
+    )
     for step in (0, 11):
         with pytest.raises(ValueError, match=rf"step {step}: .* future steps 1..10"):
             compute_rmse_m(predicted, truth, mask, step)
+
+
+def test_every_public_function_takes_tensors_as_numpy_arrays() -> None:
+    """A tensor (with gradients, of another dtype) gives the numbers of its numpy array; a mask
+    of torch.bool is a bool mask, and a wrong one is refused in numpy's words."""
+    import torch
+
+    predicted, truth, mask = _two_actors()
+    tensors = (
+        torch.tensor(predicted, dtype=torch.float32, requires_grad=True),
+        torch.tensor(truth, dtype=torch.float32),
+        torch.from_numpy(mask),
+    )
+    assert compute_ade_m(*tensors) == pytest.approx(55 / 15)
+    assert compute_fde_m(*tensors) == pytest.approx(5.0)
+    assert compute_rmse_m(*tensors, 5) == pytest.approx(math.sqrt(13.0))
+    errors = metrics.displacement_errors_m(*tensors)
+    assert isinstance(errors, np.ndarray) and errors.shape == (2, 10)
+    count = torch.from_numpy(mask.sum(axis=0))
+    sums = torch.from_numpy(errors.sum(axis=0))
+    squares = torch.from_numpy((errors**2).sum(axis=0))
+    assert metrics.ade_of_sums_m(sums, count) == pytest.approx(55 / 15)
+    assert metrics.mean_error_of_sums_m(sums, count)[-1] == pytest.approx(5.0)
+    assert metrics.rmse_of_sums_m(squares, count)[-1] == pytest.approx(5.0)
+    assert region_of(torch.tensor([20.0, 0.0, -20.0])).tolist() == [0, 1, 2]
+    totals = ErrorTotals(10)
+    totals.add(*tensors, torch.zeros(2))
+    assert totals.count[0].tolist() == mask.sum(axis=0).tolist()
+    with pytest.raises(ValueError) as wrong:
+        compute_ade_m(*tensors[:2], tensors[2].float())
+    assert str(wrong.value) == (
+        "mask of dtype float32: must be bool (True where the target's position is recorded)"
+    )
 
 
 def test_the_accumulator_over_batches_is_the_functions_over_the_whole_array() -> None:
@@ -240,7 +286,7 @@ def test_a_new_metric_reaches_evaluates_json_and_table(
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     headers = [_cells(line, "┃") for line in result.stdout.splitlines() if "┃ model" in line]
-    assert [header[-2:] for header in headers] == [["TOY", "params"]] * 3  # all, mid; the paper
+    assert [header[-2:] for header in headers] == [["TOY", "params (K)"]] * 3  # all, mid; the paper
     lines = [_cells(line, "│") for line in result.stdout.splitlines() if line.startswith("│")]
     named = [row for row in lines if row[0]]  # not the intervals' second lines
     toy = {(row[0], index): row[-2] for index, row in enumerate(named)}

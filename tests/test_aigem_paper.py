@@ -8,6 +8,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -480,7 +481,7 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
     assert cell == pytest.approx(
         {"value": sum(each) / 2, "low": cell["value"] - half, "high": cell["value"] + half}
     )
-    assert "mean of 2 seeds [95 % interval]" in more.stdout
+    assert "mean of 2 seeds [95 % interval: the training noise]" in more.stdout
     # Back to one seed: the first seed's report, as before; the second seed's run stays.
     again = run_paper_command(tiny_raw, out, *table, "--epochs", "2")
     assert again.returncode == 0, again.stderr
@@ -558,4 +559,43 @@ def test_a_build_held_to_other_limits_is_not_reused(tiny_build: Path, tmp_path: 
     (built_from,) = {Path(f.path).parent for f in manifest.inputs}
     assert build_state(other, manifest.config, list_inputs([built_from])) == (
         "holds the rows to other physical limits than its source's (max_jump_m 20.0 -> 10.0)"
+    )
+
+
+def test_the_command_into_a_log_prints_each_stage_and_each_models_epochs(
+    tiny_raw: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """stderr is not a terminal here (a log): every line after its wall-clock time; a line at
+    the end of each build stage, each model's train and validation loss at each epoch's end,
+    and the report (the lines every PLAIN_PROGRESS_INTERVAL_S within a stage set out of reach
+    here), none twice."""
+    from ngsim_cli import console
+
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
+    out = tmp_path / "out"
+    options = ["--only", "table", "--epochs", "1", "--batch-size", "64", "--threads", "1"]
+    args = ["paper", str(tiny_raw), "--out", str(out), *options, "--jobs", "1", "--device", "cpu"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    lines = result.stderr.splitlines()
+    assert all(re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d ", line) for line in lines), lines
+    said = [re.sub(r", \d:\d\d:\d\d elapsed$", "", line[20:]) for line in lines]
+    assert said[:4] == [
+        "builds: reading trajectories-0750am-0805am.txt: 1/1 (100%)",  # one job: by name
+        "builds: cleaning recordings: 1/1 (100%)",
+        "builds: building recordings: 1/1 (100%)",
+        "builds: writing samples: 1/1 (100%)",
+    ]
+    mse = r"\d+\.\d{3} m²"
+    for line, horizon_s in zip(said[4:9], range(1, 6), strict=True):
+        assert re.fullmatch(
+            rf"fit d_min 25 m, {horizon_s} s model, epoch 1: train MSE {mse}, validation MSE "
+            rf"{mse} \(best\); \d+ s training at [\d,]+ graphs/s, \d+ s validation",
+            line,
+        ), line
+    assert re.fullmatch(r"evaluating d_min 25 m: (\d+)/\1 \(100%\)", said[9])  # the bar's end
+    assert re.fullmatch(r"writing the report: (\d+)/\1 \(100%\)", said[10]) and len(said) == 11
+    assert (
+        "AiGem RMSE at 1..5 s (m, in brackets its 95 % interval: the test-set noise): "
+        in result.stdout
     )

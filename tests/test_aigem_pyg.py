@@ -80,3 +80,37 @@ def test_one_sample_per_hetero_data(tiny_build: Path) -> None:
     assert GraphPygDataset(tiny_build, "val").len() == len(dataset)
     with pytest.raises(ValueError, match="one sample's graph expected, got 2"):
         to_hetero_data(dataset.__getitems__([0, 1])[0], dataset.scaler)
+
+
+def test_the_dataset_says_its_build_split_and_size_and_summarizes_without_tabulate(
+    tiny_build: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    dataset = GraphPygDataset(tiny_build, "val")
+    assert repr(dataset) == (
+        f"GraphPygDataset(build={str(tiny_build)!r}, split='val', samples={len(dataset)})"
+    )
+    assert dataset.root == str(tiny_build)  # PyG's "???" without one
+    assert sorted(p.name for p in tiny_build.iterdir()) == sorted(  # no raw/, no processed/
+        ["arrays", "manifest.json", "proximity", "samples", "tracks"]
+    )
+    summary = dataset.get_summary()
+    assert summary.num_graphs == len(dataset)
+    dataset.print_summary()  # with or without the package tabulate
+    printed = capsys.readouterr().out
+    assert printed.startswith(f"GraphPygDataset (#graphs={len(dataset)}):")
+    assert "(vehicle, spatial, vehicle)" in printed and "median" in printed
+
+
+def test_plain_summary_columns_by_hand() -> None:
+    from torch_geometric.data.summary import Stats
+
+    from aigem.pyg import PlainSummary, _columns
+
+    stats = Stats(mean=2.0, std=1.0, min=1.0, quantile25=1.5, median=2.0, quantile75=2.5, max=3.0)
+    assert _columns({"#nodes": stats})[:3] == [
+        "            #nodes",
+        "      mean     2.0",
+        "       std     1.0",
+    ]
+    text = PlainSummary("X", 2, stats, stats).format()
+    assert text.splitlines()[0] == "X (#graphs=2):"

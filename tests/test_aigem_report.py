@@ -11,8 +11,10 @@ import pytest
 
 from aigem.intervals import t_975
 from aigem.report import paper_report, table1, write_report
+from aigem.report_cells import NOISES_SAID
 from aigem.report_plots import report_figures
 from aigem.report_text import (
+    NO_FIT_DIFFERENCE,
     ONE_SEED,
     TIME_HEADING,
     UNFINISHED,
@@ -240,7 +242,10 @@ def test_markdown_says_synthetic_on_every_table_and_keeps_the_time_last() -> Non
     assert headings[-1] == TIME_HEADING and text.rstrip().endswith("- total: 9.0 s")
     assert "| AiGem (this run) | 1.00 | 2.00 | 2.00 | 3.00 | 4.00 | 5.00 | 6.00 | 74.2 |" in text
     assert "| GRIP++ (paper) | 1.61 | – | 0.38 |" in text  # no FDE published
-    assert "Inputs: 1 file, 1,000 bytes. Training: up to 3 epochs, batch 32, seed 0," in text
+    assert (
+        "Inputs: 1 file, 1,000 bytes. Training: up to 3 epochs per model (the paper trains 100; "
+        "this call 3), batch 32, seed 0," in text
+    )
     assert "| 0 | 4.00 | 5.00 | 6.00 | 7.00 | 8.00 |" in text
     assert "| h1s | 2 | 1 | 2.00 | 3.00 |" in text  # the best epoch's RMSE
     plain = report_markdown(report(synthetic=False), {})
@@ -390,21 +395,22 @@ def test_the_report_says_which_differences_are_beyond_the_noise() -> None:
     text = report_markdown(seeds_report(), {})
     everywhere = "at 1, 2, 3, 4 and 5 s."
     assert (
-        f"- d_min 0 m against the paper's 25 m: RMSE higher (worse) beyond the noise {everywhere}"
-        in text
-    )
+        "- d_min 0 m against the paper's 25 m: RMSE higher (worse) beyond the training noise "
+        f"{everywhere}"
+    ) in text
     assert (
-        "- d_min 50 m against the paper's 25 m: RMSE within the noise (the interval holds 0) "
-        + everywhere
+        "- d_min 50 m against the paper's 25 m: RMSE within the training noise (the interval "
+        f"holds 0) {everywhere}"
     ) in text
     assert (
         "- without the concatenation against with it (the paper's): RMSE lower (better) beyond "
-        f"the noise {everywhere}"
+        f"the training noise {everywhere}"
     ) in text
     assert (
         "- AiGem against constant velocity on the same targets: RMSE lower (better) beyond the "
-        f"noise {everywhere}"
+        f"training noise {everywhere}"
     ) in text
+    assert NOISES_SAID in text and "test-set noise" not in text.replace(NOISES_SAID, "")
     assert "| 0 | +2.00 [+1.75, +2.25] | +2.00 [+1.75, +2.25] |" in text  # 4.303 * 0.1 / sqrt 3
     assert (
         "| AiGem (this run) | 1.30 [0.40, 2.20] | 2.60 [0.81, 4.39] | 2.30 [1.40, 3.20] |" in text
@@ -448,12 +454,18 @@ def test_noise_words_per_horizon() -> None:
         {"value": 0.0, "low": 0.0, "high": 0.4},  # 0 on the bound: held
     ]
     assert noise_sentence("X", cells) == (
-        "X: RMSE lower (better) beyond the noise at 1 s; higher (worse) beyond the noise at 4 s; "
-        "within the noise (the interval holds 0) at 2 and 5 s; no number at 3 s."
+        "X: RMSE lower (better) beyond the training noise at 1 s; higher (worse) beyond the "
+        "training noise at 4 s; within the training noise (the interval holds 0) at 2 and 5 s; "
+        "no number at 3 s."
+    )
+    assert noise_sentence("X", cells[:2] + cells[3:] + [None], "bootstrap") == (
+        "X: RMSE lower (better) beyond the test-set noise at 1 s; higher (worse) beyond the "
+        "test-set noise at 3 s; within the test-set noise (the interval holds 0) at 2 and 4 s; "
+        "no number at 5 s."
     )
     unknown = [{"value": 0.3, "low": None, "high": None}] * 5
     assert noise_sentence("X", unknown) == (
-        "X: no interval (one seed), so no telling this difference from the noise."
+        "X: no interval (one seed), so no telling this difference from the training noise."
     )
     assert shown(cells[0], signed=True) == "-0.50 [-0.90, -0.10]" and shown(None) == "–"
     assert shown(unknown[0]) == "0.30" and shown(1.234) == "1.23"
@@ -490,6 +502,100 @@ def test_one_seed_table1_takes_its_intervals_from_the_evaluations_bootstrap() ->
     lines = _table1_lines(document)
     text = "\n".join(lines)
     assert "| AiGem (this run) | 1.00 [0.90, 1.20] | 2.00 [1.90, 2.20] | 2.00 [1.90, 2.20]" in text
-    assert "lower (better) beyond the noise at 1, 2, 3, 4 and 5 s" in text
+    assert "lower (better) beyond the test-set noise at 1, 2, 3, 4 and 5 s" in text
     assert "1,000 resamples of 7 samples" in text
     assert table1([evaluation(1.0)])["intervals"] is None  # no bootstrap: bare cells
+
+
+def with_bootstrap(one: Evaluation, half: float = 0.1) -> Evaluation:
+    """`one` with bootstrap intervals: AiGem's value - half .. + 2 half, constant velocity's
+    - 0.3 .. + 0.3, their difference +- 0.5 (of all actors' RMSE at 1..5 s)."""
+    from dataclasses import replace
+
+    from aigem.intervals import Interval, Paired, SampleIntervals
+
+    def paired(model: float, cv: float) -> Paired:
+        return Paired(
+            Interval(model, model - half, model + 2 * half),
+            Interval(cv, cv - 0.3, cv + 0.3),
+            Interval(model - cv, model - cv - 0.5, model - cv + 0.5),
+        )
+
+    rows, cv = one.model["all"], one.constant_velocity["all"]
+    keys = [f"rmse_{s}s_m" for s in range(1, 6)]
+    metrics = {key: paired(rows[key], cv[key]) for key in keys}
+    return replace(one, intervals=SampleIntervals(1000, 0, 7, metrics))
+
+
+def test_one_seed_ablations_carry_each_fits_bootstrap_intervals_and_constant_velocity_once() -> (
+    None
+):
+    """With one seed each fit's RMSE and constant velocity's carry the bootstrap's intervals of
+    its evaluation, and each fit's AiGem minus constant velocity its paired interval, as Table 1
+    does, in words of the test-set noise; constant velocity, alike on every fit's targets, is
+    one row; no fit's difference to another, which the training noise decides."""
+    evaluations = {
+        name: [with_bootstrap(evaluation(base, cv_base=1.0))] for name, base in BASES.items()
+    }
+    document = paper_report(SETTINGS, PARTS, (0,), fits(), evaluations, [CURVE_ROWS])
+    assert document["dmin"]["0"][0] == {"value": 4.0, "low": 3.9, "high": 4.2}
+    assert document["dmin_constant_velocity"]["50"][0] == {"value": 20.0, "low": 19.7, "high": 20.3}
+    assert document["dmin_minus_constant_velocity"]["0"][0] == {
+        "value": -16.0, "low": -16.5, "high": -15.5
+    }  # fmt: skip
+    assert document["concat_intervals"]["kind"] == "bootstrap"
+    assert document["concat_minus_constant_velocity"]["without"][4] == {
+        "value": -53.0, "low": -53.5, "high": -52.5
+    }  # fmt: skip
+    text = report_markdown(document, {})
+    (dmin,) = [part for part in text.split("## ") if part.startswith("d_min ablation")]
+    assert "| 0 | 4.00 [3.90, 4.20] | 5.00 [4.90, 5.20] |" in dmin
+    assert dmin.count("constant velocity, same targets") == 1
+    assert (
+        "| constant velocity, same targets | 20.00 [19.70, 20.30] | 30.00 [29.70, 30.30] |" in dmin
+    )
+    assert "| 0 | -16.00 [-16.50, -15.50] |" in dmin  # AiGem minus constant velocity
+    assert (
+        "- d_min 0 m: AiGem against constant velocity: RMSE lower (better) beyond the test-set "
+        "noise at 1, 2, 3, 4 and 5 s."
+    ) in dmin
+    assert NO_FIT_DIFFERENCE in dmin and "minus the paper's" not in dmin
+    assert "- In brackets: 95 % intervals of each fit's one run (percentile bootstrap" in dmin
+    (concat,) = [part for part in text.split("## ") if part.startswith("Output concatenation")]
+    assert "- without the concatenation: AiGem against constant velocity: RMSE lower" in concat
+    assert ONE_SEED in text and NOISES_SAID in text
+
+
+def test_constant_velocity_stays_a_row_per_fit_where_its_targets_differ() -> None:
+    text = report_markdown(report(), {})  # each fit's constant velocity of its own base
+    (dmin,) = [part for part in text.split("## ") if part.startswith("d_min ablation")]
+    assert dmin.count("constant velocity, same targets") == 3
+    assert "| 0: constant velocity, same targets | 40.00 | 50.00 |" in dmin
+
+
+def test_the_published_rows_say_where_an_rmse_lies_below_the_fde() -> None:
+    """At one step the RMSE of a set of predictions is at least their mean distance (the FDE at
+    the last step): the paper's AiGem row (1.95 m at 5 s, FDE 2.57 m) breaks it, said beside the
+    published rows; a row that keeps it (or gives no FDE) gets no note."""
+    from aigem.results import below_fde
+
+    table = {
+        "kept": {"fde_m": 3.0, "rmse_m": (1.0, 2.0, 3.0, 4.0, 3.0)},
+        "no FDE": {"fde_m": None, "rmse_m": (1.0,) * 5},
+        "broken": {"fde_m": 2.0, "rmse_m": (1.0, 1.0, 1.0, 1.0, 1.5)},
+    }
+    assert list(below_fde(table)) == ["broken"]
+    assert below_fde(table)["broken"].startswith(
+        "its RMSE at 5 s (1.50 m) lies below its FDE (2.00 m), which the paper's own definitions "
+        "rule out for one set of predictions"
+    )
+    assert "1.50 × √2 = 2.12 m ≥ 2.00 m" in below_fde(table)["broken"]
+    assert list(below_fde()) == ["AiGem (paper)"]  # of the paper's Table 1
+    text = report_markdown(report(), {})
+    assert (
+        "- AiGem (paper): its RMSE at 5 s (1.95 m) lies below its FDE (2.57 m), which the paper's "
+        "own definitions rule out for one set of predictions: at a step the RMSE (the root of the "
+        "mean squared distance) is at least the mean distance, the FDE at 5 s; so its RMSE cannot "
+        "be the Euclidean one of the predictions its FDE scores"
+    ) in text
+    assert text.count("Its AiGem row's RMSE at 5 s lies below its FDE") == 3  # ablations, regions

@@ -110,7 +110,7 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:
     assert "rmse_3s_m" not in document["model"]["all"]
     table = runner.invoke(app, ["evaluate", str(run), "--data", str(tiny_build), "--device", "cpu"])
     assert "constant velocity" in table.stdout and "synthetic" in table.stdout
-    assert "│   74.2 │" in table.stdout  # the params column of this run's row
+    assert "│       74.2 │" in table.stdout  # the params (K) column of this run's row
     bad = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--data", str(tiny_build)])
     assert (
         bad.exit_code == 1 and bad.stderr == f"error: {tmp_path / 'nope'}: no such run directory\n"

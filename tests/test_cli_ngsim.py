@@ -11,6 +11,7 @@ import csv
 import gzip
 import io
 import json
+import re
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -23,8 +24,9 @@ from typer.testing import CliRunner, Result
 from ngsim_cli import console
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
-from ngsim_graphs.config import SynthConfig
+from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.plotting import PLOT_NAMES
+from ngsim_graphs.schema import SplitMode
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.plausibility import DROP_REASONS
 from ngsim_graphs.synth.formats import write_synthetic
@@ -297,8 +299,10 @@ def test_build_prints_summary_table(tmp_path: Path, long_rows: list[dict]) -> No
     summary = "164 rows read, 0 of other locations, 0 with empty required fields dropped."
     assert summary in result.stdout
     assert (
-        "samples: 1 train, 1 val, 0 test (2 in all; shares 50% / 50% / 0%, the vehicle split "
-        "cutting at Vehicle_IDs)." in result.stdout
+        "samples: 1 train, 1 val, 0 test (2 in all; shares 50% / 50% / 0%: the vehicle split cuts "
+        "each recording's Vehicle_IDs at 70% and 80% of its largest, not its samples, and "
+        "vehicles give different numbers of samples: the last IDs entered last, and the "
+        "recording's end cuts their tracks short)." in result.stdout
     )
     # Largest Vehicle_ID 2: cuts at round(1.4) = 1 and round(1.6) = 2, nothing left for test.
     assert "warning: the test split is empty: the vehicle split" in result.stderr
@@ -621,7 +625,7 @@ def test_build_prints_samples_per_split(synthetic_raw: Path, tmp_path: Path) -> 
     line = f"samples: {totals['train']:,} train, {totals['val']:,} val, {totals['test']:,} test"
     n = manifest["counts"]["samples"]
     shares = " / ".join(f"{round(100 * totals[split] / n)}%" for split in ("train", "val", "test"))
-    assert f"{line} ({n:,} in all; shares {shares}, the vehicle split" in result.stdout
+    assert f"{line} ({n:,} in all; shares {shares}: the vehicle split cuts" in result.stdout
 
 
 RANDOM_D_MIN_0 = (
@@ -865,25 +869,39 @@ def test_a_damaged_file_in_a_zip_is_named_by_the_zip(tmp_path: Path, long_rows: 
     )  # fmt: skip
 
 
-def test_build_into_a_log_prints_plain_progress_lines(
+def test_build_into_a_log_prints_each_stage_after_its_time(
     tmp_path: Path, long_rows: list[dict], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """stderr is not a terminal here: no bar, but plain lines, the first once
-    PLAIN_PROGRESS_INTERVAL_S has passed (0 here: at every step that differs)."""
+    """stderr is not a terminal here (a log): no bar, but a line at each stage's end (and within
+    it every PLAIN_PROGRESS_INTERVAL_S, out of reach here), each after its wall-clock time; a
+    quick build too."""
+    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     path = write_period_csv(tmp_path / "a.csv", long_rows)
-    quick = invoke("build", path, "--out", tmp_path / "quick")
-    assert quick.exit_code == 0, quick.output
-    assert "elapsed" not in quick.stderr  # a quick command prints none
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
     result = invoke("build", path, "--out", tmp_path / "out")
     assert result.exit_code == 0, result.output
-    lines = [line for line in result.stderr.splitlines() if " elapsed" in line]
-    stages = [line.split(":")[0] for line in lines]
-    assert stages == [
-        *["reading input files"] * 2,
-        *["cleaning recordings"] * 2,
-        *["building recordings"] * 2,
-        "writing samples",
+    progress = [line for line in result.stderr.splitlines() if " elapsed" in line]
+    assert all(re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d ", line) for line in progress)
+    said = [re.sub(r", \d:\d\d:\d\d elapsed$", "", line[20:]) for line in progress]
+    assert said == [
+        "reading input files: 1/1 (100%)",
+        "cleaning recordings: 1/1 (100%)",
+        "building recordings: 1/1 (100%)",
+        "writing samples: 1/1 (100%)",
     ]
-    assert "reading input files: 1/1 (100%), 0:00:0" in lines[1]
     assert "\x1b" not in result.stderr
+
+
+def test_the_build_says_why_the_shares_are_not_the_splits_fractions() -> None:
+    from ngsim_cli.build_view import split_words
+
+    assert split_words(BuildConfig(split=SplitMode.TIME)) == (
+        "the time split cuts each recording's windows at 70% and 80% by present time, and drops "
+        "those within a window after each cut"
+    )
+    assert split_words(BuildConfig(split=SplitMode.RANDOM)) == (
+        "the random split draws 70% / 10% / 20% of the ego tracks, not of the samples, and "
+        "tracks give different numbers of samples"
+    )
+    assert split_words(BuildConfig(split_fractions=(0.6, 0.2, 0.2))).startswith(
+        "the vehicle split cuts each recording's Vehicle_IDs at 60% and 80% of its largest"
+    )

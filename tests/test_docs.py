@@ -137,6 +137,7 @@ def test_public_names_resolve(package) -> None:  # noqa: ANN001
         package.nothing  # noqa: B018
     for name, module in package._EXPORTS.items():
         assert getattr(package, name) is getattr(importlib.import_module(module), name)
+    assert dir(package) == sorted(package.__all__)  # not its imports (Any, importlib, ...)
 
 
 # Parameters that name a file or folder, by name: every public function or class that has one

@@ -300,8 +300,9 @@ def test_the_build_prints_the_scripts_rows(tmp_path: Path) -> None:
         "on them)." in result.stdout
     )
     assert (
-        "samples: 166 train, 29 val, 58 test (253 in all; shares 66% / 11% / 23%, the vehicle "
-        "split cutting at Vehicle_IDs)." in result.stdout
+        "samples: 166 train, 29 val, 58 test (253 in all; shares 66% / 11% / 23%: the vehicle "
+        "split cuts each recording's Vehicle_IDs at 70% and 80% of its largest, not its samples"
+        in result.stdout
     )
     config = json.loads((tmp_path / "out" / "manifest.json").read_text())["config"]
     assert config["protocol"] == "cs-lstm"
