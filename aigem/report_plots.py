@@ -27,9 +27,10 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from aigem import report_cells
-from aigem.plots import BASELINE, OURS, REGION_TITLES, paper_points, png_bytes
+from aigem.plots import REGION_TITLES, paper_points, png_bytes
 from aigem.report_cells import Cell
 from aigem.report_text import data_mark
+from ngsim_graphs.palette import AIGEM, CONSTANT_VELOCITY
 from ngsim_graphs.plotting import mark_synthetic
 
 SECONDS = np.array(report_cells.SECONDS)
@@ -80,7 +81,7 @@ def table1_figure(document: dict[str, Any]) -> Figure:
     part = document["table1"]
     figure = Figure(figsize=(8, 5.5), layout="constrained")
     axes = figure.add_subplot()
-    for name, colour in (("AiGem (this run)", OURS), ("constant velocity", BASELINE)):
+    for name, colour in (("AiGem (this run)", AIGEM), ("constant velocity", CONSTANT_VELOCITY)):
         cells = [part["ours"][name][f"rmse_{s}s_m"] for s in SECONDS]
         ours = _ours(document) if name.startswith("AiGem") else ""
         label = f"{name}, {_source(document)}{ours}"
