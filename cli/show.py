@@ -43,10 +43,16 @@ def _described(ids: list[int], every_window: bool) -> str:
     return f"samples {', '.join(map(str, ids))} (one per ego)"
 
 
-def _show_name(split: str, start: int, end: int, run: Path | None) -> Path:
-    """The default --out: show-test-0.png, show-test-0-7.png, show-test-0-7-RUNNAME.png in the
-    current folder, named in full (what is said of it says where it is)."""
-    samples = f"{start}" if end == start + 1 else f"{start}-{end - 1}"
+def _show_name(split: str, ids: list[int], every_window: bool, run: Path | None) -> Path:
+    """The default --out, in the current folder, named for what it holds: show-test-2.png (one
+    sample), show-test-0-7.png (samples 0..7, --every-window), show-test-egos-0-to-14.png (one
+    sample per ego from 0 to 14); -RUNNAME added with --run."""
+    if len(ids) == 1:
+        samples = f"{ids[0]}"
+    elif every_window:
+        samples = f"{ids[0]}-{ids[-1]}"
+    else:
+        samples = f"egos-{ids[0]}-to-{ids[-1]}"
     name = f"show-{split}-{samples}" + (f"-{run.resolve().name}" if run else "") + ".png"
     return Path.cwd() / name
 
@@ -73,7 +79,9 @@ def show(
         Path | None,
         typer.Option(
             "--out",
-            help="PNG to write [default: show-SPLIT-SAMPLES.png here, -RUN added with --run].",
+            help="PNG to write [default: here, named for the samples drawn: show-SPLIT-N.png, "
+            "show-SPLIT-START-LAST.png with --every-window, show-SPLIT-egos-FIRST-to-LAST.png; "
+            "-RUN added with --run].",
         ),
     ] = None,
     run: Annotated[
@@ -114,7 +122,7 @@ def show(
             ids = np.arange(start, end)
         else:
             ids = np.array(one_per_ego(samples, start, end - start), dtype=np.int64)
-        out = out if out is not None else _show_name(split.value, start, end, run)
+        out = out if out is not None else _show_name(split.value, ids.tolist(), every_window, run)
         if out.exists() and not overwrite:
             raise NgsimOutputError(out, "exists; pass --overwrite to replace it")
         titles = scene_titles(samples, split.value, ids)

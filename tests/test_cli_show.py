@@ -98,6 +98,23 @@ def test_default_name_and_overwrite(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["show-test-2.png"]  # no partial file
 
 
+def test_the_default_name_says_which_samples_it_holds(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """0:3 draws one sample per ego, 0, 2 and 4 of the val split (two windows per ego): named
+    so, not 0-2; with --every-window, samples 0..2 are drawn and named 0-2."""
+    monkeypatch.chdir(tmp_path)
+    result = invoke("show", tiny_build, "--split", "val", "--sample", "0:3")
+    out = tmp_path / "show-val-egos-0-to-4.png"
+    assert result.stdout.startswith(f"wrote {out}: val samples 0, 2, 4 (one per ego) of ")
+    result = invoke("show", tiny_build, "--split", "val", "--sample", "0:3", "--every-window")
+    assert result.stdout.startswith(f"wrote {tmp_path / 'show-val-0-2.png'}: val samples 0..2 ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "show-val-0-2.png",
+        "show-val-egos-0-to-4.png",
+    ]
+
+
 @pytest.mark.parametrize(
     ("spec", "fragment"),
     [
