@@ -106,7 +106,7 @@ def draw_followed(
     node = int(batch.target_node[target])
     history = node_xy(batch, track_nodes(batch, parts, node))
     axes.plot(history[:, 0], history[:, 1], color=HISTORY_COLOUR, lw=2.2, zorder=4)
-    start = history[-1:]
+    start = node_xy(batch, np.array([node]))  # (1, 2) its present position
     truth = paths(
         start, plotted(batch.target_xy[target : target + 1]), batch.target_mask[target : target + 1]
     )[0]
