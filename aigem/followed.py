@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from aigem.metrics import displacement_errors_m
 from ngsim_graphs.build import open_build
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.scenes import vehicle_ids
 
@@ -88,10 +90,18 @@ def predicted_scenes(
 ) -> tuple[GraphBatch, dict[str, np.ndarray], list[int], list[str]]:
     """The graphs of `sample_ids`, the run's and constant velocity's predictions
     (aigem.prediction.predict_samples), each sample's followed target (its median by AiGem's
-    final error, median_targets) and the words on it for the panel's title."""
+    final error, median_targets) and the words on it for the panel's title; an
+    NgsimInputError where a sample holds no target."""
     from aigem.prediction import BASELINE_LABEL, MODEL_LABEL, predict_samples  # loads torch
 
     batch, predictions = predict_samples(run_dir, build_dir, split, sample_ids)
+    empty = [int(i) for b, i in enumerate(sample_ids) if not len(_targets_of(batch, b))]
+    if empty:
+        raise NgsimInputError(
+            Path(build_dir),
+            f"{split} sample(s) {', '.join(map(str, empty))} hold no target: nothing to follow "
+            "(draw them without --run)",
+        )
     errors = final_errors_m(batch, predictions)
     follow = median_targets(batch, errors[MODEL_LABEL])
     tracks = batch.node_track[batch.target_node[follow]]

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from test_scenes import hand_batch
 
+from aigem import prediction
 from aigem.followed import (
     final_errors_m,
     followed_words,
@@ -17,6 +19,7 @@ from aigem.followed import (
     predicted_scenes,
 )
 from aigem.prediction import BASELINE_LABEL, MODEL_LABEL
+from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scenes import write_scenes
 
 
@@ -73,3 +76,20 @@ def test_show_runs_scenes_follow_each_samples_median_target(
         assert f"AiGem {errors[target]:.2f} m" in words[b]
     scenes = write_scenes(tmp_path / "p.png", batch, words, 12.0, predictions, follow=follow)
     assert [s.predicted for s in scenes] == [{MODEL_LABEL: 1, BASELINE_LABEL: 1}] * 3
+
+
+def test_a_sample_without_target_is_one_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Sample 1 of the hand batch, its target C taken away: nothing to follow, said so."""
+    batch = hand_batch()
+    alone = replace(
+        batch,
+        target_node=batch.target_node[:2],
+        target_xy=batch.target_xy[:2],
+        target_mask=batch.target_mask[:2],
+    )
+    predictions = {k: v[:2] for k, v in hand_predictions().items()}
+    monkeypatch.setattr(prediction, "predict_samples", lambda *args: (alone, predictions))
+    with pytest.raises(NgsimInputError, match="val sample\\(s\\) 8 hold no target"):
+        predicted_scenes(tmp_path / "run", tmp_path / "build", "val", [7, 8])
