@@ -103,7 +103,10 @@ def test_the_synthetic_label_has_a_line_of_its_own() -> None:
     assert label.y0 > (title.y0 + title.y1) / 2  # on the title's empty first line
     assert not title.overlaps(axes.title.get_window_extent())
     assert [t.get_color() for t in titled.texts if t.get_text() == titled.get_suptitle()] == ["red"]
-    for plain in (Figure(figsize=(7, 4.5), layout="constrained"), share_figure({}, "t", "x", "g")):
+    for plain in (
+        Figure(figsize=(7, 4.5), layout="constrained"),
+        share_figure({"train": np.array([1, 2])}, "t", "x", "g"),
+    ):
         axes = plain.axes[0] if plain.axes else plain.add_subplot(title="a long axes title " * 3)
         mark_synthetic(plain)
         FigureCanvasAgg(plain).draw()
