@@ -24,13 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from aigem.evaluation import target_choice
+from aigem.figure_parts import png_bytes
 from aigem.followed import final_errors_m, followed_words, matched_target
-from aigem.plots import (
-    error_by_horizon,
-    error_by_region,
-    final_error_distribution,
-    png_bytes,
-)
+from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
 from aigem.results import Evaluation
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimOutputError

@@ -18,7 +18,7 @@ are, or that it has none.
 A figure of synthetic data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic);
 one of partly synthetic data PARTLY SYNTHETIC, one of an unfinished report UNFINISHED, in its
 title.
-Figures are made as aigem.plots makes them: a Figure on an Agg canvas, no pyplot.
+Figures are made as aigem.figure_parts makes them: a Figure on an Agg canvas, no pyplot.
 """
 
 from __future__ import annotations
@@ -33,17 +33,15 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from aigem import report_cells
-from aigem.paper_folder import PAPER_D_MIN_M
-from aigem.plots import (
-    REGION_TITLES,
-    TRAIN_STYLE,
-    VALIDATION_STYLE,
+from aigem.figure_parts import (
     footed_figure,
     legend_below,
     panel_handles,
     png_bytes,
     published_style,
 )
+from aigem.paper_folder import PAPER_D_MIN_M
+from aigem.plots import REGION_TITLES, TRAIN_STYLE, VALIDATION_STYLE
 from aigem.report_cells import Cell
 from aigem.report_text import data_mark, seeds_words
 from ngsim_graphs.palette import AIGEM, CONSTANT_VELOCITY, OTHER_SETTINGS, REGION_SHADES
