@@ -73,20 +73,29 @@ def _step_lists(totals: ErrorTotals) -> dict[str, dict[str, list]]:
     }
 
 
-def scene_choice(
+def _distinct_samples(order: np.ndarray, sample: np.ndarray, count: int) -> np.ndarray:
+    """The first `count` of `order` (indices of targets) whose sample is not taken before."""
+    _, first = np.unique(sample[order], return_index=True)
+    return order[np.sort(first)][:count]
+
+
+def target_choice(
     sample_of_target: np.ndarray, final_error_m: np.ndarray, per_group: int = 3
 ) -> dict[str, np.ndarray]:
-    """The samples to draw: `worst`, `median` and `best`, `per_group` sample ids each (worst
-    first, then around the median, then best first), by scene error: the mean final displacement
-    error over a sample's targets (those given: valid at the last step). With fewer than
-    3 * per_group samples the groups overlap; ties go to the lower sample id."""
-    samples, inverse = np.unique(np.asarray(sample_of_target), return_inverse=True)
-    scene_m = np.bincount(inverse, weights=final_error_m) / np.bincount(inverse)
-    ranked = samples[np.argsort(scene_m, kind="stable")]  # best first
-    group = min(per_group, len(ranked))
-    middle = (len(ranked) - group) // 2
-    worst = samples[np.argsort(-scene_m, kind="stable")][:group]
-    return {"worst": worst, "median": ranked[middle : middle + group], "best": ranked[:group]}
+    """The targets to draw (indices into the given arrays: those valid at the last step):
+    `worst`, `median` and `best`, `per_group` each (worst first, then from the median on, then
+    best first), by final displacement error, each group's in distinct samples (a scene draws
+    one). With few targets the groups overlap; ties go to the lower index."""
+    sample = np.asarray(sample_of_target)
+    error_m = np.asarray(final_error_m, dtype=np.float64)
+    best_first = np.argsort(error_m, kind="stable")
+    worst_first = np.argsort(-error_m, kind="stable")
+    middle = max((len(error_m) - per_group) // 2, 0)
+    return {
+        "worst": _distinct_samples(worst_first, sample, per_group),
+        "median": _distinct_samples(best_first[middle:], sample, per_group),
+        "best": _distinct_samples(best_first, sample, per_group),
+    }
 
 
 @dataclass(frozen=True)

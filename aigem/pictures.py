@@ -3,7 +3,8 @@
     DIR/error_by_horizon.png          RMSE and mean displacement error at every 0.2 s step
     DIR/error_by_region.png           the same for front, mid and rear actors
     DIR/final_error_distribution.png  ECDF of each target's final displacement error
-    DIR/scenes.png                    the worst, median and best scenes by AiGem's error
+    DIR/scenes.png                    the worst, median and best targets by AiGem's final error,
+                                      each followed in its scene
 
     DIR/plots.json                    which files of DIR are ours to replace
 
@@ -22,15 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from aigem.evaluation import scene_choice
-from aigem.plots import (
-    error_by_horizon,
-    error_by_region,
-    final_error_distribution,
-    png_bytes,
-)
+from aigem.evaluation import target_choice
+from aigem.figure_parts import png_bytes
+from aigem.followed import final_errors_m, followed_words, matched_target
+from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
 from aigem.results import Evaluation
-from ngsim_graphs.build import open_build
+from ngsim_graphs.build import OpenBuild, open_build
+from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.plot_folder import OWNED, claim_plot_folder, land_plots  # noqa: F401 (OWNED too)
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
 
@@ -67,37 +66,68 @@ def scene_grid(
     device_choice: str = "cpu",
     per_group: int = 3,
 ) -> bytes | None:
-    """A PNG: a row each of the worst, median and best `per_group` scenes of the evaluated split
-    by scene error (the mean final displacement error of AiGem over a sample's targets valid at
-    the last step; evaluation.scene_choice), with history, recorded future, and the predictions
-    of AiGem (the run's longest-horizon model) and constant velocity. None, drawing nothing,
-    where no target is valid at the last step or the evaluation was on another build than the
-    run's (its predictions are drawn on its own build only)."""
-    from aigem.prediction import predict_samples  # the model, imported only when drawing
+    """A PNG: a row each of the worst, median and best `per_group` targets of the evaluated
+    split by AiGem's final displacement error (evaluation.target_choice, each in its own
+    scene), each followed in its scene: its history, recorded future, and the predictions of
+    AiGem (the run's longest-horizon model) and constant velocity, the rest of the scene faded.
+    None, drawing nothing, where no target is valid at the last step or the evaluation was on
+    another build than the run's (its predictions are drawn on its own build only)."""
+    from aigem.prediction import MODEL_LABEL, predict_samples  # the model, only when drawing
     from ngsim_graphs.scenes import DPI as SCENE_DPI
-    from ngsim_graphs.scenes import scene_figure, scene_titles
+    from ngsim_graphs.scenes import scene_figure
 
     final = result.final
     if not result.same_build or final is None or not len(final.sample):
         return None
-    chosen = scene_choice(final.sample, final.model_m, per_group)
-    ids = np.concatenate([chosen[group] for group in SCENE_GROUPS])
+    chosen = target_choice(final.sample, final.model_m, per_group)
+    picked = np.concatenate([chosen[group] for group in SCENE_GROUPS])
     batch, predictions = predict_samples(
-        run_dir, Path(result.build_dir), result.split, ids, device_choice
+        run_dir, Path(result.build_dir), result.split, final.sample[picked], device_choice
     )
-    build = open_build(Path(result.build_dir))
-    names = scene_titles(build.samples(result.split), result.split, ids)
-    places = [(group, rank + 1) for group in SCENE_GROUPS for rank in range(len(chosen[group]))]
-    titles = [
-        f"{group} {rank}: AiGem's mean final error {scene_m:.2f} m\n{name}"
-        for (group, rank), name, scene_m in zip(
-            places, names, [final.model_m[final.sample == i].mean() for i in ids], strict=True
-        )
+    errors = final_errors_m(batch, predictions)
+    follow = [
+        matched_target(batch, b, errors[MODEL_LABEL], final.model_m[index])
+        for b, index in enumerate(picked)
     ]
+    build = open_build(Path(result.build_dir))
+    horizon_s = result.horizon_steps * result.time_step_s
     figure, _ = scene_figure(
-        batch, titles, build.config.d_sense_m, predictions, per_group, result.synthetic
+        batch,
+        _scene_titles(result, build, batch, chosen, follow, errors),
+        build.config.d_sense_m,
+        predictions,
+        per_group,
+        result.synthetic,
+        follow=follow,
+        title=f"The worst, median and best targets of the {result.split} split by AiGem's "
+        f"final error at {horizon_s:g} s, each followed in its scene",
     )
     return png_bytes(figure, dpi=SCENE_DPI)
+
+
+def _scene_titles(
+    result: Evaluation,
+    build: OpenBuild,
+    batch: GraphBatch,
+    chosen: dict[str, np.ndarray],
+    follow: list[int],
+    errors: dict[str, np.ndarray],
+) -> list[str]:
+    """Each panel's title: its group and rank, the target's vehicle and both final errors, the
+    scene it is in."""
+    from ngsim_graphs.scenes import scene_titles, vehicle_ids
+
+    ids = result.final.sample[np.concatenate([chosen[group] for group in SCENE_GROUPS])]
+    scenes = scene_titles(build.samples(result.split), result.split, ids)
+    tracks = batch.node_track[batch.target_node[follow]]
+    vehicles = vehicle_ids(build.tracks(), tracks)
+    horizon_s = result.horizon_steps * result.time_step_s
+    places = [(group, rank + 1) for group in SCENE_GROUPS for rank in range(len(chosen[group]))]
+    return [
+        f"{group} {rank}: {followed_words(target, vehicles[int(track)], errors, horizon_s)}\n"
+        f"in {scene}"
+        for (group, rank), target, track, scene in zip(places, follow, tracks, scenes, strict=True)
+    ]
 
 
 def write_evaluation_plots(

@@ -12,41 +12,34 @@ from the first model that reaches h s (the paper's protocol) as diamonds. Our cu
 labelled with the build they come from (`label`), never as NGSIM: a figure of a build of
 `ngsim-graphs synth` data says SYNTHETIC at its top left (ngsim_graphs.plotting.mark_synthetic).
 
-Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot` (as
-ngsim_graphs.plotting): no global state, no display, nothing kept open.
+Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot`, from the pieces
+of aigem.figure_parts (a footer, the legend below the axes, the published rows).
 """
 
 from __future__ import annotations
 
 import math
-import textwrap
 
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogFormatter, MaxNLocator
 
 from aigem.course import training_line, training_words
+from aigem.figure_parts import footed_figure, legend_below, panel_handles, paper_points, png_bytes
 from aigem.metrics import FRONT_Y_M, REGIONS
-from aigem.results import PAPER_TABLE, Evaluation, ModelEvaluation
-from ngsim_graphs.plotting import mark_synthetic, png_bytes
+from aigem.results import Evaluation, ModelEvaluation
+from ngsim_graphs.palette import AIGEM, CONSTANT_VELOCITY
+from ngsim_graphs.plotting import mark_synthetic
 
-OURS, BASELINE = "tab:blue", "tab:orange"
-PAPER_MARKERS = {  # each row of the paper's table (results.PAPER_TABLE)
-    "CS-LSTM": ("s", "tab:green"),
-    "GRIP++": ("v", "tab:purple"),
-    "STA-LSTM": ("P", "tab:brown"),
-    "DeepTrack": ("X", "tab:olive"),
-    "GSTCN": ("^", "tab:red"),
-    "AiGem": ("o", "tab:blue"),
-}
 # The curves' labels say why the train loss may lie above the validation loss: dropout
 # (ModelConfig.dropout) is on in training and off in validation, and the train loss is the mean
 # over an epoch whose first batches met a worse model.
 TRAIN_LABEL = "train (epoch mean, dropout on)"
 VALIDATION_LABEL = "validation (end of epoch, no dropout)"
-FOOTER_CHARS_PER_IN = 14  # characters of 8-point text per inch of figure width, with room
+# Both curves are AiGem's, in its colour: validation solid, train dashed with hollow points.
+TRAIN_STYLE = {"color": AIGEM, "ls": "--", "marker": "o", "ms": 4, "mfc": "white"}
+VALIDATION_STYLE = {"color": AIGEM, "marker": "o", "ms": 4}
 REGION_TITLES = {
     "front": f"front (y > {FRONT_Y_M:g} m)",
     "mid": f"mid (|y| ≤ {FRONT_Y_M:g} m)",
@@ -91,14 +84,8 @@ def curves_figure(
     figure = Figure(figsize=(7, 5), layout="constrained")
     axes = figure.add_subplot()
     epochs = [row["epoch"] for row in rows]
-    axes.plot(
-        epochs,
-        [r["train_loss_m2"] for r in rows],
-        marker="o",
-        ms=3,
-        label=TRAIN_LABEL,
-    )
-    axes.plot(epochs, [r["val_loss_m2"] for r in rows], marker="o", ms=3, label=VALIDATION_LABEL)
+    axes.plot(epochs, [r["train_loss_m2"] for r in rows], **TRAIN_STYLE, label=TRAIN_LABEL)
+    axes.plot(epochs, [r["val_loss_m2"] for r in rows], **VALIDATION_STYLE, label=VALIDATION_LABEL)
     best = int(rows[-1]["best_epoch"])
     best_m2 = next((r["val_loss_m2"] for r in rows if r["epoch"] == best), None)
     if best_m2 is not None:
@@ -115,8 +102,8 @@ def curves_figure(
     if baseline_m2 is not None and math.isfinite(baseline_m2):
         axes.axhline(
             baseline_m2,
-            color="tab:gray",
-            ls="--",
+            color=CONSTANT_VELOCITY,
+            lw=1.5,
             label=f"constant velocity, validation ({baseline_m2:.3g} m²)",
         )
     # Whole epochs, also where the axis holds one (the default asks for two ticks, and falls
@@ -163,20 +150,16 @@ def _ours_label(result: Evaluation) -> str:
     return f"AiGem, this run's {result.horizons_s[-1]:g} s model"
 
 
-def _evaluation_figure(width_in: float, result: Evaluation, label: str) -> Figure:
-    """A figure whose bottom lines say where our curves come from (kept clear of the axes)."""
-    footer = textwrap.fill(
+def _evaluation_figure(
+    width_in: float, result: Evaluation, label: str, legend_rows: int = 0
+) -> Figure:
+    """A figure whose footer says where our curves come from, with room for a legend of
+    `legend_rows` rows below the axes (legend_below)."""
+    footer = (
         f"Lines: {result.split} split ({result.samples:,} samples) of {label}. "
-        f"{training_line(result.training)}.",
-        width=int(width_in * FOOTER_CHARS_PER_IN),
-        break_on_hyphens=False,  # a command's options stay whole
+        f"{training_line(result.training)}."
     )
-    footer_in = 0.1 + 0.16 * (footer.count("\n") + 1)
-    height_in = 4.5 + footer_in
-    engine = ConstrainedLayoutEngine(rect=(0, footer_in / height_in, 1, 1 - footer_in / height_in))
-    figure = Figure(figsize=(width_in, height_in), layout=engine)
-    figure.text(0.01, 0.02 / height_in, footer, fontsize=8, color="dimgray", va="bottom")
-    return figure
+    return footed_figure(width_in, 4.5 + 0.2 * legend_rows, footer)
 
 
 def _marked(figure: Figure, result: Evaluation) -> Figure:
@@ -195,32 +178,11 @@ def _marked(figure: Figure, result: Evaluation) -> Figure:
     return figure
 
 
-def paper_points(axes: Axes, key: str) -> None:
-    """The paper's table as markers: RMSE at 1..5 s (key "rmse_m"), or FDE at 5 s ("fde_m");
-    also aigem.report_plots' Table 1."""
-    for name, row in PAPER_TABLE.items():
-        model = name.removesuffix(" (paper)")
-        marker, colour = PAPER_MARKERS[model]
-        values = row[key] if key == "rmse_m" else (row[key],)
-        if values[0] is None:
-            continue
-        times = np.arange(1, 6) if key == "rmse_m" else np.array([5.0])
-        what = "" if key == "rmse_m" else " FDE"
-        axes.plot(
-            times,
-            values,
-            ls="none",
-            marker=marker,
-            ms=7,
-            mfc="none",
-            mec=colour,
-            mew=1.5,
-            label=f"{model}{what} (paper, NGSIM)",
-        )
-
-
 def _protocol_points(axes: Axes, result: Evaluation) -> None:
-    """RMSE at s s from the first model that reaches s s (the paper's protocol), as diamonds."""
+    """RMSE at s s from the first model that reaches s s (the paper's protocol), as diamonds
+    labelled with their model; nothing for a run of one model (its curve is those numbers)."""
+    if len(result.members) < 2:
+        return
     seconds = [s for s in range(1, 6) if f"rmse_{s}s_m" in result.model["all"]]
     values = [result.model["all"][f"rmse_{s}s_m"] for s in seconds]
     axes.plot(
@@ -229,8 +191,9 @@ def _protocol_points(axes: Axes, result: Evaluation) -> None:
         ls="none",
         marker="D",
         ms=6,
-        color=OURS,
-        label="AiGem at h s, model named (paper's protocol)",
+        color=AIGEM,
+        clip_on=False,
+        label="AiGem at h s from its h s model (the paper's protocol)",
     )
     horizon_of = dict(zip(result.members, result.horizons_s, strict=True))
     for s, value in zip(seconds, values, strict=True):
@@ -242,51 +205,42 @@ def _protocol_points(axes: Axes, result: Evaluation) -> None:
                 textcoords="offset points",
                 ha="right",
                 fontsize=7,
-                color=OURS,
+                color=AIGEM,
             )
 
 
-def _headroom(axes: Axes, share: float = 0.4) -> None:
-    """Room above the drawn points for a legend in the upper left (errors rise to the right)."""
-    values = np.concatenate([np.asarray(line.get_ydata(), float) for line in axes.get_lines()])
-    top = np.nanmax(values) if np.isfinite(values).any() else 1.0
-    axes.set_ylim(0, top / (1 - share))
+def _model_lines(axes: Axes, times: np.ndarray, result: Evaluation, region: str, key: str) -> None:
+    """AiGem's and constant velocity's curve of `key` over `times`, in their colours."""
+    for kind, colour, who in (
+        ("model", AIGEM, _ours_label(result)),
+        ("constant_velocity", CONSTANT_VELOCITY, "constant velocity, same targets"),
+    ):
+        axes.plot(times, _curve(result.longest, kind, region, key), color=colour, lw=2, label=who)
 
 
 def error_by_horizon(result: Evaluation, label: str) -> Figure:
-    """RMSE and mean displacement error against the horizon at every future step."""
+    """RMSE and mean displacement error against the horizon at every future step, the x axis
+    ending at the last one; the published points up to it."""
     evaluation = result.longest
     times = _times_s(evaluation)
-    figure = _evaluation_figure(11, result, label)
+    last_s = float(times[-1])
+    figure = _evaluation_figure(11, result, label, legend_rows=3)
     rmse, mean = figure.subplots(1, 2)
     for axes, key, title in (
-        (rmse, "rmse_m", "RMSE (pooled over targets at each step)"),
-        (mean, "mean_error_m", "mean displacement error"),
+        (rmse, "rmse_m", "RMSE, pooled over the targets at each step"),
+        (mean, "mean_error_m", "mean displacement error (markers: published FDE)"),
     ):
-        axes.plot(
-            times,
-            _curve(evaluation, "model", "all", key),
-            color=OURS,
-            lw=2,
-            label=_ours_label(result),
-        )
-        axes.plot(
-            times,
-            _curve(evaluation, "constant_velocity", "all", key),
-            color=BASELINE,
-            lw=2,
-            label="constant velocity",
-        )
-        paper_points(axes, "rmse_m" if key == "rmse_m" else "fde_m")
-        axes.set(xlabel="horizon (s)", ylabel=f"{title.split(' (')[0]} (m)", title=title)
-        axes.set_xlim(0, max(5.0, times[-1]) + 0.2)
+        _model_lines(axes, times, result, "all", key)
+        paper_points(axes, "rmse_m" if key == "rmse_m" else "fde_m", last_s)
+        axes.set(xlabel="horizon (s)", ylabel=f"{title.split(',')[0].split(' (')[0]} (m)")
+        axes.set_title(title, fontsize=10)
+        axes.set_xlim(0, last_s)
         axes.set_ylim(bottom=0)
         axes.grid(alpha=0.3)
     _protocol_points(rmse, result)
-    for axes in (rmse, mean):
-        _headroom(axes)
-        axes.legend(fontsize=8, loc="upper left")
-    figure.suptitle(f"Error by horizon, every {evaluation.time_step_s:g} s step")
+    legend_below(figure, panel_handles((rmse, mean)))
+    step = f"every {evaluation.time_step_s:g} s step to {last_s:g} s"
+    figure.suptitle(f"Error of AiGem and constant velocity by horizon, {step}")
     return _marked(figure, result)
 
 
@@ -294,20 +248,16 @@ def error_by_region(result: Evaluation, label: str) -> Figure:
     """The per-step RMSE and mean displacement error of each region of the present position."""
     evaluation = result.longest
     times = _times_s(evaluation)
-    figure = _evaluation_figure(12, result, label)
+    figure = _evaluation_figure(12, result, label, legend_rows=2)
     panels = figure.subplots(1, 3, sharey=True)
     for axes, region in zip(panels, REGIONS[1:], strict=True):
+        _model_lines(axes, times, result, region, "rmse_m")
+        for line in axes.get_lines():
+            line.set_label(f"{line.get_label()}: RMSE")
         for kind, colour, who in (
-            ("model", OURS, _ours_label(result)),
-            ("constant_velocity", BASELINE, "constant velocity"),
+            ("model", AIGEM, _ours_label(result)),
+            ("constant_velocity", CONSTANT_VELOCITY, "constant velocity, same targets"),
         ):
-            axes.plot(
-                times,
-                _curve(evaluation, kind, region, "rmse_m"),
-                color=colour,
-                lw=2,
-                label=f"{who}: RMSE",
-            )
             axes.plot(
                 times,
                 _curve(evaluation, kind, region, "mean_error_m"),
@@ -318,12 +268,14 @@ def error_by_region(result: Evaluation, label: str) -> Figure:
             )
         count = evaluation.steps["model"][region]["n"]
         axes.set(title=f"{REGION_TITLES[region]}: {count[0]:,} targets", xlabel="horizon (s)")
-        axes.set_xlim(0, times[-1] + 0.2)
+        axes.set_xlim(0, times[-1])
         axes.set_ylim(bottom=0)
         axes.grid(alpha=0.3)
     panels[0].set_ylabel("error (m)")
-    panels[0].legend(fontsize=8)
-    figure.suptitle("Error by region of the actor's present position (y along the road)")
+    legend_below(figure, panel_handles(panels[:1]), columns=2)
+    figure.suptitle(
+        "Error by horizon and by region of the actor's present position (y along the road)"
+    )
     return _marked(figure, result)
 
 
@@ -335,8 +287,8 @@ def final_error_distribution(result: Evaluation, label: str) -> Figure:
     axes = figure.add_subplot()
     high = 1.0
     for values, colour, who in (
-        (final.model_m, OURS, _ours_label(result)),
-        (final.constant_velocity_m, BASELINE, "constant velocity"),
+        (final.model_m, AIGEM, _ours_label(result)),
+        (final.constant_velocity_m, CONSTANT_VELOCITY, "constant velocity"),
     ):
         if not len(values):
             continue
@@ -361,8 +313,11 @@ def final_error_distribution(result: Evaluation, label: str) -> Figure:
         ylim=(0, 1.01),
         xlabel=f"final displacement error at {horizon_s:g} s (m); axis to the 99th percentile",
         ylabel="share of targets with a final error ≤ x",
-        title=f"Final displacement error: {len(final.model_m):,} targets valid at {horizon_s:g} s",
     )
     axes.grid(alpha=0.3)
     axes.legend(fontsize=8, loc="lower right")
+    figure.suptitle(
+        f"Final displacement error at {horizon_s:g} s: {len(final.model_m):,} targets recorded "
+        "to the end, as a cumulative share"
+    )
     return _marked(figure, result)

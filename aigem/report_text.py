@@ -81,7 +81,7 @@ def _mark(document: dict[str, Any]) -> str:
     return f" ({', '.join(said)})" if said else ""
 
 
-def _seeds_words(seeds: Sequence[int]) -> str:
+def seeds_words(seeds: Sequence[int]) -> str:
     """ "seed 0" or "seeds 0, 1, 2"."""
     return f"seed{'s' * (len(seeds) > 1)} {', '.join(str(s) for s in seeds)}"
 
@@ -94,7 +94,7 @@ def intervals_lines(document: dict[str, Any]) -> list[str]:
     return [
         NOISES_SAID,
         "",
-        f"Each fit was trained {len(document['seeds'])} times, at {_seeds_words(document['seeds'])}"
+        f"Each fit was trained {len(document['seeds'])} times, at {seeds_words(document['seeds'])}"
         f" (a run each). Every AiGem number is the mean over the seeds and, in brackets, its "
         f"{100 * kind['level']:g} % interval ({kind['method']}): the training noise. A difference "
         "between two settings is taken seed by seed before its mean and interval; it is beyond "
@@ -363,7 +363,7 @@ def _head_lines(document: dict[str, Any]) -> list[str]:
         f"Inputs: {_counted(len(settings['inputs']), 'file')}, {size:,} bytes. Training: up to "
         f"{_counted(settings['epochs'], 'epoch')} per model ({_paper_epochs(settings['epochs'])}"
         f"), batch {settings['batch_size']}, "
-        f"{_seeds_words(document['seeds'])}, patience {'none' if patience is None else patience}."
+        f"{seeds_words(document['seeds'])}, patience {'none' if patience is None else patience}."
         f" Scored on the {document['split']} split.",
         "",
         *intervals_lines(document),

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -13,6 +13,9 @@ from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.schema import Split
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
+
+if TYPE_CHECKING:
+    from ngsim_graphs.scenes import DrawnScene
 
 
 def _scene_range(text: str, max_panels: int) -> tuple[int, int]:
@@ -40,10 +43,16 @@ def _described(ids: list[int], every_window: bool) -> str:
     return f"samples {', '.join(map(str, ids))} (one per ego)"
 
 
-def _show_name(split: str, start: int, end: int, run: Path | None) -> Path:
-    """The default --out: show-test-0.png, show-test-0-7.png, show-test-0-7-RUNNAME.png in the
-    current folder, named in full (what is said of it says where it is)."""
-    samples = f"{start}" if end == start + 1 else f"{start}-{end - 1}"
+def _show_name(split: str, ids: list[int], every_window: bool, run: Path | None) -> Path:
+    """The default --out, in the current folder, named for what it holds: show-test-2.png (one
+    sample), show-test-0-7.png (samples 0..7, --every-window), show-test-egos-0-to-14.png (one
+    sample per ego from 0 to 14); -RUNNAME added with --run."""
+    if len(ids) == 1:
+        samples = f"{ids[0]}"
+    elif every_window:
+        samples = f"{ids[0]}-{ids[-1]}"
+    else:
+        samples = f"egos-{ids[0]}-to-{ids[-1]}"
     name = f"show-{split}-{samples}" + (f"-{run.resolve().name}" if run else "") + ".png"
     return Path.cwd() / name
 
@@ -70,34 +79,36 @@ def show(
         Path | None,
         typer.Option(
             "--out",
-            help="PNG to write [default: show-SPLIT-SAMPLES.png here, -RUN added with --run].",
+            help="PNG to write [default: here, named for the samples drawn: show-SPLIT-N.png, "
+            "show-SPLIT-START-LAST.png with --every-window, show-SPLIT-egos-FIRST-to-LAST.png; "
+            "-RUN added with --run].",
         ),
     ] = None,
     run: Annotated[
         Path | None,
         typer.Option(
             "--run",
-            help="An aigem run of this build: also draw its predictions and constant "
-            "velocity's (a multi-horizon run's longest-horizon model).",
+            help="An aigem run of this build: draw one target per panel instead of the "
+            "graph (the sample's median by the run's final error), its truth beside the run's "
+            "prediction and constant velocity's (a multi-horizon run's longest-horizon model).",
         ),
     ] = None,
-    columns: Annotated[int, typer.Option(min=1, help="Panels per row.")] = 4,
+    columns: Annotated[int, typer.Option(min=1, help="Panels per row.")] = 2,
     overwrite: Annotated[bool, typer.Option(help="Replace --out if it exists.")] = False,
 ) -> None:
-    """Draw samples' graphs as one PNG, a panel per sample, in the sample frame (metres, the ego
-    at (0, 0) at the present step; along the road to the right, lateral downwards, each axis
-    zoomed to the panel's data): history nodes (older: fainter), temporal edges as each
-    vehicle's history, the present step's spatial edges, the d_sense circle, the targets'
-    recorded futures, and with --run the predictions. START:END draws one ego per panel: the
-    first sample of each ego from START on (consecutive samples are often one ego's windows).
+    """Draw samples as one PNG, a panel per sample, in the sample frame seen from above (metres,
+    the ego at (0, 0) at the present step; travel to the right, the lateral offset to the left
+    of travel upwards). Without --run, each sample's graph in equal metres on both axes:
+    history nodes (older: fainter), temporal edges as each vehicle's history, the present
+    step's spatial edges, the d_sense circle, the targets' recorded futures. With --run, one
+    target per panel, its recorded future beside the predictions, the rest of the scene faded.
+    START:END draws one ego per panel: the first sample of each ego from START on (consecutive
+    samples are often one ego's windows).
     """
     from ngsim_graphs.scenes import MAX_PANELS, one_per_ego, scene_titles, write_scenes
 
     start, end = _scene_range(sample, MAX_PANELS)
-    out = out if out is not None else _show_name(split.value, start, end, run)
     with exit_on_error():
-        if out.exists() and not overwrite:
-            raise NgsimOutputError(out, "exists; pass --overwrite to replace it")
         opened = open_build(build_dir)
         size = int(opened.manifest.splits[split.value])
         if size == 0:
@@ -111,24 +122,57 @@ def show(
             ids = np.arange(start, end)
         else:
             ids = np.array(one_per_ego(samples, start, end - start), dtype=np.int64)
-        predictions = None
+        out = out if out is not None else _show_name(split.value, ids.tolist(), every_window, run)
+        if out.exists() and not overwrite:
+            raise NgsimOutputError(out, "exists; pass --overwrite to replace it")
+        titles = scene_titles(samples, split.value, ids)
+        predictions, follow = None, None
         if run is None:
             batch = opened.graphs(split.value, ids)
         else:
-            from aigem.prediction import predict_samples  # torch loads only when asked
+            from aigem.followed import predicted_scenes  # torch loads only when asked
 
-            batch, predictions = predict_samples(run, build_dir, split, ids)
-        titles = scene_titles(samples, split.value, ids)
+            batch, predictions, follow, words = predicted_scenes(run, build_dir, split.value, ids)
+            titles = [f"{title}\n{said}" for title, said in zip(titles, words, strict=True)]
         synthetic = synthetic_build(opened.manifest)
         scenes = write_scenes(
-            out, batch, titles, opened.config.d_sense_m, predictions, columns, overwrite, synthetic
+            out,
+            batch,
+            titles,
+            opened.config.d_sense_m,
+            predictions,
+            columns,
+            overwrite,
+            synthetic,
+            follow,
         )
-    what = _described(ids.tolist(), every_window)
-    drawn = f"{counted(sum(s.nodes for s in scenes), 'node')}, {counted(sum(s.targets for s in scenes), 'target')}"
-    also = f"; dashed: {' and '.join(predictions)} of {run}" if predictions else ""
+    _print_written(
+        out, split.value, _described(ids.tolist(), every_window), build_dir, scenes, run, synthetic
+    )
+
+
+def _print_written(
+    out: Path,
+    split: str,
+    what: str,
+    build_dir: Path,
+    scenes: tuple[DrawnScene, ...],
+    run: Path | None,
+    synthetic: bool,
+) -> None:
+    """The line that says where the picture went and what it holds."""
+    nodes = counted(sum(s.nodes for s in scenes), "node")
+    targets = counted(sum(s.targets for s in scenes), "target")
+    drawn = f"{nodes}, {targets}"
+    also = (
+        f"; each panel follows its median target, beside AiGem's and constant velocity's "
+        f"predictions of {run}"
+        if run is not None
+        else ""
+    )
     kind = f"; {SYNTHETIC_LABEL}" if synthetic else ""
     stdout.print(
-        f"wrote {out}: {split.value} {what} of {build_dir} ({drawn}){also}{kind}",
+        f"wrote {out}: {split} {what} of {build_dir} ({drawn}){also}{kind}",
         markup=False,
         highlight=False,
         soft_wrap=True,

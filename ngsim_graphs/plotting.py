@@ -26,19 +26,21 @@ SPLIT_COLOURS = {"train": "tab:blue", "val": "tab:orange", "test": "tab:green"}
 PLOT_NAMES = ("nodes_per_graph", "spatial_edges_per_graph", "node_degree", "speed", "heading")
 WRITER = "ngsim-graphs stats --plots"  # whose pictures they are (plot_folder)
 SYNTHETIC_COLOUR = "crimson"
-# What a picture of a build of synthetic data says at its top left: short enough to stay clear of
-# a centred title on the same line.
+# What a picture of a build of synthetic data says at its top left, on a line of its own.
 SYNTHETIC_PICTURE_LABEL = "SYNTHETIC data (ngsim-graphs synth)"
-SYNTHETIC_BAND_IN = 0.25  # the strip taken from the top of a figure without a suptitle
+SYNTHETIC_BAND_IN = 0.25  # the strip taken from the top of a figure for the label
 
 
 def mark_synthetic(figure: Figure) -> None:
-    """Write SYNTHETIC_PICTURE_LABEL at the top left of `figure`, bold and red: on the line of its
-    suptitle where it has one, else in a strip taken from the top of its layout (a constrained
-    layout's rect, or fixed margins), so that it covers nothing. Call it once the figure has its
-    final size and suptitle."""
+    """Write SYNTHETIC_PICTURE_LABEL at the top left of `figure`, bold and red, on a line of its
+    own, so that it covers nothing whatever the title's width: above the suptitle, which gets an
+    empty first line for it, or, without one, in a strip of SYNTHETIC_BAND_IN taken from the top
+    of its layout (a constrained layout's rect, or fixed margins). Call it once the figure has
+    its final size and suptitle."""
     height_in = figure.get_figheight()
-    if not figure.get_suptitle():
+    if figure.get_suptitle():
+        _lower_suptitle(figure)
+    else:
         share = SYNTHETIC_BAND_IN / height_in
         engine = figure.get_layout_engine()
         if isinstance(engine, ConstrainedLayoutEngine):
@@ -55,6 +57,19 @@ def mark_synthetic(figure: Figure) -> None:
         fontsize=10,
         fontweight="bold",
         color=SYNTHETIC_COLOUR,
+    )
+
+
+def _lower_suptitle(figure: Figure) -> None:
+    """An empty first line for the suptitle (a constrained layout keeps placing it at the top and
+    makes room for the whole of it); its colour, weight and size as they were."""
+    title = figure.get_suptitle()
+    text = [t for t in figure.texts if t.get_text() == title][-1]
+    figure.suptitle(
+        f"\n{title}",
+        color=text.get_color(),
+        fontweight=text.get_fontweight(),
+        fontsize=text.get_fontsize(),
     )
 
 

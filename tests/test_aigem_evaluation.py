@@ -19,7 +19,7 @@ from aigem import runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
 from aigem.ensemble import Ensemble
-from aigem.evaluation import evaluate, scene_choice
+from aigem.evaluation import evaluate, target_choice
 from aigem.intervals import RESAMPLES, SampleIntervals
 from aigem.results import as_dict
 from aigem.scoring import score_targets
@@ -172,19 +172,19 @@ def test_an_empty_split_is_one_error_line_not_empty_metrics(
     )
 
 
-def test_scene_choice_by_hand() -> None:
-    # Scene errors (mean over a sample's targets): 0 -> 2, 1 -> 9, 2 -> 4, 3 -> 1, 4 -> 6,
-    # 5 -> 3, 6 -> 5; sample 7 has no target valid at the last step and is never chosen.
+def test_target_choice_by_hand() -> None:
+    # Targets 0..9 of samples 0, 0, 1, 2, 2, 2, 3, 4, 5, 6 with final errors 1, 3, 9, 3, 4, 5,
+    # 1, 6, 3, 5 m. Best first: 0 (1), 6 (1), 1 (3), 3 (3), 8 (3), 4 (4), 5 (5), 9 (5), 7 (6),
+    # 2 (9); worst first: 2, 7, 5, 9, 4, 1, 3, 8, 0, 6.
     sample = np.array([0, 0, 1, 2, 2, 2, 3, 4, 5, 6])
     error_m = np.array([1.0, 3.0, 9.0, 3.0, 4.0, 5.0, 1.0, 6.0, 3.0, 5.0])
-    chosen = scene_choice(sample, error_m, per_group=2)
-    # Ranked best first: 3 (1), 0 (2), 5 (3), 2 (4), 6 (5), 4 (6), 1 (9); the middle pair
-    # starts at (7 - 2) // 2 = 2.
-    assert chosen["best"].tolist() == [3, 0]
-    assert chosen["median"].tolist() == [5, 2]
-    assert chosen["worst"].tolist() == [1, 4]
-    few = scene_choice(np.array([4, 9]), np.array([1.0, 1.0]), per_group=3)  # a tie: lower id
-    assert few["best"].tolist() == [4, 9] and few["worst"].tolist() == [4, 9]
+    chosen = target_choice(sample, error_m, per_group=3)
+    assert chosen["best"].tolist() == [0, 6, 3]  # 1 is of sample 0, as 0 is: one per scene
+    assert chosen["worst"].tolist() == [2, 7, 5]
+    # From the middle on, (10 - 3) // 2 = 3: 3 (sample 2), 8 (5), 4 (2: taken), 5 (2), 9 (6)
+    assert chosen["median"].tolist() == [3, 8, 9]
+    few = target_choice(np.array([4, 9]), np.array([1.0, 1.0]), per_group=3)  # a tie: lower
+    assert few["best"].tolist() == [0, 1] and few["worst"].tolist() == [0, 1]
 
 
 def test_per_step_curves_and_final_errors_agree_with_the_table(trained_run: Path) -> None:

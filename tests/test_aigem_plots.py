@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import to_hex
 from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
@@ -24,7 +25,9 @@ from aigem.plots import (
     error_by_region,
     final_error_distribution,
 )
+from aigem.results import Evaluation
 from ngsim_cli.aigem import app
+from ngsim_graphs import palette
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
@@ -40,6 +43,15 @@ ROWS = [
 def run(tiny_horizons_run: Path) -> Path:
     """A 1 s + 2 s run of one epoch; RUN/h2s alone is a single-horizon run."""
     return tiny_horizons_run
+
+
+@pytest.fixture(scope="module")
+def results(tiny_horizons_run: Path) -> dict[str, Evaluation]:
+    """The 2 s model alone ("single") and the 1 s + 2 s run ("several"), on the test split."""
+    return {
+        "single": evaluate(tiny_horizons_run / "h2s", None, "test", "cpu", resamples=0),
+        "several": evaluate(tiny_horizons_run, None, "test", "cpu", resamples=0),
+    }
 
 
 def _is_png(path: Path, min_bytes: int = 10_000) -> bool:
@@ -90,7 +102,7 @@ def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
     assert len(ours.get_xdata()) == single.horizon_steps == 10
     np.testing.assert_allclose(ours.get_xdata(), np.arange(1, 11) * 0.2)
     np.testing.assert_allclose(ours.get_ydata(), single.steps["model"]["all"]["rmse_m"])
-    cv = _line(mean, "constant velocity").get_ydata()
+    cv = _line(mean, "constant velocity, same targets").get_ydata()
     np.testing.assert_allclose(cv, single.steps["constant_velocity"]["all"]["mean_error_m"])
     front = error_by_region(single, "a label").axes[0]
     np.testing.assert_allclose(
@@ -101,7 +113,7 @@ def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
     assert len(ecdf.get_xdata()) == len(single.final.model_m)
     several = evaluate(run, None, "test", "cpu")
     rmse = error_by_horizon(several, "a label").axes[0]
-    diamonds = _line(rmse, "AiGem at h s, model named (paper's protocol)")
+    diamonds = _line(rmse, "AiGem at h s from its h s model (the paper's protocol)")
     assert diamonds.get_ydata().tolist() == [
         several.model["all"]["rmse_1s_m"],
         several.model["all"]["rmse_2s_m"],
@@ -109,7 +121,7 @@ def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:
     assert len(_line(rmse, "AiGem, this run's 2 s model").get_xdata()) == 10
     for draw in (error_by_horizon, error_by_region, final_error_distribution):
         labels = [line.get_label() for axes in draw(several, "x").axes for line in axes.get_lines()]
-        assert all("paper" in label for label in labels if "NGSIM" in label), labels
+        assert all("(published, NGSIM)" in label for label in labels if "NGSIM" in label), labels
 
 
 def test_describe_build_names_synthetic_data(tiny_build: Path) -> None:
@@ -214,3 +226,69 @@ def test_evaluate_help_names_plots_within_80_columns() -> None:
     result = CliRunner(env={"COLUMNS": "80"}).invoke(app, ["evaluate", "--help"])
     assert result.exit_code == 0 and "--plots DIR" in result.stdout
     assert max(len(line) for line in result.stdout.splitlines()) <= 80
+
+
+def test_error_by_horizon_ends_at_the_last_horizon_and_names_models_only_of_several(
+    results: dict[str, Evaluation],
+) -> None:
+    """A 2 s model: both axes end at 2 s, the published points beyond it (and the FDE at 5 s)
+    left out; no "2 s model" written on a run of one model, each model named once on two."""
+    rmse, mean = error_by_horizon(results["single"], "a label").axes
+    assert rmse.get_xlim() == mean.get_xlim() == (0.0, 2.0)
+    published = [line for line in rmse.get_lines() if "published" in line.get_label()]
+    assert len(published) == 7  # the paper's six rows and constant velocity's
+    assert all(line.get_xdata().tolist() == [1, 2] for line in published)
+    assert not [line for line in mean.get_lines() if "published" in line.get_label()]
+    assert list(rmse.texts) == [] and len(rmse.get_lines()) == 2 + 7  # no diamonds either
+    rmse = error_by_horizon(results["several"], "a label").axes[0]
+    assert [text.get_text() for text in rmse.texts] == ["1 s model", "2 s model"]
+
+
+def test_the_models_have_their_colours_in_every_figure(results: dict[str, Evaluation]) -> None:
+    result = results["single"]
+    figures = (
+        error_by_horizon(result, "x"),
+        error_by_region(result, "x"),
+        final_error_distribution(result, "x"),
+    )
+    for figure in figures:
+        for axes in figure.axes:
+            for line in axes.get_lines():
+                label, colour = line.get_label(), to_hex(line.get_color())
+                if label.startswith("AiGem, this run"):
+                    assert colour == to_hex(palette.AIGEM), label
+                elif label.startswith("constant velocity") and "published" not in label:
+                    assert colour == to_hex(palette.CONSTANT_VELOCITY), label
+    markers = {line.get_label(): line for line in figures[0].axes[0].get_lines()}
+    assert to_hex(markers["AiGem (published, NGSIM)"].get_mec()) == to_hex(palette.AIGEM)
+    assert to_hex(markers["CS-LSTM (published, NGSIM)"].get_mec()) == to_hex(palette.PUBLISHED)
+    assert to_hex(markers["constant velocity (published, NGSIM)"].get_mec()) == to_hex(
+        palette.CONSTANT_VELOCITY
+    )
+    curves = curves_figure(ROWS, 3.5, 2.0).axes[0]
+    assert to_hex(_line(curves, VALIDATION_LABEL).get_color()) == to_hex(palette.AIGEM)
+    baseline = _line(curves, "constant velocity, validation (3.5 m²)")
+    assert to_hex(baseline.get_color()) == to_hex(palette.CONSTANT_VELOCITY)
+
+
+def test_the_legend_and_the_synthetic_label_cover_no_title_data_or_footer(
+    results: dict[str, Evaluation],
+) -> None:
+    """The tiny build is synthetic: the label sits above the title, never on it; the legend
+    lies between the axes and the footer."""
+    for draw in (error_by_horizon, error_by_region, final_error_distribution):
+        figure = draw(results["single"], "a label")
+        FigureCanvasAgg(figure).draw()
+        footer, *_, label = figure.texts
+        assert label.get_text().startswith("SYNTHETIC")
+        (title,) = [
+            t.get_window_extent() for t in figure.texts if t.get_text() == figure.get_suptitle()
+        ]
+        assert label.get_window_extent().y0 > (title.y0 + title.y1) / 2  # its empty line
+        assert figure.get_suptitle().startswith("\n")  # the label's line
+        for axes in figure.axes:
+            assert not title.overlaps(axes.get_tightbbox())
+            for legend in figure.legends:
+                assert not legend.get_window_extent().overlaps(axes.get_tightbbox())
+        for legend in figure.legends:
+            assert not legend.get_window_extent().overlaps(footer.get_window_extent())

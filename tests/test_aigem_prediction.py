@@ -18,7 +18,6 @@ from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import run_build
-from ngsim_graphs.scenes import write_scenes
 
 STEPS = 10  # the tiny run's 2 s horizon at 0.2 s steps
 
@@ -66,17 +65,6 @@ def test_a_sample_alone_is_predicted_as_in_a_batch(tiny_run: Path, tiny_build: P
     assert rows.sum() == len(alone_graphs.target_node)
     for label in (MODEL_LABEL, BASELINE_LABEL):
         assert np.allclose(together[label][rows], alone[label], atol=1e-4)
-
-
-def test_drawn_predictions_have_every_target(
-    tiny_run: Path, tiny_build: Path, tmp_path: Path
-) -> None:
-    ids = np.arange(4)
-    graphs, predictions = predict_samples(tiny_run, tiny_build, "val", ids)
-    scenes = write_scenes(tmp_path / "p.png", graphs, [f"#{i}" for i in ids], 12.0, predictions)
-    assert sum(s.targets for s in scenes) == len(graphs.target_node)
-    for scene in scenes:
-        assert scene.predicted == {MODEL_LABEL: scene.targets, BASELINE_LABEL: scene.targets}
 
 
 def test_another_build_is_refused(tiny_run: Path, tiny_build: Path, tmp_path: Path) -> None:

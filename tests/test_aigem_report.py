@@ -8,11 +8,17 @@ import math
 from pathlib import Path
 
 import pytest
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.colors import to_hex
+from matplotlib.container import BarContainer
+from matplotlib.figure import Figure
 
 from aigem.intervals import t_975
 from aigem.report import paper_report, table1, write_report
 from aigem.report_cells import NOISES_SAID
-from aigem.report_plots import report_figures
+from aigem.report_plots import CONSTANT_VELOCITY_TICK, draw_report, report_figures
 from aigem.report_text import (
     NO_FIT_DIFFERENCE,
     ONE_SEED,
@@ -22,6 +28,7 @@ from aigem.report_text import (
     report_markdown,
 )
 from aigem.results import Evaluation, paper_rows
+from ngsim_graphs import palette
 
 SETTINGS = {
     "inputs": [{"path": "/data/a.txt", "size_bytes": 1000}],
@@ -599,3 +606,98 @@ def test_the_published_rows_say_where_an_rmse_lies_below_the_fde() -> None:
         "be the Euclidean one of the predictions its FDE scores"
     ) in text
     assert text.count("Its AiGem row's RMSE at 5 s lies below its FDE") == 3  # ablations, regions
+
+
+# ------------------------------------------------------------------------------------------------
+# The figures: what each draws, inspected on matplotlib's objects
+
+
+def _footer(figure: Figure) -> str:
+    return figure.texts[0].get_text().replace("\n", " ")
+
+
+def _bars(axes: Axes) -> dict[str, BarContainer]:
+    return {c.get_label(): c for c in axes.containers if isinstance(c, BarContainer)}
+
+
+def _ticks(axes: Axes) -> list[LineCollection]:
+    """The constant-velocity ticks over the bars, one collection per series."""
+    return [c for c in axes.collections if c.get_label() == CONSTANT_VELOCITY_TICK]
+
+
+def test_bars_draw_intervals_constant_velocity_and_the_papers_setting_in_aigems_colour() -> None:
+    document = seeds_report()
+    figure = draw_report(document)["dmin"]
+    (axes,) = figure.axes
+    bars = _bars(axes)
+    assert list(bars) == ["d_min 0 m", "d_min 25 m (the paper's)", "d_min 50 m"]
+    paper = bars["d_min 25 m (the paper's)"]
+    colours = [to_hex(bar.patches[0].get_facecolor()) for bar in bars.values()]
+    assert colours[1] == to_hex(palette.AIGEM) and len(set(colours)) == 3
+    cells = document["dmin"]["25"]
+    assert [p.get_height() for p in paper.patches] == pytest.approx([c["value"] for c in cells])
+    (whiskers,) = paper.errorbar.lines[2]  # each bar's interval, low to high
+    assert [tuple(s[:, 1]) for s in whiskers.get_segments()] == [
+        pytest.approx((c["low"], c["high"])) for c in cells
+    ]
+    ticks = _ticks(axes)
+    assert len(ticks) == 3 and {to_hex(t.get_color()[0]) for t in ticks} == {
+        to_hex(palette.CONSTANT_VELOCITY)
+    }
+    cv = [c["value"] for c in document["dmin_constant_velocity"]["25"]]
+    assert [s[0, 1] for s in ticks[1].get_segments()] == pytest.approx(cv)
+    assert "seeds 0, 1, 2" in _footer(figure) and "up to 3 epochs per model" in _footer(figure)
+    FigureCanvasAgg(figure).draw()
+    legend = figure.legends[0].get_window_extent()
+    assert not legend.overlaps(axes.get_tightbbox()) and not legend.overlaps(
+        figure.texts[0].get_window_extent()
+    )
+
+
+def test_one_seeds_bars_have_no_error_bar_and_say_why() -> None:
+    figures = draw_report(report())
+    for name in ("dmin", "concat", "regions"):
+        (axes,) = figures[name].axes
+        assert all(bar.errorbar is None for bar in _bars(axes).values()), name
+        assert len(_ticks(axes)) == len(_bars(axes)), name
+        assert "seed 0; one seed: no interval" in _footer(figures[name]), name
+    regions = figures["regions"].axes[0]
+    assert [to_hex(b.patches[0].get_facecolor()) for b in _bars(regions).values()][1] == to_hex(
+        palette.AIGEM
+    )
+
+
+def test_table1_reads_as_the_table_a_panel_per_horizon_a_row_per_model() -> None:
+    document = seeds_report()
+    figure = draw_report(document)["table1"]
+    panels = figure.axes
+    assert [axes.get_title() for axes in panels] == ["1 s", "2 s", "3 s", "4 s", "5 s"]
+    assert "Table 1" not in figure.get_suptitle() and "RMSE by horizon" in figure.get_suptitle()
+    labels = [tick.get_text() for tick in panels[0].get_yticklabels()]
+    assert labels[:4] == [
+        "AiGem, this call",
+        "constant velocity, this call",
+        "AiGem, published",
+        "constant velocity, published",
+    ]
+    assert len(labels) == 4 + 5  # and the other five published rows
+    ours = document["table1"]["ours"]["AiGem (this run)"]
+    for s, axes in enumerate(panels, start=1):
+        aigem = axes.containers[0]  # the first row's point and its interval
+        assert aigem.lines[0].get_xdata()[0] == pytest.approx(ours[f"rmse_{s}s_m"]["value"])
+        assert to_hex(aigem.lines[0].get_color()) == to_hex(palette.AIGEM)
+        (whisker,) = aigem.lines[2]
+        low, high = whisker.get_segments()[0][:, 0]
+        assert (low, high) == pytest.approx(
+            (ours[f"rmse_{s}s_m"]["low"], ours[f"rmse_{s}s_m"]["high"])
+        )
+    assert "seeds 0, 1, 2" in _footer(figure)
+
+
+def test_the_curves_are_aigems_colour_and_say_the_epochs() -> None:
+    figure = draw_report(report())["curves"]
+    lines = {line.get_label(): line for line in figure.axes[0].get_lines()}
+    assert {to_hex(lines[k].get_color()) for k in ("train", "validation")} == {
+        to_hex(palette.AIGEM)
+    }
+    assert "up to 3 epochs per model, seed 0" in _footer(figure)

@@ -14,7 +14,7 @@ from typer.testing import CliRunner, Result
 
 from ngsim_cli.ngsim import app
 from ngsim_graphs.build import open_build
-from ngsim_graphs.scenes import DPI, PANEL_WIDTH_IN
+from ngsim_graphs.scenes import DPI, GRAPH_PANEL_IN, TARGET_PANEL_IN
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -57,15 +57,15 @@ def test_show_three_samples_one_ego_each(tiny_build: Path, tmp_path: Path) -> No
         f"wrote {out}: val samples 0, 2, 4 (one per ego) of {tiny_build} ({nodes:,} nodes, "
         f"{targets:,} targets); {SYNTHETIC_LABEL}\n"
     )
-    assert assert_png(out)[0] == 3 * PANEL_WIDTH_IN * DPI  # three panels in a row
+    assert assert_png(out)[0] == 2 * GRAPH_PANEL_IN * DPI  # two panels a row, by default
     out.unlink()
     assert (
         invoke(
-            "show", tiny_build, "--split", "val", "--sample", "0:3", "--out", out, "--columns", "2"
+            "show", tiny_build, "--split", "val", "--sample", "0:3", "--out", out, "--columns", "3"
         ).exit_code
         == 0
     )
-    assert assert_png(out)[0] == 2 * PANEL_WIDTH_IN * DPI
+    assert assert_png(out)[0] == 3 * GRAPH_PANEL_IN * DPI
 
 
 def test_show_every_window(tiny_build: Path, tmp_path: Path) -> None:
@@ -96,6 +96,23 @@ def test_default_name_and_overwrite(
     assert invoke("show", tiny_build, "--sample", "2", "--overwrite").exit_code == 0
     assert_png(out)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["show-test-2.png"]  # no partial file
+
+
+def test_the_default_name_says_which_samples_it_holds(
+    tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """0:3 draws one sample per ego, 0, 2 and 4 of the val split (two windows per ego): named
+    so, not 0-2; with --every-window, samples 0..2 are drawn and named 0-2."""
+    monkeypatch.chdir(tmp_path)
+    result = invoke("show", tiny_build, "--split", "val", "--sample", "0:3")
+    out = tmp_path / "show-val-egos-0-to-4.png"
+    assert result.stdout.startswith(f"wrote {out}: val samples 0, 2, 4 (one per ego) of ")
+    result = invoke("show", tiny_build, "--split", "val", "--sample", "0:3", "--every-window")
+    assert result.stdout.startswith(f"wrote {tmp_path / 'show-val-0-2.png'}: val samples 0..2 ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "show-val-0-2.png",
+        "show-val-egos-0-to-4.png",
+    ]
 
 
 @pytest.mark.parametrize(
@@ -144,9 +161,10 @@ def test_show_with_a_run(tiny_build: Path, tiny_run: Path, tmp_path: Path) -> No
     )
     assert result.exit_code == 0, result.output
     assert result.stdout.rstrip().endswith(
-        f"; dashed: AiGem and constant velocity of {tiny_run}; {SYNTHETIC_LABEL}"
+        "; each panel follows its median target, beside AiGem's and constant velocity's "
+        f"predictions of {tiny_run}; {SYNTHETIC_LABEL}"
     )
-    assert_png(out)
+    assert assert_png(out)[0] == 2 * TARGET_PANEL_IN * DPI
 
 
 def test_show_with_a_run_of_another_build(

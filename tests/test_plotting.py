@@ -7,9 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from matplotlib.patches import StepPatch
 
-from ngsim_graphs.plotting import PLOT_NAMES, degree_title, share_figure, write_histograms
+from ngsim_graphs.plotting import (
+    PLOT_NAMES,
+    SYNTHETIC_PICTURE_LABEL,
+    degree_title,
+    mark_synthetic,
+    share_figure,
+    write_histograms,
+)
 from ngsim_graphs.statistics import BuildValues
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -74,3 +83,33 @@ def test_write_histograms(tmp_path: Path) -> None:
     for path in paths:
         data = path.read_bytes()
         assert data.startswith(PNG_SIGNATURE) and len(data) > 5_000
+
+
+def _extent(figure: Figure, text: str):  # noqa: ANN202
+    (found,) = [t for t in figure.texts if t.get_text() == text]
+    return found.get_window_extent()
+
+
+def test_the_synthetic_label_has_a_line_of_its_own() -> None:
+    """Above a suptitle as wide as the figure (the title keeps its colour), or above the axes'
+    title where there is none: never on either."""
+    titled = Figure(figsize=(7.5, 5), layout="constrained")
+    axes = titled.add_subplot(title="the axes' title")
+    titled.suptitle("A centred title as wide as the figure, wider than its left half", color="red")
+    mark_synthetic(titled)
+    FigureCanvasAgg(titled).draw()
+    label = _extent(titled, SYNTHETIC_PICTURE_LABEL)
+    title = _extent(titled, titled.get_suptitle())
+    assert label.y0 > (title.y0 + title.y1) / 2  # on the title's empty first line
+    assert not title.overlaps(axes.title.get_window_extent())
+    assert [t.get_color() for t in titled.texts if t.get_text() == titled.get_suptitle()] == ["red"]
+    for plain in (
+        Figure(figsize=(7, 4.5), layout="constrained"),
+        share_figure({"train": np.array([1, 2])}, "t", "x", "g"),
+    ):
+        axes = plain.axes[0] if plain.axes else plain.add_subplot(title="a long axes title " * 3)
+        mark_synthetic(plain)
+        FigureCanvasAgg(plain).draw()
+        label = _extent(plain, SYNTHETIC_PICTURE_LABEL)
+        assert not label.overlaps(axes.title.get_window_extent())
+        assert label.y0 > axes.get_window_extent().y1

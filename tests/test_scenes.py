@@ -1,5 +1,7 @@
 """ngsim_graphs.scenes: what a panel draws is counted from the sample, on a hand-made batch whose
-counts are known by hand and on a real tiny build checked against its samples table."""
+counts are known by hand and on a real tiny build checked against its samples table; the road
+seen from above (travel to the right, the left of travel up, no axis inverted), a graph in equal
+metres with its d_sense circle, a followed target's lines in its models' colours."""
 
 from __future__ import annotations
 
@@ -10,21 +12,25 @@ import polars as pl
 import pytest
 from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
+from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
+from matplotlib.patches import Circle
 from PIL import Image
 
+from ngsim_graphs import palette
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.graphs import EdgeSet, GraphBatch
+from ngsim_graphs.scene_graph import GRAPH_BOX_ASPECT
+from ngsim_graphs.scene_graph import MARGIN_M as GRAPH_MARGIN_M
+from ngsim_graphs.scene_target import MARGIN_M, MIN_LATERAL_SPAN_M
 from ngsim_graphs.scenes import (
-    LATERAL_MARGIN_M,
-    MARGIN_M,
-    MIN_LATERAL_SPAN_M,
     DrawnScene,
     draw_scene,
     one_per_ego,
     scene_figure,
     scene_titles,
+    vehicle_ids,
     write_scenes,
 )
 
@@ -106,29 +112,60 @@ def test_undirected_pairs_are_drawn_once() -> None:
     lines = [c for c in axes.collections if isinstance(c, LineCollection)]
     # ego-actor pairs at the present (ego-A, ego-B), actor-actor (A-B), temporal edges
     assert [len(c.get_segments()) for c in lines] == [2, 1, 5]
-    # plotted along the road first: (y, x)
-    assert {tuple(map(tuple, s)) for s in lines[1].get_segments()} == {((4, 3), (7, -3))}
+    # plotted along the road, then to the left of travel: (y, -x)
+    assert {tuple(map(tuple, s)) for s in lines[1].get_segments()} == {((4, -3), (7, 3))}
 
 
-def test_futures_predictions_title_and_limits() -> None:
+def test_a_graph_is_drawn_in_equal_metres_with_its_circle_travel_to_the_right() -> None:
+    """Sample 0's drawn things span y -6..12 (the ego's oldest node, B's last future step) and
+    x -3..3 (B and A): with a 5 m margin 28 m along and 16 m across, widened along to the
+    panel's shape (16 / 0.3 m); the x axis grows with travel, the y axis upwards (the left of
+    travel)."""
+    axes = _axes()
+    draw_scene(axes, hand_batch(), 0, D_SENSE_M, "zero")
+    (circle,) = [p for p in axes.patches if isinstance(p, Circle)]
+    assert circle.get_radius() == D_SENSE_M and circle.center == (0.0, 0.0)
+    assert axes.get_aspect() == 1.0 and axes.get_box_aspect() == GRAPH_BOX_ASPECT
+    assert not axes.xaxis_inverted() and not axes.yaxis_inverted()
+    along = 16 / GRAPH_BOX_ASPECT
+    assert axes.get_xlim() == pytest.approx((3 - along / 2, 3 + along / 2))
+    assert axes.get_ylim() == (-3 - GRAPH_MARGIN_M, 3 + GRAPH_MARGIN_M)
+    assert "equal metres" in axes.get_ylabel() and "travel to the right" in axes.get_xlabel()
+
+
+def test_a_followed_target_its_truth_and_predictions_in_their_colours() -> None:
+    """Sample 1's target C (target 2): its history (one node, at (3.5, 2)), its truth (two
+    recorded steps), each prediction a line from its present position, and a dot at each whole
+    second; no edge, no circle, no other target."""
     axes = _axes()
     batch = hand_batch()
-    predictions = {"model": np.zeros((3, 2, 2)), "other": np.ones((3, 4, 2))}
-    scene = draw_scene(axes, batch, 1, D_SENSE_M, "recording, ego 20", predictions)
-    assert scene.predicted == {"model": 1, "other": 1}
-    truth, model, other = axes.lines  # one target: its future, then a line per prediction
+    predictions = {"AiGem": np.zeros((3, 4, 2)), "constant velocity": np.ones((3, 4, 2))}
+    scene = draw_scene(axes, batch, 1, D_SENSE_M, "recording, ego 20", predictions, follow=2)
+    assert scene.predicted == {"AiGem": 1, "constant velocity": 1}
+    assert scene == DrawnScene(4, 2, 2, 0, 2, 1, scene.predicted)  # counted as a graph's
+    history, truth, truth_dots, aigem, aigem_dots, cv, cv_dots = axes.lines
+    assert history.get_xydata().tolist() == [[2.0, -3.5]]
     assert np.array_equal(truth.get_xydata()[:, 0], [2, 3, 6, np.nan, np.nan], equal_nan=True)
-    assert len(model.get_xydata()) == 3 and len(other.get_xydata()) == 5  # from the present
-    assert axes.get_title().splitlines() == [
-        "recording, ego 20",
-        "4 nodes, 2 temporal edges,",
-        "2 spatial edges at present, 1 target",
-    ]
-    # Along the road: from the ego's oldest node (y -4) to the farthest future (y 6), 5 m margin;
-    # across (growing downwards): from the ego (x 0) to the target (x 3.5) and the predictions'
-    # x 1, widened to 12 m: not the d_sense circle's 2 x 12 m.
-    assert axes.get_xlim() == (-4 - MARGIN_M, 6 + MARGIN_M)
-    assert axes.get_ylim() == (1.75 + MIN_LATERAL_SPAN_M / 2, 1.75 - MIN_LATERAL_SPAN_M / 2)
+    assert aigem.get_xydata().tolist() == [[2.0, -3.5], *[[0.0, 0.0]] * 4]
+    assert cv.get_xydata().tolist() == [[2.0, -3.5], *[[1.0, -1.0]] * 4]
+    colours = [to_hex(line.get_color()) for line in (truth, aigem, cv)]
+    assert colours == [to_hex(c) for c in (palette.TRUTH, palette.AIGEM, palette.CONSTANT_VELOCITY)]
+    assert len(truth_dots.get_xydata()) == 0  # 4 steps of 0.2 s: no whole second
+    assert not [p for p in axes.patches if isinstance(p, Circle)]
+    assert len([c for c in axes.collections if isinstance(c, LineCollection)]) == 1  # context
+    assert axes.get_title() == "recording, ego 20"
+    # Along: from the history (y 2) and the ego (0) to the truth's y 6; across: the ego (0) to
+    # the target (-3.5), widened to 12 m; the stretch said on the label.
+    assert axes.get_xlim() == (0 - MARGIN_M, 6 + MARGIN_M)
+    assert axes.get_ylim() == (-1.75 - MIN_LATERAL_SPAN_M / 2, -1.75 + MIN_LATERAL_SPAN_M / 2)
+    assert axes.get_ylabel().endswith(f"stretched ×{0.45 * 16 / 12:.1f}")
+
+
+def test_predictions_need_a_followed_target() -> None:
+    with pytest.raises(ValueError, match="give `follow`"):
+        draw_scene(_axes(), hand_batch(), 1, D_SENSE_M, "t", {"AiGem": np.zeros((3, 4, 2))})
+    with pytest.raises(ValueError, match="target 0 is not one of the sample's \\[2\\]"):
+        draw_scene(_axes(), hand_batch(), 1, D_SENSE_M, "t", follow=0)
 
 
 def _enclosed(axes: Axes, plotted: np.ndarray) -> bool:
@@ -142,45 +179,41 @@ def _enclosed(axes: Axes, plotted: np.ndarray) -> bool:
     )
 
 
-def test_each_panel_is_zoomed_to_its_data_with_the_lanes_apart(tiny_build: Path) -> None:
-    """On a real build and a 50 m d_sense: each panel's axes enclose its nodes, truth and
-    predictions, along the road horizontally, and span the road's width across (not +-50 m)."""
+def _as_plotted(xy: np.ndarray) -> np.ndarray:
+    return np.stack([xy[:, 1], -xy[:, 0]], axis=1)
+
+
+def test_each_graph_panel_holds_its_data_in_equal_metres(tiny_build: Path) -> None:
+    """On a real build and a 50 m d_sense: each panel's axes enclose its nodes and truth, along
+    the road horizontally, in equal metres (the box's shape is the limits' ratio)."""
     opened = open_build(tiny_build)
     ids = np.arange(3)
     batch = opened.graphs("val", ids)
-    far = {"far": batch.target_xy + np.array([1.0, 20.0])}  # 20 m beyond the truth, 1 m aside
-    figure, _ = scene_figure(batch, ["a", "b", "c"], 50.0, far)
+    figure, _ = scene_figure(batch, ["a", "b", "c"], 50.0)
     for b, axes in enumerate(figure.axes):
         nodes = batch.node_features[batch.node_ptr[b] : batch.node_ptr[b + 1], :2]
         targets = batch.node_sample[batch.target_node] == b
         truth = np.where(batch.target_mask[targets][..., None], batch.target_xy[targets], np.nan)
-        drawn = (nodes, truth.reshape(-1, 2), far["far"][targets].reshape(-1, 2))
-        for xy in drawn:
-            assert _enclosed(axes, xy[:, ::-1]), b
-        across = abs(np.subtract(*axes.get_ylim()))
-        lateral = np.ptp(
-            np.concatenate([[0.0], *(xy[:, 0][np.isfinite(xy[:, 0])] for xy in drawn)])
-        )
-        assert across == pytest.approx(max(lateral + 2 * LATERAL_MARGIN_M, MIN_LATERAL_SPAN_M))
-        assert across < 30.0 and axes.yaxis_inverted() and axes.get_aspect() == "auto"
-        assert np.ptp(axes.get_xlim()) > 3 * across  # along the road: long and narrow
+        for xy in (nodes, truth.reshape(-1, 2)):
+            assert _enclosed(axes, _as_plotted(xy)), b
+        along, across = np.ptp(axes.get_xlim()), np.ptp(axes.get_ylim())
+        assert across == pytest.approx(GRAPH_BOX_ASPECT * along) and axes.get_aspect() == 1.0
 
 
 def test_the_legend_tells_truth_predictions_history_and_neighbours_apart() -> None:
     predictions = {"AiGem": np.zeros((3, 4, 2)), "constant velocity": np.ones((3, 4, 2))}
-    figure, _ = scene_figure(hand_batch(), ["a", "b"], D_SENSE_M, predictions)
+    figure, _ = scene_figure(hand_batch(), ["a", "b"], D_SENSE_M, predictions, follow=[0, 2])
     (legend,) = figure.legends
     handles = {
         text.get_text(): line
         for text, line in zip(legend.texts, legend.legend_handles, strict=True)
     }
     for label in (
-        "truth: recorded future",
+        "truth: its recorded future",
         "predicted: AiGem",
         "predicted: constant velocity",
-        "ego's history",
-        "neighbours' history",
-        "neighbour node (fainter: older)",
+        "followed target's history",
+        "other vehicles (faded)",
     ):
         assert label in handles
     lines = [handles[name] for name in handles if name.startswith(("truth", "predicted"))]
@@ -190,6 +223,9 @@ def test_the_legend_tells_truth_predictions_history_and_neighbours_apart() -> No
     # the panels draw them as the legend shows them
     drawn = {(line.get_color(), line.get_marker()) for line in figure.axes[0].lines}
     assert {(line.get_color(), line.get_marker()) for line in lines} <= drawn
+    graph, _ = scene_figure(hand_batch(), ["a", "b"], D_SENSE_M)
+    labels = [text.get_text() for text in graph.legends[0].texts]
+    assert "d_sense around the ego" in labels and "spatial edge neighbours" in labels
 
 
 def test_one_panel_per_ego() -> None:
@@ -220,14 +256,16 @@ def test_sample_out_of_the_batch() -> None:
 def test_write_scenes_png(tmp_path: Path) -> None:
     path = tmp_path / "scenes.png"
     predictions = {"model": np.zeros((3, 4, 2))}
-    scenes = write_scenes(path, hand_batch(), ["a", "b"], D_SENSE_M, predictions, columns=1)
+    scenes = write_scenes(
+        path, hand_batch(), ["a", "b"], D_SENSE_M, predictions, columns=1, follow=[1, 2]
+    )
     assert [s.nodes for s in scenes] == [8, 4] and [s.predicted for s in scenes] == [
-        {"model": 2},
+        {"model": 1},
         {"model": 1},
     ]
     assert path.read_bytes().startswith(PNG_SIGNATURE) and path.stat().st_size > 20_000
     width, height = Image.open(path).size
-    assert height > 1.5 * width  # one column of two panels
+    assert height > width  # one column of two panels
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes.png"]  # no partial file left
 
 
@@ -280,3 +318,10 @@ def test_counts_of_a_real_build(tiny_build: Path, tmp_path: Path) -> None:
     assert titles[0] == (
         f"{row['location']} {row['period']}, ego vehicle {samples['ego_vehicle_id'][0]}, val #0"
     )
+
+
+def test_vehicle_ids_of_tracks(tiny_build: Path) -> None:
+    tracks = open_build(tiny_build).tracks()
+    rows = tracks.select("track_id", "vehicle_id").unique().sort("track_id").collect()
+    first, last = rows.row(0), rows.row(-1)
+    assert vehicle_ids(tracks, [first[0], last[0]]) == {first[0]: first[1], last[0]: last[1]}
