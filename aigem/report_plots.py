@@ -278,14 +278,16 @@ def dmin_figure(document: dict[str, Any]) -> Figure:
     series, colours = _ablation_series(document["dmin"], paper, "d_min {} m")
     reference = list(document["dmin_constant_velocity"].values())
     title = "RMSE by d_min, the actor-actor edges' reach (each horizon's own model)"
-    return bars_figure(series, colours, reference, title, "AiGem, spatial edges", _footer(document))
+    footer = _footer(document, document.get("dmin_intervals"))  # one seed: a bootstrap's
+    return bars_figure(series, colours, reference, title, "AiGem, spatial edges", footer)
 
 
 def concat_figure(document: dict[str, Any]) -> Figure:
     series, colours = _ablation_series(document["concat"], "with", "{} concatenation")
     reference = list(document["concat_constant_velocity"].values())
     title = "RMSE with and without the previous position at the MLP (d_min 25 m)"
-    return bars_figure(series, colours, reference, title, "AiGem, output", _footer(document))
+    footer = _footer(document, document.get("concat_intervals"))  # one seed: a bootstrap's
+    return bars_figure(series, colours, reference, title, "AiGem, output", footer)
 
 
 def regions_figure(document: dict[str, Any]) -> Figure:

@@ -701,3 +701,20 @@ def test_the_curves_are_aigems_colour_and_say_the_epochs() -> None:
         to_hex(palette.AIGEM)
     }
     assert "up to 3 epochs per model, seed 0" in _footer(figure)
+
+
+def test_one_seeds_ablation_bars_draw_the_bootstrap_and_say_so() -> None:
+    """With one seed and each fit's bootstrap (report.json's `dmin_intervals`), the ablation
+    bars draw its intervals, and the footer names them the test set's noise."""
+    evaluations = {
+        name: [with_bootstrap(evaluation(base, cv_base=1.0))] for name, base in BASES.items()
+    }
+    document = paper_report(SETTINGS, PARTS, (0,), fits(), evaluations, [CURVE_ROWS])
+    for name in ("dmin", "concat"):
+        figure = draw_report(document)[name]
+        (axes,) = figure.axes
+        assert all(bar.errorbar is not None for bar in _bars(axes).values()), name
+        assert "a bootstrap over the 7 test samples (the test set's noise" in _footer(figure)
+    (axes,) = draw_report(document)["dmin"].axes
+    (whiskers,) = _bars(axes)["d_min 0 m"].errorbar.lines[2]
+    assert tuple(whiskers.get_segments()[0][:, 1]) == pytest.approx((3.9, 4.2))
