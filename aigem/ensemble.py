@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 
+from aigem.batch import Batch
 from aigem.config import ModelConfig
 from aigem.data import xy_to_metres
 from aigem.model import AiGem, Decode, Params, decode_members, forward_members
@@ -72,13 +73,13 @@ class Ensemble:
     def eval(self) -> Ensemble:
         return self.train(False)
 
-    def __call__(self, batch: dict) -> torch.Tensor:
+    def __call__(self, batch: Batch) -> torch.Tensor:
         """(M, A, K, 2) scaled predicted positions of the batch's targets, K = max(steps)."""
         return forward_members(
             self.params, self.config, batch, self.steps, self.training, self.decode
         )
 
-    def predict_one_by_one(self, batch: dict) -> torch.Tensor:
+    def predict_one_by_one(self, batch: Batch) -> torch.Tensor:
         """`__call__`'s (M, A, K, 2), the members run one after the other (M = 1 each, member m
         over its own steps): the same numbers to float rounding, and on the CPU faster than the
         stacked pass at evaluation's batches (docs/benchmarks.md). Evaluation only: in training each
@@ -93,19 +94,19 @@ class Ensemble:
         return torch.cat(outputs)
 
     def member_sums(
-        self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
+        self, model_out: torch.Tensor, batch: Batch, scaler: MinMaxScaler
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(M,) each member's squared error in metres^2 summed over its valid target steps, and
         (M,) their count; `model_out` (M, A, K, 2) scaled."""
         steps = model_out.shape[2]
         predicted = xy_to_metres(scaler, model_out)  # (M, A, K, 2)
-        truth = batch["target_xy"][:, :steps]
-        mask = batch["target_mask"][:, :steps].to(predicted.dtype) * self.scored  # (M, A, K)
+        truth = batch.target_xy[:, :steps]
+        mask = batch.target_mask[:, :steps].to(predicted.dtype) * self.scored  # (M, A, K)
         squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
         return squared.sum((1, 2)), mask.sum((1, 2))
 
     def member_losses(
-        self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
+        self, model_out: torch.Tensor, batch: Batch, scaler: MinMaxScaler
     ) -> torch.Tensor:
         """(M,) each member's `aigem.trainers.masked_mse_m2` over its own steps, in metres^2."""
         squared, count = self.member_sums(model_out, batch, scaler)

@@ -22,7 +22,6 @@ from torch.utils.data import DataLoader
 
 from aigem import runs
 from aigem.config import TrainConfig
-from aigem.devices import to_device
 from aigem.trainers import (
     Loop,
     Member,
@@ -69,9 +68,9 @@ def evaluate_losses(
         model.eval()
     with torch.no_grad():
         for batch in loader:
-            batch = to_device(batch, device)
+            batch = batch.to(device, non_blocking=True)
             for index, (model, steps) in enumerate(models):
-                valid = batch["target_mask"][:, :steps].sum()
+                valid = batch.target_mask[:, :steps].sum()
                 loss = masked_mse_m2(model(batch, steps), batch, scaler, steps)
                 totals[index] += loss.double() * valid
                 counts[index] += valid

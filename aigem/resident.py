@@ -22,22 +22,22 @@ from __future__ import annotations
 
 import gc
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from aigem.batch import Batch
 from aigem.capacity import Capacity, edge_columns, quantities
 from aigem.data import Collate, GraphDataset, check_covered
-from aigem.plan import Adjacency, Plan, edge_inputs, node_levels
+from aigem.plan import Adjacency, Plan, node_levels
 from aigem.processes import EndWithParent
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.layout import manifest_path
 
 CHUNK = 256  # samples induced at a time: numpy's gathers are fastest at this size
 DEVICE_SHARE = 0.5  # of a GPU's free memory the splits may take: the rest for the steps
-TARGET_KEYS = ("target_xy", "target_mask", "target_state", "cv_step")  # per target, as Collate's
 Progress = Callable[[int, int], None]  # (samples loaded, samples in the split)
 
 
@@ -131,6 +131,26 @@ class _EdgeTable:
 
 
 @dataclass(frozen=True)
+class TargetRows:
+    """Per target of a split (T rows), as `aigem.batch.Batch` holds them: `xy` (T, K, 2) float32
+    metres, `mask` (T, K) bool, `state` (T, 4) float32 physical, `cv_step` (T, 2) float32
+    scaled."""
+
+    xy: torch.Tensor
+    mask: torch.Tensor
+    state: torch.Tensor
+    cv_step: torch.Tensor
+
+    @staticmethod
+    def of(batch: Batch) -> TargetRows:
+        return TargetRows(batch.target_xy, batch.target_mask, batch.target_state, batch.cv_step)
+
+    def map(self, each: Callable[[torch.Tensor], torch.Tensor]) -> TargetRows:
+        """`each` of every field."""
+        return TargetRows(*(each(getattr(self, f.name)) for f in fields(self)))
+
+
+@dataclass(frozen=True)
 class ResidentSplit:
     """The kept nodes, edges and targets of a split's S samples on one device; sample s is the
     split's sample s. `counts` (S, Q) on the host: each sample's entries per segment (the
@@ -145,7 +165,7 @@ class ResidentSplit:
     node_start: torch.Tensor  # (S + 1, L + 1) first node of each sample's segment
     edges: tuple[_EdgeTable, ...]  # per edge type
     target_start: torch.Tensor  # (S + 1,) first target of each sample
-    targets: dict[str, torch.Tensor]  # TARGET_KEYS, per target (T, ...)
+    targets: TargetRows
     layouts: dict[Capacity, _Layout] = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -173,39 +193,51 @@ class ResidentSplit:
                 for t in self.edges
             ),
             target_start=move(self.target_start),
-            targets={key: move(value) for key, value in self.targets.items()},
+            targets=self.targets.map(move),
         )
 
     def nbytes(self) -> int:
-        tensors = [self.x, self.node_segment, self.node_within, *self.targets.values()]
+        targets = [getattr(self.targets, f.name) for f in fields(self.targets)]
+        tensors = [self.x, self.node_segment, self.node_within, *targets]
         tensors += [t for e in self.edges for t in (e.src, e.dst, e.attr)]
         return sum(t.numel() * t.element_size() for t in tensors)
 
-    def batch(self, ids: torch.Tensor, capacity: Capacity) -> dict:
+    def batch(self, ids: torch.Tensor, capacity: Capacity) -> Batch:
         """The static batch of samples `ids` ((capacity.samples,) on the device, padded with
-        `empty_id`) in `capacity`'s layout: "x", "plan", "target_node" and the targets of
-        TARGET_KEYS, "target_sample" (the split's sample id, -1 for padding)."""
+        `empty_id`) in `capacity`'s layout: its nodes in plan order, its edges in its plan's
+        adjacency (`Batch.edges` empty), its targets the first nodes; a padded target's
+        `target_sample` is -1, its values zeros."""
         layout = self._layout(capacity, ids.device)
         layers, count = self.layers, self.device_counts.index_select(0, ids)  # (B, Q)
         node, valid, _, begins = _segments(
             count[:, : layers + 1].t(), self.node_start.index_select(0, ids).t(), layout.nodes
         )
-        batch = {"x": self.x.index_select(0, node) * valid[:, None]}
+        x = self.x.index_select(0, node) * valid[:, None]
         adjacency = [
             self._edges(index, ids, count, capacity, layout, begins)
             for index in range(len(self.edges))
         ]
-        batch["plan"] = Plan(None, layout.sizes, adjacency, layout.outputs)
-        batch["target_node"] = layout.outputs
         target, valid, run, _ = _segments(
             count[:, :1].t(), self.target_start.index_select(0, ids)[None], layout.targets
         )
-        for key, values in self.targets.items():
-            picked = values.index_select(0, target)
-            mask = valid.view(-1, *[1] * (picked.dim() - 1))
-            batch[key] = picked & mask if picked.dtype == torch.bool else picked * mask
-        batch["target_sample"] = torch.where(valid, ids.index_select(0, run), -1)
-        return batch
+
+        def picked(values: torch.Tensor) -> torch.Tensor:
+            values = values.index_select(0, target)
+            mask = valid.view(-1, *[1] * (values.dim() - 1))
+            return values & mask if values.dtype == torch.bool else values * mask
+
+        rows = self.targets.map(picked)
+        return Batch(
+            x=x,
+            target_node=layout.outputs,
+            target_sample=torch.where(valid, run, -1),  # run: the target's sample in the batch
+            target_xy=rows.xy,
+            target_mask=rows.mask,
+            target_state=rows.state,
+            cv_step=rows.cv_step,
+            plan=Plan(None, layout.sizes, adjacency, layout.outputs),
+            graphs=capacity.samples,
+        )
 
     def _layout(self, capacity: Capacity, device: torch.device) -> _Layout:
         """The layout of a capacity, made once (its device tensors made outside any capture)."""
@@ -247,7 +279,7 @@ class _Chunk:
     segment: torch.Tensor  # (n,)
     within: torch.Tensor  # (n,)
     edges: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]  # (src, dst, attr) per type
-    targets: dict[str, torch.Tensor]
+    targets: TargetRows
 
 
 def _argsort(key: torch.Tensor) -> torch.Tensor:
@@ -255,12 +287,12 @@ def _argsort(key: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(np.argsort(key.numpy()))
 
 
-def _keep_nodes(batch: dict, layers: int) -> tuple[torch.Tensor, ...]:
+def _keep_nodes(batch: Batch, layers: int) -> tuple[torch.Tensor, ...]:
     """The nodes some layer reads, ordered by (sample, segment = L - level, batch order):
     their batch node ids, new id of every batch node (-1: dropped), segments, samples, levels."""
-    edge_indices = [index for index, _ in edge_inputs(batch)]
-    level = node_levels(len(batch["x"]), batch["target_node"], edge_indices, layers).long()
-    sample = batch["node_sample"]
+    edge_indices = [index for index, _ in batch.edge_inputs()]
+    level = node_levels(len(batch.x), batch.target_node, edge_indices, layers).long()
+    sample = batch.node_sample
     kept = torch.nonzero(level >= 0).squeeze(1)
     key = (sample[kept] * (layers + 1) + layers - level[kept]) * len(level) + kept
     order = kept[_argsort(key)]
@@ -269,7 +301,7 @@ def _keep_nodes(batch: dict, layers: int) -> tuple[torch.Tensor, ...]:
     return order, new_id, layers - level[order], sample[order], level
 
 
-def _chunk(batch: dict, ids: np.ndarray, layers: int) -> _Chunk:
+def _chunk(batch: Batch, ids: np.ndarray, layers: int) -> _Chunk:
     """What a split keeps of a Collate batch of samples `ids` (in the batch's order)."""
     samples, segments = len(ids), layers + 1
     order, new_id, segment, sample, level = _keep_nodes(batch, layers)
@@ -277,7 +309,7 @@ def _chunk(batch: dict, ids: np.ndarray, layers: int) -> _Chunk:
     node_counts = torch.bincount(group, minlength=samples * segments)
     within = torch.arange(len(order)) - _exclusive_cumsum(node_counts).index_select(0, group)
     counts, kept_edges = [node_counts.view(samples, segments)], []
-    for edge_index, attr in edge_inputs(batch):
+    for edge_index, attr in batch.edge_inputs():
         keep = torch.nonzero(level.index_select(0, edge_index[1]) >= 1).squeeze(1)
         src = new_id.index_select(0, edge_index[0].index_select(0, keep))
         dst = new_id.index_select(0, edge_index[1].index_select(0, keep))
@@ -287,7 +319,7 @@ def _chunk(batch: dict, ids: np.ndarray, layers: int) -> _Chunk:
         edge_group = sample.index_select(0, dst) * layers + segment.index_select(0, dst)
         counts.append(torch.bincount(edge_group, minlength=samples * layers).view(samples, layers))
         kept_edges.append((src, dst, attr))
-    targets = new_id.index_select(0, batch["target_node"])
+    targets = new_id.index_select(0, batch.target_node)
     if not bool((segment.index_select(0, targets) == 0).all()) or len(targets) != int(
         node_counts.view(samples, segments)[:, 0].sum()
     ):
@@ -295,11 +327,11 @@ def _chunk(batch: dict, ids: np.ndarray, layers: int) -> _Chunk:
     return _Chunk(
         ids,
         torch.cat(counts, 1).numpy(),
-        batch["x"].index_select(0, order),
+        batch.x.index_select(0, order),
         segment,
         within,
         kept_edges,
-        {key: batch[key] for key in TARGET_KEYS},
+        TargetRows.of(batch),
     )
 
 
@@ -432,5 +464,7 @@ def _join(chunks: list[_Chunk], layers: int, samples: int, types: int) -> Reside
         node_start=torch.from_numpy(node_start),
         edges=tables,
         target_start=torch.from_numpy(target_start),
-        targets={key: on([chunk.targets[key] for chunk in chunks]) for key in TARGET_KEYS},
+        targets=TargetRows(
+            *(on([getattr(chunk.targets, f.name) for chunk in chunks]) for f in fields(TargetRows))
+        ),
     )

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import torch
@@ -26,9 +25,9 @@ from torch.utils.data import DataLoader
 
 from aigem import capacity, engine
 from aigem.baseline import constant_velocity
+from aigem.batch import Batch
 from aigem.cores import default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
-from aigem.devices import to_device
 from aigem.ensemble import stack
 from aigem.metrics import ErrorTotals, SampleTotals
 from aigem.model import AiGem
@@ -60,19 +59,17 @@ class BatchTargets:
     sample: np.ndarray
 
 
-def batch_targets(
-    batch: dict[str, Any], dataset: GraphDataset, first: int, steps: int
-) -> BatchTargets:
+def batch_targets(batch: Batch, dataset: GraphDataset, first: int, steps: int) -> BatchTargets:
     """The targets of a loader's batch that starts at sample index `first` (the loader's batches
     are consecutive indices, unshuffled), over `steps` future steps."""
-    state = batch["target_state"].numpy().astype(np.float64)  # (A, 4)
-    ids = dataset.batch_order(np.arange(first, first + batch["graphs"]))
+    state = batch.target_state.numpy().astype(np.float64)  # (A, 4)
+    ids = dataset.batch_order(np.arange(first, first + batch.graphs))
     return BatchTargets(
-        truth=batch["target_xy"][:, :steps].numpy(),
+        truth=batch.target_xy[:, :steps].numpy(),
         cv=constant_velocity(state, steps, dataset.config.time_step_s),
-        mask=batch["target_mask"][:, :steps].numpy(),
+        mask=batch.target_mask[:, :steps].numpy(),
         present_y_m=state[:, 1],
-        sample=ids[batch["target_sample"].numpy()],
+        sample=ids[batch.target_sample.numpy()],
     )
 
 
@@ -157,7 +154,7 @@ def score_members(
     sums = [ScoreSums(k, len(dataset)) for k in steps]
     with torch.no_grad():
         for index, batch in enumerate(loader):
-            scaled = predict(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
+            scaled = predict(batch.to(device, non_blocking=True))  # (M, A, K, 2), K = max(steps)
             predicted = xy_to_metres(dataset.scaler, scaled).cpu().numpy()
             targets = batch_targets(batch, dataset, index * batch_size, max(steps))
             _add_batch(sums, predicted, targets, f"batch {index + 1} of {len(loader)}")
@@ -187,11 +184,11 @@ def _host_targets(
     counts = host.counts[ids, 0]
     starts = host.target_start.numpy()[ids]
     _, rows = concat_ranges(starts, starts + counts)
-    state = host.targets["target_state"].numpy()[rows].astype(np.float64)  # (A, 4)
+    state = host.targets.state.numpy()[rows].astype(np.float64)  # (A, 4)
     return BatchTargets(
-        truth=host.targets["target_xy"].numpy()[rows, :steps],
+        truth=host.targets.xy.numpy()[rows, :steps],
         cv=constant_velocity(state, steps, time_step_s),
-        mask=host.targets["target_mask"].numpy()[rows, :steps],
+        mask=host.targets.mask.numpy()[rows, :steps],
         present_y_m=state[:, 1],
         sample=np.repeat(ids, counts),
     )

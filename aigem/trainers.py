@@ -30,10 +30,10 @@ from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
 from aigem import engine, ensemble, runs
+from aigem.batch import Batch
 from aigem.config import TrainConfig
 from aigem.cores import ThreadChooser
 from aigem.data import check_covered, xy_to_metres
-from aigem.devices import to_device
 from aigem.engine import DeviceData, TrainSteps, ValidationSums
 from aigem.ensemble import Ensemble
 from aigem.model import AiGem
@@ -44,12 +44,12 @@ RngState = tuple[torch.Tensor, torch.Tensor | None]  # the CPU generator's state
 
 
 def masked_mse_m2(
-    model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler, steps: int
+    model_out: torch.Tensor, batch: Batch, scaler: MinMaxScaler, steps: int
 ) -> torch.Tensor:
     """Mean squared error in metres^2 over valid steps; (A, steps, 2) scaled predictions."""
     predicted = xy_to_metres(scaler, model_out)
-    truth = batch["target_xy"][:, :steps]
-    mask = batch["target_mask"][:, :steps].to(predicted.dtype)
+    truth = batch.target_xy[:, :steps]
+    mask = batch.target_mask[:, :steps].to(predicted.dtype)
     squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
     return squared.sum() / mask.sum().clamp(min=1.0)
 
@@ -221,7 +221,7 @@ def unstack_together(together: Together) -> None:
 
 def _step(
     member: Member,
-    batch: dict[str, Any],
+    batch: Batch,
     scaler: MinMaxScaler,
     device: torch.device,
     learning_rate: float,
@@ -239,7 +239,7 @@ def _step(
 
 def _step_together(
     together: Together,
-    batch: dict[str, Any],
+    batch: Batch,
     scaler: MinMaxScaler,
     device: torch.device,
     learning_rate: float,
@@ -263,14 +263,14 @@ def loader_steps(loop: Loop, trainers: list[Member | Together], epoch: int) -> I
     total = len(loop.train_loader)
     for index, batch in enumerate(loop.train_loader):
         check_covered(batch, loop.scaler, loop.manifest)  # on the CPU: the step never waits
-        batch = to_device(batch, loop.device)
+        batch = batch.to(loop.device, non_blocking=True)
         for trainer in trainers:
             rate = learning_rate_at(trainer.train, epoch, index, total)
             if isinstance(trainer, Together):
                 _step_together(trainer, batch, loop.scaler, loop.device, rate)
             else:
                 _step(trainer, batch, loop.scaler, loop.device, rate)
-        yield batch["graphs"]
+        yield batch.graphs
 
 
 def static_steps(loop: Loop, trainers: list[Together], epoch: int) -> Iterator[int]:

@@ -87,9 +87,9 @@ from torch.utils.data import DataLoader
 
 from aigem import capacity, ensemble
 from aigem import plan as aigem_plan
+from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
-from aigem.devices import to_device
 from aigem.engine import TrainSteps, epoch_batches
 from aigem.model import AiGem
 from aigem.resident import ResidentSplit, load_split
@@ -123,7 +123,6 @@ COLUMNS = {
     "GPU GB": 6,
     "syncs by op (per step)": 0,
 }
-Batch = dict[str, torch.Tensor]
 
 
 class _Conversions(TorchFunctionMode):
@@ -259,7 +258,7 @@ def measure_step(
         TrainConfig().horizon_steps(step_s) if models == 1 else round((1 + k % 5) / step_s)
         for k in range(models)
     )
-    on_device = [to_device(batch, device) for batch in batches]
+    on_device = [batch.to(device, non_blocking=True) for batch in batches]
 
     def apart(batch: Batch) -> None:
         for net, optimizer, steps in zip(nets, optimizers, horizons, strict=True):
@@ -294,7 +293,7 @@ def measure_step(
     for batch in on_device[args.warmup + args.steps :]:
         step(batch)
     counts.stop()
-    graphs = sum(batch["graphs"] for batch in timed)  # a short batch: fewer
+    graphs = sum(batch.graphs for batch in timed)  # a short batch: fewer
     return {
         "graphs/s": graphs / seconds,
         "ms/batch": 1000 * seconds / len(timed),

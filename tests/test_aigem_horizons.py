@@ -21,9 +21,9 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import epochs, runs, trainers, training
+from aigem import epochs, runs, training
+from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
-from aigem.devices import to_device
 from aigem.ensemble import Ensemble
 from aigem.evaluation import evaluate
 from aigem.records import planned_group
@@ -150,17 +150,14 @@ F64_TRAIN = replace(TRAIN, lr_schedule="cosine", warmup_epochs=0.5, clip_grad_no
 @pytest.fixture
 def float64(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """Models in float64 (the default dtype while the test runs) and batches too: their floating
-    tensors cast as the training loop moves them to the device."""
+    tensors cast as the training loop moves them to the device (`Batch.to`)."""
 
-    def to_device_in_float64(batch: dict, device: torch.device) -> dict:
-        moved = to_device(batch, device)
-        return {
-            k: v.double() if isinstance(v, torch.Tensor) and v.is_floating_point() else v
-            for k, v in moved.items()
-        }
+    real = Batch.to
 
-    monkeypatch.setattr(epochs, "to_device", to_device_in_float64)  # validation's
-    monkeypatch.setattr(trainers, "to_device", to_device_in_float64)  # the steps'
+    def to_in_float64(batch: Batch, device: torch.device, *args: object, **kwargs: object) -> Batch:
+        return real(batch, device, torch.float64, kwargs.get("non_blocking", False))
+
+    monkeypatch.setattr(Batch, "to", to_in_float64)  # the steps' and validation's
     before = torch.get_default_dtype()
     torch.set_default_dtype(torch.float64)
     try:

@@ -40,11 +40,11 @@ def test_release_ends_a_loaders_persistent_workers_and_it_can_start_again(
         dataset, batch_size=8, collate_fn=collate, num_workers=2, persistent_workers=True
     )
     before = {child.pid for child in multiprocessing.active_children()}
-    first = sum(batch["graphs"] for batch in loader)
+    first = sum(batch.graphs for batch in loader)
     assert len(started_since(before)) == 2  # persistent: alive after the pass
     release_workers(loader)
     assert started_since(before) == set()
-    assert sum(batch["graphs"] for batch in loader) == first == len(dataset)
+    assert sum(batch.graphs for batch in loader) == first == len(dataset)
     release_workers(loader, DataLoader(dataset))  # again, and a loader without workers: no-ops
     assert started_since(before) == set()
 

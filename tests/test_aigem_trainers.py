@@ -40,11 +40,11 @@ def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:
     dataset = GraphDataset(tiny_build, "train")
     batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
     truth = xy_to_metres(dataset.scaler, torch.zeros(1, 1, 2))  # scaled 0 -> some metres
-    scaled = torch.zeros(len(batch["target_node"]), 3, 2)
-    batch["target_xy"][:, :3] = truth
+    scaled = torch.zeros(len(batch.target_node), 3, 2)
+    batch.target_xy[:, :3] = truth
     assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
-    batch["target_xy"][:, 0] += 100.0
-    batch["target_mask"][:, 0] = False
+    batch.target_xy[:, 0] += 100.0
+    batch.target_mask[:, 0] = False
     assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
 
 
