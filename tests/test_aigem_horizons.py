@@ -21,7 +21,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import epochs, runs, training
+from aigem import epochs, runs, trainers, training
 from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.ensemble import Ensemble
@@ -243,16 +243,14 @@ def test_one_member_stopping_early_leaves_the_others_training(
 ) -> None:
     """The 1 s model's validation loss rises (1, 2, ...): with patience 1 it stops after epoch 2;
     the 2 s model trains on, exactly as it would have."""
-    real, rising = epochs.evaluate_losses, (float(i) for i in count(1))
+    real, rising = epochs.validation_losses, (float(i) for i in count(1))
 
-    def rising_for_1s(models: list[tuple[torch.nn.Module, int]], *args: object) -> list[float]:
-        losses = real(models, *args)
+    def rising_for_1s(*args: object) -> list[tuple[trainers.Member, float]]:
         return [
-            next(rising) if steps == 5 else loss
-            for (_, steps), loss in zip(models, losses, strict=False)
+            (member, next(rising) if member.steps == 5 else loss) for member, loss in real(*args)
         ]
 
-    monkeypatch.setattr(epochs, "evaluate_losses", rising_for_1s)
+    monkeypatch.setattr(epochs, "validation_losses", rising_for_1s)
     run = tmp_path / "run"
     train = TrainConfig(**{**TRAIN.to_dict(), "epochs": 3, "patience_epochs": 1})
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")

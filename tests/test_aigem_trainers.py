@@ -1,5 +1,5 @@
-"""The trainers of an epoch: the loss (metres^2 over the valid future steps, falling as the
-model learns) and which models train as one ensemble."""
+"""The trainers of an epoch: the loss (aigem.loss: metres^2 over the valid future steps, falling
+as the model learns) and which models train as one ensemble."""
 
 from __future__ import annotations
 
@@ -14,9 +14,10 @@ from aigem import trainers
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.epochs import Loop, Member
+from aigem.loss import masked_mse_m2
 from aigem.model import AiGem
 from aigem.runs import RunState
-from aigem.trainers import Together, masked_mse_m2
+from aigem.trainers import Trainer
 from aigem.training import device_data, make_optimizer
 
 
@@ -59,7 +60,6 @@ def _member(steps: int, config: ModelConfig, seed: int) -> Member:
         train,
         steps,
         model,
-        model,
         optimizer,
         info={},
         state=RunState(),
@@ -96,8 +96,9 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
     )
     members = [middle, short, other, long]
     together, alone = trainers.group_trainers(members, _loop(world=1))
-    assert isinstance(together, Together) and alone is other
+    assert isinstance(together, Trainer) and alone.members == [other]  # an ensemble of one
     assert together.members == [short, middle, long]  # ascending steps
+    assert alone.net is alone.ensemble and alone.ensemble.steps == (5,)
     assert together.ensemble.steps == (5, 10, 25)
     stacked = together.ensemble.params["decoder.weight_ih"]
     for index, member in enumerate(together.members):
@@ -105,15 +106,14 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
     # A member on another dropout stream steps alone (none is, in a fit: one seed an epoch)
     long.rng = (torch.Generator().manual_seed(1).get_state(), None)
     together, *alone = trainers.group_trainers(members, _loop(world=1))
-    assert together.members == [short, middle] and alone == [other, long]
-    # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked.
-    assert all(
-        a is b
-        for a, b in zip(trainers.group_trainers(members, _loop(world=2)), members, strict=True)
-    )
+    assert together.members == [short, middle]
+    assert [trainer.members for trainer in alone] == [[other], [long]]
+    # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked
+    # (the wrapper needs a process group: tests/test_aigem_training.py trains under torchrun).
+    assert trainers.partition(members, _loop(world=2)) == [[member] for member in members]
 
 
-def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Together]:
+def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Trainer]:
     """One epoch of static batches (the splits on the CPU) stepped by an ensemble of each group."""
     cpu = torch.device("cpu")
     config = ModelConfig()
@@ -123,7 +123,7 @@ def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Together]:
     loop.generator.manual_seed(0)
     together = [trainers._stack(group, loop) for group in groups]
     torch.manual_seed(99)  # what the global stream holds before: no member's
-    for _ in trainers.static_steps(loop, together, epoch=0):
+    for _ in trainers.train_steps(loop, together, epoch=0):
         pass
     return together
 
