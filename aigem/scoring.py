@@ -31,9 +31,10 @@ from aigem.capacity import Capacity
 from aigem.cores import default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.ensemble import Ensemble, stack
+from aigem.loading import load_split
 from aigem.metrics import ErrorTotals, SampleTotals
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, fits, load_split
+from aigem.resident import ResidentSplit, fits
 from aigem.results import FinalErrors, Scores
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.grid import concat_ranges

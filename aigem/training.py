@@ -38,11 +38,12 @@ from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
 from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
+from aigem.loading import load_split
 from aigem.model import AiGem, count_parameters
 from aigem.processes import EndWithParent, compile_in_process, release_workers
 from aigem.records import Group, planned_group
 from aigem.refusals import check_splits, model_of_build
-from aigem.resident import fits, load_split
+from aigem.resident import fits
 from aigem.trainers import Loop, Member
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path

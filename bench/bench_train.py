@@ -32,7 +32,7 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
 - fit M h (for each M of --models from 2 to 5): the same for `aigem.training.fit_horizons` with
   the horizons 1..M s, its M models trained as one ensemble.
 - to device (once per device, where static batches are measured): the train split loaded onto
-  the device (aigem.resident: induced over --workers processes, what a layer reads kept);
+  the device (aigem.loading: induced over --workers processes, what a layer reads kept);
   graphs/s of the loading, its seconds in ms/batch.
 - static M (1 and each M of --models): the same step of M models (horizons 1..5 s) as one
   ensemble on static batches of the split on the device (aigem.engine): assembled there by
@@ -93,8 +93,9 @@ from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.engine import epoch_batches
+from aigem.loading import load_split
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, load_split
+from aigem.resident import ResidentSplit
 from aigem.trainers import Trainer, stack_trainer
 from aigem.training import fit_horizons, make_optimizer
 

@@ -18,9 +18,10 @@ from torch.utils.data import DataLoader
 from aigem import capacity, engine, trainers
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
+from aigem.loading import load_split
 from aigem.loss import masked_mse_m2
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, load_split
+from aigem.resident import ResidentSplit
 from aigem.schedule import set_learning_rate
 from ngsim_graphs.scaling import MinMaxScaler
 

@@ -18,7 +18,7 @@ import torch
 import torch._inductor.config
 from torch.utils.data import DataLoader
 
-from aigem import resident
+from aigem import loading
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
@@ -138,8 +138,8 @@ def test_the_fits_loaders_and_the_splits_loading_end_their_workers_with_the_fit(
     assert isinstance(val_loader.worker_init_fn, EndWithParent)
     made = []  # the keyword arguments of load_split's loader
     loader = lambda *args, **kwargs: made.append(kwargs) or DataLoader(*args, **kwargs)
-    monkeypatch.setattr(resident, "DataLoader", loader)
-    resident.load_split(GraphDataset(tiny_build, "val"), layers=2, workers=0)
+    monkeypatch.setattr(loading, "DataLoader", loader)
+    loading.load_split(GraphDataset(tiny_build, "val"), layers=2, workers=0)
     assert isinstance(made[0]["worker_init_fn"], EndWithParent)
 
 

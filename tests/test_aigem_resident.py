@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from aigem import capacity, ensemble, resident
+from aigem import capacity, ensemble, loading
 from aigem import plan as aigem_plan
 from aigem.batch import Batch, Edges
 from aigem.capacity import Capacity
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
+from aigem.loading import load_split
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, load_split
+from aigem.resident import ResidentSplit
 
 LAYERS = ModelConfig().layers
 STEPS = (5, 25)  # the members of the ensembles stepped here
@@ -181,7 +182,7 @@ def test_a_graph_of_one_node_and_no_actor_actor_edge(
     data: tuple[GraphDataset, ResidentSplit], exact: bool
 ) -> None:
     hand = _hand_batch()
-    split = resident._join([resident._chunk(hand, np.arange(3), LAYERS)], LAYERS, 3, 2)
+    split = loading._join([loading._chunk(hand, np.arange(3), LAYERS)], LAYERS, 3, 2)
     assert split.counts[:, 0].tolist() == [1, 2, 0]  # the targets: one, two, none
     assert split.counts[2].sum() == 0  # nothing of sample 2 is read by any layer
     ids = np.arange(3)
