@@ -106,20 +106,23 @@ def test_validation_on_static_batches_is_the_loaders(tiny_build: Path) -> None:
     assert loaded == pytest.approx([float(loss) for loss in whole], rel=1e-5)
 
 
-def captured_against_eager(build: Path, device: torch.device, dropout: float) -> None:
+def captured_against_eager(
+    build: Path, device: torch.device, dropout: float, validated: int | None = None
+) -> None:
     """Eleven steps over batches of two tiers in an irregular order (each tier warmed up twice,
     captured at its third call, then replayed out of the order of capture), with `dropout`, the
     members' stream seeded again half-way (as each epoch is), validation sharing the steps'
     pool and stream called between them: against the same step and validation functions called
     eagerly on the assembled batches, the same parameters, losses and validation sums (to the
     rounding of the GPU's atomic sums). Each trainer runs its whole sequence from one seed, so
-    both draw the same dropout masks. On the CPU both are eager (the same path as a fit's)."""
+    both draw the same dropout masks. On the CPU both are eager (the same path as a fit's).
+    `validated`: the validation's first batches (None: all)."""
     dataset, split = _split(build, "train", device)
     base = capacity.base_capacity(split.counts, 4, LAYERS)
     order = np.random.default_rng(0).permutation(len(dataset))
     batches = engine.epoch_batches(split, order, 4, base, dataset.batch_order, device)
     tiers = [0, 1, 0, 1, 0, 1, 1, 0, 1, 1, 0]
-    val = [batches[row] for row in range(len(batches))]
+    val = [batches[row] for row in range(len(batches))][:validated]
 
     def run(trainer: trainers.Trainer, step, add) -> list[list[float]]:  # noqa: ANN001
         torch.manual_seed(5)
@@ -163,7 +166,7 @@ def test_the_cpus_static_steps_are_the_step_called_on_assembled_batches(tiny_bui
     """The harness of the captured steps' test, on the CPU: a trainer's step of a static batch
     is its one step function of the batch assembled (no capture here; the same path as a fit's
     `--resident` on the CPU)."""
-    captured_against_eager(tiny_build, torch.device("cpu"), dropout=0.1)
+    captured_against_eager(tiny_build, torch.device("cpu"), dropout=0.1, validated=2)
 
 
 @cuda
