@@ -61,6 +61,7 @@ from aigem.results import (
     below_fde,
     paper_rows,
 )
+from aigem.run_log import EpochRow
 from ngsim_graphs.partial_files import write_atomic
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
@@ -208,13 +209,13 @@ def table1(evaluations: Sequence[Evaluation]) -> dict[str, Any]:
     }
 
 
-def _curve(rows: list[dict[str, Any]]) -> dict[str, Any]:
+def _curve(rows: list[EpochRow]) -> dict[str, Any]:
     """One model's curve: its epochs, train and validation RMSE (sqrt of the logged MSE, m)."""
     return {
-        "epoch": [int(row["epoch"]) for row in rows],
-        "train_rmse_m": [math.sqrt(row["train_loss_m2"]) for row in rows],
-        "val_rmse_m": [math.sqrt(row["val_loss_m2"]) for row in rows],
-        "best_epoch": int(rows[-1]["best_epoch"]) if rows else None,
+        "epoch": [row.epoch for row in rows],
+        "train_rmse_m": [math.sqrt(row.train_loss_m2) for row in rows],
+        "val_rmse_m": [math.sqrt(row.val_loss_m2) for row in rows],
+        "best_epoch": rows[-1].best_epoch if rows else None,
     }
 
 
@@ -228,7 +229,7 @@ def _over_seeds(each: Sequence[dict[str, Any]], key: str, epochs: Sequence[int])
 
 
 def curves(
-    rows_by_seed: Sequence[dict[str, list[dict[str, Any]]]], seeds: Sequence[int]
+    rows_by_seed: Sequence[dict[str, list[EpochRow]]], seeds: Sequence[int]
 ) -> dict[str, dict[str, Any]]:
     """Per model (rows_by_seed: each seed's metrics rows by model name): each seed's curve
     (`seeds`), and over them, per epoch, the mean and interval of the seeds that reached it;
@@ -345,7 +346,7 @@ def paper_report(
     seeds: Sequence[int],
     fits: dict[str, Fit],
     evaluations: dict[str, Sequence[Evaluation]],
-    curve_rows: Sequence[dict[str, list[dict[str, Any]]]],
+    curve_rows: Sequence[dict[str, list[EpochRow]]],
     unfinished: Sequence[str] = (),
     partly_synthetic: bool = False,
 ) -> dict[str, Any]:

@@ -29,7 +29,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
-from aigem import engine, ensemble, runs
+from aigem import engine, ensemble
 from aigem.config import TrainConfig
 from aigem.cores import ThreadChooser
 from aigem.data import check_covered, xy_to_metres
@@ -37,6 +37,7 @@ from aigem.devices import to_device
 from aigem.engine import DeviceData, TrainSteps, ValidationSums
 from aigem.ensemble import Ensemble
 from aigem.model import AiGem
+from aigem.records import RunInfo, RunState
 from aigem.schedule import clip_gradients, learning_rate_at, set_learning_rate
 from ngsim_graphs.scaling import MinMaxScaler
 
@@ -102,8 +103,8 @@ class Member:
     model: AiGem
     net: nn.Module  # the model, or DistributedDataParallel around it
     optimizer: torch.optim.Optimizer
-    info: dict[str, Any]  # what its checkpoints carry
-    state: runs.RunState
+    info: RunInfo  # what its checkpoints carry
+    state: RunState
     who: str  # how errors name it: "" when it trains alone
     stopped: str | None  # why it trains no more: epochs, early stopping, time limit
     rng: RngState | None = None  # its dropout stream, between its steps

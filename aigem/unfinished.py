@@ -19,7 +19,7 @@ from aigem.records import (
     STARTED_LINE,
     member_dir,
     read_horizons,
-    read_run_info,
+    read_record,
 )
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.partial_files import create_exclusive, partial_of, write_failure
@@ -52,7 +52,7 @@ def unfinished_start(run_dir: Path) -> bool:
             return False
     if (run_dir / RUN_INFO).exists():
         try:
-            read_run_info(run_dir)
+            read_record(run_dir)
         except NgsimInputError:
             return False
     return True

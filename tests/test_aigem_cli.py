@@ -20,7 +20,7 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
-from aigem import cores, runs
+from aigem import checkpoints, cores, run_log, runs
 from ngsim_cli import console
 from ngsim_cli.aigem import app
 from ngsim_cli.ngsim import app as ngsim_app
@@ -210,13 +210,13 @@ def test_ctrl_c_after_an_epoch_says_what_the_run_kept(tiny_build: Path, tmp_path
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr
-    kept = runs.epochs_kept(run)
+    kept = checkpoints.epochs_kept(run)
     assert kept >= 1 and stderr.splitlines()[-1] == (
         f"interrupted after epoch {kept} (run {run} holds its checkpoint); continue with --resume"
     )
     assert not list(run.glob("*.partial*"))
     assert json.loads((run / "run.json").read_text())["train"]["epochs"] == 50
-    assert len(runs.read_metrics(run)) >= kept  # a row written before its checkpoint is redone
+    assert len(run_log.read_metrics(run)) >= kept  # a row written before its checkpoint is redone
 
 
 def test_sigterm_before_the_first_epoch_keeps_nothing(tiny_build: Path, tmp_path: Path) -> None:
@@ -367,8 +367,8 @@ def test_a_fit_killed_at_any_point_resumes_to_the_uninterrupted_run(
     for name in (runs.BEST, runs.LAST):
         one, other = weights(straight, name), weights(killed, name)
         assert one.keys() == other.keys() and all(one[k].equal(other[k]) for k in one)
-    rows = lambda run: [{k: r[k] for k in ("epoch", "train_loss_m2", "val_loss_m2")}
-                        for r in runs.read_metrics(run)]  # fmt: skip
+    rows = lambda run: [(r.epoch, r.train_loss_m2, r.val_loss_m2)
+                        for r in run_log.read_metrics(run)]  # fmt: skip
     assert rows(killed) == rows(straight) and len(rows(straight)) == 2
     assert sorted(p.name for p in killed.iterdir()) == sorted(p.name for p in straight.iterdir())
 

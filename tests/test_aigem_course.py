@@ -8,12 +8,13 @@ import json
 import re
 import shlex
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
-from aigem import plots, runs
+from aigem import checkpoints, plots, runs
 from aigem.course import (
     EARLY_STOPPING,
     EPOCHS,
@@ -27,14 +28,15 @@ from aigem.course import (
 from aigem.evaluation import evaluate
 from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
 from aigem.records import read_group
+from aigem.run_log import EpochRow
 from ngsim_cli.aigem import app
 from ngsim_graphs.errors import NgsimInputError
 
-ROW = {"train_loss_m2": 1.0, "val_loss_m2": 1.0}
+ROW = EpochRow(epoch=1, train_loss_m2=1.0, val_loss_m2=1.0, best_epoch=1)
 
 
 def test_why_a_model_stopped_by_hand() -> None:
-    rows = [ROW | {"epoch": 1, "best_epoch": 1}, ROW | {"epoch": 2, "best_epoch": 1}]
+    rows = [ROW, replace(ROW, epoch=2)]
     assert stop_reason(3, 3, rows, None) == EPOCHS
     assert stop_reason(2, 5, rows, 1) == EARLY_STOPPING  # one epoch without a better loss
     assert stop_reason(2, 5, rows, 2) == UNFINISHED
@@ -213,8 +215,8 @@ def test_a_log_with_a_hole_is_refused_and_one_ahead_is_not(
         "epoch 2: the log lost lines or was edited"
     )
     with pytest.raises(NgsimInputError, match=f"^{re.escape(message)}"):
-        runs.load_model(run)  # evaluate, show --run, a user's load_model
+        checkpoints.load_model(run)  # evaluate, show --run, a user's load_model
     with pytest.raises(NgsimInputError, match=f"^{re.escape(message)}"):
         _member_progress(run, PaperConfig(epochs=2))  # aigem paper, on a model it reuses
-    runs.check_log(_log_edited(two_epoch_run, tmp_path / "ahead", [1, 2, 3]), 2)
-    runs.check_log(two_epoch_run, 2)
+    checkpoints.check_log(_log_edited(two_epoch_run, tmp_path / "ahead", [1, 2, 3]), 2)
+    checkpoints.check_log(two_epoch_run, 2)

@@ -24,6 +24,7 @@ from typer.testing import CliRunner
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from timed_runs import LINGER_S, TimedRun, aigem, run_timed
 
+from aigem.checkpoints import epochs_kept
 from aigem.paper import _evaluate, run_paper
 from aigem.paper_folder import (
     PAPER_JSON,
@@ -50,7 +51,6 @@ from aigem.paper_plan import (
 from aigem.paper_training import Meter, fit_share_s, work_units
 from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
 from aigem.report_text import UNFINISHED
-from aigem.runs import epochs_kept
 from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig

@@ -28,6 +28,7 @@ from aigem.report_text import (
     report_markdown,
 )
 from aigem.results import Evaluation, paper_rows
+from aigem.run_log import EpochRow
 from ngsim_graphs import palette
 
 SETTINGS = {
@@ -101,8 +102,8 @@ def fits(seeds: tuple[int, ...] = (0,)) -> dict:
 BASES = {"dmin-25m": 1.0, "dmin-25m-no-concat": 2.0, "dmin-0m": 3.0, "dmin-50m": 4.0}
 CURVE_ROWS = {
     "h1s": [
-        {"epoch": 1, "train_loss_m2": 4.0, "val_loss_m2": 9.0, "best_epoch": 1, "train_seconds": 5},
-        {"epoch": 2, "train_loss_m2": 1.0, "val_loss_m2": 16.0, "best_epoch": 1},
+        EpochRow(epoch=1, train_loss_m2=4.0, val_loss_m2=9.0, best_epoch=1, train_seconds=5),
+        EpochRow(epoch=2, train_loss_m2=1.0, val_loss_m2=16.0, best_epoch=1),
     ]
 }
 PARTS = ("table", "dmin", "concat", "curves", "regions")
@@ -342,10 +343,10 @@ SEED_BASES = {
 T2 = 4.303  # Student's t 0.975 quantile, 2 degrees of freedom (a statistics table)
 SEED_CURVES = [  # each seed's log of its 1 s model: 2, 1 and 2 epochs, best 1, 1 and 2
     CURVE_ROWS["h1s"],
-    [{"epoch": 1, "train_loss_m2": 9.0, "val_loss_m2": 16.0, "best_epoch": 1}],
+    [EpochRow(epoch=1, train_loss_m2=9.0, val_loss_m2=16.0, best_epoch=1)],
     [
-        {"epoch": 1, "train_loss_m2": 1.0, "val_loss_m2": 4.0, "best_epoch": 1},
-        {"epoch": 2, "train_loss_m2": 4.0, "val_loss_m2": 1.0, "best_epoch": 2},
+        EpochRow(epoch=1, train_loss_m2=1.0, val_loss_m2=4.0, best_epoch=1),
+        EpochRow(epoch=2, train_loss_m2=4.0, val_loss_m2=1.0, best_epoch=2),
     ],
 ]
 

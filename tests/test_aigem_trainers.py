@@ -15,7 +15,7 @@ from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset, xy_to_metres
 from aigem.epochs import Loop, Member
 from aigem.model import AiGem
-from aigem.runs import RunState
+from aigem.records import RunState
 from aigem.trainers import Together, masked_mse_m2
 from aigem.training import device_data, make_optimizer
 
