@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import shlex
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from aigem.config import ModelConfig, TrainConfig
+from aigem.config import ModelConfig, TrainConfig, fit_option
 from aigem.records import Group, read_record
 from aigem.refusals import RESUME_FIXED
 from aigem.run_log import EpochRow, read_metrics
@@ -73,26 +73,20 @@ def course_of(run_dir: Path) -> Course:
 
 def resume_command(group: Group) -> str:
     """The `aigem fit` command that continues the run `group` (its first member's run.json is
-    read): its build, its horizons where they are not fit's default, the settings that a resume
-    must repeat where they are not fit's defaults, and its epochs."""
+    read): its build, its horizons where they are not fit's default, each setting that a resume
+    must repeat (the model's, and the train settings of refusals.RESUME_FIXED) where it is not
+    its default, by the option that sets it (config.fit_option: a setting no option sets, made
+    from Python, cannot be said), and its epochs."""
     info = read_record(group.members[0]).info
-    train, model = info.train, info.model
     words = ["aigem", "fit", str(info.build.build_dir), "--out", str(group.run_dir.resolve())]
-    default = TrainConfig()
-    if group.horizons_s != (default.horizon_s,):
+    if group.horizons_s != (TrainConfig().horizon_s,):
         words += ["--horizon-s", ",".join(f"{h:g}" for h in group.horizons_s)]
-    for name in RESUME_FIXED:
-        value = getattr(train, name)
-        if value != getattr(default, name) and name != "horizon_s":
-            words += [
-                f"--{name.replace('_', '-')}",
-                f"{value:g}" if isinstance(value, float) else str(value),
-            ]
-    if not model.concat_position:
-        words.append("--no-concat")
-    if model.cv_residual != ModelConfig().cv_residual:
-        words.append("--cv-residual")
-    words += ["--epochs", str(train.epochs), "--resume"]
+    repeated = [(info.train, name) for name in RESUME_FIXED if name != "horizon_s"]
+    for config, name in [*repeated, *((info.model, f.name) for f in fields(ModelConfig))]:
+        value = getattr(config, name)
+        if value != getattr(type(config)(), name):
+            words += fit_option(name, value)
+    words += [*fit_option("epochs", info.train.epochs), "--resume"]
     return shlex.join(words)
 
 

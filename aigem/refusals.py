@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from aigem.config import ModelConfig, TrainConfig, horizon_steps
+from aigem.config import RESUMABLE, ModelConfig, TrainConfig, horizon_steps
 from aigem.paper_folder import refuse_paper_folder_as_run
 from aigem.provenance import build_identity, identity_difference
 from aigem.records import (
@@ -37,17 +37,10 @@ from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import N_TARGETS, Split
 
-# Train settings that a resumed run must keep: they change what it learns. Epochs (unless the
-# schedule decays over them), time limit, patience, workers and threads may change.
-RESUME_FIXED = (
-    "horizon_s",
-    "batch_size",
-    "learning_rate",
-    "lr_schedule",
-    "warmup_epochs",
-    "clip_grad_norm",
-    "seed",
-)
+# Train settings that a resumed run must keep: they change what it learns. Those of
+# config.RESUMABLE (epochs, unless the schedule decays over them; the time limit, patience,
+# workers, threads, ...) may change.
+RESUME_FIXED = tuple(f.name for f in fields(TrainConfig) if f.name not in RESUMABLE)
 
 
 def check_splits(build_dir: Path) -> None:

@@ -7,14 +7,20 @@ import os
 import signal
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
-from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from aigem import __version__
-from aigem.config import DeviceChoice, LrSchedule, ModelConfig, TrainConfig, parse_horizons_s
+from aigem.config import (
+    DeviceChoice,
+    LrSchedule,
+    ModelConfig,
+    TrainConfig,
+    option_words,
+    parse_horizons_s,
+)
 from ngsim_cli.console import (
     HELP_SETTINGS,
     add_version_option,
@@ -23,7 +29,6 @@ from ngsim_cli.console import (
     exit_on_interrupt,
     in_option_words,
     naming_the_other_program,
-    option_names,
     print_warning,
     progress_bar,
     stderr,
@@ -63,16 +68,7 @@ def _fail(message: str, code: int = 1) -> typer.Exit:
     return typer.Exit(code)
 
 
-# TrainConfig's and ModelConfig's fields set by an option of another name.
-RENAMED_OPTIONS = {
-    "patience_epochs": "--patience",
-    "compile": "--compile",
-    "resident": "--resident",
-    "concat_position": "--no-concat",
-}
-FIT_OPTIONS = option_names(
-    (*(f.name for f in fields(TrainConfig)), "concat_position", "cv_residual"), RENAMED_OPTIONS
-)
+FIT_OPTIONS = option_words()  # TrainConfig's and ModelConfig's fields by their options
 
 
 @contextmanager

@@ -8,13 +8,15 @@ import json
 import re
 import shlex
 import shutil
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import pytest
+import typer
 from typer.testing import CliRunner
 
 from aigem import checkpoints, plots, runs
+from aigem.config import ModelConfig, TrainConfig, fit_option, option_words
 from aigem.course import (
     EARLY_STOPPING,
     EPOCHS,
@@ -71,6 +73,42 @@ def test_the_resume_command_repeats_the_settings_a_resume_needs(
         "--batch-size 8 --seed 3 --epochs 1 --resume"
     )
     assert course_of(tiny_horizons_run / "h2s") == Course(1, 1, 1, EPOCHS)
+
+
+def test_every_option_of_the_configs_mapping_is_one_of_fit() -> None:
+    """config.fit_option, the one mapping of the configs' fields to `aigem fit`'s options, names
+    only options fit has, for a value of each field's type; the CLI's messages name the same."""
+    command = typer.main.get_command(app).commands["fit"]
+    options = {name for p in command.params for name in (*p.opts, *p.secondary_opts)}
+    said = set(option_words().values())
+    for config in (TrainConfig, ModelConfig):
+        for field in fields(config):
+            values = (True, False) if "bool" in str(field.type) else (2,)
+            said |= {w for v in values for w in fit_option(field.name, v) if w.startswith("--")}
+    assert said and said <= options, said - options
+    assert fit_option("hidden", 32) == [] and fit_option("concat_position", True) == []
+
+
+def test_the_resume_command_says_every_setting_a_resume_must_repeat(
+    tiny_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    """Each setting of the model and of RESUME_FIXED that is not its default, by its option
+    (config.fit_option); the command parses as fit's options."""
+    run = Path(shutil.copytree(tiny_run, tmp_path / "run"))
+    document = json.loads((run / "run.json").read_text())
+    document["train"] |= {"learning_rate": 0.002, "lr_schedule": "cosine", "warmup_epochs": 0.5,
+                          "clip_grad_norm": 5.0, "patience_epochs": 4, "threads": 1}  # fmt: skip
+    document["model"] |= {"concat_position": False, "cv_residual": True, "hidden": 32}
+    (run / "run.json").write_text(json.dumps(document))
+    command = resume_command(read_group(run))
+    assert command == (
+        f"aigem fit {tiny_build.resolve()} --out {run.resolve()} --horizon-s 2 --batch-size 8 "
+        "--learning-rate 0.002 --lr-schedule cosine --warmup-epochs 0.5 --clip-grad-norm 5 "
+        "--seed 3 --no-concat --cv-residual --epochs 1 --resume"
+    )  # the patience and threads may change, the width no option sets
+    fit = typer.main.get_command(app).commands["fit"]
+    parsed = fit.make_context("fit", shlex.split(command)[2:]).params
+    assert parsed["cv_residual"] and parsed["no_concat"] and parsed["clip_grad_norm"] == 5.0
 
 
 def _invoke(*args: str) -> tuple[int, str, str]:
