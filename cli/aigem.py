@@ -24,6 +24,7 @@ from ngsim_cli.console import (
     in_option_words,
     naming_the_other_program,
     option_names,
+    option_values,
     print_warning,
     progress_bar,
     stderr,
@@ -38,6 +39,7 @@ from ngsim_cli.fit_view import (
     say,
 )
 from ngsim_cli.paper import paper
+from ngsim_graphs.config import check_count
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.schema import Split
 
@@ -198,7 +200,7 @@ def fit(
         horizons_s = parse_horizons_s(horizon_s)
     except ValueError as err:
         raise _fail(f"--horizon-s {horizon_s}: {err}", 2) from None
-    try:
+    with option_values(FIT_OPTIONS):
         train = TrainConfig(
             horizon_s=horizons_s[0],
             epochs=epochs,
@@ -215,8 +217,6 @@ def fit(
             compile=compile_decoder,
             resident=resident,
         )
-    except ValueError as err:
-        raise _fail(in_option_words(str(err), FIT_OPTIONS), 2) from None
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     with _held(out):  # one fit at a time into --out, as build and paper
         with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
@@ -364,7 +364,6 @@ def evaluate(
         typer.Option(
             "--bootstrap",
             metavar="N",
-            min=0,
             help="Resamples of the split's samples for the 95 % intervals of the numbers over all "
             "actors and of their difference to constant velocity (seed 0); 0: no intervals.",
         ),
@@ -373,6 +372,8 @@ def evaluate(
     """ADE, FDE and RMSE at 1..5 s (metres) of the run's best model and of constant velocity. A
     multi-horizon run (fit --horizon-s 1,2,3,4,5) as the paper reports it: RMSE at h s from the
     h s model, ADE and FDE from the longest-horizon model."""
+    with option_values({"bootstrap": "--bootstrap"}):
+        check_count("bootstrap", bootstrap, 0)
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
         from aigem.records import BEST, UNRECORDED, unrecorded_checkpoints
         from aigem.refusals import check_evaluate

@@ -318,6 +318,18 @@ def in_option_words(message: str, options: Mapping[str, str]) -> str:
     return re.sub("|".join(patterns), lambda m: options[m.group(1) or m.group(2)], message)
 
 
+@contextmanager
+def option_values(options: Mapping[str, str] | None = None) -> Iterator[None]:
+    """A value the block refuses (a config's ValueError, or ngsim_graphs.config's checks) as one
+    line naming the option (in_option_words: `options` maps each field to its option) and exit
+    status 2. Every option's range is checked so, never by typer's `min=`, whose error is a box
+    of four lines."""
+    try:
+        yield
+    except ValueError as err:
+        raise usage_error(in_option_words(str(err), options or {})) from None
+
+
 def counted(count: int, noun: str, plural: str | None = None) -> str:
     """'1 epoch', '2 epochs', '1,024 rows': a count and its noun, singular for one."""
     return f"{count:,} {noun if count == 1 else plural or noun + 's'}"

@@ -18,9 +18,9 @@ from ngsim_cli.console import (
     counted,
     exit_on_error,
     exit_on_interrupt,
-    in_option_words,
     naming_the_other_program,
     option_names,
+    option_values,
     print_error,
     print_table,
     progress_bar,
@@ -34,7 +34,14 @@ from ngsim_cli.stats_view import STATS_TABLES
 from ngsim_graphs import __version__
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.build import open_build
-from ngsim_graphs.config import DEFAULT_EDGE_TYPES, BuildConfig, SynthConfig, check_seed
+from ngsim_graphs.config import (
+    DEFAULT_EDGE_TYPES,
+    MAX_PARALLEL,
+    BuildConfig,
+    SynthConfig,
+    check_count,
+    check_seed,
+)
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.pipeline import check_config, run_build
 from ngsim_graphs.schema import Protocol, RawFormat, Split, SplitMode
@@ -61,11 +68,8 @@ RENAMED_OPTIONS = {"ego_is_target": "--ego-target", "raw_format": "--format"}
 def _config_or_exit(factory, **kwargs):  # type: ignore[no-untyped-def]
     """The config dataclass, or one line on stderr naming the option and exit status 2 for an
     invalid option."""
-    try:
+    with option_values(option_names(kwargs, RENAMED_OPTIONS)):
         return factory(**kwargs)
-    except ValueError as err:
-        options = option_names(kwargs, RENAMED_OPTIONS)
-        raise usage_error(in_option_words(str(err), options)) from None
 
 
 @app.command(short_help="Write synthetic NGSIM- or highD-format trajectories.")
@@ -245,7 +249,6 @@ def build(
     jobs: Annotated[
         int | None,
         typer.Option(
-            min=1,
             help="Worker processes that read the input files and build the recordings at once "
             "(default: one per core this process may use). The output is the same for any "
             "number; peak memory grows with it, about 0.25 GB per job at full NGSIM scale.",
@@ -268,6 +271,9 @@ def build(
         protocol=protocol,
         edge_types=tuple(name.strip() for name in edge_types.split(",") if name.strip()),
     )
+    if jobs is not None:
+        with option_values({"jobs": "--jobs"}):
+            check_count("jobs", jobs, 1, MAX_PARALLEL)
     left = f"nothing written ({out} is as it was)"
     with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
         chosen = None if dataset is DatasetChoice.AUTO else dataset.value
@@ -307,17 +313,14 @@ def stats(
     ] = None,
     degree_graphs: Annotated[
         int,
-        typer.Option(
-            min=1, help="Graphs per split induced (at random) for the node-degree statistics."
-        ),
+        typer.Option(help="Graphs per split induced (at random) for the node-degree statistics."),
     ] = MAX_DEGREE_GRAPHS,
     seed: Annotated[int, typer.Option(help="Seed of the random choice of those graphs.")] = 0,
 ) -> None:
     """Check a build before training: samples, graph sizes, degrees, kinematics, scaler, config."""
-    try:
+    with option_values({"seed": "--seed", "degree_graphs": "--degree-graphs"}):
         check_seed("seed", seed)
-    except ValueError as err:
-        raise usage_error(in_option_words(str(err), {"seed": "--seed"})) from None
+        check_count("degree_graphs", degree_graphs, 1)
     with exit_on_error():
         opened = open_build(build_dir)
         try:

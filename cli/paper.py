@@ -13,8 +13,8 @@ from ngsim_cli.console import (
     check_device,
     exit_on_error,
     exit_on_interrupt,
-    in_option_words,
     option_names,
+    option_values,
     print_error,
     print_warning,
     progress_bar,
@@ -26,7 +26,7 @@ from ngsim_cli.fit_view import print_epoch
 PARTS_HELP = "table,dmin,concat,curves,regions"
 # PaperConfig's and PaperCall's fields set by an option (of another name: --patience)
 PAPER_OPTIONS = option_names(
-    ("epochs", "patience_epochs", "seed", "batch_size", "max_hours", "seeds"),
+    ("epochs", "patience_epochs", "seed", "batch_size", "max_hours", "seeds", "threads", "jobs"),
     {"patience_epochs": "--patience"},
 )
 
@@ -46,15 +46,13 @@ def paper(
         ),
     ],
     epochs: Annotated[
-        int, typer.Option(min=1, help=f"Epochs of each model (the paper's: {PAPER_EPOCHS}).")
+        int, typer.Option(help=f"Epochs of each model (the paper's: {PAPER_EPOCHS}).")
     ] = PAPER_EPOCHS,
     patience: Annotated[
         int | None,
-        typer.Option(
-            min=1, help="Stop a model after this many epochs without a better validation loss."
-        ),
+        typer.Option(help="Stop a model after this many epochs without a better validation loss."),
     ] = None,
-    batch_size: Annotated[int, typer.Option(min=1, help="Graphs (samples) per batch.")] = 32,
+    batch_size: Annotated[int, typer.Option(help="Graphs (samples) per batch.")] = 32,
     seed: Annotated[
         int,
         typer.Option(
@@ -64,7 +62,6 @@ def paper(
     seeds: Annotated[
         int,
         typer.Option(
-            min=1,
             help="Train each fit this many times, at --seed, --seed + 1, ...: each number of the "
             "report is then the mean over the seeds with its 95 % interval, and each ablation's "
             "difference says whether it is beyond the noise. More seeds later train the new "
@@ -95,7 +92,6 @@ def paper(
     threads: Annotated[
         int | None,
         typer.Option(
-            min=1,
             help="CPU threads of the model step and the evaluations (default: the idle cores, as "
             "`aigem fit`); a number gives bit-reproducible results.",
         ),
@@ -103,7 +99,6 @@ def paper(
     jobs: Annotated[
         int | None,
         typer.Option(
-            min=1,
             help="Worker processes of the builds (default: one per core this process may use).",
             show_default=False,
         ),
@@ -146,11 +141,14 @@ def paper(
         parts = parse_parts(only)
     except ValueError as err:
         raise usage_error(f"--only {only}: {err}") from None
-    try:
+    with option_values(PAPER_OPTIONS):
         config = PaperConfig(epochs, patience, seed, batch_size)
-        plan_seeds(config, PaperCall(max_hours=max_hours, seeds=seeds))
-    except ValueError as err:
-        raise usage_error(in_option_words(str(err), PAPER_OPTIONS)) from None
+        plan_seeds(
+            config,
+            PaperCall(
+                threads=threads, max_hours=max_hours, jobs=1 if jobs is None else jobs, seeds=seeds
+            ),
+        )
     with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
         check_folder(out, paper_document(raw_paths, config), overwrite)
     left = lambda: _left(out)  # noqa: E731

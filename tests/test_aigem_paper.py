@@ -207,7 +207,7 @@ def test_each_seed_is_a_run_of_its_own_the_first_seeds_named_as_before(
     ]
     assert runs[2].describe() == "d_min 25 m, seed 5"
     assert plan_runs(PaperConfig(), PaperCall(parts=("table",)))[0].describe() == "d_min 25 m"
-    with pytest.raises(ValueError, match="0 seeds"):
+    with pytest.raises(ValueError, match="^seeds must be >= 1$"):
         PaperCall(seeds=0)
     out = tmp_path / "out"
     claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), False, RUN_NAMES)
