@@ -9,19 +9,11 @@ import typer
 
 from aigem.config import DeviceChoice
 from aigem.paper_folder import PAPER_EPOCHS
-from ngsim_cli.console import (
-    check_device,
-    exit_on_error,
-    exit_on_interrupt,
-    option_names,
-    option_values,
-    print_error,
-    print_warning,
-    progress_bar,
-    stdout,
-    usage_error,
-)
+from ngsim_cli.command_line import option_names, option_values, usage_error
+from ngsim_cli.console import print_error, print_warning, stdout
+from ngsim_cli.exits import check_device, exit_on_error, exit_on_interrupt
 from ngsim_cli.fit_view import print_epoch
+from ngsim_cli.progress import progress_bar
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
 # PaperConfig's and PaperCall's fields set by an option (of another name: --patience)

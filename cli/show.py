@@ -8,7 +8,9 @@ from typing import TYPE_CHECKING, Annotated
 import numpy as np
 import typer
 
-from ngsim_cli.console import counted, exit_on_error, option_values, stdout, usage_error
+from ngsim_cli.command_line import option_values, usage_error
+from ngsim_cli.console import counted, stdout
+from ngsim_cli.exits import exit_on_error
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import check_count
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError

@@ -569,9 +569,9 @@ def test_the_command_into_a_log_prints_each_stage_and_each_models_epochs(
     the end of each build stage, each model's train and validation loss at each epoch's end,
     and the report (the lines every PLAIN_PROGRESS_INTERVAL_S within a stage set out of reach
     here), none twice."""
-    from ngsim_cli import console
+    from ngsim_cli import progress
 
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
+    monkeypatch.setattr(progress, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     out = tmp_path / "out"
     options = ["--only", "table", "--epochs", "1", "--batch-size", "64", "--threads", "1"]
     args = ["paper", str(tiny_raw), "--out", str(out), *options, "--jobs", "1", "--device", "cpu"]
