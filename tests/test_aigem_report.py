@@ -16,8 +16,9 @@ from matplotlib.container import BarContainer
 from matplotlib.figure import Figure
 
 from aigem.intervals import t_975
-from aigem.report import paper_report, table1, write_report
+from aigem.report import paper_report, write_report
 from aigem.report_cells import NOISES_SAID
+from aigem.report_parts import table1
 from aigem.report_plots import CONSTANT_VELOCITY_TICK, draw_report, report_figures
 from aigem.report_text import (
     NO_FIT_DIFFERENCE,
