@@ -183,7 +183,8 @@ def _print_summary(report: dict, out: Path) -> None:
     """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
     left a fit unfinished, that the report is unfinished (last)."""
     from aigem.report_cells import SECONDS, shown
-    from aigem.report_text import UNFINISHED, data_mark
+    from aigem.report_tables import data_mark
+    from aigem.report_text import UNFINISHED
 
     mark = data_mark(report)
     kind = f" ({mark} data: not comparable to the paper's NGSIM numbers)" if mark else ""
