@@ -63,7 +63,8 @@ def synth(
         quirks=quirks,
     )
     with exit_on_interrupt(f"nothing written ({out_dir} is as it was)"):
-        from ngsim_graphs.synth.formats import period_note, write_synthetic  # only when used
+        from ngsim_graphs.synth.folder import period_note  # only when used
+        from ngsim_graphs.synth.formats import write_synthetic
 
         with exit_on_error(), progress_bar() as progress:
             paths = write_synthetic(out_dir, config, lambda what: progress(what, 0, 0))

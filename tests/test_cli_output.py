@@ -23,7 +23,9 @@ from ngsim_graphs import lock, storage
 from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.export import EXPORT_MARKER, export_tables
 from ngsim_graphs.synth import formats as synthesis
-from ngsim_graphs.synth.formats import MARKER_NAME, PORTAL_FILE_NAME, write_synthetic
+from ngsim_graphs.synth.folder import PORTAL_FILE_NAME
+from ngsim_graphs.synth.formats import write_synthetic
+from ngsim_graphs.synth.marker import MARKER_NAME
 
 NGSIM_FILE = "trajectories-0750am-0805am.txt"
 EXPORT_FILES = sorted([EXPORT_MARKER, *(f"{name}.parquet" for name in export_tables())])
