@@ -19,6 +19,7 @@ from aigem.paper_folder import refuse_paper_folder_as_run
 from aigem.records import (
     BEST,
     EARLY_FILES,
+    FIT_LOG,
     HORIZONS,
     LAST,
     RUN_INFO,
@@ -210,7 +211,7 @@ def check_fresh_group(group: Group) -> None:
     if not group.named or not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
         return
     members = {member.name for member in group.members}
-    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, *members})
+    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, FIT_LOG, *members})
 
 
 def check_fresh_out(run_dir: Path) -> None:

@@ -13,9 +13,11 @@ import typer
 from ngsim_cli.build_view import print_build_report
 from ngsim_cli.command_line import checked_config, option_values
 from ngsim_cli.exits import exit_on_error, exit_on_interrupt
+from ngsim_cli.logs import command_log
 from ngsim_cli.progress import progress_bar
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.config import DEFAULT_EDGE_TYPES, MAX_PARALLEL, BuildConfig, check_count
+from ngsim_graphs.layout import build_log_path
 from ngsim_graphs.pipeline import check_config, run_build
 from ngsim_graphs.schema import Protocol, SplitMode
 from ngsim_graphs.sources.registry import dataset_names, labels_in_words, locations_in_words
@@ -166,16 +168,19 @@ def build(
         with option_values({"jobs": "--jobs"}):
             check_count("jobs", jobs, 1, MAX_PARALLEL)
     left = f"nothing written ({out} is as it was)"
-    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
-        chosen = None if dataset is DatasetChoice.AUTO else dataset.value
-        result = run_build(
-            raw_paths,
-            out,
-            config,
-            overwrite=overwrite,
-            progress=progress,
-            strict=strict,
-            dataset=chosen,
-            jobs=jobs or available_cores(),
-        )
-    print_build_report(result)
+    # The log lands with the build: kept until it has, dropped with a build that fails.
+    with command_log(build_log_path(out), ready=lambda: False) as log:
+        with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
+            chosen = None if dataset is DatasetChoice.AUTO else dataset.value
+            result = run_build(
+                raw_paths,
+                out,
+                config,
+                overwrite=overwrite,
+                progress=progress,
+                strict=strict,
+                dataset=chosen,
+                jobs=jobs or available_cores(),
+            )
+        log.settle()
+        print_build_report(result)

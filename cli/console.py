@@ -1,8 +1,11 @@
 """How both programs write on the terminal: the two consoles (lines never broken by us), one line
-on stderr (a warning, an error, a note), a table on stdout at its natural width, a count in words.
-What a line says of progress is `progress`'s; how a command ends on an error, `exits`'."""
+on stderr (a warning, an error, a note; also into the command's log where one is open:
+`logs`), a table on stdout at its natural width, a count in words. What a line says of progress
+is `progress`'s; how a command ends on an error, `exits`'."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 from rich.console import Console
 from rich.measure import Measurement
@@ -14,9 +17,20 @@ stderr = Console(stderr=True, soft_wrap=True)
 stdout = Console(soft_wrap=True)
 
 
-def print_line(line: str) -> None:
-    """One line on stderr, never wrapped or marked up."""
+# Where each line of print_line also goes: the open log of the command (logs.command_log).
+line_sinks: list[Callable[[str], None]] = []
+
+
+def write_stderr(line: str) -> None:
+    """One line on stderr alone, never wrapped or marked up (a progress line: a log has its own)."""
     stderr.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
+def print_line(line: str) -> None:
+    """One line on stderr, never wrapped or marked up; also into the command's log (line_sinks)."""
+    write_stderr(line)
+    for sink in line_sinks:
+        sink(line)
 
 
 def print_warning(message: str) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import fields
 from pathlib import Path
@@ -26,6 +26,7 @@ from ngsim_cli.fit_view import (
     running_losses,
     say,
 )
+from ngsim_cli.logs import command_log
 from ngsim_cli.progress import progress_bar
 from ngsim_graphs.errors import NgsimError
 
@@ -198,8 +199,23 @@ def fit(
                     print_warning(f"{path}: {UNRECORDED}; recorded as they are from now on")
             check_device(device.value)  # PyTorch alone, before the rest loads
             import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
-        results = _train(data, group, model_config, train, device.value, resume)
+        with _fit_log(group) as training:
+            results = _train(data, group, model_config, train, device.value, resume, training)
     print_results(results, out)
+
+
+@contextmanager
+def _fit_log(group: Group) -> Iterator[Callable[[], None]]:
+    """RUN/fit.log (records.FIT_LOG) for the block: its lines kept until the returned function
+    says that training runs (the run's checks are passed, its folder is fit's: a refused fit
+    writes nothing into it), then appended. Under torchrun, rank 0's only."""
+    from aigem.records import FIT_LOG
+
+    if int(os.environ.get("RANK", "0")) > 0:
+        yield lambda: None
+        return
+    with command_log(group.run_dir / FIT_LOG, ready=lambda: False) as log:
+        yield log.settle
 
 
 @contextmanager
@@ -227,8 +243,10 @@ def _train(
     train: TrainConfig,
     device: str,
     resume: bool,
+    training: Callable[[], None],
 ) -> tuple[FitResult, ...]:
-    """fit_horizons with a progress bar and a line per epoch, once the options are checked."""
+    """fit_horizons with a progress bar and a line per epoch, once the options are checked;
+    `training` is called as each batch is trained (fit.log is written from the first)."""
     from aigem.cores import busy_cores_warning
     from aigem.devices import DeviceUnavailableError
     from aigem.epochs import NonFiniteLossError
@@ -242,12 +260,15 @@ def _train(
     with exit_on_error(), _interrupt_on_sigterm(), progress_bar() as progress:
         # One bar over the run's epochs, so that its ETA is the run's (at the rate of the
         # recent batches; validation and early stopping are not foreseen).
-        show = lambda epoch, done, total, losses: progress(
-            f"epoch {epoch}/{train.epochs}",
-            (epoch - 1) * total + done,
-            train.epochs * total,
-            running_losses(losses),
-        )
+        def show(epoch: int, done: int, total: int, losses: tuple[float, ...]) -> None:
+            training()
+            progress(
+                f"epoch {epoch}/{train.epochs}",
+                (epoch - 1) * total + done,
+                train.epochs * total,
+                running_losses(losses),
+            )
+
         on_epoch = lambda horizon_s, row: print_epoch(row, who(horizon_s))
         loading = lambda what, done, total: progress(f"loading {what}", done, total)
         try:

@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from aigem.config import DeviceChoice
-from aigem.paper_folder import PAPER_EPOCHS
+from aigem.paper_folder import PAPER_EPOCHS, PAPER_JSON, PAPER_LOG
 from ngsim_cli.command_line import option_names, option_values, usage_error
 from ngsim_cli.console import print_error, print_warning, stdout
 from ngsim_cli.exits import check_device, exit_on_error, exit_on_interrupt
 from ngsim_cli.fit_view import print_epoch
+from ngsim_cli.logs import command_log
+
+if TYPE_CHECKING:
+    from aigem.paper_folder import PaperConfig
+    from aigem.paper_plan import PaperCall
 from ngsim_cli.progress import progress_bar
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
@@ -146,27 +151,36 @@ def paper(
     left = lambda: _left(out)  # noqa: E731
     with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
         check_device(device.value)
+        import aigem.paper  # noqa: F401  (loaded here, where an interrupt is one line)
         from aigem.cores import busy_cores_warning
-        from aigem.devices import DeviceUnavailableError
-        from aigem.epochs import NonFiniteLossError
-        from aigem.paper import run_paper
-        from aigem.paper_training import TimeLimitError
         from ngsim_graphs.budget import available_cores
-    if threads is not None and (warning := busy_cores_warning(threads)):
-        print_warning(warning)
-    call = PaperCall(
-        parts, device.value, threads, max_hours, jobs or available_cores(), overwrite, seeds
-    )
-    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
+    # The log goes into --out once it is ours (paper.json: a new folder is claimed first).
+    with command_log(out / PAPER_LOG, lambda: (out / PAPER_JSON).is_file()):
+        if threads is not None and (warning := busy_cores_warning(threads)):
+            print_warning(warning)
+        call = PaperCall(
+            parts, device.value, threads, max_hours, jobs or available_cores(), overwrite, seeds
+        )
+        report = _run(raw_paths, out, config, call)
+    _print_summary(report, out)
+
+
+def _run(raw_paths: list[Path], out: Path, config: PaperConfig, call: PaperCall) -> dict:
+    """run_paper with a progress bar and a line per epoch; its report.json document."""
+    from aigem.devices import DeviceUnavailableError
+    from aigem.epochs import NonFiniteLossError
+    from aigem.paper import run_paper
+    from aigem.paper_training import TimeLimitError
+
+    with exit_on_interrupt(lambda: _left(out)), exit_on_error(), progress_bar() as progress:
         try:
             on_epoch = lambda fit, horizon_s, row: print_epoch(
                 row, f"{fit}, {horizon_s:g} s model, "
             )
-            result = run_paper(raw_paths, out, config, call, progress, on_epoch)
+            return run_paper(raw_paths, out, config, call, progress, on_epoch).report
         except (NonFiniteLossError, DeviceUnavailableError, TimeLimitError) as err:
             print_error(str(err))
             raise typer.Exit(1) from None
-    _print_summary(result.report, out)
 
 
 def _left(out: Path) -> str:

@@ -3,7 +3,8 @@ terminal a bar with the time elapsed and left; elsewhere (a file, a pipe, a job 
 plain lines, each after its date and time, one at each stage's end and one every
 PLAIN_PROGRESS_INTERVAL_S within a stage, held while the command is young (a quick command that
 fails says its one error line alone). progress_line: a line of the command's course written at
-once (an epoch's losses)."""
+once (an epoch's losses). Where the command has a log open (`logs`), the plain lines and the
+course's lines go into it too, at once."""
 
 from __future__ import annotations
 
@@ -21,13 +22,13 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from ngsim_cli import console
-from ngsim_cli.console import print_line
+from ngsim_cli import console, logs
+from ngsim_cli.console import write_stderr
+from ngsim_cli.logs import stamped
 
 # Where stderr is not a terminal (a file, a pipe, a job scheduler's log): a plain progress line
 # at each stage's end, and within a stage every this many seconds.
 PLAIN_PROGRESS_INTERVAL_S = 30.0
-TIMESTAMP = "%Y-%m-%d %H:%M:%S"  # before each line of a command's course in a log (progress_line)
 
 
 class ProgressCallback(Protocol):
@@ -41,7 +42,24 @@ class ProgressCallback(Protocol):
 def progress_bar() -> Iterator[ProgressCallback]:
     """A callback (what, done, total, detail="") drawn as one bar on stderr, with the time
     elapsed and the time left at the recent rate (ETA); where stderr is not a terminal, plain
-    lines (PlainProgress), each after its wall-clock time (progress_line)."""
+    lines (PlainProgress), each after its wall-clock time (progress_line). Where the command has
+    a log open, its plain lines also go there (never held)."""
+    with _on_stderr() as shown:
+        if not logs.logging():
+            yield shown
+            return
+        logged = PlainProgress(logs.log_line, PLAIN_PROGRESS_INTERVAL_S)
+
+        def both(what: str, done: int, total: int, detail: str = "") -> None:
+            shown(what, done, total, detail)
+            logged(what, done, total, detail)
+
+        yield both
+
+
+@contextmanager
+def _on_stderr() -> Iterator[ProgressCallback]:
+    """The progress on stderr alone: a bar on a terminal, else plain lines held while young."""
     if not console.stderr.is_terminal:
         with _lines_held(PLAIN_PROGRESS_INTERVAL_S) as held:
             yield PlainProgress(held.write, PLAIN_PROGRESS_INTERVAL_S)
@@ -71,18 +89,15 @@ def progress_bar() -> Iterator[ProgressCallback]:
 def progress_line(line: str) -> None:
     """A line of a command's course on stderr that is written at once (an epoch's losses: its
     checkpoint is kept): where stderr is not a terminal (a log), after the wall-clock time
-    (TIMESTAMP) and after the progress lines held before it (_HeldLines); on a terminal, as it
-    is (the bar shows the times)."""
+    (logs.TIMESTAMP) and after the progress lines held before it (_HeldLines); on a terminal, as
+    it is (the bar shows the times). Also into the command's log."""
+    logs.log_line(line)
     if console.stderr.is_terminal:
-        print_line(line)
+        write_stderr(line)
         return
     if _HELD:
         _HELD[-1].flush()
-    print_line(_stamped(line))
-
-
-def _stamped(line: str) -> str:
-    return f"{time.strftime(TIMESTAMP)} {line}"
+    write_stderr(stamped(line))
 
 
 class _HeldLines:
@@ -98,14 +113,14 @@ class _HeldLines:
 
     def write(self, line: str) -> None:
         if self.lines is not None and self.clock() < self.until_s:
-            self.lines.append(_stamped(line))
+            self.lines.append(stamped(line))
             return
         self.flush()
-        print_line(_stamped(line))
+        write_stderr(stamped(line))
 
     def flush(self) -> None:
         for line in self.lines or []:
-            print_line(line)
+            write_stderr(line)
         self.lines = None
 
 

@@ -27,6 +27,7 @@ from timed_runs import LINGER_S, TimedRun, aigem, run_timed
 from aigem.paper import _evaluate, run_paper
 from aigem.paper_folder import (
     PAPER_JSON,
+    PAPER_LOG,
     REPORT_JSON,
     PaperConfig,
     build_state,
@@ -545,6 +546,7 @@ def test_an_interrupt_before_the_folder_is_made_claims_no_folder(
         f"interrupted; {out} keeps the finished builds and each model's last finished epoch, "
         "and no report; run the same command again to continue\n",
     )
+    assert list(out.iterdir()) == []  # no log in a folder that is not the paper's
 
 
 def test_a_build_held_to_other_limits_is_not_reused(tiny_build: Path, tmp_path: Path) -> None:
@@ -595,6 +597,9 @@ def test_the_command_into_a_log_prints_each_stage_and_each_models_epochs(
         ), line
     assert re.fullmatch(r"evaluating d_min 25 m: (\d+)/\1 \(100%\)", said[9])  # the bar's end
     assert re.fullmatch(r"writing the report: (\d+)/\1 \(100%\)", said[10]) and len(said) == 11
+    logged = (out / PAPER_LOG).read_text().splitlines()  # the same lines, in the paper's log
+    assert all(re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d ", line) for line in logged), logged
+    assert [re.sub(r", \d:\d\d:\d\d elapsed$", "", line[20:]) for line in logged] == said
     assert (
         "AiGem RMSE at 1..5 s (m, in brackets its 95 % interval: the test-set noise): "
         in result.stdout
