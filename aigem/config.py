@@ -12,9 +12,11 @@ from typing import Any
 
 from ngsim_graphs.config import (
     DEFAULT_EDGE_TYPES,
+    MAX_PARALLEL,
     BuildConfig,
     check_above,
     check_at_least,
+    check_count,
     check_seed,
     whole_steps,
 )
@@ -116,10 +118,8 @@ class TrainConfig:
             raise ValueError(f"horizon_s must be at least one time step ({MIN_HORIZON_S:g} s)")
         if not whole_steps(self.horizon_s, TIME_STEP_S):
             raise ValueError(f"horizon_s must be a multiple of the {TIME_STEP_S:g} s time step")
-        if self.epochs < 1:
-            raise ValueError("epochs must be >= 1")
-        if self.batch_size < 1:
-            raise ValueError("batch_size must be >= 1")
+        check_count("epochs", self.epochs, 1)
+        check_count("batch_size", self.batch_size, 1)
         check_above("learning_rate", self.learning_rate, 0)
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}")
@@ -131,12 +131,12 @@ class TrainConfig:
         if self.max_minutes is not None:
             check_above("max_minutes", self.max_minutes, 0)
         check_seed("seed", self.seed)
-        if self.patience_epochs is not None and self.patience_epochs < 1:
-            raise ValueError("patience_epochs must be >= 1")
-        if self.workers is not None and self.workers < 0:
-            raise ValueError("workers must be >= 0")
-        if self.threads is not None and self.threads < 1:
-            raise ValueError("threads must be >= 1")
+        if self.patience_epochs is not None:
+            check_count("patience_epochs", self.patience_epochs, 1)
+        if self.workers is not None:
+            check_count("workers", self.workers, 0, MAX_PARALLEL)
+        if self.threads is not None:
+            check_count("threads", self.threads, 1, MAX_PARALLEL)
 
     def compiles_on(self, device_type: str) -> bool:
         """Whether the decoder is compiled on this device: `compile`, else on CUDA only (there it

@@ -40,6 +40,7 @@ HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
 PAPER_EPOCHS = 100  # the paper's: "approximately 100 training epochs" gave each best model
 PAPER_D_MIN_M = 25.0  # the d_min of the paper's model (the others: the d_min ablation)
 PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
+PAPER_LOG = "paper.log"  # `aigem paper`'s stderr lines, each after its time, appended
 BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
 WRITTEN_BY = "aigem paper"
 RETRAIN = ("seed", "batch_size", "patience_epochs")  # PaperConfig's: other models

@@ -44,12 +44,13 @@ RUN_INFO, METRICS, LAST, BEST, CURVES = (
 )
 HORIZONS = "horizons.json"  # a multi-horizon run's members
 BASELINE = "baseline.json"  # constant velocity's validation loss
+FIT_LOG = "fit.log"  # `aigem fit`'s stderr lines, each after its time, appended (RUN/fit.log)
 # fit's marker in a folder it set up, until a checkpoint is kept there: a fresh fit may start
 # over in such a folder, and only in such a one (besides a new or empty folder)
 STARTED = ".fit-started"
 STARTED_LINE = b"aigem fit: no checkpoint kept here yet; a new fit may start over in this folder\n"
-RUN_FILES = frozenset({RUN_INFO, METRICS, LAST, BEST, CURVES, BASELINE, HORIZONS})
-EARLY_FILES = frozenset({RUN_INFO, METRICS, BEST, CURVES, BASELINE})  # before the first last.pt
+RUN_FILES = frozenset({RUN_INFO, METRICS, LAST, BEST, CURVES, BASELINE, HORIZONS, FIT_LOG})
+EARLY_FILES = frozenset({RUN_INFO, METRICS, BEST, CURVES, BASELINE, FIT_LOG})  # before a last.pt
 IDENTITY = ("build_config_hash", "build_manifest_sha256")  # a build's identity, as a run records it
 # run.json's record of its checkpoints' bytes: name -> the sha256 values the file may have (one;
 # two while fit replaces it). Run info that checkpoints carry has no such key.

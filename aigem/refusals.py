@@ -20,6 +20,7 @@ from aigem.provenance import build_identity, identity_difference
 from aigem.records import (
     BEST,
     EARLY_FILES,
+    FIT_LOG,
     HORIZONS,
     LAST,
     RUN_INFO,
@@ -202,7 +203,7 @@ def check_fresh_group(group: Group) -> None:
     if not group.named or not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
         return
     members = {member.name for member in group.members}
-    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, *members})
+    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, FIT_LOG, *members})
 
 
 def check_fresh_out(run_dir: Path) -> None:

@@ -63,6 +63,7 @@ from aigem.records import (  # noqa: F401  (the run directory's names, here too)
     BEST,
     CURVES,
     DIGESTS,
+    FIT_LOG,
     HORIZONS,
     LAST,
     METRICS,
@@ -311,14 +312,15 @@ def discard_unfinished(group: Group, created: bool) -> None:
         if not unfinished_start(member):
             continue
         _remove_leftovers(member)
-        for name in (RUN_INFO, BASELINE, METRICS, CURVES, BEST):
+        for name in (RUN_INFO, BASELINE, METRICS, CURVES, BEST, FIT_LOG):
             (member / name).unlink(missing_ok=True)
         unmark_started(member)
         if member != run_dir and not any(member.iterdir()):
             member.rmdir()
     if group.named and unfinished_group(run_dir, group.horizons_s):  # a group of several
         _remove_leftovers(run_dir)
-        (run_dir / HORIZONS).unlink(missing_ok=True)
+        for name in (HORIZONS, FIT_LOG):
+            (run_dir / name).unlink(missing_ok=True)
         unmark_started(run_dir)
     if created and run_dir.is_dir() and not any(run_dir.iterdir()):
         run_dir.rmdir()

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from aigem.records import (
     EARLY_FILES,
+    FIT_LOG,
     HORIZONS,
     LAST,
     RUN_FILES,
@@ -61,14 +62,14 @@ def unfinished_start(run_dir: Path) -> bool:
 def unfinished_group(run_dir: Path, horizons_s: tuple[float, ...]) -> bool:
     """Whether `run_dir` is, beyond doubt, what a multi-horizon fit of `horizons_s` left before
     any model kept a checkpoint: fit's marker, its horizons.json (if written yet, a regular file
-    of these horizons), and member folders each empty or `unfinished_start`."""
+    of these horizons), its log, and member folders each empty or `unfinished_start`."""
     if not is_started(run_dir):
         return False
     members = {member_dir(run_dir, h).name for h in horizons_s}
     for entry in run_dir.iterdir():
         if entry.name == STARTED or partial_of(entry.name) == HORIZONS:
             continue
-        if entry.name == HORIZONS:
+        if entry.name in (HORIZONS, FIT_LOG):
             if not _regular_file(entry):
                 return False
             continue

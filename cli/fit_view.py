@@ -8,7 +8,9 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from ngsim_cli.console import counted, exit_on_error, progress_line, stderr, stdout
+from ngsim_cli.console import counted, print_line, stdout
+from ngsim_cli.exits import exit_on_error
+from ngsim_cli.progress import progress_line
 
 if TYPE_CHECKING:
     from aigem.records import Group
@@ -50,7 +52,7 @@ def interrupted(group: Group, created: bool) -> typer.Exit:
 
 
 def say(message: str) -> None:
-    stderr.print(message, markup=False, highlight=False, soft_wrap=True)
+    print_line(message)
 
 
 # Why a model stopped (FitResult.stopped_because), as the summary says it.

@@ -21,7 +21,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from aigem import checkpoints, cores, run_log, runs
-from ngsim_cli import console
+from ngsim_cli import console, progress
 from ngsim_cli.aigem import app
 from ngsim_cli.ngsim import app as ngsim_app
 from ngsim_graphs import lock
@@ -379,7 +379,7 @@ def torch_load(path: Path) -> dict:
     return torch.load(path, map_location="cpu", weights_only=True)
 
 
-STAMP = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d "  # console.TIMESTAMP's
+STAMP = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d "  # progress.TIMESTAMP's
 MSE = r"\d+\.\d{3} m²"
 
 
@@ -389,7 +389,7 @@ def test_fit_and_evaluate_into_a_log_print_each_epoch_and_the_end_after_its_time
     """stderr is not a terminal here (a log): each line after its wall-clock time; each epoch's
     train and validation loss, and the run's end (the lines every PLAIN_PROGRESS_INTERVAL_S
     within it set out of reach here), once, with the last epoch's mean loss."""
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
+    monkeypatch.setattr(progress, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     run = tmp_path / "run"
     args = ["fit", str(tiny_build), "--out", str(run), *FIT, "--epochs", "2"]
     fit = CliRunner().invoke(app, args)
@@ -419,7 +419,7 @@ def test_plain_lines_at_every_batch_repeat_no_count_and_no_earlier_epochs_loss(
 ) -> None:
     """With the interval 0 a line at every batch, none twice; a line of epoch 2 never shows
     epoch 1's loss (the running loss before epoch 2's first is read shows none)."""
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    monkeypatch.setattr(progress, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
     run = tmp_path / "run"
     args = ["fit", str(tiny_build), "--out", str(run), *FIT, "--epochs", "2"]
     fit = CliRunner().invoke(app, args)

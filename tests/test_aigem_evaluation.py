@@ -482,7 +482,7 @@ def test_bootstrap_option(tiny_run: Path) -> None:
     """--bootstrap's default is the library's; a negative number is refused naming it."""
     import inspect
 
-    from ngsim_cli.aigem import evaluate as command
+    from ngsim_cli.evaluation import evaluate as command
 
     assert inspect.signature(command).parameters["bootstrap"].default == RESAMPLES
     code, out, err = _evaluate(str(tiny_run), "--bootstrap", "-1")

@@ -109,7 +109,7 @@ def _same_run(a: Path, b: Path) -> bool:
 
 def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
     run, out = fitted
-    assert sorted(p.name for p in run.iterdir()) == ["h1s", "h2s", runs.HORIZONS]
+    assert sorted(p.name for p in run.iterdir()) == [runs.FIT_LOG, "h1s", "h2s", runs.HORIZONS]
     assert json.loads((run / runs.HORIZONS).read_text()) == {
         "horizons_s": [1.0, 2.0],
         "members": ["h1s", "h2s"],

@@ -16,17 +16,12 @@ from matplotlib.container import BarContainer
 from matplotlib.figure import Figure
 
 from aigem.intervals import t_975
-from aigem.report import paper_report, table1, write_report
+from aigem.report import paper_report, write_report
 from aigem.report_cells import NOISES_SAID
+from aigem.report_parts import table1
 from aigem.report_plots import CONSTANT_VELOCITY_TICK, draw_report, report_figures
-from aigem.report_text import (
-    NO_FIT_DIFFERENCE,
-    ONE_SEED,
-    TIME_HEADING,
-    UNFINISHED,
-    _table1_lines,
-    report_markdown,
-)
+from aigem.report_tables import NO_FIT_DIFFERENCE, table1_lines
+from aigem.report_text import ONE_SEED, TIME_HEADING, UNFINISHED, report_markdown
 from aigem.results import Evaluation, paper_rows
 from aigem.run_log import EpochRow
 from ngsim_graphs import palette
@@ -507,7 +502,7 @@ def test_one_seed_table1_takes_its_intervals_from_the_evaluations_bootstrap() ->
         "value": -18.0, "low": -18.5, "high": -17.5
     }  # fmt: skip
     document = {"table1": table, "synthetic": True, "partly_synthetic": False, "finished": True}
-    lines = _table1_lines(document)
+    lines = table1_lines(document)
     text = "\n".join(lines)
     assert "| AiGem (this run) | 1.00 [0.90, 1.20] | 2.00 [1.90, 2.20] | 2.00 [1.90, 2.20]" in text
     assert "lower (better) beyond the test-set noise at 1, 2, 3, 4 and 5 s" in text

@@ -446,7 +446,15 @@ def test_a_fit_stopped_before_its_first_checkpoint_is_started_over(
     result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in run.iterdir()) == sorted(
-        [runs.RUN_INFO, runs.METRICS, runs.LAST, runs.BEST, runs.BASELINE, runs.CURVES]
+        [
+            runs.RUN_INFO,
+            runs.METRICS,
+            runs.LAST,
+            runs.BEST,
+            runs.BASELINE,
+            runs.CURVES,
+            runs.FIT_LOG,
+        ]
     )
     assert [r.epoch for r in run_log.read_metrics(run)] == [1]
     # The same with a file fit did not write beside the marker: refused, nothing removed.
