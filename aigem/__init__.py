@@ -29,7 +29,7 @@ _EXPORTS = {
     "masked_mse_m2": "aigem.loss",
     "fit": "aigem.training",
     "fit_horizons": "aigem.training",
-    "load_model": "aigem.runs",
+    "load_model": "aigem.checkpoints",
     "evaluate": "aigem.evaluation",
     "constant_velocity": "aigem.baseline",
     "predict_samples": "aigem.prediction",
@@ -57,6 +57,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from aigem.baseline import constant_velocity
+    from aigem.checkpoints import load_model
     from aigem.config import ModelConfig, TrainConfig
     from aigem.data import Collate, GraphDataset, xy_to_metres
     from aigem.evaluation import evaluate
@@ -64,7 +65,6 @@ if TYPE_CHECKING:
     from aigem.model import AiGem, count_parameters
     from aigem.prediction import predict_samples
     from aigem.pyg import GraphPygDataset, to_hetero_data, to_model_batch
-    from aigem.runs import load_model
     from aigem.training import fit, fit_horizons
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aigem.records import read_baseline, write_baseline
+from aigem.run_log import read_baseline, write_baseline
 from ngsim_graphs.build import open_build
 from ngsim_graphs.schema import Split
 from ngsim_graphs.splits import split_named

@@ -1,18 +1,22 @@
-"""Frozen configuration dataclasses of the model and of training. Field names carry units."""
+"""Frozen configuration dataclasses of the model and of training. Field names carry units. And
+the one mapping from their fields to `aigem fit`'s options (`fit_option`), which the CLI's
+messages and the command that continues a run (aigem.course.resume_command) both read."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from enum import Enum
 from typing import Any
 
 from ngsim_graphs.config import (
     DEFAULT_EDGE_TYPES,
+    MAX_PARALLEL,
     BuildConfig,
     check_above,
     check_at_least,
+    check_count,
     check_seed,
     whole_steps,
 )
@@ -114,10 +118,8 @@ class TrainConfig:
             raise ValueError(f"horizon_s must be at least one time step ({MIN_HORIZON_S:g} s)")
         if not whole_steps(self.horizon_s, TIME_STEP_S):
             raise ValueError(f"horizon_s must be a multiple of the {TIME_STEP_S:g} s time step")
-        if self.epochs < 1:
-            raise ValueError("epochs must be >= 1")
-        if self.batch_size < 1:
-            raise ValueError("batch_size must be >= 1")
+        check_count("epochs", self.epochs, 1)
+        check_count("batch_size", self.batch_size, 1)
         check_above("learning_rate", self.learning_rate, 0)
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}")
@@ -129,12 +131,12 @@ class TrainConfig:
         if self.max_minutes is not None:
             check_above("max_minutes", self.max_minutes, 0)
         check_seed("seed", self.seed)
-        if self.patience_epochs is not None and self.patience_epochs < 1:
-            raise ValueError("patience_epochs must be >= 1")
-        if self.workers is not None and self.workers < 0:
-            raise ValueError("workers must be >= 0")
-        if self.threads is not None and self.threads < 1:
-            raise ValueError("threads must be >= 1")
+        if self.patience_epochs is not None:
+            check_count("patience_epochs", self.patience_epochs, 1)
+        if self.workers is not None:
+            check_count("workers", self.workers, 0, MAX_PARALLEL)
+        if self.threads is not None:
+            check_count("threads", self.threads, 1, MAX_PARALLEL)
 
     def compiles_on(self, device_type: str) -> bool:
         """Whether the decoder is compiled on this device: `compile`, else on CUDA only (there it
@@ -183,3 +185,55 @@ def parse_horizons_s(text: str) -> tuple[float, ...]:
         except ValueError:
             raise ValueError(f"{part.strip()!r} is not a number of seconds") from None
     return check_horizons_s(values)
+
+
+# ------------------------------------------------------------------------------------------------
+# `aigem fit`'s options of the configs' fields. A field's option is `--` and its name with hyphens
+# (batch_size: --batch-size), a bool's `--name` and `--no-name` (as typer makes them), but for the
+# fields of OPTIONS: another name, a bool's flag for each value (a value without one is its
+# default, set by no flag), or None where no option sets the field (the model's shape, set from
+# Python; its edge types, the build's). A new field is named here only where its option differs.
+
+OPTIONS: dict[str, str | dict[bool, str] | None] = {
+    "patience_epochs": "--patience",
+    "resident": {True: "--resident", False: "--loader"},
+    "concat_position": {False: "--no-concat"},
+    "cv_residual": {True: "--cv-residual"},
+    **dict.fromkeys(
+        ("node_features", "hidden", "layers", "heads", "mlp_hidden", "dropout", "future_steps",
+         "edge_types"),
+    ),
+}  # fmt: skip
+# The train settings a resumed run may change: how far and how it trains, not what it learns
+# (every other field of TrainConfig, a new one too, must stay: aigem.refusals.RESUME_FIXED).
+RESUMABLE = frozenset(
+    {"epochs", "max_minutes", "patience_epochs", "workers", "threads", "compile", "resident"}
+)
+
+
+def _flags(name: str) -> dict[bool | None, str] | None:
+    """A field's options by the value they give: a bool's flags by True and False, an option
+    that takes a value by None; None where no option sets the field."""
+    option = OPTIONS.get(name, "--" + name.replace("_", "-"))
+    if option is None or isinstance(option, dict):
+        return option
+    return {True: option, False: "--no-" + option[2:], None: option}
+
+
+def fit_option(name: str, value: object) -> list[str]:
+    """The words of `aigem fit` that set field `name` of TrainConfig or ModelConfig to `value`:
+    ["--batch-size", "16"], ["--learning-rate", "0.003"], ["--no-concat"]; [] where no option
+    sets it (OPTIONS), for None, and for a bool's value that no flag gives."""
+    flags = _flags(name)
+    if flags is None or value is None:
+        return []
+    if isinstance(value, bool):
+        return [flags[value]] if value in flags else []
+    return [flags[None], f"{value:g}" if isinstance(value, float) else str(value)]
+
+
+def option_words() -> dict[str, str]:
+    """How a message names the option of each field of TrainConfig and ModelConfig that one
+    sets ("batch_size" -> "--batch-size", "concat_position" -> "--no-concat")."""
+    named = {f.name: _flags(f.name) for c in (TrainConfig, ModelConfig) for f in fields(c)}
+    return {name: next(iter(flags.values())) for name, flags in named.items() if flags}

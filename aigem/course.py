@@ -13,32 +13,27 @@ from __future__ import annotations
 
 import shlex
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from aigem.config import ModelConfig, TrainConfig
-from aigem.records import (
-    Group,
-    model_config,
-    read_metrics,
-    read_run_info,
-    train_config,
-)
+from aigem.config import ModelConfig, TrainConfig, fit_option
+from aigem.records import Group, read_record
 from aigem.refusals import RESUME_FIXED
+from aigem.run_log import EpochRow, read_metrics
 
 EPOCHS, EARLY_STOPPING, UNFINISHED = "epochs", "early stopping", "unfinished"
 
 
 def stop_reason(
-    epochs_done: int, epochs: int, rows: Sequence[dict[str, Any]], patience: int | None
+    epochs_done: int, epochs: int, rows: Sequence[EpochRow], patience: int | None
 ) -> str:
     """Why a model trains no more after `epochs_done` of `epochs`, from its metrics rows (those
     of its kept epochs): EPOCHS (all trained), EARLY_STOPPING (`patience` epochs without a better
     validation loss), else UNFINISHED (stopped before its end: it continues with --resume)."""
     if epochs_done >= epochs:
         return EPOCHS
-    waited = rows[-1]["epoch"] - rows[-1]["best_epoch"] if rows else 0
+    waited = rows[-1].epoch - rows[-1].best_epoch if rows else 0
     if patience is not None and rows and waited >= patience:
         return EARLY_STOPPING
     return UNFINISHED
@@ -68,37 +63,30 @@ class Course:
 
 def course_of(run_dir: Path) -> Course:
     """The course of the model in `run_dir` (a run of one model, or a member of a group)."""
-    train = train_config(read_run_info(run_dir), run_dir)
+    train = read_record(run_dir).info.train
     rows = read_metrics(run_dir)
-    done = int(rows[-1]["epoch"]) if rows else 0
-    best = int(rows[-1]["best_epoch"]) if rows else None
+    done = rows[-1].epoch if rows else 0
+    best = rows[-1].best_epoch if rows else None
     stopped = stop_reason(done, train.epochs, rows, train.patience_epochs)
     return Course(done, train.epochs, best, stopped)
 
 
 def resume_command(group: Group) -> str:
     """The `aigem fit` command that continues the run `group` (its first member's run.json is
-    read): its build, its horizons where they are not fit's default, the settings that a resume
-    must repeat where they are not fit's defaults, and its epochs."""
-    member = group.members[0]
-    info = read_run_info(member)
-    train, model = train_config(info, member), model_config(info, member)
-    words = ["aigem", "fit", info["build_dir"], "--out", str(group.run_dir.resolve())]
-    default = TrainConfig()
-    if group.horizons_s != (default.horizon_s,):
+    read): its build, its horizons where they are not fit's default, each setting that a resume
+    must repeat (the model's, and the train settings of refusals.RESUME_FIXED) where it is not
+    its default, by the option that sets it (config.fit_option: a setting no option sets, made
+    from Python, cannot be said), and its epochs."""
+    info = read_record(group.members[0]).info
+    words = ["aigem", "fit", str(info.build.build_dir), "--out", str(group.run_dir.resolve())]
+    if group.horizons_s != (TrainConfig().horizon_s,):
         words += ["--horizon-s", ",".join(f"{h:g}" for h in group.horizons_s)]
-    for name in RESUME_FIXED:
-        value = getattr(train, name)
-        if value != getattr(default, name) and name != "horizon_s":
-            words += [
-                f"--{name.replace('_', '-')}",
-                f"{value:g}" if isinstance(value, float) else str(value),
-            ]
-    if not model.concat_position:
-        words.append("--no-concat")
-    if model.cv_residual != ModelConfig().cv_residual:
-        words.append("--cv-residual")
-    words += ["--epochs", str(train.epochs), "--resume"]
+    repeated = [(info.train, name) for name in RESUME_FIXED if name != "horizon_s"]
+    for config, name in [*repeated, *((info.model, f.name) for f in fields(ModelConfig))]:
+        value = getattr(config, name)
+        if value != getattr(type(config)(), name):
+            words += fit_option(name, value)
+    words += [*fit_option("epochs", info.train.epochs), "--resume"]
     return shlex.join(words)
 
 

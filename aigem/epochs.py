@@ -21,6 +21,7 @@ import torch
 
 from aigem import runs
 from aigem.config import TrainConfig
+from aigem.run_log import EpochRow
 from aigem.trainers import (
     Loop,
     Member,
@@ -43,7 +44,7 @@ CURVES_EVERY_S = 30.0
 TrainProgress = Callable[[int, int, int, tuple[float, ...]], None]
 # (the model's horizon in s, the row of its metrics.jsonl written at the end of an epoch): the CLI
 # prints it.
-EpochCallback = Callable[[float, dict[str, float]], None]
+EpochCallback = Callable[[float, EpochRow], None]
 
 
 class NonFiniteLossError(RuntimeError):
@@ -138,7 +139,7 @@ def _validate(loop: Loop, active: list[Member], trainers: list[Trainer]) -> list
 
 def _end_epoch(
     member: Member, epoch: int, val_loss: float, timing: dict[str, float], loop: Loop, now: float
-) -> dict[str, float]:
+) -> EpochRow:
     """Check the validation loss, log and checkpoint the epoch, draw its curves if they are
     CURVES_EVERY_S old at `now`, stop early when the patience is out; returns the metrics row."""
     if not math.isfinite(val_loss):

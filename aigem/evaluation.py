@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from aigem.checkpoints import load_model
 from aigem.config import horizon_steps
 from aigem.course import course_of, training_record
 from aigem.data import GraphDataset, run_scaler
@@ -35,10 +36,9 @@ from aigem.intervals import RESAMPLES, SampleIntervals, bootstrap_intervals
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
 from aigem.paper_folder import refuse_paper_folder_as_run
-from aigem.records import BEST, Group, group_of_member, read_group
+from aigem.records import BEST, Group, RunInfo, group_of_member, read_group
 from aigem.refusals import Member, check_build, check_one_fit, resolve_build
 from aigem.results import Evaluation, ModelEvaluation, Rows, Scores
-from aigem.runs import load_model
 from aigem.scoring import NonFinitePredictionError, score_members
 from ngsim_graphs.build import OpenBuild
 from ngsim_graphs.config import BuildConfig
@@ -106,14 +106,14 @@ class LoadedRun:
 
     run_dir: Path
     model: AiGem
-    info: dict[str, Any]
+    info: RunInfo
     build_dir: Path
     same_build: bool
     scaler: MinMaxScaler
 
     def steps(self, dataset: GraphDataset) -> int:
         """The model's future steps at `dataset`'s time step (checked: check_build)."""
-        return horizon_steps(self.info["train"]["horizon_s"], dataset.config.time_step_s)
+        return horizon_steps(self.info.train.horizon_s, dataset.config.time_step_s)
 
 
 def load_run(
@@ -129,7 +129,7 @@ def load_run(
     model, info = load_model(run_dir, device)
     build_dir = resolve_build(info, build_dir)
     same_build = check_build(info, build_dir, run_dir, model.config, other_build, opened=opened)
-    scaler = run_scaler(info["scaler"], run_dir / BEST)
+    scaler = run_scaler(info.build.scaler, run_dir / BEST)
     return LoadedRun(run_dir, model, info, build_dir, same_build, scaler)
 
 

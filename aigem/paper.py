@@ -77,6 +77,7 @@ from aigem.paper_training import (
     work_units,
 )
 from aigem.records import member_dir
+from aigem.run_log import EpochRow, read_metrics
 from ngsim_graphs.errors import NgsimOutputError
 
 
@@ -255,10 +256,8 @@ def _report(
     )
 
 
-def _curves(run_dir: Path) -> dict[str, list[dict[str, Any]]]:
+def _curves(run_dir: Path) -> dict[str, list[EpochRow]]:
     """Each member's metrics rows (its kept epochs), by member name."""
-    from aigem.runs import read_metrics
-
     return {member_dir(run_dir, h).name: read_metrics(member_dir(run_dir, h)) for h in HORIZONS_S}
 
 

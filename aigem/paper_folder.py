@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
+from aigem.run_log import EpochRow, read_metrics
 from ngsim_graphs.config import BuildConfig, check_seed
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.integrity import file_sha256
@@ -39,6 +40,7 @@ HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
 PAPER_EPOCHS = 100  # the paper's: "approximately 100 training epochs" gave each best model
 PAPER_D_MIN_M = 25.0  # the d_min of the paper's model (the others: the d_min ablation)
 PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
+PAPER_LOG = "paper.log"  # `aigem paper`'s stderr lines, each after its time, appended
 BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
 WRITTEN_BY = "aigem paper"
 RETRAIN = ("seed", "batch_size", "patience_epochs")  # PaperConfig's: other models
@@ -319,16 +321,16 @@ def partly_synthetic(build_dirs: Sequence[Path]) -> bool:
     return any(synthetic_inputs_of(m) and not synthetic_build(m) for m in manifests)
 
 
-def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[dict[str, Any]], str]:
+def _member_progress(member: Path, config: PaperConfig) -> tuple[int, list[EpochRow], str]:
     """(epochs kept in its last.pt, their metrics rows, why it trains no more: course.stop_reason,
     UNFINISHED while it has epochs left)."""
+    from aigem.checkpoints import check_log, epochs_kept  # PyTorch, only when a run is read
     from aigem.course import stop_reason
-    from aigem.runs import check_log, epochs_kept, read_metrics
 
     kept = epochs_kept(member) if (member / LAST).is_file() else 0
     if kept:
         check_log(member, kept)
-    rows = [row for row in read_metrics(member) if row["epoch"] <= kept] if kept else []
+    rows = [row for row in read_metrics(member) if row.epoch <= kept] if kept else []
     return kept, rows, stop_reason(kept, config.epochs, rows, config.patience_epochs)
 
 
@@ -352,6 +354,6 @@ def fit_record(run_dir: Path, config: PaperConfig) -> dict[str, dict[str, Any]]:
         member = member_dir(run_dir, horizon_s)
         kept, rows, reason = _member_progress(member, config)
         stopped = "time limit" if reason == UNFINISHED else reason
-        best = int(rows[-1]["best_epoch"]) if rows else None
+        best = rows[-1].best_epoch if rows else None
         record[member.name] = {"epochs_done": kept, "best_epoch": best, "stopped": stopped}
     return record

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from aigem.paper_folder import PAPER_D_MIN_M, PaperConfig, build_name, run_name
-from ngsim_graphs.config import MAX_SEED, check_above
+from ngsim_graphs.config import MAX_PARALLEL, MAX_SEED, check_above, check_count
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")
 PAPER_FIT = build_name(PAPER_D_MIN_M)  # the paper's model: d_min 25 m, the output concatenation
@@ -75,8 +75,10 @@ class PaperCall:
     seeds: int = 1  # each fit trained at paper.json's seed and the seeds - 1 after it
 
     def __post_init__(self) -> None:
-        if self.seeds < 1:
-            raise ValueError(f"{self.seeds} seeds: a fit needs at least one")
+        check_count("seeds", self.seeds, 1)
+        if self.threads is not None:
+            check_count("threads", self.threads, 1, MAX_PARALLEL)
+        check_count("jobs", self.jobs, 1, MAX_PARALLEL)
         if self.max_hours is not None:
             check_above("max_hours", self.max_hours, 0)
 

@@ -29,6 +29,7 @@ from aigem.course import training_line, training_words
 from aigem.figure_parts import footed_figure, legend_below, panel_handles, paper_points, png_bytes
 from aigem.metrics import FRONT_Y_M, REGIONS
 from aigem.results import Evaluation, ModelEvaluation
+from aigem.run_log import EpochRow
 from ngsim_graphs.palette import AIGEM, CONSTANT_VELOCITY
 from ngsim_graphs.plotting import mark_synthetic
 
@@ -59,7 +60,7 @@ class _PlainLog(LogFormatter):
 
 
 def curves_png(
-    rows: list[dict[str, float]],
+    rows: list[EpochRow],
     baseline_m2: float | None,
     horizon_s: float | None,
     synthetic: bool = False,
@@ -70,7 +71,7 @@ def curves_png(
 
 
 def curves_figure(
-    rows: list[dict[str, float]],
+    rows: list[EpochRow],
     baseline_m2: float | None,
     horizon_s: float | None,
     synthetic: bool = False,
@@ -83,11 +84,11 @@ def curves_figure(
     the top left for a run on a build of synthetic data."""
     figure = Figure(figsize=(7, 5), layout="constrained")
     axes = figure.add_subplot()
-    epochs = [row["epoch"] for row in rows]
-    axes.plot(epochs, [r["train_loss_m2"] for r in rows], **TRAIN_STYLE, label=TRAIN_LABEL)
-    axes.plot(epochs, [r["val_loss_m2"] for r in rows], **VALIDATION_STYLE, label=VALIDATION_LABEL)
-    best = int(rows[-1]["best_epoch"])
-    best_m2 = next((r["val_loss_m2"] for r in rows if r["epoch"] == best), None)
+    epochs = [row.epoch for row in rows]
+    axes.plot(epochs, [r.train_loss_m2 for r in rows], **TRAIN_STYLE, label=TRAIN_LABEL)
+    axes.plot(epochs, [r.val_loss_m2 for r in rows], **VALIDATION_STYLE, label=VALIDATION_LABEL)
+    best = rows[-1].best_epoch
+    best_m2 = next((r.val_loss_m2 for r in rows if r.epoch == best), None)
     if best_m2 is not None:
         axes.axvline(best, color="tab:green", lw=1, ls=":")
         axes.plot(
@@ -119,7 +120,7 @@ def curves_figure(
     )
     axes.yaxis.set_major_formatter(_PlainLog(labelOnlyBase=False))
     axes.yaxis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
-    rates = [r.get("learning_rate") for r in rows]
+    rates = [r.learning_rate for r in rows]
     if None not in rates and len(set(rates)) > 1:  # a schedule: its rate on a second axis
         rate_axes = axes.twinx()
         rate_axes.plot(epochs, rates, color="tab:gray", lw=1, alpha=0.6)

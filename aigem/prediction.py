@@ -16,12 +16,12 @@ import numpy as np
 import torch
 
 from aigem.baseline import constant_velocity
+from aigem.checkpoints import load_model
 from aigem.config import horizon_steps
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.devices import pick_device
 from aigem.records import BEST, read_group
 from aigem.refusals import check_build, resolve_build
-from aigem.runs import load_model
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
 from ngsim_graphs.schema import Split
@@ -65,7 +65,7 @@ def predict_samples(
     build_dir = resolve_build(info, build_dir)
     refusal = "its predictions are made on its own build only"
     check_build(info, build_dir, run_dir, model.config, other_build=False, refusal=refusal)
-    scaler = run_scaler(info["scaler"], run_dir / BEST)
+    scaler = run_scaler(info.build.scaler, run_dir / BEST)
     dataset = GraphDataset(build_dir, split, model.config.history_steps_read, scaler)
     ids = np.asarray(sample_ids, dtype=np.int64)
     graphs = dataset.build.graphs(dataset.split, ids)
@@ -73,7 +73,7 @@ def predict_samples(
     if not same_targets(graphs, read):
         raise RuntimeError("the model's batch holds other targets than the drawn graphs")
     batch = Collate(scaler, layers=model.config.layers)([read])
-    steps = horizon_steps(info["train"]["horizon_s"], dataset.config.time_step_s)
+    steps = horizon_steps(info.train.horizon_s, dataset.config.time_step_s)
     with torch.no_grad():
         predicted = xy_to_metres(scaler, model(batch.to(device), steps)).cpu().numpy()
     if not np.isfinite(predicted).all():

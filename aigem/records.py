@@ -1,6 +1,9 @@
-"""What a run directory records, read and checked without PyTorch: its file names, run.json,
-horizons.json and baseline.json, and the build a run belongs to. aigem.refusals, aigem.runs and
-aigem.checkpoints read runs through these.
+"""What a run directory records, read and written without PyTorch: its file names, run.json and
+the info every checkpoint carries (RunInfo, RunRecord), the progress last.pt carries (RunState),
+horizons.json and the layouts of a run folder (Group). This is the one module that reads
+run.json's keys: the rest of aigem gets frozen dataclasses of typed fields (aigem.run_log does
+the same for metrics.jsonl and baseline.json; aigem.provenance compares a run's build with
+another).
 
 run.json also records the sha256 of each checkpoint that the run keeps (DIGESTS), and a
 checkpoint is loaded only if its bytes have one of them (aigem.checkpoints); a run written before
@@ -10,18 +13,16 @@ warning.
 Run info records each config as a mapping of its settings. A setting that a run lacks was added
 to aigem after the run was written and takes its default (a new setting's default keeps what
 aigem did before it), so that every older run loads; a setting this aigem does not know (a newer
-aigem's) is one error line.
+aigem's) is one error line. Older values that no longer validate are adapted here and only here
+(`--max-minutes inf`, no limit, reads as None).
 
-A build's identity is its config hash and the sha256 of its manifest's bytes: builds are
-byte-deterministic, so an identical rebuild keeps it. Run info (run.json, and every checkpoint's
-`info`) records it beside the build's path, settings (`build_config`: its config and its
-source's physical limits, what the config hash covers) and fitted scaler, and the model and
-train configs. Where a build's config hash is not the run's, the settings that differ are named.
+Run info (run.json, and every checkpoint's `info`) records the build's identity (IDENTITY), path,
+settings (`build_config`) and fitted scaler (aigem.provenance.BuildRecord), and the model and
+train configs.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import re
@@ -30,9 +31,8 @@ from pathlib import Path
 from typing import Any
 
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
+from aigem.provenance import BuildIdentity, BuildRecord, build_record
 from ngsim_graphs.errors import NgsimInputError
-from ngsim_graphs.layout import manifest_path, read_manifest
-from ngsim_graphs.manifest import Manifest, json_form
 from ngsim_graphs.partial_files import write_atomic
 
 RUN_INFO, METRICS, LAST, BEST, CURVES = (
@@ -44,12 +44,13 @@ RUN_INFO, METRICS, LAST, BEST, CURVES = (
 )
 HORIZONS = "horizons.json"  # a multi-horizon run's members
 BASELINE = "baseline.json"  # constant velocity's validation loss
+FIT_LOG = "fit.log"  # `aigem fit`'s stderr lines, each after its time, appended (RUN/fit.log)
 # fit's marker in a folder it set up, until a checkpoint is kept there: a fresh fit may start
 # over in such a folder, and only in such a one (besides a new or empty folder)
 STARTED = ".fit-started"
 STARTED_LINE = b"aigem fit: no checkpoint kept here yet; a new fit may start over in this folder\n"
-RUN_FILES = frozenset({RUN_INFO, METRICS, LAST, BEST, CURVES, BASELINE, HORIZONS})
-EARLY_FILES = frozenset({RUN_INFO, METRICS, BEST, CURVES, BASELINE})  # before the first last.pt
+RUN_FILES = frozenset({RUN_INFO, METRICS, LAST, BEST, CURVES, BASELINE, HORIZONS, FIT_LOG})
+EARLY_FILES = frozenset({RUN_INFO, METRICS, BEST, CURVES, BASELINE, FIT_LOG})  # before a last.pt
 IDENTITY = ("build_config_hash", "build_manifest_sha256")  # a build's identity, as a run records it
 # run.json's record of its checkpoints' bytes: name -> the sha256 values the file may have (one;
 # two while fit replaces it). Run info that checkpoints carry has no such key.
@@ -63,79 +64,63 @@ INFO_KEYS = ("build_dir", *IDENTITY, "build_config", "scaler", "model", "train")
 
 
 # ------------------------------------------------------------------------------------------------
-# A build, as a run records it.
+# The record, typed.
 
 
-def build_identity(build_dir: Path) -> tuple[Manifest, dict[str, str]]:
-    """A finished build's manifest and identity: {"build_config_hash", "build_manifest_sha256"}."""
-    manifest = read_manifest(build_dir)  # refuses unfinished builds and other format versions
-    digest = hashlib.sha256(manifest_path(build_dir).read_bytes()).hexdigest()
-    return manifest, {
-        "build_config_hash": str(manifest.config_hash),
-        "build_manifest_sha256": digest,
-    }
+@dataclass(frozen=True)
+class RunInfo:
+    """What a model was trained on and how: run.json's record but the checkpoints' digests, and
+    what every checkpoint carries as its `info`."""
+
+    build: BuildRecord
+    model: ModelConfig
+    train: TrainConfig
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON object run.json and the checkpoints hold (INFO_KEYS, in that order)."""
+        return {
+            "build_dir": str(self.build.build_dir),
+            "build_config_hash": self.build.identity.config_hash,
+            "build_manifest_sha256": self.build.identity.manifest_sha256,
+            "build_config": self.build.settings,
+            "scaler": self.build.scaler,
+            "model": self.model.to_dict(),
+            "train": self.train.to_dict(),
+        }
 
 
-def run_info(build_dir: Path, model_config: ModelConfig, train: TrainConfig) -> dict[str, Any]:
-    """What run.json and every checkpoint record: INFO_KEYS (the build's scaler as its
-    manifest.json holds it, its settings as its config hash covers them: `Manifest.settings`)."""
-    manifest, identity = build_identity(build_dir)
-    return {
-        "build_dir": str(Path(build_dir).resolve()),
-        **identity,
-        "build_config": manifest.settings(),
-        "scaler": json_form(manifest.scaler.to_dict()),
-        "model": model_config.to_dict(),
-        "train": train.to_dict(),
-    }
+@dataclass(frozen=True)
+class RunRecord:
+    """A model's run.json: its info and the sha256 values each checkpoint may have (None: a run
+    of an aigem before they were recorded, UNRECORDED)."""
+
+    info: RunInfo
+    digests: dict[str, tuple[str, ...]] | None
 
 
-def identity_difference(
-    run: dict[str, Any], identity: dict[str, str], settings: dict[str, Any] | None = None
-) -> str | None:
-    """How a build's identity differs from the one a run recorded (None: the same build); with
-    the build's `settings` (`Manifest.settings`), the settings that differ from the run's
-    build_config, named ("d_min_m 25.0 -> 50.0", "limits.max_frame_id 72000 -> 180000")."""
-    if identity["build_config_hash"] != run["build_config_hash"]:
-        changed = settings_changed(run["build_config"], settings) if settings else []
-        return (
-            f"its config hash {identity['build_config_hash'][:12]} is not the run's "
-            f"{run['build_config_hash'][:12]}" + (f": {'; '.join(changed)}" if changed else "")
-        )
-    if identity["build_manifest_sha256"] != run["build_manifest_sha256"]:
-        return "same config, but its manifest.json differs from the run's build (other inputs, or edited)"
-    return None
+@dataclass(frozen=True)
+class RunState:
+    """A model's progress as its last.pt carries it: the next epoch to train (from 0), the best
+    epoch so far (from 0; -1: none) and its validation loss (m²)."""
+
+    next_epoch: int = 0
+    best_epoch: int = -1
+    best_val_loss: float = math.inf
 
 
-def _flat(settings: Any) -> dict[str, Any]:
-    """A build's settings one per key, nested ones (the limits) as "limits.max_speed_mps"."""
-    if not isinstance(settings, dict):
-        return {}
-    return {
-        f"{name}.{key}" if isinstance(value, dict) else name: inner
-        for name, value in settings.items()
-        for key, inner in (value.items() if isinstance(value, dict) else [(name, value)])
-    }
-
-
-def settings_changed(before: Any, now: dict[str, Any]) -> list[str]:
-    """The settings of `now` that differ from `before` (a run's build_config), in words: a
-    highD build made before its limits were its own recorded max_frame_id in NGSIM's 10 Hz
-    frames, so that built again it reads "limits.max_frame_id 72000 -> 180000"."""
-    old, new = _flat(before), _flat(now)
-    return [
-        f"{name} {old.get(name)} -> {new.get(name)}"
-        for name in sorted(old.keys() | new.keys())
-        if old.get(name) != new.get(name)
-    ]
+def run_info(build_dir: Path, model_config: ModelConfig, train: TrainConfig) -> RunInfo:
+    """What run.json and every checkpoint of a fit of `build_dir` record (aigem.provenance's
+    record of the build, and the configs)."""
+    return RunInfo(build_record(build_dir), model_config, train)
 
 
 # ------------------------------------------------------------------------------------------------
-# run.json and horizons.json.
+# Run info read back: every older form adapted here.
 
 
-def check_info(info: object, path: Path) -> None:
-    """Refuse run info that `aigem fit` did not write: missing keys, unknown configs."""
+def info_of(info: object, path: Path) -> RunInfo:
+    """Run info as run.json or a checkpoint (`path`) holds it; refused where `aigem fit` did not
+    write it: missing keys, unknown configs."""
     if not isinstance(info, dict):
         raise NgsimInputError(path, "not an aigem run description (not a JSON object)")
     missing = [key for key in INFO_KEYS if key not in info]
@@ -150,8 +135,12 @@ def check_info(info: object, path: Path) -> None:
         )
     if not isinstance(info["build_config"], dict):
         raise NgsimInputError(path, "not an aigem run: build_config is not a mapping")
-    model_config(info, path)
-    train_config(info, path)
+    identity = BuildIdentity(*(info[key] for key in IDENTITY))
+    settings = info["build_config"]
+    time_step_s = settings.get("time_step_s")
+    time_step_s = float(time_step_s) if isinstance(time_step_s, int | float) else math.nan
+    build = BuildRecord(Path(info["build_dir"]), identity, time_step_s, settings, info["scaler"])
+    return RunInfo(build, model_config(info, path), train_config(info, path))
 
 
 def _recorded_values(info: dict[str, Any], key: str, known: type, path: Path) -> dict[str, Any]:
@@ -173,9 +162,9 @@ def _recorded_values(info: dict[str, Any], key: str, known: type, path: Path) ->
 
 
 def train_config(info: dict[str, Any], path: Path) -> TrainConfig:
-    """The train config a run recorded, settings it lacks at their defaults (_recorded_values).
-    An aigem before the settings were checked finite took `--max-minutes inf`, no limit, which
-    reads as the None that says it now."""
+    """The train config that run info records, settings it lacks at their defaults
+    (_recorded_values). An aigem before the settings were checked finite took `--max-minutes
+    inf`, no limit, which reads as the None that says it now."""
     values = _recorded_values(info, "train", TrainConfig, path)
     if values.get("max_minutes") == math.inf:
         values = {**values, "max_minutes": None}
@@ -186,8 +175,8 @@ def train_config(info: dict[str, Any], path: Path) -> TrainConfig:
 
 
 def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
-    """The model config a run recorded, settings it lacks at their defaults (_recorded_values);
-    an error for a value of another type than the setting's."""
+    """The model config that run info records, settings it lacks at their defaults
+    (_recorded_values); an error for a value of another type than the setting's."""
     values, defaults = dict(_recorded_values(info, "model", ModelConfig, path)), ModelConfig()
     for name, value in values.items():
         default = getattr(defaults, name)
@@ -200,7 +189,35 @@ def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
     return ModelConfig(**values)
 
 
-def read_run_info(run_dir: Path) -> dict[str, Any]:
+def state_of(saved: object, path: Path) -> RunState:
+    """The progress that a last.pt (`path`) carries, as `state_json` wrote it."""
+    names = [f.name for f in fields(RunState)]
+    number = lambda v: isinstance(v, int | float) and not isinstance(v, bool)
+    if (
+        not isinstance(saved, dict)
+        or sorted(saved) != sorted(names)
+        or not all(map(number, saved.values()))
+    ):
+        raise NgsimInputError(
+            path, f"its progress record is not aigem's (expected {', '.join(names)})"
+        )
+    return RunState(
+        next_epoch=int(saved["next_epoch"]),
+        best_epoch=int(saved["best_epoch"]),
+        best_val_loss=float(saved["best_val_loss"]),
+    )
+
+
+def state_json(state: RunState) -> dict[str, Any]:
+    """The progress as a last.pt carries it (its fields by name)."""
+    return {f.name: getattr(state, f.name) for f in fields(RunState)}
+
+
+# ------------------------------------------------------------------------------------------------
+# run.json: read, written, and its record of the checkpoints' bytes.
+
+
+def read_record(run_dir: Path) -> RunRecord:
     """run.json of a run directory; one clear error for a directory that is not a run."""
     if not run_dir.exists():
         raise NgsimInputError(run_dir, "no such run directory")
@@ -210,39 +227,45 @@ def read_run_info(run_dir: Path) -> dict[str, Any]:
             run_dir, f"not a run directory: no {RUN_INFO} (written by `aigem fit`)"
         )
     try:
-        info = json.loads(path.read_text())
+        document = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise NgsimInputError(path, f"unreadable run description: {err}") from None
-    check_info(info, path)
-    return info
+    info = info_of(document, path)
+    return RunRecord(info, _digests(document, path))
 
 
-def recorded_digests(run: dict[str, Any], path: Path) -> dict[str, list[str]] | None:
-    """The sha256 values that run.json (`run`, read from `path`) accepts for each checkpoint;
-    None for a run written before they were recorded."""
-    if DIGESTS not in run:
+def write_record(run_dir: Path, info: RunInfo, digests: dict[str, tuple[str, ...]]) -> None:
+    """run.json: the run `info` and the sha256 values each checkpoint may have (DIGESTS)."""
+    recorded = {name: list(accepted) for name, accepted in digests.items()}
+    text = json.dumps({**info.to_json(), DIGESTS: recorded}, indent=2) + "\n"
+    write_atomic(run_dir / RUN_INFO, text.encode())
+
+
+def _digests(document: dict[str, Any], path: Path) -> dict[str, tuple[str, ...]] | None:
+    """The sha256 values that run.json (`document`, read from `path`) accepts for each
+    checkpoint; None for a run written before they were recorded."""
+    if DIGESTS not in document:
         return None
-    digests = run[DIGESTS]
+    digests = document[DIGESTS]
     if not isinstance(digests, dict) or not all(
         isinstance(accepted, list) and accepted and all(SHA256.fullmatch(str(d)) for d in accepted)
         for accepted in digests.values()
     ):
         raise NgsimInputError(path, f"its {DIGESTS} is not aigem's record of its checkpoints")
-    return digests
+    return {name: tuple(accepted) for name, accepted in digests.items()}
 
 
-def accepted_digests(run: dict[str, Any], run_dir: Path, name: str) -> list[str] | None:
+def accepted_digests(run: RunRecord, run_dir: Path, name: str) -> tuple[str, ...] | None:
     """The sha256 values that checkpoint `name` of the run in `run_dir` (its run.json: `run`)
     may have; None for a run that records none (UNRECORDED). A run that records them but none of
     `name` refuses it: a checkpoint that the run did not keep."""
-    recorded = recorded_digests(run, run_dir / RUN_INFO)
-    if recorded is None:
+    if run.digests is None:
         return None
-    if name not in recorded:
+    if name not in run.digests:
         raise NgsimInputError(
             run_dir / name, f"{RUN_INFO} records no sha256 of it: not a checkpoint this run kept"
         )
-    return recorded[name]
+    return run.digests[name]
 
 
 def unrecorded_checkpoints(run_dir: Path, names: tuple[str, ...] = (BEST, LAST)) -> list[Path]:
@@ -251,7 +274,7 @@ def unrecorded_checkpoints(run_dir: Path, names: tuple[str, ...] = (BEST, LAST))
     return [
         member / name
         for member in read_group(run_dir).members
-        if (member / RUN_INFO).is_file() and DIGESTS not in read_run_info(member)
+        if (member / RUN_INFO).is_file() and read_record(member).digests is None
         for name in names
         if (member / name).is_file()
     ]
@@ -317,8 +340,7 @@ def read_group(run_dir: Path) -> Group:
     horizons_s = read_horizons(run_dir)
     if horizons_s is not None:
         return planned_group(run_dir, horizons_s)
-    info = read_run_info(run_dir)
-    return Group(run_dir, (train_config(info, run_dir / RUN_INFO).horizon_s,), (run_dir,))
+    return Group(run_dir, (read_record(run_dir).info.train.horizon_s,), (run_dir,))
 
 
 def group_of_member(run_dir: Path) -> Group:
@@ -349,40 +371,8 @@ def read_horizons(run_dir: Path) -> tuple[float, ...] | None:
         raise NgsimInputError(path, "not aigem's list of horizons (damaged?)") from None
 
 
-# ------------------------------------------------------------------------------------------------
-# baseline.json: constant velocity's validation loss (aigem.baseline measures it).
-
-
-def write_baseline(run_dir: Path, val_loss_m2: float, steps: int) -> None:
-    """Record constant velocity's validation loss (metres^2) over `steps` future steps."""
-    text = json.dumps({"constant_velocity_val_loss_m2": val_loss_m2, "steps": steps}) + "\n"
-    write_atomic(run_dir / BASELINE, text.encode())
-
-
-def read_baseline(run_dir: Path) -> float | None:
-    """Constant velocity's validation loss (metres^2) as fit recorded it; None when the run has
-    none (a run of an older aigem) or it is unreadable: a missing baseline only costs the line."""
-    try:
-        value = json.loads((run_dir / BASELINE).read_text())["constant_velocity_val_loss_m2"]
-    except (OSError, ValueError, TypeError, KeyError):
-        return None
-    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
-
-
-def read_metrics(run_dir: Path) -> list[dict[str, float]]:
-    """The rows of metrics.jsonl; one line naming the file and line where it is damaged."""
-    path = run_dir / METRICS
-    if not path.exists():
-        return []
-    rows = []
-    for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
-        try:
-            row = json.loads(line) if line.strip() else None
-        except json.JSONDecodeError:
-            row = "damaged"
-        if row is None:
-            continue
-        if not isinstance(row, dict) or not isinstance(row.get("epoch"), int):
-            raise NgsimInputError(path, "not a row of aigem's metrics log (damaged?)", line=number)
-        rows.append(row)
-    return rows
+def write_horizons(group: Group) -> None:
+    """A multi-horizon run's horizons.json: its horizons and the folders of their models."""
+    names = [member.name for member in group.members]
+    text = json.dumps({"horizons_s": list(group.horizons_s), "members": names}, indent=2) + "\n"
+    write_atomic(group.run_dir / HORIZONS, text.encode())

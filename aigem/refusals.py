@@ -10,28 +10,27 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from aigem.config import ModelConfig, TrainConfig, horizon_steps
+from aigem.config import RESUMABLE, ModelConfig, TrainConfig, horizon_steps
 from aigem.paper_folder import refuse_paper_folder_as_run
+from aigem.provenance import build_identity, identity_difference
 from aigem.records import (
     BEST,
     EARLY_FILES,
+    FIT_LOG,
     HORIZONS,
     LAST,
     RUN_INFO,
     Group,
-    build_identity,
-    identity_difference,
-    model_config,
+    RunInfo,
     read_group,
     read_horizons,
-    read_run_info,
+    read_record,
     recorded_members,
     run_info,
-    train_config,
 )
 from aigem.unfinished import is_started, refuse_other_contents, unfinished_group, unfinished_start
 from ngsim_graphs.build import OpenBuild, open_build
@@ -39,17 +38,10 @@ from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.layout import MANIFEST_NAME
 from ngsim_graphs.schema import N_TARGETS, Split
 
-# Train settings that a resumed run must keep: they change what it learns. Epochs (unless the
-# schedule decays over them), time limit, patience, workers and threads may change.
-RESUME_FIXED = (
-    "horizon_s",
-    "batch_size",
-    "learning_rate",
-    "lr_schedule",
-    "warmup_epochs",
-    "clip_grad_norm",
-    "seed",
-)
+# Train settings that a resumed run must keep: they change what it learns. Those of
+# config.RESUMABLE (epochs, unless the schedule decays over them; the time limit, patience,
+# workers, threads, ...) may change.
+RESUME_FIXED = tuple(f.name for f in fields(TrainConfig) if f.name not in RESUMABLE)
 
 
 def check_splits(build_dir: Path) -> None:
@@ -122,42 +114,43 @@ def check_group_start(group: Group, resume: bool) -> None:
         )
 
 
-def check_resume(
-    run_dir: Path, build_dir: Path, saved: dict[str, Any], info: dict[str, Any]
-) -> None:
+def check_resume(run_dir: Path, build_dir: Path, saved: RunInfo, info: RunInfo) -> None:
     """Refuse to resume a run that recorded `saved` (its run info) as `info` (run_info of this
     call): another build, another model config, another setting of RESUME_FIXED, or other epochs
     under a decaying schedule."""
-    why = identity_difference(saved, info, info["build_config"])
+    why = identity_difference(saved.build, info.build.identity, info.build.settings)
     if why:
         raise NgsimInputError(
             build_dir,
             f"not the build that run {run_dir} was trained on ({why}); a run resumes on its own "
             "build only",
         )
-    saved_model = model_config(saved, run_dir / LAST).to_dict()
-    if saved_model != info["model"]:
-        changed = sorted(k for k in info["model"] if saved_model[k] != info["model"][k])
+    if saved.model != info.model:
+        changed = sorted(
+            f.name
+            for f in fields(ModelConfig)
+            if getattr(saved.model, f.name) != getattr(info.model, f.name)
+        )
         raise NgsimInputError(
             run_dir,
             f"cannot resume: the model config differs from the run's ({', '.join(changed)})",
         )
-    before = train_config(saved, run_dir / LAST).to_dict()
+    before, now = saved.train, info.train
     changed = [
-        f"{k} {before[k]} -> {info['train'][k]}"
+        f"{k} {getattr(before, k)} -> {getattr(now, k)}"
         for k in RESUME_FIXED
-        if before[k] != info["train"][k]
+        if getattr(before, k) != getattr(now, k)
     ]
     if changed:
         raise NgsimInputError(
             run_dir,
             f"cannot resume with another {', '.join(changed)}: it changes what the run learns",
         )
-    schedule, epochs = info["train"]["lr_schedule"], before["epochs"]
-    if schedule != "constant" and epochs != info["train"]["epochs"]:
+    schedule, epochs = now.lr_schedule, before.epochs
+    if schedule != "constant" and epochs != now.epochs:
         raise NgsimInputError(
             run_dir,
-            f"cannot resume with another epochs {epochs} -> {info['train']['epochs']}: the "
+            f"cannot resume with another epochs {epochs} -> {now.epochs}: the "
             f"{schedule} schedule decays over the run's epochs; resume with --epochs {epochs}",
         )
 
@@ -186,7 +179,7 @@ def check_fit(
         if resume and (member / LAST).is_file():
             member_train = TrainConfig(**{**train.to_dict(), "horizon_s": horizon_s})
             info = run_info(build_dir, model, member_train)
-            check_resume(member, build_dir, read_run_info(member), info)
+            check_resume(member, build_dir, read_record(member).info, info)
         else:  # a fresh start, or a member that never finished an epoch starting over
             check_fresh_out(member)
 
@@ -210,7 +203,7 @@ def check_fresh_group(group: Group) -> None:
     if not group.named or not any(run_dir.iterdir()) or unfinished_group(run_dir, horizons_s):
         return
     members = {member.name for member in group.members}
-    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, *members})
+    refuse_other_contents(run_dir, "a multi-horizon aigem run", {HORIZONS, FIT_LOG, *members})
 
 
 def check_fresh_out(run_dir: Path) -> None:
@@ -224,7 +217,7 @@ def check_fresh_out(run_dir: Path) -> None:
     if not any(run_dir.iterdir()) or unfinished_start(run_dir):
         return
     if (run_dir / RUN_INFO).is_file():
-        read_run_info(run_dir)  # an error naming run.json unless it is an aigem run's
+        read_record(run_dir)  # an error naming run.json unless it is an aigem run's
     if (run_dir / RUN_INFO).is_file() and not is_started(run_dir):
         raise NgsimOutputError(
             run_dir,
@@ -239,11 +232,11 @@ def check_fresh_out(run_dir: Path) -> None:
 # `evaluate`: a finished run, and the build to evaluate on.
 
 
-def resolve_build(info: dict[str, Any], data: Path | None) -> Path:
+def resolve_build(info: RunInfo, data: Path | None) -> Path:
     """The build to evaluate on: `data`, else the run's own (the absolute path recorded by fit)."""
     if data is not None:
         return data
-    recorded = Path(info["build_dir"])
+    recorded = info.build.build_dir
     if not (recorded / MANIFEST_NAME).is_file():
         raise NgsimInputError(
             recorded, "the run's build is gone (or unfinished); pass --data to name it"
@@ -262,7 +255,7 @@ def opened_build(build_dir: Path, opened: dict[Path, OpenBuild] | None) -> OpenB
 
 
 def check_build(
-    info: dict[str, Any],
+    info: RunInfo,
     build_dir: Path,
     run_dir: Path,
     model: ModelConfig,
@@ -274,14 +267,14 @@ def check_build(
     and, even then, one whose time step or history and future lengths do not fit the run's model
     and horizon. `opened`: the builds opened so far (opened_build)."""
     manifest, identity = build_identity(build_dir)
-    why = identity_difference(info, identity, manifest.settings())
+    why = identity_difference(info.build, identity, manifest.settings())
     if why and not other_build:
         raise NgsimInputError(
             build_dir,
             f"not the build that run {run_dir} was trained on ({why}); {refusal}",
         )
     config = opened_build(build_dir, opened).config
-    time_step_s = float(info["build_config"].get("time_step_s", math.nan))
+    time_step_s = info.build.time_step_s
     if not math.isclose(config.time_step_s, time_step_s):
         raise NgsimInputError(
             build_dir,
@@ -295,7 +288,7 @@ def check_build(
             f"GAT for each of {', '.join(model.edge_types)}",
         )
     try:
-        steps = horizon_steps(info["train"]["horizon_s"], time_step_s)
+        steps = horizon_steps(info.train.horizon_s, time_step_s)
     except ValueError as err:
         raise NgsimInputError(run_dir / RUN_INFO, f"its horizon cannot be scored: {err}") from None
     if config.history_steps < model.history_steps_read or config.future_steps < steps:
@@ -319,19 +312,18 @@ def check_evaluate(
     refuse_paper_folder_as_run(run_dir)
     recorded, opened = [], {}
     for member in read_group(run_dir).members:
-        info = read_run_info(member)
+        info = read_record(member).info
         if not (member / BEST).is_file():
             raise NgsimInputError(
                 member, f"not a finished run: no {BEST} (no epoch has finished yet)"
             )
         build = resolve_build(info, build_dir)
-        model = model_config(info, member / RUN_INFO)
-        check_build(info, build, member, model, other_build, opened=opened)
+        check_build(info, build, member, info.model, other_build, opened=opened)
         if int(opened_build(build, opened).manifest.splits.get(Split(split).value, 0)) == 0:
             raise NgsimInputError(
                 build, f"its {Split(split).value} split is empty: nothing to evaluate"
             )
-        recorded.append(Member(member, model, info["scaler"], build))
+        recorded.append(Member(member, info.model, info.build.scaler, build))
     check_one_fit(run_dir, recorded)
 
 

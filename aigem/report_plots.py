@@ -43,7 +43,8 @@ from aigem.figure_parts import (
 from aigem.paper_folder import PAPER_D_MIN_M
 from aigem.plots import REGION_TITLES, TRAIN_STYLE, VALIDATION_STYLE
 from aigem.report_cells import Cell
-from aigem.report_text import data_mark, seeds_words
+from aigem.report_tables import data_mark
+from aigem.report_text import seeds_words
 from ngsim_graphs.palette import AIGEM, CONSTANT_VELOCITY, OTHER_SETTINGS, REGION_SHADES
 from ngsim_graphs.plotting import mark_synthetic
 

@@ -26,13 +26,12 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import torch
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
-from aigem import engine, ensemble, runs
+from aigem import engine, ensemble
 from aigem.batch import Batch
 from aigem.config import TrainConfig
 from aigem.cores import ThreadChooser
@@ -40,6 +39,7 @@ from aigem.data import check_covered
 from aigem.engine import DeviceData, Replays, StaticBatch
 from aigem.ensemble import Ensemble
 from aigem.model import AiGem
+from aigem.records import RunInfo, RunState
 from aigem.schedule import learning_rate_at, set_learning_rate
 from ngsim_graphs.scaling import MinMaxScaler
 
@@ -85,8 +85,8 @@ class Member:
     steps: int  # future steps predicted and scored
     model: AiGem
     optimizer: torch.optim.Optimizer
-    info: dict[str, Any]  # what its checkpoints carry
-    state: runs.RunState
+    info: RunInfo  # what its checkpoints carry
+    state: RunState
     who: str  # how errors name it: "" when it trains alone
     stopped: str | None  # why it trains no more: epochs, early stopping, time limit
     rng: RngState | None = None  # its dropout stream, between its steps

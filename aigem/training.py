@@ -32,6 +32,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from aigem import capacity, engine, runs
 from aigem.baseline import record_baselines
+from aigem.checkpoints import check_logs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.cores import ThreadChooser, default_workers
 from aigem.data import Collate, GraphDataset
@@ -41,7 +42,7 @@ from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
 from aigem.loading import load_split
 from aigem.model import AiGem, count_parameters
 from aigem.processes import EndWithParent, compile_in_process, release_workers
-from aigem.records import Group, planned_group
+from aigem.records import Group, RunState, planned_group
 from aigem.refusals import check_splits, model_of_build
 from aigem.resident import fits
 from aigem.trainers import Loop, Member
@@ -184,7 +185,7 @@ def _start_members(
     for horizon_s in group.horizons_s:
         replace(train, horizon_s=horizon_s).horizon_steps(time_step_s)
     if resume:
-        runs.check_logs(group)  # every model's, before any is resumed
+        check_logs(group)  # every model's, before any is resumed
     runs.start_group(group, resume, loop.rank == 0)
     plans = [
         (d, replace(train, horizon_s=h), resume and (d / runs.LAST).is_file(), group.who(d))
@@ -226,7 +227,7 @@ def _start_members(
     return members
 
 
-def _done_before(state: runs.RunState, train: TrainConfig) -> str | None:
+def _done_before(state: RunState, train: TrainConfig) -> str | None:
     """Why a resumed model has nothing left to train (None: it trains on)."""
     if state.next_epoch >= train.epochs:
         return "epochs"

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from aigem.records import (
     EARLY_FILES,
+    FIT_LOG,
     HORIZONS,
     LAST,
     RUN_FILES,
@@ -19,7 +20,7 @@ from aigem.records import (
     STARTED_LINE,
     member_dir,
     read_horizons,
-    read_run_info,
+    read_record,
 )
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.partial_files import create_exclusive, partial_of, write_failure
@@ -52,7 +53,7 @@ def unfinished_start(run_dir: Path) -> bool:
             return False
     if (run_dir / RUN_INFO).exists():
         try:
-            read_run_info(run_dir)
+            read_record(run_dir)
         except NgsimInputError:
             return False
     return True
@@ -61,14 +62,14 @@ def unfinished_start(run_dir: Path) -> bool:
 def unfinished_group(run_dir: Path, horizons_s: tuple[float, ...]) -> bool:
     """Whether `run_dir` is, beyond doubt, what a multi-horizon fit of `horizons_s` left before
     any model kept a checkpoint: fit's marker, its horizons.json (if written yet, a regular file
-    of these horizons), and member folders each empty or `unfinished_start`."""
+    of these horizons), its log, and member folders each empty or `unfinished_start`."""
     if not is_started(run_dir):
         return False
     members = {member_dir(run_dir, h).name for h in horizons_s}
     for entry in run_dir.iterdir():
         if entry.name == STARTED or partial_of(entry.name) == HORIZONS:
             continue
-        if entry.name == HORIZONS:
+        if entry.name in (HORIZONS, FIT_LOG):
             if not _regular_file(entry):
                 return False
             continue

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import torch
 
-from aigem import records, runs
+from aigem import run_log, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.devices import pick_device
 from aigem.pictures import describe_build
@@ -105,12 +105,13 @@ class Outcome:
 
 
 def outcome(setting: str, run_dir: Path, train_graphs: int, target_m2: float) -> Outcome:
-    rows = runs.read_metrics(run_dir)
-    val = [row["val_loss_m2"] for row in rows]
+    rows = run_log.read_metrics(run_dir)
+    val = [row.val_loss_m2 for row in rows]
     seconds, graphs, total_s, total_graphs = [], [], 0.0, 0
     for row in rows:
-        total_s += row["train_seconds"] + row["val_seconds"]
-        total_graphs += row.get("train_graphs", train_graphs)  # a time limit may cut an epoch
+        total_s += row.train_seconds + row.val_seconds
+        # a time limit may cut an epoch; a row of an older aigem does not say
+        total_graphs += row.train_graphs if row.train_graphs is not None else train_graphs
         seconds.append(round(total_s, 1))
         graphs.append(total_graphs)
     reached = next((i for i, v in enumerate(val, start=1) if v <= target_m2), None)
@@ -120,14 +121,13 @@ def outcome(setting: str, run_dir: Path, train_graphs: int, target_m2: float) ->
 def _finished(run_dir: Path, train: TrainConfig, train_graphs: int) -> bool:
     """Whether the setting's run has all its epochs, or was stopped by the time limit (its last
     epoch cut short, or the logged time over the limit)."""
-    rows = runs.read_metrics(run_dir)
+    rows = run_log.read_metrics(run_dir)
     if not rows or not (run_dir / runs.LAST).is_file():
         return False
-    cut = rows[-1].get("train_graphs", train_graphs) < train_graphs
-    logged_s = sum(r["train_seconds"] + r["val_seconds"] for r in rows)
-    return (
-        rows[-1]["epoch"] >= train.epochs or cut or logged_s >= 60 * (train.max_minutes or math.inf)
-    )
+    last = rows[-1]
+    cut = last.train_graphs is not None and last.train_graphs < train_graphs
+    logged_s = sum(r.train_seconds + r.val_seconds for r in rows)
+    return last.epoch >= train.epochs or cut or logged_s >= 60 * (train.max_minutes or math.inf)
 
 
 def run_dir_of(out: Path, setting: str) -> Path:
@@ -224,7 +224,7 @@ def main() -> None:
             f"last {item['last_val_m2']:.3f}  target: {reached}\n    val MSE by epoch: {curve}",
             flush=True,
         )
-    baseline = records.read_baseline(run_dir_of(args.out, settings[0]))
+    baseline = run_log.read_baseline(run_dir_of(args.out, settings[0]))
     model = f"the {args.horizon_s:g} s model"
     title = f"validation MSE of {model} on {device}; {describe_build(args.build)}"
     draw(outcomes, args.target_m2, baseline, title, args.out / "accuracy.png")

@@ -99,6 +99,11 @@ def run_build_process(input_path: Path, out: Path, timeout_s: float = TIMEOUT_S)
     return RunResult(code, stdout.decode(errors="replace"), stderr.decode(errors="replace"))
 
 
+# A progress line off a terminal (cli.progress.PlainProgress after logs.TIMESTAMP):
+# '2026-11-29 07:55:47 reading input files: 1/1 (100%), 0:00:00 elapsed'.
+PROGRESS_LINE = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d [^:]+: [\d,]+/[\d,]+ \(\d+%\), ")
+
+
 def _lines(text: str) -> list[str]:
     return [line for line in text.splitlines() if line.strip()]
 
@@ -164,7 +169,9 @@ def check_success(run: RunResult, out: Path, data: bytes, fmt: str) -> list[str]
     except NgsimInputError as err:
         return [f"its manifest cannot be read: {err}"]
     problems = [
-        f"stderr line {line!r}" for line in _lines(run.stderr) if not line.startswith("warning: ")
+        f"stderr line {line!r}"
+        for line in _lines(run.stderr)
+        if not line.startswith("warning: ") and not PROGRESS_LINE.match(line)
     ]
     if run.stdout.count("\n") == 0:
         problems.append("nothing on stdout")

@@ -171,12 +171,14 @@ def fit_with_sampling(stages: Stages, command: list[str]) -> float | None:
 def epoch_seconds(run: Path) -> tuple[float, int] | None:
     """(train + validation seconds of an epoch, the epoch's train graphs) of a five-horizon run,
     the mean over its epochs after the first (which captures the steps), or its first."""
-    rows = [json.loads(line) for line in (run / "h5s" / "metrics.jsonl").read_text().splitlines()]
+    from aigem.run_log import read_metrics
+
+    rows = read_metrics(run / "h5s")
     if not rows:
         return None
     later = rows[1:] or rows
-    seconds = sum(row["train_seconds"] + row["val_seconds"] for row in later) / len(later)
-    return seconds, int(rows[0]["train_graphs"])
+    seconds = sum(row.train_seconds + row.val_seconds for row in later) / len(later)
+    return seconds, rows[0].train_graphs
 
 
 def evaluate_rate(run: Path, device: str) -> tuple[float, float] | None:
@@ -333,9 +335,10 @@ def main() -> None:
                          "--device", args.device, *jobs], 0.9)  # fmt: skip
     estimate = paper_estimate(paper, args.epochs)
     measured["paper_minutes"] = estimate["minutes"] if estimate else None
-    baseline = run / "h5s" / "baseline.json"
-    if args.accuracy_epochs > 0 and baseline.is_file():
-        target = json.loads(baseline.read_text())["constant_velocity_val_loss_m2"]
+    from aigem.run_log import read_baseline
+
+    target = read_baseline(run / "h5s")
+    if args.accuracy_epochs > 0 and target is not None:
         settings = [part for setting in ACCURACY_SETTINGS for part in ("--setting", setting)]
         stages.run("accuracy", [sys.executable, str(Path(__file__).parent / "bench_accuracy.py"),
                                 str(build), "--out", str(args.out / "accuracy"), *settings,

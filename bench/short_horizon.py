@@ -32,11 +32,11 @@ import torch
 from torch.utils.data import DataLoader
 
 from aigem.baseline import constant_velocity
+from aigem.checkpoints import load_model
 from aigem.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
 from aigem.model import AiGem
 from aigem.records import BEST
 from aigem.refusals import resolve_build
-from aigem.runs import load_model
 from ngsim_graphs.scaling import FEATURES, MinMaxScaler
 
 FIRST_STEPS = 5  # 0.2 s .. 1 s
@@ -120,7 +120,7 @@ class Report:
 
 def report(run: Path, split: str) -> Report:
     model, info = load_model(run, "cpu")
-    scaler = run_scaler(info["scaler"], run / BEST)
+    scaler = run_scaler(info.build.scaler, run / BEST)
     build = resolve_build(info, None)
     scored, fitted = (targets_of(model, scaler, build, name) for name in (split, "val"))
     occupied = {}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from rich.table import Table
 
-from ngsim_cli.console import counted, print_table, stderr, stdout
+from ngsim_cli.console import counted, print_line, print_table, print_warning, stdout
 from ngsim_cli.stats_view import SPLIT_NAMES
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.pipeline import BuildResult
@@ -16,12 +16,7 @@ from ngsim_graphs.sources.registry import drop_descriptions, label
 def print_build_report(result: BuildResult) -> None:
     """The build's report on stdout (its warnings on stderr)."""
     for skipped in result.skipped_files:
-        stderr.print(
-            f"skipped (not {label(result.manifest.dataset)}): {skipped}",
-            markup=False,
-            highlight=False,
-            soft_wrap=True,
-        )
+        print_line(f"skipped (not {label(result.manifest.dataset)}): {skipped}")
     print_table(_summary_table(result))
     counts, splits = result.manifest.counts, result.manifest.splits
     stdout.print(
@@ -44,7 +39,7 @@ def print_build_report(result: BuildResult) -> None:
             soft_wrap=True,
         )
     for warning in result.warnings:
-        stderr.print(f"warning: {warning}", markup=False, highlight=False, soft_wrap=True)
+        print_warning(warning)
     shares = " / ".join(
         f"{splits.get(name, 0) / max(1, counts.samples):.0%}" for name in SPLIT_NAMES
     )

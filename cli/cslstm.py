@@ -8,14 +8,9 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ngsim_cli.console import (
-    counted,
-    exit_on_error,
-    exit_on_interrupt,
-    print_table,
-    progress_bar,
-    stdout,
-)
+from ngsim_cli.console import counted, print_table, stdout
+from ngsim_cli.exits import exit_on_error, exit_on_interrupt
+from ngsim_cli.progress import progress_bar
 from ngsim_graphs.cslstm import SPLIT_NAMES as SPLITS
 
 

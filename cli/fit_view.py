@@ -8,17 +8,21 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from ngsim_cli.console import counted, exit_on_error, progress_line, stderr, stdout
+from ngsim_cli.console import counted, print_line, stdout
+from ngsim_cli.exits import exit_on_error
+from ngsim_cli.progress import progress_line
 
 if TYPE_CHECKING:
     from aigem.records import Group
+    from aigem.run_log import EpochRow
     from aigem.training import FitResult
 
 
 def discard_if_nothing_kept(group: Group, created: bool) -> list[int]:
     """Each model's epochs kept in the run `group` (its last checkpoint's); with none, a fit that
     stopped (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
-    from aigem.runs import discard_unfinished, epochs_kept
+    from aigem.checkpoints import epochs_kept
+    from aigem.runs import discard_unfinished
 
     kept = [epochs_kept(member) if member.is_dir() else 0 for member in group.members]
     if not any(kept):
@@ -48,7 +52,7 @@ def interrupted(group: Group, created: bool) -> typer.Exit:
 
 
 def say(message: str) -> None:
-    stderr.print(message, markup=False, highlight=False, soft_wrap=True)
+    print_line(message)
 
 
 # Why a model stopped (FitResult.stopped_because), as the summary says it.
@@ -89,12 +93,12 @@ def running_losses(losses: tuple[float, ...]) -> str:
     return f"loss {shown} m²"
 
 
-def print_epoch(row: dict[str, float], who: str = "") -> None:
+def print_epoch(row: EpochRow, who: str = "") -> None:
     """One line per epoch on stderr (after its time in a log: progress_line), so that a log of
     a long run shows its course; `who`: the model's words before it ("1 s model, ")."""
-    best = " (best)" if row["best_epoch"] == row["epoch"] else ""
+    best = " (best)" if row.best_epoch == row.epoch else ""
     progress_line(
-        f"{who}epoch {row['epoch']}: train MSE {row['train_loss_m2']:.3f} m², validation MSE "
-        f"{row['val_loss_m2']:.3f} m²{best}; {row['train_seconds']:.0f} s training at "
-        f"{row['train_graphs_per_s']:,.0f} graphs/s, {row['val_seconds']:.0f} s validation"
+        f"{who}epoch {row.epoch}: train MSE {row.train_loss_m2:.3f} m², validation MSE "
+        f"{row.val_loss_m2:.3f} m²{best}; {row.train_seconds:.0f} s training at "
+        f"{row.train_graphs_per_s:,.0f} graphs/s, {row.val_seconds:.0f} s validation"
     )

@@ -3,30 +3,27 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from aigem.config import DeviceChoice
-from aigem.paper_folder import PAPER_EPOCHS
-from ngsim_cli.console import (
-    check_device,
-    exit_on_error,
-    exit_on_interrupt,
-    in_option_words,
-    option_names,
-    print_error,
-    print_warning,
-    progress_bar,
-    stdout,
-    usage_error,
-)
+from aigem.paper_folder import PAPER_EPOCHS, PAPER_JSON, PAPER_LOG
+from ngsim_cli.command_line import option_names, option_values, usage_error
+from ngsim_cli.console import print_error, print_warning, stdout
+from ngsim_cli.exits import check_device, exit_on_error, exit_on_interrupt
 from ngsim_cli.fit_view import print_epoch
+from ngsim_cli.logs import command_log
+
+if TYPE_CHECKING:
+    from aigem.paper_folder import PaperConfig
+    from aigem.paper_plan import PaperCall
+from ngsim_cli.progress import progress_bar
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
 # PaperConfig's and PaperCall's fields set by an option (of another name: --patience)
 PAPER_OPTIONS = option_names(
-    ("epochs", "patience_epochs", "seed", "batch_size", "max_hours", "seeds"),
+    ("epochs", "patience_epochs", "seed", "batch_size", "max_hours", "seeds", "threads", "jobs"),
     {"patience_epochs": "--patience"},
 )
 
@@ -46,15 +43,13 @@ def paper(
         ),
     ],
     epochs: Annotated[
-        int, typer.Option(min=1, help=f"Epochs of each model (the paper's: {PAPER_EPOCHS}).")
+        int, typer.Option(help=f"Epochs of each model (the paper's: {PAPER_EPOCHS}).")
     ] = PAPER_EPOCHS,
     patience: Annotated[
         int | None,
-        typer.Option(
-            min=1, help="Stop a model after this many epochs without a better validation loss."
-        ),
+        typer.Option(help="Stop a model after this many epochs without a better validation loss."),
     ] = None,
-    batch_size: Annotated[int, typer.Option(min=1, help="Graphs (samples) per batch.")] = 32,
+    batch_size: Annotated[int, typer.Option(help="Graphs (samples) per batch.")] = 32,
     seed: Annotated[
         int,
         typer.Option(
@@ -64,7 +59,6 @@ def paper(
     seeds: Annotated[
         int,
         typer.Option(
-            min=1,
             help="Train each fit this many times, at --seed, --seed + 1, ...: each number of the "
             "report is then the mean over the seeds with its 95 % interval, and each ablation's "
             "difference says whether it is beyond the noise. More seeds later train the new "
@@ -95,7 +89,6 @@ def paper(
     threads: Annotated[
         int | None,
         typer.Option(
-            min=1,
             help="CPU threads of the model step and the evaluations (default: the idle cores, as "
             "`aigem fit`); a number gives bit-reproducible results.",
         ),
@@ -103,7 +96,6 @@ def paper(
     jobs: Annotated[
         int | None,
         typer.Option(
-            min=1,
             help="Worker processes of the builds (default: one per core this process may use).",
             show_default=False,
         ),
@@ -146,37 +138,49 @@ def paper(
         parts = parse_parts(only)
     except ValueError as err:
         raise usage_error(f"--only {only}: {err}") from None
-    try:
+    with option_values(PAPER_OPTIONS):
         config = PaperConfig(epochs, patience, seed, batch_size)
-        plan_seeds(config, PaperCall(max_hours=max_hours, seeds=seeds))
-    except ValueError as err:
-        raise usage_error(in_option_words(str(err), PAPER_OPTIONS)) from None
+        plan_seeds(
+            config,
+            PaperCall(
+                threads=threads, max_hours=max_hours, jobs=1 if jobs is None else jobs, seeds=seeds
+            ),
+        )
     with exit_on_interrupt("nothing written"), exit_on_error():  # before PyTorch loads
         check_folder(out, paper_document(raw_paths, config), overwrite)
     left = lambda: _left(out)  # noqa: E731
     with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
         check_device(device.value)
+        import aigem.paper  # noqa: F401  (loaded here, where an interrupt is one line)
         from aigem.cores import busy_cores_warning
-        from aigem.devices import DeviceUnavailableError
-        from aigem.epochs import NonFiniteLossError
-        from aigem.paper import run_paper
-        from aigem.paper_training import TimeLimitError
         from ngsim_graphs.budget import available_cores
-    if threads is not None and (warning := busy_cores_warning(threads)):
-        print_warning(warning)
-    call = PaperCall(
-        parts, device.value, threads, max_hours, jobs or available_cores(), overwrite, seeds
-    )
-    with exit_on_interrupt(left), exit_on_error(), progress_bar() as progress:
+    # The log goes into --out once it is ours (paper.json: a new folder is claimed first).
+    with command_log(out / PAPER_LOG, lambda: (out / PAPER_JSON).is_file()):
+        if threads is not None and (warning := busy_cores_warning(threads)):
+            print_warning(warning)
+        call = PaperCall(
+            parts, device.value, threads, max_hours, jobs or available_cores(), overwrite, seeds
+        )
+        report = _run(raw_paths, out, config, call)
+    _print_summary(report, out)
+
+
+def _run(raw_paths: list[Path], out: Path, config: PaperConfig, call: PaperCall) -> dict:
+    """run_paper with a progress bar and a line per epoch; its report.json document."""
+    from aigem.devices import DeviceUnavailableError
+    from aigem.epochs import NonFiniteLossError
+    from aigem.paper import run_paper
+    from aigem.paper_training import TimeLimitError
+
+    with exit_on_interrupt(lambda: _left(out)), exit_on_error(), progress_bar() as progress:
         try:
             on_epoch = lambda fit, horizon_s, row: print_epoch(
                 row, f"{fit}, {horizon_s:g} s model, "
             )
-            result = run_paper(raw_paths, out, config, call, progress, on_epoch)
+            return run_paper(raw_paths, out, config, call, progress, on_epoch).report
         except (NonFiniteLossError, DeviceUnavailableError, TimeLimitError) as err:
             print_error(str(err))
             raise typer.Exit(1) from None
-    _print_summary(result.report, out)
 
 
 def _left(out: Path) -> str:
@@ -193,7 +197,8 @@ def _print_summary(report: dict, out: Path) -> None:
     """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
     left a fit unfinished, that the report is unfinished (last)."""
     from aigem.report_cells import SECONDS, shown
-    from aigem.report_text import UNFINISHED, data_mark
+    from aigem.report_tables import data_mark
+    from aigem.report_text import UNFINISHED
 
     mark = data_mark(report)
     kind = f" ({mark} data: not comparable to the paper's NGSIM numbers)" if mark else ""

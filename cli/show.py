@@ -8,8 +8,11 @@ from typing import TYPE_CHECKING, Annotated
 import numpy as np
 import typer
 
-from ngsim_cli.console import counted, exit_on_error, stdout, usage_error
+from ngsim_cli.command_line import option_values, usage_error
+from ngsim_cli.console import counted, stdout
+from ngsim_cli.exits import exit_on_error
 from ngsim_graphs.build import open_build
+from ngsim_graphs.config import check_count
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.schema import Split
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL, synthetic_build
@@ -93,7 +96,7 @@ def show(
             "prediction and constant velocity's (a multi-horizon run's longest-horizon model).",
         ),
     ] = None,
-    columns: Annotated[int, typer.Option(min=1, help="Panels per row.")] = 2,
+    columns: Annotated[int, typer.Option(help="Panels per row.")] = 2,
     overwrite: Annotated[bool, typer.Option(help="Replace --out if it exists.")] = False,
 ) -> None:
     """Draw samples as one PNG, a panel per sample, in the sample frame seen from above (metres,
@@ -105,6 +108,8 @@ def show(
     START:END draws one ego per panel: the first sample of each ego from START on (consecutive
     samples are often one ego's windows).
     """
+    with option_values({"columns": "--columns"}):
+        check_count("columns", columns, 1)
     from ngsim_graphs.scenes import MAX_PANELS, one_per_ego, scene_titles, write_scenes
 
     start, end = _scene_range(sample, MAX_PANELS)

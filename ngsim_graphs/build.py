@@ -210,11 +210,12 @@ def verify_build(
     root: str | os.PathLike[str], progress: Callable[[str, int, int], None] | None = None
 ) -> Verification:
     """Read every file of a build and compare it with the manifest's checksums (and the manifest
-    with its own); name every file the manifest does not list and every symbolic link. Unlike
+    with its own); name every file the manifest does not list (but its log, layout.BUILD_LOG)
+    and every symbolic link. Unlike
     `open_build`, which samples large files, this reads it all."""
     root = Path(root)
     records = layout.read_manifest(root).files
     problems = integrity.verify_files(root, records, layout.manifest_path(root), progress)
-    problems += integrity.stray_entries(root, records, own=(layout.MANIFEST_NAME,))
+    problems += integrity.stray_entries(root, records, own=(layout.MANIFEST_NAME, layout.BUILD_LOG))
     size = sum(record["bytes"] for record in records.values())
     return Verification(files=len(records), bytes=size, problems=tuple(problems))

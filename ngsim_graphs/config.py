@@ -12,6 +12,11 @@ from ngsim_graphs.schema import Protocol, RawFormat, SplitMode
 
 DEFAULT_EDGE_TYPES = ("spatial", "temporal")  # the paper's: what a build of no edge_types has
 MAX_SEED = 2**32 - 1  # NumPy's and PyTorch's seeds lie in [0, 2**32 - 1]
+# The most threads or worker processes an option may ask for (--threads, --workers, --jobs): more
+# than the largest machines' cores (some 800 hardware threads), far below what would fill the
+# process table or overflow the C int of torch.set_num_threads. Fixed, not the cores of this
+# machine: a run records its settings, and another machine reads them back.
+MAX_PARALLEL = 1024
 
 
 # The checks of every numeric setting, in one place: a config's __post_init__ calls them, so that
@@ -30,6 +35,14 @@ def check_above(name: str, value: float, low: float) -> None:
     """ValueError unless `value` is a finite number > `low`."""
     if not (math.isfinite(value) and value > low):
         raise ValueError(f"{name} must be a finite number > {low:g}, not {value:g}")
+
+
+def check_count(name: str, value: int, low: int, high: int | None = None) -> None:
+    """ValueError unless the whole number `value` is >= `low` and, where given, <= `high`."""
+    if value < low:
+        raise ValueError(f"{name} must be >= {low}")
+    if high is not None and value > high:
+        raise ValueError(f"{name} must be <= {high}")
 
 
 def check_seed(name: str, seed: int) -> None:

@@ -21,7 +21,7 @@ from pathlib import Path, PurePosixPath
 from ngsim_graphs import integrity
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.interrupts import interrupts_held
-from ngsim_graphs.layout import MANIFEST_NAME, STAGING_DIR, manifest_path
+from ngsim_graphs.layout import BUILD_LOG, MANIFEST_NAME, STAGING_DIR, manifest_path
 from ngsim_graphs.lock import partial_path, release_lock, retired_path, take_lock
 from ngsim_graphs.storage import os_errno
 
@@ -97,9 +97,9 @@ def json_object(path: Path) -> dict | None:
 
 
 def finished_build_files(out: Path) -> set[str] | None:
-    """The files of the finished build in `out` (POSIX paths relative to it, its manifest
-    included), or None where `out` holds none: no manifest, or one that is not JSON or does not
-    match its own checksum and config hash (so not written by a build, or edited since)."""
+    """The files of the finished build in `out` (POSIX paths relative to it, its manifest and its
+    log included), or None where `out` holds none: no manifest, or one that is not JSON or does
+    not match its own checksum and config hash (so not written by a build, or edited since)."""
     path = manifest_path(out)
     manifest = json_object(path)
     if manifest is None or not isinstance(manifest.get(integrity.FILES_KEY), dict):
@@ -108,7 +108,7 @@ def finished_build_files(out: Path) -> set[str] | None:
         integrity.check_manifest(manifest, path)
     except (ValueError, TypeError):  # NgsimInputError is a ValueError
         return None
-    return {MANIFEST_NAME, *manifest[integrity.FILES_KEY]}
+    return {MANIFEST_NAME, BUILD_LOG, *manifest[integrity.FILES_KEY]}
 
 
 def entries_beyond(out: Path, listed: set[str]) -> list[str]:

@@ -32,6 +32,10 @@ PROXIMITY_DIR = "proximity"
 SAMPLES_DIR = "samples"
 ARRAYS_DIR = "arrays"
 STAGING_DIR = "_staging"
+# `ngsim-graphs build`'s log: its stderr lines, each after its time, appended once the build has
+# landed (so not in the manifest, which is written before; a build that fails leaves none).
+# The build's own file all the same: `verify` does not name it, and --overwrite replaces it.
+BUILD_LOG = "build.log"
 SAMPLE_ARRAYS = ("recording_index", "ego_track_id", "start_step")
 
 
@@ -65,6 +69,11 @@ def sample_arrays_dir(root: Path, split: str) -> Path:
 
 def manifest_path(root: Path) -> Path:
     return root / MANIFEST_NAME
+
+
+def build_log_path(root: Path) -> Path:
+    """The build's log (BUILD_LOG), beside its manifest."""
+    return root / BUILD_LOG
 
 
 def config_hash(config: dict[str, Any], limits: dict[str, Any] | None = None) -> str:

@@ -20,8 +20,8 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
-from aigem import cores, runs
-from ngsim_cli import console
+from aigem import checkpoints, cores, run_log, runs
+from ngsim_cli import console, progress
 from ngsim_cli.aigem import app
 from ngsim_cli.ngsim import app as ngsim_app
 from ngsim_graphs import lock
@@ -210,13 +210,13 @@ def test_ctrl_c_after_an_epoch_says_what_the_run_kept(tiny_build: Path, tmp_path
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr
-    kept = runs.epochs_kept(run)
+    kept = checkpoints.epochs_kept(run)
     assert kept >= 1 and stderr.splitlines()[-1] == (
         f"interrupted after epoch {kept} (run {run} holds its checkpoint); continue with --resume"
     )
     assert not list(run.glob("*.partial*"))
     assert json.loads((run / "run.json").read_text())["train"]["epochs"] == 50
-    assert len(runs.read_metrics(run)) >= kept  # a row written before its checkpoint is redone
+    assert len(run_log.read_metrics(run)) >= kept  # a row written before its checkpoint is redone
 
 
 def test_sigterm_before_the_first_epoch_keeps_nothing(tiny_build: Path, tmp_path: Path) -> None:
@@ -367,8 +367,8 @@ def test_a_fit_killed_at_any_point_resumes_to_the_uninterrupted_run(
     for name in (runs.BEST, runs.LAST):
         one, other = weights(straight, name), weights(killed, name)
         assert one.keys() == other.keys() and all(one[k].equal(other[k]) for k in one)
-    rows = lambda run: [{k: r[k] for k in ("epoch", "train_loss_m2", "val_loss_m2")}
-                        for r in runs.read_metrics(run)]  # fmt: skip
+    rows = lambda run: [(r.epoch, r.train_loss_m2, r.val_loss_m2)
+                        for r in run_log.read_metrics(run)]  # fmt: skip
     assert rows(killed) == rows(straight) and len(rows(straight)) == 2
     assert sorted(p.name for p in killed.iterdir()) == sorted(p.name for p in straight.iterdir())
 
@@ -379,7 +379,7 @@ def torch_load(path: Path) -> dict:
     return torch.load(path, map_location="cpu", weights_only=True)
 
 
-STAMP = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d "  # console.TIMESTAMP's
+STAMP = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d "  # progress.TIMESTAMP's
 MSE = r"\d+\.\d{3} m²"
 
 
@@ -389,7 +389,7 @@ def test_fit_and_evaluate_into_a_log_print_each_epoch_and_the_end_after_its_time
     """stderr is not a terminal here (a log): each line after its wall-clock time; each epoch's
     train and validation loss, and the run's end (the lines every PLAIN_PROGRESS_INTERVAL_S
     within it set out of reach here), once, with the last epoch's mean loss."""
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
+    monkeypatch.setattr(progress, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     run = tmp_path / "run"
     args = ["fit", str(tiny_build), "--out", str(run), *FIT, "--epochs", "2"]
     fit = CliRunner().invoke(app, args)
@@ -419,7 +419,7 @@ def test_plain_lines_at_every_batch_repeat_no_count_and_no_earlier_epochs_loss(
 ) -> None:
     """With the interval 0 a line at every batch, none twice; a line of epoch 2 never shows
     epoch 1's loss (the running loss before epoch 2's first is read shows none)."""
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
+    monkeypatch.setattr(progress, "PLAIN_PROGRESS_INTERVAL_S", 0.0)
     run = tmp_path / "run"
     args = ["fit", str(tiny_build), "--out", str(run), *FIT, "--epochs", "2"]
     fit = CliRunner().invoke(app, args)

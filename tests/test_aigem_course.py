@@ -8,12 +8,15 @@ import json
 import re
 import shlex
 import shutil
+from dataclasses import fields, replace
 from pathlib import Path
 
 import pytest
+import typer
 from typer.testing import CliRunner
 
-from aigem import plots, runs
+from aigem import checkpoints, plots, runs
+from aigem.config import ModelConfig, TrainConfig, fit_option, option_words
 from aigem.course import (
     EARLY_STOPPING,
     EPOCHS,
@@ -27,14 +30,15 @@ from aigem.course import (
 from aigem.evaluation import evaluate
 from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
 from aigem.records import read_group
+from aigem.run_log import EpochRow
 from ngsim_cli.aigem import app
 from ngsim_graphs.errors import NgsimInputError
 
-ROW = {"train_loss_m2": 1.0, "val_loss_m2": 1.0}
+ROW = EpochRow(epoch=1, train_loss_m2=1.0, val_loss_m2=1.0, best_epoch=1)
 
 
 def test_why_a_model_stopped_by_hand() -> None:
-    rows = [ROW | {"epoch": 1, "best_epoch": 1}, ROW | {"epoch": 2, "best_epoch": 1}]
+    rows = [ROW, replace(ROW, epoch=2)]
     assert stop_reason(3, 3, rows, None) == EPOCHS
     assert stop_reason(2, 5, rows, 1) == EARLY_STOPPING  # one epoch without a better loss
     assert stop_reason(2, 5, rows, 2) == UNFINISHED
@@ -69,6 +73,42 @@ def test_the_resume_command_repeats_the_settings_a_resume_needs(
         "--batch-size 8 --seed 3 --epochs 1 --resume"
     )
     assert course_of(tiny_horizons_run / "h2s") == Course(1, 1, 1, EPOCHS)
+
+
+def test_every_option_of_the_configs_mapping_is_one_of_fit() -> None:
+    """config.fit_option, the one mapping of the configs' fields to `aigem fit`'s options, names
+    only options fit has, for a value of each field's type; the CLI's messages name the same."""
+    command = typer.main.get_command(app).commands["fit"]
+    options = {name for p in command.params for name in (*p.opts, *p.secondary_opts)}
+    said = set(option_words().values())
+    for config in (TrainConfig, ModelConfig):
+        for field in fields(config):
+            values = (True, False) if "bool" in str(field.type) else (2,)
+            said |= {w for v in values for w in fit_option(field.name, v) if w.startswith("--")}
+    assert said and said <= options, said - options
+    assert fit_option("hidden", 32) == [] and fit_option("concat_position", True) == []
+
+
+def test_the_resume_command_says_every_setting_a_resume_must_repeat(
+    tiny_run: Path, tiny_build: Path, tmp_path: Path
+) -> None:
+    """Each setting of the model and of RESUME_FIXED that is not its default, by its option
+    (config.fit_option); the command parses as fit's options."""
+    run = Path(shutil.copytree(tiny_run, tmp_path / "run"))
+    document = json.loads((run / "run.json").read_text())
+    document["train"] |= {"learning_rate": 0.002, "lr_schedule": "cosine", "warmup_epochs": 0.5,
+                          "clip_grad_norm": 5.0, "patience_epochs": 4, "threads": 1}  # fmt: skip
+    document["model"] |= {"concat_position": False, "cv_residual": True, "hidden": 32}
+    (run / "run.json").write_text(json.dumps(document))
+    command = resume_command(read_group(run))
+    assert command == (
+        f"aigem fit {tiny_build.resolve()} --out {run.resolve()} --horizon-s 2 --batch-size 8 "
+        "--learning-rate 0.002 --lr-schedule cosine --warmup-epochs 0.5 --clip-grad-norm 5 "
+        "--seed 3 --no-concat --cv-residual --epochs 1 --resume"
+    )  # the patience and threads may change, the width no option sets
+    fit = typer.main.get_command(app).commands["fit"]
+    parsed = fit.make_context("fit", shlex.split(command)[2:]).params
+    assert parsed["cv_residual"] and parsed["no_concat"] and parsed["clip_grad_norm"] == 5.0
 
 
 def _invoke(*args: str) -> tuple[int, str, str]:
@@ -213,8 +253,8 @@ def test_a_log_with_a_hole_is_refused_and_one_ahead_is_not(
         "epoch 2: the log lost lines or was edited"
     )
     with pytest.raises(NgsimInputError, match=f"^{re.escape(message)}"):
-        runs.load_model(run)  # evaluate, show --run, a user's load_model
+        checkpoints.load_model(run)  # evaluate, show --run, a user's load_model
     with pytest.raises(NgsimInputError, match=f"^{re.escape(message)}"):
         _member_progress(run, PaperConfig(epochs=2))  # aigem paper, on a model it reuses
-    runs.check_log(_log_edited(two_epoch_run, tmp_path / "ahead", [1, 2, 3]), 2)
-    runs.check_log(two_epoch_run, 2)
+    checkpoints.check_log(_log_edited(two_epoch_run, tmp_path / "ahead", [1, 2, 3]), 2)
+    checkpoints.check_log(two_epoch_run, 2)

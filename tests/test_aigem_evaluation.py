@@ -15,7 +15,7 @@ import torch
 from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
-from aigem import runs
+from aigem import checkpoints, records, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
 from aigem.ensemble import Ensemble
@@ -107,7 +107,7 @@ def test_another_build_is_scaled_with_the_runs_scaler(
     assert other.model == own.model and other.constant_velocity == own.constant_velocity
     assert not other.same_build and own.same_build
     # The override matters: the edited build's own scaler gives other predictions.
-    model, _ = runs.load_model(trained_run)
+    model, _ = checkpoints.load_model(trained_run)
     dataset = GraphDataset(edited, "test", model.config.history_steps_read)
     assert dataset.scaler.to_dict() == manifest["scaler"]
     totals = score_targets(model, dataset, own.horizon_steps, torch.device("cpu")).model
@@ -209,8 +209,8 @@ def test_per_step_curves_and_final_errors_agree_with_the_table(trained_run: Path
 def test_each_final_error_is_tied_to_its_own_sample(trained_run: Path) -> None:
     """A batch holds its graphs by recording, not in index order: the sample of each final error
     is the same whether the samples come one by one or in batches of any size."""
-    model, _ = runs.load_model(trained_run)
-    dataset = GraphDataset(runs.read_run_info(trained_run)["build_dir"], "test", 5)
+    model, info = checkpoints.load_model(trained_run)
+    dataset = GraphDataset(info.build.build_dir, "test", 5)
     pairs = {}
     for batch_size in (1, 5, 64):
         final = score_targets(model, dataset, 10, torch.device("cpu"), batch_size).final
@@ -373,7 +373,7 @@ def test_a_multi_horizon_runs_non_finite_model_is_named(
     torch.save(checkpoint, run / "h2s" / runs.BEST)
     record_checkpoint(run / "h2s" / runs.BEST)  # as fit records what it keeps
     code, out, err = _evaluate(str(run))
-    build = runs.read_run_info(run / "h2s")["build_dir"]
+    build = records.read_record(run / "h2s").info.build.build_dir
     assert code == 1 and out == "" and err.count("\n") == 1
     assert err.startswith(
         f"error: {run / 'h2s' / runs.BEST}: the 2 s model's predictions on {build} (test split, "
@@ -421,8 +421,8 @@ def test_evaluate_gives_intervals_around_its_numbers(tiny_run: Path) -> None:
 def test_the_per_sample_sums_add_up_to_the_totals(trained_run: Path) -> None:
     """What the bootstrap resamples, summed over the samples, is what the rows come from (to
     float rounding; the counts exactly), and each sample counts its own targets."""
-    model, _ = runs.load_model(trained_run)
-    dataset = GraphDataset(runs.read_run_info(trained_run)["build_dir"], "test", 5)
+    model, info = checkpoints.load_model(trained_run)
+    dataset = GraphDataset(info.build.build_dir, "test", 5)
     scores = score_targets(model, dataset, 10, torch.device("cpu"), batch_size=5)
     pairs = (
         (scores.model_by_sample, scores.model),
@@ -482,7 +482,7 @@ def test_bootstrap_option(tiny_run: Path) -> None:
     """--bootstrap's default is the library's; a negative number is refused naming it."""
     import inspect
 
-    from ngsim_cli.aigem import evaluate as command
+    from ngsim_cli.evaluation import evaluate as command
 
     assert inspect.signature(command).parameters["bootstrap"].default == RESAMPLES
     code, out, err = _evaluate(str(tiny_run), "--bootstrap", "-1")

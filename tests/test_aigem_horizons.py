@@ -21,7 +21,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import epochs, runs, trainers, training
+from aigem import checkpoints, epochs, run_log, runs, trainers, training
 from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
 from aigem.ensemble import Ensemble
@@ -49,7 +49,8 @@ def fitted(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[
 
 def _rows(run_dir: Path) -> list[dict[str, float]]:
     """metrics.jsonl without the timings."""
-    return [{k: v for k, v in r.items() if k not in TIMING} for r in runs.read_metrics(run_dir)]
+    rows = run_log.read_metrics(run_dir)
+    return [{k: v for k, v in r.to_json().items() if k not in TIMING} for r in rows]
 
 
 def _weights(path: Path) -> dict[str, torch.Tensor]:
@@ -108,7 +109,7 @@ def _same_run(a: Path, b: Path) -> bool:
 
 def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
     run, out = fitted
-    assert sorted(p.name for p in run.iterdir()) == ["h1s", "h2s", runs.HORIZONS]
+    assert sorted(p.name for p in run.iterdir()) == [runs.FIT_LOG, "h1s", "h2s", runs.HORIZONS]
     assert json.loads((run / runs.HORIZONS).read_text()) == {
         "horizons_s": [1.0, 2.0],
         "members": ["h1s", "h2s"],
@@ -137,7 +138,7 @@ def test_a_member_is_the_single_horizon_fit(
     assert _close_run(run / "h1s", alone, run / "h2s")
     assert not _close_run(run / "h2s", alone, run / "h1s")  # the test tells the horizons apart
     assert (run / "h1s" / runs.RUN_INFO).read_text() == (alone / runs.RUN_INFO).read_text()
-    best = min(r["val_loss_m2"] for r in runs.read_metrics(run / "h1s"))
+    best = min(r.val_loss_m2 for r in run_log.read_metrics(run / "h1s"))
     assert result.best_val_loss_m2 == pytest.approx(best, rel=0.05)
 
 
@@ -188,7 +189,7 @@ def test_a_member_is_the_single_horizon_fit_in_float64(
         fit(tiny_build, alone, F64_MODEL, replace(F64_TRAIN, horizon_s=horizon_s), "cpu")
         _assert_the_fit_alone(run / f"h{horizon_s:g}s", alone)
     assert _distance(run / "h1s" / runs.LAST, run / "h2s" / runs.LAST) > 0.01  # they differ
-    rates = [r["learning_rate"] for r in runs.read_metrics(run / "h1s")]
+    rates = [r.learning_rate for r in run_log.read_metrics(run / "h1s")]
     assert rates[0] > 10 * rates[1] > 0  # the cosine ran to near 0 by the end
 
 
@@ -204,8 +205,8 @@ def test_a_time_limit_cuts_the_ensembles_epoch_as_a_models_alone(
     run = tmp_path / "run"
     results = fit_horizons(tiny_build, run, (1.0, 2.0), F64_MODEL, train, "cpu")
     assert [(r.stopped_because, r.epochs_done) for r in results] == [("time limit", 2)] * 2
-    first, cut = runs.read_metrics(run / "h2s")
-    assert 0 < cut["train_graphs"] < first["train_graphs"]
+    first, cut = run_log.read_metrics(run / "h2s")
+    assert 0 < cut.train_graphs < first.train_graphs
     alone = tmp_path / "alone"
     fit(tiny_build, alone, F64_MODEL, replace(train, horizon_s=2.0), "cpu")
     _assert_the_fit_alone(run / "h2s", alone)
@@ -256,11 +257,11 @@ def test_one_member_stopping_early_leaves_the_others_training(
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")
     assert (short.stopped_because, short.epochs_done, short.best_epoch) == ("early stopping", 2, 1)
     assert (long.stopped_because, long.epochs_done) == ("epochs", 3)
-    assert [r["epoch"] for r in runs.read_metrics(run / "h1s")] == [1, 2]
+    assert [r.epoch for r in run_log.read_metrics(run / "h1s")] == [1, 2]
     assert _rows(run / "h2s")[:2] == _rows(fitted[0] / "h2s")  # unaffected by the other's stop
     again = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu", resume=True)
     assert [r.stopped_because for r in again] == ["early stopping", "epochs"]  # nothing to train
-    assert [r["epoch"] for r in runs.read_metrics(run / "h1s")] == [1, 2]
+    assert [r.epoch for r in run_log.read_metrics(run / "h1s")] == [1, 2]
 
 
 def test_a_resumed_run_ends_as_an_uninterrupted_one(
@@ -315,7 +316,7 @@ def test_a_ctrl_c_at_an_epochs_end_comes_once_every_model_kept_that_epoch(
             "cpu",
             on_epoch=ctrl_c_at_the_first,
         )
-    assert [runs.epochs_kept(run / f"h{h}s") for h in (1, 2, 3)] == [1, 1, 1]
+    assert [checkpoints.epochs_kept(run / f"h{h}s") for h in (1, 2, 3)] == [1, 1, 1]
 
 
 def _alike(ours: float | None, theirs: float | None, kind: str) -> bool:

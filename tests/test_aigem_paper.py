@@ -24,9 +24,11 @@ from typer.testing import CliRunner
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from timed_runs import LINGER_S, TimedRun, aigem, run_timed
 
+from aigem.checkpoints import epochs_kept
 from aigem.paper import _evaluate, run_paper
 from aigem.paper_folder import (
     PAPER_JSON,
+    PAPER_LOG,
     REPORT_JSON,
     PaperConfig,
     build_state,
@@ -50,7 +52,6 @@ from aigem.paper_plan import (
 from aigem.paper_training import Meter, fit_share_s, work_units
 from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
 from aigem.report_text import UNFINISHED
-from aigem.runs import epochs_kept
 from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -207,7 +208,7 @@ def test_each_seed_is_a_run_of_its_own_the_first_seeds_named_as_before(
     ]
     assert runs[2].describe() == "d_min 25 m, seed 5"
     assert plan_runs(PaperConfig(), PaperCall(parts=("table",)))[0].describe() == "d_min 25 m"
-    with pytest.raises(ValueError, match="0 seeds"):
+    with pytest.raises(ValueError, match="^seeds must be >= 1$"):
         PaperCall(seeds=0)
     out = tmp_path / "out"
     claim_folder(out, paper_document([raw], PaperConfig(epochs=2)), False, RUN_NAMES)
@@ -545,6 +546,7 @@ def test_an_interrupt_before_the_folder_is_made_claims_no_folder(
         f"interrupted; {out} keeps the finished builds and each model's last finished epoch, "
         "and no report; run the same command again to continue\n",
     )
+    assert list(out.iterdir()) == []  # no log in a folder that is not the paper's
 
 
 def test_a_build_held_to_other_limits_is_not_reused(tiny_build: Path, tmp_path: Path) -> None:
@@ -569,9 +571,9 @@ def test_the_command_into_a_log_prints_each_stage_and_each_models_epochs(
     the end of each build stage, each model's train and validation loss at each epoch's end,
     and the report (the lines every PLAIN_PROGRESS_INTERVAL_S within a stage set out of reach
     here), none twice."""
-    from ngsim_cli import console
+    from ngsim_cli import progress
 
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
+    monkeypatch.setattr(progress, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     out = tmp_path / "out"
     options = ["--only", "table", "--epochs", "1", "--batch-size", "64", "--threads", "1"]
     args = ["paper", str(tiny_raw), "--out", str(out), *options, "--jobs", "1", "--device", "cpu"]
@@ -595,6 +597,9 @@ def test_the_command_into_a_log_prints_each_stage_and_each_models_epochs(
         ), line
     assert re.fullmatch(r"evaluating d_min 25 m: (\d+)/\1 \(100%\)", said[9])  # the bar's end
     assert re.fullmatch(r"writing the report: (\d+)/\1 \(100%\)", said[10]) and len(said) == 11
+    logged = (out / PAPER_LOG).read_text().splitlines()  # the same lines, in the paper's log
+    assert all(re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d ", line) for line in logged), logged
+    assert [re.sub(r", \d:\d\d:\d\d elapsed$", "", line[20:]) for line in logged] == said
     assert (
         "AiGem RMSE at 1..5 s (m, in brackets its 95 % interval: the test-set noise): "
         in result.stdout

@@ -5,6 +5,7 @@ per target, the paper's points labelled as the paper's."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from matplotlib.colors import to_hex
 from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
-from aigem import records, runs
+from aigem import run_log, runs
 from aigem.evaluation import evaluate
 from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
 from aigem.plots import (
@@ -26,6 +27,7 @@ from aigem.plots import (
     final_error_distribution,
 )
 from aigem.results import Evaluation
+from aigem.run_log import EpochRow
 from ngsim_cli.aigem import app
 from ngsim_graphs import palette
 from ngsim_graphs.errors import NgsimOutputError
@@ -33,9 +35,9 @@ from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 ROWS = [
-    {"epoch": 1, "train_loss_m2": 9.0, "val_loss_m2": 5.0, "best_epoch": 1},
-    {"epoch": 2, "train_loss_m2": 4.0, "val_loss_m2": 3.0, "best_epoch": 2},
-    {"epoch": 3, "train_loss_m2": 2.0, "val_loss_m2": 4.0, "best_epoch": 2},
+    EpochRow(epoch=1, train_loss_m2=9.0, val_loss_m2=5.0, best_epoch=1),
+    EpochRow(epoch=2, train_loss_m2=4.0, val_loss_m2=3.0, best_epoch=2),
+    EpochRow(epoch=3, train_loss_m2=2.0, val_loss_m2=4.0, best_epoch=2),
 ]
 
 
@@ -79,11 +81,11 @@ def test_curves_draw_the_log_the_best_epoch_and_the_baseline() -> None:
 def test_curves_draw_a_scheduled_learning_rate_on_a_second_axis() -> None:
     rates = [0.5e-3, 1e-3, 0.25e-3]
     figure = curves_figure(
-        [r | {"learning_rate": v} for r, v in zip(ROWS, rates, strict=True)], None, 2.0
+        [replace(r, learning_rate=v) for r, v in zip(ROWS, rates, strict=True)], None, 2.0
     )
     assert len(figure.axes) == 2
     assert figure.axes[1].get_lines()[0].get_ydata().tolist() == rates
-    constant = [r | {"learning_rate": 1e-3} for r in ROWS]
+    constant = [replace(r, learning_rate=1e-3) for r in ROWS]
     assert len(curves_figure(constant, None, 2.0).axes) == 1  # nothing to show
     assert len(curves_figure(ROWS, None, 2.0).axes) == 1  # a run of an older aigem
 
@@ -91,8 +93,8 @@ def test_curves_draw_a_scheduled_learning_rate_on_a_second_axis() -> None:
 def test_fit_draws_each_members_curves_with_its_baseline(run: Path) -> None:
     for member in ("h1s", "h2s"):
         assert _is_png(run / member / runs.CURVES)
-        assert records.read_baseline(run / member) is not None
-    assert records.read_baseline(run / "h1s") < records.read_baseline(run / "h2s")
+        assert run_log.read_baseline(run / member) is not None
+    assert run_log.read_baseline(run / "h1s") < run_log.read_baseline(run / "h2s")
 
 
 def test_evaluation_figures_draw_the_evaluations_numbers(run: Path) -> None:

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aigem.checkpoints import load_model
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.evaluation import evaluate
 from aigem.prediction import BASELINE_LABEL, MODEL_LABEL, predict_samples, predicting_run
-from aigem.runs import load_model
 from aigem.training import fit_horizons
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig

@@ -1,5 +1,5 @@
-"""What a run records: configs read back from run info, settings a run lacks at their defaults,
-a newer aigem's setting refused in one line; baseline.json written and read back."""
+"""What a run records: run info written and read back as typed records, settings a run lacks at
+their defaults, a newer aigem's setting refused in one line, every layout of a run a group."""
 
 from __future__ import annotations
 
@@ -10,13 +10,18 @@ from pathlib import Path
 import pytest
 
 from aigem.config import ModelConfig, TrainConfig
+from aigem.provenance import BuildIdentity, BuildRecord, identity_difference
 from aigem.records import (
-    BASELINE,
-    identity_difference,
+    RUN_INFO,
+    RunState,
+    info_of,
     model_config,
-    read_baseline,
+    read_record,
+    run_info,
+    state_json,
+    state_of,
     train_config,
-    write_baseline,
+    write_record,
 )
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import config_hash, read_manifest
@@ -49,18 +54,6 @@ def test_a_recorded_value_of_another_type_or_out_of_range_is_an_error(tmp_path: 
         train_config({"train": {"epochs": 0}}, path)
 
 
-def test_baseline_round_trip(tmp_path: Path) -> None:
-    assert read_baseline(tmp_path) is None  # a run without one (an older aigem's)
-    write_baseline(tmp_path, 12.5, 25)
-    assert json.loads((tmp_path / BASELINE).read_text()) == {
-        "constant_velocity_val_loss_m2": 12.5,
-        "steps": 25,
-    }
-    assert read_baseline(tmp_path) == 12.5
-    (tmp_path / BASELINE).write_text('{"constant_velocity_val_loss_m2": true}')
-    assert read_baseline(tmp_path) is None  # damaged: only the line is missing
-
-
 def test_every_run_layout_reads_as_a_group(tiny_horizons_run: Path, tmp_path: Path) -> None:
     """read_group, the one adapter: aigem 0.1.0's run of one model is a group of one (its folder
     its member), a run of several the members its horizons.json names; a folder of neither is one
@@ -85,16 +78,14 @@ def test_a_build_of_another_config_hash_names_the_settings_that_differ() -> None
     max_frame_id in NGSIM's 10 Hz frames), and the same build made today: its hash changes, and
     the refusal says why."""
     older = read_manifest(Path(__file__).parent / "fixtures" / "build-0.1.0" / "highd")
-    run = {
-        "build_config_hash": older.config_hash,
-        "build_manifest_sha256": "a" * 64,
-        "build_config": older.settings(),  # what the run recorded: the config with its limits
-    }
+    recorded = BuildIdentity(older.config_hash, "a" * 64)
+    # what the run recorded: the config with its limits
+    run = BuildRecord(Path("/b"), recorded, 0.2, older.settings(), {})
     limits = replace(older.limits, max_frame_id=180_000)  # highD's own, today
     today = replace(
         older, limits=limits, config_hash=config_hash(older.config.to_dict(), limits.to_dict())
     )
-    identity = {"build_config_hash": today.config_hash, "build_manifest_sha256": "b" * 64}
+    identity = BuildIdentity(today.config_hash, "b" * 64)
     assert identity_difference(run, identity, today.settings()) == (
         f"its config hash {today.config_hash[:12]} is not the run's dcfa1c68089b: "
         "limits.max_frame_id 72000 -> 180000"
@@ -105,7 +96,30 @@ def test_a_build_of_another_config_hash_names_the_settings_that_differ() -> None
     assert identity_difference(run, identity, other).endswith(
         ": d_min_m 6.0 -> 25.0; limits.max_frame_id 72000 -> 180000"
     )
-    same = {**identity, "build_config_hash": older.config_hash}
+    same = replace(identity, config_hash=older.config_hash)
     assert identity_difference(run, same, older.settings()) == (
         "same config, but its manifest.json differs from the run's build (other inputs, or edited)"
     )
+
+
+def test_run_info_is_written_as_recorded_and_reads_back_typed(
+    tiny_build: Path, tmp_path: Path
+) -> None:
+    """run.json: the build's record, the configs and the digests, in INFO_KEYS' order; read back,
+    the same typed record; a checkpoint's info (the same keys but the digests) alike."""
+    info = run_info(tiny_build, ModelConfig(cv_residual=True), TrainConfig(epochs=3))
+    write_record(tmp_path, info, {"best.pt": ("a" * 64,), "last.pt": ("b" * 64, "c" * 64)})
+    document = json.loads((tmp_path / RUN_INFO).read_text())
+    assert list(document) == [
+        "build_dir", "build_config_hash", "build_manifest_sha256", "build_config", "scaler",
+        "model", "train", "checkpoint_sha256",
+    ]  # fmt: skip
+    assert document["build_dir"] == str(tiny_build.resolve()) and document["train"]["epochs"] == 3
+    assert document["checkpoint_sha256"] == {"best.pt": ["a" * 64], "last.pt": ["b" * 64, "c" * 64]}
+    record = read_record(tmp_path)
+    assert record.info == info and record.info.build.time_step_s == 0.2
+    assert record.digests == {"best.pt": ("a" * 64,), "last.pt": ("b" * 64, "c" * 64)}
+    assert info_of(info.to_json(), tmp_path / "best.pt") == info
+    state = RunState(3, 1, 0.5)
+    assert state_json(state) == {"next_epoch": 3, "best_epoch": 1, "best_val_loss": 0.5}
+    assert state_of(state_json(state), tmp_path / "last.pt") == state

@@ -16,18 +16,14 @@ from matplotlib.container import BarContainer
 from matplotlib.figure import Figure
 
 from aigem.intervals import t_975
-from aigem.report import paper_report, table1, write_report
+from aigem.report import paper_report, write_report
 from aigem.report_cells import NOISES_SAID
+from aigem.report_parts import table1
 from aigem.report_plots import CONSTANT_VELOCITY_TICK, draw_report, report_figures
-from aigem.report_text import (
-    NO_FIT_DIFFERENCE,
-    ONE_SEED,
-    TIME_HEADING,
-    UNFINISHED,
-    _table1_lines,
-    report_markdown,
-)
+from aigem.report_tables import NO_FIT_DIFFERENCE, table1_lines
+from aigem.report_text import ONE_SEED, TIME_HEADING, UNFINISHED, report_markdown
 from aigem.results import Evaluation, paper_rows
+from aigem.run_log import EpochRow
 from ngsim_graphs import palette
 
 SETTINGS = {
@@ -101,8 +97,8 @@ def fits(seeds: tuple[int, ...] = (0,)) -> dict:
 BASES = {"dmin-25m": 1.0, "dmin-25m-no-concat": 2.0, "dmin-0m": 3.0, "dmin-50m": 4.0}
 CURVE_ROWS = {
     "h1s": [
-        {"epoch": 1, "train_loss_m2": 4.0, "val_loss_m2": 9.0, "best_epoch": 1, "train_seconds": 5},
-        {"epoch": 2, "train_loss_m2": 1.0, "val_loss_m2": 16.0, "best_epoch": 1},
+        EpochRow(epoch=1, train_loss_m2=4.0, val_loss_m2=9.0, best_epoch=1, train_seconds=5),
+        EpochRow(epoch=2, train_loss_m2=1.0, val_loss_m2=16.0, best_epoch=1),
     ]
 }
 PARTS = ("table", "dmin", "concat", "curves", "regions")
@@ -342,10 +338,10 @@ SEED_BASES = {
 T2 = 4.303  # Student's t 0.975 quantile, 2 degrees of freedom (a statistics table)
 SEED_CURVES = [  # each seed's log of its 1 s model: 2, 1 and 2 epochs, best 1, 1 and 2
     CURVE_ROWS["h1s"],
-    [{"epoch": 1, "train_loss_m2": 9.0, "val_loss_m2": 16.0, "best_epoch": 1}],
+    [EpochRow(epoch=1, train_loss_m2=9.0, val_loss_m2=16.0, best_epoch=1)],
     [
-        {"epoch": 1, "train_loss_m2": 1.0, "val_loss_m2": 4.0, "best_epoch": 1},
-        {"epoch": 2, "train_loss_m2": 4.0, "val_loss_m2": 1.0, "best_epoch": 2},
+        EpochRow(epoch=1, train_loss_m2=1.0, val_loss_m2=4.0, best_epoch=1),
+        EpochRow(epoch=2, train_loss_m2=4.0, val_loss_m2=1.0, best_epoch=2),
     ],
 ]
 
@@ -506,7 +502,7 @@ def test_one_seed_table1_takes_its_intervals_from_the_evaluations_bootstrap() ->
         "value": -18.0, "low": -18.5, "high": -17.5
     }  # fmt: skip
     document = {"table1": table, "synthetic": True, "partly_synthetic": False, "finished": True}
-    lines = _table1_lines(document)
+    lines = table1_lines(document)
     text = "\n".join(lines)
     assert "| AiGem (this run) | 1.00 [0.90, 1.20] | 2.00 [1.90, 2.20] | 2.00 [1.90, 2.20]" in text
     assert "lower (better) beyond the test-set noise at 1, 2, 3, 4 and 5 s" in text

@@ -22,7 +22,7 @@ import torch
 from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
-from aigem import records, runs
+from aigem import checkpoints, records, run_log, runs
 from aigem.baseline import constant_velocity_loss_m2
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import GraphDataset
@@ -92,7 +92,7 @@ def test_a_run_records_its_builds_identity_and_scaler(trained_run: Path, tiny_bu
 def test_loading_a_model_gives_its_weights_and_draws_nothing(trained_run: Path) -> None:
     saved = torch.load(trained_run / runs.BEST, map_location="cpu", weights_only=True)["model"]
     torch.manual_seed(11)
-    model, _ = runs.load_model(trained_run)
+    model, _ = checkpoints.load_model(trained_run)
     drawn_after_loading = torch.rand(3)
     torch.manual_seed(11)
     assert torch.equal(drawn_after_loading, torch.rand(3))  # the global generator untouched
@@ -199,13 +199,13 @@ def test_fit_records_constant_velocitys_validation_loss(
         "constant_velocity_val_loss_m2": expected,
         "steps": 5,
     }
-    assert records.read_baseline(trained_run) == expected
+    assert run_log.read_baseline(trained_run) == expected
     # A run of an older aigem has none (or a damaged one): resuming it records it.
     run = _copy(trained_run, tmp_path)
     (run / runs.BASELINE).write_text("{")
-    assert records.read_baseline(run) is None
+    assert run_log.read_baseline(run) is None
     fit(tiny_build, run, ModelConfig(), TrainConfig(**{**FAST.to_dict(), "epochs": 2}), "cpu", True)
-    assert records.read_baseline(run) == expected
+    assert run_log.read_baseline(run) == expected
 
 
 def test_a_directory_that_is_not_a_run(trained_run: Path, tiny_build: Path, tmp_path: Path) -> None:
@@ -287,7 +287,7 @@ def test_a_full_disk_is_one_error_line_and_leaves_no_torn_file(
     monkeypatch.undo()  # space again: no epoch got its checkpoint, so the run starts over
     again = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
     assert again.exit_code == 0, again.output
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1]
 
 
 def test_resume_refuses_another_build_and_accepts_an_identical_rebuild(
@@ -312,10 +312,10 @@ def test_resume_refuses_another_build_and_accepts_an_identical_rebuild(
         app, ["fit", str(copy), "--out", str(run), "--resume", *_fit_args(2, 2.0)]
     )
     assert "cannot resume with other horizons (1 -> 2 s)" in _one_error_line(horizon, run)
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1]
     resumed = runner.invoke(app, ["fit", str(copy), "--out", str(run), "--resume", *_fit_args(2)])
     assert resumed.exit_code == 0, resumed.output
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1, 2]
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1, 2]
     assert json.loads((run / runs.RUN_INFO).read_text())["train"]["epochs"] == 2
 
 
@@ -446,9 +446,17 @@ def test_a_fit_stopped_before_its_first_checkpoint_is_started_over(
     result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), *FIT])
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in run.iterdir()) == sorted(
-        [runs.RUN_INFO, runs.METRICS, runs.LAST, runs.BEST, runs.BASELINE, runs.CURVES]
+        [
+            runs.RUN_INFO,
+            runs.METRICS,
+            runs.LAST,
+            runs.BEST,
+            runs.BASELINE,
+            runs.CURVES,
+            runs.FIT_LOG,
+        ]
     )
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1]
     # The same with a file fit did not write beside the marker: refused, nothing removed.
     other = tmp_path / "other"
     other.mkdir()
@@ -489,8 +497,8 @@ def test_a_run_is_never_written_through_a_link(
         "log": metrics,
     }  # fmt: skip
     assert not (run / runs.METRICS).is_symlink()
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1, 2]
-    assert runs.epochs_kept(run) == 2
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1, 2]
+    assert checkpoints.epochs_kept(run) == 2
 
 
 def test_a_run_from_before_cv_residual_reads_as_without_it(
@@ -571,16 +579,14 @@ def _evaluate_json(run: Path, build: Path) -> dict:
 
 def test_a_run_of_aigem_0_1_0_loads_and_evaluates(build_of_run_0_1_0: Path, tmp_path: Path) -> None:
     run = _copy(RUN_0_1_0, tmp_path)
-    model, info = runs.load_model(run)
-    assert count_parameters(model) == 74_242 and model.config == ModelConfig()
-    assert info["train"]["horizon_s"] == 5.0 and info["train"]["epochs"] == 1
-    assert (
-        info["build_config"]["time_step_s"] == 0.2 and info["build_config"]["history_steps"] == 16
-    )
+    model, info = checkpoints.load_model(run)
+    assert count_parameters(model) == 74_242 and model.config == ModelConfig() == info.model
+    assert info.train.horizon_s == 5.0 and info.train.epochs == 1
+    assert info.build.time_step_s == 0.2 and info.build.settings["history_steps"] == 16
     manifest = json.loads((build_of_run_0_1_0 / "manifest.json").read_text())
-    assert info["build_config_hash"] == manifest["config_hash"]
+    assert info.build.identity.config_hash == manifest["config_hash"]
     # Its build's config held the limits; today's build records NGSIM's beside it, the same ones.
-    assert info["build_config"] == {**manifest["config"], "limits": manifest["limits"]}
+    assert info.build.settings == {**manifest["config"], "limits": manifest["limits"]}
     args = ["evaluate", str(run), "--data", str(build_of_run_0_1_0), "--other-build"]
     result = CliRunner().invoke(app, [*args, "--device", "cpu", "--json"])
     assert result.exit_code == 0, result.output
@@ -623,7 +629,7 @@ def test_settings_a_run_lacks_take_their_defaults(build_of_run_0_1_0: Path, tmp_
 
     _edit_info(run, older)
     assert "cv_residual" not in json.loads((run / runs.RUN_INFO).read_text())["model"]
-    model, _ = runs.load_model(run)
+    model, _ = checkpoints.load_model(run)
     assert model.config == ModelConfig()  # cv_residual False, concat_position True
     after = _evaluate_json(run, build_of_run_0_1_0)
     assert after["model"] == before["model"]
@@ -659,9 +665,8 @@ def test_an_unlimited_max_minutes_of_an_older_aigem_reads_as_none(tmp_path: Path
     run = _copy(RUN_0_1_0, tmp_path)
     _edit_info(run, lambda info: info["train"].update(max_minutes=math.inf))
     assert "Infinity" in (run / runs.RUN_INFO).read_text()
-    info = records.read_run_info(run)
-    assert records.train_config(info, run / runs.RUN_INFO).max_minutes is None
-    assert runs.load_model(run)[1]["train"]["max_minutes"] == math.inf  # as recorded
+    assert records.read_record(run).info.train.max_minutes is None
+    assert checkpoints.load_model(run)[1].train.max_minutes is None  # best.pt's too
 
 
 def test_a_best_model_kept_before_a_resume_of_an_older_run_still_loads(tmp_path: Path) -> None:
@@ -671,12 +676,12 @@ def test_a_best_model_kept_before_a_resume_of_an_older_run_still_loads(tmp_path:
     checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
     del checkpoint["info"]["model"]["cv_residual"]
     torch.save(checkpoint, run / runs.BEST)
-    model, info = runs.load_model(run)
-    assert model.config == ModelConfig() and "cv_residual" not in info["model"]
+    model, info = checkpoints.load_model(run)
+    assert model.config == ModelConfig() == info.model  # cv_residual read at its default
     checkpoint["info"]["model"]["hidden"] = 32  # another model: still refused
     torch.save(checkpoint, run / runs.BEST)
     with pytest.raises(NgsimInputError, match="belongs to another run: its model differs"):
-        runs.load_model(run)
+        checkpoints.load_model(run)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -718,7 +723,7 @@ def test_a_resume_refuses_a_flipped_bit_in_either_checkpoint(
     _flip_a_weight_bit(run / name)
     result = CliRunner().invoke(app, ["fit", str(tiny_build), "--out", str(run), "--resume", *FIT])
     assert "its bytes do not match the sha256 that run.json" in _one_error_line(result, run / name)
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1]
 
 
 def test_a_checkpoint_that_run_json_does_not_record_is_refused(
@@ -729,7 +734,7 @@ def test_a_checkpoint_that_run_json_does_not_record_is_refused(
     del document[records.DIGESTS][runs.BEST]
     (run / runs.RUN_INFO).write_text(json.dumps(document))
     with pytest.raises(NgsimInputError, match="records no sha256 of it: not a checkpoint this run"):
-        runs.load_model(run)
+        checkpoints.load_model(run)
 
 
 class _Killed(BaseException):
@@ -747,6 +752,7 @@ def test_a_fit_killed_while_it_keeps_its_checkpoints_leaves_them_loadable(
     kept = torch.load(run / runs.LAST, map_location="cpu", weights_only=True)
     model = AiGem(ModelConfig())
     optimizer = torch.optim.Adam(model.parameters())
+    info = records.info_of(kept["info"], run / runs.LAST)
     writes, write_atomic = [], runs.write_atomic
 
     def write_or_die(path: Path, data: bytes) -> None:
@@ -755,20 +761,20 @@ def test_a_fit_killed_while_it_keeps_its_checkpoints_leaves_them_loadable(
         writes.append(path.name)
         write_atomic(path, data)
 
-    monkeypatch.setattr(runs, "write_atomic", write_or_die)
-    state = runs.RunState(1, 0, 1e9)  # the next epoch is the best yet: both checkpoints kept
+    monkeypatch.setattr(runs, "write_atomic", write_or_die)  # the checkpoints
+    monkeypatch.setattr(records, "write_atomic", write_or_die)  # run.json
+    state = records.RunState(1, 0, 1e9)  # the next epoch is the best yet: both checkpoints kept
     with pytest.raises(_Killed) if killed_before is not None else contextlib.nullcontext():
-        runs.end_epoch(run, state, kept["info"], 1, 1.0, 2.0, model, optimizer, True)
+        runs.end_epoch(run, state, info, 1, 1.0, 2.0, model, optimizer, True)
     assert writes == [runs.RUN_INFO, runs.BEST, runs.LAST, runs.RUN_INFO][:killed_before]
     monkeypatch.undo()
-    runs.load_model(run)
-    epochs = runs.epochs_kept(run)
+    checkpoints.load_model(run)
+    epochs = checkpoints.epochs_kept(run)
     assert epochs == (2 if killed_before in (3, None) else 1)
     accepted = json.loads((run / runs.RUN_INFO).read_text())[records.DIGESTS]
     assert len(accepted[runs.LAST]) == (2 if killed_before in (1, 2, 3) else 1)
     # A resume settles the record on what it finds.
-    runs.start_run(run, Path(kept["info"]["build_dir"]), ModelConfig(), FAST, True, model,
-                   optimizer, True)  # fmt: skip
+    runs.start_run(run, info.build.build_dir, ModelConfig(), FAST, True, model, optimizer, True)
     settled = json.loads((run / runs.RUN_INFO).read_text())[records.DIGESTS]
     assert settled == {
         name: [hashlib.sha256((run / name).read_bytes()).hexdigest()]

@@ -14,7 +14,7 @@ import torch
 from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
-from aigem import runs
+from aigem import run_log, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.model import AiGem
 from aigem.schedule import clip_gradients, learning_rate_at
@@ -128,14 +128,14 @@ def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
     tiny_build: Path, tmp_path: Path
 ) -> None:
     straight = fit(tiny_build, tmp_path / "straight", ModelConfig(), SCHEDULED, "cpu")
-    rows = runs.read_metrics(tmp_path / "straight")
+    rows = run_log.read_metrics(tmp_path / "straight")
     train_graphs = int(open_build(tiny_build).manifest.splits["train"])
-    assert [r["train_graphs"] for r in rows] == [train_graphs, train_graphs]
+    assert [r.train_graphs for r in rows] == [train_graphs, train_graphs]
     batches = math.ceil(train_graphs / SCHEDULED.batch_size)
-    assert [r["learning_rate"] for r in rows] == pytest.approx(
+    assert [r.learning_rate for r in rows] == pytest.approx(
         [learning_rate_at(SCHEDULED, e, batches - 1, batches) for e in (0, 1)]
     )
-    assert rows[1]["learning_rate"] < rows[0]["learning_rate"] < SCHEDULED.learning_rate
+    assert rows[1].learning_rate < rows[0].learning_rate < SCHEDULED.learning_rate
     with pytest.raises(_Stop):
         fit(
             tiny_build,
@@ -156,10 +156,8 @@ def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
         fit(tiny_build, tmp_path / "resumed", ModelConfig(), unclipped, "cpu", resume=True)
     resumed = fit(tiny_build, tmp_path / "resumed", ModelConfig(), SCHEDULED, "cpu", resume=True)
     assert resumed.epochs_done == straight.epochs_done == 2
-    again = runs.read_metrics(tmp_path / "resumed")
-    assert [r["val_loss_m2"] for r in again] == pytest.approx(
-        [r["val_loss_m2"] for r in rows], rel=1e-5
-    )
+    again = run_log.read_metrics(tmp_path / "resumed")
+    assert [r.val_loss_m2 for r in again] == pytest.approx([r.val_loss_m2 for r in rows], rel=1e-5)
 
 
 def test_each_step_runs_at_its_scheduled_rate(

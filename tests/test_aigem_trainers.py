@@ -16,7 +16,7 @@ from aigem.data import Collate, GraphDataset
 from aigem.epochs import Loop, Member
 from aigem.loss import masked_mse_m2
 from aigem.model import AiGem
-from aigem.runs import RunState
+from aigem.records import RunState
 from aigem.trainers import Trainer
 from aigem.training import device_data, make_optimizer
 

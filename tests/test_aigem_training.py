@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from aigem import runs
+from aigem import run_log, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.epochs import NonFiniteLossError
 from aigem.training import fit
@@ -41,9 +41,9 @@ def test_fit_then_resume_finishes_like_an_uninterrupted_run(
     )
     resumed = fit(tiny_build, tmp_path / "resumed", ModelConfig(), config, "cpu", resume=True)
     assert resumed.epochs_done == 2
-    a, b = runs.read_metrics(tmp_path / "straight"), runs.read_metrics(tmp_path / "resumed")
-    assert [r["epoch"] for r in b] == [1, 2]
-    assert b[1]["val_loss_m2"] == pytest.approx(a[1]["val_loss_m2"], rel=1e-5)
+    a, b = run_log.read_metrics(tmp_path / "straight"), run_log.read_metrics(tmp_path / "resumed")
+    assert [r.epoch for r in b] == [1, 2]
+    assert b[1].val_loss_m2 == pytest.approx(a[1].val_loss_m2, rel=1e-5)
     for name in (runs.BEST, runs.LAST, runs.METRICS, runs.RUN_INFO, runs.CURVES):
         assert (tmp_path / "resumed" / name).is_file()
     assert not list((tmp_path / "resumed").glob("*.partial*"))
@@ -61,10 +61,10 @@ def test_a_fit_on_static_batches_is_the_fit_on_the_loaders_without_dropout(
     for resident in (False, True):
         run = tmp_path / f"resident-{resident}"
         fit(tiny_build, run, ModelConfig(dropout=0.0), replace(train, resident=resident), "cpu")
-        rows[resident] = runs.read_metrics(run)[0]
-    assert rows[True]["train_graphs"] == rows[False]["train_graphs"]
-    assert rows[True]["train_loss_m2"] == pytest.approx(rows[False]["train_loss_m2"], rel=1e-4)
-    assert rows[True]["val_loss_m2"] == pytest.approx(rows[False]["val_loss_m2"], rel=1e-2)
+        rows[resident] = run_log.read_metrics(run)[0]
+    assert rows[True].train_graphs == rows[False].train_graphs
+    assert rows[True].train_loss_m2 == pytest.approx(rows[False].train_loss_m2, rel=1e-4)
+    assert rows[True].val_loss_m2 == pytest.approx(rows[False].val_loss_m2, rel=1e-2)
 
 
 def test_a_second_fit_into_a_run_needs_resume(tiny_build: Path, tmp_path: Path) -> None:
@@ -93,10 +93,10 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:
                                  "--batch-size", "8", "--horizon-s", "2", "--device", "cpu"])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "74,242 parameters" in result.stdout
-    row = runs.read_metrics(run)[0]
-    assert row["train_seconds"] > 0 and row["train_graphs_per_s"] > 0 and row["val_seconds"] >= 0
+    row = run_log.read_metrics(run)[0]
+    assert row.train_seconds > 0 and row.train_graphs_per_s > 0 and row.val_seconds >= 0
     assert (
-        f"epoch 1: train MSE {row['train_loss_m2']:.3f} m², validation MSE {row['val_loss_m2']:.3f} m² (best)"
+        f"epoch 1: train MSE {row.train_loss_m2:.3f} m², validation MSE {row.val_loss_m2:.3f} m² (best)"
         in result.stderr
     )
     result = runner.invoke(
@@ -127,7 +127,7 @@ def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path:
         command, capture_output=True, text=True, timeout=300, env=env, check=False
     )
     assert done.returncode == 0, done.stderr[-2000:]
-    assert [r["epoch"] for r in runs.read_metrics(run)] == [1]
+    assert [r.epoch for r in run_log.read_metrics(run)] == [1]
     assert (run / runs.BEST).is_file()
 
 

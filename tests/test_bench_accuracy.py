@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from aigem import runs
+from aigem import run_log, runs
 from ngsim_graphs.build import open_build
 
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "bench_accuracy.py"
@@ -34,12 +34,10 @@ def test_bench_accuracy_reports_time_to_target_and_resumes(
     assert [first["setting"], second["setting"]] == ["batch=8", settings[3]]
     names = ("batch8", "batch16_lr2e-3_schedulecosine_warmup1")
     for item, run in zip((first, second), names, strict=True):
-        rows = runs.read_metrics(tmp_path / run)
-        assert item["val_m2"] == [row["val_loss_m2"] for row in rows] and item["epochs"] == 2
+        rows = run_log.read_metrics(tmp_path / run)
+        assert item["val_m2"] == [row.val_loss_m2 for row in rows] and item["epochs"] == 2
         assert item["target_epoch"] == 1 and item["graphs_to_target"] == train_graphs
-        assert item["seconds_to_target"] == round(
-            rows[0]["train_seconds"] + rows[0]["val_seconds"], 1
-        )
+        assert item["seconds_to_target"] == round(rows[0].train_seconds + rows[0].val_seconds, 1)
     info = json.loads(
         (tmp_path / "batch16_lr2e-3_schedulecosine_warmup1" / runs.RUN_INFO).read_text()
     )

@@ -21,7 +21,7 @@ import pytest
 from conftest import straight_track, write_period_csv, write_portal, write_txt
 from typer.testing import CliRunner, Result
 
-from ngsim_cli import console
+from ngsim_cli import progress as progress_module
 from ngsim_cli.ngsim import app
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -875,7 +875,7 @@ def test_build_into_a_log_prints_each_stage_after_its_time(
     """stderr is not a terminal here (a log): no bar, but a line at each stage's end (and within
     it every PLAIN_PROGRESS_INTERVAL_S, out of reach here), each after its wall-clock time; a
     quick build too."""
-    monkeypatch.setattr(console, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
+    monkeypatch.setattr(progress_module, "PLAIN_PROGRESS_INTERVAL_S", 1e9)
     path = write_period_csv(tmp_path / "a.csv", long_rows)
     result = invoke("build", path, "--out", tmp_path / "out")
     assert result.exit_code == 0, result.output

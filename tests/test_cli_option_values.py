@@ -1,24 +1,30 @@
 """Every numeric option of both programs checked finite and in range, by the config it sets (the
 library refuses the same): NaN, infinity and a value out of range are one line and exit status
-2, before any input is read or anything is written; an argument that is not UTF-8 text alike."""
+2, before any input is read or anything is written; an argument that is not UTF-8 text alike.
+Threads and worker processes have a ceiling (MAX_PARALLEL), and no option leaves its range to
+typer's `min=`, whose error is a box of four lines."""
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from aigem.config import TrainConfig, horizon_steps, parse_horizons_s
+from aigem.paper_plan import PaperCall
 from ngsim_cli.aigem import app as aigem_app
 from ngsim_cli.ngsim import app as ngsim_app
-from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.config import MAX_PARALLEL, BuildConfig, SynthConfig
 from ngsim_graphs.errors import NgsimOutputError
 from ngsim_graphs.layout import MANIFEST_NAME, write_manifest_json
 
 TOP = "4294967295 (2**32 - 1)"  # the largest seed
+HUGE = "99999999999"  # more threads than torch.set_num_threads' C int holds
+CLI = Path(__file__).resolve().parent.parent / "cli"
 
 
 def finite(option: str, value: str, bound: str) -> str:
@@ -43,6 +49,8 @@ BUILD_CASES = [
         for v in ("nan", "inf", "-1")
     ),
     *((["--split", "random", "--seed", v], seed(v)) for v in ("-1", "4294967296")),
+    (["--jobs", "0"], "--jobs must be >= 1"),
+    (["--jobs", "1025"], "--jobs must be <= 1024"),
 ]
 SYNTH_CASES = [
     *((["--minutes", v], "--minutes must be in (0, 60]") for v in ("nan", "inf", "0")),
@@ -65,6 +73,10 @@ FIT_CASES = [
         )  # fmt: skip
         for v, h in (("0.3", "0.3"), ("4.9", "4.9"), ("1,2.5", "2.5"))
     ),
+    (["--threads", "0"], "--threads must be >= 1"),
+    (["--threads", HUGE], "--threads must be <= 1024"),
+    (["--workers", "-1"], "--workers must be >= 0"),
+    (["--workers", HUGE], "--workers must be <= 1024"),
 ]
 PAPER_CASES = [
     *((["--max-hours", v], finite("--max-hours", v, "> 0")) for v in ("nan", "inf", "0")),
@@ -73,6 +85,14 @@ PAPER_CASES = [
         ["--seed", "4294967295", "--seeds", "2"],
         f"--seeds 2, --seed 4294967295: the last seed would be 4294967296, above {TOP}",
     ),
+    (["--epochs", "0"], "--epochs must be >= 1"),
+    (["--patience", "0"], "--patience must be >= 1"),
+    (["--batch-size", "0"], "--batch-size must be >= 1"),
+    (["--seeds", "0"], "--seeds must be >= 1"),
+    (["--threads", "0"], "--threads must be >= 1"),
+    (["--threads", HUGE], "--threads must be <= 1024"),
+    (["--jobs", "0"], "--jobs must be >= 1"),
+    (["--jobs", "1025"], "--jobs must be <= 1024"),
 ]
 
 
@@ -103,6 +123,29 @@ def test_synth_refuses_a_value_out_of_range(
 def test_stats_refuses_a_seed_out_of_range(tmp_path: Path, value: str) -> None:
     """Before the build is opened (there is none here)."""
     _refused(ngsim_app, ["stats", str(tmp_path / "b"), "--seed", value], seed(value), tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("app", "args", "message"),
+    [
+        (ngsim_app, ["stats", "{tmp}/b", "--degree-graphs", "0"], "--degree-graphs must be >= 1"),
+        (ngsim_app, ["show", "{tmp}/b", "--columns", "0"], "--columns must be >= 1"),
+        (aigem_app, ["evaluate", "{tmp}/r", "--bootstrap", "-1"], "--bootstrap must be >= 0"),
+    ],
+)
+def test_a_count_out_of_range_is_one_line(
+    app, args: list[str], message: str, tmp_path: Path
+) -> None:  # noqa: ANN001
+    """Checked before the build or the run is opened (there is none here)."""
+    _refused(app, [arg.format(tmp=tmp_path) for arg in args], message, tmp_path)
+
+
+def test_no_option_leaves_its_range_to_typer() -> None:
+    """typer's `min=` and `max=` answer with a box of four lines (Usage, Try, Error): every range
+    is checked by a config or ngsim_graphs.config.check_count, through console.option_values."""
+    bounded = re.compile(r"(^|[(,])\s*(min|max)=", re.MULTILINE)
+    found = [path.name for path in sorted(CLI.glob("*.py")) if bounded.search(path.read_text())]
+    assert found == []
 
 
 @pytest.mark.parametrize(("options", "message"), FIT_CASES)
@@ -152,6 +195,15 @@ def test_the_configs_refuse_what_the_options_refuse() -> None:
     with pytest.raises(ValueError, match=r"^horizon_s must be a multiple of the 0.2 s time step$"):
         TrainConfig(horizon_s=0.3)
     assert TrainConfig(horizon_s=1.4).horizon_steps(0.2) == 7  # 6.999999999999999 steps
+    assert TrainConfig(threads=MAX_PARALLEL, workers=MAX_PARALLEL).threads == 1024
+    with pytest.raises(ValueError, match=r"^threads must be <= 1024$"):
+        TrainConfig(threads=MAX_PARALLEL + 1)
+    with pytest.raises(ValueError, match=r"^workers must be <= 1024$"):
+        TrainConfig(workers=10**11)
+    with pytest.raises(ValueError, match=r"^jobs must be <= 1024$"):
+        PaperCall(jobs=MAX_PARALLEL + 1)
+    with pytest.raises(ValueError, match=r"^threads must be >= 1$"):
+        PaperCall(threads=0)
 
 
 def test_a_horizon_is_a_whole_number_of_steps_by_one_rule() -> None:

@@ -86,3 +86,10 @@ def test_classification_of_failures(tmp_path: Path) -> None:
     (tmp_path / ".out.partial-123").mkdir()
     status, detail = _classify(tmp_path, 1, "", f"error: {path}: x\n")
     assert status == fz.OTHER and ".out.partial-123" in detail
+
+
+def test_progress_lines_of_a_build_off_a_terminal_are_no_problem() -> None:
+    line = "2026-11-29 07:55:47 reading input files: 1,204/2,000 (60%), 0:00:31 elapsed"
+    assert fz.PROGRESS_LINE.match(line)
+    assert not fz.PROGRESS_LINE.match("2026-11-29 07:55:47 error: a.txt, line 3: bad")
+    assert not fz.PROGRESS_LINE.match("Traceback (most recent call last):")

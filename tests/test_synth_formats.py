@@ -1,4 +1,5 @@
-"""The synthetic files behind `synth`: formats, quirks, determinism and atomic writes.
+"""The synthetic files behind `synth` (synth.formats, and synth.folder through it): formats,
+quirks, determinism, atomic writes, and the folder's marker and what synth may replace.
 
 Files are parsed here with the csv module and str.split, independently of the project's reader.
 """
@@ -26,6 +27,7 @@ from ngsim_graphs.config import SynthConfig
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.recordings import OFFICIAL_RECORDINGS, PACIFIC_DAYLIGHT
+from ngsim_graphs.synth import folder
 from ngsim_graphs.synth import formats as synthesis
 from ngsim_graphs.synth.marker import MARKER_NAME
 from ngsim_graphs.synth.traffic import simulate_recording
@@ -137,7 +139,7 @@ def test_same_gaps_in_every_format(tmp_path: Path) -> None:
 
 def test_portal_plain(tmp_path: Path) -> None:
     path = _write(tmp_path, RawFormat.PORTAL, quirks=False)[0]
-    assert path.name == synthesis.PORTAL_FILE_NAME
+    assert path.name == folder.PORTAL_FILE_NAME
     data = path.read_bytes()
     assert data.startswith(b"Vehicle_ID,") and b"\r" not in data and b'"' not in data
     header, rows = _csv_rows(path)
@@ -250,11 +252,11 @@ def test_a_short_recording_keeps_its_periods_name_and_says_so(tmp_path: Path) ->
                    .split()[3])  # fmt: skip
     start_ms = OFFICIAL_RECORDINGS[1].start_epoch_ms  # 4:00 pm, frame 0 within 30 s of it
     assert start_ms - 30_000 <= first_ms <= start_ms + 1000 * 60 * MINUTES
-    assert synthesis.period_note(SynthConfig(RawFormat.PORTAL, minutes=2)).endswith(
+    assert folder.period_note(SynthConfig(RawFormat.PORTAL, minutes=2)).endswith(
         "(e.g. 0400-0415) in a build's report: a build tells a recording by its start time"
     )
-    assert synthesis.period_note(SynthConfig(minutes=15)) is None
-    assert synthesis.period_note(SynthConfig(RawFormat.HIGHD, minutes=2)) is None
+    assert folder.period_note(SynthConfig(minutes=15)) is None
+    assert folder.period_note(SynthConfig(RawFormat.HIGHD, minutes=2)) is None
 
 
 def test_interrupted_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
