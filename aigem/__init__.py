@@ -26,7 +26,7 @@ _EXPORTS = {
     "GraphPygDataset": "aigem.pyg",
     "to_hetero_data": "aigem.pyg",
     "to_model_batch": "aigem.pyg",
-    "masked_mse_m2": "aigem.trainers",
+    "masked_mse_m2": "aigem.loss",
     "fit": "aigem.training",
     "fit_horizons": "aigem.training",
     "load_model": "aigem.checkpoints",
@@ -61,10 +61,10 @@ if TYPE_CHECKING:
     from aigem.config import ModelConfig, TrainConfig
     from aigem.data import Collate, GraphDataset, xy_to_metres
     from aigem.evaluation import evaluate
+    from aigem.loss import masked_mse_m2
     from aigem.model import AiGem, count_parameters
     from aigem.prediction import predict_samples
     from aigem.pyg import GraphPygDataset, to_hetero_data, to_model_batch
-    from aigem.trainers import masked_mse_m2
     from aigem.training import fit, fit_horizons
 
 

@@ -4,22 +4,22 @@ Opening a split costs the same for a tiny build and for the six-recording one: t
 read and the arrays are memory-mapped. An item is one sample's graph induced from the mapped
 arrays; `__getitems__` induces a whole batch at once (PyTorch's DataLoader calls it when it
 exists), and the collate function concatenates graphs with vectorised index offsets and applies
-the scaler (the build's own, or a run's). Shapes: N nodes, E edges, A target actors, K future
-steps. PyTorch Geometric's view of the same samples is in aigem.pyg.
+the scaler (the build's own, or a run's) into an `aigem.batch.Batch`. Shapes: N nodes, E edges, A
+target actors, K future steps. PyTorch Geometric's view of the same samples is in aigem.pyg.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aigem.plan import edge_inputs, make_plan
+from aigem.batch import Batch, Edges
+from aigem.plan import make_plan
 from ngsim_graphs import edges
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.errors import NgsimInputError
@@ -59,18 +59,18 @@ QUANTITIES = {  # how a scaled quantity is named to a user, and its unit
 }
 
 
-def check_covered(batch: dict[str, Any], scaler: MinMaxScaler, manifest: Path) -> None:
+def check_covered(batch: Batch, scaler: MinMaxScaler, manifest: Path) -> None:
     """Refuse a train batch whose scaled inputs leave the scaler's target ranges: the scaler is
     fitted on exactly the train split's values, so a value outside says the scaler recorded in
     `manifest` is not the one fitted (an edited manifest, re-sealed: its checksum is unkeyed and
     anyone can recompute it). A min and max per quantity of the batch's (N, 4) features and
     (E, 1) scaled edge attributes, on the CPU."""
     columns = [
-        (edge.attribute, batch[f"{edge.name}_attr"][:, 0])
-        for edge in edges.types_of(batch["edge_types"])
+        (edge.attribute, batch.edges[edge.name].attr[:, 0])
+        for edge in edges.types_of(batch.edge_types)
         if edge.scaled
     ]
-    columns += [(name, batch["x"][:, i]) for i, name in enumerate(FEATURES)]
+    columns += [(name, batch.x[:, i]) for i, name in enumerate(FEATURES)]
     for name, values in columns:
         if not len(values):
             continue
@@ -161,12 +161,11 @@ class GraphDataset(Dataset):
 
 @dataclass(frozen=True)
 class Collate:
-    """Batches graphs into one dict of tensors (picklable, for DataLoader workers).
+    """Batches graphs into one `aigem.batch.Batch` (picklable, for DataLoader workers).
 
     `layers`: also plan the encoder of a model with that many layers for the batch's targets
-    (`batch["plan"]`, an `aigem.model.Plan`), so that the model step, on any device, neither
-    plans nor waits for the device to read the plan's sizes. `batch["graphs"]` is the number of
-    graphs (a Python int), `batch["edge_types"]` the names of its edge types (the build's).
+    (`Batch.plan`, an `aigem.plan.Plan`), so that the model step, on any device, neither plans
+    nor waits for the device to read the plan's sizes.
     """
 
     scaler: MinMaxScaler
@@ -183,32 +182,30 @@ class Collate:
         ]
         return np.stack(scaled, axis=1).astype(np.float32)
 
-    def __call__(self, graphs: list[GraphBatch]) -> dict[str, Any]:
+    def __call__(self, graphs: list[GraphBatch]) -> Batch:
         batch = concat_batches(graphs)
         targets = batch.target_node
         present = batch.node_features[targets]
-        out = {"x": torch.from_numpy(self.scaler.scale_features(batch.node_features))}  # (N, 4)
-        names = tuple(batch.edges)  # the build's edge types, in its order
-        for edge in edges.types_of(names):  # "<name>_edges" (2, E), "<name>_attr" (E, 1)
-            edge_set = batch.edges[edge.name]
-            out[f"{edge.name}_edges"] = torch.from_numpy(edge_set.index)
-            out[f"{edge.name}_attr"] = torch.from_numpy(
-                self.scaler.scale_edges(edge, edge_set.attribute)
+        batch_edges = {  # the build's edge types, in its order
+            edge.name: Edges(
+                torch.from_numpy(batch.edges[edge.name].index),
+                torch.from_numpy(self.scaler.scale_edges(edge, batch.edges[edge.name].attribute)),
             )
-        out |= {
-            "node_sample": torch.from_numpy(batch.node_sample),  # (N,)
-            "target_node": torch.from_numpy(targets),  # (A,)
-            "target_sample": torch.from_numpy(batch.node_sample[targets]),  # (A,)
-            "target_state": torch.from_numpy(present.astype(np.float32)),  # (A, 4) physical, metres
-            "target_xy": torch.from_numpy(batch.target_xy.astype(np.float32)),  # (A, K, 2) metres
-            "target_mask": torch.from_numpy(batch.target_mask),  # (A, K)
-            "cv_step": torch.from_numpy(self.cv_step(present, batch.time_step_s)),  # (A, 2)
-            "graphs": batch.n_samples,
-            "edge_types": names,  # which "<name>_edges" the batch has, in the build's order
+            for edge in edges.types_of(tuple(batch.edges))
         }
-        if self.layers is not None:
-            plan = make_plan(
-                len(batch.node_sample), out["target_node"], edge_inputs(out), self.layers
-            )
-            out["plan"] = plan
-        return out
+        out = Batch(
+            x=torch.from_numpy(self.scaler.scale_features(batch.node_features)),
+            target_node=torch.from_numpy(targets),
+            target_sample=torch.from_numpy(batch.node_sample[targets]),
+            target_xy=torch.from_numpy(batch.target_xy.astype(np.float32)),
+            target_mask=torch.from_numpy(batch.target_mask),
+            edges=batch_edges,
+            node_sample=torch.from_numpy(batch.node_sample),
+            target_state=torch.from_numpy(present.astype(np.float32)),
+            cv_step=torch.from_numpy(self.cv_step(present, batch.time_step_s)),
+            graphs=batch.n_samples,
+        )
+        if self.layers is None:
+            return out
+        plan = make_plan(len(batch.node_sample), out.target_node, out.edge_inputs(), self.layers)
+        return replace(out, plan=plan)

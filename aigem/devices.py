@@ -1,8 +1,6 @@
-"""Where a model runs: the device chosen for `--device`, and a batch moved onto it."""
+"""Where a model runs: the device chosen for `--device` (a batch moves itself: `Batch.to`)."""
 
 from __future__ import annotations
-
-from typing import Any
 
 import torch
 
@@ -18,8 +16,3 @@ def pick_device(choice: str) -> torch.device:
     if choice == "cuda" and not torch.cuda.is_available():
         raise DeviceUnavailableError("--device cuda: no CUDA device is available")
     return torch.device(choice)
-
-
-def to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
-    """The batch's tensors and plan on `device` (copies from pinned memory do not wait)."""
-    return {k: v.to(device, non_blocking=True) if hasattr(v, "to") else v for k, v in batch.items()}

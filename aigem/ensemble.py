@@ -5,17 +5,18 @@ The M members' parameters are stacked along a leading member dimension under AiG
 `aigem.model.forward_members`, which computes every operator once for all members. Member m
 computes what `AiGem.forward(batch, steps[m])` computes, to float rounding:
 
-- `__call__` returns (M, A, K, 2) for K = max(steps); member m's positions after its own steps
-  are zeros, not predictions.
-- `member_losses` is each member's `masked_mse_m2` over its own steps; their sum's gradient in a
-  member's parameters is that member's own loss gradient, and Adam, elementwise, steps the
-  stacked parameters as M Adams would step each member's.
+- `forward` returns (M, A, K, 2) for K = max(steps); member m's positions after its own steps
+  are zeros, not predictions. A model alone is an ensemble of one.
+- `member_losses` is each member's `aigem.loss.masked_mse_m2` over its own steps; their sum's
+  gradient in a member's parameters is that member's own loss gradient, and Adam, elementwise,
+  steps the stacked parameters as M Adams would step each member's.
 - Dropout: the members draw one mask from the global generator, the one each would draw trained
   alone (aigem.model draws it so for a model alone too, on every device): a fit's models start
   every epoch from one seed, and their encoders draw the same shapes.
 
 `stack` and `unstack` move the members' parameters and their Adam states in and out (through the
-optimisers' public `state_dict`); the checkpoints stay each member's own.
+optimisers' public `state_dict`): a fit stacks its models once and unstacks them only to write
+each one's checkpoint, which stays each member's own.
 """
 
 from __future__ import annotations
@@ -24,16 +25,20 @@ from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
+from torch import nn
 
+from aigem.batch import Batch
 from aigem.config import ModelConfig
-from aigem.data import xy_to_metres
+from aigem.loss import member_sums
 from aigem.model import AiGem, Decode, Params, decode_members, forward_members
+from aigem.schedule import clip_gradients
 from ngsim_graphs.scaling import MinMaxScaler
 
 
-class Ensemble:
+class Ensemble(nn.Module):
     """M AiGem models of one ModelConfig with stacked parameters; `steps[m]`: member m's future
-    steps (ascending)."""
+    steps (ascending). A module (DistributedDataParallel wraps it), its parameters the stacked
+    ones in AiGem's order; `params` holds them by AiGem's names."""
 
     def __init__(
         self,
@@ -42,44 +47,39 @@ class Ensemble:
         steps: Sequence[int],
         decode: Decode | None = None,
     ) -> None:
+        super().__init__()
         if list(steps) != sorted(steps) or not steps:
             raise ValueError(f"an ensemble's members' steps must be ascending, not {list(steps)}")
-        self.params, self.config, self.steps = params, config, tuple(steps)
+        self.config, self.steps = config, tuple(steps)
         self.decode = decode or decode_members
-        self.training = True
         with torch.device("meta"):  # the parameters' names and order, on no memory,
             template = AiGem(config)  # drawing nothing from the global stream
         self.names = [name for name, _ in template.named_parameters()]
         if sorted(self.names) != sorted(params):
             raise ValueError("the stacked parameters are not AiGem's")
-        device = next(iter(params.values())).device
-        arange = torch.arange(max(steps), device=device)
-        scored = arange < torch.tensor(steps, device=device).unsqueeze(1)  # (M, K)
-        self.scored = scored.unsqueeze(1)  # (M, 1, K): which steps count in each member's loss
+        # registered in AiGem's order (a module's names hold no dots: a list of them)
+        self.stacked = nn.ParameterList([nn.Parameter(params[name]) for name in self.names])
+        self.params: Params = dict(zip(self.names, self.stacked, strict=True))
 
     @property
     def members(self) -> int:
         return len(self.steps)
 
-    def parameters(self) -> list[torch.Tensor]:
-        """The stacked parameters in AiGem's order (an optimiser's parameter order)."""
-        return [self.params[name] for name in self.names]
-
-    def train(self, mode: bool = True) -> Ensemble:
-        self.training = mode
-        return self
-
-    def eval(self) -> Ensemble:
-        return self.train(False)
-
-    def __call__(self, batch: dict) -> torch.Tensor:
+    def forward(self, batch: Batch) -> torch.Tensor:
         """(M, A, K, 2) scaled predicted positions of the batch's targets, K = max(steps)."""
         return forward_members(
             self.params, self.config, batch, self.steps, self.training, self.decode
         )
 
-    def predict_one_by_one(self, batch: dict) -> torch.Tensor:
-        """`__call__`'s (M, A, K, 2), the members run one after the other (M = 1 each, member m
+    def predict(self, batch: Batch) -> torch.Tensor:
+        """`forward`'s (M, A, K, 2) in evaluation (validation, scoring): on the CPU the members
+        one after the other (`predict_one_by_one`), faster there; elsewhere stacked."""
+        if batch.x.device.type == "cpu":
+            return self.predict_one_by_one(batch)
+        return self(batch)
+
+    def predict_one_by_one(self, batch: Batch) -> torch.Tensor:
+        """`forward`'s (M, A, K, 2), the members run one after the other (M = 1 each, member m
         over its own steps): the same numbers to float rounding, and on the CPU faster than the
         stacked pass at evaluation's batches (docs/benchmarks.md). Evaluation only: in training each
         member would draw dropout masks of its own, not the stacked pass's."""
@@ -93,35 +93,23 @@ class Ensemble:
         return torch.cat(outputs)
 
     def member_sums(
-        self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
+        self, model_out: torch.Tensor, batch: Batch, scaler: MinMaxScaler
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(M,) each member's squared error in metres^2 summed over its valid target steps, and
-        (M,) their count; `model_out` (M, A, K, 2) scaled."""
-        steps = model_out.shape[2]
-        predicted = xy_to_metres(scaler, model_out)  # (M, A, K, 2)
-        truth = batch["target_xy"][:, :steps]
-        mask = batch["target_mask"][:, :steps].to(predicted.dtype) * self.scored  # (M, A, K)
-        squared = ((predicted - truth) ** 2).sum(dim=-1) * mask
-        return squared.sum((1, 2)), mask.sum((1, 2))
+        (M,) their count (aigem.loss); `model_out` (M, A, K, 2) scaled."""
+        return member_sums(model_out, batch, scaler, self.steps)
 
     def member_losses(
-        self, model_out: torch.Tensor, batch: dict[str, torch.Tensor], scaler: MinMaxScaler
+        self, model_out: torch.Tensor, batch: Batch, scaler: MinMaxScaler
     ) -> torch.Tensor:
-        """(M,) each member's `aigem.trainers.masked_mse_m2` over its own steps, in metres^2."""
+        """(M,) each member's `aigem.loss.masked_mse_m2` over its own steps, in metres^2."""
         squared, count = self.member_sums(model_out, batch, scaler)
         return squared / count.clamp(min=1.0)
 
     def clip_gradients(self, max_norm: float | None) -> None:
-        """`torch.nn.utils.clip_grad_norm_` of each member over its own gradients (None: none)."""
-        if max_norm is None:
-            return
-        grads = [p.grad for p in self.parameters() if p.grad is not None]
-        norms = torch.stack([torch.linalg.vector_norm(g.flatten(1), dim=1) for g in grads])
-        total = torch.linalg.vector_norm(norms, dim=0)  # (M,)
-        # clip_grad_norm_'s own 1e-6: the clipped steps are a model's alone (test_aigem_ensemble)
-        scale = torch.clamp(max_norm / (total + 1e-6), max=1.0)
-        for grad in grads:
-            grad.mul_(scale.view(-1, *[1] * (grad.dim() - 1)))
+        """`torch.nn.utils.clip_grad_norm_` of each member over its own gradients (None: none;
+        aigem.schedule.clip_gradients)."""
+        clip_gradients(self.parameters(), max_norm)
 
 
 # -------------------------------------------------------------------------------------------------
@@ -181,7 +169,7 @@ def stack_optimizer(
                 raise ValueError(f"the members' optimisers differ in {key!r}")
     settings = dict(optimizers[0].defaults)
     if capturable:
-        device = ensemble.parameters()[0].device
+        device = next(ensemble.parameters()).device
         lr = torch.tensor(float(groups[0]["lr"]), dtype=torch.float32, device=device)
         settings |= {"capturable": True, "lr": lr}
         groups = [{**groups[0], "capturable": True, "lr": lr}]

@@ -1,8 +1,9 @@
 """The training loop of `aigem fit`: epochs of optimiser steps, each batch training every model
-of a fit (aigem.trainers: alone or in ensembles; on the loader's batches or, with the splits on
-the device, on static ones, aigem.engine), the validation loss after each epoch, a checkpoint
-and a log row per epoch (aigem.runs), early stopping and the time limit. aigem.training sets up
-the models and the data and calls `train_epochs`.
+of a fit (aigem.trainers: stacked into ensembles, a model alone an ensemble of one; on the
+loader's batches or, with the splits on the device, on static ones, aigem.engine), the
+validation loss after each epoch, a checkpoint and a log row per epoch (aigem.runs: each model
+unstacked from its ensemble to write it), early stopping and the time limit. aigem.training sets
+up the models and the data and calls `train_epochs`.
 
 The running training losses stay on the device and are read without waiting for it
 (`RunningLosses`), checked finite there and once more at the end of the epoch: within an epoch
@@ -14,30 +15,24 @@ from __future__ import annotations
 import math
 import signal
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import torch
-from torch import nn
-from torch.utils.data import DataLoader
 
 from aigem import runs
 from aigem.config import TrainConfig
-from aigem.devices import to_device
 from aigem.run_log import EpochRow
 from aigem.trainers import (
     Loop,
     Member,
-    Together,
+    Trainer,
     batches_per_epoch,
     group_trainers,
-    loader_steps,
-    masked_mse_m2,
     rng_state,
-    static_steps,
-    unstack_together,
+    train_steps,
+    validation_losses,
 )
 from ngsim_graphs.interrupts import interrupts_held
-from ngsim_graphs.scaling import MinMaxScaler
 
 READ_LOSS_EVERY_S = 0.5  # the running loss is read from the device (and checked) this often
 # A model's curves.png is drawn after an epoch when this long has passed since its last drawing,
@@ -54,31 +49,6 @@ EpochCallback = Callable[[float, EpochRow], None]
 
 class NonFiniteLossError(RuntimeError):
     """The loss became NaN or infinite: training stops rather than save a broken model."""
-
-
-def evaluate_losses(
-    models: Sequence[tuple[nn.Module, int]],
-    loader: DataLoader,
-    scaler: MinMaxScaler,
-    device: torch.device,
-) -> list[float]:
-    """Mean validation loss in metres^2 of each (model, steps), weighted by valid steps; one pass
-    over `loader` for all of them."""
-    totals = torch.zeros(len(models), dtype=torch.float64, device=device)  # read once, at the end
-    counts = torch.zeros(len(models), dtype=torch.float64, device=device)
-    for model, _ in models:
-        model.eval()
-    with torch.no_grad():
-        for batch in loader:
-            batch = to_device(batch, device)
-            for index, (model, steps) in enumerate(models):
-                valid = batch["target_mask"][:, :steps].sum()
-                loss = masked_mse_m2(model(batch, steps), batch, scaler, steps)
-                totals[index] += loss.double() * valid
-                counts[index] += valid
-    for model, _ in models:
-        model.train()
-    return [t / c if c else math.nan for t, c in zip(totals.tolist(), counts.tolist(), strict=True)]
 
 
 def _read_loss(running: float, batches: int, epoch: int, who: str = "") -> float:
@@ -123,23 +93,22 @@ def _train_epoch(
     loop: Loop,
     members: list[Member],
     active: list[Member],
-    trainers: list[Member | Together],
+    trainers: list[Trainer],
     epoch: int,
     report: TrainProgress,
     deadline: float,
 ) -> tuple[int, bool]:
     """One pass over the train split, each batch training every model of `active` (in the
-    ensembles of `trainers`, unstacked at the end); returns the graphs seen and whether the
-    time limit cut the epoch short. The losses are summed on the device and read without
-    waiting for it (`RunningLosses`) every READ_LOSS_EVERY_S, and at the end of the epoch."""
+    ensembles of `trainers`); returns the graphs seen and whether the time limit cut the epoch
+    short. The losses are summed on the device and read without waiting for it
+    (`RunningLosses`) every READ_LOSS_EVERY_S, and at the end of the epoch."""
     batches, graphs, read_at, cut = 0, 0, time.monotonic(), False
     total, losses = batches_per_epoch(loop), RunningLosses(active, loop.device)
-    steps = loader_steps if loop.data is None else static_steps
 
     def shown() -> tuple[float, ...]:  # the bar's losses: NaN for a model that stopped
         return tuple(m.shown if m in active else math.nan for m in members)
 
-    for batch_graphs in steps(loop, trainers, epoch):
+    for batch_graphs in train_steps(loop, trainers, epoch):
         batches, graphs = batches + 1, graphs + batch_graphs
         if time.monotonic() - read_at >= READ_LOSS_EVERY_S:
             landed = losses.poll(batches)
@@ -153,9 +122,6 @@ def _train_epoch(
         cut = time.monotonic() > deadline
         if cut:
             break
-    for trainer in trainers:
-        if isinstance(trainer, Together):
-            unstack_together(trainer)
     for member in active:  # the mean of the epoch (a time limit may have cut it)
         member.shown = _read_loss(float(member.running), max(batches, 1), epoch, member.who)
     # The bar's last frame of the epoch shows its mean loss (an epoch shorter than two reads
@@ -164,16 +130,10 @@ def _train_epoch(
     return graphs, cut
 
 
-def _validate(loop: Loop, active: list[Member], trainers: list[Member | Together]) -> list[float]:
-    """Each active model's validation loss: one pass of the loader for all, or each ensemble's
-    on the static batches of the validation split."""
-    if loop.data is None:
-        models = [(m.model, m.steps) for m in active]
-        return evaluate_losses(models, loop.val_loader, loop.scaler, loop.device)
-    losses: dict[int, float] = {}
-    for together in trainers:
-        sums = together.validation.losses(loop.data.val_batches, loop.data.val_base)
-        losses |= {id(member): loss for member, loss in zip(together.members, sums, strict=True)}
+def _validate(loop: Loop, active: list[Member], trainers: list[Trainer]) -> list[float]:
+    """Each active model's validation loss: one pass over the validation split for all, each
+    ensemble on its stacked models (aigem.trainers.validation_losses)."""
+    losses = {id(member): loss for member, loss in validation_losses(loop, trainers)}
     return [losses[id(member)] for member in active]
 
 
@@ -218,16 +178,19 @@ def draw_curves(member: Member, synthetic: bool, now: float) -> None:
 
 def _end_epochs(
     active: list[Member],
+    trainers: list[Trainer],
     epoch: int,
     val_losses: list[float],
     timing: dict[str, float],
     loop: Loop,
     on_epoch: EpochCallback | None,
 ) -> None:
-    """Each model's epoch logged and checkpointed, with Ctrl-C and SIGTERM held off until all are
-    (then raised): the models of a fit keep the same epoch, so a resumed fit trains them in the
-    same ensembles as an uninterrupted one (an ensemble's sums depend on its members at float
-    rounding)."""
+    """Each model unstacked from its trainer and its epoch logged and checkpointed, with Ctrl-C
+    and SIGTERM held off until all are (then raised): the models of a fit keep the same epoch,
+    so a resumed fit trains them in the same ensembles as an uninterrupted one (an ensemble's
+    sums depend on its members at float rounding)."""
+    for trainer in trainers:
+        trainer.unstack()
     came: list[int] = []
     now = time.monotonic()  # one reading for all: the loop reads the clock alike for any models
     try:
@@ -256,7 +219,7 @@ def train_epochs(
         train.max_minutes if train.max_minutes is not None else math.inf
     )
     first = min((m.state.next_epoch for m in members if m.stopped is None), default=train.epochs)
-    trainers: list[Member | Together] = []
+    trainers: list[Trainer] = []
     for epoch in range(first, train.epochs):
         if all(m.stopped for m in members):
             break
@@ -288,7 +251,7 @@ def train_epochs(
             "train_graphs_per_s": round(epoch_graphs * loop.world / epoch_seconds, 1),
             "val_seconds": round(time.monotonic() - epoch_start - epoch_seconds, 1),
         }
-        _end_epochs(active, epoch, val_losses, timing, loop, on_epoch)
+        _end_epochs(active, trainers, epoch, val_losses, timing, loop, on_epoch)
         if timed_out:
             for member in active:
                 member.stopped = "time limit"

@@ -44,8 +44,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from aigem.batch import Batch
 from aigem.config import ModelConfig
-from aigem.plan import aggregate, edge_inputs, make_plan, segment_softmax
+from aigem.plan import aggregate, make_plan, segment_softmax
 
 Params = dict[str, torch.Tensor]  # AiGem's parameter name -> its (M, ...) stack over members
 NEGATIVE_SLOPE = 0.2  # GATConv's default, which AiGem keeps
@@ -140,15 +141,15 @@ def _encoder_layer(
     return total + _linear(own, p[f"{linear}.weight"], p[f"{linear}.bias"])  # the reference's order
 
 
-def encode_members(p: Params, config: ModelConfig, batch: dict, training: bool) -> torch.Tensor:
+def encode_members(p: Params, config: ModelConfig, batch: Batch, training: bool) -> torch.Tensor:
     """(M, A, H) present embeddings of the batch's targets after L layers, on the batch's plan
-    (`batch["plan"]`, made here if it has none for L layers)."""
+    (`Batch.plan`, made here if it has none for L layers)."""
     layers = config.layers
-    plan = batch.get("plan")
+    plan = batch.plan
     if plan is None or plan.layers != layers:
-        edge_list = edge_inputs(batch, config.edge_types)
-        plan = make_plan(batch["x"].shape[0], batch["target_node"], edge_list, layers)
-    z = batch["x"] if plan.order is None else batch["x"].index_select(0, plan.order)  # shared
+        edge_list = batch.edge_inputs(config.edge_types)
+        plan = make_plan(batch.x.shape[0], batch.target_node, edge_list, layers)
+    z = batch.x if plan.order is None else batch.x.index_select(0, plan.order)  # shared
     for index in range(layers):
         z = _encoder_layer(p, config, index, z, plan.sizes[index + 1], plan.adjacency, training)
         if index < layers - 1:
@@ -226,7 +227,7 @@ Decode = Callable[..., torch.Tensor]  # decode_members, or it compiled
 def forward_members(
     p: Params,
     config: ModelConfig,
-    batch: dict,
+    batch: Batch,
     steps: Sequence[int],
     training: bool,
     decode: Decode = decode_members,
@@ -235,11 +236,11 @@ def forward_members(
     max(steps); `steps` ascending, one per member."""
     if list(steps) != sorted(steps) or not steps or steps[0] < 1:
         raise ValueError(f"the members' steps must be ascending and positive, not {list(steps)}")
-    cv_step = batch.get("cv_step") if config.cv_residual else None
+    cv_step = batch.cv_step if config.cv_residual else None
     if config.cv_residual and cv_step is None:
         raise ValueError("a model with cv_residual needs the batch's cv_step")
     z = encode_members(p, config, batch, training)
-    start_xy = batch["x"].index_select(0, batch["target_node"])[:, :2]
+    start_xy = batch.x.index_select(0, batch.target_node)[:, :2]
     return decode(p, config, z, start_xy, tuple(steps), cv_step)
 
 
@@ -327,7 +328,7 @@ class AiGem(nn.Module):
         faster (bench/bench_train.py)."""
         self.decode_fn = torch.compile(decode_members, dynamic=True)
 
-    def encode(self, batch: dict) -> torch.Tensor:
+    def encode(self, batch: Batch) -> torch.Tensor:
         """(A, H) present embeddings of the batch's targets."""
         return encode_members(self.member_params(), self.config, batch, self.training)[0]
 
@@ -346,7 +347,7 @@ class AiGem(nn.Module):
         p = self.member_params()
         return self.decode_fn(p, self.config, z_target.unsqueeze(0), start_xy, (steps,), cv_step)[0]
 
-    def forward(self, batch: dict[str, torch.Tensor], steps: int | None = None) -> torch.Tensor:
+    def forward(self, batch: Batch, steps: int | None = None) -> torch.Tensor:
         """Scaled predicted positions (A, steps, 2) of the batch's targets."""
         steps = steps or self.config.future_steps
         p = self.member_params()

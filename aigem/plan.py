@@ -7,7 +7,7 @@ sixth of the edge work for L = 4. A `Plan` orders the nodes so that every layer'
 sets are prefixes of one node order, and sorts each edge type's edges by (destination, source)
 once: every layer's adjacency is then a prefix of one CSR matrix.
 
-Two kinds of batch carry a plan:
+Two kinds of batch (`aigem.batch.Batch`) carry a plan:
 - a loader's batch (`aigem.data.Collate(layers=L)`, or `make_plan` in the step): the plan is made
   for the batch's own sizes, on the host beforehand, so a step given it reads no number back;
 - a static batch (`aigem.resident`): the nodes come already in plan order, padded to fixed
@@ -25,17 +25,6 @@ import warnings
 from dataclasses import dataclass
 
 import torch
-
-
-def edge_inputs(
-    batch: dict, names: tuple[str, ...] | None = None
-) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """(edge_index (2, E), edge_attr (E, 1)) of each edge type `names` (None: the batch's own,
-    `batch["edge_types"]`, its build's), in that order, from a batch's "<name>_edges" and
-    "<name>_attr" (`aigem.data.Collate`)."""
-    names = batch["edge_types"] if names is None else names
-    return [(batch[f"{name}_edges"], batch[f"{name}_attr"]) for name in names]
-
 
 # ------------------------------------------------------------------------------------------------
 # The plan: pruned, relabelled, destination-sorted adjacency shared by all layers.
@@ -56,11 +45,16 @@ class Adjacency:
         end = self.ends[n_dst]
         return self.crow[: n_dst + 1], self.col[:end], self.attr[:end], self.row[:end]
 
-    def to(self, device: torch.device, non_blocking: bool = False) -> Adjacency:
+    def to(
+        self,
+        device: torch.device | str | None,
+        non_blocking: bool = False,
+        dtype: torch.dtype | None = None,
+    ) -> Adjacency:
+        """On `device`, the attributes as `dtype` (None: as they are)."""
         move = lambda t: t.to(device, non_blocking=non_blocking)  # noqa: E731
-        return Adjacency(
-            move(self.crow), move(self.col), move(self.row), move(self.attr), self.ends
-        )
+        attr = self.attr.to(device, dtype=dtype, non_blocking=non_blocking)
+        return Adjacency(move(self.crow), move(self.col), move(self.row), attr, self.ends)
 
     def pin_memory(self) -> Adjacency:
         pin = lambda t: t.pin_memory()  # noqa: E731
@@ -87,9 +81,15 @@ class Plan:
     def layers(self) -> int:
         return len(self.sizes) - 1
 
-    def to(self, device: torch.device, non_blocking: bool = False) -> Plan:
+    def to(
+        self,
+        device: torch.device | str | None,
+        non_blocking: bool = False,
+        dtype: torch.dtype | None = None,
+    ) -> Plan:
+        """On `device`, the edges' attributes as `dtype` (None: as they are)."""
         move = lambda t: None if t is None else t.to(device, non_blocking=non_blocking)  # noqa: E731
-        adjacency = [a.to(device, non_blocking) for a in self.adjacency]
+        adjacency = [a.to(device, non_blocking, dtype) for a in self.adjacency]
         return Plan(move(self.order), self.sizes, adjacency, move(self.outputs))
 
     def pin_memory(self) -> Plan:

@@ -19,7 +19,7 @@ from aigem.baseline import constant_velocity
 from aigem.checkpoints import load_model
 from aigem.config import horizon_steps
 from aigem.data import Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.devices import pick_device, to_device
+from aigem.devices import pick_device
 from aigem.records import BEST, read_group
 from aigem.refusals import check_build, resolve_build
 from ngsim_graphs.errors import NgsimInputError
@@ -75,7 +75,7 @@ def predict_samples(
     batch = Collate(scaler, layers=model.config.layers)([read])
     steps = horizon_steps(info.train.horizon_s, dataset.config.time_step_s)
     with torch.no_grad():
-        predicted = xy_to_metres(scaler, model(to_device(batch, device), steps)).cpu().numpy()
+        predicted = xy_to_metres(scaler, model(batch.to(device), steps)).cpu().numpy()
     if not np.isfinite(predicted).all():
         raise NgsimInputError(run_dir / BEST, "its predictions are not finite (NaN or infinite)")
     present = graphs.node_features[graphs.target_node]  # (T, 4)

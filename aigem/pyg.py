@@ -20,7 +20,7 @@ nodes, E edges of a type, K = K_F future steps:
     data.sample_id             (1,) int64 the sample's index in its split
 
 The targets come in node order, which is the order of `Collate`'s `target_node`;
-`to_model_batch` turns a (batched) `HeteroData` into AiGem's input dict.
+`to_model_batch` turns a (batched) `HeteroData` into AiGem's input, an `aigem.batch.Batch`.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from torch_geometric.data import Dataset as PygDataset
 from torch_geometric.data import HeteroData
 from torch_geometric.data.summary import Stats, Summary
 
+from aigem.batch import Batch, Edges
 from aigem.data import GraphDataset
 from ngsim_graphs import edges
 from ngsim_graphs.graphs import GraphBatch
@@ -85,24 +86,27 @@ def to_hetero_data(
     return data
 
 
-def to_model_batch(data: HeteroData) -> dict[str, torch.Tensor]:
-    """AiGem's input dict (the keys of `Collate`'s batch but `target_state`) from one HeteroData
-    of `to_hetero_data` or a PyG batch of them; A targets in node order."""
+def to_model_batch(data: HeteroData) -> Batch:
+    """AiGem's `aigem.batch.Batch` (the fields of `Collate`'s but `target_state` and `cv_step`,
+    and no plan) from one HeteroData of `to_hetero_data` or a PyG batch of them; A targets in
+    node order."""
     node = data[NODE]
     target = torch.nonzero(node.is_target).squeeze(1)  # (A,)
     node_sample = node.batch if "batch" in node else torch.zeros(node.num_nodes, dtype=torch.long)
-    batch = {"x": node.x}  # (N, 4) scaled
     names = tuple(name for _, name, _ in data.edge_types)  # the build's, in its order
-    for name in names:
-        batch[f"{name}_edges"] = data[NODE, name, NODE].edge_index  # (2, E)
-        batch[f"{name}_attr"] = data[NODE, name, NODE].edge_attr  # (E, 1)
-    return batch | {
-        "node_sample": node_sample,  # (N,)
-        "target_node": target,  # (A,)
-        "target_sample": node_sample[target],  # (A,)
-        "target_xy": node.y[target],  # (A, K, 2) metres
-        "target_mask": node.y_mask[target],  # (A, K)
-    }
+    return Batch(
+        x=node.x,  # (N, 4) scaled
+        target_node=target,
+        target_sample=node_sample[target],  # (A,)
+        target_xy=node.y[target],  # (A, K, 2) metres
+        target_mask=node.y_mask[target],  # (A, K)
+        edges={
+            name: Edges(data[NODE, name, NODE].edge_index, data[NODE, name, NODE].edge_attr)
+            for name in names
+        },
+        node_sample=node_sample,  # (N,)
+        graphs=getattr(data, "num_graphs", 1),  # a PyG batch's; one HeteroData is one graph
+    )
 
 
 class GraphPygDataset(PygDataset):

@@ -1,4 +1,4 @@
-"""The learning rate of every step of `aigem fit`, and gradient clipping.
+"""The learning rate of every step of `aigem fit`, and gradient clipping (each model's own).
 
 The rate is a pure function of where the step is (its epoch and its batch in the epoch): a resumed
 run sets exactly the rates an uninterrupted one would, with nothing to keep in the checkpoint.
@@ -43,7 +43,16 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, rate: float) -> None:
 
 
 def clip_gradients(parameters: Iterable[torch.Tensor], max_norm: float | None) -> None:
-    """Scale the gradients down to a total L2 norm of `max_norm` where it is larger (None: leave
-    them). On the device, without reading the norm back: the step does not wait for the GPU."""
-    if max_norm is not None:
-        torch.nn.utils.clip_grad_norm_(parameters, max_norm)
+    """Scale each member's gradients down to a total L2 norm of `max_norm` where it is larger
+    (None: leave them): `parameters` stacked over M members (M, ...), member m's total the norm
+    of all its gradients, as `torch.nn.utils.clip_grad_norm_` of its model alone (whose 1e-6
+    it keeps: a clipped member steps as its model alone, tests/test_aigem_ensemble.py). On the
+    device, without reading the norm back: the step does not wait for the GPU."""
+    if max_norm is None:
+        return
+    grads = [p.grad for p in parameters if p.grad is not None]
+    norms = torch.stack([torch.linalg.vector_norm(g.flatten(1), dim=1) for g in grads])
+    total = torch.linalg.vector_norm(norms, dim=0)  # (M,)
+    scale = torch.clamp(max_norm / (total + 1e-6), max=1.0)
+    for grad in grads:
+        grad.mul_(scale.view(-1, *[1] * (grad.dim() - 1)))

@@ -8,17 +8,17 @@ of it (constant velocity's position at a step does not depend on how many steps 
 model's scores are those it gets scored alone: constant velocity's exactly, the model's to float
 rounding (batched products sum in another order).
 
-On CUDA (`resident`) the split is loaded onto the device once and scored in static batches
-(aigem.resident, aigem.engine: each capacity's forward captured and replayed); the metrics are
-summed on the host from the split's host copy, the same code as the loader's batches.
+One scorer for both kinds of batch: the loader's, or on CUDA (`resident`) static batches of the
+split loaded onto the device once (aigem.resident, aigem.engine), each batch through one forward
+function (on CUDA captured and replayed per capacity) and its targets summed on the host by the
+same code (a static batch's from the split's host copy).
 aigem.evaluation turns scores into the numbers `aigem evaluate` reports.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import torch
@@ -26,16 +26,19 @@ from torch.utils.data import DataLoader
 
 from aigem import capacity, engine
 from aigem.baseline import constant_velocity
+from aigem.batch import Batch
+from aigem.capacity import Capacity
 from aigem.cores import default_workers
 from aigem.data import Collate, GraphDataset, xy_to_metres
-from aigem.devices import to_device
-from aigem.ensemble import stack
+from aigem.ensemble import Ensemble, stack
+from aigem.loading import load_split
 from aigem.metrics import ErrorTotals, SampleTotals
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, fits, load_split
+from aigem.resident import ResidentSplit, fits
 from aigem.results import FinalErrors, Scores
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.grid import concat_ranges
+from ngsim_graphs.scaling import MinMaxScaler
 
 
 class NonFinitePredictionError(ValueError):
@@ -60,19 +63,17 @@ class BatchTargets:
     sample: np.ndarray
 
 
-def batch_targets(
-    batch: dict[str, Any], dataset: GraphDataset, first: int, steps: int
-) -> BatchTargets:
+def batch_targets(batch: Batch, dataset: GraphDataset, first: int, steps: int) -> BatchTargets:
     """The targets of a loader's batch that starts at sample index `first` (the loader's batches
     are consecutive indices, unshuffled), over `steps` future steps."""
-    state = batch["target_state"].numpy().astype(np.float64)  # (A, 4)
-    ids = dataset.batch_order(np.arange(first, first + batch["graphs"]))
+    state = batch.target_state.numpy().astype(np.float64)  # (A, 4)
+    ids = dataset.batch_order(np.arange(first, first + batch.graphs))
     return BatchTargets(
-        truth=batch["target_xy"][:, :steps].numpy(),
+        truth=batch.target_xy[:, :steps].numpy(),
         cv=constant_velocity(state, steps, dataset.config.time_step_s),
-        mask=batch["target_mask"][:, :steps].numpy(),
+        mask=batch.target_mask[:, :steps].numpy(),
         present_y_m=state[:, 1],
-        sample=ids[batch["target_sample"].numpy()],
+        sample=ids[batch.target_sample.numpy()],
     )
 
 
@@ -108,12 +109,6 @@ class ScoreSums:
         return Scores(self.model, self.constant_velocity, final, *self.by_sample)
 
 
-def _loader(dataset: GraphDataset, layers: int, batch_size: int) -> DataLoader:
-    """The split in order, batches planned for an encoder of `layers` layers."""
-    collate = Collate(dataset.scaler, layers=layers)
-    return DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
-
-
 def score_targets(
     model: AiGem,
     dataset: GraphDataset,
@@ -145,24 +140,20 @@ def score_members(
     A non-finite prediction raises NonFinitePredictionError naming the model's index.
     `resident` (None: on CUDA): the split loaded onto the device, scored in static batches of
     RESIDENT_BATCH (aigem.engine), where it takes at most half the device's free memory."""
+    ensemble = stack(models, steps).eval()
+    batches = None
     if resident if resident is not None else device.type == "cuda":
-        scores = _score_resident(models, dataset, steps, device, progress)
-        if scores is not None:
-            return scores
-    ensemble = stack(models, steps)
-    ensemble.eval()
-    loader = _loader(dataset, models[0].config.layers, batch_size)
-    # on the CPU the models one after the other: faster there than stacked (benchmarks.md)
-    predict = ensemble.predict_one_by_one if device.type == "cpu" else ensemble
+        batches = _static_batches(dataset, models[0].config.layers, max(steps), device)
+    if batches is None:
+        batches = _loader_batches(dataset, models[0].config.layers, batch_size, max(steps), device)
+    count, pairs = batches
+    forward = _Forward(ensemble, dataset.scaler, device)
     sums = [ScoreSums(k, len(dataset)) for k in steps]
-    with torch.no_grad():
-        for index, batch in enumerate(loader):
-            scaled = predict(to_device(batch, device))  # (M, A, K, 2), K = max(steps)
-            predicted = xy_to_metres(dataset.scaler, scaled).cpu().numpy()
-            targets = batch_targets(batch, dataset, index * batch_size, max(steps))
-            _add_batch(sums, predicted, targets, f"batch {index + 1} of {len(loader)}")
-            if progress:
-                progress(index + 1, len(loader))
+    for index, (batch, targets) in enumerate(pairs):
+        predicted = forward(batch)[:, : len(targets.sample)].cpu().numpy()  # (M, A, K, 2) metres
+        _add_batch(sums, predicted, targets, f"batch {index + 1} of {count}")
+        if progress:
+            progress(index + 1, count)
     return [member_sums.scores() for member_sums in sums]
 
 
@@ -177,6 +168,52 @@ def _add_batch(
         member_sums.add(predicted[member], targets)
 
 
+class _Forward:
+    """The ensemble's predictions in metres ((M, A, K, 2), K = max(steps)) of a batch, the
+    loader's or a static one, forward only: one function of a batch for both, on CUDA each
+    static capacity's captured and replayed (aigem.engine) into a buffer of its own (padding
+    after the batch's targets)."""
+
+    def __init__(self, ensemble: Ensemble, scaler: MinMaxScaler, device: torch.device) -> None:
+        self.ensemble, self.scaler, self.device = ensemble, scaler, device
+        self.out: dict[Capacity, torch.Tensor] = {}
+        self.replays = engine.Replays(device)
+
+    def _metres(self, batch: Batch) -> torch.Tensor:
+        with torch.no_grad():
+            return xy_to_metres(self.scaler, self.ensemble.predict(batch))
+
+    def __call__(self, batch: Batch | engine.StaticBatch) -> torch.Tensor:
+        if isinstance(batch, Batch):
+            return self._metres(batch)
+        if batch.capacity not in self.out:  # before any capture
+            shape = (self.ensemble.members, batch.capacity.targets, max(self.ensemble.steps), 2)
+            self.out[batch.capacity] = torch.empty(shape, device=self.device)
+        out = self.out[batch.capacity]
+        self.replays(lambda assembled: out.copy_(self._metres(assembled)), batch)
+        return out
+
+
+# The batches of a pass: how many, and each batch (on the device) with its targets (on the host)
+Pass = tuple[int, Iterator[tuple[Batch | engine.StaticBatch, BatchTargets]]]
+
+
+def _loader_batches(
+    dataset: GraphDataset, layers: int, batch_size: int, steps: int, device: torch.device
+) -> Pass:
+    """The split in order, in the loader's batches planned for an encoder of `layers` layers."""
+    collate = Collate(dataset.scaler, layers=layers)
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, collate_fn=collate)
+    pairs = (
+        (
+            batch.to(device, non_blocking=True),
+            batch_targets(batch, dataset, index * batch_size, steps),
+        )
+        for index, batch in enumerate(loader)
+    )
+    return len(loader), pairs
+
+
 RESIDENT_BATCH = 1024  # samples a static batch of evaluation: the batch changes no number
 
 
@@ -187,43 +224,37 @@ def _host_targets(
     counts = host.counts[ids, 0]
     starts = host.target_start.numpy()[ids]
     _, rows = concat_ranges(starts, starts + counts)
-    state = host.targets["target_state"].numpy()[rows].astype(np.float64)  # (A, 4)
+    state = host.targets.state.numpy()[rows].astype(np.float64)  # (A, 4)
     return BatchTargets(
-        truth=host.targets["target_xy"].numpy()[rows, :steps],
+        truth=host.targets.xy.numpy()[rows, :steps],
         cv=constant_velocity(state, steps, time_step_s),
-        mask=host.targets["target_mask"].numpy()[rows, :steps],
+        mask=host.targets.mask.numpy()[rows, :steps],
         present_y_m=state[:, 1],
         sample=np.repeat(ids, counts),
     )
 
 
-def _score_resident(
-    models: Sequence[AiGem],
-    dataset: GraphDataset,
-    steps: Sequence[int],
-    device: torch.device,
-    progress: Callable[[int, int], None] | None,
-) -> list[Scores] | None:
-    """score_members on the split loaded onto the device (None where it would take more than
-    half of a GPU's free memory: then the loader serves)."""
-    layers = models[0].config.layers
+def _static_batches(
+    dataset: GraphDataset, layers: int, steps: int, device: torch.device
+) -> Pass | None:
+    """The split loaded onto the device, in static batches of RESIDENT_BATCH samples, their
+    targets from its host copy (None where it would take more than half of a GPU's free memory:
+    then the loader serves)."""
     host = load_split(dataset, layers, default_workers(device.type, available_cores()))
     if not fits(host.nbytes(), device)[0]:
         return None
     split = host.to(device)
-    ensemble = stack(models, steps).eval()
     base = capacity.base_capacity(host.counts, RESIDENT_BATCH, layers)
     order = np.arange(len(dataset))
     batches = engine.epoch_batches(split, order, RESIDENT_BATCH, base, dataset.batch_order, device)
-    predict = engine.Predictions(ensemble, split, dataset.scaler, device)
-    sums = [ScoreSums(k, len(dataset)) for k in steps]
-    for index in range(len(batches)):
-        first = index * RESIDENT_BATCH
-        ids = dataset.batch_order(order[first : first + RESIDENT_BATCH])
-        targets = _host_targets(host, ids, dataset.config.time_step_s, max(steps))
-        out = predict(batches.ids[index], batches.tiers[index], base)
-        predicted = out[:, : len(targets.sample)].cpu().numpy()  # (M, A, K, 2) metres
-        _add_batch(sums, predicted, targets, f"batch {index + 1} of {len(batches)}")
-        if progress:
-            progress(index + 1, len(batches))
-    return [member_sums.scores() for member_sums in sums]
+    time_step_s = dataset.config.time_step_s
+    pairs = (
+        (
+            batch,
+            _host_targets(
+                host, dataset.batch_order(order[first : first + RESIDENT_BATCH]), time_step_s, steps
+            ),
+        )
+        for batch, first in zip(batches, range(0, len(order), RESIDENT_BATCH), strict=True)
+    )
+    return len(batches), pairs

@@ -4,16 +4,16 @@ Here a fit is set up: the device, the loaders, each model with its optimizer and
 directory (new or resumed), constant velocity's validation loss; aigem.epochs runs the epochs
 (the loss, the steps, a checkpoint per epoch). Checkpoints are written atomically after every
 epoch; `resume` restarts from the last one. Under `torchrun` (WORLD_SIZE > 1) it trains with
-DistributedDataParallel.
+DistributedDataParallel (aigem.trainers: each model an ensemble of one, through its wrapper).
 
 `fit_horizons` trains one model per horizon, as the paper does, in one loop over one loader: each
-batch, moved to the device once, trains every model, the models of an epoch as one ensemble
-(aigem.epochs, aigem.ensemble), each with its own optimizer, checkpoints, log and early stopping. On
-the CPU each model is the one `fit` would train for its horizon with the same seed and settings
-(the same initialisation, batches and dropout masks), to float rounding, which the ensemble's
-other order of summation changes: the members draw one dropout mask from the global generator,
-as a model alone draws its own (aigem.model). On the loader's batches the ensemble runs eagerly:
-`--compile` applies to a model trained alone.
+batch, moved to the device once, trains every model, the models as one ensemble stacked through
+the fit (aigem.trainers, aigem.ensemble), each with its own optimizer, checkpoints, log and early
+stopping. On the CPU each model is the one `fit` would train for its horizon with the same seed
+and settings (the same initialisation, batches and dropout masks), to float rounding, which the
+ensemble's other order of summation changes: the members draw one dropout mask from the global
+generator, as a model alone draws its own (aigem.model). With `--compile` (on CUDA, the loader's
+batches) an ensemble decodes through its first model's compiled decoder.
 """
 
 from __future__ import annotations
@@ -39,11 +39,12 @@ from aigem.data import Collate, GraphDataset
 from aigem.devices import pick_device
 from aigem.engine import DeviceData
 from aigem.epochs import EpochCallback, TrainProgress, draw_curves, train_epochs
+from aigem.loading import load_split
 from aigem.model import AiGem, count_parameters
 from aigem.processes import EndWithParent, compile_in_process, release_workers
 from aigem.records import Group, RunState, planned_group
 from aigem.refusals import check_splits, model_of_build
-from aigem.resident import fits, load_split
+from aigem.resident import fits
 from aigem.trainers import Loop, Member
 from ngsim_graphs.build import open_build
 from ngsim_graphs.layout import manifest_path
@@ -166,9 +167,7 @@ def device_data(
     )
     steps = "captured once and replayed" if device.type == "cuda" else "run eagerly"
     say(f"the splits on {device} ({size / 1e9:.2f} GB): static batches of {batch} graphs, {steps}")
-    return DeviceData(
-        train_split, val_split, batch, train_base, val_base, val_batches, train_set.batch_order
-    )
+    return DeviceData(train_split, val_split, batch, train_base, val_batches, train_set.batch_order)
 
 
 def _start_members(
@@ -210,7 +209,6 @@ def _start_members(
             optimizer,
             loop.rank == 0,
         )
-        net = nn.parallel.DistributedDataParallel(model) if loop.world > 1 else model
         steps = member_train.horizon_steps(time_step_s)
         members.append(
             Member(
@@ -218,7 +216,6 @@ def _start_members(
                 member_train,
                 steps,
                 model,
-                net,
                 optimizer,
                 info,
                 state,

@@ -19,10 +19,11 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
-from aigem.config import ModelConfig
+from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
-from aigem.trainers import masked_mse_m2
+from aigem.trainers import stack_trainer
+from aigem.training import make_optimizer
 
 
 def graphs_per_second(loader: DataLoader, batches: int, batch_size: int) -> float:
@@ -51,24 +52,23 @@ def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> tuple
 
 
 def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: int) -> float:
+    """fit's one training step (aigem.trainers) of a model alone on the CPU."""
     torch.manual_seed(0)
-    model = AiGem(ModelConfig())
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    model, cpu = AiGem(ModelConfig()), torch.device("cpu")
+    optimizer = make_optimizer(model, TrainConfig(), cpu)
+    steps = model.config.future_steps
+    trainer = stack_trainer([model], [optimizer], [steps], dataset.scaler, None, cpu)
     loader = DataLoader(
         dataset, batch_size=batch_size, shuffle=True, collate_fn=Collate(dataset.scaler)
     )
     data = [
         b for _, b in zip(range(batches + 1), loader, strict=False)
     ]  # loading is not timed here
-    steps = model.config.future_steps
     start = None
     for index, batch in enumerate(data):
         if index == 1:
             start = time.perf_counter()
-        loss = masked_mse_m2(model(batch, steps), batch, dataset.scaler, steps)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
+        trainer.step(batch, 1e-3)
     return batches * batch_size / (time.perf_counter() - start)
 
 

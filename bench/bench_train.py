@@ -13,14 +13,15 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
 - loader: DataLoader(GraphDataset, Collate, shuffled, --workers processes) alone, on the host,
   after its first batch (worker start-up excluded); at least --steps batches and 8,192 graphs
   (or an epoch, if less).
-- model step: forward, `masked_mse_m2`, zero_grad, backward and Adam's step on batches loaded
-  beforehand and already on the device (no loading, no host-to-device copy): --warmup steps, then
-  --steps timed (CUDA synchronised at both ends).
-- M models (--models): the model step of M models of horizons 1..5 s (the k-th model's is
-  1 + k % 5 s) as `aigem fit --horizon-s` trains them, as one ensemble (aigem.ensemble: the
-  members' losses summed, one backward, one fused Adam); `M apart`: the same M models stepped
-  one after the other, each with its own optimizer. graphs/s counts a graph once, through all
-  of them.
+- model step: fit's one training step (aigem.trainers: a model alone is an ensemble of one;
+  zero_grad, forward, the masked loss, backward, Adam's step) on batches loaded beforehand and
+  already on the device (no loading, no host-to-device copy): --warmup steps, then --steps timed
+  (CUDA synchronised at both ends).
+- M models (--models): the step of M models of horizons 1..5 s (the k-th model's is 1 + k % 5
+  s) as `aigem fit --horizon-s` trains them, as one ensemble (aigem.ensemble: the members'
+  losses summed, one backward, one fused Adam); `M apart`: the same M models stepped one after
+  the other, each an ensemble of one with its own optimizer. graphs/s counts a graph once,
+  through all of them.
 - fit loop: `aigem.training.fit` itself (1 epoch at this batch size, --workers, a temporary run
   directory) watched through its `progress` callback: the clock starts at the report of batch
   --warmup and stops at the first report --steps batches later; the profiler then watches
@@ -31,11 +32,12 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
 - fit M h (for each M of --models from 2 to 5): the same for `aigem.training.fit_horizons` with
   the horizons 1..M s, its M models trained as one ensemble.
 - to device (once per device, where static batches are measured): the train split loaded onto
-  the device (aigem.resident: induced over --workers processes, what a layer reads kept);
+  the device (aigem.loading: induced over --workers processes, what a layer reads kept);
   graphs/s of the loading, its seconds in ms/batch.
-- static M (1 and each M of --models): aigem.engine's step of M models (horizons 1..5 s) as one
-  ensemble on static batches of the split on the device: assembled there by index, padded to
-  the capacity tiers of aigem.capacity, on CUDA captured once per tier and replayed. `padding`:
+- static M (1 and each M of --models): the same step of M models (horizons 1..5 s) as one
+  ensemble on static batches of the split on the device (aigem.engine): assembled there by
+  index, padded to the capacity tiers of aigem.capacity, on CUDA captured once per tier and
+  replayed. `padding`:
   the share of the tier-0 capacity that padding fills; `GPU GB`: the memory PyTorch reserved on
   the GPU so far (the splits, the captured steps' pools).
 - fit loop st, fit M h st: fit's loop on static batches (`TrainConfig.resident`), CUDA's
@@ -85,15 +87,16 @@ from torch.overrides import TorchFunctionMode
 from torch.profiler import ProfilerActivity
 from torch.utils.data import DataLoader
 
-from aigem import capacity, ensemble
+from aigem import capacity
 from aigem import plan as aigem_plan
+from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
-from aigem.devices import to_device
-from aigem.engine import TrainSteps, epoch_batches
+from aigem.engine import epoch_batches
+from aigem.loading import load_split
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, load_split
-from aigem.trainers import masked_mse_m2
+from aigem.resident import ResidentSplit
+from aigem.trainers import Trainer, stack_trainer
 from aigem.training import fit_horizons, make_optimizer
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
@@ -123,7 +126,6 @@ COLUMNS = {
     "GPU GB": 6,
     "syncs by op (per step)": 0,
 }
-Batch = dict[str, torch.Tensor]
 
 
 class _Conversions(TorchFunctionMode):
@@ -259,25 +261,13 @@ def measure_step(
         TrainConfig().horizon_steps(step_s) if models == 1 else round((1 + k % 5) / step_s)
         for k in range(models)
     )
-    on_device = [to_device(batch, device) for batch in batches]
+    on_device = [batch.to(device, non_blocking=True) for batch in batches]
+    groups = [range(models)] if together else [[k] for k in range(models)]
+    trainers = [_trainer(nets, optimizers, horizons, group, dataset, device) for group in groups]
 
-    def apart(batch: Batch) -> None:
-        for net, optimizer, steps in zip(nets, optimizers, horizons, strict=True):
-            loss = masked_mse_m2(net(batch, steps), batch, dataset.scaler, steps)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-
-    step = apart
-    if models > 1 and together:
-        stacked = ensemble.stack(nets, horizons)
-        stacked_optimizer = ensemble.stack_optimizer(stacked, optimizers)
-
-        def step(batch: Batch) -> None:
-            losses = stacked.member_losses(stacked(batch), batch, dataset.scaler)
-            stacked_optimizer.zero_grad(set_to_none=True)
-            losses.sum().backward()
-            stacked_optimizer.step()
+    def step(batch: Batch) -> None:
+        for trainer in trainers:
+            trainer.step(batch, 1e-3)
 
     warmup = on_device[: args.warmup] * (4 if compiled else 1)  # compiles a few variants first
     timed = on_device[args.warmup : args.warmup + args.steps]
@@ -294,12 +284,25 @@ def measure_step(
     for batch in on_device[args.warmup + args.steps :]:
         step(batch)
     counts.stop()
-    graphs = sum(batch["graphs"] for batch in timed)  # a short batch: fewer
+    graphs = sum(batch.graphs for batch in timed)  # a short batch: fewer
     return {
         "graphs/s": graphs / seconds,
         "ms/batch": 1000 * seconds / len(timed),
         **counts.per_step(args.profile_steps),
     }
+
+
+def _trainer(
+    nets: list[AiGem],
+    optimizers: list[torch.optim.Optimizer],
+    horizons: list[int],
+    group: range | list[int],
+    dataset: GraphDataset,
+    device: torch.device,
+) -> Trainer:
+    """The models `group` of `nets` (their steps `horizons`) stacked as fit's trainer."""
+    picked = [nets[k] for k in group], [optimizers[k] for k in group], [horizons[k] for k in group]
+    return stack_trainer(*picked, dataset.scaler, None, device)
 
 
 def load_resident(dataset: GraphDataset, device: torch.device, workers: int):  # noqa: ANN201
@@ -329,18 +332,17 @@ def measure_static(
         TrainConfig().horizon_steps(step_s) if models == 1 else round((1 + k % 5) / step_s)
         for k in range(models)
     )
-    stacked = ensemble.stack(nets, horizons)
     optimizers = [make_optimizer(net, TrainConfig(), device) for net in nets]
-    optimizer = ensemble.stack_optimizer(stacked, optimizers, capturable=device.type == "cuda")
-    running = torch.zeros(models, dtype=torch.float64, device=device)
-    steps = TrainSteps(stacked, optimizer, split, dataset.scaler, None, running, device)
+    trainer = stack_trainer(
+        nets, optimizers, horizons, dataset.scaler, None, device, device.type == "cuda"
+    )
     base = capacity.base_capacity(split.counts, batch_size, split.layers)
     order = np.random.default_rng(0).permutation(split.samples)
     batches = epoch_batches(split, order, batch_size, base, dataset.batch_order, device)
     needed = args.warmup + args.steps + args.profile_steps
     if len(batches) < needed + 1:
         return {}
-    step = lambda i: steps(batches.ids[i], batches.tiers[i], base, 1e-3)  # noqa: E731
+    step = lambda i: trainer.step(batches[i], 1e-3)  # noqa: E731
     for index in range(args.warmup):
         step(index)
     _sync(device)

@@ -70,16 +70,16 @@ def targets_of(
     dt = dataset.config.time_step_s
     with torch.no_grad():
         for batch in loader:
-            target = batch["target_node"]
+            target = batch.target_node
             # the present-step embeddings the decoder starts from
             z = model.encode(batch)
             predicted = xy_to_metres(scaler, model(batch, steps)).numpy().astype(np.float64)
-            state = batch["target_state"].numpy().astype(np.float64)
+            state = batch.target_state.numpy().astype(np.float64)
             cv = constant_velocity(state, steps, dt)
-            truth = batch["target_xy"][:, :steps].numpy().astype(np.float64)
-            mask = batch["target_mask"][:, :steps].numpy()
+            truth = batch.target_xy[:, :steps].numpy().astype(np.float64)
+            mask = batch.target_mask[:, :steps].numpy()
             heading, speed = state[:, 2], state[:, 3]
-            parts["features"].append(batch["x"][target].numpy())
+            parts["features"].append(batch.x[target].numpy())
             parts["embedding"].append(z.numpy())
             parts["velocity"].append(
                 speed[:, None] * np.stack([np.sin(heading), np.cos(heading)], 1)

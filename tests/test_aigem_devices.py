@@ -1,11 +1,11 @@
-"""The device of `--device`, and a batch moved onto it."""
+"""The device of `--device` (a batch moved onto it: tests/test_aigem_batch.py)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from aigem.devices import DeviceUnavailableError, pick_device, to_device
+from aigem.devices import DeviceUnavailableError, pick_device
 
 
 def test_pick_device() -> None:
@@ -15,11 +15,3 @@ def test_pick_device() -> None:
     if not has_cuda:
         with pytest.raises(DeviceUnavailableError, match="--device cuda: no CUDA device"):
             pick_device("cuda")
-
-
-def test_to_device_moves_tensors_and_keeps_the_rest() -> None:
-    batch = {"target_xy": torch.ones(2, 3, 2), "graphs": 2, "plan": None}
-    moved = to_device(batch, torch.device("cpu"))
-    assert set(moved) == set(batch) and moved["graphs"] == 2 and moved["plan"] is None
-    assert torch.equal(moved["target_xy"], batch["target_xy"])
-    assert moved["target_xy"].device == torch.device("cpu")

@@ -19,17 +19,17 @@ from torch.utils.data import DataLoader
 
 from aigem import ensemble
 from aigem import plan as aigem_plan
+from aigem.batch import Batch
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
+from aigem.loss import masked_mse_m2
 from aigem.model import AiGem
-from aigem.schedule import clip_gradients
-from aigem.trainers import masked_mse_m2
 
 STEPS = (5, 10, 10, 25)  # ascending; two members of one horizon
 
 
 @pytest.fixture(scope="module")
-def data(tiny_build: Path) -> tuple[dict, GraphDataset]:
+def data(tiny_build: Path) -> tuple[Batch, GraphDataset]:
     dataset = GraphDataset(tiny_build, "train", history_steps=ModelConfig().history_steps_read)
     loader = DataLoader(dataset, batch_size=8, collate_fn=Collate(dataset.scaler, layers=4))
     return next(iter(loader)), dataset
@@ -41,10 +41,6 @@ def _models(count: int, config: ModelConfig, dtype: torch.dtype = torch.float32)
         torch.manual_seed(seed)
         models.append(AiGem(config).to(dtype))
     return models
-
-
-def _as(batch: dict, dtype: torch.dtype) -> dict:
-    return {k: v.to(dtype) if k == "x" else v for k, v in batch.items()}
 
 
 def test_cpu_dropout_is_a_bernoulli_mask_of_the_global_stream() -> None:
@@ -64,7 +60,7 @@ def test_cpu_dropout_is_a_bernoulli_mask_of_the_global_stream() -> None:
 @pytest.mark.parametrize("sparse", [True, False], ids=["csr", "gather-scatter"])
 @pytest.mark.parametrize("training", [False, True], ids=["eval", "train"])
 def test_each_member_computes_its_model(
-    data: tuple[dict, GraphDataset], sparse: bool, training: bool, monkeypatch: pytest.MonkeyPatch
+    data: tuple[Batch, GraphDataset], sparse: bool, training: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     batch, _ = data
     monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
@@ -73,7 +69,7 @@ def test_each_member_computes_its_model(
     stacked = ensemble.stack(models, STEPS).train(training)
     torch.manual_seed(7)
     out = stacked(batch)
-    assert out.shape == (len(STEPS), len(batch["target_node"]), 25, 2)
+    assert out.shape == (len(STEPS), len(batch.target_node), 25, 2)
     if training:  # evaluation's alone
         with pytest.raises(ValueError, match="evaluation"):
             stacked.predict_one_by_one(batch)
@@ -90,14 +86,14 @@ def test_each_member_computes_its_model(
         assert not torch.allclose(models[1].train()(batch, 10), out[1, :, :10])
 
 
-def test_members_losses_are_each_models_loss(data: tuple[dict, GraphDataset]) -> None:
+def test_members_losses_are_each_models_loss(data: tuple[Batch, GraphDataset]) -> None:
     batch, dataset = data
-    out = torch.randn(len(STEPS), len(batch["target_node"]), 25, 2)
+    out = torch.randn(len(STEPS), len(batch.target_node), 25, 2)
     stacked = ensemble.stack(_models(len(STEPS), ModelConfig()), STEPS)
     losses = stacked.member_losses(out, batch, dataset.scaler)
     for index, steps in enumerate(STEPS):
         alone = masked_mse_m2(out[index, :, :steps], batch, dataset.scaler, steps)
-        torch.testing.assert_close(losses[index], alone, rtol=1e-6, atol=0.0)
+        assert torch.equal(losses[index], alone)  # bitwise: its checkpoints record its losses
 
 
 @pytest.mark.parametrize("clip", [None, 0.5], ids=["no-clip", "clip"])
@@ -108,7 +104,7 @@ def test_members_losses_are_each_models_loss(data: tuple[dict, GraphDataset]) ->
     ids=["paper", "two-heads-three-layers"],
 )
 def test_steps_of_the_ensemble_are_steps_of_each_model(
-    data: tuple[dict, GraphDataset],
+    data: tuple[Batch, GraphDataset],
     clip: float | None,
     sparse: bool,
     config: ModelConfig,
@@ -117,7 +113,7 @@ def test_steps_of_the_ensemble_are_steps_of_each_model(
     """Three Adam steps with dropout on (and clipping) in float64: the stacked parameters, the
     Adam states and the losses are each model's trained alone on the members' dropout stream."""
     batch, dataset = data
-    batch = _as(batch, torch.float64)
+    batch = batch.to(dtype=torch.float64)
     monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
     models = _models(len(STEPS), config, torch.float64)
     alone_models = _models(len(STEPS), config, torch.float64)
@@ -143,7 +139,8 @@ def test_steps_of_the_ensemble_are_steps_of_each_model(
             streams[index] = torch.get_rng_state()
             alone_optimizers[index].zero_grad()
             loss.backward()
-            clip_gradients(model.parameters(), clip)
+            if clip is not None:  # the reference: PyTorch's, of the model alone
+                torch.nn.utils.clip_grad_norm_(model.parameters(), clip)
             alone_optimizers[index].step()
             row.append(loss.detach())
         torch.testing.assert_close(losses.detach(), torch.stack(row), rtol=1e-10, atol=0.0)
@@ -164,7 +161,7 @@ def test_steps_of_the_ensemble_are_steps_of_each_model(
     assert float(alone_losses[-1][0]) != float(alone_losses[0][0])  # it did learn
 
 
-def test_stack_and_unstack_round_trip(data: tuple[dict, GraphDataset]) -> None:
+def test_stack_and_unstack_round_trip(data: tuple[Batch, GraphDataset]) -> None:
     """Parameters and Adam states (after a step: moments and step counts) come back exactly."""
     batch, dataset = data
     models = _models(3, ModelConfig())
@@ -254,7 +251,7 @@ def test_a_gat_whose_lin_has_a_bias_is_refused() -> None:
     ids=["no-concat", "cv-residual", "two-heads"],
 )
 def test_each_member_computes_its_model_of_any_shape(
-    data: tuple[dict, GraphDataset], config: ModelConfig
+    data: tuple[Batch, GraphDataset], config: ModelConfig
 ) -> None:
     batch, _ = data
     models = [model.eval() for model in _models(2, config)]

@@ -22,8 +22,8 @@ import torch
 from typer.testing import CliRunner
 
 from aigem import checkpoints, epochs, run_log, runs, trainers, training
+from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
-from aigem.devices import to_device
 from aigem.ensemble import Ensemble
 from aigem.evaluation import evaluate
 from aigem.records import planned_group
@@ -151,17 +151,14 @@ F64_TRAIN = replace(TRAIN, lr_schedule="cosine", warmup_epochs=0.5, clip_grad_no
 @pytest.fixture
 def float64(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """Models in float64 (the default dtype while the test runs) and batches too: their floating
-    tensors cast as the training loop moves them to the device."""
+    tensors cast as the training loop moves them to the device (`Batch.to`)."""
 
-    def to_device_in_float64(batch: dict, device: torch.device) -> dict:
-        moved = to_device(batch, device)
-        return {
-            k: v.double() if isinstance(v, torch.Tensor) and v.is_floating_point() else v
-            for k, v in moved.items()
-        }
+    real = Batch.to
 
-    monkeypatch.setattr(epochs, "to_device", to_device_in_float64)  # validation's
-    monkeypatch.setattr(trainers, "to_device", to_device_in_float64)  # the steps'
+    def to_in_float64(batch: Batch, device: torch.device, *args: object, **kwargs: object) -> Batch:
+        return real(batch, device, torch.float64, kwargs.get("non_blocking", False))
+
+    monkeypatch.setattr(Batch, "to", to_in_float64)  # the steps' and validation's
     before = torch.get_default_dtype()
     torch.set_default_dtype(torch.float64)
     try:
@@ -247,16 +244,14 @@ def test_one_member_stopping_early_leaves_the_others_training(
 ) -> None:
     """The 1 s model's validation loss rises (1, 2, ...): with patience 1 it stops after epoch 2;
     the 2 s model trains on, exactly as it would have."""
-    real, rising = epochs.evaluate_losses, (float(i) for i in count(1))
+    real, rising = epochs.validation_losses, (float(i) for i in count(1))
 
-    def rising_for_1s(models: list[tuple[torch.nn.Module, int]], *args: object) -> list[float]:
-        losses = real(models, *args)
+    def rising_for_1s(*args: object) -> list[tuple[trainers.Member, float]]:
         return [
-            next(rising) if steps == 5 else loss
-            for (_, steps), loss in zip(models, losses, strict=False)
+            (member, next(rising) if member.steps == 5 else loss) for member, loss in real(*args)
         ]
 
-    monkeypatch.setattr(epochs, "evaluate_losses", rising_for_1s)
+    monkeypatch.setattr(epochs, "validation_losses", rising_for_1s)
     run = tmp_path / "run"
     train = TrainConfig(**{**TRAIN.to_dict(), "epochs": 3, "patience_epochs": 1})
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), train, "cpu")

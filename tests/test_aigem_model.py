@@ -10,20 +10,27 @@ import torch
 from torch.func import functional_call
 from torch_geometric.nn import GATConv
 
+from aigem.batch import Batch, Edges
 from aigem.config import ModelConfig
 from aigem.model import NEGATIVE_SLOPE, AiGem, GATParameters, count_parameters
 
 
-def tiny_batch() -> dict[str, torch.Tensor]:
+def tiny_batch(cv_step: torch.Tensor | None = None) -> Batch:
     torch.manual_seed(0)
-    return {
-        "x": torch.randn(7, 4),
-        "spatial_edges": torch.tensor([[0, 1, 0, 2, 4, 5], [1, 0, 2, 0, 5, 4]]),
-        "spatial_attr": torch.rand(6, 1),
-        "temporal_edges": torch.tensor([[0, 1], [4, 5]]),
-        "temporal_attr": torch.full((2, 1), 0.2),
-        "target_node": torch.tensor([5, 6]),
-    }
+    x = torch.randn(7, 4)
+    spatial = Edges(torch.tensor([[0, 1, 0, 2, 4, 5], [1, 0, 2, 0, 5, 4]]), torch.rand(6, 1))
+    temporal = Edges(torch.tensor([[0, 1], [4, 5]]), torch.full((2, 1), 0.2))
+    targets = torch.tensor([5, 6])
+    return Batch(
+        x=x,
+        target_node=targets,
+        target_sample=torch.zeros(2, dtype=torch.long),
+        target_xy=torch.zeros(2, 25, 2),
+        target_mask=torch.ones(2, 25, dtype=torch.bool),
+        edges={"spatial": spatial, "temporal": temporal},
+        cv_step=cv_step,
+        graphs=1,
+    )
 
 
 def test_parameter_count_is_within_5_percent_of_the_paper() -> None:
@@ -65,9 +72,9 @@ def test_cv_residual_adds_constant_velocitys_step_to_every_step() -> None:
     model = AiGem(config).eval()
     paper = AiGem(ModelConfig(dropout=0.0, concat_position=False)).eval()
     paper.load_state_dict(model.state_dict())  # the same parameters: none is added
-    batch = {**tiny_batch(), "cv_step": torch.tensor([[0.01, 0.02], [-0.03, 0.5]])}
+    batch = tiny_batch(cv_step=torch.tensor([[0.01, 0.02], [-0.03, 0.5]]))
     k = torch.arange(1, 6, dtype=torch.float32)[None, :, None]
-    expected = paper(batch, steps=5) + k * batch["cv_step"][:, None, :]
+    expected = paper(batch, steps=5) + k * batch.cv_step[:, None, :]
     assert torch.allclose(model(batch, steps=5), expected, atol=1e-5)
     assert torch.equal(paper(batch, steps=5), paper(tiny_batch(), steps=5))  # ignores cv_step
     with pytest.raises(ValueError, match="cv_step"):
@@ -112,11 +119,11 @@ def test_the_model_is_made_without_importing_pyg() -> None:
     assert done.stdout.split() == ["False", "False"]
 
 
-def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int) -> torch.Tensor:
+def _reference_forward(model: AiGem, batch: Batch, steps: int) -> torch.Tensor:
     """The model through PyG's plain GATConv path on every node (no pruning, no sparse product),
     on the model's own parameters (functional_call: the gradients reach them)."""
-    z = batch["x"]
-    edges = [(batch[f"{name}_edges"], batch[f"{name}_attr"]) for name in model.config.edge_types]
+    z = batch.x
+    edges = batch.edge_inputs(model.config.edge_types)
     for index, layer in enumerate(model.encoder):
         total = None
         for conv, (edge_index, attr) in zip(layer.convs(), edges, strict=True):
@@ -126,8 +133,8 @@ def _reference_forward(model: AiGem, batch: dict[str, torch.Tensor], steps: int)
         z = total + layer.linear(z)  # (N, H)
         if index < len(model.encoder) - 1:
             z = torch.relu(z)
-    target = batch["target_node"]
-    return model.decode(z[target], batch["x"][target, :2], steps)
+    target = batch.target_node
+    return model.decode(z[target], batch.x[target, :2], steps)
 
 
 @pytest.mark.parametrize("sparse", [True, False], ids=["csr", "gather-scatter"])
@@ -177,7 +184,7 @@ def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build
         assert config.history_steps_read == layers + 1
         cut = GraphDataset(tiny_build, "train", history_steps=config.history_steps_read)
         cut_batch = Collate(cut.scaler)(cut.__getitems__(ids))
-        assert cut_batch["x"].shape[0] < whole_batch["x"].shape[0] / 2
+        assert cut_batch.x.shape[0] < whole_batch.x.shape[0] / 2
         torch.manual_seed(3)
         model = AiGem(config)  # training mode: dropout on
         outputs, grads = [], []

@@ -3,6 +3,8 @@ of the CPU and the gather-scatter of accelerators, the same."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 
@@ -50,13 +52,10 @@ def test_a_plan_made_with_the_batch_gives_the_same_output_and_gradients(tiny_bui
     ids = list(range(min(8, len(dataset))))
     for layers in (2, 4):
         planned = Collate(dataset.scaler, layers=layers)(dataset.__getitems__(ids))
-        plain = {k: v for k, v in planned.items() if k != "plan"}
-        plan = planned["plan"]
-        edges = [
-            (plain["spatial_edges"], plain["spatial_attr"]),
-            (plain["temporal_edges"], plain["temporal_attr"]),
-        ]
-        again = make_plan(len(plain["x"]), plain["target_node"], edges, layers)
+        plain = replace(planned, plan=None)
+        plan = planned.plan
+        edges = plain.edge_inputs(("spatial", "temporal"))
+        again = make_plan(len(plain.x), plain.target_node, edges, layers)
         assert (
             plan.sizes == again.sizes and plan.layers == layers and plan.sizes[0] > plan.sizes[-1]
         )

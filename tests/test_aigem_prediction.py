@@ -41,10 +41,10 @@ def test_collated_targets_are_the_graphs_targets(tiny_run: Path, tiny_build: Pat
     graphs = open_build(tiny_build).graphs("val", ids)
     batch = Collate(dataset.scaler)([dataset.build.graphs("val", ids, dataset.first_step)])
     present = graphs.node_features[graphs.target_node]
-    assert np.array_equal(batch["target_state"].numpy(), present.astype(np.float32))
-    assert np.array_equal(batch["target_xy"].numpy(), graphs.target_xy.astype(np.float32))
-    assert np.array_equal(batch["target_mask"].numpy(), graphs.target_mask)
-    assert np.array_equal(batch["target_sample"].numpy(), graphs.node_sample[graphs.target_node])
+    assert np.array_equal(batch.target_state.numpy(), present.astype(np.float32))
+    assert np.array_equal(batch.target_xy.numpy(), graphs.target_xy.astype(np.float32))
+    assert np.array_equal(batch.target_mask.numpy(), graphs.target_mask)
+    assert np.array_equal(batch.target_sample.numpy(), graphs.node_sample[graphs.target_node])
 
 
 def test_errors_equal_evaluate(tiny_run: Path, tiny_build: Path) -> None:

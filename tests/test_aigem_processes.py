@@ -18,7 +18,7 @@ import torch
 import torch._inductor.config
 from torch.utils.data import DataLoader
 
-from aigem import resident
+from aigem import loading
 from aigem.config import ModelConfig, TrainConfig
 from aigem.data import Collate, GraphDataset
 from aigem.model import AiGem
@@ -40,11 +40,11 @@ def test_release_ends_a_loaders_persistent_workers_and_it_can_start_again(
         dataset, batch_size=8, collate_fn=collate, num_workers=2, persistent_workers=True
     )
     before = {child.pid for child in multiprocessing.active_children()}
-    first = sum(batch["graphs"] for batch in loader)
+    first = sum(batch.graphs for batch in loader)
     assert len(started_since(before)) == 2  # persistent: alive after the pass
     release_workers(loader)
     assert started_since(before) == set()
-    assert sum(batch["graphs"] for batch in loader) == first == len(dataset)
+    assert sum(batch.graphs for batch in loader) == first == len(dataset)
     release_workers(loader, DataLoader(dataset))  # again, and a loader without workers: no-ops
     assert started_since(before) == set()
 
@@ -138,8 +138,8 @@ def test_the_fits_loaders_and_the_splits_loading_end_their_workers_with_the_fit(
     assert isinstance(val_loader.worker_init_fn, EndWithParent)
     made = []  # the keyword arguments of load_split's loader
     loader = lambda *args, **kwargs: made.append(kwargs) or DataLoader(*args, **kwargs)
-    monkeypatch.setattr(resident, "DataLoader", loader)
-    resident.load_split(GraphDataset(tiny_build, "val"), layers=2, workers=0)
+    monkeypatch.setattr(loading, "DataLoader", loader)
+    loading.load_split(GraphDataset(tiny_build, "val"), layers=2, workers=0)
     assert isinstance(made[0]["worker_init_fn"], EndWithParent)
 
 

@@ -10,13 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from aigem import capacity, ensemble, resident
+from aigem import capacity, ensemble, loading
 from aigem import plan as aigem_plan
+from aigem.batch import Batch, Edges
 from aigem.capacity import Capacity
 from aigem.config import ModelConfig
 from aigem.data import Collate, GraphDataset
+from aigem.loading import load_split
 from aigem.model import AiGem
-from aigem.resident import ResidentSplit, load_split
+from aigem.resident import ResidentSplit
 
 LAYERS = ModelConfig().layers
 STEPS = (5, 25)  # the members of the ensembles stepped here
@@ -49,16 +51,15 @@ def test_a_static_batch_holds_the_loaders_graphs(data: tuple[GraphDataset, Resid
     loader = Collate(dataset.scaler, layers=LAYERS)(dataset.__getitems__(ids))
     base = capacity.base_capacity(split.counts, 8, LAYERS)
     static = split.batch(_padded(split, ids, 8), base)
-    targets = len(loader["target_node"])
-    assert static["target_node"].shape == (base.targets,) and targets < base.targets
-    for key in resident.TARGET_KEYS:
-        assert torch.equal(static[key][:targets], loader[key]), key
-        assert not static[key][targets:].any(), key  # padding: nothing
-    assert torch.equal(
-        static["target_sample"][:targets], torch.from_numpy(ids)[loader["target_sample"]]
-    )
-    assert bool((static["target_sample"][targets:] == -1).all())
-    plan = static["plan"]
+    targets = len(loader.target_node)
+    assert static.target_node.shape == (base.targets,) and targets < base.targets
+    assert static.graphs == 8 and static.edges == {} and static.node_sample is None
+    for key in ("target_xy", "target_mask", "target_state", "cv_step"):
+        assert torch.equal(getattr(static, key)[:targets], getattr(loader, key)), key
+        assert not getattr(static, key)[targets:].any(), key  # padding: nothing
+    assert torch.equal(static.target_sample[:targets], loader.target_sample)
+    assert bool((static.target_sample[targets:] == -1).all())
+    plan = static.plan
     assert plan.order is None and plan.sizes == sorted(plan.sizes, reverse=True)
     assert plan.sizes[-1] == base.targets + 1  # the targets and their segment's sink
     model = AiGem(ModelConfig()).eval()
@@ -81,7 +82,7 @@ def test_edges_come_in_the_order_of_their_destinations(
     static = split.batch(
         _padded(split, _ids(dataset, 5, 2), 8), capacity.base_capacity(split.counts, 8, LAYERS)
     )
-    plan = static["plan"]
+    plan = static.plan
     for adjacency in plan.adjacency:
         assert bool((adjacency.row.diff() >= 0).all())
         assert torch.equal(
@@ -98,18 +99,11 @@ def test_edges_come_in_the_order_of_their_destinations(
 def _double(split: ResidentSplit) -> ResidentSplit:
     """The split's floating values in float64 (Adam's rounding is then far below any defect)."""
     edges = tuple(replace(table, attr=table.attr.double()) for table in split.edges)
-    targets = {k: v.double() if v.is_floating_point() else v for k, v in split.targets.items()}
+    targets = split.targets.map(lambda v: v.double() if v.is_floating_point() else v)
     return replace(split, x=split.x.double(), edges=edges, targets=targets, layouts={})
 
 
-def _double_batch(batch: dict) -> dict:
-    return {
-        k: v.double() if isinstance(v, torch.Tensor) and v.is_floating_point() else v
-        for k, v in batch.items()
-    }
-
-
-def _steps(batches: list[dict], scaler) -> list[tuple]:  # noqa: ANN001
+def _steps(batches: list[Batch], scaler) -> list[tuple]:  # noqa: ANN001
     """Three Adam steps of a two-member ensemble (float64, dropout 0, clipping): each step's
     losses, gradients and the parameters after it."""
     torch.manual_seed(0)
@@ -149,7 +143,7 @@ def test_a_padded_step_is_the_unpadded_step(
         cap = {"base": base, "exact": _exact(split, ids), "tier-2": capacity.tier(base, 2)}[layout]
         static.append(split.batch(_padded(split, ids, cap.samples), cap))
     collate = Collate(dataset.scaler, layers=LAYERS)
-    plain = [_double_batch(collate(dataset.__getitems__(ids))) for ids in batch_ids]
+    plain = [collate(dataset.__getitems__(ids)).to(dtype=torch.float64) for ids in batch_ids]
     _assert_same_steps(_steps(static, dataset.scaler), _steps(plain, dataset.scaler))
 
 
@@ -157,27 +151,30 @@ def test_a_padded_step_is_the_unpadded_step(
 # Graphs made by hand: a graph of one node, a batch with no actor-actor edge
 
 
-def _hand_batch() -> dict:
+def _hand_batch() -> Batch:
     """Three samples. Sample 0: one node, its only target, no edge. Sample 1, two steps: the ego
     (1) and an actor (2), then the ego (3) and actors 4 and 5 (the targets); spatial edges ego
     <-> actor only, temporal 1 -> 3, 2 -> 4. Sample 2: the ego alone, no target: nothing kept."""
     generator = torch.Generator().manual_seed(2)
     floats = lambda *shape: torch.rand(*shape, generator=generator, dtype=torch.float64)  # noqa: E731
     targets = 3
-    return {
-        "x": floats(7, 4) * 2 - 1,
-        "spatial_edges": torch.tensor([[1, 2, 3, 4, 3, 5], [2, 1, 4, 3, 5, 3]]),
-        "spatial_attr": floats(6, 1),
-        "temporal_edges": torch.tensor([[1, 2], [3, 4]]),
-        "temporal_attr": torch.full((2, 1), 0.2, dtype=torch.float64),
-        "node_sample": torch.tensor([0, 1, 1, 1, 1, 1, 2]),
-        "target_node": torch.tensor([0, 4, 5]),
-        "target_xy": floats(targets, 25, 2) * 30,
-        "target_mask": floats(targets, 25) > 0.2,
-        "target_state": floats(targets, 4),
-        "cv_step": floats(targets, 2) * 0.01,
-        "edge_types": ("spatial", "temporal"),  # as Collate names them
-    }
+    return Batch(
+        x=floats(7, 4) * 2 - 1,
+        target_node=torch.tensor([0, 4, 5]),
+        target_sample=torch.tensor([0, 1, 1]),
+        target_xy=floats(targets, 25, 2) * 30,
+        target_mask=floats(targets, 25) > 0.2,
+        edges={  # as Collate names them
+            "spatial": Edges(torch.tensor([[1, 2, 3, 4, 3, 5], [2, 1, 4, 3, 5, 3]]), floats(6, 1)),
+            "temporal": Edges(
+                torch.tensor([[1, 2], [3, 4]]), torch.full((2, 1), 0.2, dtype=torch.float64)
+            ),
+        },
+        node_sample=torch.tensor([0, 1, 1, 1, 1, 1, 2]),
+        target_state=floats(targets, 4),
+        cv_step=floats(targets, 2) * 0.01,
+        graphs=3,
+    )
 
 
 @pytest.mark.parametrize("exact", [False, True], ids=["padded", "met-exactly"])
@@ -185,7 +182,7 @@ def test_a_graph_of_one_node_and_no_actor_actor_edge(
     data: tuple[GraphDataset, ResidentSplit], exact: bool
 ) -> None:
     hand = _hand_batch()
-    split = resident._join([resident._chunk(hand, np.arange(3), LAYERS)], LAYERS, 3, 2)
+    split = loading._join([loading._chunk(hand, np.arange(3), LAYERS)], LAYERS, 3, 2)
     assert split.counts[:, 0].tolist() == [1, 2, 0]  # the targets: one, two, none
     assert split.counts[2].sum() == 0  # nothing of sample 2 is read by any layer
     ids = np.arange(3)

@@ -85,16 +85,23 @@ def test_bad_settings_are_refused(field: str, value: object, message: str) -> No
 
 
 def test_clipping_scales_a_long_gradient_down_and_leaves_a_short_one() -> None:
-    long, short = torch.zeros(2, requires_grad=True), torch.zeros(1, requires_grad=True)
-    long.grad, short.grad = torch.tensor([3.0, 0.0]), torch.tensor([4.0])  # total norm 5
+    """Each member's gradients (stacked, (M, ...)) clipped on their own total norm (to 1e-6:
+    clip_grad_norm_'s own epsilon)."""
+    long, short = torch.zeros(2, 2, requires_grad=True), torch.zeros(2, 1, requires_grad=True)
+    long.grad = torch.tensor([[3.0, 0.0], [0.3, 0.0]])  # member 0: total norm 5; member 1: 0.5
+    short.grad = torch.tensor([[4.0], [0.4]])
+
+    def close(*values: list[float]) -> list:
+        return [pytest.approx(value, abs=1e-5) for value in values]
+
     clip_gradients([long, short], 1.0)
-    assert long.grad.tolist() == pytest.approx([0.6, 0.0]) and short.grad.tolist() == [
-        pytest.approx(0.8)
-    ]
-    clip_gradients([long, short], 2.0)  # norm 1 now: unchanged
-    assert long.grad.tolist() == pytest.approx([0.6, 0.0])
+    assert long.grad.tolist() == close([0.6, 0.0], [0.3, 0.0])
+    assert short.grad.tolist() == close([0.8], [0.4])
+    clip_gradients([long, short], 0.8)  # norms 1 and 0.5 now: the first only
+    assert long.grad.tolist() == close([0.48, 0.0], [0.3, 0.0])
     clip_gradients([long, short], None)
-    assert short.grad.tolist() == [pytest.approx(0.8)]
+    assert short.grad.tolist() == close([0.64], [0.4])
+    assert short.grad[1].tolist() == [pytest.approx(0.4, rel=1e-7)]  # never scaled
 
 
 class _Stop(Exception):

@@ -1,5 +1,5 @@
-"""The trainers of an epoch: the loss (metres^2 over the valid future steps, falling as the
-model learns) and which models train as one ensemble."""
+"""The trainers of an epoch: the one step trains (a model alone, an ensemble of one), and which
+models train as one ensemble."""
 
 from __future__ import annotations
 
@@ -12,40 +12,33 @@ from torch.utils.data import DataLoader
 
 from aigem import trainers
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset, xy_to_metres
+from aigem.data import Collate, GraphDataset
 from aigem.epochs import Loop, Member
+from aigem.loss import masked_mse_m2
 from aigem.model import AiGem
 from aigem.records import RunState
-from aigem.trainers import Together, masked_mse_m2
+from aigem.trainers import Trainer
 from aigem.training import device_data, make_optimizer
 
 
-def test_loss_falls_in_a_few_steps(tiny_build: Path) -> None:
+def test_the_step_trains_a_model_alone(tiny_build: Path) -> None:
+    """fit's one step of an ensemble of one: its loss falls in a few steps on one batch, and
+    it is the model's masked loss (aigem.loss) before each step."""
     torch.manual_seed(0)
     dataset = GraphDataset(tiny_build, "train")
     batch = next(iter(DataLoader(dataset, batch_size=8, collate_fn=Collate(dataset.scaler))))
-    model = AiGem(ModelConfig(dropout=0.0))
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    model, cpu = AiGem(ModelConfig(dropout=0.0)), torch.device("cpu")
+    optimizer = make_optimizer(model, TrainConfig(), cpu)
+    with torch.no_grad():
+        first = float(masked_mse_m2(model(batch, 5), batch, dataset.scaler, 5))
+    trainer = trainers.stack_trainer([model], [optimizer], [5], dataset.scaler, None, cpu)
     losses = []
     for _ in range(30):
-        loss = masked_mse_m2(model(batch, 5), batch, dataset.scaler, 5)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        losses.append(loss.item())
-    assert losses[-1] < 0.5 * losses[0]
-
-
-def test_masked_steps_count_in_no_loss(tiny_build: Path) -> None:
-    dataset = GraphDataset(tiny_build, "train")
-    batch = Collate(dataset.scaler)(dataset.__getitems__([0, 1]))
-    truth = xy_to_metres(dataset.scaler, torch.zeros(1, 1, 2))  # scaled 0 -> some metres
-    scaled = torch.zeros(len(batch["target_node"]), 3, 2)
-    batch["target_xy"][:, :3] = truth
-    assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
-    batch["target_xy"][:, 0] += 100.0
-    batch["target_mask"][:, 0] = False
-    assert float(masked_mse_m2(scaled, batch, dataset.scaler, 3)) == pytest.approx(0.0, abs=1e-6)
+        before = float(trainer.running[0])
+        trainer.step(batch, 1e-3)
+        losses.append(float(trainer.running[0]) - before)
+    assert losses[0] == pytest.approx(first, rel=1e-6)
+    assert losses[-1] < 0.5 * losses[0] and trainer.rate == 1e-3
 
 
 def _member(steps: int, config: ModelConfig, seed: int) -> Member:
@@ -58,7 +51,6 @@ def _member(steps: int, config: ModelConfig, seed: int) -> Member:
         Path(f"h{steps}"),
         train,
         steps,
-        model,
         model,
         optimizer,
         info={},
@@ -96,8 +88,9 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
     )
     members = [middle, short, other, long]
     together, alone = trainers.group_trainers(members, _loop(world=1))
-    assert isinstance(together, Together) and alone is other
+    assert isinstance(together, Trainer) and alone.members == [other]  # an ensemble of one
     assert together.members == [short, middle, long]  # ascending steps
+    assert alone.net is alone.ensemble and alone.ensemble.steps == (5,)
     assert together.ensemble.steps == (5, 10, 25)
     stacked = together.ensemble.params["decoder.weight_ih"]
     for index, member in enumerate(together.members):
@@ -105,15 +98,14 @@ def test_members_that_share_their_settings_train_as_one_ensemble_in_one_process_
     # A member on another dropout stream steps alone (none is, in a fit: one seed an epoch)
     long.rng = (torch.Generator().manual_seed(1).get_state(), None)
     together, *alone = trainers.group_trainers(members, _loop(world=1))
-    assert together.members == [short, middle] and alone == [other, long]
-    # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked.
-    assert all(
-        a is b
-        for a, b in zip(trainers.group_trainers(members, _loop(world=2)), members, strict=True)
-    )
+    assert together.members == [short, middle]
+    assert [trainer.members for trainer in alone] == [[other], [long]]
+    # Under DDP each model steps alone, through its DistributedDataParallel: nothing stacked
+    # (the wrapper needs a process group: tests/test_aigem_training.py trains under torchrun).
+    assert trainers.partition(members, _loop(world=2)) == [[member] for member in members]
 
 
-def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Together]:
+def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Trainer]:
     """One epoch of static batches (the splits on the CPU) stepped by an ensemble of each group."""
     cpu = torch.device("cpu")
     config = ModelConfig()
@@ -123,7 +115,7 @@ def _static_epoch(build: Path, groups: list[list[Member]]) -> list[Together]:
     loop.generator.manual_seed(0)
     together = [trainers._stack(group, loop) for group in groups]
     torch.manual_seed(99)  # what the global stream holds before: no member's
-    for _ in trainers.static_steps(loop, together, epoch=0):
+    for _ in trainers.train_steps(loop, together, epoch=0):
         pass
     return together
 
