@@ -33,9 +33,11 @@ def _value(rng: random.Random, column: str) -> str:
     )  # fmt: skip
 
 
-def _line(rng: random.Random) -> str:
+def _line(rng: random.Random, indent: tuple[int, int]) -> str:
+    """A line of 18 values, `indent` (fewest, most) spaces before its first."""
     fields = [_value(rng, column) for column in ns.TXT_COLUMNS]
-    return "".join(f"{' ' * rng.randint(1 if i else 0, 6)}{f}" for i, f in enumerate(fields)) + (
+    widths = [rng.randint(*indent), *(rng.randint(1, 6) for _ in fields[1:])]
+    return "".join(f"{' ' * w}{f}" for w, f in zip(widths, fields, strict=True)) + (
         " " * rng.randint(0, 3)
     )
 
@@ -69,11 +71,12 @@ def _both(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, text: str) -> tuple:
 
 
 @pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("indent", [(0, 6), (1, 6), (0, 0)])  # some lines, all, none
 def test_random_plain_text_reads_as_the_general_reader_reads_it(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, seed: int
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, seed: int, indent: tuple[int, int]
 ) -> None:
     rng = random.Random(seed)
-    lines = [_line(rng) for _ in range(300)]
+    lines = [_line(rng, indent) for _ in range(300)]
     ends = rng.choice(["\n", "\r\n"])
     text = ends.join(lines) + rng.choice([ends, ""])
     chunks = []
@@ -128,8 +131,13 @@ def test_a_quirky_line_reads_as_the_general_reader_reads_it(
 
 
 def test_single_spaced_keeps_one_space_between_fields_and_none_at_the_ends() -> None:
-    text = b"   1  22 3   \n4 5\n  \n 6\n"
-    assert whitespace.single_spaced(text).tobytes() == b"1 22 3\n4 5\n\n6\n"
+    assert whitespace.single_spaced(b"   1  22 3   \n4 5\n  \n 6\n") == (
+        b"1 22 3\n4 5\n\n6\n",
+        False,
+    )
+    # Every line indented: one space left before each, read as an empty first field.
+    assert whitespace.single_spaced(b"   1  22 3   \n 4 5\n  6") == (b" 1 22 3\n 4 5\n 6", True)
+    assert whitespace.single_spaced(b"1\t 2\r\n") == (b"1 2\n", False)
 
 
 def test_only_plain_text_is_plain() -> None:

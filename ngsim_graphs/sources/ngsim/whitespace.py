@@ -27,6 +27,7 @@ from ngsim_graphs.sources.text import ROW
 _PLAIN = b"0123456789.- \t\r\n"  # the bytes of plain text
 _SPACE, _NEWLINE = 32, 10
 _TO_SPACE = bytes.maketrans(b"\t\r", b"  ")
+_INDENT = "__indent"  # the empty field before a line's first
 # The general reader reads an integer through float64: beyond 2**53 it rounds, and so must agree.
 _EXACT_INT = 2**53
 _PARSED = {c: (pl.Int64 if ns.RAW_SCHEMA[c] != pl.Float64 else pl.Float64) for c in ns.TXT_COLUMNS}
@@ -39,21 +40,28 @@ def is_plain(text: bytes) -> bool:
     return b"\r" not in text or text.count(b"\r") == text.count(b"\r\n")
 
 
-def single_spaced(text: bytes) -> np.ndarray:
-    """(bytes,) uint8: `text` (plain, whole lines) with its fields one space apart and no space at
-    either end of a line. A blank line stays, empty."""
+def single_spaced(text: bytes) -> tuple[bytes, bool]:
+    """(lines, indented): `text` (plain, whole lines) with its fields one space apart and no
+    space at a line's end (a blank line stays, empty); with `indented`, every line begins with
+    one space (NGSIM pads its lines), which the CSV reader reads as an empty first field.
+    One pass to choose the bytes kept and one to keep them: the two cost about what Polars'
+    reader does."""
     raw = np.frombuffer(
         text.translate(_TO_SPACE) if b"\t" in text or b"\r" in text else text, np.uint8
     )
-    space = raw == _SPACE
-    keep = ~space
-    keep[:-1] |= space[:-1] & (raw[1:] > _SPACE)  # the last space of a run before a field
-    kept = raw[keep]  # a line may still begin with one space
-    leading = np.empty(len(kept), bool)
-    if len(kept):
-        leading[0] = kept[0] == _SPACE
-        np.logical_and(kept[1:] == _SPACE, kept[:-1] == _NEWLINE, out=leading[1:])
-    return kept[~leading] if leading.any() else kept
+    keep = raw != _SPACE
+    np.logical_or(keep[:-1], raw[1:] > _SPACE, out=keep[:-1])  # the last space before a field
+    kept = raw[keep]
+    lines = kept.tobytes()
+    starts = lines.count(b"\n ") + lines.startswith(b" ")
+    if starts == lines.count(b"\n") + (not lines.endswith(b"\n")):
+        return lines, True
+    if starts == 0:
+        return lines, False
+    leading = np.zeros(len(kept), bool)  # some lines begin with a space and some do not
+    leading[0] = kept[0] == _SPACE
+    np.logical_and(kept[1:] == _SPACE, kept[:-1] == _NEWLINE, out=leading[1:])
+    return kept[~leading].tobytes(), False
 
 
 def parse_plain(text: bytes, first_row: int) -> pl.DataFrame | None:
@@ -63,19 +71,21 @@ def parse_plain(text: bytes, first_row: int) -> pl.DataFrame | None:
     if not text or not is_plain(text):
         return None
     lines = text.count(b"\n") + (not text.endswith(b"\n"))
-    fields = single_spaced(text)
-    if len(fields) == 0 or fields[-1] != _NEWLINE:
-        fields = np.append(fields, np.uint8(_NEWLINE))
+    fields, indented = single_spaced(text)
     try:
         parsed = pl.read_csv(
-            fields.tobytes(),
+            fields if fields.endswith(b"\n") else fields + b"\n",
             has_header=False,
             separator=" ",
             quote_char=None,
-            schema=_PARSED,
+            schema={_INDENT: pl.String, **_PARSED} if indented else _PARSED,
         )
     except (pl.exceptions.PolarsError, ValueError):
         return None  # a field that is no number of its column, or one too many
+    if indented:
+        if parsed[_INDENT].null_count() != parsed.height:
+            return None
+        parsed = parsed.drop(_INDENT)
     if parsed.height != lines or any(parsed.null_count().row(0)):  # a blank or short line
         return None
     integers = [c for c, dtype in _PARSED.items() if dtype == pl.Int64]
