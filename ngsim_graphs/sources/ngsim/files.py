@@ -52,6 +52,9 @@ from ngsim_graphs.sources.text import (
 # Where a build gives it a scratch folder, the parsed rows of a file are written there, a chunk
 # of its text a file, and read back as they are needed, never held whole.
 PARSED_STEM = "parsed"
+# Arrow IPC, uncompressed: written at memory speed, read by each pass at memory speed; it lives
+# only while its file is read (the disk holds about its text's size, the page cache the rest).
+PARSED_SUFFIX = "arrow"
 
 
 @dataclass(frozen=True)
@@ -204,13 +207,13 @@ def _parsed(
     scratch.mkdir(parents=True, exist_ok=True)
     parts = []  # one at least: `sniff_format` let no empty file through
     for chunk in text_chunks(path, budget.BUDGET.text_chunk_bytes):
-        parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.parquet")
+        parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.{PARSED_SUFFIX}")
         rows = None if fast is None else fast(chunk)
         if rows is None:
-            parse(chunk).sink_parquet(parts[-1], compression="lz4", statistics=False)
+            parse(chunk).sink_ipc(parts[-1], compression="uncompressed")
         else:
-            rows.write_parquet(parts[-1], compression="lz4", statistics=False)
-    return pl.scan_parquet(parts)
+            rows.write_ipc(parts[-1], compression="uncompressed")
+    return pl.scan_ipc(parts)
 
 
 def _check_fields(

@@ -30,7 +30,7 @@ _TO_SPACE = bytes.maketrans(b"\t\r", b"  ")
 _INDENT = "__indent"  # the empty field before a line's first
 # The general reader reads an integer through float64: beyond 2**53 it rounds, and so must agree.
 _EXACT_INT = 2**53
-_PARSED = {c: (pl.Int64 if ns.RAW_SCHEMA[c] != pl.Float64 else pl.Float64) for c in ns.TXT_COLUMNS}
+_PARSED = {c: ns.RAW_SCHEMA[c] for c in ns.TXT_COLUMNS}
 
 
 def is_plain(text: bytes) -> bool:
@@ -81,22 +81,17 @@ def parse_plain(text: bytes, first_row: int) -> pl.DataFrame | None:
             schema={_INDENT: pl.String, **_PARSED} if indented else _PARSED,
         )
     except (pl.exceptions.PolarsError, ValueError):
-        return None  # a field that is no number of its column, or one too many
+        return None  # a field that is no number of its column (or out of its range), one too many
     if indented:
         if parsed[_INDENT].null_count() != parsed.height:
             return None
         parsed = parsed.drop(_INDENT)
     if parsed.height != lines or any(parsed.null_count().row(0)):  # a blank or short line
         return None
-    integers = [c for c, dtype in _PARSED.items() if dtype == pl.Int64]
-    exact = parsed.select(pl.max_horizontal(pl.col(integers).abs().max()) < _EXACT_INT).item()
-    if not exact:
+    if parsed[ns.GLOBAL_TIME].abs().max() >= _EXACT_INT:
         return None
-    cast = parsed.select(pl.col(c).cast(ns.RAW_SCHEMA[c], strict=False) for c in ns.TXT_COLUMNS)
-    if any(cast.null_count().row(0)):  # out of its column's range
-        return None
-    return cast.select(
-        pl.int_range(first_row, first_row + cast.height, dtype=pl.UInt32).alias(ROW),
+    return parsed.select(
+        pl.int_range(first_row, first_row + parsed.height, dtype=pl.UInt32).alias(ROW),
         *ns.TXT_COLUMNS,
         pl.lit(None, dtype=pl.String).alias(s.LOCATION),
         pl.lit(len(ns.TXT_COLUMNS), dtype=pl.Int8).alias(PRESENT),
