@@ -97,11 +97,19 @@ def y_window(
     SEARCH_MARGIN_M of each ego row along y, at its step; none where `present` is False. The
     margin: a distance that rounds to exactly the reach may lie a float step beyond it along y;
     the distance check drops it."""
+    lo, hi = y_bounds(keys, rec, egos, step, reach_m)
+    return concat_ranges(lo, hi if present is None else np.where(present, hi, lo))
+
+
+def y_bounds(
+    keys: np.ndarray, rec: RecordingArrays, egos: np.ndarray, step: np.ndarray, reach_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), (U,) each: the entries lo..hi-1 of `keys` that `y_window` gives each ego row."""
     ego_y = rec.node_state[egos, 1]
     reach = reach_m + SEARCH_MARGIN_M
     lo = np.searchsorted(keys, pair_search_key(step, ego_y - reach), "left")
     hi = np.searchsorted(keys, pair_search_key(step, ego_y + reach), "right")
-    return concat_ranges(lo, hi if present is None else np.where(present, hi, lo))
+    return lo, hi
 
 
 ARRAY_NAMES = tuple(f.name for f in fields(RecordingArrays) if f.name != "first_track_id")
