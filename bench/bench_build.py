@@ -11,10 +11,21 @@ Synthetic data: these are not NGSIM results.
     python bench/bench_build.py --format txt --jobs 1   # one process
     python bench/bench_build.py --format txt --protocol cs-lstm   # a sample per CS-LSTM row
     python bench/bench_build.py --format txt --largest 2   # the 2 largest of the 6 recordings
+    python bench/bench_build.py --format txt --against none   # this tree only
+
+Last, it builds the same input with the code of `--against REV` (default 66e4b70, main before
+issue 52's work) and with this tree, alternating, `--rounds` times, each build in a fresh
+process (`build_once.py`, the checkout on PYTHONPATH; REV checked out once as a git worktree
+under the work dir), and prints the medians of both and of their ratio: timings on a shared
+machine are comparable only side by side.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -50,6 +61,63 @@ def largest_files(raw_dir: Path, count: int, fmt: str) -> list[Path]:
     if not 1 <= count <= len(files):
         raise SystemExit(f"--largest {count}: {raw_dir} has {len(files)} recording files")
     return files[:count]
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def checkout(revision: str, work_dir: Path) -> Path:
+    """A checkout of `revision` (a git worktree under `work_dir`, made once)."""
+    commit = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--short=7", revision],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    folder = (work_dir / f"wt-{commit}").resolve()
+    if not (folder / "ngsim_graphs").is_dir():
+        subprocess.run(
+            ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(folder), commit],
+            check=True, capture_output=True,
+        )  # fmt: skip
+    return folder
+
+
+def timed_build(code: Path, inputs: list[Path], out: Path, jobs: int, protocol: str) -> dict:
+    """One build by the checkout at `code` in a process of its own: its wall seconds and stages
+    (build_once.py) and the peak memory of its processes summed."""
+    command = [sys.executable, str(Path(__file__).with_name("build_once.py")), *map(str, inputs)]
+    command += [str(out), "--jobs", str(jobs), "--protocol", protocol]
+    environment = dict(os.environ, PYTHONPATH=str(code))
+    with TreeMemory() as memory:
+        done = subprocess.run(command, env=environment, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"the build of {code} failed:\n{done.stderr[-3000:]}")
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    return figures | {"peak_gb": memory.peak_bytes / 1024**3}
+
+
+def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
+    """Builds of `inputs` by `--against` and by this tree, alternating, `--rounds` times."""
+    codes = {args.against: checkout(args.against, args.work_dir), "this tree": ROOT}
+    runs: dict[str, list[dict]] = {label: [] for label in codes}
+    for _ in range(args.rounds):
+        for label, code in codes.items():
+            out = args.work_dir / f"{name}-{code.name}"
+            runs[label].append(timed_build(code, inputs, out, jobs, args.protocol))
+    base, this = runs[args.against], runs["this tree"]
+    ratios = [b["wall_s"] / t["wall_s"] for b, t in zip(base, this, strict=True)]
+    load = os.getloadavg()
+    print(
+        f"side by side       {args.rounds} rounds, alternating, {jobs} jobs (load now {load[0]:.1f})"
+    )
+    for label, figures in runs.items():
+        walls = ", ".join(f"{f['wall_s']:.1f}" for f in figures)
+        wall = statistics.median(f["wall_s"] for f in figures)
+        peak = statistics.median(f["peak_gb"] for f in figures)
+        print(f"  {label:<16} wall {wall:6.1f} s (median of {walls}), peak {peak:.2f} GB")
+    print(
+        f"  {args.against} / this tree: {statistics.median(ratios):.2f} times as long (median; "
+        f"{min(ratios):.2f} to {max(ratios):.2f})"
+    )
 
 
 def main() -> None:
@@ -128,6 +196,8 @@ def main() -> None:
         + (", or of synth, which made the input in this run" if synth_s else "")
         + ")"
     )
+    if args.against != "none":
+        side_by_side(args, inputs, name, jobs)
 
 
 if __name__ == "__main__":

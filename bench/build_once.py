@@ -6,7 +6,7 @@ only what every checkout since ebdaa5f has (`run_build`, `BuildConfig(protocol=.
 progress callback). Prints one JSON line on stdout: wall seconds, seconds per stage, the checkout's
 ngsim_graphs folder.
 
-    PYTHONPATH=CHECKOUT python bench/build_once.py RAW_DIR OUT_DIR [--jobs N] [--protocol P]
+    PYTHONPATH=CHECKOUT python bench/build_once.py RAW... OUT_DIR [--jobs N] [--protocol P]
 """
 
 from __future__ import annotations
@@ -33,16 +33,15 @@ def stage_seconds(marks: list[tuple[str, float]], end: float) -> dict[str, float
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("raw", type=Path)
-    parser.add_argument("out", type=Path)
+    parser.add_argument("paths", type=Path, nargs="+", help="the inputs, then the output folder")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--protocol", default="aigem")
     args = parser.parse_args()
     marks: list[tuple[str, float]] = []
     start = time.perf_counter()
     run_build(
-        [args.raw],
-        args.out,
+        args.paths[:-1],
+        args.paths[-1],
         BuildConfig(protocol=Protocol(args.protocol)),
         overwrite=True,
         progress=lambda what, _done, _total: marks.append((what, time.perf_counter())),
