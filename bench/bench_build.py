@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -87,12 +88,18 @@ def timed_build(code: Path, inputs: list[Path], out: Path, jobs: int, protocol: 
     command = [sys.executable, str(Path(__file__).with_name("build_once.py")), *map(str, inputs)]
     command += [str(out), "--jobs", str(jobs), "--protocol", protocol]
     environment = dict(os.environ, PYTHONPATH=str(code))
-    with TreeMemory() as memory:
-        done = subprocess.run(command, env=environment, capture_output=True, text=True)
-    if done.returncode:
-        raise SystemExit(f"the build of {code} failed:\n{done.stderr[-3000:]}")
-    figures = json.loads(done.stdout.strip().splitlines()[-1])
-    return figures | {"peak_gb": memory.peak_bytes / 1024**3}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    build = subprocess.Popen(
+        command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    with TreeMemory(build.pid) as memory:  # the build's processes, not this one's
+        stdout, stderr = build.communicate()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the build's processes, all ended
+    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    if build.returncode:
+        raise SystemExit(f"the build of {code} failed:\n{stderr[-3000:]}")
+    figures = json.loads(stdout.strip().splitlines()[-1])
+    return figures | {"peak_gb": memory.peak_bytes / 1024**3, "cpu_s": cpu_s}
 
 
 def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
@@ -105,6 +112,7 @@ def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
             runs[label].append(timed_build(code, inputs, out, jobs, args.protocol))
     base, this = runs[args.against], runs["this tree"]
     ratios = [b["wall_s"] / t["wall_s"] for b, t in zip(base, this, strict=True)]
+    cpu_ratios = [b["cpu_s"] / t["cpu_s"] for b, t in zip(base, this, strict=True)]
     load = os.getloadavg()
     print(
         f"side by side       {args.rounds} rounds, alternating, {jobs} jobs (load now {load[0]:.1f})"
@@ -113,11 +121,19 @@ def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
         walls = ", ".join(f"{f['wall_s']:.1f}" for f in figures)
         wall = statistics.median(f["wall_s"] for f in figures)
         peak = statistics.median(f["peak_gb"] for f in figures)
+        cpu = statistics.median(f["cpu_s"] for f in figures)
         print(f"  {label:<16} wall {wall:6.1f} s (median of {walls}), peak {peak:.2f} GB")
-    print(
-        f"  {args.against} / this tree: {statistics.median(ratios):.2f} times as long (median; "
-        f"{min(ratios):.2f} to {max(ratios):.2f})"
-    )
+        print(f"  {'':<16} CPU {cpu:6.1f} s (user + system, every process of the build)")
+        stages = {
+            k: statistics.median(f["stages"].get(k, 0.0) for f in figures)
+            for k in figures[0]["stages"]
+        }
+        print("  " + " " * 17 + ", ".join(f"{k} {v:.1f} s" for k, v in stages.items()))
+    for what, values in (("wall", ratios), ("CPU", cpu_ratios)):
+        print(
+            f"  {args.against} / this tree, {what}: {statistics.median(values):.2f} times as "
+            f"long (median; {min(values):.2f} to {max(values):.2f})"
+        )
 
 
 def main() -> None:

@@ -145,20 +145,25 @@ def nodes_in_steps(tracks: pl.LazyFrame, first: int, end: int, time_step_s: floa
 def _pairs_by_sweep(step: np.ndarray, x: np.ndarray, y: np.ndarray, d_max_m: float):
     """All (i, j, distance) with equal step and distance <= d_max_m; rows sorted by (step, y).
 
-    Row i is compared with row i + k for k = 1, 2, ... until no row has a same-step partner
-    within d_max_m along y at that offset: beyond it, y only grows apart.
-    """
+    Row i is compared with row i + k for k = 1, 2, ... while it has a same-step row within
+    d_max_m along y at that offset: beyond it, y only grows apart, so a row leaves the sweep at
+    its first offset without one, and the work follows the pairs, not the rows times the
+    longest reach."""
     first, second, dist = [], [], []
+    active = np.arange(len(step) - 1, dtype=np.int64)  # rows with a row after them
     offset = 1
-    while offset < len(step):
-        near = (step[offset:] == step[:-offset]) & (y[offset:] - y[:-offset] <= d_max_m)
-        i = np.flatnonzero(near)
-        if len(i) == 0:
+    while len(active):
+        other = active + offset
+        active = active[other < len(step)]
+        other = other[: len(active)]
+        near = (step[other] == step[active]) & (y[other] - y[active] <= d_max_m)
+        active, other = active[near], other[near]
+        if len(active) == 0:
             break
-        dx, dy = x[i + offset] - x[i], y[i + offset] - y[i]
+        dx, dy = x[other] - x[active], y[other] - y[active]
         d = np.sqrt(dx * dx + dy * dy)
         keep = d <= d_max_m
-        first.append(i[keep].astype(np.int32))  # int32 rows: a third less memory
+        first.append(active[keep].astype(np.int32))  # int32 rows: a third less memory
         second.append(first[-1] + np.int32(offset))
         dist.append(d[keep])
         offset += 1
