@@ -11,10 +11,22 @@ Synthetic data: these are not NGSIM results.
     python bench/bench_build.py --format txt --jobs 1   # one process
     python bench/bench_build.py --format txt --protocol cs-lstm   # a sample per CS-LSTM row
     python bench/bench_build.py --format txt --largest 2   # the 2 largest of the 6 recordings
+    python bench/bench_build.py --format txt --against none   # this tree only
+
+Last, it builds the same input with the code of `--against REV` (default 66e4b70, main before
+issue 52's work) and with this tree, alternating, `--rounds` times, each build in a fresh
+process (`build_once.py`, the checkout on PYTHONPATH; REV checked out once as a git worktree
+under the work dir), and prints the medians of both and of their ratio: timings on a shared
+machine are comparable only side by side.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import resource
+import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -50,6 +62,78 @@ def largest_files(raw_dir: Path, count: int, fmt: str) -> list[Path]:
     if not 1 <= count <= len(files):
         raise SystemExit(f"--largest {count}: {raw_dir} has {len(files)} recording files")
     return files[:count]
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def checkout(revision: str, work_dir: Path) -> Path:
+    """A checkout of `revision` (a git worktree under `work_dir`, made once)."""
+    commit = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--short=7", revision],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    folder = (work_dir / f"wt-{commit}").resolve()
+    if not (folder / "ngsim_graphs").is_dir():
+        subprocess.run(
+            ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(folder), commit],
+            check=True, capture_output=True,
+        )  # fmt: skip
+    return folder
+
+
+def timed_build(code: Path, inputs: list[Path], out: Path, jobs: int, protocol: str) -> dict:
+    """One build by the checkout at `code` in a process of its own: its wall seconds and stages
+    (build_once.py) and the peak memory of its processes summed."""
+    command = [sys.executable, str(Path(__file__).with_name("build_once.py")), *map(str, inputs)]
+    command += [str(out), "--jobs", str(jobs), "--protocol", protocol]
+    environment = dict(os.environ, PYTHONPATH=str(code))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    build = subprocess.Popen(
+        command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    with TreeMemory(build.pid) as memory:  # the build's processes, not this one's
+        stdout, stderr = build.communicate()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the build's processes, all ended
+    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    if build.returncode:
+        raise SystemExit(f"the build of {code} failed:\n{stderr[-3000:]}")
+    figures = json.loads(stdout.strip().splitlines()[-1])
+    return figures | {"peak_gb": memory.peak_bytes / 1024**3, "cpu_s": cpu_s}
+
+
+def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
+    """Builds of `inputs` by `--against` and by this tree, alternating, `--rounds` times."""
+    codes = {args.against: checkout(args.against, args.work_dir), "this tree": ROOT}
+    runs: dict[str, list[dict]] = {label: [] for label in codes}
+    for _ in range(args.rounds):
+        for label, code in codes.items():
+            out = args.work_dir / f"{name}-{code.name}"
+            runs[label].append(timed_build(code, inputs, out, jobs, args.protocol))
+    base, this = runs[args.against], runs["this tree"]
+    ratios = [b["wall_s"] / t["wall_s"] for b, t in zip(base, this, strict=True)]
+    cpu_ratios = [b["cpu_s"] / t["cpu_s"] for b, t in zip(base, this, strict=True)]
+    load = os.getloadavg()
+    print(
+        f"side by side       {args.rounds} rounds, alternating, {jobs} jobs (load now {load[0]:.1f})"
+    )
+    for label, figures in runs.items():
+        walls = ", ".join(f"{f['wall_s']:.1f}" for f in figures)
+        wall = statistics.median(f["wall_s"] for f in figures)
+        peak = statistics.median(f["peak_gb"] for f in figures)
+        cpu = statistics.median(f["cpu_s"] for f in figures)
+        print(f"  {label:<16} wall {wall:6.1f} s (median of {walls}), peak {peak:.2f} GB")
+        print(f"  {'':<16} CPU {cpu:6.1f} s (user + system, every process of the build)")
+        stages = {
+            k: statistics.median(f["stages"].get(k, 0.0) for f in figures)
+            for k in figures[0]["stages"]
+        }
+        print("  " + " " * 17 + ", ".join(f"{k} {v:.1f} s" for k, v in stages.items()))
+    for what, values in (("wall", ratios), ("CPU", cpu_ratios)):
+        print(
+            f"  {args.against} / this tree, {what}: {statistics.median(values):.2f} times as "
+            f"long (median; {min(values):.2f} to {max(values):.2f})"
+        )
 
 
 def main() -> None:
@@ -128,6 +212,8 @@ def main() -> None:
         + (", or of synth, which made the input in this run" if synth_s else "")
         + ")"
     )
+    if args.against != "none":
+        side_by_side(args, inputs, name, jobs)
 
 
 if __name__ == "__main__":

@@ -85,7 +85,13 @@ def parse_input_args(
         "--jobs", type=int, default=None, help="build processes (default: one per usable core)"
     )
     parser.add_argument("--protocol", default="aigem", choices=["aigem", "cs-lstm"])
-    if largest:
+    if largest:  # bench_build.py's own options
+        parser.add_argument(
+            "--against",
+            default="66e4b70",
+            help="a revision built beside this tree, alternating (none: no other)",
+        )
+        parser.add_argument("--rounds", type=int, default=3, help="side-by-side rounds")
         parser.add_argument(
             "--largest",
             type=int,

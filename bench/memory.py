@@ -40,10 +40,12 @@ def _tree_rss_bytes(pid: int) -> int:
 
 
 class TreeMemory:
-    """`with TreeMemory() as memory: ...`, then memory.peak_bytes: the largest sum seen, and
+    """`with TreeMemory() as memory: ...`, then memory.peak_bytes: the largest sum seen (of this
+    process's tree, or of process `pid`'s), and
     memory.samples: (time.perf_counter(), bytes) of every sample, to tell the peak of a stage."""
 
-    def __init__(self) -> None:
+    def __init__(self, pid: int | None = None) -> None:
+        self._pid = os.getpid() if pid is None else pid  # the root of the tree summed
         self.peak_bytes = 0
         self.samples: list[tuple[float, int]] = []
         self._stop = threading.Event()
@@ -51,7 +53,7 @@ class TreeMemory:
 
     def _sample(self) -> None:
         while not self._stop.wait(SAMPLE_S):
-            size = _tree_rss_bytes(os.getpid())
+            size = _tree_rss_bytes(self._pid)
             self.samples.append((time.perf_counter(), size))
             self.peak_bytes = max(self.peak_bytes, size)
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
-from ngsim_graphs.grid import RecordingArrays, y_window
+from ngsim_graphs.grid import RecordingArrays, y_bounds, y_window
 
 
 @dataclass(frozen=True)
@@ -211,26 +211,37 @@ def actor_pairs(
     """Count, minimum and maximum distance of the proximity pairs among each ego row's actors,
     searched as `actor_pair_edges` searches them; `keep`: only the pairs of rows it keeps.
     Which rows are actors is a small (ego, row of its step) table: a lookup, not a distance,
-    per pair."""
+    per pair. The pairs an ego row searches are one run of the pair arrays: its counts are
+    differences of a running sum, its extremes one reduction per run (in float32, the
+    distances' own type: exact)."""
     rec, egos, step = near.rec, near.egos, near.step
     width = int(np.diff(rec.step_ptr).max()) if rec.n_steps else 0
-    # Row r of ego i's step is entry i * width + r - (first row of the step) of `is_actor`.
-    offset = np.arange(len(egos)) * width - rec.step_ptr[step]
+    # Row r of ego i's step is entry i * width + r - (first row of the step) of `is_actor`:
+    # below 2**31 for a chunk of ego rows (`budget.Budget.ego_rows_per_chunk`), so int32.
+    offset = (np.arange(len(egos)) * width - rec.step_ptr[step]).astype(np.int32)
     is_actor = np.zeros(len(egos) * width, bool)
     is_actor[offset[near.owner[near.actor]] + near.row[near.actor]] = True
-    owner, index = y_window(rec.pair_key, rec, egos, step, near.config.d_sense_m)
+    lo, hi = y_bounds(rec.pair_key, rec, egos, step, near.config.d_sense_m)
+    lengths = hi - lo
+    ends = np.cumsum(lengths)
+    starts = ends - lengths
+    index = np.arange(int(ends[-1]) if len(ends) else 0, dtype=np.int64)
+    index += np.repeat(lo - starts, lengths)
     pairs = np.take(rec.pair_rows, index, axis=0)  # (C, 2); faster than fancy indexing
-    pair_offset = offset[owner]
-    keep_pair = is_actor[pairs[:, 0] + pair_offset] & is_actor[pairs[:, 1] + pair_offset]
+    pair_offset = np.repeat(offset, lengths)
+    keep_pair = is_actor[pairs[:, 0] + pair_offset]
+    keep_pair &= is_actor[pairs[:, 1] + pair_offset]
     if keep is not None:
         keep_pair &= keep(rec, pairs)
-    distance = rec.pair_dist[index]  # float32: its minimum and maximum are exact as float64
-    lengths = np.bincount(owner, minlength=len(egos))  # pairs searched per ego, in runs
-    return (
-        reduce_runs(np.add, keep_pair.astype(np.int32), lengths, 0, np.int64),
-        reduce_runs(np.minimum, np.where(keep_pair, distance, np.inf), lengths, np.inf),
-        reduce_runs(np.maximum, np.where(keep_pair, distance, -np.inf), lengths, -np.inf),
-    )
+    kept = np.concatenate([[0], np.cumsum(keep_pair, dtype=np.int64)])
+    distance = rec.pair_dist[index]
+    filled = lengths > 0
+    low = np.full(len(egos), np.inf, np.float32)
+    high = np.full(len(egos), -np.inf, np.float32)
+    if filled.any():
+        low[filled] = np.minimum.reduceat(np.where(keep_pair, distance, np.inf), starts[filled])
+        high[filled] = np.maximum.reduceat(np.where(keep_pair, distance, -np.inf), starts[filled])
+    return kept[ends] - kept[starts], low.astype(np.float64), high.astype(np.float64)
 
 
 def _spatial_count(near: Near) -> RowEdges:

@@ -97,11 +97,19 @@ def y_window(
     SEARCH_MARGIN_M of each ego row along y, at its step; none where `present` is False. The
     margin: a distance that rounds to exactly the reach may lie a float step beyond it along y;
     the distance check drops it."""
+    lo, hi = y_bounds(keys, rec, egos, step, reach_m)
+    return concat_ranges(lo, hi if present is None else np.where(present, hi, lo))
+
+
+def y_bounds(
+    keys: np.ndarray, rec: RecordingArrays, egos: np.ndarray, step: np.ndarray, reach_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), (U,) each: the entries lo..hi-1 of `keys` that `y_window` gives each ego row."""
     ego_y = rec.node_state[egos, 1]
     reach = reach_m + SEARCH_MARGIN_M
     lo = np.searchsorted(keys, pair_search_key(step, ego_y - reach), "left")
     hi = np.searchsorted(keys, pair_search_key(step, ego_y + reach), "right")
-    return concat_ranges(lo, hi if present is None else np.where(present, hi, lo))
+    return lo, hi
 
 
 ARRAY_NAMES = tuple(f.name for f in fields(RecordingArrays) if f.name != "first_track_id")
@@ -137,20 +145,25 @@ def nodes_in_steps(tracks: pl.LazyFrame, first: int, end: int, time_step_s: floa
 def _pairs_by_sweep(step: np.ndarray, x: np.ndarray, y: np.ndarray, d_max_m: float):
     """All (i, j, distance) with equal step and distance <= d_max_m; rows sorted by (step, y).
 
-    Row i is compared with row i + k for k = 1, 2, ... until no row has a same-step partner
-    within d_max_m along y at that offset: beyond it, y only grows apart.
-    """
+    Row i is compared with row i + k for k = 1, 2, ... while it has a same-step row within
+    d_max_m along y at that offset: beyond it, y only grows apart, so a row leaves the sweep at
+    its first offset without one, and the work follows the pairs, not the rows times the
+    longest reach."""
     first, second, dist = [], [], []
+    active = np.arange(len(step) - 1, dtype=np.int64)  # rows with a row after them
     offset = 1
-    while offset < len(step):
-        near = (step[offset:] == step[:-offset]) & (y[offset:] - y[:-offset] <= d_max_m)
-        i = np.flatnonzero(near)
-        if len(i) == 0:
+    while len(active):
+        other = active + offset
+        active = active[other < len(step)]
+        other = other[: len(active)]
+        near = (step[other] == step[active]) & (y[other] - y[active] <= d_max_m)
+        active, other = active[near], other[near]
+        if len(active) == 0:
             break
-        dx, dy = x[i + offset] - x[i], y[i + offset] - y[i]
+        dx, dy = x[other] - x[active], y[other] - y[active]
         d = np.sqrt(dx * dx + dy * dy)
         keep = d <= d_max_m
-        first.append(i[keep].astype(np.int32))  # int32 rows: a third less memory
+        first.append(active[keep].astype(np.int32))  # int32 rows: a third less memory
         second.append(first[-1] + np.int32(offset))
         dist.append(d[keep])
         offset += 1

@@ -99,7 +99,7 @@ def staged(pattern: str) -> Moment:
 
 
 READING = staged("_read-*/*")  # a file's rows parsed into scratch files
-CLEANING = staged("*/tracks-*.parquet")  # a part of a recording's tracks made
+CLEANING = staged("*/tracks-*.arrow")  # a part of a recording's tracks made
 
 
 def run_until(arguments: list[str], moment: Moment, out: Path) -> tuple[subprocess.Popen, list]:

@@ -31,7 +31,7 @@ def source_of(vehicle_ids: list[int | None], recording: list[int | None]) -> Sou
 
 
 def staged_ids(staged: dict[int, Path]) -> dict[int, list[int]]:
-    return {part: pl.read_parquet(path)[s.VEHICLE_ID].to_list() for part, path in staged.items()}
+    return {part: pl.read_ipc(path)[s.VEHICLE_ID].to_list() for part, path in staged.items()}
 
 
 def test_rows_are_staged_by_recording_and_part_of_their_vehicle_ids(

@@ -93,7 +93,9 @@ def test_rows_read_through_a_scratch_file_are_the_rows_read_in_memory(
     path = write_portal(tmp_path / "p.csv", second + bad + first)
     in_memory = read_file_recordings(path, BuildConfig(), 2)
     scanned = read_file_recordings(path, BuildConfig(), 2, tmp_path / "scratch")
-    assert len(list((tmp_path / "scratch").glob(f"{files.PARSED_STEM}-*.parquet"))) > 2
+    assert (
+        len(list((tmp_path / "scratch").glob(f"{files.PARSED_STEM}-*.{files.PARSED_SUFFIX}"))) > 2
+    )
     assert scanned.report == in_memory.report
     assert scanned.report.rows_missing_values == 1 and sum(scanned.report.rows_dropped.values())
     assert scanned.recordings == in_memory.recordings

@@ -14,6 +14,7 @@ from test_pipeline import hidden_siblings, snapshot
 
 from ngsim_graphs import layout, pipeline
 from ngsim_graphs.config import BuildConfig, SynthConfig
+from ngsim_graphs.engine import stages
 from ngsim_graphs.errors import NgsimInputError, NgsimOutputError
 from ngsim_graphs.pipeline import SHARED_FIELDS, run_build, run_builds
 from ngsim_graphs.schema import Protocol, SplitMode
@@ -234,7 +235,7 @@ def test_reading_and_cleaning_read_only_the_shared_fields(
     """What makes the builds of run_builds those of run_build: the stages they share read no
     field of the config but SHARED_FIELDS (watched in this process: one job)."""
     read: set[str] = set()
-    reading, cleaning = pipeline.read_file, pipeline.clean_recording
+    reading, cleaning = stages.read_file, stages.clean_recording
 
     def read_file(source: Any, path: Path, config: BuildConfig, *rest: Any) -> Any:
         return reading(source, path, _Watched(config, read), *rest)
@@ -242,8 +243,8 @@ def test_reading_and_cleaning_read_only_the_shared_fields(
     def clean_recording(source: Any, key: Any, staged: Any, config: BuildConfig, *rest: Any) -> Any:
         return cleaning(source, key, staged, _Watched(config, read), *rest)
 
-    monkeypatch.setattr(pipeline, "read_file", read_file)
-    monkeypatch.setattr(pipeline, "clean_recording", clean_recording)
+    monkeypatch.setattr(stages, "read_file", read_file)
+    monkeypatch.setattr(stages, "clean_recording", clean_recording)
     inputs = raw if dataset == "ngsim" else two_directions(tmp_path / "highd", number=1)
     run_build([inputs], tmp_path / "out", BuildConfig())
     assert {"locations", "time_step_s", "heading_smoothing_s"} <= read

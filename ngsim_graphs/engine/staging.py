@@ -10,13 +10,17 @@ from pathlib import Path
 import polars as pl
 
 from ngsim_graphs.layout import STAGING_DIR, recording_name
-from ngsim_graphs.storage import writing
+from ngsim_graphs.storage import TableAppender, writing
+
+# The raw rows and cleaned tracks a build stages for itself, a batch at a time: Arrow IPC,
+# uncompressed (`storage.TableAppender` without compression), read back at memory speed.
+STAGED_ROWS_SUFFIX = "arrow"
 
 
 def staged_raw_path(root: Path, location: str, period: str, part: int, file_index: int) -> Path:
     """Parsed raw rows of one part of a recording's vehicles from one input file, kept only
     while building."""
-    name = f"raw-{part:05d}-{file_index:04d}.parquet"
+    name = f"raw-{part:05d}-{file_index:04d}.{STAGED_ROWS_SUFFIX}"
     return root / STAGING_DIR / recording_name(location, period) / name
 
 
@@ -35,7 +39,8 @@ def staged_scratch_dir(root: Path, file_index: int) -> Path:
 def staged_tracks_path(root: Path, location: str, period: str, part: int) -> Path:
     """The tracks of one part of a recording's vehicles, numbered from 0 in the recording,
     kept only while building."""
-    return root / STAGING_DIR / recording_name(location, period) / f"tracks-{part:05d}.parquet"
+    name = f"tracks-{part:05d}.{STAGED_ROWS_SUFFIX}"
+    return root / STAGING_DIR / recording_name(location, period) / name
 
 
 def staged_evidence_path(root: Path, location: str, period: str, part: int, group: int) -> Path:
@@ -56,3 +61,13 @@ def write_staged(frame: pl.DataFrame, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with writing(path):
         frame.write_parquet(path, compression="lz4", statistics=False)
+
+
+def rows_appender(path: Path, schema: pl.Schema) -> TableAppender:
+    """A staged table of raw rows or tracks written a batch at a time (STAGED_ROWS_SUFFIX)."""
+    return TableAppender(path, schema, compression=None)
+
+
+def scan_rows(paths: Path | list[Path]) -> pl.LazyFrame:
+    """Staged raw rows or tracks (`rows_appender`), scanned."""
+    return pl.scan_ipc(paths)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import itertools
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -182,8 +181,8 @@ def stage_rows(
     with contextlib.ExitStack() as files:
         writers: dict[tuple[int, int], storage.TableAppender] = {}
         batch_rows = budget.BUDGET.batch_rows * max(1, len(keys))
-        for offset in itertools.count(0, batch_rows):
-            batch = read.rows.slice(offset, batch_rows).collect(engine="streaming")
+        # One streaming pass over the rows (a slice at a time would scan them from the start).
+        for batch in read.rows.collect_batches(chunk_size=batch_rows):
             mine = batch.filter(pl.col(s.RECORDING_INDEX).is_in(list(keys)))
             if mine[s.VEHICLE_ID].null_count():  # the contract says every row has one
                 index = mine.filter(pl.col(s.VEHICLE_ID).is_null())[s.RECORDING_INDEX][0]
@@ -196,15 +195,14 @@ def stage_rows(
                     target = staging.staged_raw_path(root, *keys[index], part, file_index)
                     staged[keys[index]][part] = target
                     writers[index, part] = files.enter_context(
-                        storage.TableAppender(target, schema, compression="lz4")
+                        staging.rows_appender(target, schema)
                     )
                 writers[index, part].append(rows.select(schema.names()))
-            if batch.height < batch_rows:
-                break
     for key, parts in staged.items():
         if not parts:
             parts[0] = staging.staged_raw_path(root, *key, 0, file_index)
-            staging.write_staged(pl.DataFrame(schema=schema), parts[0])
+            with staging.rows_appender(parts[0], schema) as empty:
+                empty.append(pl.DataFrame(schema=schema))
     return {key: dict(sorted(staged[key].items())) for key in sorted(staged)}
 
 
@@ -225,9 +223,9 @@ def clean_recording(
     every recording before it is cleaned, so the numbers are shifted in `build_recording`."""
     parts, first_track_id = [], 0
     for part in sorted(staged):
-        raw = pl.scan_parquet(staged[part])
+        raw = staging.scan_rows(staged[part])
         target = staging.staged_tracks_path(root, *key, part)
-        with storage.TableAppender(target, s.TRACKS_SCHEMA, compression="lz4") as tracks:
+        with staging.rows_appender(target, s.TRACKS_SCHEMA) as tracks:
             for group, vehicles in enumerate(vehicle_groups(raw, budget.BUDGET.clean_rows)):
                 rows = raw.filter(vehicles).collect()
                 cleaned = source.vehicle_tracks(rows, key, config, source.limits, first_track_id)
@@ -279,14 +277,14 @@ def build_recording(
     parts = [staging.staged_tracks_path(scratch, *key, part) for part in sorted(staged)]
     # Streamed, never held whole, in row groups of a fixed size: the bytes written do not
     # depend on the parts it was cleaned in. The grid nodes read back what they need of it.
-    tracks = pl.scan_parquet(parts).with_columns(
+    tracks = staging.scan_rows(parts).with_columns(
         (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
     )
     storage.sink_parquet(tracks, layout.tracks_path(root, *key))
     tracks = pl.scan_parquet(layout.tracks_path(root, *key))
     nodes = grid_node_rows(tracks, config.time_step_s)  # each use streams them from the file
     # The staged rows before cleaning, scanned: a protocol that reads them takes what it needs.
-    raw = pl.scan_parquet([path for part in sorted(staged) for path in staged[part]])
+    raw = staging.scan_rows([path for part in sorted(staged) for path in staged[part]])
     made = protocol.recording_windows(nodes, raw, key, index, config)
     windows, vehicle_ids, script = made.windows, made.vehicle_ids, made.script_rows
     del made, raw  # the windows are all the rest needs of the raw rows

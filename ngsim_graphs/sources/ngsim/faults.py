@@ -27,6 +27,7 @@ from ngsim_graphs.sources.text import (
 PRESENT = "__present"  # non-empty fields of a row
 ODD = "__odd"  # the row may have a wrong number of fields
 N_FIELDS = "__n_fields"  # fields of a text line
+POINTED = "__pointed"  # an integer field of the row has a point or an exponent
 
 
 def raise_bad_number(path: Path, text: pl.LazyFrame, row: int, first_line: int) -> None:

@@ -23,6 +23,7 @@ from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.faults import (
     N_FIELDS,
     ODD,
+    POINTED,
     PRESENT,
     raise_bad_number,
     raise_odd_shape,
@@ -34,6 +35,7 @@ from ngsim_graphs.sources.ngsim.formats import (
     header_names,
     sniff_format,
 )
+from ngsim_graphs.sources.ngsim.whitespace import parse_plain
 from ngsim_graphs.sources.text import (
     CONTROL,
     EXTRA,
@@ -47,12 +49,12 @@ from ngsim_graphs.sources.text import (
     without_thousands,
 )
 
-_POINTED = "__pointed"  # an integer field of the row has a point or an exponent
-
-
 # Where a build gives it a scratch folder, the parsed rows of a file are written there, a chunk
 # of its text a file, and read back as they are needed, never held whole.
 PARSED_STEM = "parsed"
+# Arrow IPC, uncompressed: written at memory speed, read by each pass at memory speed; it lives
+# only while its file is read (the disk holds about its text's size, the page cache the rest).
+PARSED_SUFFIX = "arrow"
 
 
 @dataclass(frozen=True)
@@ -137,7 +139,7 @@ def _number_exprs(
         if dtype != pl.Float64:
             pointed.append(text.str.contains(r"[.eE]").fill_null(False))
     counts = pl.sum_horizontal(present).cast(pl.Int8).alias(PRESENT)
-    return tidied, parsed, counts, pl.any_horizontal(pointed).alias(_POINTED)
+    return tidied, parsed, counts, pl.any_horizontal(pointed).alias(POINTED)
 
 
 def _first_fraction(text: pl.LazyFrame, rows: pl.Series) -> int | None:
@@ -190,20 +192,28 @@ def text_chunks(path: Path, chunk_bytes: int) -> Iterator[TextChunk]:
 
 
 def _parsed(
-    path: Path, parse: Callable[[TextChunk | None], pl.LazyFrame], scratch: Path | None
+    path: Path,
+    parse: Callable[[TextChunk | None], pl.LazyFrame],
+    scratch: Path | None,
+    fast: Callable[[TextChunk], pl.DataFrame | None] | None = None,
 ) -> pl.LazyFrame:
     """The parsed rows (`parse` of the whole file or of a chunk of it): collected (scratch
-    None), or parsed a chunk at a time (`budget.Budget.text_chunk_bytes`) into `scratch` and scanned from there:
-    a file's text and rows are then never all in memory at once."""
+    None), or parsed a chunk at a time (`budget.Budget.text_chunk_bytes`) into `scratch` and
+    scanned from there: a file's text and rows are then never all in memory at once. `fast`
+    parses a chunk as `parse` does where it can (None where it cannot)."""
     if scratch is None:
         check_line_lengths(path)  # the reader would hold a line whole, of any length
         return parse(None).collect(engine="streaming").lazy()
     scratch.mkdir(parents=True, exist_ok=True)
     parts = []  # one at least: `sniff_format` let no empty file through
     for chunk in text_chunks(path, budget.BUDGET.text_chunk_bytes):
-        parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.parquet")
-        parse(chunk).sink_parquet(parts[-1], compression="lz4", statistics=False)
-    return pl.scan_parquet(parts)
+        parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.{PARSED_SUFFIX}")
+        rows = None if fast is None else fast(chunk)
+        if rows is None:
+            parse(chunk).sink_ipc(parts[-1], compression="uncompressed")
+        else:
+            rows.write_ipc(parts[-1], compression="uncompressed")
+    return pl.scan_ipc(parts)
 
 
 def _check_fields(
@@ -227,7 +237,7 @@ def _check_fields(
     if bad is not None:
         raise_bad_number(path, text, int(bad), first_line)
     if summary["pointed"][0]:
-        pointed_rows = frame.filter(_POINTED).select(ROW).collect(engine="streaming")[ROW]
+        pointed_rows = frame.filter(POINTED).select(ROW).collect(engine="streaming")[ROW]
         fraction = _first_fraction(text, pointed_rows)
         if fraction is not None:
             raise_bad_number(path, text, fraction, first_line)
@@ -243,8 +253,10 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
     """
     raw_format = sniff_format(path)
     check_not_cut(path, raw_format)
+    fast = None
     if raw_format is RawFormat.TXT:
         scan, first_line = (lambda chunk: _scan_txt_text(path, chunk)), 1
+        fast = lambda chunk: parse_plain(chunk.text.getvalue(), chunk.first_line)  # noqa: E731
     else:
         header = _scan_csv_text(path)[1]
         check_csv_columns(path, header, raw_format)
@@ -264,12 +276,12 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
 
     text = scan(None).with_columns(location.alias(s.LOCATION))  # the whole file: for faults
     try:
-        frame = _parsed(path, parse, scratch)
+        frame = _parsed(path, parse, scratch, fast)
         summary = frame.select(
             pl.len().alias("rows"),
             pl.col(ODD).sum().alias("odd"),
             pl.col(ROW).filter(_bad_number()).min().alias("bad"),
-            pl.col(_POINTED).any().alias("pointed"),
+            pl.col(POINTED).any().alias("pointed"),
         ).collect(engine="streaming")
         # Rows of other locations are counted on their own; one collect_all sharing the scan
         # would hold all of its text in memory.
@@ -306,5 +318,5 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
         first_line=first_line,
         rows_other_locations=rows_read - height,
         locations_found=found,
-        frame=frame.drop(PRESENT, ODD, _POINTED),
+        frame=frame.drop(PRESENT, ODD, POINTED),
     )
