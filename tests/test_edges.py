@@ -114,8 +114,8 @@ def test_a_new_edge_type_goes_through_every_stage(monkeypatch: pytest.MonkeyPatc
 
     # Collate and the model: a GAT of its own per layer, named by the type.
     collated = Collate(scaler, layers=2)([batch])
-    assert collated["ego_edges"].shape == (2, len(actors))
-    assert collated["ego_attr"].shape == (len(actors), 1)
+    assert collated.edges["ego"].index.shape == (2, len(actors))
+    assert collated.edges["ego"].attr.shape == (len(actors), 1)
     model = AiGem(ModelConfig(layers=2, edge_types=config.edge_types)).eval()
     assert "encoder.1.ego.lin.weight" in model.state_dict()
     added = sum(count_parameters(layer.ego) for layer in model.encoder)
