@@ -129,7 +129,7 @@ def test_a_new_edge_type_goes_through_every_stage(monkeypatch: pytest.MonkeyPatc
     data = to_hetero_data(one, scaler)
     assert data["vehicle", "ego", "vehicle"].edge_index.shape[1] == len(one.edges["ego"].attribute)
     assert torch.equal(
-        to_model_batch(data)["ego_edges"], data["vehicle", "ego", "vehicle"].edge_index
+        to_model_batch(data).edges["ego"].index, data["vehicle", "ego", "vehicle"].edge_index
     )
     tables = graph_tables(batch, np.arange(batch.n_samples))
     assert list(tables) == ["nodes", "spatial_edges", "temporal_edges", "ego_edges", "targets"]
