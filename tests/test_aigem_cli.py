@@ -326,6 +326,7 @@ def test_ctrl_c_while_aigem_loads_is_one_line(
     assert not run.exists()
 
 
+@pytest.mark.slow
 def test_a_fit_killed_at_any_point_resumes_to_the_uninterrupted_run(
     tiny_build: Path, tmp_path: Path
 ) -> None:

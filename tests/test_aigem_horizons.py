@@ -179,6 +179,7 @@ def _assert_the_fit_alone(member: Path, alone: Path) -> None:
             assert value == pytest.approx(alone_row[key], rel=1e-9, abs=0.0), key
 
 
+@pytest.mark.slow
 def test_a_member_is_the_single_horizon_fit_in_float64(
     float64: None, tiny_build: Path, tmp_path: Path
 ) -> None:
@@ -193,6 +194,7 @@ def test_a_member_is_the_single_horizon_fit_in_float64(
     assert rates[0] > 10 * rates[1] > 0  # the cosine ran to near 0 by the end
 
 
+@pytest.mark.slow
 def test_a_time_limit_cuts_the_ensembles_epoch_as_a_models_alone(
     float64: None, tiny_build: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -264,6 +266,7 @@ def test_one_member_stopping_early_leaves_the_others_training(
     assert [r.epoch for r in run_log.read_metrics(run / "h1s")] == [1, 2]
 
 
+@pytest.mark.slow
 def test_a_resumed_run_ends_as_an_uninterrupted_one(
     fitted: tuple[Path, str], tiny_build: Path, tmp_path: Path
 ) -> None:

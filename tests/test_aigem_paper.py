@@ -431,6 +431,7 @@ def comparable(out: Path) -> tuple[dict, str]:
     return document, text[: text.index("## Time taken")]
 
 
+@pytest.mark.slow
 def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupted_report(
     tiny_raw: Path, whole: Callable[[], Path], tmp_path: Path
 ) -> None:
@@ -489,6 +490,7 @@ def test_a_run_stopped_by_max_hours_says_so_and_run_again_gives_the_uninterrupte
     assert comparable(out)[0] == ours and (out / "runs" / "dmin-25m-seed1").is_dir()
 
 
+@pytest.mark.slow
 def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
     tiny_raw: Path, whole: Callable[[], Path], tmp_path: Path
 ) -> None:

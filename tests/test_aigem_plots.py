@@ -164,6 +164,7 @@ def test_every_picture_of_a_synthetic_build_says_so(
     assert json.loads(document.stdout)["synthetic"] is True
 
 
+@pytest.mark.slow
 def test_cli_plots_of_a_multi_horizon_and_a_single_run(run: Path, tmp_path: Path) -> None:
     folder = tmp_path / "pictures"
     folder.mkdir()
@@ -201,6 +202,7 @@ def test_plots_never_replace_a_picture_that_is_not_ours(run: Path, tmp_path: Pat
     assert (folder / SCENES).read_bytes() == b"mine"
 
 
+@pytest.mark.slow
 def test_plots_remove_their_own_stale_scenes(run: Path, tmp_path: Path) -> None:
     """A call that draws no scenes (as with --other-build) removes the scenes of an earlier call:
     the folder never mixes two evaluations."""

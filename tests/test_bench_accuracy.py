@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from aigem import run_log, runs
 from ngsim_graphs.build import open_build
 
@@ -22,6 +24,7 @@ def _bench(build: Path, out: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
 
 
+@pytest.mark.slow
 def test_bench_accuracy_reports_time_to_target_and_resumes(
     tiny_build: Path, tmp_path: Path
 ) -> None:

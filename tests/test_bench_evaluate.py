@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "bench" / "bench_evaluate.py"
 
@@ -18,6 +20,7 @@ def _bench(run: Path, old: Path, *more: str) -> subprocess.CompletedProcess:
     return subprocess.run(command, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_bench_evaluate_times_the_call_and_the_forward_passes(tiny_horizons_run: Path) -> None:
     done = _bench(tiny_horizons_run, ROOT, "--forward")
     assert done.returncode == 0, done.stderr

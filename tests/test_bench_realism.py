@@ -64,6 +64,7 @@ def test_constant_velocity_errors_against_each_sample_alone(tiny_build: Path) ->
         assert (found[location].ade_m, found[location].fde_m) == pytest.approx((ade, fde))
 
 
+@pytest.mark.slow
 def test_synthetic_traffic_is_no_more_predictable_than_ngsims(calibration_build: Path) -> None:
     # The generator before its calibration: constant velocity's RMSE 0.30 m at 1 s and 4.8 m at
     # 5 s on NGSIM's 0.73 and 6.68 m (Deo and Trivedi 2018).

@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "bench_train.py"
 
 
+@pytest.mark.slow
 def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
     command = [sys.executable, str(SCRIPT), str(tiny_build), "--batch-sizes", "4",
                "--device", "cpu", "--steps", "2", "--warmup", "1", "--profile-steps", "1",

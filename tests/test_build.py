@@ -249,6 +249,7 @@ def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
     assert (old.counts, old.scaler, old.recordings) == (new.counts, new.scaler, new.recordings)
 
 
+@pytest.mark.slow
 def test_a_recording_cleaned_a_few_vehicles_at_a_time_is_the_recording_cleaned_at_once(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -199,6 +199,7 @@ def test_sigterm_is_handled_as_ctrl_c(raw: Path, out: Path) -> None:
     assert siblings(out) == []
 
 
+@pytest.mark.slow
 def test_workers_end_with_a_killed_build_whose_leftovers_the_next_removes(
     raw: Path, out: Path
 ) -> None:
@@ -241,6 +242,7 @@ def WRITING_MAT(_pid: int, out: Path) -> bool:  # noqa: N802 - a moment, as READ
     return found(out.parent, "**/*TrainSet.mat*")
 
 
+@pytest.mark.slow
 def test_a_killed_export_cslstm_leaves_nothing_the_next_does_not_remove(
     raw: Path, tmp_path: Path
 ) -> None:

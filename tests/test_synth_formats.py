@@ -75,6 +75,7 @@ def _csv_keys(path: Path) -> set[tuple[int, int]]:
     return {(int(row[0]), int(row[1])) for row in _csv_rows(path)[1]}
 
 
+@pytest.mark.slow
 def test_txt_plain_round_trips(tmp_path: Path) -> None:
     paths = _write(tmp_path, RawFormat.TXT, quirks=False)
     assert [p.relative_to(tmp_path / "txt-False").as_posix() for p in paths] == [
@@ -211,6 +212,7 @@ def test_portal_quirks_foreign_location(quirky_portal: tuple[bytes, list]) -> No
     assert 27 <= start.minute <= 28
 
 
+@pytest.mark.slow
 def test_same_config_same_bytes_other_seed_other_bytes(tmp_path: Path) -> None:
     _simulated.clear()  # end to end, through the simulation
     config = SynthConfig(RawFormat.PORTAL, recordings=1, minutes=0.1, seed=2, quirks=True)
@@ -347,6 +349,7 @@ def _run_synth_until_second_file(folder: Path) -> subprocess.Popen:
     return process
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["kill -9", "Ctrl-C"])
 def test_a_stopped_synth_leaves_nothing_that_looks_complete(tmp_path: Path, how: str) -> None:
     folder = tmp_path / "raw"

@@ -191,6 +191,7 @@ def _compare_targets(a: GraphBatch, b: GraphBatch, na: pl.DataFrame, nb: pl.Data
     assert np.abs(a.target_xy[i] - b.target_xy[j]).max() <= POSITION_TOL_M
 
 
+@pytest.mark.slow
 def test_round_trip_ngsim_text_and_highd_give_the_same_graphs(tmp_path: Path) -> None:
     """One simulation (2 recordings of 1 minute: us-101 on the lower lanes, i-80 on the upper ones)
     built from NGSIM text and from highD files.

@@ -115,6 +115,7 @@ def test_a_build_is_synthetic_by_its_manifest_wherever_its_inputs_go(tmp_path: P
     assert label_pixels(tmp_path / "scene.png") > 200
 
 
+@pytest.mark.slow
 def test_a_build_of_synthetic_and_other_inputs_names_both(tmp_path: Path) -> None:
     raw = tmp_path / "raw"
     ours, theirs = write_synthetic(raw, SynthConfig(RawFormat.CSV, recordings=2, minutes=0.3))

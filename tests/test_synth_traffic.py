@@ -39,6 +39,7 @@ def test_schema_sort_and_frames(rows: pl.DataFrame) -> None:
     assert rows.null_count().sum_horizontal().item() == 0
 
 
+@pytest.mark.slow
 def test_same_seed_same_rows_other_seed_other_rows() -> None:
     first = simulate_recording(I80, 0.1, seed=7)
     assert first.equals(simulate_recording(I80, 0.1, seed=7))
