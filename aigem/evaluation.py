@@ -35,7 +35,7 @@ from aigem.devices import pick_device
 from aigem.intervals import RESAMPLES, SampleIntervals, bootstrap_intervals
 from aigem.metrics import ErrorTotals, step_errors, summarize_errors, whole_horizon_keys
 from aigem.model import AiGem, count_parameters
-from aigem.paper_folder import refuse_paper_folder_as_run
+from aigem.paper_layout import refuse_paper_folder_as_run
 from aigem.records import BEST, Group, RunInfo, group_of_member, read_group
 from aigem.refusals import Member, check_build, check_one_fit, resolve_build
 from aigem.results import Evaluation, ModelEvaluation, Rows, Scores

@@ -40,12 +40,9 @@ from pathlib import Path
 from typing import Any
 
 from aigem.paper_folder import (
-    BUILDS,
     HORIZONS_S,
-    RUNS,
     PaperConfig,
     build_config,
-    build_name,
     build_state,
     check_folder,
     claim_folder,
@@ -56,6 +53,7 @@ from aigem.paper_folder import (
     partly_synthetic,
     runs_of,
 )
+from aigem.paper_layout import BUILDS, RUNS, build_name
 from aigem.paper_plan import (
     FITS,
     PAPER_FIT,

@@ -27,6 +27,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from aigem.paper_layout import PAPER_JSON, REPORT_JSON, REPORT_MD, RUNS, WRITTEN_BY, is_ours
 from aigem.records import HORIZONS, LAST, RUN_FILES, STARTED, member_dir
 from aigem.run_log import EpochRow, read_metrics
 from ngsim_graphs.config import BuildConfig, check_seed
@@ -38,11 +39,6 @@ from ngsim_graphs.partial_files import leftover_partials, write_atomic
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0, 5.0)  # the paper's: one model per horizon
 PAPER_EPOCHS = 100  # the paper's: "approximately 100 training epochs" gave each best model
-PAPER_D_MIN_M = 25.0  # the d_min of the paper's model (the others: the d_min ablation)
-PAPER_JSON, REPORT_JSON, REPORT_MD = "paper.json", "report.json", "report.md"
-PAPER_LOG = "paper.log"  # `aigem paper`'s stderr lines, each after its time, appended
-BUILDS, RUNS, FIGURES = "builds", "runs", "figures"
-WRITTEN_BY = "aigem paper"
 RETRAIN = ("seed", "batch_size", "patience_epochs")  # PaperConfig's: other models
 
 
@@ -66,10 +62,6 @@ class PaperConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-
-def build_name(d_min_m: float) -> str:
-    return f"dmin-{d_min_m:g}m"
 
 
 def run_name(fit_name: str, seed: int, first_seed: int) -> str:
@@ -126,19 +118,6 @@ def refuse_build_as_input(path: Path) -> None:
     )
 
 
-def refuse_paper_folder_as_run(path: Path) -> None:
-    """Refuse a folder of `aigem paper` where a run is wanted (`aigem evaluate`), naming its
-    runs: it holds one run per fit and seed under runs/, and its report."""
-    if not _ours(json_object(path / PAPER_JSON)):
-        return
-    found = sorted(p.name for p in (path / RUNS).iterdir()) if (path / RUNS).is_dir() else []
-    paper = build_name(PAPER_D_MIN_M)  # the paper's model's fit is named as its build
-    runs = f"its runs are at {path / RUNS}: {', '.join(found)}" if found else "no run yet"
-    if paper in found:
-        runs += f" (the paper's model: {path / RUNS / paper})"
-    raise NgsimInputError(path, f"is an `aigem paper` folder, not a run: {runs}")
-
-
 def _identity(path: Path) -> dict[str, Any]:
     stat = path.stat()
     digest = _sha256(str(path.resolve()), stat.st_size, stat.st_mtime_ns)
@@ -192,17 +171,13 @@ def differences(before: dict[str, Any], now: dict[str, Any]) -> list[str]:
     return said
 
 
-def _ours(document: dict[str, Any] | None) -> bool:
-    return document is not None and document.get("written_by") == WRITTEN_BY
-
-
 def check_folder(out: Path, document: dict[str, Any], overwrite: bool) -> None:
     """Refuse, writing nothing, an `out` that claim_folder must not take: a file, a folder that
     is not empty and not ours, or ours with other settings (without `overwrite`), naming them."""
     if out.exists() and not out.is_dir():
         raise NgsimOutputError(out, "is a file, not a folder; choose another --out")
     before = json_object(out / PAPER_JSON)
-    if not _ours(before):
+    if not is_ours(before):
         if out.is_dir() and any(out.iterdir()):
             raise NgsimOutputError(
                 out,
@@ -240,7 +215,7 @@ def claim_folder(
     check_folder(out, document, overwrite)
     marker = out / PAPER_JSON
     before = json_object(marker)
-    if not _ours(before):
+    if not is_ours(before):
         out.mkdir(parents=True, exist_ok=True)
         write_atomic(marker, _json_bytes(document))
         return

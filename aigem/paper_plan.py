@@ -8,7 +8,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from aigem.paper_folder import PAPER_D_MIN_M, PaperConfig, build_name, run_name
+from aigem.paper_folder import PaperConfig, run_name
+from aigem.paper_layout import PAPER_D_MIN_M, build_name
 from ngsim_graphs.config import MAX_PARALLEL, MAX_SEED, check_above, check_count
 
 PARTS = ("table", "dmin", "concat", "curves", "regions")

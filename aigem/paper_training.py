@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from aigem.config import ModelConfig
-from aigem.paper_folder import BUILDS, HORIZONS_S, RUNS, PaperConfig, epochs_left, fit_record
+from aigem.paper_folder import HORIZONS_S, PaperConfig, epochs_left, fit_record
+from aigem.paper_layout import BUILDS, RUNS
 from aigem.paper_plan import PaperCall, SeedRun
 from aigem.records import LAST, member_dir, planned_group, read_horizons
 from ngsim_graphs.errors import NgsimInputError

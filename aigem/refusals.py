@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from aigem.config import RESUMABLE, ModelConfig, TrainConfig, horizon_steps
-from aigem.paper_folder import refuse_paper_folder_as_run
+from aigem.paper_layout import refuse_paper_folder_as_run
 from aigem.provenance import build_identity, identity_difference
 from aigem.records import (
     BEST,

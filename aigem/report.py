@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from aigem.intervals import LEVEL
-from aigem.paper_folder import PAPER_D_MIN_M
+from aigem.paper_layout import PAPER_D_MIN_M
 from aigem.report_parts import (
     PUBLISHED_SERIES_NOTE,
     ablation,

@@ -40,7 +40,7 @@ from aigem.figure_parts import (
     png_bytes,
     published_style,
 )
-from aigem.paper_folder import PAPER_D_MIN_M
+from aigem.paper_layout import PAPER_D_MIN_M
 from aigem.plots import REGION_TITLES, TRAIN_STYLE, VALIDATION_STYLE
 from aigem.report_cells import Cell
 from aigem.report_tables import data_mark

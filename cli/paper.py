@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from aigem.config import DeviceChoice
-from aigem.paper_folder import PAPER_EPOCHS, PAPER_JSON, PAPER_LOG
+from aigem.paper_folder import PAPER_EPOCHS
+from aigem.paper_layout import PAPER_JSON, PAPER_LOG
 from ngsim_cli.command_line import option_names, option_values, usage_error
 from ngsim_cli.console import print_error, print_warning, stdout
 from ngsim_cli.exits import check_device, exit_on_error, exit_on_interrupt

@@ -27,9 +27,6 @@ from timed_runs import LINGER_S, TimedRun, aigem, run_timed
 from aigem.checkpoints import epochs_kept
 from aigem.paper import _evaluate, run_paper
 from aigem.paper_folder import (
-    PAPER_JSON,
-    PAPER_LOG,
-    REPORT_JSON,
     PaperConfig,
     build_state,
     claim_folder,
@@ -39,6 +36,7 @@ from aigem.paper_folder import (
     paper_document,
     runs_of,
 )
+from aigem.paper_layout import PAPER_JSON, PAPER_LOG, REPORT_JSON
 from aigem.paper_plan import (
     FITS,
     PARTS,
