@@ -33,15 +33,11 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from aigem import report_cells
-from aigem.figure_parts import (
-    footed_figure,
-    legend_below,
-    panel_handles,
-    png_bytes,
-    published_style,
-)
+from aigem.curves import TRAIN_STYLE, VALIDATION_STYLE
+from aigem.figure_parts import footed_figure, legend_below, panel_handles, png_bytes
 from aigem.paper_layout import PAPER_D_MIN_M
-from aigem.plots import REGION_TITLES, TRAIN_STYLE, VALIDATION_STYLE
+from aigem.plots import REGION_TITLES
+from aigem.published import published_style
 from aigem.report_cells import Cell
 from aigem.report_tables import data_mark
 from aigem.report_text import seeds_words

@@ -281,10 +281,10 @@ def end_epoch(
 
 def plot_curves(run_dir: Path, synthetic: bool = False) -> Path | None:
     """Training and validation loss per epoch, the best epoch and constant velocity's validation
-    loss as a PNG (aigem.plots), titled with how many of its epochs the run trained
+    loss as a PNG (aigem.curves), titled with how many of its epochs the run trained
     (aigem.course), marked SYNTHETIC where the run's build is of synthetic data;
     None before the first epoch."""
-    from aigem.plots import curves_png  # matplotlib (a second to import), only when drawing
+    from aigem.curves import curves_png  # matplotlib (a second to import), only when drawing
 
     rows = read_metrics(run_dir)
     if not rows:

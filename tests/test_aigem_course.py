@@ -15,7 +15,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from aigem import checkpoints, plots, runs
+from aigem import checkpoints, curves, runs
 from aigem.config import ModelConfig, TrainConfig, fit_option, option_words
 from aigem.course import (
     EARLY_STOPPING,
@@ -165,10 +165,10 @@ def test_curves_png_says_how_many_epochs_and_how_to_continue(
     cut_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     drawn = []
-    monkeypatch.setattr(plots, "curves_png", lambda *args: drawn.append(args) or b"png")
+    monkeypatch.setattr(curves, "curves_png", lambda *args: drawn.append(args) or b"png")
     runs.plot_curves(cut_run)
     assert drawn[0][-1] == "trained 1 of 3 epochs (UNFINISHED: continue with --resume)"
-    title = plots.curves_figure(*drawn[0][:-1], trained=drawn[0][-1]).axes[0].get_title()
+    title = curves.curves_figure(*drawn[0][:-1], trained=drawn[0][-1]).axes[0].get_title()
     assert (
         title
         == "AiGem training, 5 s horizon\ntrained 1 of 3 epochs (UNFINISHED: continue with --resume)"

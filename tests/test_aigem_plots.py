@@ -16,16 +16,10 @@ from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
 from aigem import run_log, runs
+from aigem.curves import VALIDATION_LABEL, curves_figure, curves_png
 from aigem.evaluation import evaluate
 from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
-from aigem.plots import (
-    VALIDATION_LABEL,
-    curves_figure,
-    curves_png,
-    error_by_horizon,
-    error_by_region,
-    final_error_distribution,
-)
+from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
 from aigem.results import Evaluation
 from aigem.run_log import EpochRow
 from ngsim_cli.aigem import app
