@@ -1,6 +1,6 @@
-"""The pieces every figure of aigem shares (aigem.curves, aigem.plots, aigem.report_plots): a
+"""The pieces every figure of aigem shares (aigem.runs.curves, aigem.figures.plots, aigem.paper.report_plots): a
 figure with a footer, a legend below the axes that hides neither data nor footer, and a figure's
-PNG bytes (the published rows' markers: aigem.published).
+PNG bytes (the published rows' markers: aigem.figures.published).
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot` (as
 ngsim_graphs.plotting): no global state, no display, nothing kept open.

@@ -1,7 +1,7 @@
 """The names in a folder of `aigem paper` (paper.json, report.json, builds/, runs/, ...), the
 marker that says a folder is ours, and the refusal of such a folder where a run is wanted.
 
-Apart from the paper's folder module (aigem.paper.folder) so that a run's checks and evaluation
+Apart from the paper's folder module (aigem.paper.experiments.folder) so that a run's checks and evaluation
 can tell a paper folder from a run without the paper's own work: no module here reads a run.
 """
 
