@@ -1,3 +1,6 @@
-"""Evaluation of a run: scoring its models and constant velocity on a split, the results
-and their published rows, predictions of single samples and followed targets.
+"""Evaluation: a run scored beside constant velocity (evaluate), its sums in one pass over a
+split (scoring), the results and the published rows (results), a run's predictions for chosen
+samples (prediction) and the target a scene picture follows (followed).
+
+It imports training (the static batches scoring runs on), runs, model and aigem's top.
 """

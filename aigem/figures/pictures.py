@@ -67,7 +67,7 @@ def scene_grid(
     per_group: int = 3,
 ) -> bytes | None:
     """A PNG: a row each of the worst, median and best `per_group` targets of the evaluated
-    split by AiGem's final displacement error (evaluation.target_choice, each in its own
+    split by AiGem's final displacement error (evaluate.target_choice, each in its own
     scene), each followed in its scene: its history, recorded future, and the predictions of
     AiGem (the run's longest-horizon model) and constant velocity, the rest of the scene faded.
     None, drawing nothing, where no target is valid at the last step or the evaluation was on

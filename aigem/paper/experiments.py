@@ -21,7 +21,7 @@ interrupted one resumes from its last checkpoint (a run killed before its first 
 aigem.runs.unfinished), and the evaluations are redone; more --seeds train the new seeds' runs
 alone. Other settings against a folder of ours are refused unless `overwrite`: it rebuilds the
 builds whose config or inputs differ and discards the runs trained on them, and all runs where
-the training settings make other models (more epochs continue them: paper_folder.retrains); a
+the training settings make other models (more epochs continue them: folder.retrains); a
 folder that is not ours and not empty is refused (aigem.paper.folder). Every check is made
 before the folder is touched: a refused call leaves it, an earlier report included, as it was.
 

@@ -51,7 +51,7 @@ NEEDS = {  # the fits each part of the report reads
 
 @dataclass(frozen=True)
 class SeedRun:
-    """A fit trained at one seed: its own run, runs/`name` (paper_folder.run_name); `several`:
+    """A fit trained at one seed: its own run, runs/`name` (folder.run_name); `several`:
     whether the call trains more than one seed (its words then say which)."""
 
     plan: FitPlan

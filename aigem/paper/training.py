@@ -96,7 +96,7 @@ def _fit(
     (over); `on_epoch` gets each model's row at the end of each epoch. Past `deadline`
     (time.monotonic()) it stops at the next batch: each model keeps the checkpoint of its last
     whole epoch (the next call redoes the epoch cut: the same models as without a limit), and a
-    run that kept none takes its files away (runs.discard_unfinished), as `aigem fit` does."""
+    run that kept none takes its files away (runs.folder.discard_unfinished), as `aigem fit` does."""
     from aigem.runs.folder import discard_unfinished
     from aigem.training.fit import fit_horizons
 

@@ -171,7 +171,7 @@ def _end_epoch(
 
 
 def draw_curves(member: Member, synthetic: bool, now: float) -> None:
-    """Draw the model's curves.png from its metrics (runs.plot_curves) at `now`."""
+    """Draw the model's curves.png from its metrics (runs.folder.plot_curves) at `now`."""
     folder.plot_curves(member.run_dir, synthetic)
     member.drawn_at, member.drawn = now, member.state.next_epoch
 
