@@ -16,23 +16,23 @@ from typing import TYPE_CHECKING, Any
 from ngsim_graphs.version import __version__  # one distribution, one version
 
 _EXPORTS = {
-    "AiGem": "aigem.model",
-    "count_parameters": "aigem.model",
+    "AiGem": "aigem.model.network",
+    "count_parameters": "aigem.model.network",
     "ModelConfig": "aigem.config",
     "TrainConfig": "aigem.config",
-    "GraphDataset": "aigem.data",
-    "Collate": "aigem.data",
-    "xy_to_metres": "aigem.data",
-    "GraphPygDataset": "aigem.pyg",
-    "to_hetero_data": "aigem.pyg",
-    "to_model_batch": "aigem.pyg",
-    "masked_mse_m2": "aigem.loss",
-    "fit": "aigem.training",
-    "fit_horizons": "aigem.training",
-    "load_model": "aigem.checkpoints",
-    "evaluate": "aigem.evaluation",
-    "constant_velocity": "aigem.baseline",
-    "predict_samples": "aigem.prediction",
+    "GraphDataset": "aigem.model.data",
+    "Collate": "aigem.model.data",
+    "xy_to_metres": "aigem.model.data",
+    "GraphPygDataset": "aigem.model.pyg",
+    "to_hetero_data": "aigem.model.pyg",
+    "to_model_batch": "aigem.model.pyg",
+    "masked_mse_m2": "aigem.model.loss",
+    "fit": "aigem.training.fit",
+    "fit_horizons": "aigem.training.fit",
+    "load_model": "aigem.runs.checkpoints",
+    "evaluate": "aigem.evaluation.evaluate",
+    "constant_velocity": "aigem.runs.baseline",
+    "predict_samples": "aigem.evaluation.prediction",
 }
 __all__ = [
     "__version__",
@@ -56,16 +56,16 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from aigem.baseline import constant_velocity
-    from aigem.checkpoints import load_model
     from aigem.config import ModelConfig, TrainConfig
-    from aigem.data import Collate, GraphDataset, xy_to_metres
-    from aigem.evaluation import evaluate
-    from aigem.loss import masked_mse_m2
-    from aigem.model import AiGem, count_parameters
-    from aigem.prediction import predict_samples
-    from aigem.pyg import GraphPygDataset, to_hetero_data, to_model_batch
-    from aigem.training import fit, fit_horizons
+    from aigem.evaluation.evaluate import evaluate
+    from aigem.evaluation.prediction import predict_samples
+    from aigem.model.data import Collate, GraphDataset, xy_to_metres
+    from aigem.model.loss import masked_mse_m2
+    from aigem.model.network import AiGem, count_parameters
+    from aigem.model.pyg import GraphPygDataset, to_hetero_data, to_model_batch
+    from aigem.runs.baseline import constant_velocity
+    from aigem.runs.checkpoints import load_model
+    from aigem.training.fit import fit, fit_horizons
 
 
 def __getattr__(name: str) -> Any:

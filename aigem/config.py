@@ -1,6 +1,6 @@
 """Frozen configuration dataclasses of the model and of training. Field names carry units. And
 the one mapping from their fields to `aigem fit`'s options (`fit_option`), which the CLI's
-messages and the command that continues a run (aigem.course.resume_command) both read."""
+messages and the command that continues a run (aigem.runs.course.resume_command) both read."""
 
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ def horizon_steps(horizon_s: float, time_step_s: float = TIME_STEP_S) -> int:
 
 
 class LrSchedule(str, Enum):
-    """How the learning rate runs over the epochs (aigem.schedule)."""
+    """How the learning rate runs over the epochs (aigem.training.schedule)."""
 
     CONSTANT = "constant"  # the paper's
     COSINE = "cosine"  # falls to 0 along half a cosine by the end of `epochs`
@@ -97,7 +97,7 @@ class TrainConfig:
     horizon_s: float = 5.0  # the paper trains one model per horizon, 1..5 s
     epochs: int = 100
     batch_size: int = 32  # samples (graphs) per batch
-    learning_rate: float = 1e-3  # Adam's, after the warm-up (aigem.schedule)
+    learning_rate: float = 1e-3  # Adam's, after the warm-up (aigem.training.schedule)
     lr_schedule: str = "constant"  # or "cosine": decay to 0 by the end of `epochs`
     warmup_epochs: float = 0.0  # linear warm-up of the learning rate
     clip_grad_norm: float | None = None  # clip the gradients' total L2 norm to this
@@ -107,7 +107,7 @@ class TrainConfig:
     workers: int | None = None  # DataLoader worker processes (None: aigem.cores.default_workers)
     threads: int | None = None  # intra-op CPU threads (None: the idle usable cores, aigem.cores)
     compile: bool | None = None  # the decoder through torch.compile (None: on CUDA, eager steps)
-    # The splits on the device, static batches, captured steps (aigem.engine); None: on CUDA,
+    # The splits on the device, static batches, captured steps (aigem.training.engine); None: on CUDA,
     # where the splits fit its free memory; False: the DataLoader's batches.
     resident: bool | None = None
 
@@ -169,7 +169,9 @@ def check_horizons_s(horizons_s: Sequence[float]) -> tuple[float, ...]:
         if horizon_s < MIN_HORIZON_S:
             raise ValueError(f"{horizon_s:g} s is shorter than one time step ({MIN_HORIZON_S:g} s)")
         horizon_steps(horizon_s)  # a whole number of the builds' steps
-    names = [f"{h:g}" for h in horizons_s]  # as a run names its members (aigem.records.member_dir)
+    names = [
+        f"{h:g}" for h in horizons_s
+    ]  # as a run names its members (aigem.runs.records.member_dir)
     twice = sorted({name for name in names if names.count(name) > 1}, key=float)
     if twice:
         raise ValueError(f"{', '.join(twice)} s given more than once")
@@ -205,7 +207,7 @@ OPTIONS: dict[str, str | dict[bool, str] | None] = {
     ),
 }  # fmt: skip
 # The train settings a resumed run may change: how far and how it trains, not what it learns
-# (every other field of TrainConfig, a new one too, must stay: aigem.refusals.RESUME_FIXED).
+# (every other field of TrainConfig, a new one too, must stay: aigem.runs.refusals.RESUME_FIXED).
 RESUMABLE = frozenset(
     {"epochs", "max_minutes", "patience_epochs", "workers", "threads", "compile", "resident"}
 )

@@ -1,6 +1,6 @@
-"""The pieces every figure of aigem shares (aigem.plots, aigem.report_plots): a figure with a
-footer, a legend below the axes that hides neither data nor footer, the published rows as hollow
-markers in their models' colours (ngsim_graphs.palette), and a figure's PNG bytes.
+"""The pieces every figure of aigem shares (aigem.runs.curves, aigem.figures.plots, aigem.paper.report_plots): a
+figure with a footer, a legend below the axes that hides neither data nor footer, and a figure's
+PNG bytes (the published rows' markers: aigem.figures.published).
 
 Figures are made with `matplotlib.figure.Figure` and an Agg canvas, not `pyplot` (as
 ngsim_graphs.plotting): no global state, no display, nothing kept open.
@@ -12,26 +12,12 @@ import io
 import textwrap
 from collections.abc import Sequence
 
-import numpy as np
 from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 
-from aigem.results import PAPER_TABLE, PUBLISHED_CONSTANT_VELOCITY
-from ngsim_graphs.palette import MODEL_COLOURS, PUBLISHED
-
-PUBLISHED_MARKERS = {  # each published row's model (results.PAPER_TABLE, then constant velocity)
-    "CS-LSTM": "s",
-    "GRIP++": "v",
-    "STA-LSTM": "P",
-    "DeepTrack": "X",
-    "GSTCN": "^",
-    "AiGem": "o",
-    "constant velocity": "o",
-}
-PUBLISHED_WORDS = "published, NGSIM"  # after a published row's model, in every legend
 FOOTER_CHARS_PER_IN = 14  # characters of 8-point text per inch of figure width, with room
 
 
@@ -57,40 +43,6 @@ def footed_figure(width_in: float, height_in: float, footer: str) -> Figure:
     figure = Figure(figsize=(width_in, total_in), layout=engine)
     figure.text(0.01, 0.02 / total_in, text, fontsize=8, color="dimgray", va="bottom")
     return figure
-
-
-def published_style(name: str) -> tuple[str, str, str]:
-    """A published row's model ("AiGem" of "AiGem (paper)"), its colour (ngsim_graphs.palette)
-    and its marker, drawn hollow."""
-    model = name.split(" (")[0]
-    return model, MODEL_COLOURS.get(model, PUBLISHED), PUBLISHED_MARKERS[model]
-
-
-def paper_points(axes: Axes, key: str, last_s: float = 5.0) -> None:
-    """The published rows as hollow markers, up to `last_s` seconds: RMSE at 1..5 s (key
-    "rmse_m"), or FDE at 5 s ("fde_m"); a row without the number is left out. Labelled by model
-    alone, so that the two panels of error_by_horizon share their legend entries. Also
-    aigem.report_plots' RMSE figure."""
-    for name, row in {**PAPER_TABLE, **PUBLISHED_CONSTANT_VELOCITY}.items():
-        model, colour, marker = published_style(name)
-        values = row[key] if key == "rmse_m" else (row[key],)
-        times = np.arange(1, 6) if key == "rmse_m" else np.array([5.0])
-        shown = [
-            (t, v) for t, v in zip(times, values, strict=True) if v is not None and t <= last_s
-        ]
-        if not shown:
-            continue
-        axes.plot(
-            *zip(*shown, strict=True),
-            ls="none",
-            marker=marker,
-            ms=7,
-            mfc="none",
-            mec=colour,
-            mew=1.5,
-            clip_on=False,  # a point on the axis' last second is drawn whole
-            label=f"{model} ({PUBLISHED_WORDS})",
-        )
 
 
 def panel_handles(panels: Sequence[Axes]) -> dict[str, Artist]:

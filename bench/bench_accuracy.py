@@ -6,7 +6,7 @@ warm-up, clipping), the figure that chooses each device's defaults (docs/aigem.m
     python bench/bench_accuracy.py BUILD --out DIR --epochs 12 --threads 1 \\
         --setting batch=32 --setting batch=256,lr=3e-3,schedule=cosine,warmup=1,clip=1000
 
-Each --setting (default: SETTINGS) is trained from scratch by `aigem.training.fit` itself, one
+Each --setting (default: SETTINGS) is trained from scratch by `aigem.training.fit.fit` itself, one
 after the other, into DIR/<setting> (the 5 s model unless --horizon-s; the same seed; --epochs, or
 fewer under --max-minutes). A cosine schedule decays over --epochs: give the epochs that fit the
 time rather than a time limit, or the rate is still high when the time runs out. A setting whose
@@ -33,11 +33,11 @@ from pathlib import Path
 
 import torch
 
-from aigem import run_log, runs
 from aigem.config import ModelConfig, TrainConfig
 from aigem.devices import pick_device
-from aigem.pictures import describe_build
-from aigem.training import fit
+from aigem.figures.pictures import describe_build
+from aigem.runs import folder, run_log
+from aigem.training.fit import fit
 
 # The settings compared by default: the paper's rate at batch 32, constant and decayed, and at batch
 # 256; then batch 256 and 1024 with the rate scaled by about sqrt(batch / 32) and by batch / 32,
@@ -122,7 +122,7 @@ def _finished(run_dir: Path, train: TrainConfig, train_graphs: int) -> bool:
     """Whether the setting's run has all its epochs, or was stopped by the time limit (its last
     epoch cut short, or the logged time over the limit)."""
     rows = run_log.read_metrics(run_dir)
-    if not rows or not (run_dir / runs.LAST).is_file():
+    if not rows or not (run_dir / folder.LAST).is_file():
         return False
     last = rows[-1]
     cut = last.train_graphs is not None and last.train_graphs < train_graphs
@@ -140,7 +140,7 @@ def train_setting(
 ) -> None:
     if _finished(run_dir, train, train_graphs):
         return
-    resume = (run_dir / runs.LAST).is_file()
+    resume = (run_dir / folder.LAST).is_file()
     fit(build, run_dir, ModelConfig(), train, device, resume=resume)
 
 

@@ -42,8 +42,8 @@ from pathlib import Path
 sys.path.insert(0, sys.argv[1])
 import torch
 torch.set_num_threads(int(sys.argv[3]))
-import aigem.evaluation as evaluation
-from aigem.results import as_dict
+import aigem.evaluation.evaluate as evaluation
+from aigem.evaluation.results import as_dict
 start = time.perf_counter()
 score = getattr(evaluation, "evaluate_horizons", evaluation.evaluate)  # an older checkout's name
 result = score(Path(sys.argv[2]), None, "test", "cpu")
@@ -134,10 +134,10 @@ def forward_times(run: Path, rounds: int) -> None:
     import torch
     from torch.utils.data import DataLoader
 
-    from aigem.data import Collate, GraphDataset
-    from aigem.ensemble import stack
-    from aigem.evaluation import load_run
-    from aigem.records import member_dir, read_horizons
+    from aigem.evaluation.evaluate import load_run
+    from aigem.model.data import Collate, GraphDataset
+    from aigem.runs.records import member_dir, read_horizons
+    from aigem.training.ensemble import stack
 
     runs = [
         load_run(member_dir(run, h), None, torch.device("cpu"), False) for h in read_horizons(run)

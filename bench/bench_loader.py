@@ -20,10 +20,10 @@ import torch
 from torch.utils.data import DataLoader
 
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset
-from aigem.model import AiGem
-from aigem.trainers import stack_trainer
-from aigem.training import make_optimizer
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.network import AiGem
+from aigem.training.fit import make_optimizer
+from aigem.training.trainers import stack_trainer
 
 
 def graphs_per_second(loader: DataLoader, batches: int, batch_size: int) -> float:
@@ -39,7 +39,7 @@ def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> tuple
     """(graphs/s of PyG's DataLoader over a prepared list of HeteroData, bytes per graph held)."""
     from torch_geometric.loader import DataLoader as PygLoader
 
-    from aigem.pyg import to_hetero_data
+    from aigem.model.pyg import to_hetero_data
 
     graphs = [to_hetero_data(dataset[i], dataset.scaler, sample_id=i) for i in range(n_graphs)]
     held = sum(
@@ -52,7 +52,7 @@ def pyg_baseline(dataset: GraphDataset, n_graphs: int, batch_size: int) -> tuple
 
 
 def training_graphs_per_second(dataset: GraphDataset, batches: int, batch_size: int) -> float:
-    """fit's one training step (aigem.trainers) of a model alone on the CPU."""
+    """fit's one training step (aigem.training.trainers) of a model alone on the CPU."""
     torch.manual_seed(0)
     model, cpu = AiGem(ModelConfig()), torch.device("cpu")
     optimizer = make_optimizer(model, TrainConfig(), cpu)

@@ -13,30 +13,30 @@ one). Graphs are cut to the history steps the model reads (`ModelConfig().histor
 - loader: DataLoader(GraphDataset, Collate, shuffled, --workers processes) alone, on the host,
   after its first batch (worker start-up excluded); at least --steps batches and 8,192 graphs
   (or an epoch, if less).
-- model step: fit's one training step (aigem.trainers: a model alone is an ensemble of one;
+- model step: fit's one training step (aigem.training.trainers: a model alone is an ensemble of one;
   zero_grad, forward, the masked loss, backward, Adam's step) on batches loaded beforehand and
   already on the device (no loading, no host-to-device copy): --warmup steps, then --steps timed
   (CUDA synchronised at both ends).
 - M models (--models): the step of M models of horizons 1..5 s (the k-th model's is 1 + k % 5
-  s) as `aigem fit --horizon-s` trains them, as one ensemble (aigem.ensemble: the members'
+  s) as `aigem fit --horizon-s` trains them, as one ensemble (aigem.training.ensemble: the members'
   losses summed, one backward, one fused Adam); `M apart`: the same M models stepped one after
   the other, each an ensemble of one with its own optimizer. graphs/s counts a graph once,
   through all of them.
-- fit loop: `aigem.training.fit` itself (1 epoch at this batch size, --workers, a temporary run
+- fit loop: `aigem.training.fit.fit` itself (1 epoch at this batch size, --workers, a temporary run
   directory) watched through its `progress` callback: the clock starts at the report of batch
   --warmup and stops at the first report --steps batches later; the profiler then watches
   --profile-steps batches, and the callback raises to end fit. So it is fit's own loop in steady
   state (loading, host-to-device copy, step, its loss checks and read-outs, bookkeeping) without
   start-up or validation, which a full epoch of 89,000 graphs would take minutes to reach. The
   windows count the batches that fit reports done, so they hold if fit reports less often.
-- fit M h (for each M of --models from 2 to 5): the same for `aigem.training.fit_horizons` with
+- fit M h (for each M of --models from 2 to 5): the same for `aigem.training.fit.fit_horizons` with
   the horizons 1..M s, its M models trained as one ensemble.
 - to device (once per device, where static batches are measured): the train split loaded onto
-  the device (aigem.loading: induced over --workers processes, what a layer reads kept);
+  the device (aigem.training.loading: induced over --workers processes, what a layer reads kept);
   graphs/s of the loading, its seconds in ms/batch.
 - static M (1 and each M of --models): the same step of M models (horizons 1..5 s) as one
-  ensemble on static batches of the split on the device (aigem.engine): assembled there by
-  index, padded to the capacity tiers of aigem.capacity, on CUDA captured once per tier and
+  ensemble on static batches of the split on the device (aigem.training.engine): assembled there by
+  index, padded to the capacity tiers of aigem.training.capacity, on CUDA captured once per tier and
   replayed. `padding`:
   the share of the tier-0 capacity that padding fills; `GPU GB`: the memory PyTorch reserved on
   the GPU so far (the splits, the captured steps' pools).
@@ -87,17 +87,17 @@ from torch.overrides import TorchFunctionMode
 from torch.profiler import ProfilerActivity
 from torch.utils.data import DataLoader
 
-from aigem import capacity
-from aigem import plan as aigem_plan
-from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset
-from aigem.engine import epoch_batches
-from aigem.loading import load_split
-from aigem.model import AiGem
-from aigem.resident import ResidentSplit
-from aigem.trainers import Trainer, stack_trainer
-from aigem.training import fit_horizons, make_optimizer
+from aigem.model import plan as aigem_plan
+from aigem.model.batch import Batch
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.network import AiGem
+from aigem.training import capacity
+from aigem.training.engine import epoch_batches
+from aigem.training.fit import fit_horizons, make_optimizer
+from aigem.training.loading import load_split
+from aigem.training.resident import ResidentSplit
+from aigem.training.trainers import Trainer, stack_trainer
 
 LOADER_GRAPHS = 8192  # the loader is fast: fewer graphs would time noise
 SYNC_OPS = {
@@ -306,7 +306,7 @@ def _trainer(
 
 
 def load_resident(dataset: GraphDataset, device: torch.device, workers: int):  # noqa: ANN201
-    """The train split on `device` (aigem.resident) and the row of its loading: graphs/s."""
+    """The train split on `device` (aigem.training.resident) and the row of its loading: graphs/s."""
     start = time.perf_counter()
     split = load_split(dataset, ModelConfig().layers, workers, check_scaler=True).to(device)
     _sync(device)
@@ -322,7 +322,7 @@ def measure_static(
     args: argparse.Namespace,
     models: int,
 ) -> dict[str, object]:
-    """The step of aigem.engine on static batches of the split on the device (assembled by index,
+    """The step of aigem.training.engine on static batches of the split on the device (assembled by index,
     forward, backward, Adam; on CUDA captured per capacity tier and replayed) of `models` models
     of horizons 1..5 s as one ensemble: --warmup, --steps timed, --profile-steps counted."""
     torch.manual_seed(0)

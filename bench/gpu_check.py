@@ -16,7 +16,7 @@ table says what it could not measure):
    step, the static step, fit's loop on static batches: graphs/s, launches and syncs a step);
 4. fit: `aigem fit --horizon-s 1,2,3,4,5` for --epochs epochs at --batch-size, with nvidia-smi's
    GPU utilisation sampled every 0.5 s from the end of its first epoch to its end;
-5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate`);
+5. evaluate: that run scored on the test split (`aigem.evaluation.evaluate.evaluate`);
 6. exit: `bench/bench_exit.py` on a tiny input of its own, how long each command (synth, build,
    stats, fit, a fit stopped by SIGTERM, evaluate, `aigem paper --only table`) takes to end
    after its last line;
@@ -171,7 +171,7 @@ def fit_with_sampling(stages: Stages, command: list[str]) -> float | None:
 def epoch_seconds(run: Path) -> tuple[float, int] | None:
     """(train + validation seconds of an epoch, the epoch's train graphs) of a five-horizon run,
     the mean over its epochs after the first (which captures the steps), or its first."""
-    from aigem.run_log import read_metrics
+    from aigem.runs.run_log import read_metrics
 
     rows = read_metrics(run / "h5s")
     if not rows:
@@ -183,7 +183,7 @@ def epoch_seconds(run: Path) -> tuple[float, int] | None:
 
 def evaluate_rate(run: Path, device: str) -> tuple[float, float] | None:
     """(seconds, test samples a second per model) of the run's evaluation, in this process."""
-    from aigem.evaluation import evaluate
+    from aigem.evaluation.evaluate import evaluate
 
     began = time.monotonic()
     result = evaluate(run, None, "test", device)
@@ -335,7 +335,7 @@ def main() -> None:
                          "--device", args.device, *jobs], 0.9)  # fmt: skip
     estimate = paper_estimate(paper, args.epochs)
     measured["paper_minutes"] = estimate["minutes"] if estimate else None
-    from aigem.run_log import read_baseline
+    from aigem.runs.run_log import read_baseline
 
     target = read_baseline(run / "h5s")
     if args.accuracy_epochs > 0 and target is not None:

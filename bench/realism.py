@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aigem.baseline import CHUNK_SAMPLES, constant_velocity
+from aigem.runs.baseline import CHUNK_SAMPLES, constant_velocity
 from ngsim_graphs.build import OpenBuild, open_build
 from ngsim_graphs.realism import (
     ALL,

@@ -31,12 +31,12 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from aigem.baseline import constant_velocity
-from aigem.checkpoints import load_model
-from aigem.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
-from aigem.model import AiGem
-from aigem.records import BEST
-from aigem.refusals import resolve_build
+from aigem.model.data import XY, Collate, GraphDataset, run_scaler, xy_to_metres
+from aigem.model.network import AiGem
+from aigem.runs.baseline import constant_velocity
+from aigem.runs.checkpoints import load_model
+from aigem.runs.records import BEST
+from aigem.runs.refusals import resolve_build
 from ngsim_graphs.scaling import FEATURES, MinMaxScaler
 
 FIRST_STEPS = 5  # 0.2 s .. 1 s

@@ -1,5 +1,5 @@
 """`aigem evaluate`: a run scored beside constant velocity and the paper, its checks before
-PyTorch loads, and the pictures of --plots (aigem.evaluation does the work; evaluation_view
+PyTorch loads, and the pictures of --plots (aigem.evaluation.evaluate does the work; evaluation_view
 prints)."""
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from ngsim_graphs.config import check_count
 from ngsim_graphs.schema import Split
 
 if TYPE_CHECKING:
-    from aigem.results import Evaluation
+    from aigem.evaluation.results import Evaluation
 
 
 def evaluate(
@@ -75,8 +75,8 @@ def evaluate(
     with option_values({"bootstrap": "--bootstrap"}):
         check_count("bootstrap", bootstrap, 0)
     with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-        from aigem.records import BEST, UNRECORDED, unrecorded_checkpoints
-        from aigem.refusals import check_evaluate
+        from aigem.runs.records import BEST, UNRECORDED, unrecorded_checkpoints
+        from aigem.runs.refusals import check_evaluate
 
         with exit_on_error():  # the run and the build, before PyTorch
             check_evaluate(run, data, split, other_build)
@@ -84,8 +84,8 @@ def evaluate(
                 print_warning(f"{path}: {UNRECORDED}")
         check_device(device.value)
         from aigem.devices import DeviceUnavailableError
-        from aigem.evaluation import evaluate as run_evaluate
-        from aigem.results import as_dict
+        from aigem.evaluation.evaluate import evaluate as run_evaluate
+        from aigem.evaluation.results import as_dict
         from ngsim_cli.evaluation_view import print_evaluation, warn_unfinished
 
     left = "nothing written" if plots is None else f"{plots} may hold some of this call's pictures"
@@ -117,6 +117,6 @@ def evaluate(
 
 def _draw(result: Evaluation, run: Path, folder: Path, device: str) -> list[Path]:
     """The pictures of `evaluate --plots`; returns the paths written."""
-    from aigem.pictures import write_evaluation_plots
+    from aigem.figures.pictures import write_evaluation_plots
 
     return write_evaluation_plots(result, folder, run, device)

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 from rich.table import Table
 
-from aigem.course import training_line, training_words
+from aigem.evaluation.results import Evaluation, paper_rows
 from aigem.intervals import Interval, SampleIntervals
 from aigem.metrics import REGIONS, table_columns
-from aigem.report_cells import seconds_words
-from aigem.results import Evaluation, paper_rows
+from aigem.paper.report_cells import seconds_words
+from aigem.runs.course import training_line, training_words
 from ngsim_cli.console import counted, print_table, print_warning, stdout
 from ngsim_graphs.synth.marker import SYNTHETIC_LABEL
 

@@ -1,5 +1,5 @@
 """`aigem fit`: its options, TrainConfig and ModelConfig, the checks before PyTorch loads, --out's
-lock, and the training with a progress bar and a line per epoch (aigem.training does the work;
+lock, and the training with a progress bar and a line per epoch (aigem.training.fit does the work;
 fit_view prints)."""
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from ngsim_cli.progress import progress_bar
 from ngsim_graphs.errors import NgsimError
 
 if TYPE_CHECKING:
-    from aigem.records import Group
-    from aigem.training import FitResult
+    from aigem.runs.records import Group
+    from aigem.training.fit import FitResult
 
 
 FIT_OPTIONS = option_words()  # TrainConfig's and ModelConfig's fields by their options
@@ -186,8 +186,8 @@ def fit(
     model_config = ModelConfig(concat_position=not no_concat, cv_residual=cv_residual)
     with _held(out):  # one fit at a time into --out, as build and paper
         with exit_on_interrupt("nothing written"):  # the checks, then PyTorch loads (seconds)
-            from aigem.records import UNRECORDED, planned_group, unrecorded_checkpoints
-            from aigem.refusals import check_fit
+            from aigem.runs.records import UNRECORDED, planned_group, unrecorded_checkpoints
+            from aigem.runs.refusals import check_fit
 
             group = planned_group(out, horizons_s)
             with exit_on_error(), _option_words(FIT_OPTIONS):  # the build and --out
@@ -195,7 +195,7 @@ def fit(
                 for path in unrecorded_checkpoints(out) if resume else []:
                     print_warning(f"{path}: {UNRECORDED}; recorded as they are from now on")
             check_device(device.value)  # PyTorch alone, before the rest loads
-            import aigem.training  # noqa: F401  (loaded here, where an interrupt is one line)
+            import aigem.training.fit  # noqa: F401  (loaded here, where an interrupt is one line)
         with _fit_log(group) as training:
             results = _train(data, group, model_config, train, device.value, resume, training)
     print_results(results, out)
@@ -206,7 +206,7 @@ def _fit_log(group: Group) -> Iterator[Callable[[], None]]:
     """RUN/fit.log (records.FIT_LOG) for the block: its lines kept until the returned function
     says that training runs (the run's checks are passed, its folder is fit's: a refused fit
     writes nothing into it), then appended. Under torchrun, rank 0's only."""
-    from aigem.records import FIT_LOG
+    from aigem.runs.records import FIT_LOG
 
     if int(os.environ.get("RANK", "0")) > 0:
         yield lambda: None
@@ -246,8 +246,8 @@ def _train(
     `training` is called as each batch is trained (fit.log is written from the first)."""
     from aigem.cores import busy_cores_warning
     from aigem.devices import DeviceUnavailableError
-    from aigem.epochs import NonFiniteLossError
-    from aigem.training import fit_horizons
+    from aigem.training.epochs import NonFiniteLossError
+    from aigem.training.fit import fit_horizons
 
     if train.threads is not None and (warning := busy_cores_warning(train.threads)):
         print_warning(warning)

@@ -13,16 +13,16 @@ from ngsim_cli.exits import exit_on_error
 from ngsim_cli.progress import progress_line
 
 if TYPE_CHECKING:
-    from aigem.records import Group
-    from aigem.run_log import EpochRow
-    from aigem.training import FitResult
+    from aigem.runs.records import Group
+    from aigem.runs.run_log import EpochRow
+    from aigem.training.fit import FitResult
 
 
 def discard_if_nothing_kept(group: Group, created: bool) -> list[int]:
     """Each model's epochs kept in the run `group` (its last checkpoint's); with none, a fit that
     stopped (interrupted, or an error) takes away the files it wrote (runs.discard_unfinished)."""
-    from aigem.checkpoints import epochs_kept
-    from aigem.runs import discard_unfinished
+    from aigem.runs.checkpoints import epochs_kept
+    from aigem.runs.folder import discard_unfinished
 
     kept = [epochs_kept(member) if member.is_dir() else 0 for member in group.members]
     if not any(kept):

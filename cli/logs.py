@@ -1,6 +1,6 @@
 """The log file of a long command: `ngsim-graphs build` (BUILD/build.log), `aigem fit`
 (RUN/fit.log) and `aigem paper` (PAPER/paper.log), each path its folder's module's
-(ngsim_graphs.layout, aigem.records, aigem.paper_folder).
+(ngsim_graphs.layout, aigem.runs.records, aigem.paper.folder).
 
 Every line the command writes on stderr goes also into its log, after its date and time
 (TIMESTAMP): warnings, the error or interrupt line that ends it, each epoch's line, and its

@@ -1,4 +1,4 @@
-"""`aigem paper`: the paper's experimental section in one command (aigem.paper does the work)."""
+"""`aigem paper`: the paper's experimental section in one command (aigem.paper.experiments does the work)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from aigem.config import DeviceChoice
-from aigem.paper_folder import PAPER_EPOCHS, PAPER_JSON, PAPER_LOG
+from aigem.paper.folder import PAPER_EPOCHS
+from aigem.paper_layout import PAPER_JSON, PAPER_LOG
 from ngsim_cli.command_line import option_names, option_values, usage_error
 from ngsim_cli.console import print_error, print_warning, stdout
 from ngsim_cli.exits import check_device, exit_on_error, exit_on_interrupt
@@ -16,8 +17,8 @@ from ngsim_cli.fit_view import print_epoch
 from ngsim_cli.logs import command_log
 
 if TYPE_CHECKING:
-    from aigem.paper_folder import PaperConfig
-    from aigem.paper_plan import PaperCall
+    from aigem.paper.folder import PaperConfig
+    from aigem.paper.plan import PaperCall
 from ngsim_cli.progress import progress_bar
 
 PARTS_HELP = "table,dmin,concat,curves,regions"
@@ -131,8 +132,8 @@ def paper(
     --max-hours bounds the training only (builds and evaluations come on top); a report of fits
     it stopped says UNFINISHED, and the same command again continues them.
     """
-    from aigem.paper_folder import PaperConfig, check_folder, paper_document
-    from aigem.paper_plan import PaperCall, parse_parts, plan_seeds  # light: no PyTorch yet
+    from aigem.paper.folder import PaperConfig, check_folder, paper_document
+    from aigem.paper.plan import PaperCall, parse_parts, plan_seeds  # light: no PyTorch yet
 
     try:
         parts = parse_parts(only)
@@ -151,7 +152,7 @@ def paper(
     left = lambda: _left(out)  # noqa: E731
     with exit_on_interrupt(left):  # PyTorch loads (seconds): no CUDA is said at once
         check_device(device.value)
-        import aigem.paper  # noqa: F401  (loaded here, where an interrupt is one line)
+        import aigem.paper.experiments  # noqa: F401  (loaded here, where an interrupt is one line)
         from aigem.cores import busy_cores_warning
         from ngsim_graphs.budget import available_cores
     # The log goes into --out once it is ours (paper.json: a new folder is claimed first).
@@ -168,9 +169,9 @@ def paper(
 def _run(raw_paths: list[Path], out: Path, config: PaperConfig, call: PaperCall) -> dict:
     """run_paper with a progress bar and a line per epoch; its report.json document."""
     from aigem.devices import DeviceUnavailableError
-    from aigem.epochs import NonFiniteLossError
-    from aigem.paper import run_paper
-    from aigem.paper_training import TimeLimitError
+    from aigem.paper.experiments import run_paper
+    from aigem.paper.training import TimeLimitError
+    from aigem.training.epochs import NonFiniteLossError
 
     with exit_on_interrupt(lambda: _left(out)), exit_on_error(), progress_bar() as progress:
         try:
@@ -196,9 +197,9 @@ def _left(out: Path) -> str:
 def _print_summary(report: dict, out: Path) -> None:
     """Where the report is, the paper's model's RMSE beside the paper's, and, where --max-hours
     left a fit unfinished, that the report is unfinished (last)."""
-    from aigem.report_cells import SECONDS, shown
-    from aigem.report_tables import data_mark
-    from aigem.report_text import UNFINISHED
+    from aigem.paper.report_cells import SECONDS, shown
+    from aigem.paper.report_tables import data_mark
+    from aigem.paper.report_text import UNFINISHED
 
     mark = data_mark(report)
     kind = f" ({mark} data: not comparable to the paper's NGSIM numbers)" if mark else ""

@@ -135,7 +135,7 @@ def show(
         if run is None:
             batch = opened.graphs(split.value, ids)
         else:
-            from aigem.followed import predicted_scenes  # torch loads only when asked
+            from aigem.evaluation.followed import predicted_scenes  # torch loads only when asked
 
             batch, predictions, follow, words = predicted_scenes(run, build_dir, split.value, ids)
             titles = [f"{title}\n{said}" for title, said in zip(titles, words, strict=True)]

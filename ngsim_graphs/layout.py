@@ -178,7 +178,7 @@ def _read_manifest_json(root: Path) -> dict[str, Any]:
     return manifest
 
 
-# What marks a run directory of aigem (`aigem.runs`: RUN_INFO, HORIZONS), and the key of its
+# What marks a run directory of aigem (`aigem.runs.records`: RUN_INFO, HORIZONS), and the key of its
 # run.json that names its build: named here because ngsim_graphs never imports aigem.
 RUN_INFO_NAME, RUN_HORIZONS_NAME, RUN_BUILD_KEY = "run.json", "horizons.json", "build_dir"
 # What a build holds before its manifest is written (a folder of only these: an unfinished build)

@@ -15,7 +15,7 @@ against a held-out real US-101 sample (docs/synthetic.md), per recording and poo
 deviations of the heading, of the acceleration, jerk and lateral acceleration taken as finite
 differences of the recorded speed and x, and the lane changes per track-step.
 Constant velocity's errors, the other half of the report, need the graphs: `bench/realism.py`
-computes them with `aigem.baseline`.
+computes them with `aigem.runs.baseline`.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from aigem.records import DIGESTS, RUN_INFO
+from aigem.runs.records import DIGESTS, RUN_INFO
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.synth.formats import write_synthetic
@@ -35,7 +35,7 @@ def two_recording_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def tiny_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A one-epoch, 2 s run on the tiny build (a model to predict with, not a good one)."""
     from aigem.config import ModelConfig, TrainConfig  # torch loads only for tests that use it
-    from aigem.training import fit
+    from aigem.training.fit import fit
 
     run = tmp_path_factory.mktemp("tiny_run") / "run"
     train = TrainConfig(epochs=1, batch_size=8, horizon_s=2.0, seed=3)
@@ -48,7 +48,7 @@ def tiny_horizons_run(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory
     """A one-epoch 1 s + 2 s run on the tiny build (fit_horizons); RUN/h2s alone is a
     single-horizon run. Read only: a test that edits it edits a copy."""
     from aigem.config import ModelConfig, TrainConfig
-    from aigem.training import fit_horizons
+    from aigem.training.fit import fit_horizons
 
     run = tmp_path_factory.mktemp("tiny_horizons_run") / "run"
     train = TrainConfig(epochs=1, batch_size=8, seed=3)
@@ -61,7 +61,7 @@ def docs_demo(tiny_build: Path, tmp_path_factory: pytest.TempPathFactory) -> Pat
     """A folder laid out as the README's commands leave it: demo/build (a tiny build), demo/run (a
     one-epoch fit on it, the README's horizon)."""
     from aigem.config import ModelConfig, TrainConfig  # torch loads only for tests that use it
-    from aigem.training import fit
+    from aigem.training.fit import fit
 
     root = tmp_path_factory.mktemp("docs")
     (root / "demo").mkdir()

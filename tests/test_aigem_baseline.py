@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aigem import baseline
-from aigem.baseline import constant_velocity, constant_velocity_loss_m2
+from aigem.runs import baseline
+from aigem.runs.baseline import constant_velocity, constant_velocity_loss_m2
 from ngsim_graphs.build import open_build
 
 

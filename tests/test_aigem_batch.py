@@ -1,4 +1,4 @@
-"""The typed batch (aigem.batch): moved to a device and to another float type whole, pinned for
+"""The typed batch (aigem.model.batch): moved to a device and to another float type whole, pinned for
 a DataLoader (its workers hand it over: tests/test_aigem_data.py)."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 import torch
 from torch.utils.data._utils.pin_memory import pin_memory
 
-from aigem.batch import Batch, Edges
-from aigem.data import Collate, GraphDataset
+from aigem.model.batch import Batch, Edges
+from aigem.model.data import Collate, GraphDataset
 
 
 def same(a: object, b: object) -> bool:

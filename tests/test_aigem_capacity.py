@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aigem import capacity
-from aigem.capacity import Capacity
+from aigem.training import capacity
+from aigem.training.capacity import Capacity
 
 
 def test_a_capacity_is_the_mean_of_a_batch_plus_four_deviations_rounded_up() -> None:

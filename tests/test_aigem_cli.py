@@ -20,7 +20,8 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
-from aigem import checkpoints, cores, run_log, runs
+from aigem import cores
+from aigem.runs import checkpoints, folder, run_log
 from ngsim_cli import console, progress
 from ngsim_cli.aigem import app
 from ngsim_cli.ngsim import app as ngsim_app
@@ -206,7 +207,7 @@ def _wait_for(path: Path, process: subprocess.Popen, timeout_s: float = 120.0) -
 def test_ctrl_c_after_an_epoch_says_what_the_run_kept(tiny_build: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
     process = _start_fit(tiny_build, run, batch_size=8)
-    _wait_for(run / runs.LAST, process)  # the first epoch's checkpoint
+    _wait_for(run / folder.LAST, process)  # the first epoch's checkpoint
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr
@@ -355,17 +356,17 @@ def test_a_fit_killed_at_any_point_resumes_to_the_uninterrupted_run(
     # other settings even) takes the folder over, and is killed once its first checkpoint is
     # kept (perhaps before its marker went); --resume ends it.
     process = fit_process(killed, batch_size=1)
-    _wait_for(killed / runs.RUN_INFO, process)
+    _wait_for(killed / folder.RUN_INFO, process)
     process.kill()
     process.wait(timeout=60)
-    assert (killed / runs.STARTED).is_file() and not (killed / runs.LAST).exists()
+    assert (killed / folder.STARTED).is_file() and not (killed / folder.LAST).exists()
     process = fit_process(killed)
-    _wait_for(killed / runs.LAST, process)
+    _wait_for(killed / folder.LAST, process)
     process.kill()
     process.wait(timeout=60)
     done(fit_process(killed, "--resume"))
     weights = lambda run, name: torch_load(run / name)["model"]
-    for name in (runs.BEST, runs.LAST):
+    for name in (folder.BEST, folder.LAST):
         one, other = weights(straight, name), weights(killed, name)
         assert one.keys() == other.keys() and all(one[k].equal(other[k]) for k in one)
     rows = lambda run: [(r.epoch, r.train_loss_m2, r.val_loss_m2)
@@ -435,7 +436,7 @@ def test_plain_lines_at_every_batch_repeat_no_count_and_no_earlier_epochs_loss(
 
 
 def test_the_summary_says_why_a_model_stopped(capsys: pytest.CaptureFixture[str]) -> None:
-    from aigem.training import FitResult
+    from aigem.training.fit import FitResult
     from ngsim_cli.fit_view import print_results
 
     because = ("epochs", "early stopping", "time limit")
@@ -461,8 +462,8 @@ from typer.testing import CliRunner
 from ngsim_cli.aigem import app
 results = [CliRunner().invoke(app, args) for args in json.loads(sys.argv[1])]
 print(json.dumps({
-    "loaded": sorted(m for m in ("aigem.training", "aigem.evaluation", "aigem.epochs",
-                                 "aigem.model", "torch_geometric") if m in sys.modules),
+    "loaded": sorted(m for m in ("aigem.training.fit", "aigem.evaluation.evaluate", "aigem.training.epochs",
+                                 "aigem.model.network", "torch_geometric") if m in sys.modules),
     "results": [[r.exit_code, r.stdout, r.stderr] for r in results],
 }))
 """

@@ -15,9 +15,12 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from aigem import checkpoints, plots, runs
 from aigem.config import ModelConfig, TrainConfig, fit_option, option_words
-from aigem.course import (
+from aigem.evaluation.evaluate import evaluate
+from aigem.figures.plots import error_by_horizon, error_by_region, final_error_distribution
+from aigem.runs import checkpoints, curves
+from aigem.runs import folder as runs
+from aigem.runs.course import (
     EARLY_STOPPING,
     EPOCHS,
     UNFINISHED,
@@ -27,10 +30,8 @@ from aigem.course import (
     stop_reason,
     training_record,
 )
-from aigem.evaluation import evaluate
-from aigem.plots import error_by_horizon, error_by_region, final_error_distribution
-from aigem.records import read_group
-from aigem.run_log import EpochRow
+from aigem.runs.records import read_group
+from aigem.runs.run_log import EpochRow
 from ngsim_cli.aigem import app
 from ngsim_graphs.errors import NgsimInputError
 
@@ -165,10 +166,10 @@ def test_curves_png_says_how_many_epochs_and_how_to_continue(
     cut_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     drawn = []
-    monkeypatch.setattr(plots, "curves_png", lambda *args: drawn.append(args) or b"png")
+    monkeypatch.setattr(curves, "curves_png", lambda *args: drawn.append(args) or b"png")
     runs.plot_curves(cut_run)
     assert drawn[0][-1] == "trained 1 of 3 epochs (UNFINISHED: continue with --resume)"
-    title = plots.curves_figure(*drawn[0][:-1], trained=drawn[0][-1]).axes[0].get_title()
+    title = curves.curves_figure(*drawn[0][:-1], trained=drawn[0][-1]).axes[0].get_title()
     assert (
         title
         == "AiGem training, 5 s horizon\ntrained 1 of 3 epochs (UNFINISHED: continue with --resume)"
@@ -245,7 +246,7 @@ def test_a_log_with_a_hole_is_refused_and_one_ahead_is_not(
 ) -> None:
     """A hole (epoch 2 logged as 3) is refused; a row one epoch beyond last.pt is what a fit
     killed between logging an epoch and keeping its last.pt leaves (a resume redoes it)."""
-    from aigem.paper_folder import PaperConfig, _member_progress
+    from aigem.paper.folder import PaperConfig, _member_progress
 
     run = _log_edited(two_epoch_run, tmp_path / "hole", [1, 3])
     message = (

@@ -11,9 +11,9 @@ import torch
 from test_aigem_batch import same_batches
 from torch.utils.data import DataLoader
 
-from aigem.baseline import constant_velocity
-from aigem.batch import Batch
-from aigem.data import Collate, GraphDataset, xy_to_metres
+from aigem.model.batch import Batch
+from aigem.model.data import Collate, GraphDataset, xy_to_metres
+from aigem.runs.baseline import constant_velocity
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.layout import config_hash, write_manifest_json

@@ -1,4 +1,4 @@
-"""The engine of static batches (aigem.engine): the epoch's batches are the loader's, validation
+"""The engine of static batches (aigem.training.engine): the epoch's batches are the loader's, validation
 over them is the loader's, and the captured steps compute what the one step function called
 eagerly computes. The capture itself needs CUDA: those tests run on a GPU machine
 (bench/gpu_check.sh runs them) and are skipped elsewhere; their harness runs on the CPU too."""
@@ -15,14 +15,14 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aigem import capacity, engine, trainers
 from aigem.config import ModelConfig
-from aigem.data import Collate, GraphDataset
-from aigem.loading import load_split
-from aigem.loss import masked_mse_m2
-from aigem.model import AiGem
-from aigem.resident import ResidentSplit
-from aigem.schedule import set_learning_rate
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.loss import masked_mse_m2
+from aigem.model.network import AiGem
+from aigem.training import capacity, engine, trainers
+from aigem.training.loading import load_split
+from aigem.training.resident import ResidentSplit
+from aigem.training.schedule import set_learning_rate
 from ngsim_graphs.scaling import MinMaxScaler
 
 LAYERS = ModelConfig().layers

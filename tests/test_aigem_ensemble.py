@@ -1,4 +1,4 @@
-"""The ensemble (aigem.ensemble): member m computes and learns what AiGem m alone would.
+"""The ensemble (aigem.training.ensemble): member m computes and learns what AiGem m alone would.
 
 In float32 the ensemble's products sum in another order than each model's (batched products, one
 block-diagonal graph, the scores as z . (W^T a)), so outputs agree to float32 rounding. Training
@@ -17,13 +17,13 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
-from aigem import ensemble
-from aigem import plan as aigem_plan
-from aigem.batch import Batch
 from aigem.config import ModelConfig
-from aigem.data import Collate, GraphDataset
-from aigem.loss import masked_mse_m2
-from aigem.model import AiGem
+from aigem.model import plan as aigem_plan
+from aigem.model.batch import Batch
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.loss import masked_mse_m2
+from aigem.model.network import AiGem
+from aigem.training import ensemble
 
 STEPS = (5, 10, 10, 25)  # ascending; two members of one horizon
 

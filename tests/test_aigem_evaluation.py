@@ -15,15 +15,15 @@ import torch
 from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
-from aigem import checkpoints, records, runs
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import GraphDataset
-from aigem.ensemble import Ensemble
-from aigem.evaluation import evaluate, target_choice
+from aigem.evaluation.evaluate import evaluate, target_choice
+from aigem.evaluation.results import as_dict
+from aigem.evaluation.scoring import score_targets
 from aigem.intervals import RESAMPLES, SampleIntervals
-from aigem.results import as_dict
-from aigem.scoring import score_targets
-from aigem.training import fit
+from aigem.model.data import GraphDataset
+from aigem.runs import checkpoints, folder, records
+from aigem.training.ensemble import Ensemble
+from aigem.training.fit import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
@@ -132,10 +132,10 @@ def test_an_incompatible_build_is_refused_even_with_the_flag(
 def test_the_runs_build_gone_is_one_error_line(trained_run: Path, tmp_path: Path) -> None:
     run = Path(shutil.copytree(trained_run, tmp_path / "run"))
     gone = tmp_path / "gone"
-    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    checkpoint = torch.load(run / folder.BEST, map_location="cpu", weights_only=True)
     checkpoint["info"]["build_dir"] = str(gone)
-    torch.save(checkpoint, run / runs.BEST)
-    record_checkpoint(run / runs.BEST)  # as fit records what it keeps
+    torch.save(checkpoint, run / folder.BEST)
+    record_checkpoint(run / folder.BEST)  # as fit records what it keeps
     code, _, err = _evaluate(str(run))
     assert (
         code == 1
@@ -146,13 +146,13 @@ def test_the_runs_build_gone_is_one_error_line(trained_run: Path, tmp_path: Path
 
 def test_non_finite_predictions_stop_with_one_line(trained_run: Path, tmp_path: Path) -> None:
     run = Path(shutil.copytree(trained_run, tmp_path / "run"))
-    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    checkpoint = torch.load(run / folder.BEST, map_location="cpu", weights_only=True)
     checkpoint["model"]["output.2.bias"][0] = float("nan")
-    torch.save(checkpoint, run / runs.BEST)
-    record_checkpoint(run / runs.BEST)  # as fit records what it keeps
+    torch.save(checkpoint, run / folder.BEST)
+    record_checkpoint(run / folder.BEST)  # as fit records what it keeps
     code, out, err = _evaluate(str(run))
     assert code == 1 and out == "" and err.count("\n") == 1
-    assert err.startswith(f"error: {run / runs.BEST}: the model's predictions on ")
+    assert err.startswith(f"error: {run / folder.BEST}: the model's predictions on ")
     assert "are not finite (NaN or infinite); no metrics" in err
 
 
@@ -223,7 +223,7 @@ def test_each_final_error_is_tied_to_its_own_sample(trained_run: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------------
-# A multi-horizon run: its models in one pass over the split (aigem.scoring.score_members)
+# A multi-horizon run: its models in one pass over the split (aigem.evaluation.scoring.score_members)
 
 
 def _close_rows(ours: object, theirs: object, key: str = "") -> None:
@@ -328,13 +328,13 @@ def _close_intervals(ours: SampleIntervals | None, theirs: SampleIntervals | Non
 
 def _edit_member(run: Path, edit: Callable[[dict], None]) -> None:
     """Apply `edit` to the run info that a member's run.json and best.pt record."""
-    info = json.loads((run / runs.RUN_INFO).read_text())
+    info = json.loads((run / folder.RUN_INFO).read_text())
     edit(info)
-    (run / runs.RUN_INFO).write_text(json.dumps(info))
-    checkpoint = torch.load(run / runs.BEST, map_location="cpu", weights_only=True)
+    (run / folder.RUN_INFO).write_text(json.dumps(info))
+    checkpoint = torch.load(run / folder.BEST, map_location="cpu", weights_only=True)
     edit(checkpoint["info"])
-    torch.save(checkpoint, run / runs.BEST)
-    record_checkpoint(run / runs.BEST)  # as fit records what it keeps
+    torch.save(checkpoint, run / folder.BEST)
+    record_checkpoint(run / folder.BEST)  # as fit records what it keeps
 
 
 @pytest.mark.parametrize(
@@ -368,15 +368,15 @@ def test_a_multi_horizon_runs_non_finite_model_is_named(
     tiny_horizons_run: Path, tmp_path: Path
 ) -> None:
     run = Path(shutil.copytree(tiny_horizons_run, tmp_path / "run"))
-    checkpoint = torch.load(run / "h2s" / runs.BEST, map_location="cpu", weights_only=True)
+    checkpoint = torch.load(run / "h2s" / folder.BEST, map_location="cpu", weights_only=True)
     checkpoint["model"]["output.2.bias"][0] = float("nan")
-    torch.save(checkpoint, run / "h2s" / runs.BEST)
-    record_checkpoint(run / "h2s" / runs.BEST)  # as fit records what it keeps
+    torch.save(checkpoint, run / "h2s" / folder.BEST)
+    record_checkpoint(run / "h2s" / folder.BEST)  # as fit records what it keeps
     code, out, err = _evaluate(str(run))
     build = records.read_record(run / "h2s").info.build.build_dir
     assert code == 1 and out == "" and err.count("\n") == 1
     assert err.startswith(
-        f"error: {run / 'h2s' / runs.BEST}: the 2 s model's predictions on {build} (test split, "
+        f"error: {run / 'h2s' / folder.BEST}: the 2 s model's predictions on {build} (test split, "
         "batch 1 of "
     )
     assert err.endswith(") are not finite (NaN or infinite); no metrics\n")

@@ -1,4 +1,4 @@
-"""aigem.followed: which target a scene follows, on test_scenes' hand-made batch whose errors are
+"""aigem.evaluation.followed: which target a scene follows, on test_scenes' hand-made batch whose errors are
 3-4-5 triangles, and on the tiny run's predictions, checked target by target."""
 
 from __future__ import annotations
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from test_scenes import hand_batch
 
-from aigem import prediction
-from aigem.followed import (
+from aigem.evaluation import prediction
+from aigem.evaluation.followed import (
     final_errors_m,
     followed_words,
     matched_target,
     median_targets,
     predicted_scenes,
 )
-from aigem.prediction import BASELINE_LABEL, MODEL_LABEL
+from aigem.evaluation.prediction import BASELINE_LABEL, MODEL_LABEL
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.scenes import write_scenes
 

@@ -21,13 +21,15 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from aigem import checkpoints, epochs, run_log, runs, trainers, training
-from aigem.batch import Batch
 from aigem.config import ModelConfig, TrainConfig, check_horizons_s
-from aigem.ensemble import Ensemble
-from aigem.evaluation import evaluate
-from aigem.records import planned_group
-from aigem.training import fit, fit_horizons
+from aigem.evaluation.evaluate import evaluate
+from aigem.model.batch import Batch
+from aigem.runs import checkpoints, folder, run_log
+from aigem.runs.records import planned_group
+from aigem.training import epochs, trainers
+from aigem.training import fit as training
+from aigem.training.ensemble import Ensemble
+from aigem.training.fit import fit, fit_horizons
 from ngsim_cli.aigem import app
 
 # threads=1: bit-reproducible, so that a run can be compared with a run of the same models
@@ -86,8 +88,8 @@ def _close_run(a: Path, b: Path, other: Path) -> bool:
     rows, others = _rows(a), _rows(b)
     losses = ("train_loss_m2", "val_loss_m2")
     return (
-        _close_weights(a / runs.BEST, b / runs.BEST, other / runs.BEST)
-        and _close_weights(a / runs.LAST, b / runs.LAST, other / runs.LAST)
+        _close_weights(a / folder.BEST, b / folder.BEST, other / folder.BEST)
+        and _close_weights(a / folder.LAST, b / folder.LAST, other / folder.LAST)
         and [{k: v for k, v in r.items() if k not in losses} for r in rows]
         == [{k: v for k, v in r.items() if k not in losses} for r in others]
         and all(
@@ -101,22 +103,29 @@ def _close_run(a: Path, b: Path, other: Path) -> bool:
 def _same_run(a: Path, b: Path) -> bool:
     """The same best and last weights and the same log (timings aside)."""
     return (
-        _same_weights(a / runs.BEST, b / runs.BEST)
-        and _same_weights(a / runs.LAST, b / runs.LAST)
+        _same_weights(a / folder.BEST, b / folder.BEST)
+        and _same_weights(a / folder.LAST, b / folder.LAST)
         and _rows(a) == _rows(b)
     )
 
 
 def test_the_layout_and_the_summary(fitted: tuple[Path, str]) -> None:
     run, out = fitted
-    assert sorted(p.name for p in run.iterdir()) == [runs.FIT_LOG, "h1s", "h2s", runs.HORIZONS]
-    assert json.loads((run / runs.HORIZONS).read_text()) == {
+    assert sorted(p.name for p in run.iterdir()) == [folder.FIT_LOG, "h1s", "h2s", folder.HORIZONS]
+    assert json.loads((run / folder.HORIZONS).read_text()) == {
         "horizons_s": [1.0, 2.0],
         "members": ["h1s", "h2s"],
     }
     for name in ("h1s", "h2s"):
         files = sorted(p.name for p in (run / name).iterdir())
-        owned = [runs.BASELINE, runs.BEST, runs.CURVES, runs.LAST, runs.METRICS, runs.RUN_INFO]
+        owned = [
+            folder.BASELINE,
+            folder.BEST,
+            folder.CURVES,
+            folder.LAST,
+            folder.METRICS,
+            folder.RUN_INFO,
+        ]
         assert files == sorted(owned)
     assert "1 s model: 2 epochs on cpu (the epochs asked); best epoch" in out
     assert f"Run: {run / 'h2s'}" in out.replace("\n", "")
@@ -137,7 +146,7 @@ def test_a_member_is_the_single_horizon_fit(
     )
     assert _close_run(run / "h1s", alone, run / "h2s")
     assert not _close_run(run / "h2s", alone, run / "h1s")  # the test tells the horizons apart
-    assert (run / "h1s" / runs.RUN_INFO).read_text() == (alone / runs.RUN_INFO).read_text()
+    assert (run / "h1s" / folder.RUN_INFO).read_text() == (alone / folder.RUN_INFO).read_text()
     best = min(r.val_loss_m2 for r in run_log.read_metrics(run / "h1s"))
     assert result.best_val_loss_m2 == pytest.approx(best, rel=0.05)
 
@@ -169,8 +178,8 @@ def float64(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
 
 def _assert_the_fit_alone(member: Path, alone: Path) -> None:
     """The same weights to 1e-9 and the same log, the losses and learning rates to 1e-9."""
-    assert _weights(member / runs.LAST)["decoder.weight_ih"].dtype == torch.float64
-    for name in (runs.BEST, runs.LAST):
+    assert _weights(member / folder.LAST)["decoder.weight_ih"].dtype == torch.float64
+    for name in (folder.BEST, folder.LAST):
         assert _distance(member / name, alone / name) < 1e-9
     rows, alone_rows = _rows(member), _rows(alone)
     assert [r.keys() for r in rows] == [r.keys() for r in alone_rows]
@@ -189,7 +198,7 @@ def test_a_member_is_the_single_horizon_fit_in_float64(
         alone = tmp_path / f"alone{horizon_s:g}"
         fit(tiny_build, alone, F64_MODEL, replace(F64_TRAIN, horizon_s=horizon_s), "cpu")
         _assert_the_fit_alone(run / f"h{horizon_s:g}s", alone)
-    assert _distance(run / "h1s" / runs.LAST, run / "h2s" / runs.LAST) > 0.01  # they differ
+    assert _distance(run / "h1s" / folder.LAST, run / "h2s" / folder.LAST) > 0.01  # they differ
     rates = [r.learning_rate for r in run_log.read_metrics(run / "h1s")]
     assert rates[0] > 10 * rates[1] > 0  # the cosine ran to near 0 by the end
 
@@ -235,9 +244,9 @@ def test_a_non_finite_loss_names_its_model(
 def test_each_member_keeps_its_own_best_model(fitted: tuple[Path, str]) -> None:
     run, _ = fitted
     for name, horizon_s in (("h1s", 1.0), ("h2s", 2.0)):
-        best = torch.load(run / name / runs.BEST, map_location="cpu", weights_only=True)
+        best = torch.load(run / name / folder.BEST, map_location="cpu", weights_only=True)
         assert best["info"]["train"]["horizon_s"] == horizon_s
-    assert not _same_weights(run / "h1s" / runs.BEST, run / "h2s" / runs.BEST)
+    assert not _same_weights(run / "h1s" / folder.BEST, run / "h2s" / folder.BEST)
     assert _rows(run / "h1s") != _rows(run / "h2s")
 
 
@@ -274,25 +283,25 @@ def test_a_resumed_run_ends_as_an_uninterrupted_one(
     run = tmp_path / "run"
     one_epoch = TrainConfig(**{**TRAIN.to_dict(), "epochs": 1})
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), one_epoch, "cpu")
-    after_one = (run / "h2s" / runs.LAST).read_bytes()
+    after_one = (run / "h2s" / folder.LAST).read_bytes()
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
     assert _same_run(run / "h1s", straight / "h1s") and _same_run(run / "h2s", straight / "h2s")
     # Killed in epoch 2 between the members' checkpoints: the 2 s model's row of epoch 2 is
     # logged, its last.pt is still epoch 1's. Only the 2 s model trains again, alone.
-    (run / "h2s" / runs.LAST).write_bytes(after_one)
-    document = json.loads((run / "h2s" / runs.RUN_INFO).read_text())  # as run.json then is:
-    accepted = document[runs.DIGESTS][runs.LAST]  # accepting last.pt's old bytes and new ones
+    (run / "h2s" / folder.LAST).write_bytes(after_one)
+    document = json.loads((run / "h2s" / folder.RUN_INFO).read_text())  # as run.json then is:
+    accepted = document[folder.DIGESTS][folder.LAST]  # accepting last.pt's old bytes and new ones
     accepted.insert(0, hashlib.sha256(after_one).hexdigest())
-    (run / "h2s" / runs.RUN_INFO).write_text(json.dumps(document))
-    h1s_last = (run / "h1s" / runs.LAST).read_bytes()
+    (run / "h2s" / folder.RUN_INFO).write_text(json.dumps(document))
+    h1s_last = (run / "h1s" / folder.LAST).read_bytes()
     short, long = fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)  # fmt: skip
     assert (short.epochs_done, short.stopped_because, long.epochs_done) == (2, "epochs", 2)
-    assert (run / "h1s" / runs.LAST).read_bytes() == h1s_last
+    assert (run / "h1s" / folder.LAST).read_bytes() == h1s_last
     assert _close_run(run / "h2s", straight / "h2s", straight / "h1s")
     # A member without any checkpoint (killed before its first: its marker is there) starts over.
-    for name in (runs.LAST, runs.BEST, runs.METRICS):
+    for name in (folder.LAST, folder.BEST, folder.METRICS):
         (run / "h1s" / name).unlink()
-    (run / "h1s" / runs.STARTED).write_bytes(runs.STARTED_LINE)
+    (run / "h1s" / folder.STARTED).write_bytes(folder.STARTED_LINE)
     fit_horizons(tiny_build, run, (1.0, 2.0), ModelConfig(), TRAIN, "cpu", resume=True)
     assert _close_run(run / "h1s", straight / "h1s", straight / "h2s")  # trained alone
 

@@ -1,4 +1,4 @@
-"""The loss (aigem.loss): metres^2 over each model's valid future steps, masked steps counting
+"""The loss (aigem.model.loss): metres^2 over each model's valid future steps, masked steps counting
 nowhere, each member's sums bitwise its model's alone."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from aigem.data import Collate, GraphDataset, xy_to_metres
-from aigem.loss import masked_mse_m2, member_sums
+from aigem.model.data import Collate, GraphDataset, xy_to_metres
+from aigem.model.loss import masked_mse_m2, member_sums
 
 
 @pytest.fixture(scope="module")

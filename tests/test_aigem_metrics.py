@@ -321,7 +321,7 @@ def test_the_docs_example_scores_as_evaluate_does(
     """Run as written where the README's commands leave demo/build: its constant velocity,
     scored with the functions, gets evaluate's numbers for constant velocity (the run's horizon,
     2 s, is the example's first 10 steps)."""
-    from aigem.evaluation import evaluate
+    from aigem.evaluation.evaluate import evaluate
 
     (tmp_path / "demo").mkdir()
     (tmp_path / "demo" / "build").symlink_to(tiny_build, target_is_directory=True)

@@ -10,9 +10,9 @@ import torch
 from torch.func import functional_call
 from torch_geometric.nn import GATConv
 
-from aigem.batch import Batch, Edges
 from aigem.config import ModelConfig
-from aigem.model import NEGATIVE_SLOPE, AiGem, GATParameters, count_parameters
+from aigem.model.batch import Batch, Edges
+from aigem.model.network import NEGATIVE_SLOPE, AiGem, GATParameters, count_parameters
 
 
 def tiny_batch(cv_step: torch.Tensor | None = None) -> Batch:
@@ -112,7 +112,7 @@ def test_gat_parameters_are_pyg_gatconvs_drawn_alike(features: int, heads: int) 
 def test_the_model_is_made_without_importing_pyg() -> None:
     """PyG's import (which loads torch._dynamo) would add seconds to every aigem command."""
     code = (
-        "import sys; from aigem.model import AiGem; from aigem.config import ModelConfig; "
+        "import sys; from aigem.model.network import AiGem; from aigem.config import ModelConfig; "
         "AiGem(ModelConfig()); print('torch_geometric' in sys.modules, 'torch._dynamo' in sys.modules)"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -143,8 +143,8 @@ def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(
 ) -> None:  # noqa: ANN001, F811
     """AiGem's forward (the attention summing inputs, projected after) against PyG's GATConv
     applied as the paper's layers, on the CPU's path and on the accelerators'."""
-    from aigem import plan as aigem_plan
-    from aigem.data import Collate, GraphDataset
+    from aigem.model import plan as aigem_plan
+    from aigem.model.data import Collate, GraphDataset
 
     monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
 
@@ -174,7 +174,7 @@ def test_fast_encoder_equals_pyg_gatconv_on_a_real_batch(
 
 def test_graphs_cut_to_the_steps_the_model_reads_give_the_same_output(tiny_build) -> None:  # noqa: ANN001, F811
     """Same predictions and same gradients, in training mode (dropout) too, for several L."""
-    from aigem.data import Collate, GraphDataset
+    from aigem.model.data import Collate, GraphDataset
 
     whole = GraphDataset(tiny_build, "train")
     ids = list(range(min(8, len(whole))))

@@ -24,12 +24,8 @@ from typer.testing import CliRunner
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from timed_runs import LINGER_S, TimedRun, aigem, run_timed
 
-from aigem.checkpoints import epochs_kept
-from aigem.paper import _evaluate, run_paper
-from aigem.paper_folder import (
-    PAPER_JSON,
-    PAPER_LOG,
-    REPORT_JSON,
+from aigem.paper.experiments import _evaluate, run_paper
+from aigem.paper.folder import (
     PaperConfig,
     build_state,
     claim_folder,
@@ -39,7 +35,7 @@ from aigem.paper_folder import (
     paper_document,
     runs_of,
 )
-from aigem.paper_plan import (
+from aigem.paper.plan import (
     FITS,
     PARTS,
     PaperCall,
@@ -49,9 +45,11 @@ from aigem.paper_plan import (
     plan_fits,
     plan_runs,
 )
-from aigem.paper_training import Meter, fit_share_s, work_units
-from aigem.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
-from aigem.report_text import UNFINISHED
+from aigem.paper.report_text import UNFINISHED
+from aigem.paper.training import Meter, fit_share_s, work_units
+from aigem.paper_layout import PAPER_JSON, PAPER_LOG, REPORT_JSON
+from aigem.runs.checkpoints import epochs_kept
+from aigem.runs.records import HORIZONS, LAST, METRICS, STARTED, STARTED_LINE
 from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -527,7 +525,7 @@ def test_a_run_killed_half_way_and_run_again_gives_the_uninterrupted_report(
 def test_an_interrupt_before_the_folder_is_made_claims_no_folder(
     tiny_raw: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import aigem.paper
+    import aigem.paper.experiments
 
     out = tmp_path / "p2"
     made: list[bool] = []
@@ -537,7 +535,7 @@ def test_an_interrupt_before_the_folder_is_made_claims_no_folder(
             out.mkdir()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(aigem.paper, "run_paper", interrupted)
+    monkeypatch.setattr(aigem.paper.experiments, "run_paper", interrupted)
     args = ["paper", str(tiny_raw), "--out", str(out), "--device", "cpu", "--epochs", "1"]
     before = CliRunner().invoke(app, args)
     assert (before.exit_code, before.stderr) == (130, "interrupted; nothing written\n")

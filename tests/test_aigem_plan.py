@@ -1,4 +1,4 @@
-"""The plan of a batch (aigem.plan): made beforehand or in the step, the same; the CSR product
+"""The plan of a batch (aigem.model.plan): made beforehand or in the step, the same; the CSR product
 of the CPU and the gather-scatter of accelerators, the same."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ import pytest
 import torch
 
 from aigem.config import ModelConfig
-from aigem.model import AiGem
-from aigem.plan import make_plan, segment_softmax
+from aigem.model.network import AiGem
+from aigem.model.plan import make_plan, segment_softmax
 
 
 def test_cpu_sparse_aggregation_equals_the_accelerator_gather_scatter() -> None:
     """The CSR product used on the CPU and the gather-scatter used on GPUs: same values and
     gradients, including destinations without edges and sources that no edge reads."""
-    from aigem.plan import _AttentionSpMM, _gather_scatter
+    from aigem.model.plan import _AttentionSpMM, _gather_scatter
 
     n_dst, n_src, channels = 7, 10, 3
     dst = torch.tensor([0, 0, 1, 3, 3, 3, 5, 6, 6])  # destinations 2 and 4 have none
@@ -46,7 +46,7 @@ def test_cpu_sparse_aggregation_equals_the_accelerator_gather_scatter() -> None:
 def test_a_plan_made_with_the_batch_gives_the_same_output_and_gradients(tiny_build) -> None:  # noqa: ANN001, F811
     """Collate(layers=L) plans in the loader; the step then uses that plan, bit for bit the one
     the model would have made; a plan made for another L is not used."""
-    from aigem.data import Collate, GraphDataset
+    from aigem.model.data import Collate, GraphDataset
 
     dataset = GraphDataset(tiny_build, "train", history_steps=5)
     ids = list(range(min(8, len(dataset))))
@@ -90,7 +90,7 @@ def test_segment_softmax_is_pygs_softmax(sparse: bool, monkeypatch: pytest.Monke
     and scores far apart, on the CPU's path and on the accelerators'."""
     from torch_geometric.utils import softmax
 
-    from aigem import plan as aigem_plan
+    from aigem.model import plan as aigem_plan
 
     monkeypatch.setattr(aigem_plan, "CPU_SPARSE", sparse)
     dst = torch.tensor([1, 1, 1, 3, 4, 4])  # rows 0, 2 and 5 have none

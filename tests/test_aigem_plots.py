@@ -15,19 +15,14 @@ from matplotlib.colors import to_hex
 from test_synth_marker import label_pixels
 from typer.testing import CliRunner
 
-from aigem import run_log, runs
-from aigem.evaluation import evaluate
-from aigem.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
-from aigem.plots import (
-    VALIDATION_LABEL,
-    curves_figure,
-    curves_png,
-    error_by_horizon,
-    error_by_region,
-    final_error_distribution,
-)
-from aigem.results import Evaluation
-from aigem.run_log import EpochRow
+from aigem.evaluation.evaluate import evaluate
+from aigem.evaluation.results import Evaluation
+from aigem.figures.pictures import FIGURES, OWNED, SCENES, describe_build, write_evaluation_plots
+from aigem.figures.plots import error_by_horizon, error_by_region, final_error_distribution
+from aigem.runs import folder as runs
+from aigem.runs import run_log
+from aigem.runs.curves import VALIDATION_LABEL, curves_figure, curves_png
+from aigem.runs.run_log import EpochRow
 from ngsim_cli.aigem import app
 from ngsim_graphs import palette
 from ngsim_graphs.errors import NgsimOutputError
@@ -158,7 +153,7 @@ def test_every_picture_of_a_synthetic_build_says_so(
     assert label_pixels(run / "h2s" / runs.CURVES) > 200  # fit's curves
     result, label = evaluate(run / "h2s", device_choice="cpu"), describe_build(tiny_build)
     footer = error_by_horizon(result, label).texts[0].get_text().replace("\n", " ")
-    trained = "AiGem trained 1 of 1 epoch."  # aigem.course
+    trained = "AiGem trained 1 of 1 epoch."  # aigem.runs.course
     assert footer == f"Lines: test split ({result.samples} samples) of {label}. {trained}"
     document = CliRunner().invoke(app, ["evaluate", str(run), "--device", "cpu", "--json"])
     assert json.loads(document.stdout)["synthetic"] is True

@@ -1,4 +1,4 @@
-"""aigem.prediction: a run's predictions for chosen samples, aligned with the drawn graphs'
+"""aigem.evaluation.prediction: a run's predictions for chosen samples, aligned with the drawn graphs'
 targets, in metres; the same numbers as `aigem evaluate` scores."""
 
 from __future__ import annotations
@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aigem.checkpoints import load_model
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset
-from aigem.evaluation import evaluate
-from aigem.prediction import BASELINE_LABEL, MODEL_LABEL, predict_samples, predicting_run
-from aigem.training import fit_horizons
+from aigem.evaluation.evaluate import evaluate
+from aigem.evaluation.prediction import BASELINE_LABEL, MODEL_LABEL, predict_samples, predicting_run
+from aigem.model.data import Collate, GraphDataset
+from aigem.runs.checkpoints import load_model
+from aigem.training.fit import fit_horizons
 from ngsim_graphs.build import open_build
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError

@@ -18,12 +18,12 @@ import torch
 import torch._inductor.config
 from torch.utils.data import DataLoader
 
-from aigem import loading
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset
-from aigem.model import AiGem
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.network import AiGem
 from aigem.processes import COMPILE_THREADS, EndWithParent, compile_in_process, release_workers
-from aigem.training import _loaders, fit
+from aigem.training import loading
+from aigem.training.fit import _loaders, fit
 
 
 def started_since(before: set[int]) -> set[int]:
@@ -156,9 +156,9 @@ KILLED_FIT = """
 import multiprocessing, sys, time
 from pathlib import Path
 import torch
-from aigem import resident
+from aigem.training import resident
 from aigem.config import ModelConfig, TrainConfig
-from aigem.training import _loaders
+from aigem.training.fit import _loaders
 train = TrainConfig(batch_size=8, workers=1)
 _, loader, *_ = _loaders(Path(sys.argv[1]), ModelConfig(), train, 0, 1, torch.device("cpu"), 1)
 next(iter(loader))

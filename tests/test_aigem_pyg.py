@@ -11,9 +11,9 @@ from test_aigem_batch import same_batches
 from torch_geometric.loader import DataLoader as PygLoader
 
 from aigem.config import ModelConfig
-from aigem.data import Collate, GraphDataset
-from aigem.model import AiGem
-from aigem.pyg import SPATIAL, TEMPORAL, GraphPygDataset, to_hetero_data, to_model_batch
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.network import AiGem
+from aigem.model.pyg import SPATIAL, TEMPORAL, GraphPygDataset, to_hetero_data, to_model_batch
 from ngsim_graphs.build import open_build
 
 PYG_LACKS = ("target_state", "cv_step", "plan")  # of Collate's batch (to_model_batch)
@@ -105,7 +105,7 @@ def test_the_dataset_says_its_build_split_and_size_and_summarizes_without_tabula
 def test_plain_summary_columns_by_hand() -> None:
     from torch_geometric.data.summary import Stats
 
-    from aigem.pyg import PlainSummary, _columns
+    from aigem.model.pyg import PlainSummary, _columns
 
     stats = Stats(mean=2.0, std=1.0, min=1.0, quantile25=1.5, median=2.0, quantile75=2.5, max=3.0)
     assert _columns({"#nodes": stats})[:3] == [

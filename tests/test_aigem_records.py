@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from aigem.config import ModelConfig, TrainConfig
-from aigem.provenance import BuildIdentity, BuildRecord, identity_difference
-from aigem.records import (
+from aigem.runs.provenance import BuildIdentity, BuildRecord, identity_difference
+from aigem.runs.records import (
     RUN_INFO,
     RunState,
     info_of,
@@ -58,7 +58,7 @@ def test_every_run_layout_reads_as_a_group(tiny_horizons_run: Path, tmp_path: Pa
     """read_group, the one adapter: aigem 0.1.0's run of one model is a group of one (its folder
     its member), a run of several the members its horizons.json names; a folder of neither is one
     error line."""
-    from aigem.records import Group, group_of_member, planned_group, read_group
+    from aigem.runs.records import Group, group_of_member, planned_group, read_group
 
     old = Path(__file__).parent / "fixtures" / "run-0.1.0"
     assert read_group(old) == Group(old, (5.0,), (old,)) == planned_group(old, (5.0,))

@@ -15,15 +15,15 @@ from matplotlib.colors import to_hex
 from matplotlib.container import BarContainer
 from matplotlib.figure import Figure
 
+from aigem.evaluation.results import Evaluation, paper_rows
 from aigem.intervals import t_975
-from aigem.report import paper_report, write_report
-from aigem.report_cells import NOISES_SAID
-from aigem.report_parts import table1
-from aigem.report_plots import CONSTANT_VELOCITY_TICK, draw_report, report_figures
-from aigem.report_tables import NO_FIT_DIFFERENCE, table1_lines
-from aigem.report_text import ONE_SEED, TIME_HEADING, UNFINISHED, report_markdown
-from aigem.results import Evaluation, paper_rows
-from aigem.run_log import EpochRow
+from aigem.paper.report import paper_report, write_report
+from aigem.paper.report_cells import NOISES_SAID
+from aigem.paper.report_parts import table1
+from aigem.paper.report_plots import CONSTANT_VELOCITY_TICK, draw_report, report_figures
+from aigem.paper.report_tables import NO_FIT_DIFFERENCE, table1_lines
+from aigem.paper.report_text import ONE_SEED, TIME_HEADING, UNFINISHED, report_markdown
+from aigem.runs.run_log import EpochRow
 from ngsim_graphs import palette
 
 SETTINGS = {
@@ -447,7 +447,7 @@ def test_one_seed_says_intervals_need_more_seeds_and_holds_no_difference_rows() 
 
 
 def test_noise_words_per_horizon() -> None:
-    from aigem.report_cells import noise_sentence, shown
+    from aigem.paper.report_cells import noise_sentence, shown
 
     cells = [
         {"value": -0.5, "low": -0.9, "high": -0.1},
@@ -580,7 +580,7 @@ def test_the_published_rows_say_where_an_rmse_lies_below_the_fde() -> None:
     """At one step the RMSE of a set of predictions is at least their mean distance (the FDE at
     the last step): the paper's AiGem row (1.95 m at 5 s, FDE 2.57 m) breaks it, said beside the
     published rows; a row that keeps it (or gives no FDE) gets no note."""
-    from aigem.results import below_fde
+    from aigem.evaluation.results import below_fde
 
     table = {
         "kept": {"fde_m": 3.0, "rmse_m": (1.0, 2.0, 3.0, 4.0, 3.0)},

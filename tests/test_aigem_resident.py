@@ -1,4 +1,4 @@
-"""A split on the device and its static batches (aigem.resident): the loader's graphs, padded to
+"""A split on the device and its static batches (aigem.training.resident): the loader's graphs, padded to
 a capacity, and a padded step that is the unpadded one (loss, gradients, parameters after Adam)."""
 
 from __future__ import annotations
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from aigem import capacity, ensemble, loading
-from aigem import plan as aigem_plan
-from aigem.batch import Batch, Edges
-from aigem.capacity import Capacity
 from aigem.config import ModelConfig
-from aigem.data import Collate, GraphDataset
-from aigem.loading import load_split
-from aigem.model import AiGem
-from aigem.resident import ResidentSplit
+from aigem.model import plan as aigem_plan
+from aigem.model.batch import Batch, Edges
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.network import AiGem
+from aigem.training import capacity, ensemble, loading
+from aigem.training.capacity import Capacity
+from aigem.training.loading import load_split
+from aigem.training.resident import ResidentSplit
 
 LAYERS = ModelConfig().layers
 STEPS = (5, 25)  # the members of the ensembles stepped here

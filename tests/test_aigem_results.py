@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from aigem.evaluation.results import PAPER_TABLE, paper_rows
 from aigem.metrics import table_columns
-from aigem.results import PAPER_TABLE, paper_rows
 
 
 def test_paper_rows_hold_the_papers_numbers_in_the_keys_of_evaluates_rows() -> None:

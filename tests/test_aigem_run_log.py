@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from aigem.records import BASELINE, METRICS
-from aigem.run_log import (
+from aigem.runs.records import BASELINE, METRICS
+from aigem.runs.run_log import (
     EpochRow,
     append_row,
     drop_rows_after,

@@ -22,15 +22,16 @@ import torch
 from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
-from aigem import checkpoints, records, run_log, runs
-from aigem.baseline import constant_velocity_loss_m2
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import GraphDataset
-from aigem.evaluation import load_run
+from aigem.evaluation.evaluate import load_run
+from aigem.evaluation.scoring import score_members
 from aigem.metrics import summarize_errors
-from aigem.model import AiGem, count_parameters
-from aigem.scoring import score_members
-from aigem.training import fit
+from aigem.model.data import GraphDataset
+from aigem.model.network import AiGem, count_parameters
+from aigem.runs import checkpoints, records, run_log
+from aigem.runs import folder as runs
+from aigem.runs.baseline import constant_velocity_loss_m2
+from aigem.training.fit import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs import partial_files
 from ngsim_graphs.config import BuildConfig

@@ -14,11 +14,11 @@ import torch
 from aigem_fixtures import record_checkpoint
 from typer.testing import CliRunner
 
-from aigem import run_log, runs
 from aigem.config import ModelConfig, TrainConfig
-from aigem.model import AiGem
-from aigem.schedule import clip_gradients, learning_rate_at
-from aigem.training import fit
+from aigem.model.network import AiGem
+from aigem.runs import folder, run_log
+from aigem.training.fit import fit
+from aigem.training.schedule import clip_gradients, learning_rate_at
 from ngsim_cli.aigem import app
 from ngsim_graphs.build import open_build
 from ngsim_graphs.errors import NgsimInputError
@@ -184,7 +184,7 @@ def test_clipping_reaches_the_optimizer(tiny_build: Path, tmp_path: Path) -> Non
     for clip in (None, 1e-12):
         train = replace(SCHEDULED, clip_grad_norm=clip, epochs=1, warmup_epochs=0.0)
         fit(tiny_build, tmp_path / str(clip), ModelConfig(), train, "cpu")
-        end = torch.load(tmp_path / str(clip) / runs.LAST, weights_only=True)["model"]
+        end = torch.load(tmp_path / str(clip) / folder.LAST, weights_only=True)["model"]
         moved[clip] = max(float((end[k] - start[k]).abs().max()) for k in start)
     assert moved[None] > 1e-3 and moved[1e-12] < 1e-5
 
@@ -200,7 +200,7 @@ def test_the_cli_passes_the_settings_and_refuses_bad_ones(tiny_build: Path, tmp_
                 "--clip-grad-norm", "5"]  # fmt: skip
     good = runner.invoke(app, [*args, "--out", str(tmp_path / "run"), *settings])
     assert good.exit_code == 0, good.output
-    train = json.loads((tmp_path / "run" / runs.RUN_INFO).read_text())["train"]
+    train = json.loads((tmp_path / "run" / folder.RUN_INFO).read_text())["train"]
     assert (train["learning_rate"], train["lr_schedule"]) == (2e-3, "cosine")
     assert (train["warmup_epochs"], train["clip_grad_norm"]) == (0.5, 5.0)
 
@@ -211,15 +211,15 @@ def test_a_run_of_an_older_aigem_resumes_as_the_constant_rate_it_trained_with(
     run = tmp_path / "run"
     config = TrainConfig(epochs=1, batch_size=8, horizon_s=1.0, seed=3)
     fit(tiny_build, run, ModelConfig(), config, "cpu")
-    checkpoint = torch.load(run / runs.LAST, weights_only=True)
+    checkpoint = torch.load(run / folder.LAST, weights_only=True)
     for key in (
         "lr_schedule",
         "warmup_epochs",
         "clip_grad_norm",
     ):  # as an aigem without schedules wrote it
         del checkpoint["info"]["train"][key]
-    torch.save(checkpoint, run / runs.LAST)
-    record_checkpoint(run / runs.LAST)  # as that aigem's fit kept it
+    torch.save(checkpoint, run / folder.LAST)
+    record_checkpoint(run / folder.LAST)  # as that aigem's fit kept it
     longer = TrainConfig(**{**config.to_dict(), "epochs": 2})
     assert fit(tiny_build, run, ModelConfig(), longer, "cpu", resume=True).epochs_done == 2
     warmed = TrainConfig(**{**longer.to_dict(), "warmup_epochs": 1.0})

@@ -10,20 +10,20 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aigem import trainers
 from aigem.config import ModelConfig, TrainConfig
-from aigem.data import Collate, GraphDataset
-from aigem.epochs import Loop, Member
-from aigem.loss import masked_mse_m2
-from aigem.model import AiGem
-from aigem.records import RunState
-from aigem.trainers import Trainer
-from aigem.training import device_data, make_optimizer
+from aigem.model.data import Collate, GraphDataset
+from aigem.model.loss import masked_mse_m2
+from aigem.model.network import AiGem
+from aigem.runs.records import RunState
+from aigem.training import trainers
+from aigem.training.epochs import Loop, Member
+from aigem.training.fit import device_data, make_optimizer
+from aigem.training.trainers import Trainer
 
 
 def test_the_step_trains_a_model_alone(tiny_build: Path) -> None:
     """fit's one step of an ensemble of one: its loss falls in a few steps on one batch, and
-    it is the model's masked loss (aigem.loss) before each step."""
+    it is the model's masked loss (aigem.model.loss) before each step."""
     torch.manual_seed(0)
     dataset = GraphDataset(tiny_build, "train")
     batch = next(iter(DataLoader(dataset, batch_size=8, collate_fn=Collate(dataset.scaler))))

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from aigem import run_log, runs
 from aigem.config import ModelConfig, TrainConfig
-from aigem.epochs import NonFiniteLossError
-from aigem.training import fit
+from aigem.runs import folder, run_log
+from aigem.training.epochs import NonFiniteLossError
+from aigem.training.fit import fit
 from ngsim_cli.aigem import app
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
@@ -44,7 +44,7 @@ def test_fit_then_resume_finishes_like_an_uninterrupted_run(
     a, b = run_log.read_metrics(tmp_path / "straight"), run_log.read_metrics(tmp_path / "resumed")
     assert [r.epoch for r in b] == [1, 2]
     assert b[1].val_loss_m2 == pytest.approx(a[1].val_loss_m2, rel=1e-5)
-    for name in (runs.BEST, runs.LAST, runs.METRICS, runs.RUN_INFO, runs.CURVES):
+    for name in (folder.BEST, folder.LAST, folder.METRICS, folder.RUN_INFO, folder.CURVES):
         assert (tmp_path / "resumed" / name).is_file()
     assert not list((tmp_path / "resumed").glob("*.partial*"))
 
@@ -128,7 +128,7 @@ def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path:
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert [r.epoch for r in run_log.read_metrics(run)] == [1]
-    assert (run / runs.BEST).is_file()
+    assert (run / folder.BEST).is_file()
 
 
 EMPTY_VAL = (

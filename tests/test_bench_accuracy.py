@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from aigem import run_log, runs
+from aigem.runs import folder, run_log
 from ngsim_graphs.build import open_build
 
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "bench_accuracy.py"
@@ -42,16 +42,16 @@ def test_bench_accuracy_reports_time_to_target_and_resumes(
         assert item["target_epoch"] == 1 and item["graphs_to_target"] == train_graphs
         assert item["seconds_to_target"] == round(rows[0].train_seconds + rows[0].val_seconds, 1)
     info = json.loads(
-        (tmp_path / "batch16_lr2e-3_schedulecosine_warmup1" / runs.RUN_INFO).read_text()
+        (tmp_path / "batch16_lr2e-3_schedulecosine_warmup1" / folder.RUN_INFO).read_text()
     )
     assert info["train"]["lr_schedule"] == "cosine" and info["train"]["warmup_epochs"] == 1.0
     assert (tmp_path / "accuracy.png").read_bytes().startswith(b"\x89PNG")
     assert "not reached" not in result.stdout and "epoch 1," in result.stdout
 
-    before = (tmp_path / "batch8" / runs.LAST).stat().st_mtime_ns
+    before = (tmp_path / "batch8" / folder.LAST).stat().st_mtime_ns
     again = _bench(tiny_build, tmp_path, "--target-m2", "1e-9", "--setting", "batch=8")
     assert again.returncode == 0, again.stderr
-    assert (tmp_path / "batch8" / runs.LAST).stat().st_mtime_ns == before  # not trained again
+    assert (tmp_path / "batch8" / folder.LAST).stat().st_mtime_ns == before  # not trained again
     assert "target: not reached" in again.stdout
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_cli_ngsim import invoke
 
-from aigem.baseline import constant_velocity
+from aigem.runs.baseline import constant_velocity
 from ngsim_graphs.build import open_build
 from ngsim_graphs.splits import SPLIT_ORDER
 

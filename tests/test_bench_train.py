@@ -33,7 +33,7 @@ def test_bench_train_prints_every_measurement(tiny_build: Path) -> None:
             ("cpu", "gpu path"),
             ("cpu", "2 models"),  # as one ensemble
             ("cpu", "2 apart"),  # one after the other
-            ("cpu", "static 1"),  # aigem.engine's step on static batches
+            ("cpu", "static 1"),  # aigem.training.engine's step on static batches
             ("cpu", "static 2"),
             ("cpu", "fit loop"),
             ("cpu", "fit 2 h"),  # fit_horizons of 1 and 2 s

@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from aigem.records import FIT_LOG, HORIZONS, RUN_INFO
-from aigem.unfinished import mark_started, unfinished_group, unfinished_start
+from aigem.runs.records import FIT_LOG, HORIZONS, RUN_INFO
+from aigem.runs.unfinished import mark_started, unfinished_group, unfinished_start
 from ngsim_cli import console, logs, progress
 from ngsim_cli.aigem import app as aigem_app
 from ngsim_cli.ngsim import app as ngsim_app
@@ -95,7 +95,7 @@ def test_a_fit_that_keeps_no_epoch_takes_its_log_away_with_its_run(
     """Interrupted in its first epoch, a fit leaves nothing, its log included (the interrupt's
     line is on stderr); a folder that a killed fit left with its log (and its marker) is still
     one a fresh fit takes."""
-    import aigem.training
+    import aigem.training.fit
 
     def set_up_then_interrupted(build_dir: Path, run_dir: Path, *args: Any) -> None:
         *_, show, _on_epoch, _loading, note = args  # fit_horizons' callbacks
@@ -107,7 +107,7 @@ def test_a_fit_that_keeps_no_epoch_takes_its_log_away_with_its_run(
         assert said(run_dir / FIT_LOG) == ["batches from the loader"]
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(aigem.training, "fit_horizons", set_up_then_interrupted)
+    monkeypatch.setattr(aigem.training.fit, "fit_horizons", set_up_then_interrupted)
     run = tmp_path / "run"
     stopped = CliRunner().invoke(aigem_app, ["fit", str(tiny_build), "--out", str(run), *FIT])
     assert stopped.exit_code == 130, stopped.output

@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from aigem.config import TrainConfig, horizon_steps, parse_horizons_s
-from aigem.paper_plan import PaperCall
+from aigem.paper.plan import PaperCall
 from ngsim_cli.aigem import app as aigem_app
 from ngsim_cli.ngsim import app as ngsim_app
 from ngsim_graphs.config import MAX_PARALLEL, BuildConfig, SynthConfig

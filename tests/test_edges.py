@@ -17,9 +17,9 @@ from test_neighbourhoods import arrays_of
 from typer.testing import CliRunner
 
 from aigem.config import ModelConfig
-from aigem.data import Collate
-from aigem.model import AiGem, count_parameters
-from aigem.pyg import to_hetero_data, to_model_batch
+from aigem.model.data import Collate
+from aigem.model.network import AiGem, count_parameters
+from aigem.model.pyg import to_hetero_data, to_model_batch
 from ngsim_cli.aigem import app as aigem_app
 from ngsim_cli.ngsim import app as ngsim_app
 from ngsim_graphs import edges

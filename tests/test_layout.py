@@ -60,7 +60,7 @@ def _not_builds(root: Path, tiny_build: Path, tiny_run: Path) -> dict[str, tuple
 def test_what_a_folder_is_where_a_build_is_expected(
     tiny_build: Path, tiny_run: Path, tmp_path: Path
 ) -> None:
-    from aigem import runs  # torch loads only for the tests that use it
+    from aigem.runs import folder as runs  # torch loads only for the tests that use it
     from ngsim_cli.aigem import app as aigem_app
     from ngsim_cli.ngsim import app as ngsim_app
 
