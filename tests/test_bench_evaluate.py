@@ -37,6 +37,7 @@ def test_bench_evaluate_times_the_call_and_the_forward_passes(tiny_horizons_run:
     assert re.search(r"^forward, round 1: stacked [0-9.]+ s, apart [0-9.]+ s$", done.stdout, re.M)
 
 
+@pytest.mark.slow
 def test_bench_evaluate_times_the_whole_command(tiny_horizons_run: Path, tmp_path: Path) -> None:
     done = _bench(tiny_horizons_run, ROOT, "--command")
     assert done.returncode == 0, done.stderr

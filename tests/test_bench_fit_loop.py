@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -21,6 +23,7 @@ def _fit_once(build: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_fit_once_prints_the_loops_speed_and_the_same_models_twice(tiny_build: Path) -> None:
     first, again = _fit_once(tiny_build), _fit_once(tiny_build)
     assert first["code"] == str(ROOT)

@@ -73,6 +73,7 @@ def test_synthetic_traffic_is_no_more_predictable_than_ngsims(calibration_build:
     assert errors.rmse_m[5] > 5.0
 
 
+@pytest.mark.slow
 def test_the_report_prints_ours_beside_ngsims(calibration_build: Path, tmp_path: Path) -> None:
     plot, report = tmp_path / "realism.png", tmp_path / "realism.json"
     command = [sys.executable, str(SCRIPT), str(calibration_build), str(calibration_build),

@@ -10,11 +10,14 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from bench_exit import data_commands, fit_command, row
 from timed_runs import EXIT_S, LINGER_S, TimedRun, run_timed
 
 
+@pytest.mark.slow
 def test_synth_build_with_worker_processes_and_stats_end_with_their_last_line(
     tmp_path: Path,
 ) -> None:

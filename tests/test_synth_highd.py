@@ -66,6 +66,7 @@ def test_tracks_table_by_hand() -> None:
     ]
 
 
+@pytest.mark.slow
 def test_synth_highd_is_deterministic_and_lists_its_files(tmp_path: Path) -> None:
     config = SynthConfig(raw_format=RawFormat.HIGHD, recordings=2, minutes=0.2, seed=3)
     first = write_synthetic(tmp_path / "a", config)

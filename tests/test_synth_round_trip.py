@@ -41,10 +41,22 @@ def references() -> dict[bool, dict[tuple[str, str], pl.DataFrame]]:
     return {quirks: expected_tracks(quirks) for quirks in (False, True)}
 
 
-@pytest.mark.parametrize("quirks", [False, True])
+# The portal's CSV with the quirks of real exports by default; every other format and quirk
+# setting is slow (each format's reader and each quirk have fast tests of their own).
 @pytest.mark.parametrize(
-    "raw_format", [f for f in RawFormat if f is not RawFormat.HIGHD]
-)  # see test_synth_highd
+    ("raw_format", "quirks"),
+    [
+        pytest.param(
+            f,
+            q,
+            id=f"{f.value}-{q}",
+            marks=() if (f, q) == (RawFormat.PORTAL, True) else pytest.mark.slow,
+        )
+        for f in RawFormat
+        if f is not RawFormat.HIGHD  # see test_synth_highd
+        for q in (False, True)
+    ],
+)
 def test_every_format_reads_back_to_the_simulated_tracks(
     tmp_path: Path, raw_format: RawFormat, quirks: bool, references: dict
 ) -> None:
