@@ -79,6 +79,13 @@ class ModelConfig:
     # (BuildConfig.edge_types); a run that records none has the paper's two.
     edge_types: tuple[str, ...] = DEFAULT_EDGE_TYPES
 
+    def __post_init__(self) -> None:
+        for name in ("node_features", "hidden", "layers", "heads", "mlp_hidden", "future_steps"):
+            check_count(name, getattr(self, name), 1)
+        check_at_least("dropout", self.dropout, 0)
+        if not self.dropout < 1:
+            raise ValueError(f"dropout must be below 1, not {self.dropout:g}")
+
     @property
     def history_steps_read(self) -> int:
         """History steps that reach the present-step embeddings: temporal edges join consecutive

@@ -52,6 +52,19 @@ def test_a_recorded_value_of_another_type_or_out_of_range_is_an_error(tmp_path: 
         model_config({"model": {"hidden": "64"}}, path)
     with pytest.raises(NgsimInputError, match="a train config this aigem cannot use: epochs"):
         train_config({"train": {"epochs": 0}}, path)
+    with pytest.raises(NgsimInputError) as error:
+        model_config({"model": {"layers": 0}}, path)
+    assert str(error.value) == f"{path}: a model config this aigem cannot use: layers must be >= 1"
+    with pytest.raises(NgsimInputError, match="cannot use: dropout must be below 1, not 1"):
+        model_config({"model": {"dropout": 1.0}}, path)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("hidden", 0), ("heads", 0), ("future_steps", 0), ("dropout", -0.1)]
+)
+def test_a_model_config_of_no_model_is_refused(field: str, value: float) -> None:
+    with pytest.raises(ValueError, match=field):
+        ModelConfig(**{field: value})
 
 
 def test_every_run_layout_reads_as_a_group(tiny_horizons_run: Path, tmp_path: Path) -> None:

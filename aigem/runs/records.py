@@ -176,7 +176,8 @@ def train_config(info: dict[str, Any], path: Path) -> TrainConfig:
 
 def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
     """The model config that run info records, settings it lacks at their defaults
-    (_recorded_values); an error for a value of another type than the setting's."""
+    (_recorded_values); an error for a value of another type than the setting's, or one that
+    ModelConfig refuses (no layer, a dropout of 1)."""
     values, defaults = dict(_recorded_values(info, "model", ModelConfig, path)), ModelConfig()
     for name, value in values.items():
         default = getattr(defaults, name)
@@ -186,7 +187,10 @@ def model_config(info: dict[str, Any], path: Path) -> ModelConfig:
             raise NgsimInputError(
                 path, f"model config {name} = {value!r}: expected a {type(default).__name__}"
             )
-    return ModelConfig(**values)
+    try:
+        return ModelConfig(**values)
+    except ValueError as err:
+        raise NgsimInputError(path, f"a model config this aigem cannot use: {err}") from None
 
 
 def state_of(saved: object, path: Path) -> RunState:
