@@ -27,6 +27,7 @@ def test_synth_build_with_worker_processes_and_stats_end_with_their_last_line(
         assert call.ended_within(LINGER_S), (name, call)
 
 
+@pytest.mark.slow
 def test_a_fit_with_loader_workers_ends_with_its_last_line(
     tiny_build: Path, tmp_path: Path
 ) -> None:

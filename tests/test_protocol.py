@@ -231,6 +231,7 @@ def test_a_quirky_synthetic_recording_gives_the_reference_population(tmp_path: P
     assert counts.conflicting_duplicates > 0 and counts.gaps > 0 and script.kept > 2 * len(samples)
 
 
+@pytest.mark.slow
 def test_a_cs_lstm_build_cleaned_in_parts_is_the_build_cleaned_at_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

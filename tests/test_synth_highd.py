@@ -241,6 +241,7 @@ def test_cli_synth_highd_then_build_tells_the_dataset(tmp_path: Path) -> None:
     assert "highd-1" in built.stdout and "skipped" not in built.stdout
 
 
+@pytest.mark.slow
 def test_a_highd_build_cleaned_in_parts_is_the_build_cleaned_at_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
