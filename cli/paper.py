@@ -9,6 +9,7 @@ import typer
 
 from aigem.config import DeviceChoice
 from aigem.paper.folder import PAPER_EPOCHS
+from aigem.paper.plan import PARTS
 from aigem.paper_layout import PAPER_JSON, PAPER_LOG
 from ngsim_cli.command_line import option_names, option_values, usage_error
 from ngsim_cli.console import print_error, print_warning, stdout
@@ -21,7 +22,7 @@ if TYPE_CHECKING:
     from aigem.paper.plan import PaperCall
 from ngsim_cli.progress import progress_bar
 
-PARTS_HELP = "table,dmin,concat,curves,regions"
+PARTS_HELP = ",".join(PARTS)  # every part, in the report's order
 # PaperConfig's and PaperCall's fields set by an option (of another name: --patience)
 PAPER_OPTIONS = option_names(
     ("epochs", "patience_epochs", "seed", "batch_size", "max_hours", "seeds", "threads", "jobs"),
