@@ -714,3 +714,12 @@ def test_one_seeds_ablation_bars_draw_the_bootstrap_and_say_so() -> None:
     (axes,) = draw_report(document)["dmin"].axes
     (whiskers,) = _bars(axes)["d_min 0 m"].errorbar.lines[2]
     assert tuple(whiskers.get_segments()[0][:, 1]) == pytest.approx((3.9, 4.2))
+
+
+def test_the_report_writes_and_cleans_every_figure_it_draws() -> None:
+    """report.FIGURE_NAMES (written, and removed where stale, without importing matplotlib)
+    names report_plots.DRAWN's figures, in their order: a new part's figure in one and not the
+    other would never be written, or never cleaned."""
+    from aigem.paper import report, report_plots
+
+    assert tuple(report_plots.DRAWN) == report.FIGURE_NAMES

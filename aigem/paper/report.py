@@ -66,7 +66,7 @@ PARTLY_SYNTHETIC_LABEL = (
     "the inputs' recordings, PARTLY SYNTHETIC: some of them written by `ngsim-graphs synth` "
     "(each build's manifest names them: synthetic_inputs)"
 )
-FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")
+FIGURE_NAMES = ("table1", "dmin", "concat", "curves", "regions")  # report_plots.DRAWN's (tested)
 SEED_INTERVALS = (
     "Student's t over the seeds, N - 1 degrees of freedom: an interval so made holds the mean "
     "over many more seeds 95 times in 100"
