@@ -117,6 +117,7 @@ def test_cli_fit_and_evaluate(tiny_build: Path, tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_distributed_training_with_two_cpu_processes(tiny_build: Path, tmp_path: Path) -> None:
     run = tmp_path / "ddp"
     command = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29533",

@@ -36,6 +36,7 @@ def test_a_fit_with_loader_workers_ends_with_its_last_line(
     assert fit.ended_within(LINGER_S), fit
 
 
+@pytest.mark.slow
 def test_a_fit_stopped_by_sigterm_ends_with_its_last_line_and_no_traceback(
     tiny_build: Path, tmp_path: Path
 ) -> None:
