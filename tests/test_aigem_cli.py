@@ -204,6 +204,7 @@ def _wait_for(path: Path, process: subprocess.Popen, timeout_s: float = 120.0) -
         time.sleep(0.02)
 
 
+@pytest.mark.slow
 def test_ctrl_c_after_an_epoch_says_what_the_run_kept(tiny_build: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
     process = _start_fit(tiny_build, run, batch_size=8)

@@ -124,6 +124,7 @@ SCHEDULED = TrainConfig(
 )
 
 
+@pytest.mark.slow
 def test_a_scheduled_run_logs_its_rates_and_resumes_like_an_uninterrupted_one(
     tiny_build: Path, tmp_path: Path
 ) -> None:

@@ -15,8 +15,8 @@ import fuzz_mutations as fm
 # Cases of the default plan (seed 0), so that the full run repeats them: the three unmutated
 # inputs and every family of mutation (truncation, byte flips, field values, header or column
 # swaps, extra columns, non-UTF-8 bytes, deleted and duplicated lines, CR line ends, other file
-# types), each format several times.
-FAST_CASE_INDICES = (0, 1, 2, 5, 10, 15, 21, 25, 42, 49, 53, 59, 61, 64, 68, 71, 72, 77, 78)
+# types), each format more than once.
+FAST_CASE_INDICES = (0, 1, 2, 5, 10, 21, 25, 42, 49, 59, 61, 64, 68, 71, 72)
 
 
 def test_fast_cases_succeed_plausibly_or_fail_cleanly(tmp_path: Path) -> None:
