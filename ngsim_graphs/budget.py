@@ -29,7 +29,7 @@ class Budget:
     # Cleaning: whole vehicles of a part, about this many raw rows at a time; a median of the
     # speed check among at most this many values held at once, narrowed down a histogram of
     # this many bins at a time (`sources.speeds.streamed_median`).
-    clean_rows: int = 65_536
+    clean_rows: int = 262_144
     median_held_values: int = 65_536
     median_bins: int = 1_024
     # Building: the grid rows are made this many at a time (each range reads the tracks table's

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class Near:
     distance: np.ndarray  # (C,) float64 metres to the ego
     actor: np.ndarray  # (C,) bool: not the ego's own row
 
-    @property
+    @cached_property
     def starts(self) -> np.ndarray:
         """(U,) first entry of each ego row's run (no run is empty: the ego is near itself)."""
         lengths = np.bincount(self.owner, minlength=len(self.egos))
@@ -212,8 +213,8 @@ def actor_pairs(
     searched as `actor_pair_edges` searches them; `keep`: only the pairs of rows it keeps.
     Which rows are actors is a small (ego, row of its step) table: a lookup, not a distance,
     per pair. The pairs an ego row searches are one run of the pair arrays: its counts are
-    differences of a running sum, its extremes one reduction per run (in float32, the
-    distances' own type: exact)."""
+    one sum per run, its extremes one reduction per run (in float32, the distances' own type:
+    exact)."""
     rec, egos, step = near.rec, near.egos, near.step
     width = int(np.diff(rec.step_ptr).max()) if rec.n_steps else 0
     # Row r of ego i's step is entry i * width + r - (first row of the step) of `is_actor`:
@@ -225,23 +226,28 @@ def actor_pairs(
     lengths = hi - lo
     ends = np.cumsum(lengths)
     starts = ends - lengths
-    index = np.arange(int(ends[-1]) if len(ends) else 0, dtype=np.int64)
-    index += np.repeat(lo - starts, lengths)
+    # Each pair an ego row searches, by its index in the pair arrays (int32 where they allow).
+    kind = np.int32 if len(rec.pair_dist) < 2**31 else np.int64
+    index = np.repeat((lo - starts).astype(kind), lengths)
+    index += np.arange(len(index), dtype=kind)
     pairs = np.take(rec.pair_rows, index, axis=0)  # (C, 2); faster than fancy indexing
     pair_offset = np.repeat(offset, lengths)
-    keep_pair = is_actor[pairs[:, 0] + pair_offset]
-    keep_pair &= is_actor[pairs[:, 1] + pair_offset]
+    keep_pair = np.take(is_actor, pairs[:, 0] + pair_offset)
+    keep_pair &= np.take(is_actor, pairs[:, 1] + pair_offset)
     if keep is not None:
         keep_pair &= keep(rec, pairs)
-    kept = np.concatenate([[0], np.cumsum(keep_pair, dtype=np.int64)])
-    distance = rec.pair_dist[index]
+    del pairs, pair_offset
     filled = lengths > 0
-    low = np.full(len(egos), np.inf, np.float32)
-    high = np.full(len(egos), -np.inf, np.float32)
+    count = np.zeros(len(egos), np.int64)
+    low = np.full(len(egos), np.inf)
+    high = np.full(len(egos), -np.inf)
     if filled.any():
-        low[filled] = np.minimum.reduceat(np.where(keep_pair, distance, np.inf), starts[filled])
-        high[filled] = np.maximum.reduceat(np.where(keep_pair, distance, -np.inf), starts[filled])
-    return kept[ends] - kept[starts], low.astype(np.float64), high.astype(np.float64)
+        count[filled] = np.add.reduceat(keep_pair, starts[filled], dtype=np.int64)
+        # NaN for a pair not kept: fmin and fmax pass it over (NaN for a run of none kept).
+        distance = np.where(keep_pair, np.take(rec.pair_dist, index), np.float32(np.nan))
+        low[filled] = np.fmin.reduceat(distance, starts[filled])
+        high[filled] = np.fmax.reduceat(distance, starts[filled])
+    return count, np.nan_to_num(low, nan=np.inf), np.nan_to_num(high, nan=-np.inf)
 
 
 def _spatial_count(near: Near) -> RowEdges:
