@@ -56,14 +56,14 @@ def lines_whole(chunk: files.TextChunk) -> pl.DataFrame:
 
 
 def fast(chunk: files.TextChunk) -> pl.DataFrame | None:
-    return whitespace.parse_plain(chunk.text.getvalue(), chunk.first_line)
+    return whitespace.parse_plain(chunk.text.getvalue(), chunk.first_line, chunk.line_ends)
 
 
 def seconds(parse: Callable[[files.TextChunk], object], chunks: list[files.TextChunk]) -> float:
     start = time.perf_counter()
     for chunk in chunks:
         chunk.text.seek(0)
-        parse(files.TextChunk(io.BytesIO(chunk.text.getvalue()), chunk.first_line))
+        parse(files.TextChunk(io.BytesIO(chunk.text.getvalue()), chunk.first_line, chunk.line_ends))
     return time.perf_counter() - start
 
 

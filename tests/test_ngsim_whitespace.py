@@ -82,7 +82,7 @@ def test_random_plain_text_reads_as_the_general_reader_reads_it(
     chunks = []
     real = whitespace.parse_plain
     monkeypatch.setattr(
-        files, "parse_plain", lambda t, r: chunks.append(real(t, r) is not None) or real(t, r)
+        files, "parse_plain", lambda *a: chunks.append(real(*a) is not None) or real(*a)
     )
     fast, general = _both(monkeypatch, tmp_path, text)
     assert chunks and all(chunks)  # every chunk took the fast path
@@ -131,13 +131,13 @@ def test_a_quirky_line_reads_as_the_general_reader_reads_it(
 
 
 def test_single_spaced_keeps_one_space_between_fields_and_none_at_the_ends() -> None:
-    assert whitespace.single_spaced(b"   1  22 3   \n4 5\n  \n 6\n") == (
+    assert whitespace.single_spaced(b"   1  22 3   \n4 5\n  \n 6\n", 4) == (
         b"1 22 3\n4 5\n\n6\n",
         False,
     )
     # Every line indented: one space left before each, read as an empty first field.
-    assert whitespace.single_spaced(b"   1  22 3   \n 4 5\n  6") == (b" 1 22 3\n 4 5\n 6", True)
-    assert whitespace.single_spaced(b"1\t 2\r\n") == (b"1 2\n", False)
+    assert whitespace.single_spaced(b"   1  22 3   \n 4 5\n  6", 2) == (b" 1 22 3\n 4 5\n 6", True)
+    assert whitespace.single_spaced(b"1\t 2\r\n", 1) == (b"1 2\n", False)
 
 
 def test_only_plain_text_is_plain() -> None:
@@ -149,7 +149,7 @@ def test_only_plain_text_is_plain() -> None:
 
 def test_plain_chunk_parses_to_the_raw_dtypes() -> None:
     line = " 1 0 1 1113433184300 7.5 2 3 4 5 6 2 7 8 1 0 5 0.00 9999.99 \n"
-    rows = whitespace.parse_plain((line * 3).encode(), 10)
+    rows = whitespace.parse_plain((line * 3).encode(), 10, 3)
     assert rows is not None and rows.height == 3
     assert rows[files.ROW].to_list() == [10, 11, 12]
     assert rows.select(ns.TXT_COLUMNS).schema == pl.Schema(ns.RAW_SCHEMA)

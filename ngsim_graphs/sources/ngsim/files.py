@@ -163,10 +163,12 @@ def _bad_number() -> pl.Expr:
 
 @dataclass(frozen=True)
 class TextChunk:
-    """Whole lines of a file's text: its lines from `first_line` (0-based, the header included)."""
+    """Whole lines of a file's text: its lines from `first_line` (0-based, the header included),
+    `line_ends` of them ended (all but a last one without its line end)."""
 
     text: io.BytesIO
     first_line: int
+    line_ends: int
 
 
 def text_chunks(path: Path, chunk_bytes: int) -> Iterator[TextChunk]:
@@ -184,8 +186,9 @@ def text_chunks(path: Path, chunk_bytes: int) -> Iterator[TextChunk]:
                 rest = text
                 continue
             if end:
-                yield TextChunk(io.BytesIO(text[:end]), first_line)
-                first_line += text.count(b"\n", 0, end)
+                line_ends = text.count(b"\n", 0, end)
+                yield TextChunk(io.BytesIO(text[:end]), first_line, line_ends)
+                first_line += line_ends
             rest = text[end:]
             if not data:
                 return
@@ -256,7 +259,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
     fast = None
     if raw_format is RawFormat.TXT:
         scan, first_line = (lambda chunk: _scan_txt_text(path, chunk)), 1
-        fast = lambda chunk: parse_plain(chunk.text.getvalue(), chunk.first_line)  # noqa: E731
+        fast = lambda chunk: parse_plain(chunk.text.getvalue(), chunk.first_line, chunk.line_ends)  # noqa: E731
     else:
         header = _scan_csv_text(path)[1]
         check_csv_columns(path, header, raw_format)

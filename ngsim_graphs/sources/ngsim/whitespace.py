@@ -40,8 +40,8 @@ def is_plain(text: bytes) -> bool:
     return b"\r" not in text or text.count(b"\r") == text.count(b"\r\n")
 
 
-def single_spaced(text: bytes) -> tuple[bytes, bool]:
-    """(lines, indented): `text` (plain, whole lines) with its fields one space apart and no
+def single_spaced(text: bytes, line_ends: int) -> tuple[bytes, bool]:
+    """(lines, indented): `text` (plain, whole lines, `line_ends` LFs) with its fields one space apart and no
     space at a line's end (a blank line stays, empty); with `indented`, every line begins with
     one space (NGSIM pads its lines), which the CSV reader reads as an empty first field.
     One pass to choose the bytes kept and one to keep them: the two cost about what Polars'
@@ -54,7 +54,7 @@ def single_spaced(text: bytes) -> tuple[bytes, bool]:
     kept = raw[keep]
     lines = kept.tobytes()
     starts = lines.count(b"\n ") + lines.startswith(b" ")
-    if starts == lines.count(b"\n") + (not lines.endswith(b"\n")):
+    if starts == line_ends + (not lines.endswith(b"\n")):
         return lines, True
     if starts == 0:
         return lines, False
@@ -64,14 +64,14 @@ def single_spaced(text: bytes) -> tuple[bytes, bool]:
     return kept[~leading].tobytes(), False
 
 
-def parse_plain(text: bytes, first_row: int) -> pl.DataFrame | None:
-    """The rows of a chunk of whole lines (the last may lack its line end) as the general reader
+def parse_plain(text: bytes, first_row: int, line_ends: int) -> pl.DataFrame | None:
+    """The rows of a chunk of whole lines (`line_ends` LFs: the last may lack its own) as the general reader
     parses them (ROW from `first_row`, the 18 columns in RAW_SCHEMA's dtypes, LOCATION null,
     PRESENT, POINTED, ODD), or None where the chunk is not plain text of 18 numbers a line."""
     if not text or not is_plain(text):
         return None
-    lines = text.count(b"\n") + (not text.endswith(b"\n"))
-    fields, indented = single_spaced(text)
+    lines = line_ends + (not text.endswith(b"\n"))
+    fields, indented = single_spaced(text, line_ends)
     try:
         parsed = pl.read_csv(
             fields if fields.endswith(b"\n") else fields + b"\n",
