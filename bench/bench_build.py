@@ -16,8 +16,9 @@ Synthetic data: these are not NGSIM results.
 Last, it builds the same input with the code of `--against REV` (default 66e4b70, main before
 issue 52's work) and with this tree, alternating, `--rounds` times, each build in a fresh
 process (`build_once.py`, the checkout on PYTHONPATH; REV checked out once as a git worktree
-under the work dir), and prints the medians of both and of their ratio: timings on a shared
-machine are comparable only side by side.
+under the work dir), and prints the medians of both and of their ratio (timings on a shared
+machine are comparable only side by side), and whether the last two builds are byte for byte
+alike.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from memory import TreeMemory, process_peaks_gb  # noqa: E402
 from ngsim_graphs import layout  # noqa: E402
 from ngsim_graphs.budget import available_cores  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
+from ngsim_graphs.integrity import file_sha256  # noqa: E402
 from ngsim_graphs.pipeline import run_build  # noqa: E402
 from ngsim_graphs.schema import Protocol  # noqa: E402
 
@@ -102,6 +104,18 @@ def timed_build(code: Path, inputs: list[Path], out: Path, jobs: int, protocol: 
     return figures | {"peak_gb": memory.peak_bytes / 1024**3, "cpu_s": cpu_s}
 
 
+def differing_files(first: Path, second: Path) -> list[str]:
+    """The files of two builds whose bytes differ or that only one has, build.log aside (each
+    build's own times)."""
+
+    def digests(root: Path) -> dict[str, str]:
+        files = (p for p in root.rglob("*") if p.is_file() and p != layout.build_log_path(root))
+        return {str(p.relative_to(root)): file_sha256(p) for p in files}
+
+    a, b = digests(first), digests(second)
+    return sorted(name for name in a.keys() | b.keys() if a.get(name) != b.get(name))
+
+
 def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
     """Builds of `inputs` by `--against` and by this tree, alternating, `--rounds` times."""
     codes = {args.against: checkout(args.against, args.work_dir), "this tree": ROOT}
@@ -110,6 +124,7 @@ def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
         for label, code in codes.items():
             out = args.work_dir / f"{name}-{code.name}"
             runs[label].append(timed_build(code, inputs, out, jobs, args.protocol))
+    outs = [args.work_dir / f"{name}-{code.name}" for code in codes.values()]
     base, this = runs[args.against], runs["this tree"]
     ratios = [b["wall_s"] / t["wall_s"] for b, t in zip(base, this, strict=True)]
     cpu_ratios = [b["cpu_s"] / t["cpu_s"] for b, t in zip(base, this, strict=True)]
@@ -134,6 +149,11 @@ def side_by_side(args, inputs: list[Path], name: str, jobs: int) -> None:
             f"  {args.against} / this tree, {what}: {statistics.median(values):.2f} times as "
             f"long (median; {min(values):.2f} to {max(values):.2f})"
         )
+    differ = differing_files(*outs)
+    print(
+        f"  the two builds: {'byte for byte alike' if not differ else 'DIFFER'} (sha256 of "
+        f"every file, build.log aside){': ' + ', '.join(differ[:5]) if differ else ''}"
+    )
 
 
 def main() -> None:
