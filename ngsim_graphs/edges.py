@@ -247,7 +247,8 @@ def actor_pairs(
         distance = np.where(keep_pair, np.take(rec.pair_dist, index), np.float32(np.nan))
         low[filled] = np.fmin.reduceat(distance, starts[filled])
         high[filled] = np.fmax.reduceat(distance, starts[filled])
-    return count, np.nan_to_num(low, nan=np.inf), np.nan_to_num(high, nan=-np.inf)
+    low[np.isnan(low)], high[np.isnan(high)] = np.inf, -np.inf
+    return count, low, high
 
 
 def _spatial_count(near: Near) -> RowEdges:

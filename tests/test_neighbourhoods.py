@@ -12,7 +12,7 @@ import numpy as np
 import polars as pl
 import pytest
 from conftest import set_budget
-from test_graphs import SCENE_CONFIGS, TINY, all_windows, random_scene, tiny_scene
+from test_graphs import SCENE_CONFIGS, TINY, all_windows, grid_table, random_scene, tiny_scene
 
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
@@ -99,6 +99,22 @@ def test_tiny_scene_by_hand(ego_is_target: bool) -> None:
     }  # fmt: skip
     _, nothing = counted(rec, np.array([0]), np.array([0]), np.array([False]), config)
     assert nothing.to_dict() == MinMaxScaler.empty().to_dict()
+
+
+def test_an_ego_alone_has_no_edge_and_no_distance_range() -> None:
+    """One vehicle, nothing within d_sense (track 1 is 100 m away): one node a step, no spatial edge;
+    the scaler's distances stay empty (inf, -inf), not the largest finite numbers."""
+    config = BuildConfig(history_steps=2, future_steps=2, stride_s=0.2)
+    rows = [
+        (step, track, 10 + track, 100.0 * track, 10.0 * step, 0.0, 10.0)
+        for track in (0, 1)
+        for step in range(4)
+    ]
+    rec = arrays_of(grid_table(rows), config)
+    counts, ranges = counted(rec, np.array([0]), np.array([0]), np.array([True]), config)
+    assert counts.tolist() == [[2, 0, 1, 0, 0]]  # the ego's own temporal edge
+    assert ranges.low["distance_m"] == np.inf and ranges.high["distance_m"] == -np.inf
+    assert ranges.low["x_m"] == 0.0 and ranges.high["y_m"] == 0.0
 
 
 def test_an_ego_missing_from_its_window_is_refused() -> None:
