@@ -259,7 +259,7 @@ def read_raw_file(path: Path, locations: tuple[str, ...], scratch: Path | None =
     fast = None
     if raw_format is RawFormat.TXT:
         scan, first_line = (lambda chunk: _scan_txt_text(path, chunk)), 1
-        fast = lambda chunk: parse_plain(chunk.text.getvalue(), chunk.first_line, chunk.line_ends)  # noqa: E731
+        fast = lambda c: parse_plain(c.text.getvalue(), c.first_line, c.line_ends)  # noqa: E731
     else:
         header = _scan_csv_text(path)[1]
         check_csv_columns(path, header, raw_format)

@@ -41,11 +41,11 @@ def is_plain(text: bytes) -> bool:
 
 
 def single_spaced(text: bytes, line_ends: int) -> tuple[bytes, bool]:
-    """(lines, indented): `text` (plain, whole lines, `line_ends` LFs) with its fields one space apart and no
-    space at a line's end (a blank line stays, empty); with `indented`, every line begins with
-    one space (NGSIM pads its lines), which the CSV reader reads as an empty first field.
-    One pass to choose the bytes kept and one to keep them: the two cost about what Polars'
-    reader does."""
+    """(lines, indented): `text` (plain, whole lines, `line_ends` LFs) with its fields one space
+    apart and no space at a line's end (a blank line stays, empty); with `indented`, every line
+    begins with one space (NGSIM pads its lines), which the CSV reader reads as an empty first
+    field. One pass to choose the bytes kept and one to keep them: the two cost about what
+    Polars' reader does."""
     raw = np.frombuffer(
         text.translate(_TO_SPACE) if b"\t" in text or b"\r" in text else text, np.uint8
     )
@@ -65,9 +65,10 @@ def single_spaced(text: bytes, line_ends: int) -> tuple[bytes, bool]:
 
 
 def parse_plain(text: bytes, first_row: int, line_ends: int) -> pl.DataFrame | None:
-    """The rows of a chunk of whole lines (`line_ends` LFs: the last may lack its own) as the general reader
-    parses them (ROW from `first_row`, the 18 columns in RAW_SCHEMA's dtypes, LOCATION null,
-    PRESENT, POINTED, ODD), or None where the chunk is not plain text of 18 numbers a line."""
+    """The rows of a chunk of whole lines (`line_ends` LFs: the last may lack its own) as the
+    general reader parses them (ROW from `first_row`, the 18 columns in RAW_SCHEMA's dtypes,
+    LOCATION null, PRESENT, POINTED, ODD), or None where the chunk is not plain text of 18
+    numbers a line."""
     if not text or not is_plain(text):
         return None
     lines = line_ends + (not text.endswith(b"\n"))
