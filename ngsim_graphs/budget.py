@@ -30,7 +30,7 @@ class Budget:
     # speed check among at most this many values held at once, narrowed down a histogram of
     # this many bins at a time (`sources.speeds.streamed_median`).
     clean_rows: int = 262_144
-    median_held_values: int = 65_536
+    median_held_values: int = 4_194_304  # 32 MB: the evidence of 15 minutes of NGSIM, whole
     median_bins: int = 1_024
     # Building: the grid rows are made this many at a time (each range reads the tracks table's
     # row groups of its times), and the proximity pairs found, written and used a range of steps

@@ -110,7 +110,8 @@ def streamed_median(values: pl.LazyFrame) -> float | None:
     count, nans = values.select(pl.len(), column.is_nan().sum()).collect(engine="streaming").row(0)
     if count == 0:
         return None
-    if nans:  # NaN sorts above every number: Polars' own median of all of them
+    # NaN sorts above every number, and few values are held at once: Polars' own median of all.
+    if nans or count <= budget.BUDGET.median_held_values:
         return values.collect(engine="streaming").to_series().median()
     middle = sorted({(count - 1) // 2, count // 2})
     dtype = values.collect_schema().dtypes()[0]
