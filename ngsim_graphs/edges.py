@@ -77,6 +77,24 @@ class Near:
         lengths = np.bincount(self.owner, minlength=len(self.egos))
         return np.cumsum(lengths) - lengths
 
+    @cached_property
+    def span(self) -> tuple[int, np.ndarray]:
+        """(first, steps): the rows of the ego rows' steps, first to first + len(steps) - 1
+        (every near row among them), and the step of each. A fact of a row is looked up per near
+        row from an array over these rows, found once per row, not once per ego row near it."""
+        if len(self.egos) == 0:
+            return 0, np.zeros(0, np.int64)
+        low, high = int(self.step.min()), int(self.step.max())
+        sizes = np.diff(self.rec.step_ptr[low : high + 2])
+        return int(self.rec.step_ptr[low]), np.repeat(np.arange(low, high + 1), sizes)
+
+    @cached_property
+    def next_rows(self) -> np.ndarray:
+        """(len(steps),) of `span`: each row's track's row at the next step, -1 where none."""
+        first, steps = self.span
+        tracks = self.rec.node_track[first : first + len(steps)]
+        return self.rec.row_at(tracks, steps + 1)
+
 
 @dataclass(frozen=True)
 class RowEdges:
@@ -287,8 +305,9 @@ def _temporal_induce(nodes: Nodes) -> tuple[np.ndarray, np.ndarray]:
 def _temporal_count(near: Near) -> RowEdges:
     """The near tracks whose row at the next step is near the ego's row at the next step."""
     rec, d_sense = near.rec, near.config.d_sense_m
-    next_row = rec.row_at(rec.node_track[near.row], near.step[near.owner] + 1)
-    ego_next = rec.row_at(rec.node_track[near.egos], near.step + 1)[near.owner]
+    first = near.span[0]
+    next_row = near.next_rows[near.row - first]
+    ego_next = near.next_rows[near.egos - first][near.owner]
     both = (next_row >= 0) & (ego_next >= 0)
     still = np.zeros(len(near.row), bool)
     xy = rec.node_state
