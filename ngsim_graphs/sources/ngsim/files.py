@@ -179,17 +179,19 @@ def text_chunks(path: Path, chunk_bytes: int) -> Iterator[TextChunk]:
     with path.open("rb") as handle:
         while True:
             data = handle.read(chunk_bytes)
-            text = rest + data
+            text = rest + data if rest else data
             check_line_length(path, text, first_line + 1)
             end = text.rfind(b"\n") + 1 if data else len(text)
             if end == 0 and data:  # a line longer than a chunk: read on
                 rest = text
                 continue
             if end:
+                # The next chunk reads the last line's start again: no copy of it carried over.
+                handle.seek(end - len(text), io.SEEK_CUR)
                 line_ends = text.count(b"\n", 0, end)
                 yield TextChunk(io.BytesIO(text[:end]), first_line, line_ends)
                 first_line += line_ends
-            rest = text[end:]
+            rest = b""
             if not data:
                 return
 
