@@ -347,7 +347,7 @@ def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
     low, high = np.where(a_lower, rows_a, rows_b), np.where(a_lower, rows_b, rows_a)
     del rows_a, rows_b, a_lower  # ten million pairs in a dense recording: free as we go
     pair_key = pair_search_key(pair_step, y[low])
-    by_key = np.argsort(pair_key, kind="stable")
+    by_key = _stable_order(rec, pair_step, low)
     pair_rows = np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32)
     del low, high
     return replace(
@@ -357,6 +357,25 @@ def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
         pair_dist=pairs[s.DISTANCE_M].to_numpy().astype(np.float32)[by_key],
         pair_key=pair_key[by_key],
     )
+
+
+def _stable_order(rec: RecordingArrays, pair_step: np.ndarray, low: np.ndarray) -> np.ndarray:
+    """The stable argsort of the pairs' pair_search_key (of `pair_step` and the y of row `low`),
+    found as the stable argsort of their lower rows' ranks among the rows of their steps by
+    that key (equal keys, equal ranks): a radix sort where the ranks fit 16 bits (a range of
+    steps of `step_pieces`), not a comparison sort of floats."""
+    if len(low) == 0:
+        return np.empty(0, np.int64)
+    first, last = int(pair_step.min()), int(pair_step.max())
+    lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[last + 1])
+    row_step = np.repeat(np.arange(first, last + 1), np.diff(rec.step_ptr[first : last + 2]))
+    row_key = pair_search_key(row_step, rec.node_state[lo:hi, 1])
+    by_row_key = np.argsort(row_key, kind="stable")
+    sorted_key = row_key[by_row_key]
+    dense = np.concatenate([[0], np.cumsum(sorted_key[1:] != sorted_key[:-1])])
+    rank = np.empty(hi - lo, np.uint16 if hi - lo <= 2**16 else np.int64)
+    rank[by_row_key] = dense
+    return np.argsort(rank[low - lo], kind="stable")
 
 
 def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:

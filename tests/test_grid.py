@@ -227,6 +227,35 @@ def test_pairs_a_piece_of_steps_at_a_time_are_the_pairs_of_all_steps(rows_per_pi
     np.testing.assert_array_equal(sum(p.pair_ptr for p in pieces), whole.pair_ptr)
 
 
+@pytest.mark.parametrize("steps", [3, 200])
+def test_pairs_are_ordered_as_a_stable_sort_of_their_float_keys(steps: int) -> None:
+    """with_pairs orders pairs by ranks of their lower rows' keys (16-bit ranks for a few
+    steps, 64-bit beyond 65,536 rows): the order of a stable sort of the keys themselves, ties
+    (vehicles side by side, a vehicle lower in several pairs) in the table's order."""
+    rng = np.random.default_rng(steps)
+    rows = []
+    for step in range(steps):
+        y = np.round(rng.uniform(0, 400, 350) * 64) / 64  # many equal y
+        x = 1.8 + 3.6 * rng.integers(0, 5, 350)
+        for track, (px, py) in enumerate(zip(x.tolist(), y.tolist(), strict=True)):
+            rows.append((step, track, track + 1000, px, py, 0.0, 10.0))
+    nodes = grid_table(rows)
+    pairs = proximity_pairs(nodes, 10.0)
+    rec = with_pairs(node_arrays(nodes), pairs)
+    row_of = {(st, tr): i for i, (st, tr) in enumerate(nodes.select(s.STEP, s.TRACK_ID).rows())}
+    y = nodes[s.Y_M].to_numpy()
+    low, high = [], []
+    for step, a, b in pairs.select(s.STEP, s.TRACK_A, s.TRACK_B).rows():
+        ra, rb = row_of[(step, a)], row_of[(step, b)]
+        low.append(ra if y[ra] <= y[rb] else rb)
+        high.append(rb if y[ra] <= y[rb] else ra)
+    key = pairs[s.STEP].to_numpy().astype(np.float64) * PAIR_KEY_STEP + y[low]
+    order = np.argsort(key, kind="stable")
+    assert (len(nodes) > 2**16) == (steps == 200) and len(np.unique(key)) < len(key) / 2
+    np.testing.assert_array_equal(rec.pair_rows, np.stack([low, high], axis=1)[order])
+    np.testing.assert_array_equal(rec.pair_key, key[order])
+
+
 def tracks_of(nodes: pl.DataFrame, first_track_id: int = 0) -> pl.LazyFrame:
     """A tracks table that `nodes` are the grid nodes of, its rows shuffled: nothing may rely on
     the tracks table's own order."""
