@@ -182,26 +182,33 @@ def proximity_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
     step = by_y[s.STEP].to_numpy()
     track = by_y[s.TRACK_ID].to_numpy()
     i, j, dist = _pairs_by_sweep(step, by_y[s.X_M].to_numpy(), by_y[s.Y_M].to_numpy(), d_max_m)
-    pairs = pl.DataFrame(
-        {
-            s.STEP: step[i],
-            s.TRACK_A: np.minimum(track[i], track[j]),
-            s.TRACK_B: np.maximum(track[i], track[j]),
-            s.DISTANCE_M: dist,
-        },
-        schema=s.PROXIMITY_SCHEMA,
+    pair_step = step[i]
+    track_a, track_b = np.minimum(track[i], track[j]), np.maximum(track[i], track[j])
+    del i, j  # a dense recording has ten million pairs: hold few copies at a time
+    order = _table_order(pair_step, track_a, track_b)
+    columns = {s.STEP: pair_step, s.TRACK_A: track_a, s.TRACK_B: track_b, s.DISTANCE_M: dist}
+    return pl.DataFrame(
+        {name: values[order] for name, values in columns.items()}, schema=s.PROXIMITY_SCHEMA
     )
-    del i, j, dist  # a dense recording has ten million pairs: hold one copy at a time
-    if len(step) and max(int(step.max()), int(track.max())) < 2**_KEY_BITS and track.min() >= 0:
-        # One integer key (step, track_a, track_b): a numpy sort of it is twice as fast.
-        key = pairs[s.STEP].to_numpy().astype(np.uint64)
-        for column in (s.TRACK_A, s.TRACK_B):
+
+
+def _table_order(step: np.ndarray, track_a: np.ndarray, track_b: np.ndarray) -> np.ndarray:
+    """The order of pairs by (step, track_a, track_b), each pair once: three 16-bit radix
+    passes where each column spans fewer than 2**16 values (a range of steps of
+    `step_pieces`), else one sort of a 63-bit key, or Polars' sort of the three."""
+    if len(step) == 0:
+        return np.empty(0, np.int64)
+    local = [column - column.min() for column in (track_b, track_a, step)]  # last key first
+    if all(int(column.max()) < 2**16 for column in local):
+        return np.lexsort([column.astype(np.uint16) for column in local])
+    if max(int(step.max()), int(track_b.max())) < 2**_KEY_BITS and track_a.min() >= 0:
+        key = step.astype(np.uint64)
+        for column in (track_a, track_b):
             key <<= np.uint64(_KEY_BITS)
-            key |= pairs[column].to_numpy().astype(np.uint64)
-        order = np.argsort(key)  # the keys are unique: any sort gives the one order
-        del key
-        return pairs[order]
-    return pairs.sort(s.STEP, s.TRACK_A, s.TRACK_B)
+            key |= column.astype(np.uint64)
+        return np.argsort(key)  # the keys are unique: any sort gives the one order
+    frame = pl.DataFrame({"step": step, "a": track_a, "b": track_b})
+    return frame.with_row_index().sort("step", "a", "b")["index"].to_numpy()
 
 
 _KEY_BITS = 21  # steps and track ids below 2**21 fold into one 63-bit sort key

@@ -10,6 +10,7 @@ import polars as pl
 import pytest
 from polars.testing import assert_frame_equal
 
+from ngsim_graphs import grid
 from ngsim_graphs import schema as s
 from ngsim_graphs.grid import (
     ARRAY_NAMES,
@@ -254,6 +255,21 @@ def test_pairs_are_ordered_as_a_stable_sort_of_their_float_keys(steps: int) -> N
     assert (len(nodes) > 2**16) == (steps == 200) and len(np.unique(key)) < len(key) / 2
     np.testing.assert_array_equal(rec.pair_rows, np.stack([low, high], axis=1)[order])
     np.testing.assert_array_equal(rec.pair_key, key[order])
+
+
+@pytest.mark.parametrize("track_span", [1_000, 100_000, 2**22])
+def test_the_pairs_table_order_is_by_step_and_tracks_in_every_range(track_span: int) -> None:
+    """Three 16-bit radix passes (tracks of a range of steps), a 63-bit key (wider track ids),
+    Polars' sort (ids beyond 21 bits): the one order of (step, track_a, track_b)."""
+    rng = np.random.default_rng(track_span)
+    step = rng.integers(10, 60, 5_000)
+    track_a = rng.integers(0, track_span, 5_000)
+    track_b = track_a + rng.integers(1, 50, 5_000)
+    triples = np.unique(np.stack([step, track_a, track_b], axis=1), axis=0)
+    shuffled = triples[rng.permutation(len(triples))]
+    step, track_a, track_b = (shuffled[:, k].astype(np.int32) for k in range(3))
+    order = grid._table_order(step, track_a, track_b)
+    np.testing.assert_array_equal(shuffled[order], triples)
 
 
 def tracks_of(nodes: pl.DataFrame, first_track_id: int = 0) -> pl.LazyFrame:
