@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import polars as pl
@@ -46,6 +47,16 @@ class Neighbourhoods:
     ego_full_future: np.ndarray  # (U,) bool the ego's track has all K_F steps after
     low: np.ndarray  # (U, len(ranged())) float64
     high: np.ndarray  # (U, len(ranged())) float64
+
+    @cached_property
+    def index_of_rows(self) -> np.ndarray:
+        """(rows[-1] - rows[0] + 1,) int64: the index in `rows` of each row from rows[0] on, -1
+        for a row it does not hold (a lookup: `positions` asks it for every history row)."""
+        if len(self.rows) == 0:
+            return np.zeros(0, np.int64)
+        index = np.full(int(self.rows[-1] - self.rows[0]) + 1, -1, np.int64)
+        index[self.rows - self.rows[0]] = np.arange(len(self.rows))
+        return index
 
 
 def ranged() -> tuple[str, ...]:
@@ -210,8 +221,11 @@ def positions(hood: Neighbourhoods, history: np.ndarray) -> tuple[np.ndarray, np
     their index in hood.rows (0 where not held)."""
     if len(hood.rows) == 0:
         return np.zeros(history.shape, bool), np.zeros(history.shape, np.int64)
-    at = np.minimum(np.searchsorted(hood.rows, history), len(hood.rows) - 1)
-    held = (history >= 0) & (hood.rows[at] == history)
+    offset = history - hood.rows[0]
+    index = hood.index_of_rows
+    inside = (offset >= 0) & (offset < len(index))
+    at = index[np.where(inside, offset, 0)]
+    held = inside & (at >= 0)
     return held, np.where(held, at, 0)
 
 
