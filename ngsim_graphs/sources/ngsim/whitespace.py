@@ -53,7 +53,11 @@ def single_spaced(text: bytes, line_ends: int) -> tuple[bytes, bool]:
     np.logical_or(keep[:-1], raw[1:] > _SPACE, out=keep[:-1])  # the last space before a field
     kept = raw[keep]
     lines = kept.tobytes()
-    starts = lines.count(b"\n ") + lines.startswith(b" ")
+    # Lines that begin with a space: the first, and those after a line end (bytes.count of a
+    # two-byte pattern is three times as slow as finding the line ends).
+    ends = np.flatnonzero(kept == _NEWLINE)
+    after = ends[ends < len(kept) - 1] + 1
+    starts = int(np.count_nonzero(kept[after] == _SPACE)) + lines.startswith(b" ")
     if starts == line_ends + (not lines.endswith(b"\n")):
         return lines, True
     if starts == 0:
