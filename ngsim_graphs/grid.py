@@ -198,7 +198,8 @@ def _table_order(step: np.ndarray, track_a: np.ndarray, track_b: np.ndarray) -> 
     `step_pieces`), else one sort of a 63-bit key, or Polars' sort of the three."""
     if len(step) == 0:
         return np.empty(0, np.int64)
-    local = [column - column.min() for column in (track_b, track_a, step)]  # last key first
+    # lexsort's last key sorts first; int64: a span of int32 values may not fit int32
+    local = [column.astype(np.int64) - column.min() for column in (track_b, track_a, step)]
     if all(int(column.max()) < 2**16 for column in local):
         return np.lexsort([column.astype(np.uint16) for column in local])
     if max(int(step.max()), int(track_b.max())) < 2**_KEY_BITS and track_a.min() >= 0:
@@ -369,8 +370,9 @@ def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
 def _stable_order(rec: RecordingArrays, pair_step: np.ndarray, low: np.ndarray) -> np.ndarray:
     """The stable argsort of the pairs' pair_search_key (of `pair_step` and the y of row `low`),
     found as the stable argsort of their lower rows' ranks among the rows of their steps by
-    that key (equal keys, equal ranks): a radix sort where the ranks fit 16 bits (a range of
-    steps of `step_pieces`), not a comparison sort of floats."""
+    that key (equal keys, equal ranks): the rows' keys, fewer than the pairs, are sorted once,
+    and the pairs by a radix sort where the ranks fit 16 bits (a range of steps of
+    `step_pieces`), a stable sort of 64-bit ranks beyond."""
     if len(low) == 0:
         return np.empty(0, np.int64)
     first, last = int(pair_step.min()), int(pair_step.max())

@@ -102,9 +102,10 @@ def streamed_median(values: pl.LazyFrame) -> float | None:
     """Polars' median of the one column of `values` (nulls left out; None if all are), exactly,
     with no more than `budget.Budget.median_held_values` of them in memory at once where no value is NaN.
 
-    The middle values (one, or two of an even count) are found by counting the values in bins
-    of a histogram over the range they are in, keeping the bin they fall in, until it holds few
-    enough to sort; Polars then takes their median, as it would of all the values."""
+    No more values than that: Polars' median of them all, collected. More: the middle values
+    (one, or two of an even count) are found by counting the values in bins of a histogram over
+    the range they are in, keeping the bin they fall in, until it holds few enough to sort;
+    Polars then takes their median, as it would of all the values."""
     column = pl.col(values.collect_schema().names()[0])
     values = values.filter(column.is_not_null())
     count, nans = values.select(pl.len(), column.is_nan().sum()).collect(engine="streaming").row(0)
