@@ -7,6 +7,7 @@ import pytest
 from conftest import make_row
 
 from ngsim_graphs import schema as s
+from ngsim_graphs.sources import cleaning
 from ngsim_graphs.sources.cleaning import drop_duplicate_rows, split_at_gaps
 from ngsim_graphs.sources.ngsim import schema as ns
 from ngsim_graphs.sources.ngsim.cleaning import (
@@ -26,6 +27,19 @@ def test_incomplete_rows_are_those_with_an_empty_required_field() -> None:
     frame = raw([make_row(1, 0), make_row(1, 1, local_x=None), make_row(1, 2, v_acc=None)])
     kept = frame.filter(is_complete())
     assert kept[s.FRAME_ID].to_list() == [0, 2]  # an empty v_Acc is not required
+
+
+def test_rows_repeat_a_vehicle_and_frame_as_their_struct_says_over_all_of_int32() -> None:
+    """The one-Int64 key of (vehicle, frame) finds the same repeated rows as the pair does, at
+    int32's ends too (where vehicle * 2**32 + frame alone would leave int64)."""
+    ends = [-(2**31), -(2**31) + 1, -1, 0, 1, 2**31 - 1]
+    pairs = [(v, f) for v in ends for f in ends]
+    frame = pl.DataFrame(
+        {s.VEHICLE_ID: [v for v, _ in pairs] * 2, s.FRAME_ID: [f for _, f in pairs] * 2},
+        schema={s.VEHICLE_ID: pl.Int32, s.FRAME_ID: pl.Int32},
+    ).head(len(pairs) + 7)  # the first seven pairs twice, the rest once
+    repeated = frame.select(cleaning._row_key(frame).is_duplicated()).to_series()
+    assert repeated.to_list() == [i % len(pairs) < 7 for i in range(frame.height)]
 
 
 def test_exact_and_conflicting_duplicates() -> None:

@@ -85,7 +85,7 @@ def drop_duplicate_rows(
     frame) occurs more than once go through the full-row comparison.
     """
     keys = [s.VEHICLE_ID, s.FRAME_ID]
-    repeated = frame.select(pl.struct(keys).is_duplicated()).to_series()
+    repeated = frame.select(_row_key(frame).is_duplicated()).to_series()
     multi = frame.filter(repeated)
     values = [c for c in frame.columns if c not in s.PROVENANCE_SCHEMA]
     unique = multi.unique(subset=values, keep="first", maintain_order=True)
@@ -93,6 +93,15 @@ def drop_duplicate_rows(
     kept = ordered.unique(subset=keys, keep="first", maintain_order=True)
     cleaned = pl.concat([frame.filter(~repeated), kept]).sort(keys)
     return cleaned, multi.height - unique.height, unique.height - kept.height
+
+
+def _row_key(frame: pl.DataFrame) -> pl.Expr:
+    """(vehicle, frame) as one Int64, one to one, where both are Int32 (hashed three times as
+    fast as their struct); their struct otherwise."""
+    if frame.schema[s.VEHICLE_ID] != pl.Int32 or frame.schema[s.FRAME_ID] != pl.Int32:
+        return pl.struct(s.VEHICLE_ID, s.FRAME_ID)
+    vehicle, frame_id = pl.col(s.VEHICLE_ID).cast(pl.Int64), pl.col(s.FRAME_ID).cast(pl.Int64)
+    return vehicle * 2**32 + (frame_id + 2**31)  # frame_id + 2**31 in [0, 2**32)
 
 
 def split_at_gaps(frame: pl.DataFrame, breaks: pl.Series | None = None) -> tuple[pl.DataFrame, int]:
