@@ -289,7 +289,9 @@ def script_rows(
         {
             s.VEHICLE_ID: ordered.vehicle[kept][on_grid].astype(np.int32),
             s.STEP: (frame[on_grid] // frames).astype(np.int32),
-            s.SPLIT: np.array(SPLIT_NAMES)[split[on_grid]],
+            s.SPLIT: pl.Series(split[on_grid]).replace_strict(
+                dict(enumerate(SPLIT_NAMES)), return_dtype=pl.String
+            ),
         },
         schema={s.VEHICLE_ID: pl.Int32, s.STEP: pl.Int32, s.SPLIT: pl.String},
     ).unique(subset=[s.VEHICLE_ID, s.STEP], keep="first", maintain_order=True)
