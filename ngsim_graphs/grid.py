@@ -193,26 +193,16 @@ def proximity_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
 
 
 def _table_order(step: np.ndarray, track_a: np.ndarray, track_b: np.ndarray) -> np.ndarray:
-    """The order of pairs by (step, track_a, track_b), each pair once: three 16-bit radix
-    passes where each column spans fewer than 2**16 values (a range of steps of
-    `step_pieces`), else one sort of a 63-bit key, or Polars' sort of the three."""
+    """The order of pairs by (step, track_a, track_b): three 16-bit radix passes where each
+    column spans fewer than 2**16 values (a range of steps of `step_pieces`), 64-bit sorts
+    otherwise."""
     if len(step) == 0:
         return np.empty(0, np.int64)
     # lexsort's last key sorts first; int64: a span of int32 values may not fit int32
     local = [column.astype(np.int64) - column.min() for column in (track_b, track_a, step)]
     if all(int(column.max()) < 2**16 for column in local):
         return np.lexsort([column.astype(np.uint16) for column in local])
-    if max(int(step.max()), int(track_b.max())) < 2**_KEY_BITS and track_a.min() >= 0:
-        key = step.astype(np.uint64)
-        for column in (track_a, track_b):
-            key <<= np.uint64(_KEY_BITS)
-            key |= column.astype(np.uint64)
-        return np.argsort(key)  # the keys are unique: any sort gives the one order
-    frame = pl.DataFrame({"step": step, "a": track_a, "b": track_b})
-    return frame.with_row_index().sort("step", "a", "b")["index"].to_numpy()
-
-
-_KEY_BITS = 21  # steps and track ids below 2**21 fold into one 63-bit sort key
+    return np.lexsort(local)
 
 
 def _csr_ptr(keys: np.ndarray, n_keys: int) -> np.ndarray:

@@ -259,9 +259,8 @@ def test_pairs_are_ordered_as_a_stable_sort_of_their_float_keys(steps: int) -> N
 
 @pytest.mark.parametrize("track_span", [1_000, 100_000, 2**22, 2**32 - 100])
 def test_the_pairs_table_order_is_by_step_and_tracks_in_every_range(track_span: int) -> None:
-    """Three 16-bit radix passes (tracks of a range of steps), a 63-bit key (wider track ids),
-    Polars' sort (ids beyond 21 bits, or below 0 over all of int32's range): the one order of
-    (step, track_a, track_b)."""
+    """Three 16-bit radix passes (tracks of a range of steps) or 64-bit sorts (wider spans of
+    track ids, up to all of int32's range): the one order of (step, track_a, track_b)."""
     rng = np.random.default_rng(track_span)
     step = rng.integers(10, 60, 5_000)
     track_a = rng.integers(0, track_span, 5_000) - (2**31 if track_span > 2**31 else 0)
