@@ -95,6 +95,13 @@ class Near:
         tracks = self.rec.node_track[first : first + len(steps)]
         return self.rec.row_at(tracks, steps + 1)
 
+    @cached_property
+    def full_futures(self) -> np.ndarray:
+        """(len(steps),) of `span`: whether each row's track has its K_F steps after it."""
+        first, steps = self.span
+        track_first, count = self.rec.track_steps(self.rec.node_track[first : first + len(steps)])
+        return track_first + count - 1 >= steps + self.config.future_steps
+
 
 @dataclass(frozen=True)
 class RowEdges:

@@ -112,14 +112,10 @@ def _chunk(
     """The Neighbourhoods fields (but rows) of one chunk of ego rows."""
     near = _near_rows(rec, by_y, egos, row_step, config)
     nodes = np.bincount(near.owner, minlength=len(egos))  # every ego is near itself: no 0
-    # Whether a row's track has its K_F steps after it: found per row of the egos' steps.
-    span_first, span_steps = near.span
-    tracks = rec.node_track[span_first : span_first + len(span_steps)]
-    first, count = rec.track_steps(tracks)
-    full = (first + count - 1 >= span_steps + config.future_steps)[near.row - span_first]
+    span_first = near.span[0]
+    full = near.full_futures[near.row - span_first]
     full_future = np.bincount(near.owner[full & near.actor], minlength=len(egos))
-    ego_first, ego_count = rec.track_steps(rec.node_track[egos])
-    ego_full = ego_first + ego_count - 1 >= row_step + config.future_steps
+    ego_full = near.full_futures[egos - span_first]
 
     names = ranged()
     low = np.full((len(egos), len(names)), np.inf)
