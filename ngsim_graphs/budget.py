@@ -20,7 +20,8 @@ class Budget:
 
     # Reading: a file's text is parsed this many bytes at a time, cut at line ends (Polars' CSV
     # reader then holds about 0.2 GB whatever the file's size, 0.3 GB and more for a whole
-    # 300 MB file), and its rows staged this many at a time for each recording it holds, by part.
+    # 300 MB file; a chunk per thread of the process), and its rows staged this many at a time
+    # for each recording it holds, by part.
     text_chunk_bytes: int = 16 * 1024 * 1024
     batch_rows: int = 65_536
     # A recording's vehicles are staged and cleaned in parts: those whose Vehicle_ID // this is

@@ -116,6 +116,28 @@ def test_chunks_that_start_with_blank_lines_keep_line_numbers_true(
         assert files.read_raw_file(path, US, scratch).frame.collect().equals(whole)
 
 
+def test_chunks_parsed_on_threads_give_one_thread_s_rows_and_first_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, reading: str
+) -> None:
+    """Chunks (a line each) parsed on four threads: the rows of one thread, and a quote left
+    open in an early chunk is the error, not the line too long that a later chunk, read while
+    the early one was parsed, holds."""
+    if reading == "in memory":
+        pytest.skip("chunks only")
+    path = write_portal(tmp_path / "p.csv", straight_track(1, range(30)), quirks=True)
+    by_one = {}
+    for threads in (1, 4):
+        monkeypatch.setattr(files.pl, "thread_pool_size", lambda n=threads: n)
+        by_one[threads] = read_raw_file(path, US).frame.collect()
+        assert by_one[threads].height == 30
+    assert by_one[4].equals(by_one[1])
+    lines = path.read_bytes().split(b"\r\n")
+    cut = lines[3][: lines[3].index(b'"') + 3]  # line 4: ...,"1,1
+    path.write_bytes(b"\r\n".join([*lines[:3], cut, lines[4], b"0" * 5_000, *lines[5:]]))
+    with pytest.raises(NgsimInputError, match=r"p\.csv, line 4: a quoted field is not closed"):
+        read_raw_file(path, US)
+
+
 def test_empty_fields_become_null(tmp_path: Path) -> None:
     rows = [make_row(1, 0), make_row(1, 1, v_acc=None, local_x=None)]
     frame = read_raw_file(write_portal(tmp_path / "p.csv", rows), US).frame.collect()

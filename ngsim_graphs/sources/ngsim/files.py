@@ -9,7 +9,9 @@ and column (`faults`). Units stay NGSIM's (feet, ms).
 from __future__ import annotations
 
 import io
+from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -205,19 +207,44 @@ def _parsed(
     """The parsed rows (`parse` of the whole file or of a chunk of it): collected (scratch
     None), or parsed a chunk at a time (`budget.Budget.text_chunk_bytes`) into `scratch` and
     scanned from there: a file's text and rows are then never all in memory at once. `fast`
-    parses a chunk as `parse` does where it can (None where it cannot)."""
+    parses a chunk as `parse` does where it can (None where it cannot).
+
+    numpy and Polars let go of the GIL while they parse: the chunks are parsed on as many
+    threads as Polars may use in this process (a build worker's share of the cores), that many
+    chunks at most held at once, each written to its own file. An error is raised as a single
+    thread would meet it: a chunk's before a later chunk's."""
     if scratch is None:
         check_line_lengths(path)  # the reader would hold a line whole, of any length
         return parse(None).collect(engine="streaming").lazy()
     scratch.mkdir(parents=True, exist_ok=True)
-    parts = []  # one at least: `sniff_format` let no empty file through
-    for chunk in text_chunks(path, budget.BUDGET.text_chunk_bytes):
-        parts.append(scratch / f"{PARSED_STEM}-{len(parts):05d}.{PARSED_SUFFIX}")
+
+    def write(numbered: tuple[int, TextChunk]) -> Path:
+        index, chunk = numbered
+        part = scratch / f"{PARSED_STEM}-{index:05d}.{PARSED_SUFFIX}"
         rows = None if fast is None else fast(chunk)
         if rows is None:
-            parse(chunk).sink_ipc(parts[-1], compression="uncompressed")
+            parse(chunk).sink_ipc(part, compression="uncompressed")
         else:
-            rows.write_ipc(parts[-1], compression="uncompressed")
+            rows.write_ipc(part, compression="uncompressed")
+        return part
+
+    threads = max(1, pl.thread_pool_size())
+    parts: list[Path] = []  # one at least: `sniff_format` let no empty file through
+    with ThreadPoolExecutor(threads) as pool:
+        parsing: deque[Future[Path]] = deque()  # in the chunks' order
+        try:
+            for numbered in enumerate(text_chunks(path, budget.BUDGET.text_chunk_bytes)):
+                parsing.append(pool.submit(write, numbered))
+                if len(parsing) == threads:
+                    parts.append(parsing[0].result())
+                    parsing.popleft()
+        except Exception:
+            # A chunk failed (the first of `parsing`), or reading one (a line too long) after
+            # those of `parsing`: the first error in the chunks' order is raised.
+            for future in parsing:
+                future.result()
+            raise
+        parts.extend(future.result() for future in parsing)
     return pl.scan_ipc(parts)
 
 
