@@ -4,7 +4,7 @@ Builds the given input files in this process with one job and one Polars thread,
 the main thread's stack every 5 ms: for each function of ngsim_graphs, the share of the samples
 it was on the stack (its own time and its callees', Polars' and numpy's native work included,
 which cProfile would charge to `collect` or a thread's wait), and the lines where the samples
-were. The neighbourhoods' thread pool runs its chunks in this thread, so that they are seen.
+were. With one thread, a task's pieces (`threads.in_order`) run in this thread: they are seen.
 Synthetic data: these are not NGSIM results.
 
     python bench/profile_build.py bench/out/raw-txt-r6-m15/us-101/trajectories-0820am-0835am.txt
@@ -25,28 +25,11 @@ import threading  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from ngsim_graphs import neighbourhoods  # noqa: E402
 from ngsim_graphs.config import BuildConfig  # noqa: E402
 from ngsim_graphs.pipeline import run_build  # noqa: E402
 from ngsim_graphs.schema import Protocol  # noqa: E402
 
 PACKAGE = "ngsim_graphs/"
-
-
-class InThisThread:
-    """A stand-in for the neighbourhoods' ThreadPoolExecutor: its map runs here."""
-
-    def __init__(self, _workers: int) -> None:
-        pass
-
-    def __enter__(self) -> InThisThread:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        pass
-
-    def map(self, function, items):  # noqa: ANN001, ANN201
-        return map(function, items)
 
 
 class StackSampler:
@@ -95,7 +78,6 @@ def main() -> None:
     parser.add_argument("--protocol", choices=[p.value for p in Protocol], default="aigem")
     parser.add_argument("--top", type=int, default=30, help="rows of each table")
     args = parser.parse_args()
-    neighbourhoods.ThreadPoolExecutor = InThisThread
     config = BuildConfig(protocol=Protocol(args.protocol))
     stages: list[tuple[str, float]] = []
 

@@ -17,18 +17,17 @@ rounds monotonically: min(x_i - o) == min(x_i) - o in float64.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-import polars as pl
 
 from ngsim_graphs import budget, edges
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import NonFiniteStateError
 from ngsim_graphs.grid import STATE_COLUMNS, RecordingArrays, pair_search_key, y_window
 from ngsim_graphs.schema import Protocol
+from ngsim_graphs.threads import in_order
 
 
 @dataclass(frozen=True)
@@ -203,12 +202,9 @@ def neighbourhoods_of_rows(
         for name in ("nodes", "full_future", "ego_full_future", "low", "high"):
             getattr(hood, name)[part] = values[name]
 
-    # numpy lets go of the GIL in its loops over large arrays: chunks run in parallel on as many
-    # threads as Polars may use in this process (a build worker's share of the cores).
     size = budget.BUDGET.ego_rows_per_chunk
-    parts = [slice(i, i + size) for i in range(0, n, size)]
-    with ThreadPoolExecutor(max(1, min(pl.thread_pool_size(), len(parts)))) as threads:
-        list(threads.map(fill, parts))
+    for _ in in_order(fill, [slice(i, i + size) for i in range(0, n, size)]):
+        pass  # the chunks on the process's threads, each filling its own rows of `hood`
     return hood
 
 

@@ -230,12 +230,13 @@ def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The grid rows made 3,000 at a time, and the pairs found, written and used 2,000 grid
-    rows at a time (about 20 pieces a recording here; the default is one): every array, table
-    and count of the build is the same, the proximity tables hold the same rows in more row
-    groups."""
+    rows at a time (about 20 pieces a recording here; the default is one), three at once on
+    threads: every array, table and count of the build is the same, the proximity tables hold
+    the same rows in more row groups."""
     raw, first = synthetic_build(tmp_path_factory)
     set_budget(monkeypatch, piece_rows=2_000)
     set_budget(monkeypatch, grid_rows=3_000)
+    monkeypatch.setattr(pl, "thread_pool_size", lambda: 3)  # threads.in_order's
     run_build([raw], tmp_path / "pieces", BuildConfig(), jobs=1)
     before, after = build_files(first), build_files(tmp_path / "pieces")
     proximity = [name for name in before if name.startswith(layout.PROXIMITY_DIR)]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import polars as pl
 import pytest
 from conftest import make_row, set_budget, straight_track, write_period_csv, write_portal, write_txt
 
@@ -127,7 +128,7 @@ def test_chunks_parsed_on_threads_give_one_thread_s_rows_and_first_error(
     path = write_portal(tmp_path / "p.csv", straight_track(1, range(30)), quirks=True)
     by_one = {}
     for threads in (1, 4):
-        monkeypatch.setattr(files.pl, "thread_pool_size", lambda n=threads: n)
+        monkeypatch.setattr(pl, "thread_pool_size", lambda n=threads: n)  # threads.in_order
         by_one[threads] = read_raw_file(path, US).frame.collect()
         assert by_one[threads].height == 30
     assert by_one[4].equals(by_one[1])

@@ -67,6 +67,7 @@ from ngsim_graphs.sources.contract import (
     Source,
 )
 from ngsim_graphs.splits import VehicleIds
+from ngsim_graphs.threads import in_order
 from ngsim_graphs.windows import SampleProtocol
 
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
@@ -97,10 +98,12 @@ def recording_samples(
     """Proximity edges, and the counts and the scaler's ranges of the split ego `windows`
     (`SampleProtocol.recording_windows`), of one recording's frame arrays (`node_arrays`).
 
-    A range of steps at a time (`budget.Budget.piece_rows`): its pairs go to `write_pairs`, the neighbourhoods
-    of its ego rows are found with them, and what those add to each sample that has history rows
-    in the range is summed up; then the range's pairs and neighbourhoods are let go. Given
-    `row_arrays`, the ROW_ARRAYS of `arrays` are not used: each range maps them anew.
+    A range of steps at a time (`budget.Budget.piece_rows`; as many at once as the process
+    has threads, `threads.in_order`): the neighbourhoods of its ego rows are found with its
+    pairs, and what those add to each sample that has history rows in the range is summed up;
+    its pairs go to `write_pairs` in the ranges' order; then the range's pairs and
+    neighbourhoods are let go. Given `row_arrays`, the ROW_ARRAYS of `arrays` are not used:
+    each range maps them anew.
     """
     egos, starts = windows[s.EGO_TRACK_ID].to_numpy(), windows[s.START_STEP].to_numpy()
     history = history_rows(arrays, egos, starts, config)
@@ -111,21 +114,31 @@ def recording_samples(
     counts = np.zeros((len(history), len(columns)), np.int64)
     train = MinMaxScaler.empty()
     pair_ptr, n_pairs = np.zeros_like(arrays.pair_ptr), 0
-    # A recording without grid rows is one empty piece: its pair files are still written.
-    for first, end in step_pieces(arrays.step_ptr, budget.BUDGET.piece_rows) or [(0, 0)]:
+
+    def piece_of(
+        steps: tuple[int, int],
+    ) -> tuple[pl.DataFrame, RecordingArrays, np.ndarray, np.ndarray, MinMaxScaler]:
+        first, end = steps
         rec = arrays if row_arrays is None else replace(arrays, **row_arrays())
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
         pairs = proximity_pairs(nodes_of_steps(rec, first, end), config.d_min_m)
         piece = with_pairs(rec, pairs)
-        write_pairs(pairs, piece)
-        pair_ptr += piece.pair_ptr
-        n_pairs += pairs.height
         mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
         hood = neighbourhoods_of_rows(piece, mine, rows_by_y(rec, first, end), config)
         touched = np.flatnonzero((last_row >= lo) & (first_row < hi))
-        counts[touched] += sample_counts(hood, history[touched], config)
-        train = train.joined(train_ranges(piece, hood, history[touched], is_train[touched]))
-        del rec, pairs, piece, hood  # before the next piece is made
+        added = sample_counts(hood, history[touched], config)
+        ranges = train_ranges(piece, hood, history[touched], is_train[touched])
+        return pairs, piece, touched, added, ranges
+
+    # A recording without grid rows is one empty piece: its pair files are still written.
+    pieces = step_pieces(arrays.step_ptr, budget.BUDGET.piece_rows) or [(0, 0)]
+    for pairs, piece, touched, added, ranges in in_order(piece_of, pieces):
+        write_pairs(pairs, piece)  # in the pieces' order
+        pair_ptr += piece.pair_ptr
+        n_pairs += pairs.height
+        counts[touched] += added
+        train = train.joined(ranges)
+        del pairs, piece  # before the next piece is taken
     windows = windows.with_columns(
         pl.Series(name, counts[:, i], dtype=pl.Int32) for i, name in enumerate(columns)
     )

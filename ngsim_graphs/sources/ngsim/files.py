@@ -9,9 +9,7 @@ and column (`faults`). Units stay NGSIM's (feet, ms).
 from __future__ import annotations
 
 import io
-from collections import deque
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,6 +48,7 @@ from ngsim_graphs.sources.text import (
     scan_lines,
     without_thousands,
 )
+from ngsim_graphs.threads import in_order
 
 # Where a build gives it a scratch folder, the parsed rows of a file are written there, a chunk
 # of its text a file, and read back as they are needed, never held whole.
@@ -209,10 +208,8 @@ def _parsed(
     scanned from there: a file's text and rows are then never all in memory at once. `fast`
     parses a chunk as `parse` does where it can (None where it cannot).
 
-    numpy and Polars let go of the GIL while they parse: the chunks are parsed on as many
-    threads as Polars may use in this process (a build worker's share of the cores), that many
-    chunks at most held at once, each written to its own file. An error is raised as a single
-    thread would meet it: a chunk's before a later chunk's."""
+    The chunks are parsed on the process's threads (`threads.in_order`), each into its own
+    file; an error is the one a single thread would meet first."""
     if scratch is None:
         check_line_lengths(path)  # the reader would hold a line whole, of any length
         return parse(None).collect(engine="streaming").lazy()
@@ -228,23 +225,8 @@ def _parsed(
             rows.write_ipc(part, compression="uncompressed")
         return part
 
-    threads = max(1, pl.thread_pool_size())
-    parts: list[Path] = []  # one at least: `sniff_format` let no empty file through
-    with ThreadPoolExecutor(threads) as pool:
-        parsing: deque[Future[Path]] = deque()  # in the chunks' order
-        try:
-            for numbered in enumerate(text_chunks(path, budget.BUDGET.text_chunk_bytes)):
-                parsing.append(pool.submit(write, numbered))
-                if len(parsing) == threads:
-                    parts.append(parsing[0].result())
-                    parsing.popleft()
-        except Exception:
-            # A chunk failed (the first of `parsing`), or reading one (a line too long) after
-            # those of `parsing`: the first error in the chunks' order is raised.
-            for future in parsing:
-                future.result()
-            raise
-        parts.extend(future.result() for future in parsing)
+    chunks = enumerate(text_chunks(path, budget.BUDGET.text_chunk_bytes))
+    parts = list(in_order(write, chunks))  # one at least: `sniff_format` let no empty file through
     return pl.scan_ipc(parts)
 
 
