@@ -20,8 +20,8 @@ class Budget:
 
     # Reading: a file's text is parsed this many bytes at a time, cut at line ends (Polars' CSV
     # reader then holds about 0.2 GB whatever the file's size, 0.3 GB and more for a whole
-    # 300 MB file; a chunk per thread of the process), and its rows staged this many at a time
-    # for each recording it holds, by part.
+    # 300 MB file; a chunk per piece held at once, `pieces_at_once`), and its rows staged this
+    # many at a time for each recording it holds, by part.
     text_chunk_bytes: int = 16 * 1024 * 1024
     batch_rows: int = 65_536
     # A recording's vehicles are staged and cleaned in parts: those whose Vehicle_ID // this is
@@ -35,13 +35,18 @@ class Budget:
     median_bins: int = 1_024
     # Building: the grid rows are made this many at a time (each range reads the tracks table's
     # row groups of its times), and the proximity pairs found, written and used a range of steps
-    # of about this many grid rows at a time (ten pairs a row in dense traffic).
+    # of about this many grid rows at a time (ten pairs a row in dense traffic; `pieces_at_once`
+    # ranges at once).
     grid_rows: int = 262_144
     piece_rows: int = 32_768
     # The neighbourhoods: ego rows looked at together (their pair candidates stay ~25 MB), and
     # samples summed up together (cs-lstm: a million in a recording).
     ego_rows_per_chunk: int = 1_024
     samples_per_chunk: int = 65_536
+    # A task's pieces (text chunks, ranges of steps, or a range's chunks of ego rows) held at
+    # once, one a thread (`threads.in_order`; a piece's own pieces then run on its thread): at
+    # most this many, however many cores a process may use.
+    pieces_at_once: int = 4
     # CS-LSTM's grid: rows whose neighbours are found at once (about 200 MB of pairs).
     cslstm_grid_rows: int = 200_000
 

@@ -1,50 +1,80 @@
 """A task's pieces on its process's threads, in order.
 
 numpy and Polars let go of the GIL in their loops over large arrays, so the independent pieces
-of one task (a file's text chunks, a recording's ranges of steps) run at once on as many threads
-as Polars may use in the process: a build worker's share of the cores, all of them in a build
-of one file. Their results come back in the pieces' order, as one thread gives them, and only
-as many pieces as there are threads are held at once.
+of one task (a file's text chunks, a recording's ranges of steps, a range's chunks of ego rows)
+run at once on as many threads as Polars may use in the process (a build worker's share of the
+cores, all of them in a build of one file), at most `budget.Budget.pieces_at_once`. Their
+results come back in the pieces' order, as one thread gives them, and only as many pieces as
+there are threads are held at once.
 """
 
 from __future__ import annotations
 
+import threading
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable, Iterable, Iterator, Sized
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import TypeVar
 
 import polars as pl
 
+from ngsim_graphs import budget
+
 Item = TypeVar("Item")
 Result = TypeVar("Result")
+
+# How often a wait for a piece looks up, to run the signal handlers: a Ctrl-C taken by another
+# thread does not wake a wait without a timeout (as `engine.workers` waits for its workers).
+_SIGNAL_CHECK_S = 0.1
+_piece = threading.local()  # `inside` in the threads of an in_order: one within runs inline
 
 
 def in_order(
     function: Callable[[Item], Result], items: Iterable[Item], threads: int | None = None
 ) -> Iterator[Result]:
-    """function(item) for each of `items`, on `threads` threads (Polars' own number by
-    default), yielded in the items' order; no more than `threads` items are taken ahead of the
-    result last yielded. With one thread, each runs here, one after the other.
+    """function(item) for each of `items`, on `threads` threads (by default Polars' number,
+    at most `budget.Budget.pieces_at_once`), yielded in the items' order; no more than
+    `threads` items are taken ahead of the result last yielded. With one thread, one item, or
+    within a piece that an in_order runs on a thread already (its threads are taken), each runs
+    here, one after the other. Iterate it to its end (as `list` does): its threads end there.
 
-    The error raised is the first in the items' order, as one thread would meet it: a
-    function's where its result would come, and one of `items` itself (reading the next, say)
-    after those of the items taken before it."""
-    threads = max(1, pl.thread_pool_size() if threads is None else threads)
-    if threads == 1:
+    Errors come as one thread would meet them: the results before an error are yielded, and
+    the error raised is the first in the items' order, a function's where its result would
+    come, one of `items` itself (reading the next, say) where that item would be taken."""
+    if threads is None:
+        threads = min(pl.thread_pool_size(), budget.BUDGET.pieces_at_once)
+    if isinstance(items, Sized):
+        threads = min(threads, len(items))
+    if threads <= 1 or getattr(_piece, "inside", False):
         yield from map(function, items)
         return
+
+    def piece(item: Item) -> Result:
+        _piece.inside = True
+        return function(item)
+
     with ThreadPoolExecutor(threads) as pool:
         running: deque[Future[Result]] = deque()
-        try:
-            for item in items:
-                running.append(pool.submit(function, item))
-                if len(running) == threads:
-                    yield running[0].result()
-                    running.popleft()
-        except Exception:
-            for future in running:  # the one that failed first, where it is one of them
-                future.result()
-            raise
+        taken, failed = iter(items), None
+        while True:
+            try:
+                item = next(taken)
+            except StopIteration:
+                break
+            except Exception as err:  # after the results of the items before it
+                failed = err
+                break
+            running.append(pool.submit(piece, item))
+            if len(running) == threads:
+                yield _result(running.popleft())
         while running:
-            yield running.popleft().result()
+            yield _result(running.popleft())
+    if failed is not None:
+        raise failed
+
+
+def _result(future: Future[Result]) -> Result:
+    """The future's result (or its error), waited for with a look up every _SIGNAL_CHECK_S."""
+    while not future.done():
+        wait([future], _SIGNAL_CHECK_S)
+    return future.result()
