@@ -43,8 +43,8 @@ class Budget:
     # samples summed up together (cs-lstm: a million in a recording).
     ego_rows_per_chunk: int = 1_024
     samples_per_chunk: int = 65_536
-    # A task's pieces (text chunks, ranges of steps, or a range's chunks of ego rows) held at
-    # once, one a thread (`threads.in_order`; a piece's own pieces then run on its thread): at
+    # A task's pieces (text chunks, groups of vehicles, ranges of steps, or a range's chunks of
+    # ego rows) held at once, one a thread (`threads.in_order`; a piece's own pieces then run on its thread): at
     # most this many, however many cores a process may use.
     pieces_at_once: int = 4
     # CS-LSTM's grid: rows whose neighbours are found at once (about 200 MB of pairs).

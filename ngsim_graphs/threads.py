@@ -1,11 +1,11 @@
 """A task's pieces on its process's threads, in order.
 
 numpy and Polars let go of the GIL in their loops over large arrays, so the independent pieces
-of one task (a file's text chunks, a recording's ranges of steps, a range's chunks of ego rows)
-run at once on as many threads as Polars may use in the process (a build worker's share of the
-cores, all of them in a build of one file), at most `budget.Budget.pieces_at_once`. Their
-results come back in the pieces' order, as one thread gives them, and only as many pieces as
-there are threads are held at once.
+of one task (a file's text chunks, a part's groups of vehicles, a recording's ranges of steps, a
+range's chunks of ego rows) run at once on as many threads as Polars may use in the process (a
+build worker's share of the cores, all of them in a build of one file), at most
+`budget.Budget.pieces_at_once`. Their results come back in the pieces' order, as one thread
+gives them, and only as many pieces as there are threads are held at once.
 """
 
 from __future__ import annotations

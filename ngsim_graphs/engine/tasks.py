@@ -65,6 +65,7 @@ from ngsim_graphs.sources.contract import (
     RecordingKey,
     RecordingReport,
     Source,
+    TracksPart,
 )
 from ngsim_graphs.splits import VehicleIds
 from ngsim_graphs.threads import in_order
@@ -229,29 +230,47 @@ def clean_recording(
     strict: bool,
 ) -> RecordingReport:
     """One recording's tracks, numbered from 0, staged a part of its vehicles at a time, and
-    cleaned a group of whole vehicles of a part at a time (`vehicle_groups`, `budget.Budget.clean_rows`; a
-    worker's task); its report, after the recording's checks.
+    cleaned a group of whole vehicles of a part at a time (`vehicle_groups`,
+    `budget.Budget.clean_rows`; as many groups at once as the process has threads,
+    `threads.in_order`; a worker's task); its report, after the recording's checks.
 
-    The build numbers tracks over all recordings; a recording's first track id is known once
+    A group's tracks are numbered from 0 as they are cleaned, then on from the groups before it
+    in order (`Source.vehicle_tracks` numbers a group's tracks alike from any first id). The
+    build numbers tracks over all recordings; a recording's first track id is known once
     every recording before it is cleaned, so the numbers are shifted in `build_recording`."""
+    groups = [
+        (part, group, vehicles)
+        for part in sorted(staged)
+        for group, vehicles in enumerate(
+            vehicle_groups(staging.scan_rows(staged[part]), budget.BUDGET.clean_rows)
+        )
+    ]
+
+    def clean(item: tuple[int, int, pl.Expr]) -> tuple[int, TracksPart]:
+        part, group, vehicles = item
+        rows = staging.scan_rows(staged[part]).filter(vehicles).collect()
+        cleaned = source.vehicle_tracks(rows, key, config, source.limits, 0)
+        evidence = cleaned.evidence
+        if evidence.collect_schema().len():  # staged: the checks stream it
+            path = staging.staged_evidence_path(root, *key, part, group)
+            lazy = isinstance(evidence, pl.LazyFrame)
+            staging.write_staged(evidence.collect() if lazy else evidence, path)
+            evidence = pl.scan_parquet(path)
+        return part, replace(cleaned, evidence=evidence)
+
     parts, first_track_id = [], 0
-    for part in sorted(staged):
-        raw = staging.scan_rows(staged[part])
-        target = staging.staged_tracks_path(root, *key, part)
-        with staging.rows_appender(target, s.TRACKS_SCHEMA) as tracks:
-            for group, vehicles in enumerate(vehicle_groups(raw, budget.BUDGET.clean_rows)):
-                rows = raw.filter(vehicles).collect()
-                cleaned = source.vehicle_tracks(rows, key, config, source.limits, first_track_id)
-                tracks.append(cleaned.tracks)
-                first_track_id += cleaned.report.tracks
-                evidence = cleaned.evidence
-                if evidence.collect_schema().len():  # staged: the checks stream it
-                    path = staging.staged_evidence_path(root, *key, part, group)
-                    lazy = isinstance(evidence, pl.LazyFrame)
-                    staging.write_staged(evidence.collect() if lazy else evidence, path)
-                    evidence = pl.scan_parquet(path)
-                parts.append(replace(cleaned, tracks=cleaned.tracks.clear(), evidence=evidence))
-                del rows, cleaned  # before the next group is read
+    with contextlib.ExitStack() as files_open:
+        tracks_of: dict[int, storage.TableAppender] = {}  # every part has a group at least
+        for part, cleaned in in_order(clean, groups):
+            if part not in tracks_of:
+                target = staging.staged_tracks_path(root, *key, part)
+                appender = staging.rows_appender(target, s.TRACKS_SCHEMA)
+                tracks_of[part] = files_open.enter_context(appender)
+            track_id = (pl.col(s.TRACK_ID) + first_track_id).cast(s.TRACKS_SCHEMA[s.TRACK_ID])
+            tracks_of[part].append(cleaned.tracks.with_columns(track_id))
+            first_track_id += cleaned.report.tracks
+            parts.append(replace(cleaned, tracks=cleaned.tracks.clear()))
+            del cleaned  # before the next group is cleaned
     return source.recording_report(parts, key, config, source.limits, files, strict)
 
 
