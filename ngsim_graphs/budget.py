@@ -44,8 +44,8 @@ class Budget:
     ego_rows_per_chunk: int = 1_024
     samples_per_chunk: int = 65_536
     # A task's pieces (text chunks, groups of vehicles, ranges of steps, or a range's chunks of
-    # ego rows) held at once, one a thread (`threads.in_order`; a piece's own pieces then run on its thread): at
-    # most this many, however many cores a process may use.
+    # ego rows) held at once, one a thread (`threads.in_order`; a piece's own pieces then run
+    # on its thread): at most this many, however many cores a process may use.
     pieces_at_once: int = 4
     # CS-LSTM's grid: rows whose neighbours are found at once (about 200 MB of pairs).
     cslstm_grid_rows: int = 200_000

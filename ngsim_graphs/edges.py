@@ -85,8 +85,7 @@ class Near:
         if len(self.egos) == 0:
             return 0, np.zeros(0, np.int64)
         low, high = int(self.step.min()), int(self.step.max())
-        sizes = np.diff(self.rec.step_ptr[low : high + 2])
-        return int(self.rec.step_ptr[low]), np.repeat(np.arange(low, high + 1), sizes)
+        return int(self.rec.step_ptr[low]), self.rec.row_steps(low, high + 1)
 
     @cached_property
     def next_rows(self) -> np.ndarray:

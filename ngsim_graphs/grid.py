@@ -53,6 +53,10 @@ class RecordingArrays:
         local = track_ids - self.first_track_id
         return self.track_first_step[local], np.diff(self.track_ptr)[local]
 
+    def row_steps(self, first: int, end: int) -> np.ndarray:
+        """(step_ptr[end] - step_ptr[first],) int64: the step of each row of steps [first, end)."""
+        return np.repeat(np.arange(first, end), np.diff(self.step_ptr[first : end + 1]))
+
     def row_at(self, track_ids: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """Row of each (track, step); -1 where the track has no row at that step."""
         first, count = self.track_steps(track_ids)
@@ -315,7 +319,7 @@ def nodes_of_steps(rec: RecordingArrays, first: int, end: int) -> pl.DataFrame:
     """The grid nodes of steps [first, end) as far as `proximity_pairs` needs them: step, track
     id, x and y, as GRID_NODE_SCHEMA types them (`grid_nodes`' rows, from the arrays)."""
     lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[end])
-    step = np.repeat(np.arange(first, end, dtype=np.int32), np.diff(rec.step_ptr[first : end + 1]))
+    step = rec.row_steps(first, end).astype(np.int32)
     columns = {
         s.STEP: step,
         s.TRACK_ID: rec.node_track[lo:hi],
@@ -367,8 +371,7 @@ def _stable_order(rec: RecordingArrays, pair_step: np.ndarray, low: np.ndarray) 
         return np.empty(0, np.int64)
     first, last = int(pair_step.min()), int(pair_step.max())
     lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[last + 1])
-    row_step = np.repeat(np.arange(first, last + 1), np.diff(rec.step_ptr[first : last + 2]))
-    row_key = pair_search_key(row_step, rec.node_state[lo:hi, 1])
+    row_key = pair_search_key(rec.row_steps(first, last + 1), rec.node_state[lo:hi, 1])
     by_row_key = np.argsort(row_key, kind="stable")
     sorted_key = row_key[by_row_key]
     dense = np.concatenate([[0], np.cumsum(sorted_key[1:] != sorted_key[:-1])])

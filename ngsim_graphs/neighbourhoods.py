@@ -161,7 +161,7 @@ def rows_by_y(
     position = rec.node_state[lo:hi, :2]
     if not np.isfinite(position).all():  # such a row would fall out of every search
         raise NonFiniteStateError("positions that are not finite")
-    steps = np.repeat(np.arange(first, end), np.diff(rec.step_ptr[first : end + 1]))
+    steps = rec.row_steps(first, end)
     keys = pair_search_key(steps, position[:, 1])
     order = np.argsort(keys, kind="stable")
     return lo + order, keys[order]

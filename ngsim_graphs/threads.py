@@ -23,9 +23,10 @@ from ngsim_graphs import budget
 Item = TypeVar("Item")
 Result = TypeVar("Result")
 
-# How often a wait for a piece looks up, to run the signal handlers: a Ctrl-C taken by another
-# thread does not wake a wait without a timeout (as `engine.workers` waits for its workers).
-_SIGNAL_CHECK_S = 0.1
+# How often a wait (for a piece, or `engine.workers` for its workers) looks up to run the
+# signal handlers: a Ctrl-C taken by another thread (Polars' start some) does not wake a wait
+# without a timeout, and was handled only once a task ended, seconds later.
+SIGNAL_CHECK_S = 0.1
 _piece = threading.local()  # `inside` in the threads of an in_order: one within runs inline
 
 
@@ -74,7 +75,7 @@ def in_order(
 
 
 def _result(future: Future[Result]) -> Result:
-    """The future's result (or its error), waited for with a look up every _SIGNAL_CHECK_S."""
+    """The future's result (or its error), waited for with a look up every SIGNAL_CHECK_S."""
     while not future.done():
-        wait([future], _SIGNAL_CHECK_S)
+        wait([future], SIGNAL_CHECK_S)
     return future.result()

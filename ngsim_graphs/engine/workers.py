@@ -34,6 +34,7 @@ from typing import Any, TypeVar
 from ngsim_graphs.budget import available_cores
 from ngsim_graphs.errors import NgsimError
 from ngsim_graphs.interrupts import children_deaf_to_ctrl_c
+from ngsim_graphs.threads import SIGNAL_CHECK_S
 
 Result = TypeVar("Result")
 POLARS_THREADS = "POLARS_MAX_THREADS"
@@ -46,10 +47,6 @@ MALLOC_ARENAS = "MALLOC_ARENA_MAX"
 # twice the page faults, a third slower, and no less memory at its peak than with these.
 MALLOC_THRESHOLDS = {"MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "33554432"}
 _M_ARENA_MAX = -8  # glibc's mallopt parameter of the same
-# How often this process looks up from waiting for its workers, to run its signal handlers: a
-# Ctrl-C taken by another of its threads (Polars' start some) does not wake a wait without a
-# timeout, and was handled only once a task ended, seconds later.
-_SIGNAL_CHECK_S = 0.1
 STOP_GRACE_S = 5.0  # after SIGTERM, before a worker that is still there is killed
 
 
@@ -247,7 +244,7 @@ class Workers:
         remaining = set(futures)
         n_done = 0
         while remaining:
-            done, remaining = wait(remaining, _SIGNAL_CHECK_S, FIRST_COMPLETED)
+            done, remaining = wait(remaining, SIGNAL_CHECK_S, FIRST_COMPLETED)
             failed = next((i for i, future in enumerate(futures) if _failed(future)), None)
             if failed is not None:
                 for future in futures[failed + 1 :]:
