@@ -370,6 +370,24 @@ def test_truncated_quoted_field_names_its_line(tmp_path: Path, rows: list[dict])
     )
 
 
+def test_a_quote_left_open_before_a_long_line_is_the_error_on_threads(
+    tmp_path: Path, rows: list[dict], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Read a line a chunk, four chunks at once: the open quote of line 4 is the error, as one
+    thread meets it, not the line too long (line 6) in a chunk read while line 4's was parsed;
+    the out folder is not made."""
+    set_budget(monkeypatch, text_chunk_bytes=100)
+    monkeypatch.setattr(pl, "thread_pool_size", lambda: 4)
+    path = write_portal(tmp_path / "p.csv", rows)
+    lines = path.read_bytes().split(b"\r\n")
+    cut = lines[3][: lines[3].index(b'"') + 3]
+    path.write_bytes(b"\r\n".join([*lines[:3], cut, lines[4], b"0" * 5_000, *lines[5:]]))
+    out = tmp_path / "out"
+    assert_failed_cleanly(
+        invoke("build", path, "--out", out), out, {}, path, "line 4:", "quoted field is not closed"
+    )
+
+
 # --- defects found by bench/fuzz_inputs.py ----------------------------------------------------
 
 
