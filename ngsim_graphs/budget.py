@@ -3,9 +3,9 @@ cores a build may use.
 
 No task holds a whole input file or recording; it holds a piece of one, of these sizes, so that
 its peak does not grow with the size of the recording and `--jobs` multiplies a bounded figure.
-The outputs do not depend on them but for the row groups of the proximity tables (a range of
-steps each): tests build with tiny sizes and compare every file. Code reads `BUDGET` from this
-module at call time, so that a test may replace it (`dataclasses.replace`).
+The outputs do not depend on them: tests build with tiny sizes and compare every file. Code
+reads `BUDGET` from this module at call time, so that a test may replace it
+(`dataclasses.replace`).
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ from ngsim_graphs import integrity, layout, storage
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch, NonFiniteStateError, concat_batches, induce_graphs
-from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays
+from ngsim_graphs.grid import ARRAY_NAMES, RecordingArrays, pair_table
 from ngsim_graphs.manifest import Manifest, RecordingEntry
 from ngsim_graphs.schema import Split
 from ngsim_graphs.splits import split_named
@@ -78,6 +78,16 @@ class OpenBuild:
         """The tracks tables of every recording, scanned lazily (TRACKS_SCHEMA)."""
         paths = [layout.tracks_path(self.root, r.location, r.period) for r in self.entries]
         return pl.scan_parquet([self._listed(path) for path in paths])
+
+    def proximity(self, recording: int) -> pl.DataFrame:
+        """The proximity pairs of a recording (its index, `entries`) as a table: every pair of
+        vehicles at most d_min apart at a grid step (PROXIMITY_SCHEMA: step, track_a, track_b,
+        distance_m; sorted so), from its pair arrays (distances their float32 values)."""
+        if not 0 <= recording < len(self.entries):
+            raise ValueError(
+                f"recording {recording}: the build has recordings 0..{len(self.entries) - 1}"
+            )
+        return pair_table(self.recordings[recording])
 
     @cached_property
     def _sample_arrays(self) -> dict[Split, dict[str, np.ndarray]]:
@@ -168,7 +178,9 @@ def build_files(root: Path, manifest: Manifest) -> list[Path]:
     for entry in manifest.recordings:
         key = (entry.location, entry.period)
         folder = layout.recording_arrays_dir(root, *key)
-        paths += [layout.tracks_path(root, *key), layout.proximity_path(root, *key)]
+        paths.append(layout.tracks_path(root, *key))
+        if layout.has_proximity_tables(manifest.format_version):
+            paths.append(layout.proximity_path(root, *key))
         paths += [folder / f"{name}.npy" for name in ARRAY_NAMES]
     for split in Split:
         folder = layout.sample_arrays_dir(root, split.value)

@@ -380,6 +380,23 @@ def _stable_order(rec: RecordingArrays, pair_step: np.ndarray, low: np.ndarray) 
     return np.argsort(rank[low - lo], kind="stable")
 
 
+def pair_table(rec: RecordingArrays) -> pl.DataFrame:
+    """The pairs of `rec`'s pair arrays as `proximity_pairs` gives them (PROXIMITY_SCHEMA, sorted
+    by step, track_a, track_b), their distances the arrays' float32 values."""
+    steps = np.repeat(np.arange(rec.n_steps, dtype=np.int32), np.diff(rec.pair_ptr))
+    tracks = np.take(rec.node_track, rec.pair_rows)  # (P, 2)
+    columns = {
+        s.STEP: steps,
+        s.TRACK_A: tracks.min(axis=1),
+        s.TRACK_B: tracks.max(axis=1),
+        s.DISTANCE_M: np.asarray(rec.pair_dist, np.float64),
+    }
+    order = _table_order(columns[s.STEP], columns[s.TRACK_A], columns[s.TRACK_B])
+    return pl.DataFrame(
+        {name: values[order] for name, values in columns.items()}, schema=s.PROXIMITY_SCHEMA
+    )
+
+
 def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:
     """Index the grid nodes by step and by track, and the pairs by step, as flat arrays (all
     pairs at once: a build takes them a range of steps at a time, see tasks)."""

@@ -24,11 +24,16 @@ from ngsim_graphs.manifest import Manifest
 from ngsim_graphs.storage import writing
 
 # 2: the manifest lists every file with its checksum, and its own checksum; 3: and every file's
-# sampled digest, which every open checks
-FORMAT_VERSION = 3
+# sampled digest, which every open checks; 4: the proximity pairs written once, in the
+# recordings' arrays, not also as tables.
+FORMAT_VERSION = 4
+# The formats this version opens. A build of format 3 holds its pairs a second time, as
+# proximity/<recording>.parquet (`proximity_path`): listed in its manifest and checked with
+# its other files, and read by nothing.
+READ_FORMAT_VERSIONS = (3, 4)
 MANIFEST_NAME = "manifest.json"
 TRACKS_DIR = "tracks"
-PROXIMITY_DIR = "proximity"
+PROXIMITY_DIR = "proximity"  # format 3's tables: a folder of a build, ours to replace
 SAMPLES_DIR = "samples"
 ARRAYS_DIR = "arrays"
 STAGING_DIR = "_staging"
@@ -50,8 +55,14 @@ def tracks_path(root: Path, location: str, period: str) -> Path:
 
 
 def proximity_path(root: Path, location: str, period: str) -> Path:
-    """Proximity edges of one recording: vehicle pairs within d_min, once per grid step."""
+    """A build of format 3's table of one recording's proximity pairs (step, track_a, track_b,
+    distance_m): the pair arrays' pairs again. Later formats have none."""
     return root / PROXIMITY_DIR / f"{recording_name(location, period)}.parquet"
+
+
+def has_proximity_tables(format_version: int) -> bool:
+    """Whether a build of this format holds `proximity_path` tables."""
+    return format_version <= 3
 
 
 def samples_path(root: Path, split: str) -> Path:
@@ -167,13 +178,14 @@ def _read_manifest_json(root: Path) -> dict[str, Any]:
     if not isinstance(manifest, dict):
         raise NgsimInputError(path, "unreadable manifest: not a JSON object")
     version = manifest.get("format_version")
-    if version != FORMAT_VERSION:
+    if version not in READ_FORMAT_VERSIONS:
         older = (
             " (made by an older ngsim-graphs: build it again)"
-            if isinstance(version, int) and version < FORMAT_VERSION
+            if isinstance(version, int) and version < min(READ_FORMAT_VERSIONS)
             else ""
         )
-        raise NgsimInputError(path, f"format version {version!r}; expected {FORMAT_VERSION}{older}")
+        expected = " or ".join(str(v) for v in sorted(READ_FORMAT_VERSIONS, reverse=True))
+        raise NgsimInputError(path, f"format version {version!r}; expected {expected}{older}")
     integrity.check_manifest(manifest, path)
     return manifest
 

@@ -144,8 +144,9 @@ GRID_NODE_SCHEMA: Final = pl.Schema(
     }
 )
 
-# Proximity edges of a recording, stored once per grid step: every pair of vehicles at most
-# d_min apart, lower track id first. A sample's actor-actor edges are the pairs among its nodes.
+# Proximity edges of a recording as a table (`grid.proximity_pairs`, `OpenBuild.proximity`),
+# once per grid step: every pair of vehicles at most d_min apart, lower track id first. A
+# sample's actor-actor edges are the pairs among its nodes. The build stores them as arrays.
 TRACK_A = "track_a"
 TRACK_B = "track_b"
 DISTANCE_M = "distance_m"

@@ -1,5 +1,5 @@
-"""How a build's files are written and read back: Parquet tables (whole, streamed, or a row
-group at a time), .npy arrays (whole or a part at a time, mapped into memory), and the OS error
+"""How a build's files are written and read back: Parquet tables (whole or streamed), staged
+Arrow IPC tables (a part at a time), .npy arrays (whole or a part at a time, mapped into memory), and the OS error
 of a failed write named with its file.
 
 Equal tables and arrays give equal bytes: the options are fixed here (`layout` says where each
@@ -125,42 +125,20 @@ class ArrayAppender:
 
 
 class TableAppender:
-    """A Parquet table written a part at a time, one row group per part; the parts are never
-    held together (`compression` None: an Arrow IPC file instead, a record batch per part,
-    uncompressed: what a build stages for itself, written and read at memory speed). Use as a
-    context manager: after an error, no file is left.
+    """A table written a part at a time, the parts never held together: an Arrow IPC file, a
+    record batch a part, uncompressed (what a build stages for itself, written and read back
+    at memory speed). Use as a context manager: after an error, no file is left."""
 
-    Without dictionary pages: for the numeric tables written so (the proximity pairs) that is
-    smaller and faster, within 2 % of what `write_parquet` writes of the whole table."""
-
-    def __init__(
-        self, path: Path, schema: pl.Schema, compression: str | None = PARQUET_COMPRESSION
-    ) -> None:
-        import pyarrow.parquet as pq  # 0.3 s to import: only a build needs it
-
+    def __init__(self, path: Path, schema: pl.Schema) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         self._path = path
         arrow_schema = pl.DataFrame(schema=schema).to_arrow().schema
         with writing(path):
-            if compression is None:
-                self._writer = pa.ipc.new_file(path, arrow_schema)
-                self._ipc = True
-                return
-            self._ipc = False
-            self._writer = pq.ParquetWriter(
-                path,
-                arrow_schema,
-                compression=compression,
-                use_dictionary=False,
-                write_statistics=True,
-            )
+            self._writer = pa.ipc.new_file(path, arrow_schema)
 
     def append(self, frame: pl.DataFrame) -> None:
         with writing(self._path):
-            if self._ipc:
-                self._writer.write_table(frame.to_arrow())
-            else:
-                self._writer.write_table(frame.to_arrow(), row_group_size=max(1, frame.height))
+            self._writer.write_table(frame.to_arrow())
 
     def __enter__(self) -> TableAppender:
         return self

@@ -92,7 +92,7 @@ def test_the_dataset_says_its_build_split_and_size_and_summarizes_without_tabula
     )
     assert dataset.root == str(tiny_build)  # PyG's "???" without one
     assert sorted(p.name for p in tiny_build.iterdir()) == sorted(  # no raw/, no processed/
-        ["arrays", "manifest.json", "proximity", "samples", "tracks"]
+        ["arrays", "manifest.json", "samples", "tracks"]
     )
     summary = dataset.get_summary()
     assert summary.num_graphs == len(dataset)

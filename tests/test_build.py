@@ -22,11 +22,12 @@ from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_
 
 from ngsim_graphs import layout, storage
 from ngsim_graphs import schema as s
-from ngsim_graphs.build import OpenBuild, open_build
+from ngsim_graphs.build import OpenBuild, open_build, verify_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.engine import tasks
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
+from ngsim_graphs.grid import grid_nodes, proximity_pairs
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.synth.formats import write_synthetic
@@ -222,7 +223,7 @@ def test_the_same_build_twice_is_byte_identical(
     run_build([raw], tmp_path / "again", BuildConfig(), jobs=jobs)
     before = build_files(first)
     assert sum(name.endswith(".npy") for name in before) == 2 * 10 + 3 * 3
-    assert sum(name.endswith(".parquet") for name in before) == 2 + 2 + 3
+    assert sum(name.endswith(".parquet") for name in before) == 2 + 3  # tracks, samples
     assert_same_build(first, tmp_path / "again")
 
 
@@ -231,23 +232,14 @@ def test_a_recording_built_in_pieces_of_steps_is_the_recording_built_at_once(
 ) -> None:
     """The grid rows made 3,000 at a time, and the pairs found, written and used 2,000 grid
     rows at a time (about 20 pieces a recording here; the default is one), three at once on
-    threads: every array, table and count of the build is the same, the proximity tables hold
-    the same rows in more row groups."""
+    threads: every file of the build is the same, the manifest included."""
     raw, first = synthetic_build(tmp_path_factory)
     set_budget(monkeypatch, piece_rows=2_000)
     set_budget(monkeypatch, grid_rows=3_000)
     monkeypatch.setattr(pl, "thread_pool_size", lambda: 3)  # threads.in_order's
     run_build([raw], tmp_path / "pieces", BuildConfig(), jobs=1)
-    before, after = build_files(first), build_files(tmp_path / "pieces")
-    proximity = [name for name in before if name.startswith(layout.PROXIMITY_DIR)]
-    assert [name for name in before if before[name] != after[name]] == proximity
-    for name in proximity:
-        whole, pieces = pl.read_parquet(first / name), pl.read_parquet(tmp_path / "pieces" / name)
-        assert whole.height > 10_000
-        assert_frame_equal(whole, pieces)
-        assert pq.ParquetFile(tmp_path / "pieces" / name).metadata.num_row_groups >= 10
-    old, new = open_build(first).manifest, open_build(tmp_path / "pieces").manifest
-    assert (old.counts, old.scaler, old.recordings) == (new.counts, new.scaler, new.recordings)
+    assert open_build(first).manifest.counts.proximity_edges > 20_000
+    assert_same_build(first, tmp_path / "pieces")
 
 
 @pytest.mark.slow
@@ -337,9 +329,63 @@ def test_open_build_without_manifest(tmp_path: Path) -> None:
 def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) -> None:
     manifest = dict(built.manifest.to_dict(), format_version=99)
     (tmp_path / layout.MANIFEST_NAME).write_text(json.dumps(manifest))
-    with pytest.raises(NgsimInputError, match=r"format version 99; expected 3") as err:
+    with pytest.raises(NgsimInputError, match=r"format version 99; expected 4 or 3") as err:
         open_build(tmp_path)
     assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
+
+
+def test_the_proximity_table_is_every_pair_of_the_grid_nodes(
+    built: OpenBuild, tables: dict[tuple[str, str], pl.DataFrame]
+) -> None:
+    """A recording's pairs as a table, from its arrays: the pairs `proximity_pairs` finds in its
+    tracks table (the brute force's own in test_grid), the distances rounded to float32."""
+    for entry in built.entries:
+        nodes = tables[(entry.location, entry.period)].sort(s.STEP, s.TRACK_ID)
+        found = proximity_pairs(nodes, built.config.d_min_m)
+        rounded = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)
+        assert found.height > 1_000
+        assert_frame_equal(built.proximity(entry.index), found.with_columns(rounded))
+    with pytest.raises(ValueError, match="recording 2: the build has recordings 0..1"):
+        built.proximity(2)
+
+
+def as_format_3(build: Path) -> None:
+    """Make a build into what format 3 wrote: its pairs also as proximity tables (the pairs of
+    the grid nodes, float64 distances), the manifest of that version sealed over every file."""
+    opened = open_build(build)
+    for entry in opened.entries:
+        tracks = pl.read_parquet(layout.tracks_path(build, entry.location, entry.period))
+        pairs = proximity_pairs(
+            grid_nodes(tracks, opened.config.time_step_s), opened.config.d_min_m
+        )
+        storage.write_parquet(pairs, layout.proximity_path(build, entry.location, entry.period))
+    body = json.loads(layout.manifest_path(build).read_text())
+    for key in ("files", "manifest_sha256"):
+        del body[key]
+    layout.write_manifest_json(build, {**body, "format_version": 3})
+
+
+def test_a_build_of_format_3_opens_and_verifies(built: OpenBuild, tmp_path: Path) -> None:
+    """Its proximity tables are listed and checked like its other files, and read by nothing:
+    its graphs are today's, and its tables the pairs that `proximity` gives."""
+    copy = tmp_path / "format-3"
+    shutil.copytree(built.root, copy)
+    as_format_3(copy)
+    old = open_build(copy)
+    assert old.manifest.format_version == 3
+    assert verify_build(copy).problems == ()
+    ids = np.arange(min(50, built.samples("train").height))
+    then, now = fast_graphs(old.graphs("train", ids)), fast_graphs(built.graphs("train", ids))
+    assert len(then) == len(ids)
+    for before, after in zip(then, now, strict=True):
+        assert_same_graph(before, after)
+    entry = old.entries[0]
+    table = layout.proximity_path(copy, entry.location, entry.period)
+    rounded = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)
+    assert_frame_equal(old.proximity(0), pl.read_parquet(table).with_columns(rounded))
+    table.unlink()  # a file of its manifest: every open misses it
+    with pytest.raises(NgsimInputError, match="missing"):
+        open_build(copy)
 
 
 def test_open_build_with_missing_arrays(built: OpenBuild, tmp_path: Path) -> None:

@@ -199,7 +199,7 @@ def test_a_manifest_that_is_not_one(copy: Path, content: bytes) -> None:
         for f in (
             "not a JSON object",
             "not UTF-8",
-            f"format version 1; expected {layout.FORMAT_VERSION} (made by an older",
+            "format version 1; expected 4 or 3 (made by an older",
         )
     )
 
@@ -317,14 +317,14 @@ def test_a_build_of_the_format_before_sampled_digests_is_refused(copy: Path) -> 
         del record["sampled_sha256"]
     rewrite(copy, {**manifest, "format_version": 2}, checksum=True)  # as version 2 sealed it
     assert error_line(invoke("stats", copy)) == (
-        f"error: {copy / layout.MANIFEST_NAME}: format version 2; expected 3 (made by an older "
+        f"error: {copy / layout.MANIFEST_NAME}: format version 2; expected 4 or 3 (made by an older "
         "ngsim-graphs: build it again)"
     )
 
 
 @pytest.mark.parametrize(
     "relative",
-    ["samples/test.parquet", "samples/train.parquet", "tracks", "proximity", "arrays/samples-val"],
+    ["samples/test.parquet", "samples/train.parquet", "tracks", "arrays/samples-val"],
 )
 def test_a_file_the_manifest_leaves_out_is_refused_by_every_open(copy: Path, relative: str) -> None:
     """A manifest re-sealed without a file's record: the file would be read unchecked (here an
@@ -333,7 +333,6 @@ def test_a_file_the_manifest_leaves_out_is_refused_by_every_open(copy: Path, rel
     name = layout.recording_name(entry["location"], entry["period"])
     relative = {
         "tracks": f"tracks/{name}.parquet",
-        "proximity": f"proximity/{name}.parquet",
         "arrays/samples-val": "arrays/samples-val/start_step.npy",
     }.get(relative, relative)
     manifest = manifest_of(copy)

@@ -93,7 +93,7 @@ def test_manifest(tmp_path: Path, portal_rows: list) -> None:
     on_disk = json.loads((out / "manifest.json").read_text())
     assert on_disk == json.loads(json.dumps(result.manifest.to_dict()))
     assert layout.read_manifest(out).to_dict() == on_disk
-    assert on_disk["format_version"] == layout.FORMAT_VERSION == 3
+    assert on_disk["format_version"] == layout.FORMAT_VERSION == 4
     assert on_disk["config"] == json.loads(json.dumps(SHORT.to_dict()))
     assert on_disk["config"]["locations"] == ["us-101", "i-80"]
     assert (on_disk["config"]["d_sense_m"], on_disk["config"]["d_min_m"], on_disk["config"]["split"]) == (
@@ -195,7 +195,6 @@ def test_same_build_twice_gives_identical_parquet(tmp_path: Path, portal_rows: l
     run_build([shuffled], tmp_path / "c", SHORT)
     a = parquet_bytes(tmp_path / "a")
     assert list(a) == [
-        f"proximity/us-101_{FIRST}.parquet",
         "samples/test.parquet",
         "samples/train.parquet",
         "samples/val.parquet",
@@ -252,7 +251,6 @@ def test_leftover_partial_directory_is_cleaned_up(tmp_path: Path, portal_rows: l
     assert hidden_siblings(out) == [".out.partial-123"]
     assert [f for f in sorted(snapshot(out)) if not f.startswith("arrays/")] == [
         "manifest.json",
-        f"proximity/us-101_{FIRST}.parquet",
         "samples/test.parquet",
         "samples/train.parquet",
         "samples/val.parquet",

@@ -126,22 +126,22 @@ def test_a_part_of_another_dtype_or_shape_fails_and_leaves_no_file(tmp_path: Pat
         assert not (tmp_path / "rows.npy").exists()
 
 
-def test_a_table_appended_part_by_part_is_one_row_group_a_part(tmp_path: Path) -> None:
-    import pyarrow.parquet as pq
+def test_a_table_appended_part_by_part_is_one_record_batch_a_part(tmp_path: Path) -> None:
+    import pyarrow as pa
 
     schema = pl.Schema({"step": pl.Int32, "distance_m": pl.Float64})
     parts = [
         pl.DataFrame({"step": [0, 0, 1], "distance_m": [1.5, 2.0, 0.25]}, schema=schema),
         pl.DataFrame({"step": [4], "distance_m": [9.0]}, schema=schema),
     ]
-    path = tmp_path / "table.parquet"
+    path = tmp_path / "table.arrow"
     with storage.TableAppender(path, schema) as table:
         for part in parts:
             table.append(part)
-    read = pl.read_parquet(path)
+    read = pl.read_ipc(path)
     assert read.schema == schema
     assert read.rows() == [(0, 1.5), (0, 2.0), (1, 0.25), (4, 9.0)]
-    assert pq.ParquetFile(path).metadata.num_row_groups == 2
+    assert pa.ipc.open_file(path).num_record_batches == 2
     with pytest.raises(RuntimeError), storage.TableAppender(path, schema) as table:
         table.append(parts[0])
         raise RuntimeError("a failure while building")

@@ -13,7 +13,7 @@ from ngsim_graphs.layout import STAGING_DIR, recording_name
 from ngsim_graphs.storage import TableAppender, writing
 
 # The raw rows and cleaned tracks a build stages for itself, a batch at a time: Arrow IPC,
-# uncompressed (`storage.TableAppender` without compression), read back at memory speed.
+# uncompressed (`storage.TableAppender`), read back at memory speed.
 STAGED_ROWS_SUFFIX = "arrow"
 
 
@@ -65,7 +65,7 @@ def write_staged(frame: pl.DataFrame, path: Path) -> None:
 
 def rows_appender(path: Path, schema: pl.Schema) -> TableAppender:
     """A staged table of raw rows or tracks written a batch at a time (STAGED_ROWS_SUFFIX)."""
-    return TableAppender(path, schema, compression=None)
+    return TableAppender(path, schema)
 
 
 def scan_rows(paths: Path | list[Path]) -> pl.LazyFrame:

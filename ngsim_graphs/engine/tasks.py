@@ -72,8 +72,8 @@ from ngsim_graphs.threads import in_order
 from ngsim_graphs.windows import SampleProtocol
 
 PAIR_ARRAYS = ("pair_rows", "pair_dist", "pair_key")  # RecordingArrays' fields of the pairs
-# Called with each range's pairs (PROXIMITY_SCHEMA) and arrays (with_pairs), in step order.
-PairSink = Callable[[pl.DataFrame, RecordingArrays], None]
+# Called with each range's pair arrays (with_pairs), in step order.
+PairSink = Callable[[RecordingArrays], None]
 # Maps a recording's ROW_ARRAYS anew (`storage.open_arrays`): what a range of steps read of them
 # is let go with the maps, and the grid rows are never all in memory at once.
 RowArrays = Callable[[], dict[str, np.ndarray]]
@@ -118,28 +118,27 @@ def recording_samples(
 
     def piece_of(
         steps: tuple[int, int],
-    ) -> tuple[pl.DataFrame, RecordingArrays, np.ndarray, np.ndarray, MinMaxScaler]:
+    ) -> tuple[RecordingArrays, np.ndarray, np.ndarray, MinMaxScaler]:
         first, end = steps
         rec = arrays if row_arrays is None else replace(arrays, **row_arrays())
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
-        pairs = proximity_pairs(nodes_of_steps(rec, first, end), config.d_min_m)
-        piece = with_pairs(rec, pairs)
+        piece = with_pairs(rec, proximity_pairs(nodes_of_steps(rec, first, end), config.d_min_m))
         mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
         hood = neighbourhoods_of_rows(piece, mine, rows_by_y(rec, first, end), config)
         touched = np.flatnonzero((last_row >= lo) & (first_row < hi))
         added = sample_counts(hood, history[touched], config)
         ranges = train_ranges(piece, hood, history[touched], is_train[touched])
-        return pairs, piece, touched, added, ranges
+        return piece, touched, added, ranges
 
     # A recording without grid rows is one empty piece: its pair files are still written.
     pieces = step_pieces(arrays.step_ptr, budget.BUDGET.piece_rows) or [(0, 0)]
-    for pairs, piece, touched, added, ranges in in_order(piece_of, pieces):
-        write_pairs(pairs, piece)  # in the pieces' order
+    for piece, touched, added, ranges in in_order(piece_of, pieces):
+        write_pairs(piece)  # in the pieces' order
         pair_ptr += piece.pair_ptr
-        n_pairs += pairs.height
+        n_pairs += len(piece.pair_dist)
         counts[touched] += added
         train = train.joined(ranges)
-        del pairs, piece  # before the next piece is taken
+        del piece  # before the next piece is taken
     windows = windows.with_columns(
         pl.Series(name, counts[:, i], dtype=pl.Int32) for i, name in enumerate(columns)
     )
@@ -325,13 +324,9 @@ def build_recording(
         arrays = write_node_arrays(
             tracks, config.time_step_s, budget.BUDGET.grid_rows, row_files.append
         )
-    with (
-        storage.TableAppender(layout.proximity_path(root, *key), s.PROXIMITY_SCHEMA) as table,
-        storage.ArrayAppender(folder, PAIR_ARRAYS) as pair_files,
-    ):
+    with storage.ArrayAppender(folder, PAIR_ARRAYS) as pair_files:
 
-        def write_pairs(pairs: pl.DataFrame, piece: RecordingArrays) -> None:
-            table.append(pairs)
+        def write_pairs(piece: RecordingArrays) -> None:
             pair_files.append({name: getattr(piece, name) for name in PAIR_ARRAYS})
 
         row_arrays = functools.partial(storage.open_arrays, folder, ROW_ARRAYS)
