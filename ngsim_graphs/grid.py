@@ -176,34 +176,14 @@ def _pairs_by_sweep(step: np.ndarray, x: np.ndarray, y: np.ndarray, d_max_m: flo
     return np.concatenate(first), np.concatenate(second), np.concatenate(dist)
 
 
-def proximity_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
-    """Every pair of vehicles at one step at most `d_max_m` apart (PROXIMITY_SCHEMA).
-
-    `nodes` are grid nodes (GRID_NODE_SCHEMA). Each pair appears once, lower track id first;
-    rows are sorted by (step, track_a, track_b).
-    """
-    by_y = nodes.select(s.STEP, s.TRACK_ID, s.X_M, s.Y_M).sort(s.STEP, s.Y_M, s.TRACK_ID)
-    step = by_y[s.STEP].to_numpy()
-    track = by_y[s.TRACK_ID].to_numpy()
-    i, j, dist = _pairs_by_sweep(step, by_y[s.X_M].to_numpy(), by_y[s.Y_M].to_numpy(), d_max_m)
-    pair_step = step[i]
-    track_a, track_b = np.minimum(track[i], track[j]), np.maximum(track[i], track[j])
-    del i, j  # a dense recording has ten million pairs: hold few copies at a time
-    order = _table_order(pair_step, track_a, track_b)
-    columns = {s.STEP: pair_step, s.TRACK_A: track_a, s.TRACK_B: track_b, s.DISTANCE_M: dist}
-    return pl.DataFrame(
-        {name: values[order] for name, values in columns.items()}, schema=s.PROXIMITY_SCHEMA
-    )
-
-
-def _table_order(step: np.ndarray, track_a: np.ndarray, track_b: np.ndarray) -> np.ndarray:
-    """The order of pairs by (step, track_a, track_b): three 16-bit radix passes where each
-    column spans fewer than 2**16 values (a range of steps of `step_pieces`), 64-bit sorts
+def _lex_order(first: np.ndarray, second: np.ndarray, third: np.ndarray) -> np.ndarray:
+    """The order by (first, second, third) of integer columns: three 16-bit radix passes where
+    each column spans fewer than 2**16 values (a range of steps of `step_pieces`), 64-bit sorts
     otherwise."""
-    if len(step) == 0:
+    if len(first) == 0:
         return np.empty(0, np.int64)
     # lexsort's last key sorts first; int64: a span of int32 values may not fit int32
-    local = [column.astype(np.int64) - column.min() for column in (track_b, track_a, step)]
+    local = [column.astype(np.int64) - column.min() for column in (third, second, first)]
     if all(int(column.max()) < 2**16 for column in local):
         return np.lexsort([column.astype(np.uint16) for column in local])
     return np.lexsort(local)
@@ -315,74 +295,45 @@ def _row_arrays(nodes: pl.DataFrame) -> dict[str, np.ndarray]:
     }
 
 
-def nodes_of_steps(rec: RecordingArrays, first: int, end: int) -> pl.DataFrame:
-    """The grid nodes of steps [first, end) as far as `proximity_pairs` needs them: step, track
-    id, x and y, as GRID_NODE_SCHEMA types them (`grid_nodes`' rows, from the arrays)."""
+def with_pairs(rec: RecordingArrays, first: int, end: int, d_max_m: float) -> RecordingArrays:
+    """`rec` with the pair arrays of the proximity pairs of steps [first, end): every pair of
+    rows of a step at most `d_max_m` apart, once, the one with the lower y first (the lower track
+    at equal y), sorted by (step, lower y) and, at equal keys, by their tracks (lower, higher).
+
+    Pieces of consecutive ranges of steps (`step_pieces`), their arrays concatenated and their
+    pair_ptr summed, are the pairs of all their steps at once."""
     lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[end])
-    step = rec.row_steps(first, end).astype(np.int32)
-    columns = {
-        s.STEP: step,
-        s.TRACK_ID: rec.node_track[lo:hi],
-        s.X_M: rec.node_state[lo:hi, 0],
-        s.Y_M: rec.node_state[lo:hi, 1],
-    }
-    return pl.DataFrame(columns, schema={name: s.GRID_NODE_SCHEMA[name] for name in columns})
-
-
-def with_pairs(rec: RecordingArrays, pairs: pl.DataFrame) -> RecordingArrays:
-    """`rec` with the pair arrays of `pairs` (PROXIMITY_SCHEMA, sorted by step, track_a,
-    track_b): endpoints as rows, lower y first, sorted by (step, lower y).
-
-    `pairs` may be those of a range of steps only (`step_pieces`): the pair rows, distances and
-    keys of consecutive ranges, concatenated, and their pair_ptr summed, are those of all their
-    pairs at once."""
-    first_track = rec.first_track_id
-    # Pair endpoints as rows (through the track index).
-    rows_of = lambda t, st: rec.track_rows[
-        rec.track_ptr[t - first_track] + (st - rec.track_first_step[t - first_track])
-    ]  # noqa: E731
-    pair_step = pairs[s.STEP].to_numpy()
-    rows_a = rows_of(pairs[s.TRACK_A].to_numpy(), pair_step)
-    rows_b = rows_of(pairs[s.TRACK_B].to_numpy(), pair_step)
-    y = rec.node_state[:, 1]
-    a_lower = y[rows_a] <= y[rows_b]
-    low, high = np.where(a_lower, rows_a, rows_b), np.where(a_lower, rows_b, rows_a)
-    del rows_a, rows_b, a_lower  # ten million pairs in a dense recording: free as we go
-    pair_key = pair_search_key(pair_step, y[low])
-    by_key = _stable_order(rec, pair_step, low)
-    pair_rows = np.stack([low[by_key], high[by_key]], axis=1).astype(np.int32)
-    del low, high
+    step = rec.row_steps(first, end)
+    x, y = rec.node_state[lo:hi, 0], rec.node_state[lo:hi, 1]
+    by_y = np.lexsort((y, step))  # (step, y, track): the rows are in (step, track) order
+    i, j, distance = _pairs_by_sweep(step[by_y], x[by_y], y[by_y], d_max_m)
+    low, high = by_y[i], by_y[j]  # rows from lo: i comes before j in (step, y, track) order
+    del i, j  # a dense recording has ten million pairs: hold few copies at a time
+    # The pairs' keys ranked among the rows' (equal keys, equal ranks; 16 bits for a range of
+    # steps of `step_pieces`): a radix sort of the ranks, not a sort of the float keys.
+    key = pair_search_key(step, y)
+    sorted_key = key[by_y]
+    rank = np.empty(hi - lo, np.uint16 if hi - lo <= 2**16 else np.int64)
+    rank[by_y] = np.concatenate([[0], np.cumsum(sorted_key[1:] != sorted_key[:-1])])
+    tracks = rec.node_track[lo:hi]
+    track_low, track_high = tracks[low], tracks[high]
+    order = _lex_order(
+        rank[low], np.minimum(track_low, track_high), np.maximum(track_low, track_high)
+    )
+    del track_low, track_high
+    low, high = low[order], high[order]
     return replace(
         rec,
-        pair_ptr=_csr_ptr(pair_step[by_key], rec.n_steps),
-        pair_rows=pair_rows.reshape(-1, 2),
-        pair_dist=pairs[s.DISTANCE_M].to_numpy().astype(np.float32)[by_key],
-        pair_key=pair_key[by_key],
+        pair_ptr=_csr_ptr(step[low], rec.n_steps),
+        pair_rows=np.stack([low + lo, high + lo], axis=1).astype(np.int32).reshape(-1, 2),
+        pair_dist=distance.astype(np.float32)[order],
+        pair_key=key[low],
     )
 
 
-def _stable_order(rec: RecordingArrays, pair_step: np.ndarray, low: np.ndarray) -> np.ndarray:
-    """The stable argsort of the pairs' pair_search_key (of `pair_step` and the y of row `low`),
-    found as the stable argsort of their lower rows' ranks among the rows of their steps by
-    that key (equal keys, equal ranks): the rows' keys, fewer than the pairs, are sorted once,
-    and the pairs by a radix sort where the ranks fit 16 bits (a range of steps of
-    `step_pieces`), a stable sort of 64-bit ranks beyond."""
-    if len(low) == 0:
-        return np.empty(0, np.int64)
-    first, last = int(pair_step.min()), int(pair_step.max())
-    lo, hi = int(rec.step_ptr[first]), int(rec.step_ptr[last + 1])
-    row_key = pair_search_key(rec.row_steps(first, last + 1), rec.node_state[lo:hi, 1])
-    by_row_key = np.argsort(row_key, kind="stable")
-    sorted_key = row_key[by_row_key]
-    dense = np.concatenate([[0], np.cumsum(sorted_key[1:] != sorted_key[:-1])])
-    rank = np.empty(hi - lo, np.uint16 if hi - lo <= 2**16 else np.int64)
-    rank[by_row_key] = dense
-    return np.argsort(rank[low - lo], kind="stable")
-
-
 def pair_table(rec: RecordingArrays) -> pl.DataFrame:
-    """The pairs of `rec`'s pair arrays as `proximity_pairs` gives them (PROXIMITY_SCHEMA, sorted
-    by step, track_a, track_b), their distances the arrays' float32 values."""
+    """The pairs of `rec`'s pair arrays as a table (PROXIMITY_SCHEMA: the lower track id first;
+    sorted by step, track_a, track_b), their distances the arrays' float32 values."""
     steps = np.repeat(np.arange(rec.n_steps, dtype=np.int32), np.diff(rec.pair_ptr))
     tracks = np.take(rec.node_track, rec.pair_rows)  # (P, 2)
     columns = {
@@ -391,16 +342,17 @@ def pair_table(rec: RecordingArrays) -> pl.DataFrame:
         s.TRACK_B: tracks.max(axis=1),
         s.DISTANCE_M: np.asarray(rec.pair_dist, np.float64),
     }
-    order = _table_order(columns[s.STEP], columns[s.TRACK_A], columns[s.TRACK_B])
+    order = _lex_order(columns[s.STEP], columns[s.TRACK_A], columns[s.TRACK_B])
     return pl.DataFrame(
         {name: values[order] for name, values in columns.items()}, schema=s.PROXIMITY_SCHEMA
     )
 
 
-def recording_arrays(nodes: pl.DataFrame, pairs: pl.DataFrame) -> RecordingArrays:
-    """Index the grid nodes by step and by track, and the pairs by step, as flat arrays (all
-    pairs at once: a build takes them a range of steps at a time, see tasks)."""
-    return with_pairs(node_arrays(nodes), pairs)
+def recording_arrays(nodes: pl.DataFrame, d_max_m: float) -> RecordingArrays:
+    """Index the grid nodes by step and by track, and their proximity pairs by step, as flat
+    arrays (all steps at once: a build takes them a range of steps at a time, see tasks)."""
+    indexed = node_arrays(nodes)
+    return with_pairs(indexed, 0, indexed.n_steps, d_max_m)
 
 
 def step_pieces(step_ptr: np.ndarray, rows_per_piece: int) -> list[tuple[int, int]]:

@@ -144,7 +144,7 @@ GRID_NODE_SCHEMA: Final = pl.Schema(
     }
 )
 
-# Proximity edges of a recording as a table (`grid.proximity_pairs`, `OpenBuild.proximity`),
+# Proximity edges of a recording as a table (`grid.pair_table`, `OpenBuild.proximity`),
 # once per grid step: every pair of vehicles at most d_min apart, lower track id first. A
 # sample's actor-actor edges are the pairs among its nodes. The build stores them as arrays.
 TRACK_A = "track_a"

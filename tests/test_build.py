@@ -27,7 +27,7 @@ from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.engine import tasks
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
-from ngsim_graphs.grid import grid_nodes, proximity_pairs
+from ngsim_graphs.grid import grid_nodes, pair_table, recording_arrays
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.synth.formats import write_synthetic
@@ -337,27 +337,25 @@ def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) 
 def test_the_proximity_table_is_every_pair_of_the_grid_nodes(
     built: OpenBuild, tables: dict[tuple[str, str], pl.DataFrame]
 ) -> None:
-    """A recording's pairs as a table, from its arrays: the pairs `proximity_pairs` finds in its
-    tracks table (the brute force's own in test_grid), the distances rounded to float32."""
+    """A recording's pairs as a table, from the arrays the build wrote a range of steps at a
+    time: the pairs of all its grid nodes at once (test_grid holds those to a brute force)."""
     for entry in built.entries:
         nodes = tables[(entry.location, entry.period)].sort(s.STEP, s.TRACK_ID)
-        found = proximity_pairs(nodes, built.config.d_min_m)
-        rounded = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)
+        found = pair_table(recording_arrays(nodes, built.config.d_min_m))
         assert found.height > 1_000
-        assert_frame_equal(built.proximity(entry.index), found.with_columns(rounded))
+        assert_frame_equal(built.proximity(entry.index), found)
     with pytest.raises(ValueError, match="recording 2: the build has recordings 0..1"):
         built.proximity(2)
 
 
 def as_format_3(build: Path) -> None:
-    """Make a build into what format 3 wrote: its pairs also as proximity tables (the pairs of
-    the grid nodes, float64 distances), the manifest of that version sealed over every file."""
+    """Make a build into what format 3 wrote: its pairs also as proximity tables, the manifest
+    of that version sealed over every file."""
     opened = open_build(build)
     for entry in opened.entries:
         tracks = pl.read_parquet(layout.tracks_path(build, entry.location, entry.period))
-        pairs = proximity_pairs(
-            grid_nodes(tracks, opened.config.time_step_s), opened.config.d_min_m
-        )
+        nodes = grid_nodes(tracks, opened.config.time_step_s)
+        pairs = pair_table(recording_arrays(nodes, opened.config.d_min_m))
         storage.write_parquet(pairs, layout.proximity_path(build, entry.location, entry.period))
     body = json.loads(layout.manifest_path(build).read_text())
     for key in ("files", "manifest_sha256"):
@@ -381,8 +379,7 @@ def test_a_build_of_format_3_opens_and_verifies(built: OpenBuild, tmp_path: Path
         assert_same_graph(before, after)
     entry = old.entries[0]
     table = layout.proximity_path(copy, entry.location, entry.period)
-    rounded = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)
-    assert_frame_equal(old.proximity(0), pl.read_parquet(table).with_columns(rounded))
+    assert_frame_equal(old.proximity(0), pl.read_parquet(table))
     table.unlink()  # a file of its manifest: every open misses it
     with pytest.raises(NgsimInputError, match="missing"):
         open_build(copy)

@@ -21,7 +21,7 @@ import pytest
 from ngsim_graphs import schema as s
 from ngsim_graphs.config import BuildConfig
 from ngsim_graphs.graphs import GraphBatch, concat_batches, induce_graphs
-from ngsim_graphs.grid import grid_nodes, proximity_pairs, recording_arrays
+from ngsim_graphs.grid import grid_nodes, recording_arrays
 
 ACTOR_DISTANCE_TOL_M = 1e-5  # actor-actor distances are stored as float32
 GRID_COLUMNS = (s.STEP, s.TRACK_ID, s.VEHICLE_ID, s.X_M, s.Y_M, s.HEADING_RAD, s.SPEED_MPS)
@@ -182,7 +182,7 @@ def fast_path(
     config: BuildConfig,
     first_step: int = 0,
 ) -> GraphBatch:
-    """grid_nodes -> proximity_pairs -> recording_arrays -> induce_graphs, from a tracks-like table.
+    """grid_nodes -> recording_arrays -> induce_graphs, from a tracks-like table.
 
     The grid-node table goes back to times in seconds (and a shuffled row order) first, so that
     grid_nodes' own step computation and sort are part of what is checked.
@@ -193,7 +193,7 @@ def fast_path(
         .sample(fraction=1.0, shuffle=True, seed=7)
     )
     nodes = grid_nodes(tracks, config.time_step_s)
-    rec = recording_arrays(nodes, proximity_pairs(nodes, config.d_min_m))
+    rec = recording_arrays(nodes, config.d_min_m)
     return induce_graphs(
         rec, np.array(egos, dtype=np.int32), np.array(starts, dtype=np.int64), config, first_step
     )

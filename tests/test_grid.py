@@ -18,8 +18,7 @@ from ngsim_graphs.grid import (
     ROW_ARRAYS,
     grid_nodes,
     node_arrays,
-    nodes_of_steps,
-    proximity_pairs,
+    pair_table,
     recording_arrays,
     step_pieces,
     with_pairs,
@@ -43,6 +42,15 @@ def brute_force_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
     return pl.DataFrame(rows, schema=s.PROXIMITY_SCHEMA, orient="row").sort(
         s.STEP, s.TRACK_A, s.TRACK_B
     )
+
+
+def pairs_of(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
+    """The proximity pairs of grid nodes, as a table: their recording arrays' pairs."""
+    return pair_table(recording_arrays(nodes, d_max_m))
+
+
+# The pair arrays hold distances in float32: a brute force's float64 distances, so rounded.
+AS_STORED = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)
 
 
 def grid_table(rows: list[tuple]) -> pl.DataFrame:
@@ -79,9 +87,9 @@ def test_proximity_pairs_match_the_brute_force(d_max_m: float) -> None:
     rng = np.random.default_rng(int(d_max_m * 10) + 1)
     nodes = random_nodes(rng, d_max_m)
     expected = brute_force_pairs(nodes, d_max_m)
-    got = proximity_pairs(nodes, d_max_m)
+    got = pairs_of(nodes, d_max_m)
     assert got.schema == s.PROXIMITY_SCHEMA
-    assert_frame_equal(got, expected)  # same pairs, same float64 distances, same order
+    assert_frame_equal(got, expected.with_columns(AS_STORED))  # same pairs, same order
     at_threshold = expected.filter(pl.col(s.DISTANCE_M) == d_max_m).height
     assert at_threshold >= 30 * 2  # every step has its exact straight and 3-4-5 pairs
 
@@ -93,15 +101,15 @@ def test_proximity_pairs_by_hand() -> None:
         (0, 4, 4, 0.0, float(np.nextafter(50.0, 99.0)), 0.0, 0.0),
         (1, 1, 1, 0.0, 3.0, 0.0, 0.0), (1, 2, 2, 0.0, 3.0, 0.0, 0.0),
     ])  # fmt: skip
-    got = proximity_pairs(nodes, 25.0)
+    got = pairs_of(nodes, 25.0)
     assert got.rows() == [
         (0, 1, 2, 25.0),
         (0, 1, 3, 25.0),
-        (0, 2, 3, math.sqrt(15.0**2 + 5.0**2)),
+        (0, 2, 3, float(np.float32(math.sqrt(15.0**2 + 5.0**2)))),
         (1, 1, 2, 0.0),
     ]
-    assert proximity_pairs(nodes, 0.0).rows() == [(1, 1, 2, 0.0)]
-    assert proximity_pairs(nodes.clear(), 25.0).height == 0
+    assert pairs_of(nodes, 0.0).rows() == [(1, 1, 2, 0.0)]
+    assert pairs_of(nodes.clear(), 25.0).height == 0
 
 
 def test_grid_nodes_steps_columns_and_order() -> None:
@@ -141,14 +149,13 @@ def tiny_nodes() -> pl.DataFrame:
 
 def test_recording_arrays_by_hand() -> None:
     nodes = tiny_nodes()
-    pairs = proximity_pairs(nodes, 20.0)
-    assert pairs.select(s.STEP, s.TRACK_A, s.TRACK_B).rows() == [
+    rec = recording_arrays(nodes, 20.0)
+    assert pair_table(rec).select(s.STEP, s.TRACK_A, s.TRACK_B).rows() == [
         (0, 5, 6),
         (1, 5, 6),
         (1, 6, 7),
         (2, 6, 7),
     ]
-    rec = recording_arrays(nodes, pairs)
     assert rec.first_track_id == 5 and rec.n_steps == 3
     assert rec.step_ptr.tolist() == [0, 2, 5, 7]
     assert rec.node_track.tolist() == [5, 6, 5, 6, 7, 6, 7]
@@ -179,7 +186,7 @@ def test_recording_arrays_by_hand() -> None:
 def test_recording_arrays_pairs_with_the_higher_track_lower_in_y() -> None:
     """pair_rows puts the vehicle with the smaller y first, whatever the track ids."""
     nodes = grid_table([(3, 8, 1, 0.0, 40.0, 0.0, 0.0), (3, 9, 2, 0.0, 30.0, 0.0, 0.0)])
-    rec = recording_arrays(nodes, proximity_pairs(nodes, 25.0))
+    rec = recording_arrays(nodes, 25.0)
     assert rec.n_steps == 4 and rec.step_ptr.tolist() == [0, 0, 0, 0, 2]
     assert rec.pair_rows.tolist() == [[1, 0]]
     assert rec.pair_key.tolist() == [3 * PAIR_KEY_STEP + 30.0]
@@ -209,17 +216,13 @@ def contiguous_nodes(rng: np.random.Generator) -> pl.DataFrame:
 @pytest.mark.parametrize("rows_per_piece", [1, 37, 400])
 def test_pairs_a_piece_of_steps_at_a_time_are_the_pairs_of_all_steps(rows_per_piece: int) -> None:
     nodes = contiguous_nodes(np.random.default_rng(rows_per_piece))
-    whole = recording_arrays(nodes, proximity_pairs(nodes, 25.0))
+    whole = recording_arrays(nodes, 25.0)
     indexed = node_arrays(nodes)
-    pieces, tables = [], []
-    for first, end in step_pieces(indexed.step_ptr, rows_per_piece):
-        lo, hi = int(indexed.step_ptr[first]), int(indexed.step_ptr[end])
-        piece_nodes = nodes_of_steps(indexed, first, end)
-        assert_frame_equal(piece_nodes, nodes.slice(lo, hi - lo).select(piece_nodes.columns))
-        tables.append(proximity_pairs(piece_nodes, 25.0))
-        pieces.append(with_pairs(indexed, tables[-1]))
+    pieces = [
+        with_pairs(indexed, first, end, 25.0)
+        for first, end in step_pieces(indexed.step_ptr, rows_per_piece)
+    ]
     assert len(pieces) > 1 or rows_per_piece == 400
-    assert_frame_equal(pl.concat(tables), proximity_pairs(nodes, 25.0))
     assert whole.pair_rows.shape[0] > 100
     for name in ("pair_rows", "pair_dist", "pair_key"):
         np.testing.assert_array_equal(
@@ -232,7 +235,8 @@ def test_pairs_a_piece_of_steps_at_a_time_are_the_pairs_of_all_steps(rows_per_pi
 def test_pairs_are_ordered_as_a_stable_sort_of_their_float_keys(steps: int) -> None:
     """with_pairs orders pairs by ranks of their lower rows' keys (16-bit ranks for a few
     steps, 64-bit beyond 65,536 rows): the order of a stable sort of the keys themselves, ties
-    (vehicles side by side, a vehicle lower in several pairs) in the table's order."""
+    (vehicles side by side, a vehicle lower in several pairs) in the table's order (step,
+    track_a, track_b)."""
     rng = np.random.default_rng(steps)
     rows = []
     for step in range(steps):
@@ -241,8 +245,8 @@ def test_pairs_are_ordered_as_a_stable_sort_of_their_float_keys(steps: int) -> N
         for track, (px, py) in enumerate(zip(x.tolist(), y.tolist(), strict=True)):
             rows.append((step, track, track + 1000, px, py, 0.0, 10.0))
     nodes = grid_table(rows)
-    pairs = proximity_pairs(nodes, 10.0)
-    rec = with_pairs(node_arrays(nodes), pairs)
+    rec = recording_arrays(nodes, 10.0)
+    pairs = pair_table(rec)
     row_of = {(st, tr): i for i, (st, tr) in enumerate(nodes.select(s.STEP, s.TRACK_ID).rows())}
     y = nodes[s.Y_M].to_numpy()
     low, high = [], []
@@ -268,7 +272,7 @@ def test_the_pairs_table_order_is_by_step_and_tracks_in_every_range(track_span: 
     triples = np.unique(np.stack([step, track_a, track_b], axis=1), axis=0)
     shuffled = triples[rng.permutation(len(triples))]
     step, track_a, track_b = (shuffled[:, k].astype(np.int32) for k in range(3))
-    order = grid._table_order(step, track_a, track_b)
+    order = grid._lex_order(step, track_a, track_b)
     np.testing.assert_array_equal(shuffled[order], triples)
 
 

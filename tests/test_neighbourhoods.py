@@ -21,8 +21,6 @@ from ngsim_graphs.grid import (
     RecordingArrays,
     grid_nodes,
     node_arrays,
-    nodes_of_steps,
-    proximity_pairs,
     recording_arrays,
     step_pieces,
     with_pairs,
@@ -69,7 +67,7 @@ def induced_ranges(batch: GraphBatch, is_train: np.ndarray) -> MinMaxScaler:
 def arrays_of(table: pl.DataFrame, config: BuildConfig) -> RecordingArrays:
     tracks = table.with_columns((pl.col(s.STEP) * config.time_step_s).alias(s.TIME_S))
     nodes = grid_nodes(tracks.drop(s.STEP), config.time_step_s)
-    return recording_arrays(nodes, proximity_pairs(nodes, config.d_min_m))
+    return recording_arrays(nodes, config.d_min_m)
 
 
 def counted(
@@ -202,8 +200,7 @@ def test_counts_and_ranges_of_ranges_of_steps_add_up_to_those_of_all_steps(
         counts, ranges = np.zeros_like(expected_counts), MinMaxScaler.empty()
         for first, end in step_pieces(bare.step_ptr, rows_per_piece):
             lo, hi = int(bare.step_ptr[first]), int(bare.step_ptr[end])
-            pairs = proximity_pairs(nodes_of_steps(bare, first, end), config.d_min_m)
-            piece = with_pairs(bare, pairs)
+            piece = with_pairs(bare, first, end, config.d_min_m)
             mine, by_y = rows[(rows >= lo) & (rows < hi)], rows_by_y(bare, first, end)
             hood = neighbourhoods_of_rows(piece, mine, by_y, config)
             # Every sample, touched or not, as row_bounds tells the build which to take.

@@ -42,8 +42,6 @@ from ngsim_graphs.grid import (
     ROW_ARRAYS,
     RecordingArrays,
     grid_node_rows,
-    nodes_of_steps,
-    proximity_pairs,
     step_pieces,
     with_pairs,
     write_node_arrays,
@@ -122,7 +120,7 @@ def recording_samples(
         first, end = steps
         rec = arrays if row_arrays is None else replace(arrays, **row_arrays())
         lo, hi = int(arrays.step_ptr[first]), int(arrays.step_ptr[end])
-        piece = with_pairs(rec, proximity_pairs(nodes_of_steps(rec, first, end), config.d_min_m))
+        piece = with_pairs(rec, first, end, config.d_min_m)
         mine = rows[np.searchsorted(rows, lo) : np.searchsorted(rows, hi)]
         hood = neighbourhoods_of_rows(piece, mine, rows_by_y(rec, first, end), config)
         touched = np.flatnonzero((last_row >= lo) & (first_row < hi))
