@@ -8,6 +8,9 @@
 # target figures comes last.
 #
 #   bench/gpu_check.sh                       # CUDA, about 6-7 minutes
+#   bench/gpu_check.sh build                 # bench/bench_build.py instead, on every core: the
+#                                            # six 15-minute recordings (synth, then the build;
+#                                            # issue 52's 16-core target), about 2 minutes
 #   bench/gpu_check.sh --device cpu --recordings 1 --minutes 0.4 --epochs 1 --batch-size 8 \
 #       --bench-sizes 8 --steps 1 --fast    # the CPU, a tiny input (tests/test_bench_gpu_check.py)
 set -euo pipefail
@@ -25,4 +28,8 @@ if ! "$python" -c "import polars, ngsim_cli" 2>/dev/null || ! command -v aigem >
     export PATH="$site/bin:$PATH"
 fi
 export PYTHONUNBUFFERED=1
+if [[ "${1:-}" == build ]]; then
+    shift
+    exec "$python" bench/bench_build.py --format txt --against none "$@"
+fi
 exec "$python" bench/gpu_check.py "$@"

@@ -48,3 +48,23 @@ def test_gpu_check_measures_every_stage_on_the_cpu(tmp_path: Path) -> None:
         assert float(rows[figure].replace(",", "")) > 0, (figure, rows[figure])
     assert rows[FIGURES[2]] == "-"  # no GPU, no utilisation
     assert rows["captured steps equal eager ones (tests/test_aigem_engine.py)"] == "passed"
+
+
+def test_gpu_check_build_runs_the_build_benchmark_on_every_core(tmp_path: Path) -> None:
+    """`gpu_check.sh build`: bench_build.py of this tree alone, its figures printed (the venv's
+    commands on PATH: nothing to install)."""
+    python = Path(sys.executable)
+    env = {
+        **os.environ,
+        "PYTHON": str(python),
+        "PATH": f"{python.parent}{os.pathsep}{os.environ['PATH']}",
+    }
+    command = [str(SCRIPT), "build", "--recordings", "1", "--minutes", "0.2",
+               "--work-dir", str(tmp_path / "out")]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr[-2000:]
+    lines = result.stdout.splitlines()
+    assert any(line.startswith("input              txt-r1-m0.2") for line in lines), lines
+    wall = next(line for line in lines if line.startswith("wall "))
+    assert float(wall.split()[1]) > 0
+    assert not any(line.startswith("side by side") for line in lines)  # --against none
