@@ -10,7 +10,7 @@
 #   bench/gpu_check.sh                       # CUDA, about 6-7 minutes
 #   bench/gpu_check.sh build                 # bench/bench_build.py instead, on every core: the
 #                                            # six 15-minute recordings (synth, then the build;
-#                                            # issue 52's 16-core target), about 2 minutes
+#                                            # issue 52's 16-core target)
 #   bench/gpu_check.sh --device cpu --recordings 1 --minutes 0.4 --epochs 1 --batch-size 8 \
 #       --bench-sizes 8 --steps 1 --fast    # the CPU, a tiny input (tests/test_bench_gpu_check.py)
 set -euo pipefail
