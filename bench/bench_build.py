@@ -118,19 +118,31 @@ def differing_files(first: Path, second: Path) -> list[str]:
 
 
 def only_the_format_apart(first: Path, second: Path, differ: list[str]) -> bool:
-    """Whether two builds that differ in `differ` differ only as formats 3 and 4 do: format 3's
-    proximity tables (its pairs again) and, in its manifest, its format version and their
-    records."""
-    manifest = layout.MANIFEST_NAME
-    if any(n != manifest and not n.startswith(layout.PROXIMITY_DIR + "/") for n in differ):
+    """Whether two builds that differ in `differ` differ only as formats 3 and 4 do: one is of
+    format 3 and one of 4, and the files apart are the format-3 build's proximity tables (its
+    pairs again) and the manifests, which differ only in their format version and the records
+    of those tables."""
+    manifests = {
+        root: json.loads((root / layout.MANIFEST_NAME).read_text()) for root in (first, second)
+    }
+    if sorted(m.get("format_version") for m in manifests.values()) != [3, 4]:
         return False
+    older, newer = sorted((first, second), key=lambda root: manifests[root]["format_version"])
+    tables = layout.PROXIMITY_DIR + "/"
+    if (newer / layout.PROXIMITY_DIR).exists():
+        return False
+    for name in differ:
+        if name == layout.MANIFEST_NAME:
+            continue
+        if not name.startswith(tables) or not (older / name).is_file() or (newer / name).exists():
+            return False
 
     def body(root: Path) -> dict:
-        content = json.loads((root / manifest).read_text())
+        content = dict(manifests[root])
         files = content.pop(integrity.FILES_KEY)
         for key in ("format_version", integrity.CHECKSUM_KEY):
             content.pop(key)
-        kept = {k: v for k, v in files.items() if not k.startswith(layout.PROXIMITY_DIR + "/")}
+        kept = {k: v for k, v in files.items() if not k.startswith(tables)}
         return content | {integrity.FILES_KEY: kept}
 
     return body(first) == body(second)

@@ -1,6 +1,6 @@
 """How a build's files are written and read back: Parquet tables (whole or streamed), staged
-Arrow IPC tables (a part at a time), .npy arrays (whole or a part at a time, mapped into memory), and the OS error
-of a failed write named with its file.
+Arrow IPC tables (a part at a time), .npy arrays (whole or a part at a time, mapped into
+memory), and the OS error of a failed write named with its file.
 
 Equal tables and arrays give equal bytes: the options are fixed here (`layout` says where each
 file goes).

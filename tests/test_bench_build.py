@@ -23,27 +23,56 @@ def verdict(old: Path, new: Path) -> str:
     return "format" if bench_build.only_the_format_apart(old, new, differ) else "differ"
 
 
+def reseal(build: Path, **changes: object) -> dict:
+    """The build's manifest with `changes` (top-level keys), sealed anew over its files."""
+    manifest = json.loads(layout.manifest_path(build).read_text())
+    for key in ("files", "manifest_sha256"):
+        del manifest[key]
+    return layout.write_manifest_json(build, manifest | changes)
+
+
+def copies(tiny_build: Path, tmp_path: Path) -> tuple[Path, Path]:
+    """(a copy made a build of format 3, a copy as it is) of the tiny build."""
+    older, newer = tmp_path / "format-3", tmp_path / "format-4"
+    for copy in (older, newer):
+        shutil.rmtree(copy, ignore_errors=True)
+        shutil.copytree(tiny_build, copy)
+    assert verdict(older, newer) == "alike"
+    as_format_3(older)
+    return older, newer
+
+
 def test_builds_of_formats_3_and_4_are_alike_but_for_the_format(
     tiny_build: Path, tmp_path: Path
 ) -> None:
-    older = tmp_path / "format-3"
-    shutil.copytree(tiny_build, older)
-    assert verdict(older, tiny_build) == "alike"
-    as_format_3(older)
-    assert verdict(older, tiny_build) == "format"
-    # Anything else apart: a count of the manifest (re-sealed), then an array's value.
-    manifest = json.loads(layout.manifest_path(older).read_text())
-    manifest["counts"]["tracks"] += 1
-    for key in ("files", "manifest_sha256"):
-        del manifest[key]
-    layout.write_manifest_json(older, manifest)
-    assert verdict(older, tiny_build) == "differ"
-    shutil.rmtree(older)
-    shutil.copytree(tiny_build, older)
-    as_format_3(older)
-    entry = manifest["recordings"][0]
+    older, newer = copies(tiny_build, tmp_path)
+    assert verdict(older, newer) == verdict(newer, older) == "format"
+
+
+def test_anything_else_apart_is_a_difference(tiny_build: Path, tmp_path: Path) -> None:
+    """A count of the manifest; an array's value; a proximity table in the format-4 build
+    too; two builds whose versions are not 3 and 4."""
+    older, newer = copies(tiny_build, tmp_path)
+    counts = json.loads(layout.manifest_path(older).read_text())["counts"]
+    reseal(older, counts={**counts, "tracks": counts["tracks"] + 1})
+    assert verdict(older, newer) == "differ"
+
+    older, newer = copies(tiny_build, tmp_path)
+    entry = json.loads(layout.manifest_path(older).read_text())["recordings"][0]
     path = layout.recording_arrays_dir(older, entry["location"], entry["period"]) / "pair_dist.npy"
     dist = np.load(path)
     dist[0] += 1.0
     np.save(path, dist)
-    assert verdict(older, tiny_build) == "differ"
+    reseal(older)
+    assert verdict(older, newer) == "differ"
+
+    older, newer = copies(tiny_build, tmp_path)
+    table = layout.proximity_path(newer, entry["location"], entry["period"])
+    table.parent.mkdir()
+    shutil.copy(layout.proximity_path(older, entry["location"], entry["period"]), table)
+    reseal(newer)
+    assert verdict(older, newer) == "differ"
+
+    older, newer = copies(tiny_build, tmp_path)
+    reseal(newer, format_version=5)
+    assert verdict(older, newer) == "differ"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import set_budget
 from polars.testing import assert_frame_equal
+from test_cli_ngsim import invoke
 from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
 
 from ngsim_graphs import layout, storage
@@ -27,7 +29,7 @@ from ngsim_graphs.config import BuildConfig, SynthConfig
 from ngsim_graphs.engine import tasks
 from ngsim_graphs.errors import NgsimInputError
 from ngsim_graphs.graphs import GraphBatch
-from ngsim_graphs.grid import grid_nodes, pair_table, recording_arrays
+from ngsim_graphs.grid import pair_table
 from ngsim_graphs.pipeline import run_build
 from ngsim_graphs.schema import RawFormat
 from ngsim_graphs.synth.formats import write_synthetic
@@ -334,38 +336,62 @@ def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) 
     assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
 
 
+def pairs_by_brute_force(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
+    """Every pair of rows of a step at most d_max_m apart, from all pairs of each step's rows
+    (no sweep), with graphs' distance sqrt(dx * dx + dy * dy) in float64 (PROXIMITY_SCHEMA)."""
+    parts = []
+    for (step,), rows in nodes.partition_by(s.STEP, as_dict=True, maintain_order=True).items():
+        track, x, y = (rows[c].to_numpy() for c in (s.TRACK_ID, s.X_M, s.Y_M))
+        i, j = np.triu_indices(len(track), 1)
+        dx, dy = x[j] - x[i], y[j] - y[i]
+        distance = np.sqrt(dx * dx + dy * dy)
+        near = distance <= d_max_m
+        a, b = track[i[near]], track[j[near]]
+        columns = [np.full(near.sum(), step), np.minimum(a, b), np.maximum(a, b), distance[near]]
+        parts.append(pl.DataFrame(dict(zip(s.PROXIMITY_SCHEMA.names(), columns, strict=True))))
+    return pl.concat(parts).cast(dict(s.PROXIMITY_SCHEMA)).sort(s.STEP, s.TRACK_A, s.TRACK_B)
+
+
+AS_STORED = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)  # the pair arrays' float32
+
+
 def test_the_proximity_table_is_every_pair_of_the_grid_nodes(
     built: OpenBuild, tables: dict[tuple[str, str], pl.DataFrame]
 ) -> None:
     """A recording's pairs as a table, from the arrays the build wrote a range of steps at a
-    time: the pairs of all its grid nodes at once (test_grid holds those to a brute force)."""
+    time: every pair of its grid nodes within d_min, found without the sweep."""
     for entry in built.entries:
-        nodes = tables[(entry.location, entry.period)].sort(s.STEP, s.TRACK_ID)
-        found = pair_table(recording_arrays(nodes, built.config.d_min_m))
-        assert found.height > 1_000
-        assert_frame_equal(built.proximity(entry.index), found)
+        nodes = tables[(entry.location, entry.period)]
+        expected = pairs_by_brute_force(nodes, built.config.d_min_m).with_columns(AS_STORED)
+        assert expected.height > 1_000
+        assert_frame_equal(built.proximity(entry.index), expected, check_exact=True)
     with pytest.raises(ValueError, match="recording 2: the build has recordings 0..1"):
         built.proximity(2)
 
 
 def as_format_3(build: Path) -> None:
-    """Make a build into what format 3 wrote: its pairs also as proximity tables, the manifest
-    of that version sealed over every file."""
+    """Make a build into what format 3 wrote: its pairs also as proximity tables (the sweep's
+    float64 distances: the arrays hold them in float32), the manifest of that version sealed
+    over every file."""
     opened = open_build(build)
     for entry in opened.entries:
-        tracks = pl.read_parquet(layout.tracks_path(build, entry.location, entry.period))
-        nodes = grid_nodes(tracks, opened.config.time_step_s)
-        pairs = pair_table(recording_arrays(nodes, opened.config.d_min_m))
-        storage.write_parquet(pairs, layout.proximity_path(build, entry.location, entry.period))
+        rec = opened.recordings[entry.index]
+        low, high = rec.pair_rows[:, 0], rec.pair_rows[:, 1]
+        dx = rec.node_state[high, 0] - rec.node_state[low, 0]
+        dy = rec.node_state[high, 1] - rec.node_state[low, 1]
+        table = pair_table(replace(rec, pair_dist=np.sqrt(dx * dx + dy * dy)))
+        storage.write_parquet(table, layout.proximity_path(build, entry.location, entry.period))
     body = json.loads(layout.manifest_path(build).read_text())
     for key in ("files", "manifest_sha256"):
         del body[key]
     layout.write_manifest_json(build, {**body, "format_version": 3})
 
 
-def test_a_build_of_format_3_opens_and_verifies(built: OpenBuild, tmp_path: Path) -> None:
+def test_a_build_of_format_3_opens_and_verifies(
+    built: OpenBuild, tables: dict[tuple[str, str], pl.DataFrame], tmp_path: Path
+) -> None:
     """Its proximity tables are listed and checked like its other files, and read by nothing:
-    its graphs are today's, and its tables the pairs that `proximity` gives."""
+    its graphs are today's, and its tables the pairs that `proximity` gives (float32)."""
     copy = tmp_path / "format-3"
     shutil.copytree(built.root, copy)
     as_format_3(copy)
@@ -378,11 +404,31 @@ def test_a_build_of_format_3_opens_and_verifies(built: OpenBuild, tmp_path: Path
     for before, after in zip(then, now, strict=True):
         assert_same_graph(before, after)
     entry = old.entries[0]
-    table = layout.proximity_path(copy, entry.location, entry.period)
-    assert_frame_equal(old.proximity(0), pl.read_parquet(table))
-    table.unlink()  # a file of its manifest: every open misses it
+    table = pl.read_parquet(layout.proximity_path(copy, entry.location, entry.period))
+    nodes = tables[(entry.location, entry.period)]
+    assert_frame_equal(table, pairs_by_brute_force(nodes, old.config.d_min_m), check_exact=True)
+    assert_frame_equal(old.proximity(0), table.with_columns(AS_STORED), check_exact=True)
+    layout.proximity_path(
+        copy, entry.location, entry.period
+    ).unlink()  # listed: every open misses it
     with pytest.raises(NgsimInputError, match="missing"):
         open_build(copy)
+
+
+def test_a_build_of_format_3_through_the_cli(built: OpenBuild, tmp_path: Path) -> None:
+    """`stats` reads it; `build --overwrite` replaces it, its proximity tables with it."""
+    copy = tmp_path / "format-3"
+    shutil.copytree(built.root, copy)
+    as_format_3(copy)
+    assert invoke("stats", copy).exit_code == 0
+    raw = _BUILT["raw"]
+    result = invoke("build", raw, "--out", copy, "--overwrite")
+    assert result.exit_code == 0, result.stderr
+    assert open_build(copy).manifest.format_version == layout.FORMAT_VERSION == 4
+    assert not (copy / layout.PROXIMITY_DIR).exists()
+    assert sorted(p.name for p in copy.iterdir()) == [
+        "arrays", "build.log", "manifest.json", "samples", "tracks"
+    ]  # fmt: skip
 
 
 def test_open_build_with_missing_arrays(built: OpenBuild, tmp_path: Path) -> None:
