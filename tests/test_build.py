@@ -21,6 +21,7 @@ from conftest import set_budget
 from polars.testing import assert_frame_equal
 from test_cli_ngsim import invoke
 from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
+from test_grid import AS_STORED, brute_force_pairs
 
 from ngsim_graphs import layout, storage
 from ngsim_graphs import schema as s
@@ -336,25 +337,6 @@ def test_open_build_of_another_format_version(built: OpenBuild, tmp_path: Path) 
     assert str(tmp_path / layout.MANIFEST_NAME) in str(err.value)
 
 
-def pairs_by_brute_force(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
-    """Every pair of rows of a step at most d_max_m apart, from all pairs of each step's rows
-    (no sweep), with graphs' distance sqrt(dx * dx + dy * dy) in float64 (PROXIMITY_SCHEMA)."""
-    parts = []
-    for (step,), rows in nodes.partition_by(s.STEP, as_dict=True, maintain_order=True).items():
-        track, x, y = (rows[c].to_numpy() for c in (s.TRACK_ID, s.X_M, s.Y_M))
-        i, j = np.triu_indices(len(track), 1)
-        dx, dy = x[j] - x[i], y[j] - y[i]
-        distance = np.sqrt(dx * dx + dy * dy)
-        near = distance <= d_max_m
-        a, b = track[i[near]], track[j[near]]
-        columns = [np.full(near.sum(), step), np.minimum(a, b), np.maximum(a, b), distance[near]]
-        parts.append(pl.DataFrame(dict(zip(s.PROXIMITY_SCHEMA.names(), columns, strict=True))))
-    return pl.concat(parts).cast(dict(s.PROXIMITY_SCHEMA)).sort(s.STEP, s.TRACK_A, s.TRACK_B)
-
-
-AS_STORED = pl.col(s.DISTANCE_M).cast(pl.Float32).cast(pl.Float64)  # the pair arrays' float32
-
-
 def test_the_proximity_table_is_every_pair_of_the_grid_nodes(
     built: OpenBuild, tables: dict[tuple[str, str], pl.DataFrame]
 ) -> None:
@@ -362,7 +344,7 @@ def test_the_proximity_table_is_every_pair_of_the_grid_nodes(
     time: every pair of its grid nodes within d_min, found without the sweep."""
     for entry in built.entries:
         nodes = tables[(entry.location, entry.period)]
-        expected = pairs_by_brute_force(nodes, built.config.d_min_m).with_columns(AS_STORED)
+        expected = brute_force_pairs(nodes, built.config.d_min_m).with_columns(AS_STORED)
         assert expected.height > 1_000
         assert_frame_equal(built.proximity(entry.index), expected, check_exact=True)
     with pytest.raises(ValueError, match="recording 2: the build has recordings 0..1"):
@@ -406,7 +388,7 @@ def test_a_build_of_format_3_opens_and_verifies(
     entry = old.entries[0]
     table = pl.read_parquet(layout.proximity_path(copy, entry.location, entry.period))
     nodes = tables[(entry.location, entry.period)]
-    assert_frame_equal(table, pairs_by_brute_force(nodes, old.config.d_min_m), check_exact=True)
+    assert_frame_equal(table, brute_force_pairs(nodes, old.config.d_min_m), check_exact=True)
     assert_frame_equal(old.proximity(0), table.with_columns(AS_STORED), check_exact=True)
     layout.proximity_path(
         copy, entry.location, entry.period

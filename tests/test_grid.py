@@ -27,21 +27,20 @@ from ngsim_graphs.grid import (
 
 
 def brute_force_pairs(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
-    """Every pair of tracks at one step with sqrt(dx*dx + dy*dy) <= d_max_m, by plain loops."""
-    by_step: dict[int, list[tuple[int, float, float]]] = {}
-    for step, track, x, y in nodes.select(s.STEP, s.TRACK_ID, s.X_M, s.Y_M).iter_rows():
-        by_step.setdefault(step, []).append((track, x, y))
-    rows = []
-    for step, points in by_step.items():
-        for i, (ta, xa, ya) in enumerate(points):
-            for tb, xb, yb in points[i + 1 :]:
-                dx, dy = xa - xb, ya - yb
-                d = math.sqrt(dx * dx + dy * dy)
-                if d <= d_max_m:
-                    rows.append((step, min(ta, tb), max(ta, tb), d))
-    return pl.DataFrame(rows, schema=s.PROXIMITY_SCHEMA, orient="row").sort(
-        s.STEP, s.TRACK_A, s.TRACK_B
-    )
+    """Every pair of tracks at one step with sqrt(dx*dx + dy*dy) <= d_max_m (float64): all
+    pairs of each step's rows, no sweep (PROXIMITY_SCHEMA, sorted by step, track_a, track_b)."""
+    parts = [pl.DataFrame(schema=s.PROXIMITY_SCHEMA)]
+    for (step,), rows in nodes.partition_by(s.STEP, as_dict=True, maintain_order=True).items():
+        track, x, y = (rows[c].to_numpy() for c in (s.TRACK_ID, s.X_M, s.Y_M))
+        i, j = np.triu_indices(len(track), 1)
+        dx, dy = x[i] - x[j], y[i] - y[j]
+        distance = np.sqrt(dx * dx + dy * dy)
+        near = distance <= d_max_m
+        a, b = track[i[near]], track[j[near]]
+        columns = [np.full(near.sum(), step), np.minimum(a, b), np.maximum(a, b), distance[near]]
+        frame = pl.DataFrame(dict(zip(s.PROXIMITY_SCHEMA.names(), columns, strict=True)))
+        parts.append(frame.cast(dict(s.PROXIMITY_SCHEMA)))
+    return pl.concat(parts).sort(s.STEP, s.TRACK_A, s.TRACK_B)
 
 
 def pairs_of(nodes: pl.DataFrame, d_max_m: float) -> pl.DataFrame:
