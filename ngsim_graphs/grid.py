@@ -325,7 +325,7 @@ def with_pairs(rec: RecordingArrays, first: int, end: int, d_max_m: float) -> Re
     return replace(
         rec,
         pair_ptr=_csr_ptr(step[low], rec.n_steps),
-        pair_rows=np.stack([low + lo, high + lo], axis=1).astype(np.int32).reshape(-1, 2),
+        pair_rows=np.stack([low + lo, high + lo], axis=1).astype(np.int32),
         pair_dist=distance.astype(np.float32)[order],
         pair_key=key[low],
     )

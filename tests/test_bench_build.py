@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from test_build import as_format_3
+from test_build import as_format_3, reseal
 
 from ngsim_graphs import layout
 
@@ -21,14 +21,6 @@ def verdict(old: Path, new: Path) -> str:
     if not differ:
         return "alike"
     return "format" if bench_build.only_the_format_apart(old, new, differ) else "differ"
-
-
-def reseal(build: Path, **changes: object) -> dict:
-    """The build's manifest with `changes` (top-level keys), sealed anew over its files."""
-    manifest = json.loads(layout.manifest_path(build).read_text())
-    for key in ("files", "manifest_sha256"):
-        del manifest[key]
-    return layout.write_manifest_json(build, manifest | changes)
 
 
 def copies(tiny_build: Path, tmp_path: Path) -> tuple[Path, Path]:

@@ -23,7 +23,7 @@ from test_cli_ngsim import invoke
 from test_graphs import SampleGraph, assert_same_graph, brute_force_graph, fast_graphs
 from test_grid import AS_STORED, brute_force_pairs
 
-from ngsim_graphs import layout, storage
+from ngsim_graphs import integrity, layout, storage
 from ngsim_graphs import schema as s
 from ngsim_graphs.build import OpenBuild, open_build, verify_build
 from ngsim_graphs.config import BuildConfig, SynthConfig
@@ -351,6 +351,14 @@ def test_the_proximity_table_is_every_pair_of_the_grid_nodes(
         built.proximity(2)
 
 
+def reseal(build: Path, **changes: object) -> dict:
+    """The build's manifest with `changes` (top-level keys), sealed anew over its files."""
+    body = json.loads(layout.manifest_path(build).read_text())
+    for key in (integrity.FILES_KEY, integrity.CHECKSUM_KEY):
+        del body[key]
+    return layout.write_manifest_json(build, body | changes)
+
+
 def as_format_3(build: Path) -> None:
     """Make a build into what format 3 wrote: its pairs also as proximity tables (the sweep's
     float64 distances: the arrays hold them in float32), the manifest of that version sealed
@@ -363,10 +371,7 @@ def as_format_3(build: Path) -> None:
         dy = rec.node_state[high, 1] - rec.node_state[low, 1]
         table = pair_table(replace(rec, pair_dist=np.sqrt(dx * dx + dy * dy)))
         storage.write_parquet(table, layout.proximity_path(build, entry.location, entry.period))
-    body = json.loads(layout.manifest_path(build).read_text())
-    for key in ("files", "manifest_sha256"):
-        del body[key]
-    layout.write_manifest_json(build, {**body, "format_version": 3})
+    reseal(build, format_version=3)
 
 
 def test_a_build_of_format_3_opens_and_verifies(
@@ -386,13 +391,12 @@ def test_a_build_of_format_3_opens_and_verifies(
     for before, after in zip(then, now, strict=True):
         assert_same_graph(before, after)
     entry = old.entries[0]
-    table = pl.read_parquet(layout.proximity_path(copy, entry.location, entry.period))
+    path = layout.proximity_path(copy, entry.location, entry.period)
+    table = pl.read_parquet(path)
     nodes = tables[(entry.location, entry.period)]
     assert_frame_equal(table, brute_force_pairs(nodes, old.config.d_min_m), check_exact=True)
     assert_frame_equal(old.proximity(0), table.with_columns(AS_STORED), check_exact=True)
-    layout.proximity_path(
-        copy, entry.location, entry.period
-    ).unlink()  # listed: every open misses it
+    path.unlink()  # listed: every open misses it
     with pytest.raises(NgsimInputError, match="missing"):
         open_build(copy)
 
